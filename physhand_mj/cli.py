@@ -1,0 +1,83 @@
+"""The ``physhand`` console script.
+
+Each command that reports figures prints one JSON line on stdout; progress goes to stderr; bad input
+exits non-zero with one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def _demo(args) -> dict:
+    """Load the hand, render its layers (until the solver lands: the rest pose)."""
+    import mujoco
+
+    import physhand_mj as ph
+    from physhand_mj import figures
+
+    t0 = time.perf_counter()
+    asset = ph.load_asset()
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hand_only")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("open").id)
+    mujoco.mj_forward(model, data)
+    ph.set_skin_vertices(model, data, ph.rest_skin_world(model, data, asset))
+    out = Path(args.out)
+    png = figures.render_layers(model, data, out / "demo.png")
+    return dict(command="demo", picture=str(png), scene="hand_only", keyframe="open",
+                seconds=round(time.perf_counter() - t0, 2), **asset.summary())
+
+
+def _build_hand(args) -> dict:
+    import logging
+
+    from physhand_mj.build import build_myohand
+
+    logging.basicConfig(level=logging.WARNING)
+    asset = build_myohand(args.out, None if args.no_mjcf else args.mjcf,
+                          skin_vertices=args.skin_vertices, skeleton_vertices=args.skeleton_vertices)
+    return dict(command="build-hand", asset=str(args.out), mjcf=None if args.no_mjcf else str(args.mjcf),
+                build_seconds=asset.meta.get("build_seconds"), hand_length_mm=round(asset.meta["hand_length_mm"], 1),
+                **asset.summary())
+
+
+def main(argv: list[str] | None = None) -> int:
+    from physhand_mj.asset import DEFAULT_ASSET
+    from physhand_mj.hand_mjcf import HAND_XML
+
+    parser = argparse.ArgumentParser(prog="physhand", description="PhysHand soft hand for MuJoCo")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("demo", help="render the embedded hand's layers to DIR/demo.png")
+    p.add_argument("--out", default="demo_out", help="output directory (default: demo_out)")
+    p.set_defaults(run=_demo)
+    p = sub.add_parser("build-hand", help="regenerate the embedded MyoHand asset (needs the build extra)")
+    p.add_argument("--out", type=Path, default=DEFAULT_ASSET, help="asset .npz path (default: the embedded one)")
+    p.add_argument("--mjcf", type=Path, default=HAND_XML, help="hand MJCF path (default: mjcf/hand/myohand.xml)")
+    p.add_argument("--no-mjcf", action="store_true", help="write the asset only")
+    p.add_argument("--skin-vertices", type=int, default=5000, help="skin vertex target (count, default 5000)")
+    p.add_argument("--skeleton-vertices", type=int, default=3300, help="bone vertex budget (count, default 3300)")
+    p.set_defaults(run=_build_hand)
+    args = parser.parse_args(argv)
+
+    from physhand_mj.asset import AssetError
+    from physhand_mj.render import RenderUnavailable
+
+    try:
+        result = args.run(args)
+    except (AssetError, RenderUnavailable, FileNotFoundError, ValueError, ImportError) as e:
+        print(f"physhand {args.command}: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"physhand {args.command}: interrupted", file=sys.stderr)
+        return 130
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

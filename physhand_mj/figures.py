@@ -1,0 +1,90 @@
+"""Pictures of the layered hand, rendered by MuJoCo offscreen (see :mod:`physhand_mj.render`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from physhand_mj.render import look_at_camera, make_renderer, mesh_scene_spec, write_png
+from physhand_mj.types import Layer
+
+SKIN_RGBA = (0.87, 0.68, 0.58, 1.0)
+BONE_RGBA = (0.95, 0.93, 0.84, 1.0)
+FLESH_RGBA = (0.80, 0.30, 0.30, 1.0)
+
+
+def _hand_camera(model, data, distance=0.42, azimuth=200.0, elevation=-55.0):
+    import mujoco
+
+    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "thirdmc_r")
+    center = data.xpos[bid] if bid >= 0 else np.zeros(3)
+    return look_at_camera(center, distance, azimuth, elevation)
+
+
+def render_layers(model, data, path: str | Path, *, skin_alpha: float = 0.45, width: int = 960,
+                  height: int = 720, camera=None) -> Path:
+    """The hand with a translucent skin over its bones (groups 1-2 shown, collision proxies hidden)."""
+    import mujoco
+
+    from physhand_mj.hand_mjcf import skin_geom_id
+
+    gid = skin_geom_id(model)
+    old = model.geom_rgba[gid].copy()
+    model.geom_rgba[gid, 3] = skin_alpha
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = [1, 1, 1, 0, 0, 0]
+    renderer = make_renderer(model, width, height)
+    try:
+        renderer.update_scene(data, camera=camera or _hand_camera(model, data), scene_option=opt)
+        pixels = renderer.render()
+    finally:
+        renderer.close()
+        model.geom_rgba[gid] = old
+    return write_png(pixels, path)
+
+
+def cutaway_meshes(asset, normal=(0.0, 0.0, 1.0), offset: float | None = None):
+    """Meshes of the hand cut by a plane: skin, bone and exposed flesh faces of the kept tets.
+
+    Keeps the tets whose centroid lies below the plane ``normal . x = offset`` (default: through
+    the centroid of the skeleton) and returns ``[(name, vertices, faces, rgba), ...]``.
+    """
+    x, tets = asset.positions, asset.tets
+    n = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+    if offset is None:
+        offset = float(x[asset.layer == Layer.SKELETON].mean(axis=0) @ n)
+    keep = tets[(x[tets].mean(axis=1) @ n) < offset]
+    faces = keep[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)  # outward per tet
+    key = np.sort(faces, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    boundary = faces[counts[inv.reshape(-1)] == 1]
+    lay = asset.layer[boundary]
+    skin = np.all(lay == Layer.SKIN, axis=1)
+    bone = np.all(lay == Layer.SKELETON, axis=1)
+    out = []
+    for name, sel, rgba in (("cut_skin", skin, SKIN_RGBA), ("cut_bone", bone, BONE_RGBA),
+                            ("cut_flesh", ~(skin | bone), FLESH_RGBA)):
+        f = boundary[sel]
+        used, inv2 = np.unique(f, return_inverse=True)
+        out.append((name, x[used], inv2.reshape(-1, 3), rgba))
+    return out
+
+
+def render_cutaway(asset, path: str | Path, *, normal=(0.0, 0.0, 1.0), width: int = 960, height: int = 720,
+                   azimuth: float = 200.0, elevation: float = 60.0, distance: float = 0.40) -> Path:
+    """Render :func:`cutaway_meshes` from the side of the cut."""
+    import mujoco
+
+    spec = mesh_scene_spec(cutaway_meshes(asset, normal))
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    center = asset.positions[asset.layer == Layer.SKELETON].mean(axis=0)
+    renderer = make_renderer(model, width, height)
+    try:
+        renderer.update_scene(data, camera=look_at_camera(center, distance, azimuth, elevation))
+        pixels = renderer.render()
+    finally:
+        renderer.close()
+    return write_png(pixels, path)

@@ -1,0 +1,64 @@
+"""Where the hand MJCF lives, and small helpers over a compiled model that contains the hand."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+MJCF_DIR = REPO_ROOT / "mjcf"
+HAND_XML = MJCF_DIR / "hand" / "myohand.xml"
+SCENES_DIR = MJCF_DIR / "scenes"
+SKIN_GEOM = "physhand_skin"
+MOUNT_BODY = "hand_mount"
+
+
+def scene_path(name: str) -> Path:
+    """Path of a bundled scene, e.g. ``scene_path("hand_only")``."""
+    path = SCENES_DIR / f"{name}.xml"
+    if not path.is_file():
+        known = sorted(p.stem for p in SCENES_DIR.glob("*.xml"))
+        raise FileNotFoundError(f"no bundled scene '{name}'; bundled scenes: {known}")
+    return path
+
+
+def skin_geom_id(model) -> int:
+    """Id of the hand's skin mesh geom; ValueError if the model has no physhand hand."""
+    import mujoco
+
+    gid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, SKIN_GEOM)
+    if gid < 0:
+        raise ValueError(f"the model has no geom '{SKIN_GEOM}': include mjcf/hand/myohand.xml in the scene")
+    return gid
+
+
+def set_skin_vertices(model, data, world_vertices: np.ndarray) -> None:
+    """Write world-frame skin vertices (n_skin, 3) into the model's skin mesh.
+
+    MuJoCo stores a mesh in its own centred frame and places it with the geom pose, so the world
+    vertices are mapped back through the geom's pose (``data.geom_xpos``/``geom_xmat`` after
+    ``mj_kinematics``). The passive viewer shows the change after ``viewer.update_mesh(mesh_id)``,
+    a ``mujoco.Renderer`` after ``mujoco.mjr_uploadMesh``, a Renderer created afterwards at once.
+    """
+    gid = skin_geom_id(model)
+    mid = model.geom_dataid[gid]
+    n = model.mesh_vertnum[mid]
+    v = np.asarray(world_vertices, dtype=np.float64)
+    if v.shape != (n, 3):
+        raise ValueError(f"skin has {n} vertices, got an array of shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("skin vertices hold non-finite values")
+    rot = data.geom_xmat[gid].reshape(3, 3)
+    adr = model.mesh_vertadr[mid]
+    model.mesh_vert[adr: adr + n] = (v - data.geom_xpos[gid]) @ rot
+
+
+def rest_skin_world(model, data, asset) -> np.ndarray:
+    """The asset's rest skin placed by the hand mount's current pose (valid in the rest pose)."""
+    import mujoco
+
+    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, MOUNT_BODY)
+    if bid < 0:
+        raise ValueError(f"the model has no body '{MOUNT_BODY}': include mjcf/hand/myohand.xml")
+    return asset.skin_vertices @ data.xmat[bid].reshape(3, 3).T + data.xpos[bid]
