@@ -133,6 +133,10 @@ def build_myohand(asset_path: str | Path, mjcf_path: str | Path | None = None, *
 
         mount_quat = _mount_quat(src)
         write_hand_mjcf(src, asset, mjcf_path, mount_quat=mount_quat)
+        from physhand_mj.build.scenes import write_hand_only_scene
+
+        mjcf_path = Path(mjcf_path)
+        write_hand_only_scene(mjcf_path, mjcf_path.parent.parent / "scenes" / "hand_only.xml", src.rest_qpos)
     steps.update()
     steps.close()
     log.info("built %s", json.dumps(asset.summary()))

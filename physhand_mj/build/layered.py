@@ -15,7 +15,10 @@ are licensed to use with bones per body, or soft pads around robot-finger links)
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,6 +132,19 @@ def check_bones(skin: trimesh.Trimesh, meshes: list[trimesh.Trimesh], min_cleara
     return clearance
 
 
+@contextlib.contextmanager
+def _stdout_to_stderr():
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def tetrahedralize(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], opts: TetOptions):
     """TetGen over the skin and bone surfaces; returns ``(nodes, tets)`` with bone interiors removed."""
     import tetgen
@@ -141,7 +157,8 @@ def tetrahedralize(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], opts: Te
     if opts.max_volume:
         switches += f"a{opts.max_volume:.3e}"
     tg = tetgen.TetGen(points, faces)
-    nodes, elems, *_ = tg.tetrahedralize(switches=switches + "Q")
+    with _stdout_to_stderr():  # TetGen's C code prints to stdout even when quiet
+        nodes, elems, *_ = tg.tetrahedralize(switches=switches + "Q")
     nodes = np.asarray(nodes, dtype=np.float64)
     elems = np.asarray(elems, dtype=np.int64)
     if not np.allclose(nodes[: len(points)], points):

@@ -22,6 +22,7 @@ import trimesh
 import warp as wp
 
 log = logging.getLogger(__name__)
+wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # keep stdout for the CLI JSON line
 
 @dataclass(frozen=True)
 class SkinPart:
