@@ -72,8 +72,8 @@ def cutaway_meshes(asset, normal=(0.0, 0.0, 1.0), offset: float | None = None):
 
 
 def render_cutaway(asset, path: str | Path, *, normal=(0.0, 0.0, 1.0), width: int = 960, height: int = 720,
-                   azimuth: float = 200.0, elevation: float = 60.0, distance: float = 0.40) -> Path:
-    """Render :func:`cutaway_meshes` from the side of the cut."""
+                   distance: float = 0.32, tilt_deg: float = 20.0) -> Path:
+    """Render :func:`cutaway_meshes`, looking at the cut face (against ``normal``, tilted a little)."""
     import mujoco
 
     spec = mesh_scene_spec(cutaway_meshes(asset, normal))
@@ -83,6 +83,9 @@ def render_cutaway(asset, path: str | Path, *, normal=(0.0, 0.0, 1.0), width: in
     center = asset.positions[asset.layer == Layer.SKELETON].mean(axis=0)
     renderer = make_renderer(model, width, height)
     try:
+        f = -np.asarray(normal, dtype=float) / np.linalg.norm(normal)  # camera forward
+        azimuth = np.degrees(np.arctan2(f[1], f[0])) + tilt_deg
+        elevation = np.degrees(np.arcsin(np.clip(f[2], -1, 1)))
         renderer.update_scene(data, camera=look_at_camera(center, distance, azimuth, elevation))
         pixels = renderer.render()
     finally:
