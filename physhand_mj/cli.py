@@ -33,12 +33,45 @@ def _demo(args) -> dict:
                 seconds=round(time.perf_counter() - t0, 2), **asset.summary())
 
 
+def _build_from_files(args) -> dict:
+    """A user's skin + bone meshes (files named after MuJoCo bodies) posed by a MuJoCo model."""
+    import mujoco
+    import trimesh
+
+    from physhand_mj.asset import save_asset
+    from physhand_mj.build import build_from_meshes
+
+    if args.bones is None or args.model is None:
+        raise ValueError("--skin needs --bones DIR (one mesh per body, named BODY.stl/.obj/.ply) and --model XML")
+    model = mujoco.MjModel.from_xml_path(str(args.model))
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    bones, pose = {}, {}
+    for f in sorted(Path(args.bones).iterdir()):
+        if f.suffix.lower() not in (".stl", ".obj", ".ply"):
+            continue
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f.stem)
+        if bid < 0:
+            raise ValueError(f"bone mesh {f.name} names no body of {args.model}")
+        bones[f.stem] = trimesh.load(f, force="mesh")
+        pose[f.stem] = (data.xpos[bid].copy(), data.xquat[bid].copy())
+    if not bones:
+        raise ValueError(f"no bone meshes (.stl/.obj/.ply) in {args.bones}")
+    skin = trimesh.load(args.skin, force="mesh")
+    asset = build_from_meshes(skin, bones, pose, skeleton_vertices=args.skeleton_vertices,
+                              meta=dict(name=Path(args.skin).stem, source=str(args.skin)))
+    save_asset(asset, args.out)
+    return dict(command="build-hand", asset=str(args.out), **asset.summary())
+
+
 def _build_hand(args) -> dict:
     import logging
 
     from physhand_mj.build import build_myohand
 
     logging.basicConfig(level=logging.WARNING)
+    if args.skin is not None:
+        return _build_from_files(args)
     asset = build_myohand(args.out, None if args.no_mjcf else args.mjcf,
                           skin_vertices=args.skin_vertices, skeleton_vertices=args.skeleton_vertices)
     return dict(command="build-hand", asset=str(args.out), mjcf=None if args.no_mjcf else str(args.mjcf),
@@ -61,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-mjcf", action="store_true", help="write the asset only")
     p.add_argument("--skin-vertices", type=int, default=5000, help="skin vertex target (count, default 5000)")
     p.add_argument("--skeleton-vertices", type=int, default=3300, help="bone vertex budget (count, default 3300)")
+    p.add_argument("--skin", type=Path, help="other input: closed skin mesh file (metres, world frame of --model)")
+    p.add_argument("--bones", type=Path, help="other input: folder of bone meshes named BODY.stl/.obj/.ply")
+    p.add_argument("--model", type=Path, help="other input: MJCF whose bodies (at qpos0) carry the bones")
     p.set_defaults(run=_build_hand)
     args = parser.parse_args(argv)
 

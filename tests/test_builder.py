@@ -45,3 +45,26 @@ def test_missing_pose_is_a_clear_error():
     skin = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
     with pytest.raises(BuildError, match="rest pose"):
         build_from_meshes(skin, _bones(), {}, skeleton_vertices=400)
+
+
+def test_cli_builds_from_user_meshes(tmp_path):
+    from physhand_mj import cli, load_asset
+
+    bones_dir = tmp_path / "bones"
+    bones_dir.mkdir()
+    for name, mesh in _bones().items():
+        mesh.export(bones_dir / f"{name}.stl")
+    trimesh.creation.icosphere(subdivisions=3, radius=0.03).export(tmp_path / "pad.obj")
+    (tmp_path / "pad.xml").write_text(
+        '<mujoco><worldbody><body name="bone_a"><geom size="0.01"/></body>'
+        '<body name="bone_b"><geom size="0.01"/></body></worldbody></mujoco>')
+    out = tmp_path / "pad.npz"
+    rc = cli.main(["build-hand", "--skin", str(tmp_path / "pad.obj"), "--bones", str(bones_dir),
+                   "--model", str(tmp_path / "pad.xml"), "--out", str(out), "--skeleton-vertices", "400"])
+    assert rc == 0
+    asset = load_asset(out)
+    assert set(asset.body_names.tolist()) == {"bone_a", "bone_b"}
+    # a bone file naming no body is a one-line error
+    (bones_dir / "nobody.stl").write_bytes((bones_dir / "bone_a.stl").read_bytes())
+    assert cli.main(["build-hand", "--skin", str(tmp_path / "pad.obj"), "--bones", str(bones_dir),
+                     "--model", str(tmp_path / "pad.xml"), "--out", str(out)]) == 1
