@@ -8,20 +8,12 @@ OUT_DIR/hand_cutaway.png (skin, red flesh tets and white bones cut along the pal
 import sys
 from pathlib import Path
 
-import physhand_mj as ph  # before mujoco: picks the offscreen GL backend
-
-import mujoco  # noqa: E402
-
-from physhand_mj.figures import render_cutaway, render_layers  # noqa: E402
+import physhand_mj as ph
+from physhand_mj.figures import render_cutaway, render_layers
 
 
 def main(out: Path) -> list[Path]:
-    asset = ph.load_asset()
-    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hand_only")))
-    data = mujoco.MjData(model)
-    mujoco.mj_resetDataKeyframe(model, data, model.key("open").id)
-    mujoco.mj_forward(model, data)
-    ph.set_skin_vertices(model, data, ph.rest_skin_world(model, data, asset))
+    asset, model, data = ph.open_hand_scene("hand_only", "open")
     return [render_layers(model, data, out / "hand_layers.png"),
             render_cutaway(asset, out / "hand_cutaway.png", normal=asset.meta["palm_normal"])]
 

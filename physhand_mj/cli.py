@@ -15,18 +15,11 @@ from pathlib import Path
 
 def _demo(args) -> dict:
     """Load the hand, render its layers (until the solver lands: the rest pose)."""
-    import mujoco
-
     import physhand_mj as ph
     from physhand_mj import figures
 
     t0 = time.perf_counter()
-    asset = ph.load_asset()
-    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hand_only")))
-    data = mujoco.MjData(model)
-    mujoco.mj_resetDataKeyframe(model, data, model.key("open").id)
-    mujoco.mj_forward(model, data)
-    ph.set_skin_vertices(model, data, ph.rest_skin_world(model, data, asset))
+    asset, model, data = ph.open_hand_scene("hand_only", "open")
     out = Path(args.out)
     png = figures.render_layers(model, data, out / "demo.png")
     return dict(command="demo", picture=str(png), scene="hand_only", keyframe="open",

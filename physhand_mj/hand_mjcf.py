@@ -62,3 +62,26 @@ def rest_skin_world(model, data, asset) -> np.ndarray:
     if bid < 0:
         raise ValueError(f"the model has no body '{MOUNT_BODY}': include mjcf/hand/myohand.xml")
     return asset.skin_vertices @ data.xmat[bid].reshape(3, 3).T + data.xpos[bid]
+
+
+def open_hand_scene(scene: str = "hand_only", keyframe: str = "open", asset=None):
+    """Load a bundled scene at a keyframe with the asset's rest skin placed at the hand mount.
+
+    Returns ``(asset, model, data)``. The rest skin matches the bones only in the rest keyframe
+    (``open``) until the solver writes the deformed skin back.
+    """
+    import mujoco
+
+    from physhand_mj.asset import load_asset
+
+    asset = asset if asset is not None else load_asset()
+    model = mujoco.MjModel.from_xml_path(str(scene_path(scene)))
+    data = mujoco.MjData(model)
+    kid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, keyframe)
+    if kid < 0:
+        known = [model.key(k).name for k in range(model.nkey)]
+        raise ValueError(f"scene '{scene}' has no keyframe '{keyframe}'; it has {known}")
+    mujoco.mj_resetDataKeyframe(model, data, kid)
+    mujoco.mj_forward(model, data)
+    set_skin_vertices(model, data, rest_skin_world(model, data, asset))
+    return asset, model, data

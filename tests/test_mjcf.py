@@ -4,10 +4,10 @@ import mujoco
 import numpy as np
 import pytest
 
+import trimesh
+
 import physhand_mj as ph
 from physhand_mj.build.skin import signed_distance
-
-import trimesh
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +50,7 @@ def test_open_keyframe_is_asset_rest_pose(scene, asset):
 def test_skin_mesh_matches_asset_and_does_not_collide(scene, asset):
     model, data = scene
     mujoco.mj_forward(model, data)
-    gid = ph.hand_mjcf.skin_geom_id(model) if hasattr(ph, "hand_mjcf") else model.geom("physhand_skin").id
+    gid = model.geom("physhand_skin").id
     assert model.geom_contype[gid] == 0 and model.geom_conaffinity[gid] == 0
     mid = model.geom_dataid[gid]
     adr, n = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
@@ -65,10 +65,8 @@ def test_skin_mesh_matches_asset_and_does_not_collide(scene, asset):
         ph.set_skin_vertices(model, data, np.full_like(asset.skin_vertices, np.nan))
 
 
-def test_collision_proxies_inside_rest_skin(scene, asset):
-    model, data = scene
-    mujoco.mj_resetDataKeyframe(model, data, model.key("open").id)
-    mujoco.mj_forward(model, data)
+def test_collision_proxies_inside_rest_skin(asset):
+    _, model, data = ph.open_hand_scene("hand_only", "open", asset=asset)
     skin = trimesh.Trimesh(ph.rest_skin_world(model, data, asset), asset.skin_faces, process=False)
     proxies = [g for g in range(model.ngeom) if model.geom_contype[g] and model.geom_bodyid[g] > 0]
     assert len(proxies) >= 15

@@ -116,11 +116,12 @@ def build_myohand(asset_path: str | Path, mjcf_path: str | Path | None = None, *
     steps.set_postfix_str("bones + TetGen")
     pose = {n: (src.rest_xpos[n], _wxyz(Rotation.from_matrix(src.rest_xmat[n]).as_quat())) for n in mh.HAND_BODIES}
     tip = skin.vertices @ src.finger_axis
+    palm_normal = _palm_normal(src)
     meta = dict(name="myohand", source="MyoHand bones and kinematic chain from myo-sim (Apache-2.0)",
                 myo_sim_version=_version("myo-sim"), mujoco_version=_version("mujoco"),
                 thickness_m=th, grid_spacing_m=spacing, hand_length_mm=float(tip.max() * 1e3),
                 finger_axis=src.finger_axis.tolist(), forearm_axis=src.forearm_axis.tolist(),
-                palm_normal=_palm_normal(src).tolist())
+                palm_normal=palm_normal.tolist())
     asset = build_from_meshes(skin, bones, pose, rigid_groups=[[*mh.CARPAL_BODIES, *mh.METACARPAL_BODIES]],
                               skeleton_vertices=skeleton_vertices, rest_qpos=src.rest_qpos, meta=meta)
     steps.update()
@@ -131,7 +132,7 @@ def build_myohand(asset_path: str | Path, mjcf_path: str | Path | None = None, *
         steps.set_postfix_str("MJCF")
         from physhand_mj.build.mjcf import write_hand_mjcf
 
-        mount_quat = _mount_quat(src)
+        mount_quat = _mount_quat(src.finger_axis, palm_normal)
         write_hand_mjcf(src, asset, mjcf_path, mount_quat=mount_quat)
         from physhand_mj.build.scenes import write_hand_only_scene
 
@@ -159,8 +160,6 @@ def _version(dist: str) -> str:
 
 def _palm_normal(src) -> np.ndarray:
     """Unit vector out of the palm: the way fingertips move when the fingers flex (hand frame)."""
-    import mujoco  # noqa: F401  (myo-sim's model is compiled by load_myohand already)
-
     # Flexion moves the tip towards the palm: compare the middle-finger tip at rest and flexed.
     from physhand_mj.build import myohand as mh
 
@@ -170,12 +169,12 @@ def _palm_normal(src) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
-def _mount_quat(src) -> np.ndarray:
+def _mount_quat(finger_axis: np.ndarray, palm_normal: np.ndarray) -> np.ndarray:
     """Mount orientation that points the fingers along world +x with the palm facing down (-z)."""
     from scipy.spatial.transform import Rotation
 
-    x = src.finger_axis
-    n = _palm_normal(src)
+    x = finger_axis
+    n = np.asarray(palm_normal, dtype=float)
     n = n - x * (n @ x)
     n /= np.linalg.norm(n)
     hand = np.stack([x, np.cross(-n, x), -n], axis=1)  # columns: hand-frame images of world x, y, z
