@@ -85,3 +85,42 @@ def open_hand_scene(scene: str = "hand_only", keyframe: str = "open", asset=None
     mujoco.mj_forward(model, data)
     set_skin_vertices(model, data, rest_skin_world(model, data, asset))
     return asset, model, data
+
+
+def body_ids(model, names) -> np.ndarray:
+    """MuJoCo body ids of ``names`` (e.g. ``asset.body_names``); ValueError listing the missing ones."""
+    import mujoco
+
+    ids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, str(n)) for n in names])
+    missing = [str(n) for n, i in zip(names, ids) if i < 0]
+    if missing:
+        raise ValueError(f"the MuJoCo model lacks the hand's bone bodies {missing}: include "
+                         f"mjcf/hand/myohand.xml or build an asset for this model (physhand build-hand)")
+    return ids
+
+
+def body_poses(data, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (B, 3) m and quaternions (B, 4) w x y z of bodies ``ids`` (after kinematics)."""
+    return data.xpos[ids].copy(), data.xquat[ids].copy()
+
+
+def mount_pose(model, data) -> tuple[np.ndarray, np.ndarray]:
+    """World pose of the hand mount (the asset's frame): position (3,) m, quaternion (4,) w x y z."""
+    import mujoco
+
+    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, MOUNT_BODY)
+    if bid < 0:
+        raise ValueError(f"the model has no body '{MOUNT_BODY}': include mjcf/hand/myohand.xml")
+    return data.xpos[bid].copy(), data.xquat[bid].copy()
+
+
+def bone_poses_at(model, data, qpos: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Set ``data.qpos``, run MuJoCo's forward kinematics, return :func:`body_poses` of ``ids``."""
+    import mujoco
+
+    qpos = np.asarray(qpos, dtype=float)
+    if qpos.shape != (model.nq,) or not np.all(np.isfinite(qpos)):
+        raise ValueError(f"qpos must be {model.nq} finite values (rad / m), got shape {qpos.shape}")
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    return body_poses(data, ids)

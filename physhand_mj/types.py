@@ -1,12 +1,18 @@
-"""Closed sets and small value types shared across physhand_mj.
+"""Data types of the XPBD solver: closed sets, options, the immutable Model and the mutable State.
 
-The solver's ``Model`` / ``State`` / ``Config`` split lands here with the XPBD solver; for now this
-module holds the layer labels of the layered body (paper section 3.1).
+Shapes use N vertices, K kinematic (skeleton) vertices, B bone bodies, E edges, T tets, A attachment
+pairs, D dihedral pairs (skin triangle pairs). All arrays are Warp arrays on ``Config.device``;
+nothing is allocated during a step (``physhand_mj.solver.Solver`` preallocates), so a frame can be
+captured as one CUDA graph.
 """
 
 from __future__ import annotations
 
 import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
 
 
 class Layer(enum.IntEnum):
@@ -20,3 +26,182 @@ class Layer(enum.IntEnum):
     SKELETON = 0
     FLESH = 1
     SKIN = 2
+
+
+class Scheme(enum.IntEnum):
+    """How constraint projections run in parallel (see docs/solver.md for the measurements).
+
+    JACOBI: every constraint of a family at once from the same positions; corrections are summed per
+      vertex, averaged over the vertex's constraint count and scaled by ``Config.relaxation``.
+      Few launches (one per family), so it suits GPUs and CUDA graphs.
+    COLORED: graph-coloured Gauss-Seidel; constraints of one colour share no movable vertex, so each
+      colour is projected in place, in sequence (one launch per colour).
+    """
+
+    JACOBI = 0
+    COLORED = 1
+
+
+class NonFinite(enum.IntEnum):
+    """What a step does when a vertex position turns non-finite (NaN/inf)."""
+
+    RECOVER = 0  # keep the vertex's last finite position, zero its velocity, count it in metrics
+    RAISE = 1  # raise SolverError after the frame (state left at the last finite positions)
+
+
+@dataclass
+class Config:
+    """Solver options. Every quantity is SI; compliance ``alpha = 1/k`` for an energy
+    ``U = C^2 / (2 alpha)`` of the paper's constraint function ``C``.
+
+    Attributes:
+      frame_dt: simulated time per ``Solver.step`` call (s); the paper and MuJoCo scenes use 0.005.
+      substeps: substeps per frame (Algorithm 1, line 1: ``h = frame_dt / substeps``).
+      iterations: constraint passes per substep (Algorithm 1, lines 7-13; the paper uses 1).
+      gravity: (3,) acceleration in the solver's world frame (m/s^2); zeros to switch it off.
+      damping: velocity damping rate (1/s), ``v *= exp(-damping h)`` per substep.
+      edge_compliance_skin / edge_compliance_flesh: Eq. 2 (m/N) on edges whose two vertices are both
+        skin / any other edge.
+      volume_compliance: Eq. 3, per unit volume (1/Pa = inverse bulk modulus); a tet of rest volume V
+        gets ``alpha = 36 V volume_compliance`` so that ``U = (dV)^2 / (2 V volume_compliance)``.
+      attach_compliance: Eq. 4-5 (m/N).
+      smooth_compliance: Eq. 6 (rad^2/J = 1/(N m)).
+      edges, volumes, attachment, smoothness: switch a constraint family on/off (the Fig. 6 ablation).
+      attach_skin: also attach skin vertices to their nearest skeleton vertex (the paper attaches
+        flesh vertices only).
+      scheme: :class:`Scheme`; relaxation: Jacobi over-relaxation factor (1 = plain averaging).
+      nonfinite: :class:`NonFinite` policy.
+      device: Warp device, ``"cpu"`` or ``"cuda"`` / ``"cuda:0"``; None picks Warp's default.
+      cuda_graph: capture one frame as a CUDA graph on CUDA devices.
+    """
+
+    frame_dt: float = 0.005
+    substeps: int = 10
+    iterations: int = 1
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    damping: float = 2.0
+    edge_compliance_skin: float = 1.0e-3
+    edge_compliance_flesh: float = 1.0e-2
+    volume_compliance: float = 1.0e-6
+    attach_compliance: float = 1.0e-3
+    smooth_compliance: float = 10.0
+    edges: bool = True
+    volumes: bool = True
+    attachment: bool = True
+    smoothness: bool = True
+    attach_skin: bool = False
+    scheme: Scheme = Scheme.JACOBI
+    relaxation: float = 1.0
+    nonfinite: NonFinite = NonFinite.RECOVER
+    device: str | None = None
+    cuda_graph: bool = True
+
+    def validate(self) -> "Config":
+        """Raise ValueError naming the option to fix; returns self."""
+        def pos(name):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"Config.{name} must be a finite number > 0, got {v!r}")
+
+        def nonneg(name):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"Config.{name} must be a finite number >= 0, got {v!r}")
+
+        pos("frame_dt")
+        for name in ("substeps", "iterations"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and v >= 1):
+                raise ValueError(f"Config.{name} must be an integer >= 1, got {v!r}")
+        g = np.asarray(self.gravity, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"Config.gravity must be 3 finite numbers (m/s^2), got {self.gravity!r}")
+        for name in ("damping", "edge_compliance_skin", "edge_compliance_flesh", "volume_compliance",
+                     "attach_compliance", "smooth_compliance"):
+            nonneg(name)
+        if not (0.0 < self.relaxation < 2.0):
+            raise ValueError(f"Config.relaxation must lie in (0, 2), got {self.relaxation!r}")
+        self.scheme = Scheme(self.scheme)
+        self.nonfinite = NonFinite(self.nonfinite)
+        return self
+
+    @property
+    def substep_dt(self) -> float:
+        """h = frame_dt / substeps (s)."""
+        return self.frame_dt / self.substeps
+
+
+@dataclass(frozen=True)
+class Model:
+    """Immutable solver data built from a layered asset by :func:`physhand_mj.solver.make_model`.
+
+    Warp arrays (device ``device``):
+      rest_x: (N,) vec3, rest positions (m) in the asset frame; inv_mass: (N,) float, 1/kg (0 on
+        the skeleton).
+      vertex_body: (N,) int, bone body index of each skeleton vertex, -1 elsewhere;
+        body_local: (N,) vec3, skeleton vertices' positions in their body frame (m), 0 elsewhere.
+      edge_ids: (E, 2) int; edge_rest: (E,) float (m); edge_alpha: (E,) float (m/N). The edge
+        family holds the tet edges (Eq. 2) and the flesh attachments (Eq. 4, an edge constraint);
+        edge_is_att: (E,) numpy bool marks the attachments.
+      tet_ids: (T, 4) int; tet_rest6v: (T,) float, 6 x rest volume (m^3); tet_alpha: (T,) float.
+      dih_ids: (D, 4) int (e0, e1, o0, o1); dih_rest: (D,) float, signed rest angle (rad);
+        dih_alpha: float.
+      skin_faces: (F, 3) int.
+      vertex_count: (3, N) float, per family (edge, tet, dih) the number of its constraints
+        touching each movable vertex (Jacobi averaging).
+    Host data: ``colors``: per family, the [start, end) ranges of its colours when the scheme is
+    COLORED (constraints are stored sorted by colour), a single range otherwise.
+    """
+
+    device: str
+    n_vertices: int
+    n_skin: int
+    n_bodies: int
+    body_names: tuple
+    rest_x: object
+    inv_mass: object
+    vertex_body: object
+    body_local: object
+    edge_ids: object
+    edge_rest: object
+    edge_alpha: object
+    edge_is_att: np.ndarray
+    tet_ids: object
+    tet_rest6v: object
+    tet_alpha: object
+    dih_ids: object
+    dih_rest: object
+    dih_alpha: float
+    skin_faces: object
+    guard_tets: object
+    vertex_count: object
+    colors: dict = field(default_factory=dict)
+    body_rest_pos: np.ndarray | None = None
+    body_rest_quat: np.ndarray | None = None
+
+
+@dataclass
+class State:
+    """Mutable solver state (all preallocated by ``Solver.make_state``).
+
+    x: (N,) vec3 positions (m); v: (N,) vec3 velocities (m/s); x_prev: (N,) vec3 positions at the
+    start of the substep (Algorithm 1, x^i); delta: (N,) vec3 Jacobi correction accumulator;
+    lam_edge/lam_tet/lam_dih: Lagrange multipliers per constraint (Algorithm 1, line 11);
+    body_prev / body_next / body_now: (B,) transforms of the bones at the start / end of the frame
+    and at the current substep;
+    guard: (2,) int counters [non-finite vertices, inverted tets] of the last frame; time: s.
+    """
+
+    x: object
+    v: object
+    x_prev: object
+    delta: object
+    lam_edge: object
+    lam_tet: object
+    lam_dih: object
+    body_prev: object
+    body_next: object
+    body_now: object
+    guard: object
+    time: float = 0.0
+    frames: int = 0

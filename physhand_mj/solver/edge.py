@@ -1,0 +1,38 @@
+"""Edge length constraint, paper Eq. 2 (also the flesh attachment of Eq. 4, see attach.py)."""
+
+import warp as wp
+
+
+@wp.kernel
+def solve_edges(
+    # Model:
+    inv_mass: wp.array(dtype=float),
+    ids: wp.array2d(dtype=int),
+    rest: wp.array(dtype=float),
+    alpha: wp.array(dtype=float),
+    # Solver in:
+    inv_h2: float,
+    start: int,
+    # State in/out:
+    x: wp.array(dtype=wp.vec3),
+    lam: wp.array(dtype=float),
+    delta: wp.array(dtype=wp.vec3),
+):
+    """C(x1, x2) = |x1 - x2| - L  (Eq. 2);  grad_x1 C = n = (x1 - x2)/|x1 - x2| = -grad_x2 C,
+    so A = w1 + w2 + alpha~ and dx1 = w1 n dlam, dx2 = -w2 n dlam (see common.py)."""
+    j = start + wp.tid()
+    i1 = ids[j, 0]
+    i2 = ids[j, 1]
+    w1 = inv_mass[i1]
+    w2 = inv_mass[i2]
+    d = x[i1] - x[i2]
+    length = wp.length(d)
+    at = alpha[j] * inv_h2
+    a = w1 + w2 + at
+    if length < 1.0e-12 or a <= 1.0e-20:
+        return
+    dlam = -(length - rest[j] + at * lam[j]) / a
+    lam[j] = lam[j] + dlam
+    n = d * (dlam / length)
+    wp.atomic_add(delta, i1, n * w1)
+    wp.atomic_sub(delta, i2, n * w2)

@@ -1,0 +1,121 @@
+"""Per-substep integration kernels (Algorithm 1, lines 3, 12, 14-15) and the kinematic skeleton."""
+
+import warp as wp
+
+from physhand_mj.solver.tet import six_volume
+
+
+@wp.kernel
+def interpolate_bodies(
+    body_prev: wp.array(dtype=wp.transform),
+    body_next: wp.array(dtype=wp.transform),
+    s: float,
+    body_now: wp.array(dtype=wp.transform),
+):
+    """Bone pose at fraction s of the frame: lerp of positions, slerp of rotations."""
+    b = wp.tid()
+    t0 = body_prev[b]
+    t1 = body_next[b]
+    p = wp.lerp(wp.transform_get_translation(t0), wp.transform_get_translation(t1), s)
+    q = wp.quat_slerp(wp.transform_get_rotation(t0), wp.transform_get_rotation(t1), s)
+    body_now[b] = wp.transform(p, q)
+
+
+@wp.kernel
+def predict(
+    # Model:
+    inv_mass: wp.array(dtype=float),
+    vertex_body: wp.array(dtype=int),
+    body_local: wp.array(dtype=wp.vec3),
+    # Solver in:
+    gravity: wp.vec3,
+    h: float,
+    damp: float,
+    body_now: wp.array(dtype=wp.transform),
+    # State in/out:
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+):
+    """Save x^i, then (line 3) x <- x^i + h v^i + h^2 M^-1 f_ext with f_ext = m g, v scaled by
+    damp = exp(-damping h). A kinematic (skeleton) vertex instead goes to its bone's current pose
+    (interpolate_bodies) applied to its body-frame position: bones are an input, constraints never
+    move them (w = 0)."""
+    i = wp.tid()
+    xi = x[i]
+    x_prev[i] = xi
+    b = vertex_body[i]
+    if b >= 0:
+        x[i] = wp.transform_point(body_now[b], body_local[i])
+    elif inv_mass[i] > 0.0:
+        vi = (v[i] + gravity * h) * damp
+        v[i] = vi
+        x[i] = xi + vi * h
+
+
+@wp.kernel
+def apply_jacobi(
+    # Model:
+    vertex_count: wp.array2d(dtype=float),
+    # Solver in:
+    family: int,
+    relaxation: float,
+    # State in/out:
+    x: wp.array(dtype=wp.vec3),
+    delta: wp.array(dtype=wp.vec3),
+):
+    """Jacobi step: x_i += omega / n_i * sum of the corrections of vertex i's n_i constraints of
+    one family (families run one after another, so this is Jacobi within a family only)."""
+    i = wp.tid()
+    n = vertex_count[family, i]
+    if n > 0.0:
+        x[i] = x[i] + delta[i] * (relaxation / n)
+    delta[i] = wp.vec3(0.0)
+
+
+@wp.kernel
+def update_velocity(
+    # Model:
+    inv_mass: wp.array(dtype=float),
+    vertex_count: wp.array2d(dtype=float),
+    # Solver in:
+    family: int,
+    relaxation: float,
+    inv_h: float,
+    # State in/out:
+    x: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    delta: wp.array(dtype=wp.vec3),
+    guard: wp.array(dtype=int),
+):
+    """Apply the last family's pending Jacobi correction (family < 0: none), then
+    v^{i+1} = (x^{i+1} - x^i) / h (lines 14-15). Guard: a non-finite position is reset to x^i with
+    zero velocity and counted in guard[0], so NaN never spreads to the next substep."""
+    i = wp.tid()
+    xi = x[i]
+    if family >= 0:
+        n = vertex_count[family, i]
+        if n > 0.0:
+            xi = xi + delta[i] * (relaxation / n)
+        delta[i] = wp.vec3(0.0)
+    if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
+        x[i] = x_prev[i]
+        v[i] = wp.vec3(0.0)
+        wp.atomic_add(guard, 0, 1)
+        return
+    x[i] = xi
+    if inv_mass[i] > 0.0:
+        v[i] = (xi - x_prev[i]) * inv_h
+
+
+@wp.kernel
+def count_inverted(
+    tets: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    guard: wp.array(dtype=int),
+):
+    """guard[1] += number of tets whose signed volume is <= 0 (inverted or flat)."""
+    j = wp.tid()
+    if six_volume(x[tets[j, 0]], x[tets[j, 1]], x[tets[j, 2]], x[tets[j, 3]]) <= 0.0:
+        wp.atomic_add(guard, 1, 1)

@@ -1,0 +1,198 @@
+"""The XPBD frame, Algorithm 1 of the paper, over preallocated Model/State arrays.
+
+    for each substep (h = frame_dt / substeps):
+        x^i <- x;  x <- x^i + h v + h^2 M^-1 f_ext            predict            (line 3)
+        skeleton vertices <- bone poses at this substep        kinematic input
+        lambda <- 0;  alpha~ = alpha / h^2                     (lines 4-5)
+        contact correction                                     hook (line 6; the contact issue)
+        for each iteration, for each family                    (lines 7-13)
+            edge (Eq. 2) with the attachments (Eq. 4-5), tet (Eq. 3), smoothness (Eq. 6)
+        v <- (x - x^i) / h                                      (lines 14-15) + non-finite guard
+
+On CUDA the whole frame is one CUDA graph (captured on the second frame, after compilation).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.solver import integrate
+from physhand_mj.solver.edge import solve_edges
+from physhand_mj.solver.model import FAMILIES, quat_to_mat
+from physhand_mj.solver.smooth import solve_dihedrals
+from physhand_mj.solver.tet import solve_tets
+from physhand_mj.types import Config, Model, NonFinite, Scheme, State
+
+wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
+
+
+class SolverError(RuntimeError):
+    """The solver met a state it cannot continue from (non-finite input or state under RAISE)."""
+
+
+def _xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
+    q = np.asarray(quat_wxyz, dtype=np.float64)
+    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
+
+
+class Solver:
+    """XPBD solver for one layered body. ``contact`` is the Algorithm 1 line 6 hook: an object with
+    ``project(solver, state)`` that launches its correction kernels (Warp only, capturable)."""
+
+    def __init__(self, model: Model, config: Config | None = None):
+        self.model = model
+        self.config = (config or Config()).validate()
+        self.device = wp.get_device(model.device)
+        if self.config.device is not None and wp.get_device(self.config.device) != self.device:
+            raise ValueError(f"Config.device {self.config.device!r} differs from the model's {model.device!r}")
+        self.contact = None
+        self._graphs: dict[tuple, object] = {}
+        self._ops: dict[tuple, list] = {}
+        h = self.config.substep_dt
+        self._h = h
+        self._inv_h2 = 1.0 / (h * h)
+        self._damp = math.exp(-self.config.damping * h)
+        self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
+        self._pose_host = wp.empty(model.n_bodies, dtype=wp.transform, device="cpu",
+                                   pinned=self.device.is_cuda)
+        self._guard_host = wp.zeros(2, dtype=int, device="cpu", pinned=self.device.is_cuda)
+
+    # -- state -------------------------------------------------------------------------------
+    def make_state(self, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0)) -> State:
+        """The rest shape placed by one rigid transform (position m, quaternion w x y z), at rest."""
+        m = self.model
+        rot = quat_to_mat(np.asarray(quat, float))
+        pos = np.asarray(pos, float)
+        x = m.rest_x.numpy().astype(np.float64) @ rot.T + pos
+        bp = m.body_rest_pos @ rot.T + pos
+        bq = _compose_quat(np.asarray(quat, float), m.body_rest_quat)
+        d = self.device
+        n = m.n_vertices
+        st = State(
+            x=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
+            v=wp.zeros(n, dtype=wp.vec3, device=d), x_prev=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
+            delta=wp.zeros(n, dtype=wp.vec3, device=d),
+            lam_edge=wp.zeros(m.edge_rest.shape[0], dtype=float, device=d),
+            lam_tet=wp.zeros(m.tet_rest6v.shape[0], dtype=float, device=d),
+            lam_dih=wp.zeros(m.dih_rest.shape[0], dtype=float, device=d),
+            body_prev=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
+            body_next=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
+            body_now=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
+            guard=wp.zeros(2, dtype=int, device=d),
+        )
+        self.set_body_poses(st, bp, bq)
+        wp.copy(st.body_prev, st.body_next)
+        return st
+
+    def set_body_poses(self, state: State, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Bone poses at the end of the next frame: pos (B, 3) m, quat (B, 4) w x y z, in the
+        solver's world frame, ordered as ``model.body_names``. The skeleton moves there during the
+        frame (interpolated per substep)."""
+        pos = np.asarray(pos, dtype=np.float64)
+        quat = np.asarray(quat, dtype=np.float64)
+        b = self.model.n_bodies
+        if pos.shape != (b, 3) or quat.shape != (b, 4):
+            raise ValueError(f"bone poses must be ({b}, 3) positions and ({b}, 4) quaternions, "
+                             f"got {pos.shape} and {quat.shape}")
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
+            bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
+                ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
+            raise SolverError(f"non-finite pose for bones {bad}: fix the MuJoCo state (qpos) first")
+        norm = np.linalg.norm(quat, axis=1, keepdims=True)
+        if np.any(norm < 1e-9):
+            raise SolverError("a bone quaternion has zero length")
+        tf = np.concatenate([pos, _xyzw(quat / norm)], axis=1).astype(np.float32)
+        self._pose_host.numpy()[:] = tf.view(np.float32).reshape(b, 7)
+        wp.copy(state.body_next, self._pose_host)
+
+    # -- the frame -------------------------------------------------------------------------------
+    def step(self, state: State) -> dict:
+        """Advance one frame (``config.frame_dt``). Returns the frame's guard counts
+        ``{"nonfinite": int, "inverted": int}``; raises SolverError under ``NonFinite.RAISE``."""
+        key = (id(state), id(self.contact))
+        ops = self._ops.get(key)
+        if ops is None:  # record every launch of a frame once: replaying skips Python argument packing
+            ops = self._ops[key] = self._record_frame(state)
+            for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
+                op()
+        elif self._capturable():
+            graph = self._graphs.get(key)
+            if graph is None:
+                with wp.ScopedCapture(device=self.device) as cap:
+                    for op in ops:
+                        op()
+                graph = self._graphs[key] = cap.graph
+            wp.capture_launch(graph)
+        else:
+            for op in ops:
+                op()
+        wp.copy(self._guard_host, state.guard)
+        wp.synchronize_device(self.device)
+        g = self._guard_host.numpy()
+        state.time += self.config.frame_dt
+        state.frames += 1
+        out = {"nonfinite": int(g[0]), "inverted": int(g[1])}
+        if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
+            raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
+                              f"{state.frames}; state kept at their last finite positions")
+        return out
+
+    def _capturable(self) -> bool:
+        return (self.device.is_cuda and self.config.cuda_graph
+                and (self.contact is None or getattr(self.contact, "capturable", False)))
+
+    def _record_frame(self, state: State) -> list:
+        """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
+        m, cfg, d = self.model, self.config, self.device
+        n = m.n_vertices
+        ops = [state.guard.zero_]
+
+        def launch(kernel, dim, inputs, outputs):
+            if dim:
+                ops.append(wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True).launch)
+
+        lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
+        fam = {
+            "edge": (solve_edges, m.edge_ids, m.edge_rest, m.edge_alpha),
+            "tet": (solve_tets, m.tet_ids, m.tet_rest6v, m.tet_alpha),
+            "dih": (solve_dihedrals, m.dih_ids, m.dih_rest, m.dih_alpha),
+        }
+        jacobi = int(cfg.scheme == Scheme.JACOBI)
+        for s in range(cfg.substeps):
+            launch(integrate.interpolate_bodies, m.n_bodies,
+                   [state.body_prev, state.body_next, float(s + 1) / cfg.substeps], [state.body_now])
+            launch(integrate.predict, n, [m.inv_mass, m.vertex_body, m.body_local, self._gravity, self._h, self._damp,
+                                          state.body_now], [state.x, state.v, state.x_prev])
+            ops.extend(lam.zero_ for lam in lams.values() if lam.shape[0])
+            if self.contact is not None:
+                ops.append(lambda: self.contact.project(self, state))
+            pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused below)
+            for _ in range(cfg.iterations):
+                for row, name in enumerate(FAMILIES):
+                    if not m.colors[name]:
+                        continue
+                    if pending >= 0:
+                        launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
+                        pending = -1
+                    kernel, ids, rest, alpha = fam[name]
+                    for start, end in m.colors[name]:
+                        launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start],
+                               [state.x, lams[name], state.delta if jacobi else state.x])
+                    if jacobi:
+                        pending = row
+            launch(integrate.update_velocity, n, [m.inv_mass, m.vertex_count, pending, cfg.relaxation, 1.0 / self._h],
+                   [state.x, state.x_prev, state.v, state.delta, state.guard])
+        launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
+        ops.append(lambda: wp.copy(state.body_prev, state.body_next))
+        return ops
+
+
+def _compose_quat(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Hamilton product q * r for (4,) q and (B, 4) r, w x y z."""
+    w1, x1, y1, z1 = q
+    w2, x2, y2, z2 = np.moveaxis(np.asarray(r, float), -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
