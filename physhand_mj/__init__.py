@@ -8,6 +8,10 @@ Public API (everything else is private):
 - :data:`HAND_XML`, :func:`scene_path`, :func:`open_hand_scene`, :func:`set_skin_vertices`,
   :func:`rest_skin_world`: the hand MJCF and its skin mesh geom.
 - :class:`RenderUnavailable`: raised where no OpenGL backend can render offscreen.
+- Solver (paper section 3.2): :class:`Config`, :class:`Scheme`, :class:`NonFinite`, :func:`make_model`,
+  :class:`Model`, :class:`State`, :class:`Solver`, :class:`SolverError`; :func:`soft_body` builds a
+  layered body from arrays; :func:`body_ids`, :func:`bone_poses_at`, :func:`mount_pose` read bone
+  poses from MuJoCo.
 """
 
 from physhand_mj.render import select_gl_backend as _select_gl_backend
@@ -15,11 +19,15 @@ from physhand_mj.render import select_gl_backend as _select_gl_backend
 _select_gl_backend()  # before anything imports mujoco: MuJoCo reads MUJOCO_GL at import
 
 from physhand_mj.asset import DEFAULT_ASSET, SCHEMA_VERSION, AssetError, HandAsset, load_asset  # noqa: E402
+from physhand_mj.bodies import soft_body  # noqa: E402
 from physhand_mj.hand_mjcf import (  # noqa: E402
-    HAND_XML, open_hand_scene, rest_skin_world, scene_path, set_skin_vertices)
+    HAND_XML, body_ids, bone_poses_at, mount_pose, open_hand_scene, rest_skin_world, scene_path, set_skin_vertices)
 from physhand_mj.render import RenderUnavailable  # noqa: E402
-from physhand_mj.types import Layer  # noqa: E402
+from physhand_mj.solver import Solver, SolverError, make_model  # noqa: E402
+from physhand_mj.types import Config, Layer, Model, NonFinite, Scheme, State  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "HandAsset", "Layer",
-           "RenderUnavailable", "load_asset", "open_hand_scene", "rest_skin_world", "scene_path", "set_skin_vertices"]
+__all__ = ["DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
+           "NonFinite", "RenderUnavailable", "Scheme", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
+           "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",
+           "set_skin_vertices", "soft_body"]

@@ -72,6 +72,14 @@ def _build_hand(args) -> dict:
                 **asset.summary())
 
 
+def _bench_solver(args) -> dict:
+    from physhand_mj.bench import bench_solver
+    from physhand_mj.types import Scheme
+
+    return bench_solver(device=args.device, frames=args.steps, resolution=args.resolution, asset_path=args.asset,
+                        substeps=args.substeps, iterations=args.iterations, scheme=Scheme[args.scheme.upper()])
+
+
 def main(argv: list[str] | None = None) -> int:
     from physhand_mj.asset import DEFAULT_ASSET
     from physhand_mj.hand_mjcf import HAND_XML
@@ -91,6 +99,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--bones", type=Path, help="other input: folder of bone meshes named BODY.stl/.obj/.ply")
     p.add_argument("--model", type=Path, help="other input: MJCF whose bodies (at qpos0) carry the bones")
     p.set_defaults(run=_build_hand)
+    bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
+    p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")
+    p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")
+    p.add_argument("--steps", type=int, default=100, help="timed frames of 5 ms (count, default 100)")
+    p.add_argument("--resolution", type=int, default=None,
+                   help="skin vertex count (default: the embedded 5000; others are built once and cached)")
+    p.add_argument("--asset", type=Path, default=None, help="time this asset .npz instead")
+    p.add_argument("--substeps", type=int, default=10, help="substeps per 5 ms frame (count, default 10)")
+    p.add_argument("--iterations", type=int, default=1, help="constraint passes per substep (count, default 1)")
+    p.add_argument("--scheme", choices=["jacobi", "colored"], default="jacobi", help="parallel scheme (default jacobi)")
+    p.set_defaults(run=_bench_solver)
     args = parser.parse_args(argv)
 
     from physhand_mj.asset import AssetError
@@ -99,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = args.run(args)
     except (AssetError, RenderUnavailable, FileNotFoundError, ValueError, ImportError) as e:
-        print(f"physhand {args.command}: error: {e}", file=sys.stderr)
+        print(f"physhand {args.command}: error: {e}".replace("\n", " "), file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"physhand {args.command}: interrupted", file=sys.stderr)

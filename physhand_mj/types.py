@@ -185,7 +185,8 @@ class State:
     """Mutable solver state (all preallocated by ``Solver.make_state``).
 
     x: (N,) vec3 positions (m); v: (N,) vec3 velocities (m/s); x_prev: (N,) vec3 positions at the
-    start of the substep (Algorithm 1, x^i); delta: (N,) vec3 Jacobi correction accumulator;
+    start of the substep (Algorithm 1, x^i); x_safe: (N,) vec3 positions at the end of the last frame
+(the non-finite guard's fallback); delta: (N,) vec3 Jacobi correction accumulator;
     lam_edge/lam_tet/lam_dih: Lagrange multipliers per constraint (Algorithm 1, line 11);
     body_prev / body_next / body_now: (B,) transforms of the bones at the start / end of the frame
     and at the current substep;
@@ -195,6 +196,7 @@ class State:
     x: object
     v: object
     x_prev: object
+    x_safe: object
     delta: object
     lam_edge: object
     lam_tet: object

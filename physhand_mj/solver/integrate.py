@@ -32,17 +32,24 @@ def predict(
     h: float,
     damp: float,
     body_now: wp.array(dtype=wp.transform),
+    x_safe: wp.array(dtype=wp.vec3),
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     x_prev: wp.array(dtype=wp.vec3),
+    guard: wp.array(dtype=int),
 ):
     """Save x^i, then (line 3) x <- x^i + h v^i + h^2 M^-1 f_ext with f_ext = m g, v scaled by
     damp = exp(-damping h). A kinematic (skeleton) vertex instead goes to its bone's current pose
     (interpolate_bodies) applied to its body-frame position: bones are an input, constraints never
-    move them (w = 0)."""
+    move them (w = 0). Guard: a non-finite position met here (set from outside the solver) is reset
+    to the end of the last frame (x_safe) with zero velocity and counted in guard[0]."""
     i = wp.tid()
     xi = x[i]
+    if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
+        xi = x_safe[i]
+        v[i] = wp.vec3(0.0)
+        wp.atomic_add(guard, 0, 1)
     x_prev[i] = xi
     b = vertex_body[i]
     if b >= 0:
@@ -51,6 +58,8 @@ def predict(
         vi = (v[i] + gravity * h) * damp
         v[i] = vi
         x[i] = xi + vi * h
+    else:
+        x[i] = xi
 
 
 @wp.kernel

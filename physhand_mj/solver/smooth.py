@@ -12,8 +12,9 @@ import warp as wp
 
 @wp.func
 def fast_atan2(y: float, x: float):
-    """atan2 by a minimax polynomial (max error 1e-5 rad, i.e. 6e-4 deg): libm's atan2f was a third of
-    this kernel's time on the CPU backend. Returns 0 for (0, 0)."""
+    """atan2 from the odd polynomial of Abramowitz & Stegun 4.4.49 on [0, 1] (|error| <= 2e-8 rad,
+    below float32 resolution) and octant symmetries: libm's atan2f took a third of the smoothness
+    kernel's time on Warp's CPU backend. Returns 0 for (0, 0)."""
     ax = wp.abs(x)
     ay = wp.abs(y)
     mx = wp.max(ax, ay)
@@ -21,7 +22,15 @@ def fast_atan2(y: float, x: float):
         return 0.0
     a = wp.min(ax, ay) / mx
     s = a * a
-    r = ((-0.0464964749 * s + 0.15931422) * s - 0.327622764) * s * a + a
+    p = 0.0028662257
+    p = p * s - 0.0161657367
+    p = p * s + 0.0429096138
+    p = p * s - 0.0752896400
+    p = p * s + 0.1065626393
+    p = p * s - 0.1420889944
+    p = p * s + 0.1999355085
+    p = p * s - 0.3333314528
+    r = (p * s + 1.0) * a
     if ay > ax:
         r = 1.57079637 - r
     if x < 0.0:

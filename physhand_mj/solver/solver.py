@@ -74,6 +74,7 @@ class Solver:
         st = State(
             x=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
             v=wp.zeros(n, dtype=wp.vec3, device=d), x_prev=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
+            x_safe=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
             delta=wp.zeros(n, dtype=wp.vec3, device=d),
             lam_edge=wp.zeros(m.edge_rest.shape[0], dtype=float, device=d),
             lam_tet=wp.zeros(m.tet_rest6v.shape[0], dtype=float, device=d),
@@ -165,7 +166,7 @@ class Solver:
             launch(integrate.interpolate_bodies, m.n_bodies,
                    [state.body_prev, state.body_next, float(s + 1) / cfg.substeps], [state.body_now])
             launch(integrate.predict, n, [m.inv_mass, m.vertex_body, m.body_local, self._gravity, self._h, self._damp,
-                                          state.body_now], [state.x, state.v, state.x_prev])
+                                          state.body_now, state.x_safe], [state.x, state.v, state.x_prev, state.guard])
             ops.extend(lam.zero_ for lam in lams.values() if lam.shape[0])
             if self.contact is not None:
                 ops.append(lambda: self.contact.project(self, state))
@@ -187,6 +188,7 @@ class Solver:
                    [state.x, state.x_prev, state.v, state.delta, state.guard])
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
         ops.append(lambda: wp.copy(state.body_prev, state.body_next))
+        ops.append(lambda: wp.copy(state.x_safe, state.x))  # finite here: the guards ran every substep
         return ops
 
 

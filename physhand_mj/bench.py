@@ -1,0 +1,106 @@
+"""Benchmarks behind ``physhand bench``: figures as dicts, timings that exclude compilation.
+
+Timings are wall-clock per frame after two warm-up frames (the first compiles the kernels, the
+second captures the CUDA graph on GPUs), synchronised with the device every frame.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+CACHE = Path(os.environ.get("PHYSHAND_CACHE", Path.home() / ".cache" / "physhand_mj"))
+
+
+def device_name(device: str) -> str:
+    """A human name for a Warp device: the GPU model, or the CPU model and core count."""
+    import warp as wp
+
+    d = wp.get_device(device)
+    if d.is_cuda:
+        return f"{d.alias} ({d.name})"
+    model = platform.processor() or "cpu"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"cpu ({model}, {os.cpu_count()} cores, Warp CPU kernels single-threaded)"
+
+
+def hand_asset(resolution: int | None = None, asset_path: str | Path | None = None):
+    """The embedded hand, an asset file, or the MyoHand rebuilt with ``resolution`` skin vertices
+    (cached under $PHYSHAND_CACHE; building needs the ``build`` extra)."""
+    from physhand_mj.asset import load_asset
+
+    if asset_path is not None:
+        return load_asset(asset_path)
+    asset = load_asset()
+    if resolution is None or resolution == asset.n_skin:
+        return asset
+    if resolution < 500:
+        raise ValueError(f"--resolution is a skin vertex count (>= 500), got {resolution}")
+    path = CACHE / f"myohand_skin{resolution}.npz"
+    if not path.exists():
+        try:
+            from physhand_mj.build import build_myohand
+        except ImportError as e:
+            raise ImportError(f"building a {resolution}-vertex hand needs the build extra "
+                              f"(pip install -e '.[build]'): {e}") from e
+        skeleton = max(3300, int(round(3300 * resolution / 5000)))
+        build_myohand(path, None, skin_vertices=resolution, skeleton_vertices=skeleton)
+    return load_asset(path)
+
+
+def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None = None, asset_path=None,
+                 **config) -> dict:
+    """Time the XPBD frame on the hand in its open pose, palm down under gravity, no contact."""
+    import warp as wp
+
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.solver import Solver, make_model
+    from physhand_mj.types import Config
+
+    if frames < 1:
+        raise ValueError(f"--steps must be >= 1, got {frames}")
+    wp.init()
+    if device.startswith("cuda") and not wp.is_cuda_available():
+        raise ValueError("--device cuda: no CUDA device is visible to Warp on this machine")
+    asset = hand_asset(resolution, asset_path)
+    _, model, data = open_hand_scene("hand_only", "open", asset=asset if asset_path is None else None)
+    ids = body_ids(model, asset.body_names)
+    cfg = Config(device=device, **config)
+    t0 = time.perf_counter()
+    solver = Solver(make_model(asset, cfg), cfg)
+    state = solver.make_state(*mount_pose(model, data))
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    setup_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(2):
+        solver.set_body_poses(state, *poses)
+        solver.step(state)
+    warmup_s = time.perf_counter() - t0
+    times, guard = [], {}
+    for _ in range(frames):
+        t = time.perf_counter()
+        solver.set_body_poses(state, *poses)
+        guard = solver.step(state)
+        times.append(time.perf_counter() - t)
+    ms = np.asarray(times) * 1e3
+    m = solver.model
+    return dict(
+        command="bench solver", ms_per_frame=round(float(ms.mean()), 4), ms_per_frame_median=round(float(np.median(ms)), 4),
+        ms_per_frame_min=round(float(ms.min()), 4), frames=frames, frame_dt_s=cfg.frame_dt,
+        substeps=cfg.substeps, iterations=cfg.iterations, scheme=cfg.scheme.name.lower(),
+        vertices=m.n_vertices, skin_vertices=m.n_skin, tets=int(m.tet_ids.shape[0]),
+        edges=int((~m.edge_is_att).sum()), attachments=int(m.edge_is_att.sum()), dihedrals=int(m.dih_ids.shape[0]),
+        device=str(solver.device), device_name=device_name(str(solver.device)),
+        cuda_graph=solver._capturable(), setup_s=round(setup_s, 3), warmup_s=round(warmup_s, 3),
+        nonfinite=guard.get("nonfinite", 0), inverted=guard.get("inverted", 0),
+    )
