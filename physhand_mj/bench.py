@@ -73,7 +73,7 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
     if device.startswith("cuda") and not wp.is_cuda_available():
         raise ValueError("--device cuda: no CUDA device is visible to Warp on this machine")
     asset = hand_asset(resolution, asset_path)
-    _, model, data = open_hand_scene("hand_only", "open", asset=asset if asset_path is None else None)
+    _, model, data = open_hand_scene("hand_only", "open")  # MuJoCo bones: the same for every resolution
     ids = body_ids(model, asset.body_names)
     cfg = Config(device=device, **config)
     t0 = time.perf_counter()

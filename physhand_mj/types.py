@@ -188,8 +188,8 @@ class State:
     start of the substep (Algorithm 1, x^i); x_safe: (N,) vec3 positions at the end of the last frame
 (the non-finite guard's fallback); delta: (N,) vec3 Jacobi correction accumulator;
     lam_edge/lam_tet/lam_dih: Lagrange multipliers per constraint (Algorithm 1, line 11);
-    body_prev / body_next / body_now: (B,) transforms of the bones at the start / end of the frame
-    and at the current substep;
+    body_prev / body_next: (B,) transforms of the bones at the start / end of the frame;
+    body_sub: (substeps, B) their interpolated poses at the end of each substep;
     guard: (2,) int counters [non-finite vertices, inverted tets] of the last frame; time: s.
     """
 
@@ -203,7 +203,7 @@ class State:
     lam_dih: object
     body_prev: object
     body_next: object
-    body_now: object
+    body_sub: object
     guard: object
     time: float = 0.0
     frames: int = 0

@@ -13,6 +13,7 @@ def solve_edges(
     # Solver in:
     inv_h2: float,
     start: int,
+    reset: int,
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     lam: wp.array(dtype=float),
@@ -30,9 +31,12 @@ def solve_edges(
     at = alpha[j] * inv_h2
     a = w1 + w2 + at
     if length < 1.0e-12 or a <= 1.0e-20:
+        if reset != 0:
+            lam[j] = 0.0
         return
-    dlam = -(length - rest[j] + at * lam[j]) / a
-    lam[j] = lam[j] + dlam
+    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
+    dlam = -(length - rest[j] + at * lam_j) / a
+    lam[j] = lam_j + dlam
     n = d * (dlam / length)
     wp.atomic_add(delta, i1, n * w1)
     wp.atomic_sub(delta, i2, n * w2)

@@ -9,16 +9,17 @@ from physhand_mj.solver.tet import six_volume
 def interpolate_bodies(
     body_prev: wp.array(dtype=wp.transform),
     body_next: wp.array(dtype=wp.transform),
-    s: float,
-    body_now: wp.array(dtype=wp.transform),
+    body_sub: wp.array2d(dtype=wp.transform),
 ):
-    """Bone pose at fraction s of the frame: lerp of positions, slerp of rotations."""
-    b = wp.tid()
+    """Bone poses at the end of every substep k of the frame, fraction s = (k + 1) / substeps:
+    lerp of positions, slerp of rotations (one launch per frame)."""
+    k, b = wp.tid()
+    s = float(k + 1) / float(body_sub.shape[0])
     t0 = body_prev[b]
     t1 = body_next[b]
     p = wp.lerp(wp.transform_get_translation(t0), wp.transform_get_translation(t1), s)
     q = wp.quat_slerp(wp.transform_get_rotation(t0), wp.transform_get_rotation(t1), s)
-    body_now[b] = wp.transform(p, q)
+    body_sub[k, b] = wp.transform(p, q)
 
 
 @wp.kernel
@@ -31,7 +32,8 @@ def predict(
     gravity: wp.vec3,
     h: float,
     damp: float,
-    body_now: wp.array(dtype=wp.transform),
+    body_sub: wp.array2d(dtype=wp.transform),
+    substep: int,
     x_safe: wp.array(dtype=wp.vec3),
     # State in/out:
     x: wp.array(dtype=wp.vec3),
@@ -40,8 +42,8 @@ def predict(
     guard: wp.array(dtype=int),
 ):
     """Save x^i, then (line 3) x <- x^i + h v^i + h^2 M^-1 f_ext with f_ext = m g, v scaled by
-    damp = exp(-damping h). A kinematic (skeleton) vertex instead goes to its bone's current pose
-    (interpolate_bodies) applied to its body-frame position: bones are an input, constraints never
+    damp = exp(-damping h). A kinematic (skeleton) vertex instead goes to its bone's pose at this
+    substep (interpolate_bodies) applied to its body-frame position: bones are an input, constraints never
     move them (w = 0). Guard: a non-finite position met here (set from outside the solver) is reset
     to the end of the last frame (x_safe) with zero velocity and counted in guard[0]."""
     i = wp.tid()
@@ -53,7 +55,7 @@ def predict(
     x_prev[i] = xi
     b = vertex_body[i]
     if b >= 0:
-        x[i] = wp.transform_point(body_now[b], body_local[i])
+        x[i] = wp.transform_point(body_sub[substep, b], body_local[i])
     elif inv_mass[i] > 0.0:
         vi = (v[i] + gravity * h) * damp
         v[i] = vi

@@ -60,10 +60,11 @@ def dihedral_angle_gradients(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3)
     z = wp.vec3(0.0)
     if elen < 1.0e-12 or q0 < 1.0e-30 or q1 < 1.0e-30:
         return 0.0, z, z, z, z
-    eh = e / elen
+    # reciprocals once: Warp's vec / scalar divides per component
+    eh = e * (1.0 / elen)
     theta = fast_atan2(wp.dot(wp.cross(n1, n0), eh), wp.dot(n0, n1))
-    a = n0 / q0
-    b = n1 / q1
+    a = n0 * (1.0 / q0)
+    b = n1 * (1.0 / q1)
     g0 = a * wp.dot(o0 - e1, eh) + b * wp.dot(o1 - e1, eh)
     g1 = -(a * wp.dot(o0 - e0, eh) + b * wp.dot(o1 - e0, eh))
     return theta, g0, g1, a * elen, b * elen
@@ -79,6 +80,7 @@ def solve_dihedrals(
     # Solver in:
     inv_h2: float,
     start: int,
+    reset: int,
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     lam: wp.array(dtype=float),
@@ -108,9 +110,12 @@ def solve_dihedrals(
     at = alpha * inv_h2
     a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
     if a <= 1.0e-20:
+        if reset != 0:
+            lam[j] = 0.0
         return
-    dlam = -(c + at * lam[j]) / a
-    lam[j] = lam[j] + dlam
+    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
+    dlam = -(c + at * lam_j) / a
+    lam[j] = lam_j + dlam
     wp.atomic_add(delta, ie0, g0 * (w0 * dlam))
     wp.atomic_add(delta, ie1, g1 * (w1 * dlam))
     wp.atomic_add(delta, io0, g2 * (w2 * dlam))

@@ -3,7 +3,7 @@
     for each substep (h = frame_dt / substeps):
         x^i <- x;  x <- x^i + h v + h^2 M^-1 f_ext            predict            (line 3)
         skeleton vertices <- bone poses at this substep        kinematic input
-        lambda <- 0;  alpha~ = alpha / h^2                     (lines 4-5)
+        lambda <- 0 (in the first pass);  alpha~ = alpha / h^2  (lines 4-5)
         contact correction                                     hook (line 6; the contact issue)
         for each iteration, for each family                    (lines 7-13)
             edge (Eq. 2) with the attachments (Eq. 4-5), tet (Eq. 3), smoothness (Eq. 6)
@@ -81,7 +81,7 @@ class Solver:
             lam_dih=wp.zeros(m.dih_rest.shape[0], dtype=float, device=d),
             body_prev=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
             body_next=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
-            body_now=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
+            body_sub=wp.zeros((self.config.substeps, m.n_bodies), dtype=wp.transform, device=d),
             guard=wp.zeros(2, dtype=int, device=d),
         )
         self.set_body_poses(st, bp, bq)
@@ -162,16 +162,16 @@ class Solver:
             "dih": (solve_dihedrals, m.dih_ids, m.dih_rest, m.dih_alpha),
         }
         jacobi = int(cfg.scheme == Scheme.JACOBI)
+        if m.n_bodies:
+            launch(integrate.interpolate_bodies, (cfg.substeps, m.n_bodies), [state.body_prev, state.body_next],
+                   [state.body_sub])
         for s in range(cfg.substeps):
-            launch(integrate.interpolate_bodies, m.n_bodies,
-                   [state.body_prev, state.body_next, float(s + 1) / cfg.substeps], [state.body_now])
             launch(integrate.predict, n, [m.inv_mass, m.vertex_body, m.body_local, self._gravity, self._h, self._damp,
-                                          state.body_now, state.x_safe], [state.x, state.v, state.x_prev, state.guard])
-            ops.extend(lam.zero_ for lam in lams.values() if lam.shape[0])
+                                          state.body_sub, s, state.x_safe], [state.x, state.v, state.x_prev, state.guard])
             if self.contact is not None:
                 ops.append(lambda: self.contact.project(self, state))
             pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused below)
-            for _ in range(cfg.iterations):
+            for it in range(cfg.iterations):
                 for row, name in enumerate(FAMILIES):
                     if not m.colors[name]:
                         continue
@@ -180,7 +180,7 @@ class Solver:
                         pending = -1
                     kernel, ids, rest, alpha = fam[name]
                     for start, end in m.colors[name]:
-                        launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start],
+                        launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
                                [state.x, lams[name], state.delta if jacobi else state.x])
                     if jacobi:
                         pending = row

@@ -20,6 +20,7 @@ def solve_tets(
     # Solver in:
     inv_h2: float,
     start: int,
+    reset: int,
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     lam: wp.array(dtype=float),
@@ -50,9 +51,12 @@ def solve_tets(
     a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
          + w4 * wp.length_sq(g4) + at)
     if a <= 1.0e-20:
+        if reset != 0:
+            lam[j] = 0.0
         return
-    dlam = -(wp.dot(g4, x41) - rest6v[j] + at * lam[j]) / a
-    lam[j] = lam[j] + dlam
+    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
+    dlam = -(wp.dot(g4, x41) - rest6v[j] + at * lam_j) / a
+    lam[j] = lam_j + dlam
     wp.atomic_add(delta, i1, g1 * (w1 * dlam))
     wp.atomic_add(delta, i2, g2 * (w2 * dlam))
     wp.atomic_add(delta, i3, g3 * (w3 * dlam))
