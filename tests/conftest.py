@@ -1,8 +1,8 @@
-import os
+import pytest
 
-os.environ.setdefault("MUJOCO_GL", "osmesa")
+from physhand_mj.render import select_gl_backend
 
-import pytest  # noqa: E402
+select_gl_backend()  # MUJOCO_GL as set, else EGL on NVIDIA machines, OSMesa, or a display: before mujoco loads
 
 import physhand_mj as ph  # noqa: E402
 
