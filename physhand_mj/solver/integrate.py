@@ -23,45 +23,71 @@ def interpolate_bodies(
 
 
 @wp.kernel
-def predict(
+def advance(
     # Model:
     inv_mass: wp.array(dtype=float),
     vertex_body: wp.array(dtype=int),
     body_local: wp.array(dtype=wp.vec3),
+    vertex_count: wp.array2d(dtype=float),
     # Solver in:
     gravity: wp.vec3,
     h: float,
     damp: float,
+    finish: int,
+    family: int,
+    relaxation: float,
+    start: int,
     body_sub: wp.array2d(dtype=wp.transform),
-    substep: int,
     x_safe: wp.array(dtype=wp.vec3),
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     x_prev: wp.array(dtype=wp.vec3),
+    delta: wp.array(dtype=wp.vec3),
     guard: wp.array(dtype=int),
 ):
-    """Save x^i, then (line 3) x <- x^i + h v^i + h^2 M^-1 f_ext with f_ext = m g, v scaled by
-    damp = exp(-damping h). A kinematic (skeleton) vertex instead goes to its bone's pose at this
-    substep (interpolate_bodies) applied to its body-frame position: bones are an input, constraints never
-    move them (w = 0). Guard: a non-finite position met here (set from outside the solver) is reset
-    to the end of the last frame (x_safe) with zero velocity and counted in guard[0]."""
+    """The per-vertex work between two substeps, in one launch.
+
+    finish != 0 ends the current substep: apply the last family's pending Jacobi correction
+    (family >= 0), then v^{i+1} = (x^{i+1} - x^i) / h (Algorithm 1, lines 14-15). A non-finite
+    position is reset to x^i with zero velocity and counted in guard[0], so NaN never spreads.
+
+    start >= 0 begins substep ``start``: save x^i, then x <- x^i + h v^i + h^2 M^-1 f_ext with
+    f_ext = m g and v scaled by damp = exp(-damping h) (line 3). A kinematic (skeleton) vertex goes to
+    its bone's pose at the end of that substep (interpolate_bodies) applied to its body-frame
+    position: bones are an input, constraints never move them (w = 0). A non-finite position met here
+    (set from outside the solver) is reset to the end of the last frame (x_safe) and counted.
+    """
     i = wp.tid()
     xi = x[i]
-    if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
-        xi = x_safe[i]
-        v[i] = wp.vec3(0.0)
-        wp.atomic_add(guard, 0, 1)
-    x_prev[i] = xi
-    b = vertex_body[i]
-    if b >= 0:
-        x[i] = wp.transform_point(body_sub[substep, b], body_local[i])
-    elif inv_mass[i] > 0.0:
-        vi = (v[i] + gravity * h) * damp
-        v[i] = vi
-        x[i] = xi + vi * h
-    else:
-        x[i] = xi
+    vi = v[i]
+    w = inv_mass[i]
+    if finish != 0:
+        if family >= 0:
+            n = vertex_count[family, i]
+            if n > 0.0:
+                xi = xi + delta[i] * (relaxation / n)
+            delta[i] = wp.vec3(0.0)
+        if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
+            xi = x_prev[i]
+            vi = wp.vec3(0.0)
+            wp.atomic_add(guard, 0, 1)
+        elif w > 0.0:
+            vi = (xi - x_prev[i]) * (1.0 / h)
+    if start >= 0:
+        if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
+            xi = x_safe[i]
+            vi = wp.vec3(0.0)
+            wp.atomic_add(guard, 0, 1)
+        x_prev[i] = xi
+        b = vertex_body[i]
+        if b >= 0:
+            xi = wp.transform_point(body_sub[start, b], body_local[i])
+        elif w > 0.0:
+            vi = (vi + gravity * h) * damp
+            xi = xi + vi * h
+    x[i] = xi
+    v[i] = vi
 
 
 @wp.kernel
@@ -82,42 +108,6 @@ def apply_jacobi(
     if n > 0.0:
         x[i] = x[i] + delta[i] * (relaxation / n)
     delta[i] = wp.vec3(0.0)
-
-
-@wp.kernel
-def update_velocity(
-    # Model:
-    inv_mass: wp.array(dtype=float),
-    vertex_count: wp.array2d(dtype=float),
-    # Solver in:
-    family: int,
-    relaxation: float,
-    inv_h: float,
-    # State in/out:
-    x: wp.array(dtype=wp.vec3),
-    x_prev: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    delta: wp.array(dtype=wp.vec3),
-    guard: wp.array(dtype=int),
-):
-    """Apply the last family's pending Jacobi correction (family < 0: none), then
-    v^{i+1} = (x^{i+1} - x^i) / h (lines 14-15). Guard: a non-finite position is reset to x^i with
-    zero velocity and counted in guard[0], so NaN never spreads to the next substep."""
-    i = wp.tid()
-    xi = x[i]
-    if family >= 0:
-        n = vertex_count[family, i]
-        if n > 0.0:
-            xi = xi + delta[i] * (relaxation / n)
-        delta[i] = wp.vec3(0.0)
-    if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
-        x[i] = x_prev[i]
-        v[i] = wp.vec3(0.0)
-        wp.atomic_add(guard, 0, 1)
-        return
-    x[i] = xi
-    if inv_mass[i] > 0.0:
-        v[i] = (xi - x_prev[i]) * inv_h
 
 
 @wp.kernel

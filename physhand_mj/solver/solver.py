@@ -1,13 +1,17 @@
 """The XPBD frame, Algorithm 1 of the paper, over preallocated Model/State arrays.
 
+    bone poses at the end of every substep                 interpolate_bodies (once per frame)
     for each substep (h = frame_dt / substeps):
-        x^i <- x;  x <- x^i + h v + h^2 M^-1 f_ext            predict            (line 3)
-        skeleton vertices <- bone poses at this substep        kinematic input
+        x^i <- x;  x <- x^i + h v + h^2 M^-1 f_ext            advance: predict   (line 3)
+        skeleton vertices <- bone poses at this substep        (kinematic input)
         lambda <- 0 (in the first pass);  alpha~ = alpha / h^2  (lines 4-5)
         contact correction                                     hook (line 6; the contact issue)
         for each iteration, for each family                    (lines 7-13)
             edge (Eq. 2) with the attachments (Eq. 4-5), tet (Eq. 3), smoothness (Eq. 6)
-        v <- (x - x^i) / h                                      (lines 14-15) + non-finite guard
+        v <- (x - x^i) / h                                     advance: finish   (lines 14-15) + guard
+
+``advance`` finishes one substep and predicts the next in the same per-vertex launch, so a Jacobi
+substep is 6 launches: advance, edges, apply, tets, apply, dihedrals.
 
 On CUDA the whole frame is one CUDA graph (captured on the second frame, after compilation).
 """
@@ -165,12 +169,18 @@ class Solver:
         if m.n_bodies:
             launch(integrate.interpolate_bodies, (cfg.substeps, m.n_bodies), [state.body_prev, state.body_next],
                    [state.body_sub])
-        for s in range(cfg.substeps):
-            launch(integrate.predict, n, [m.inv_mass, m.vertex_body, m.body_local, self._gravity, self._h, self._damp,
-                                          state.body_sub, s, state.x_safe], [state.x, state.v, state.x_prev, state.guard])
+        pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
+        for s in range(cfg.substeps + 1):
+            # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
+            launch(integrate.advance, n, [m.inv_mass, m.vertex_body, m.body_local, m.vertex_count, self._gravity,
+                                          self._h, self._damp, int(s > 0), pending, cfg.relaxation,
+                                          s if s < cfg.substeps else -1, state.body_sub, state.x_safe],
+                   [state.x, state.v, state.x_prev, state.delta, state.guard])
+            pending = -1
+            if s == cfg.substeps:
+                break
             if self.contact is not None:
                 ops.append(lambda: self.contact.project(self, state))
-            pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused below)
             for it in range(cfg.iterations):
                 for row, name in enumerate(FAMILIES):
                     if not m.colors[name]:
@@ -184,8 +194,6 @@ class Solver:
                                [state.x, lams[name], state.delta if jacobi else state.x])
                     if jacobi:
                         pending = row
-            launch(integrate.update_velocity, n, [m.inv_mass, m.vertex_count, pending, cfg.relaxation, 1.0 / self._h],
-                   [state.x, state.x_prev, state.v, state.delta, state.guard])
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
         ops.append(lambda: wp.copy(state.body_prev, state.body_next))
         ops.append(lambda: wp.copy(state.x_safe, state.x))  # finite here: the guards ran every substep
