@@ -147,8 +147,8 @@ class Model:
       dih_ids: (D, 4) int (e0, e1, o0, o1); dih_rest: (D,) float, signed rest angle (rad);
         dih_alpha: float.
       skin_faces: (F, 3) int.
-      vertex_count: (3, N) float, per family (edge, tet, dih) the number of its constraints
-        touching each movable vertex (Jacobi averaging).
+      vertex_count: (G, N) float, per Jacobi group (solver.model.JACOBI_GROUPS) the number of its
+        constraints touching each movable vertex (Jacobi averaging).
     Host data: ``colors``: per family, the [start, end) ranges of its colours when the scheme is
     COLORED (constraints are stored sorted by colour), a single range otherwise.
     """
@@ -188,7 +188,8 @@ class State:
     start of the substep (Algorithm 1, x^i); x_safe: (N,) vec3 positions at the end of the last frame
 (the non-finite guard's fallback); delta: (N,) vec3 Jacobi correction accumulator;
     lam_edge/lam_tet/lam_dih: Lagrange multipliers per constraint (Algorithm 1, line 11);
-    body_prev / body_next: (B,) transforms of the bones at the start / end of the frame;
+    body_pose: (2, B) transforms of the bones at the start / end of the frame (uploaded each frame
+    from pose_host, (2, B, 7) float32 numpy: position, quaternion x y z w);
     body_sub: (substeps, B) their interpolated poses at the end of each substep;
     guard: (2,) int counters [non-finite vertices, inverted tets] of the last frame; time: s.
     """
@@ -201,9 +202,10 @@ class State:
     lam_edge: object
     lam_tet: object
     lam_dih: object
-    body_prev: object
-    body_next: object
+    body_pose: object
     body_sub: object
     guard: object
+    pose_host: np.ndarray = None
+    pose_fresh: bool = False
     time: float = 0.0
     frames: int = 0

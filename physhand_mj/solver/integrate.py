@@ -6,17 +6,23 @@ from physhand_mj.solver.tet import six_volume
 
 
 @wp.kernel
-def interpolate_bodies(
-    body_prev: wp.array(dtype=wp.transform),
-    body_next: wp.array(dtype=wp.transform),
+def begin_frame(
+    body_pose: wp.array2d(dtype=wp.transform),
     body_sub: wp.array2d(dtype=wp.transform),
+    guard: wp.array(dtype=int),
 ):
-    """Bone poses at the end of every substep k of the frame, fraction s = (k + 1) / substeps:
-    lerp of positions, slerp of rotations (one launch per frame)."""
+    """Zero the frame's guard counters, and interpolate the bone poses at the end of every substep
+    k, fraction s = (k + 1) / substeps, between the frame's start (body_pose[0]) and end
+    (body_pose[1]) poses: lerp of positions, slerp of rotations. Launched over (substeps, max(B, 1))."""
     k, b = wp.tid()
+    if k == 0 and b == 0:
+        guard[0] = 0
+        guard[1] = 0
+    if b >= body_pose.shape[1]:
+        return
     s = float(k + 1) / float(body_sub.shape[0])
-    t0 = body_prev[b]
-    t1 = body_next[b]
+    t0 = body_pose[0, b]
+    t1 = body_pose[1, b]
     p = wp.lerp(wp.transform_get_translation(t0), wp.transform_get_translation(t1), s)
     q = wp.quat_slerp(wp.transform_get_rotation(t0), wp.transform_get_rotation(t1), s)
     body_sub[k, b] = wp.transform(p, q)
@@ -34,10 +40,11 @@ def advance(
     h: float,
     damp: float,
     finish: int,
-    family: int,
+    group: int,
     relaxation: float,
     start: int,
     body_sub: wp.array2d(dtype=wp.transform),
+    # State in/out:
     x_safe: wp.array(dtype=wp.vec3),
     # State in/out:
     x: wp.array(dtype=wp.vec3),
@@ -46,10 +53,11 @@ def advance(
     delta: wp.array(dtype=wp.vec3),
     guard: wp.array(dtype=int),
 ):
-    """The per-vertex work between two substeps, in one launch.
+    """The per-vertex work between two substeps, in one launch (start < 0 after the last substep
+    also commits the frame's finite positions to x_safe).
 
-    finish != 0 ends the current substep: apply the last family's pending Jacobi correction
-    (family >= 0), then v^{i+1} = (x^{i+1} - x^i) / h (Algorithm 1, lines 14-15). A non-finite
+    finish != 0 ends the current substep: apply the last Jacobi group's pending correction
+    (group >= 0), then v^{i+1} = (x^{i+1} - x^i) / h (Algorithm 1, lines 14-15). A non-finite
     position is reset to x^i with zero velocity and counted in guard[0], so NaN never spreads.
 
     start >= 0 begins substep ``start``: save x^i, then x <- x^i + h v^i + h^2 M^-1 f_ext with
@@ -63,8 +71,8 @@ def advance(
     vi = v[i]
     w = inv_mass[i]
     if finish != 0:
-        if family >= 0:
-            n = vertex_count[family, i]
+        if group >= 0:
+            n = vertex_count[group, i]
             if n > 0.0:
                 xi = xi + delta[i] * (relaxation / n)
             delta[i] = wp.vec3(0.0)
@@ -86,6 +94,8 @@ def advance(
         elif w > 0.0:
             vi = (vi + gravity * h) * damp
             xi = xi + vi * h
+    else:
+        x_safe[i] = xi
     x[i] = xi
     v[i] = vi
 
@@ -95,16 +105,16 @@ def apply_jacobi(
     # Model:
     vertex_count: wp.array2d(dtype=float),
     # Solver in:
-    family: int,
+    group: int,
     relaxation: float,
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
 ):
     """Jacobi step: x_i += omega / n_i * sum of the corrections of vertex i's n_i constraints of
-    one family (families run one after another, so this is Jacobi within a family only)."""
+    one group of families (groups run one after another: solver.model.JACOBI_GROUPS)."""
     i = wp.tid()
-    n = vertex_count[family, i]
+    n = vertex_count[group, i]
     if n > 0.0:
         x[i] = x[i] + delta[i] * (relaxation / n)
     delta[i] = wp.vec3(0.0)

@@ -1,6 +1,6 @@
 """The XPBD frame, Algorithm 1 of the paper, over preallocated Model/State arrays.
 
-    bone poses at the end of every substep                 interpolate_bodies (once per frame)
+    bone poses at the end of every substep                 begin_frame (once per frame)
     for each substep (h = frame_dt / substeps):
         x^i <- x;  x <- x^i + h v + h^2 M^-1 f_ext            advance: predict   (line 3)
         skeleton vertices <- bone poses at this substep        (kinematic input)
@@ -25,7 +25,7 @@ import warp as wp
 
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
-from physhand_mj.solver.model import FAMILIES, quat_to_mat
+from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
 from physhand_mj.types import Config, Model, NonFinite, Scheme, State
@@ -60,7 +60,7 @@ class Solver:
         self._inv_h2 = 1.0 / (h * h)
         self._damp = math.exp(-self.config.damping * h)
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
-        self._pose_host = wp.empty(model.n_bodies, dtype=wp.transform, device="cpu",
+        self._pose_host = wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu",
                                    pinned=self.device.is_cuda)
         self._guard_host = wp.zeros(2, dtype=int, device="cpu", pinned=self.device.is_cuda)
 
@@ -83,13 +83,13 @@ class Solver:
             lam_edge=wp.zeros(m.edge_rest.shape[0], dtype=float, device=d),
             lam_tet=wp.zeros(m.tet_rest6v.shape[0], dtype=float, device=d),
             lam_dih=wp.zeros(m.dih_rest.shape[0], dtype=float, device=d),
-            body_prev=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
-            body_next=wp.zeros(m.n_bodies, dtype=wp.transform, device=d),
+            body_pose=wp.zeros((2, m.n_bodies), dtype=wp.transform, device=d),
+            pose_host=np.zeros((2, m.n_bodies, 7), np.float32),
             body_sub=wp.zeros((self.config.substeps, m.n_bodies), dtype=wp.transform, device=d),
             guard=wp.zeros(2, dtype=int, device=d),
         )
         self.set_body_poses(st, bp, bq)
-        wp.copy(st.body_prev, st.body_next)
+        st.pose_host[0] = st.pose_host[1]
         return st
 
     def set_body_poses(self, state: State, pos: np.ndarray, quat: np.ndarray) -> None:
@@ -109,14 +109,20 @@ class Solver:
         norm = np.linalg.norm(quat, axis=1, keepdims=True)
         if np.any(norm < 1e-9):
             raise SolverError("a bone quaternion has zero length")
-        tf = np.concatenate([pos, _xyzw(quat / norm)], axis=1).astype(np.float32)
-        self._pose_host.numpy()[:] = tf.view(np.float32).reshape(b, 7)
-        wp.copy(state.body_next, self._pose_host)
+        state.pose_host[1] = np.concatenate([pos, _xyzw(quat / norm)], axis=1)
+        state.pose_fresh = True
 
     # -- the frame -------------------------------------------------------------------------------
     def step(self, state: State) -> dict:
         """Advance one frame (``config.frame_dt``). Returns the frame's guard counts
         ``{"nonfinite": int, "inverted": int}``; raises SolverError under ``NonFinite.RAISE``."""
+        # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
+        if not state.pose_fresh:
+            state.pose_host[1] = state.pose_host[0]
+        self._pose_host.numpy()[:] = state.pose_host
+        wp.copy(state.body_pose, self._pose_host)
+        state.pose_host[0] = state.pose_host[1]
+        state.pose_fresh = False
         key = (id(state), id(self.contact))
         ops = self._ops.get(key)
         if ops is None:  # record every launch of a frame once: replaying skips Python argument packing
@@ -153,7 +159,7 @@ class Solver:
         """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
-        ops = [state.guard.zero_]
+        ops = []
 
         def launch(kernel, dim, inputs, outputs):
             if dim:
@@ -166,37 +172,36 @@ class Solver:
             "dih": (solve_dihedrals, m.dih_ids, m.dih_rest, m.dih_alpha),
         }
         jacobi = int(cfg.scheme == Scheme.JACOBI)
-        if m.n_bodies:
-            launch(integrate.interpolate_bodies, (cfg.substeps, m.n_bodies), [state.body_prev, state.body_next],
-                   [state.body_sub])
+        launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
+               [state.body_sub, state.guard])
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         for s in range(cfg.substeps + 1):
             # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
             launch(integrate.advance, n, [m.inv_mass, m.vertex_body, m.body_local, m.vertex_count, self._gravity,
                                           self._h, self._damp, int(s > 0), pending, cfg.relaxation,
-                                          s if s < cfg.substeps else -1, state.body_sub, state.x_safe],
-                   [state.x, state.v, state.x_prev, state.delta, state.guard])
+                                          s if s < cfg.substeps else -1, state.body_sub],
+                   [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard])
             pending = -1
             if s == cfg.substeps:
                 break
             if self.contact is not None:
                 ops.append(lambda: self.contact.project(self, state))
             for it in range(cfg.iterations):
-                for row, name in enumerate(FAMILIES):
-                    if not m.colors[name]:
+                for row, group in enumerate(JACOBI_GROUPS):
+                    names = [name for name in group if m.colors[name]]
+                    if not names:
                         continue
                     if pending >= 0:
                         launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
                         pending = -1
-                    kernel, ids, rest, alpha = fam[name]
-                    for start, end in m.colors[name]:
-                        launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
-                               [state.x, lams[name], state.delta if jacobi else state.x])
+                    for name in names:
+                        kernel, ids, rest, alpha = fam[name]
+                        for start, end in m.colors[name]:
+                            launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
+                                   [state.x, lams[name], state.delta if jacobi else state.x])
                     if jacobi:
                         pending = row
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
-        ops.append(lambda: wp.copy(state.body_prev, state.body_next))
-        ops.append(lambda: wp.copy(state.x_safe, state.x))  # finite here: the guards ran every substep
         return ops
 
 
