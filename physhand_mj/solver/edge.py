@@ -20,7 +20,7 @@ def solve_edges(
     delta: wp.array(dtype=wp.vec3),
 ):
     """C(x1, x2) = |x1 - x2| - L  (Eq. 2);  grad_x1 C = n = (x1 - x2)/|x1 - x2| = -grad_x2 C,
-    so A = w1 + w2 + alpha~ and dx1 = w1 n dlam, dx2 = -w2 n dlam (see common.py)."""
+    so A = w1 + w2 + alpha~ and dx1 = w1 n dlam, dx2 = -w2 n dlam (see solver/__init__.py)."""
     j = start + wp.tid()
     i1 = ids[j, 0]
     i2 = ids[j, 1]

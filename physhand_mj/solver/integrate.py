@@ -62,7 +62,7 @@ def advance(
 
     start >= 0 begins substep ``start``: save x^i, then x <- x^i + h v^i + h^2 M^-1 f_ext with
     f_ext = m g and v scaled by damp = exp(-damping h) (line 3). A kinematic (skeleton) vertex goes to
-    its bone's pose at the end of that substep (interpolate_bodies) applied to its body-frame
+    its bone's pose at the end of that substep (begin_frame) applied to its body-frame
     position: bones are an input, constraints never move them (w = 0). A non-finite position met here
     (set from outside the solver) is reset to the end of the last frame (x_safe) and counted.
     """

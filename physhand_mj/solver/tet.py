@@ -27,7 +27,7 @@ def solve_tets(
     delta: wp.array(dtype=wp.vec3),
 ):
     """C(x1..x4) = x21 x x31 . x41 - 6V (Eq. 3). Gradients: g2 = x31 x x41, g3 = x41 x x21,
-    g4 = x21 x x31, g1 = -(g2 + g3 + g4); A = sum_i w_i |g_i|^2 + alpha~ (see common.py).
+    g4 = x21 x x31, g1 = -(g2 + g3 + g4); A = sum_i w_i |g_i|^2 + alpha~ (see solver/__init__.py).
     Kinematic vertices have w = 0, so their update adds zero.
     An inverted tet has C < -6V, so the projection pushes it back through zero volume."""
     j = start + wp.tid()
