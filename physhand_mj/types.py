@@ -42,6 +42,42 @@ class Scheme(enum.IntEnum):
     COLORED = 1
 
 
+class GeomType(enum.IntEnum):
+    """Object shapes with a signed distance function (physhand_mj.contact.sdf). Sizes follow MuJoCo:
+    sphere (r), capsule (r, half length along z), ellipsoid (radii), cylinder (r, half height along
+    z), box (half extents), plane (the half-space z <= 0 of its frame), mesh (a wp.Mesh in the geom
+    frame), cone (base radius, height; tip at the origin pointing +z; not a MuJoCo geom: the paper's
+    cone experiment)."""
+
+    NONE = 0
+    PLANE = 1
+    SPHERE = 2
+    CAPSULE = 3
+    ELLIPSOID = 4
+    CYLINDER = 5
+    BOX = 6
+    MESH = 7
+    CONE = 8
+
+
+class Strategy(enum.IntEnum):
+    """Where a skin triangle's decision point comes from (paper section 3.3; section 4.2 baselines)."""
+
+    NONE = 0  # no contact
+    VERTEX = 1  # the 3 vertices and 3 edge midpoints (Fuhrmann et al. 2003)
+    OPT = 2  # Frank-Wolfe over the barycentric simplex from the centroid (Macklin et al. 2020)
+    MULTIRES = 3  # the paper's multi-resolution querying (Algorithm 2)
+
+
+class Placement(enum.IntEnum):
+    """Where in a substep the contact correction runs (paper Algorithm 1 puts it before the
+    constraints, line 6)."""
+
+    BEFORE = 1  # after the prediction, before the constraints (Algorithm 1)
+    AFTER = 2  # after the constraints, before the velocity update
+    BOTH = 3
+
+
 class NonFinite(enum.IntEnum):
     """What a step does when a vertex position turns non-finite (NaN/inf)."""
 
@@ -71,6 +107,13 @@ class Config:
         flesh vertices only).
       scheme: :class:`Scheme`; relaxation: Jacobi over-relaxation factor (1 = plain averaging).
       nonfinite: :class:`NonFinite` policy.
+      contact: :class:`Strategy` for the skin-object decision points (used when the solver has
+        objects); contact_placement: :class:`Placement` of the correction in the substep;
+        contact_passes: query + Eq. 9 projection rounds per placement; contact_margin: broadphase
+        margin (m); multires_samples / multires_rounds: Algorithm 2's samples per round and rounds
+        (the paper: 16 x 2 = 32 queries); opt_queries: Frank-Wolfe queries of OPT (the paper's
+        baseline: 32); substep_metrics: evaluate the penetration metrics after every substep (for
+        logs), not only at the end of the frame.
       device: Warp device, ``"cpu"`` or ``"cuda"`` / ``"cuda:0"``; None picks Warp's default.
       cuda_graph: capture one frame as a CUDA graph on CUDA devices.
     """
@@ -93,6 +136,14 @@ class Config:
     scheme: Scheme = Scheme.JACOBI
     relaxation: float = 1.0
     nonfinite: NonFinite = NonFinite.RECOVER
+    contact: Strategy = Strategy.MULTIRES
+    contact_placement: Placement = Placement.AFTER
+    contact_passes: int = 2
+    contact_margin: float = 2.0e-3
+    multires_samples: int = 16
+    multires_rounds: int = 2
+    opt_queries: int = 32
+    substep_metrics: bool = False
     device: str | None = None
     cuda_graph: bool = True
 
@@ -109,7 +160,7 @@ class Config:
                 raise ValueError(f"Config.{name} must be a finite number >= 0, got {v!r}")
 
         pos("frame_dt")
-        for name in ("substeps", "iterations"):
+        for name in ("substeps", "iterations", "contact_passes", "multires_rounds", "opt_queries"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"Config.{name} must be an integer >= 1, got {v!r}")
@@ -121,6 +172,11 @@ class Config:
             nonneg(name)
         if not (0.0 < self.relaxation < 2.0):
             raise ValueError(f"Config.relaxation must lie in (0, 2), got {self.relaxation!r}")
+        if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):
+            raise ValueError(f"Config.multires_samples must be an integer >= 3, got {self.multires_samples!r}")
+        nonneg("contact_margin")
+        self.contact = Strategy(self.contact)
+        self.contact_placement = Placement(self.contact_placement)
         self.scheme = Scheme(self.scheme)
         self.nonfinite = NonFinite(self.nonfinite)
         return self

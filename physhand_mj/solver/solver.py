@@ -28,7 +28,7 @@ from physhand_mj.solver.edge import solve_edges
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
-from physhand_mj.types import Config, Model, NonFinite, Scheme, State
+from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
 
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
@@ -43,16 +43,21 @@ def _xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
 
 
 class Solver:
-    """XPBD solver for one layered body. ``contact`` is the Algorithm 1 line 6 hook: an object with
-    ``project(solver, state)`` that launches its correction kernels (Warp only, capturable)."""
+    """XPBD solver for one layered body. With ``objects`` (a :class:`~physhand_mj.contact.Objects`)
+    and ``config.contact`` not NONE, each substep also runs the skin-object contact correction
+    (Algorithm 1 line 6, placed by ``config.contact_placement``) and ``step`` reports penetration."""
 
-    def __init__(self, model: Model, config: Config | None = None):
+    def __init__(self, model: Model, config: Config | None = None, objects=None):
         self.model = model
         self.config = (config or Config()).validate()
         self.device = wp.get_device(model.device)
         if self.config.device is not None and wp.get_device(self.config.device) != self.device:
             raise ValueError(f"Config.device {self.config.device!r} differs from the model's {model.device!r}")
         self.contact = None
+        if objects is not None and self.config.contact != Strategy.NONE:
+            from physhand_mj.contact import Contact
+
+            self.contact = Contact(model, objects, self.config)
         self._graphs: dict[tuple, object] = {}
         self._ops: dict[tuple, list] = {}
         h = self.config.substep_dt
@@ -146,20 +151,23 @@ class Solver:
         state.time += self.config.frame_dt
         state.frames += 1
         out = {"nonfinite": int(g[0]), "inverted": int(g[1])}
+        if self.contact is not None:
+            rows = self.contact.read_metrics()
+            out.update(self.contact.frame_metrics(rows))
+            self.substep_metrics = rows[:-1]
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
                               f"{state.frames}; state kept at their last finite positions")
         return out
 
     def _capturable(self) -> bool:
-        return (self.device.is_cuda and self.config.cuda_graph
-                and (self.contact is None or getattr(self.contact, "capturable", False)))
+        return self.device.is_cuda and self.config.cuda_graph
 
     def _record_frame(self, state: State) -> list:
         """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
-        ops = []
+        ops = [self.contact.metrics.zero_] if self.contact is not None else []
 
         def launch(kernel, dim, inputs, outputs):
             if dim:
@@ -184,8 +192,9 @@ class Solver:
             pending = -1
             if s == cfg.substeps:
                 break
-            if self.contact is not None:
-                ops.append(lambda: self.contact.project(self, state))
+            contact = self.contact
+            if contact is not None and contact.wants("before"):
+                contact.record(launch, ops, state)
             for it in range(cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
                     names = [name for name in group if m.colors[name]]
@@ -201,6 +210,16 @@ class Solver:
                                    [state.x, lams[name], state.delta if jacobi else state.x])
                     if jacobi:
                         pending = row
+            if contact is not None and (contact.wants("after") or cfg.substep_metrics):
+                if pending >= 0:  # the substep's positions must be final before contact / metrics
+                    launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
+                    pending = -1
+                if contact.wants("after"):
+                    contact.record(launch, ops, state)
+                if cfg.substep_metrics:
+                    contact.record_metrics(launch, state, s)
+        if self.contact is not None:
+            self.contact.record_metrics(launch, state, cfg.substeps)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
         return ops
 

@@ -1,0 +1,242 @@
+"""Decision points per skin triangle and the Eq. 9 projection (paper section 3.3, Algorithm 2).
+
+For every *active* skin triangle (broadphase.py) the kernel finds the decision point x*, the point
+of the triangle with the lowest signed distance to the objects, by one of three strategies, and if
+phi(x*) < 0 moves the triangle's three vertices by Eq. 9:
+
+    x_i <- x_i - grad phi(x*) / |grad phi(x*)| phi(x*)
+
+Triangles share vertices, so the corrections are summed per vertex and averaged over the
+penetrating triangles that touch it (``apply_contact``); ``Config.contact_passes`` repeats
+query + projection to remove what averaging leaves.
+
+Strategies (``Strategy``):
+- VERTEX: min over the 3 vertices and 3 edge midpoints (Fuhrmann et al. 2003): 6 queries.
+- OPT: Frank-Wolfe on the barycentric simplex from the centroid (Macklin et al. 2020 solve the same
+  local problem); step 2 / (k + 2), ``opt_queries`` gradient queries, best iterate kept.
+- MULTIRES: Algorithm 2: sample the triangle on a barycentric lattice (vertices, edges, interior;
+  ``multires_samples`` points per round), keep the 3 lowest as the next triangle, repeat
+  ``multires_rounds`` times; the lowest sample seen is x*.
+"""
+
+import warp as wp
+
+from physhand_mj.contact.sdf import FAR, geom_sdf, geom_sdf_grad
+from physhand_mj.types import Strategy
+
+VERTEX = wp.constant(int(Strategy.VERTEX))
+OPT = wp.constant(int(Strategy.OPT))
+MULTIRES = wp.constant(int(Strategy.MULTIRES))
+
+
+@wp.func
+def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+              pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+              mesh: wp.array(dtype=wp.uint64), count: int):
+    """min over the geoms of phi at world point p (m); geoms whose bounding sphere is farther than
+    the best value so far are skipped (phi >= |p - c| - R)."""
+    best = float(FAR)
+    for g in range(count):
+        t = pose[g]
+        if wp.length(p - wp.transform_get_translation(t)) - radius[g] < best:
+            d = geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(t), p), size[g], mesh[g])
+            best = wp.min(best, d)
+    return best
+
+
+@wp.func
+def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+                   pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                   mesh: wp.array(dtype=wp.uint64), count: int):
+    """(phi, unit world gradient, geom index) of the closest geom at world point p."""
+    best = float(FAR)
+    grad = wp.vec3(0.0, 0.0, 1.0)
+    arg = int(-1)
+    for g in range(count):
+        t = pose[g]
+        if wp.length(p - wp.transform_get_translation(t)) - radius[g] < best:
+            d, n = geom_sdf_grad(gtype[g], wp.transform_point(wp.transform_inverse(t), p), size[g], mesh[g])
+            if d < best:
+                best = d
+                grad = wp.transform_vector(t, n)
+                arg = g
+    return best, grad, arg
+
+
+@wp.func
+def lattice_order(samples: int):
+    """Largest order L with (L + 1)(L + 2) / 2 <= samples (at least 1)."""
+    order = int(1)
+    while (order + 2) * (order + 3) / 2 <= samples:
+        order += 1
+    return order
+
+
+@wp.kernel
+def decide_and_project(
+    # Model:
+    faces: wp.array2d(dtype=int),
+    # Objects:
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
+    pose: wp.array(dtype=wp.transform),
+    radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.uint64),
+    geom_count: wp.array(dtype=int),
+    # Contact in:
+    active: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    strategy: int,
+    samples: int,
+    rounds: int,
+    opt_queries: int,
+    # State in:
+    x: wp.array(dtype=wp.vec3),
+    # Contact out:
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    decision: wp.array(dtype=wp.vec4),
+):
+    """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < 0, Eq. 9
+    corrections into ``delta`` (summed) and ``hits`` (counts) of its three vertices.
+    decision[t] = (x*, phi(x*)) for diagnostics."""
+    k = wp.tid()
+    if k >= active_count[0]:
+        return
+    t = active[k]
+    i0 = faces[t, 0]
+    i1 = faces[t, 1]
+    i2 = faces[t, 2]
+    a = x[i0]
+    b = x[i1]
+    c = x[i2]
+    n_geoms = geom_count[0]
+    best = float(FAR)
+    best_p = a
+    if strategy == VERTEX:
+        for q in range(6):
+            p = a
+            if q == 1:
+                p = b
+            elif q == 2:
+                p = c
+            elif q == 3:
+                p = (a + b) * 0.5
+            elif q == 4:
+                p = (b + c) * 0.5
+            elif q == 5:
+                p = (c + a) * 0.5
+            d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms)
+            if d < best:
+                best = d
+                best_p = p
+    elif strategy == OPT:
+        w0 = float(1.0 / 3.0)
+        w1 = float(1.0 / 3.0)
+        w2 = float(1.0 / 3.0)
+        for q in range(opt_queries):
+            p = a * w0 + b * w1 + c * w2
+            d, g, arg = scene_phi_grad(p, gtype, size, pose, radius, mesh, n_geoms)
+            if d < best:
+                best = d
+                best_p = p
+            # Frank-Wolfe: the simplex vertex minimising the linearised phi, step 2 / (q + 2)
+            ga = wp.dot(g, a)
+            gb = wp.dot(g, b)
+            gc = wp.dot(g, c)
+            gamma = 2.0 / (float(q) + 2.0)
+            w0 = w0 * (1.0 - gamma)
+            w1 = w1 * (1.0 - gamma)
+            w2 = w2 * (1.0 - gamma)
+            if ga <= gb and ga <= gc:
+                w0 += gamma
+            elif gb <= gc:
+                w1 += gamma
+            else:
+                w2 += gamma
+    else:
+        order = lattice_order(samples)
+        inv = 1.0 / float(order)
+        ta = a
+        tb = b
+        tc = c
+        for r in range(rounds):
+            # the three lowest samples of this round, ascending
+            d0 = float(FAR)
+            d1 = float(FAR)
+            d2 = float(FAR)
+            p0 = ta
+            p1 = tb
+            p2 = tc
+            n = int(0)
+            for i in range(order + 1):
+                for j in range(order + 1 - i):
+                    u = float(i) * inv
+                    v = float(j) * inv
+                    p = ta * (1.0 - u - v) + tb * u + tc * v
+                    d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms)
+                    n += 1
+                    if d < d0:
+                        d2 = d1
+                        p2 = p1
+                        d1 = d0
+                        p1 = p0
+                        d0 = d
+                        p0 = p
+                    elif d < d1:
+                        d2 = d1
+                        p2 = p1
+                        d1 = d
+                        p1 = p
+                    elif d < d2:
+                        d2 = d
+                        p2 = p
+            if n < samples:  # spend a leftover query on the centroid
+                p = (ta + tb + tc) * (1.0 / 3.0)
+                d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms)
+                if d < d0:
+                    d2 = d1
+                    p2 = p1
+                    d1 = d0
+                    p1 = p0
+                    d0 = d
+                    p0 = p
+                elif d < d1:
+                    d2 = d1
+                    p2 = p1
+                    d1 = d
+                    p1 = p
+                elif d < d2:
+                    d2 = d
+                    p2 = p
+            if d0 < best:
+                best = d0
+                best_p = p0
+            ta = p0
+            tb = p1
+            tc = p2
+    decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
+    if best < 0.0:
+        d, g, arg = scene_phi_grad(best_p, gtype, size, pose, radius, mesh, n_geoms)
+        corr = g * (-d)  # Eq. 9 with the gradient and depth at x*
+        wp.atomic_add(delta, i0, corr)
+        wp.atomic_add(delta, i1, corr)
+        wp.atomic_add(delta, i2, corr)
+        wp.atomic_add(hits, i0, 1.0)
+        wp.atomic_add(hits, i1, 1.0)
+        wp.atomic_add(hits, i2, 1.0)
+
+
+@wp.kernel
+def apply_contact(
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+):
+    """x_i += (sum of the Eq. 9 corrections of vertex i) / (number of penetrating triangles of i)."""
+    i = wp.tid()
+    n = hits[i]
+    if n > 0.0:
+        x[i] = x[i] + delta[i] * (1.0 / n)
+        delta[i] = wp.vec3(0.0)
+        hits[i] = 0.0

@@ -1,0 +1,67 @@
+"""Penetration metrics as the paper measures them (section 4.2-4.3; DESIGN "Metrics").
+
+Every skin triangle is sampled on the order-5 barycentric lattice (21 points: vertices, edge points,
+interior); a sample with phi < 0 against any object is a penetration. Per evaluation the kernel adds,
+into one row of ``out``: [penetrating samples, sum of their depths |phi| (m), max depth (m)].
+Triangles that the broadphase bound puts beyond every geom are skipped (they cannot penetrate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.contact.query import scene_phi
+
+ORDER = 5  # 21 samples per triangle
+
+
+@wp.kernel
+def penetration_samples(
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
+    pose: wp.array(dtype=wp.transform),
+    radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.uint64),
+    geom_count: wp.array(dtype=int),
+    row: int,
+    out: wp.array2d(dtype=float),
+):
+    t = wp.tid()
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    m = (a + b + c) * (1.0 / 3.0)
+    r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
+    n = geom_count[0]
+    near = int(0)
+    for g in range(n):
+        if wp.length(m - wp.transform_get_translation(pose[g])) - radius[g] - r <= 0.0:
+            near = 1
+    if near == 0:
+        return
+    count = float(0.0)
+    total = float(0.0)
+    deepest = float(0.0)
+    for i in range(6):
+        for j in range(6 - i):
+            u = float(i) / 5.0
+            v = float(j) / 5.0
+            d = scene_phi(a * (1.0 - u - v) + b * u + c * v, gtype, size, pose, radius, mesh, n)
+            if d < 0.0:
+                count += 1.0
+                total += -d
+                deepest = wp.max(deepest, -d)
+    if count > 0.0:
+        wp.atomic_add(out, row, 0, count)
+        wp.atomic_add(out, row, 1, total)
+        wp.atomic_max(out, row, 2, deepest)
+
+
+def summarize(row: np.ndarray) -> dict:
+    """[count, sum depth m, max depth m] -> penetration_count, penetration_max_um, penetration_avg_um."""
+    count = int(round(float(row[0])))
+    return dict(penetration_count=count, penetration_max_um=float(row[2]) * 1e6,
+                penetration_avg_um=float(row[1]) / count * 1e6 if count else 0.0)
