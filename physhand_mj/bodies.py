@@ -68,3 +68,23 @@ def soft_body(positions, *, skin_faces=None, tets=None, edges=None, layer=None, 
     )
     validate_asset(asset, name)
     return asset
+
+
+def sheet(nx: int, ny: int, spacing: float, *, height: float = 0.0, areal_density: float = 0.1,
+          name: str = "sheet") -> HandAsset:
+    """A flat triangle sheet of nx x ny vertices (spacing m) centred on the z axis at ``height`` (m),
+    skin layer only (edges and dihedral pairs, no tets), mass from ``areal_density`` (kg/m^2).
+    Diagonals alternate so the sheet has no preferred shear direction."""
+    if nx < 2 or ny < 2 or not spacing > 0:
+        raise ValueError("a sheet needs nx, ny >= 2 and spacing > 0 (m)")
+    xs = (np.arange(nx) - (nx - 1) / 2) * spacing
+    ys = (np.arange(ny) - (ny - 1) / 2) * spacing
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    pos = np.stack([gx.ravel(), gy.ravel(), np.full(nx * ny, float(height))], axis=1)
+    faces = []
+    for i in range(nx - 1):
+        for j in range(ny - 1):
+            a, b, c, d = i * ny + j, (i + 1) * ny + j, (i + 1) * ny + j + 1, i * ny + j + 1
+            faces += [[a, b, c], [a, c, d]] if (i + j) % 2 == 0 else [[a, b, d], [b, c, d]]
+    mass = areal_density * (spacing * (nx - 1)) * (spacing * (ny - 1)) / (nx * ny)
+    return soft_body(pos, skin_faces=faces, vertex_mass=mass, name=name)

@@ -3,7 +3,8 @@
 Every skin triangle is sampled on the order-5 barycentric lattice (21 points: vertices, edge points,
 interior); a sample with phi < 0 against any object is a penetration. Per evaluation the kernel adds,
 into one row of ``out``: [penetrating samples, sum of their depths |phi| (m), max depth (m)].
-Triangles that the broadphase bound puts beyond every geom are skipped (they cannot penetrate).
+Triangles with phi(centroid) > circumradius for every geom are skipped: SDFs are 1-Lipschitz, so
+none of their samples can penetrate.
 """
 
 from __future__ import annotations
@@ -36,11 +37,7 @@ def penetration_samples(
     m = (a + b + c) * (1.0 / 3.0)
     r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
     n = geom_count[0]
-    near = int(0)
-    for g in range(n):
-        if wp.length(m - wp.transform_get_translation(pose[g])) - radius[g] - r <= 0.0:
-            near = 1
-    if near == 0:
+    if scene_phi(m, gtype, size, pose, radius, mesh, n) > r:
         return
     count = float(0.0)
     total = float(0.0)

@@ -138,7 +138,7 @@ class Config:
     nonfinite: NonFinite = NonFinite.RECOVER
     contact: Strategy = Strategy.MULTIRES
     contact_placement: Placement = Placement.AFTER
-    contact_passes: int = 2
+    contact_passes: int = 8
     contact_margin: float = 2.0e-3
     multires_samples: int = 16
     multires_rounds: int = 2

@@ -1,20 +1,26 @@
 """Which skin triangles can touch an object this substep: so contact cost follows contact area.
 
-A triangle with centroid c and circumradius r (largest centroid-vertex distance) cannot reach a geom
-whose bounding sphere (centre o, radius R) satisfies |c - o| - R - r > margin: every SDF is
-1-Lipschitz, so no point of the triangle is closer than that. ``margin`` (m) covers the motion
-within one contact pass. Surviving triangles are compacted into ``active`` with an atomic counter.
+A triangle with centroid c and circumradius r (largest centroid-vertex distance) cannot reach a
+geom if phi(c) - r > margin: every SDF is 1-Lipschitz, so no point of the triangle is closer. The
+cheap bound |c - o| - R (bounding sphere, centre o, radius R) is tried first, the exact phi(c)
+(one query) only for triangles inside it. ``margin`` (m) covers the motion within one contact
+stage. Surviving triangles are compacted into ``active`` with an atomic counter.
 """
 
 import warp as wp
+
+from physhand_mj.contact.sdf import geom_sdf
 
 
 @wp.kernel
 def find_active(
     faces: wp.array2d(dtype=int),
     x: wp.array(dtype=wp.vec3),
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
     pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
     margin: float,
     active: wp.array(dtype=int),
@@ -27,12 +33,34 @@ def find_active(
     m = (a + b + c) * (1.0 / 3.0)
     r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
     for g in range(geom_count[0]):
-        if wp.length(m - wp.transform_get_translation(pose[g])) - radius[g] - r <= margin:
-            slot = wp.atomic_add(active_count, 0, 1)
-            active[slot] = t
-            return
+        tf = pose[g]
+        if wp.length(m - wp.transform_get_translation(tf)) - radius[g] - r <= margin:
+            if geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(tf), m), size[g], mesh[g]) - r <= margin:
+                slot = wp.atomic_add(active_count, 0, 1)
+                active[slot] = t
+                return
 
 
 @wp.kernel
 def reset_counter(counter: wp.array(dtype=int)):
     counter[0] = 0
+
+
+@wp.kernel
+def keep_near(
+    active_in: wp.array(dtype=int),
+    count_in: wp.array(dtype=int),
+    decision: wp.array(dtype=wp.vec4),
+    threshold: float,
+    active_out: wp.array(dtype=int),
+    count_out: wp.array(dtype=int),
+):
+    """Next contact pass: only triangles whose decision point came within ``threshold`` (m) of an
+    object (phi(x*) = decision[t].w) can still need a correction after their neighbours moved."""
+    k = wp.tid()
+    if k >= count_in[0]:
+        return
+    t = active_in[k]
+    if decision[t][3] < threshold:
+        slot = wp.atomic_add(count_out, 0, 1)
+        active_out[slot] = t

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.broadphase import find_active
+from physhand_mj.contact.broadphase import find_active, keep_near
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
 from physhand_mj.metrics import penetration_samples, summarize
@@ -30,6 +30,8 @@ class Contact:
         self.n_tris = n_tris
         self.active = wp.zeros(max(n_tris, 1), dtype=int, device=d)
         self.active_count = wp.zeros(1, dtype=int, device=d)
+        self.active2 = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # ping-pong list between passes
+        self.active2_count = wp.zeros(1, dtype=int, device=d)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -44,19 +46,28 @@ class Contact:
             stage == "after" and p in (Placement.AFTER, Placement.BOTH))
 
     def record(self, launch, ops: list, state) -> None:
-        """Broadphase once, then ``contact_passes`` x (decision points + Eq. 9, averaged apply)."""
+        """Broadphase once, then ``contact_passes`` x (decision points + Eq. 9, averaged apply); after
+        each pass only triangles whose decision point came within a quarter of the margin of an
+        object stay in the list (their neighbours' corrections can move them back into contact)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
         ops.append(self.active_count.zero_)
-        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.pose, o.radius, o.count, cfg.contact_margin],
+        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count,
+                                          cfg.contact_margin],
                [self.active, self.active_count])
-        for _ in range(cfg.contact_passes):
+        lists = [(self.active, self.active_count), (self.active2, self.active2_count)]
+        for p in range(cfg.contact_passes):
+            cur, nxt = lists[p % 2], lists[(p + 1) % 2]
             launch(decide_and_project, self.n_tris,
-                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, self.active, self.active_count,
+                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, cur[0], cur[1],
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, state.x],
                    [self.delta, self.hits, self.decision])
             launch(apply_contact, m.n_vertices, [self.delta, self.hits], [state.x])
+            if p + 1 < cfg.contact_passes:
+                ops.append(nxt[1].zero_)
+                launch(keep_near, self.n_tris, [cur[0], cur[1], self.decision, 0.25 * cfg.contact_margin],
+                       [nxt[0], nxt[1]])
 
     def record_metrics(self, launch, state, row: int) -> None:
         m, o = self.model, self.objects

@@ -4,7 +4,8 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
 ``geom_sdf_grad`` adds the gradient (unit length where phi is differentiable). Exactness:
 
 - plane, sphere, capsule, box, cylinder, cone: exact Euclidean distance, analytic gradients (box and
-  cylinder pick one face's normal inside, where the distance has a kink);
+  cylinder pick one face's normal inside, where the distance has a kink; the cone's is the unit
+  vector to its closest surface point);
 - ellipsoid: Quilez's bound phi = k0 (k0 - 1) / k1 (k0 = |p / r|, k1 = |p / r^2|): exact sign and
   zero set, exact for a sphere, otherwise off by a factor between min(r)/max(r) and 1 away from
   the surface; gradient by central differences;
@@ -80,6 +81,39 @@ def sdf_cone(p: wp.vec3, radius: float, height: float):
     d = wp.min(ax * ax + ay * ay, bx * bx + by * by)
     s = wp.max(-(wx * qy - wy * qx), -(wy - qy))  # k = sign(qy) = -1
     return wp.sqrt(d) * wp.sign(s)
+
+
+@wp.func
+def sdf_cone_grad(p: wp.vec3, radius: float, height: float):
+    """(phi, gradient) of :func:`sdf_cone`: in the (rho, z) half-plane the gradient is sign(phi) times
+    the unit vector from the closest surface point, mapped back along the radial direction."""
+    qx = radius
+    qy = -height
+    rho = wp.sqrt(p[0] * p[0] + p[1] * p[1])
+    wy = p[2]
+    t = wp.clamp((rho * qx + wy * qy) / (qx * qx + qy * qy), 0.0, 1.0)
+    ax = rho - qx * t
+    ay = wy - qy * t
+    bx = rho - qx * wp.clamp(rho / qx, 0.0, 1.0)
+    by = wy - qy
+    da = ax * ax + ay * ay
+    db = bx * bx + by * by
+    vx = ax
+    vy = ay
+    d = da
+    if db < da:
+        vx = bx
+        vy = by
+        d = db
+    sgn = wp.sign(wp.max(-(rho * qy - wy * qx), -(wy - qy)))
+    n = wp.sqrt(d)
+    radial = wp.vec3(1.0, 0.0, 0.0)
+    if rho > 1.0e-12:
+        radial = wp.vec3(p[0] / rho, p[1] / rho, 0.0)
+    if n < 1.0e-12:  # on the surface: the side's outward normal
+        g2 = wp.normalize(wp.vec2(height, radius))
+        return 0.0, radial * g2[0] + wp.vec3(0.0, 0.0, g2[1])
+    return n * sgn, (radial * vx + wp.vec3(0.0, 0.0, vy)) * (sgn / n)
 
 
 @wp.func
@@ -178,6 +212,8 @@ def geom_sdf_grad(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
                 return hit.sign * n, d * (hit.sign / n)
             return 0.0, wp.mesh_eval_face_normal(mesh, hit.face)
         return FAR, up
-    if gtype == ELLIPSOID or gtype == CONE:
+    if gtype == CONE:
+        return sdf_cone_grad(p, size[0], size[1])
+    if gtype == ELLIPSOID:
         return geom_sdf(gtype, p, size, mesh), _fd_gradient(gtype, p, size, mesh)
     return FAR, up
