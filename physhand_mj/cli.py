@@ -80,6 +80,26 @@ def _bench_solver(args) -> dict:
                         substeps=args.substeps, iterations=args.iterations, scheme=Scheme[args.scheme.upper()])
 
 
+def _bench_cone(args) -> dict:
+    from physhand_mj.bench import bench_cone
+    from physhand_mj.types import Placement
+
+    kw = {} if args.passes is None else dict(contact_passes=args.passes)
+    if args.placement is not None:
+        kw["contact_placement"] = Placement[args.placement.upper()]
+    summary, log = bench_cone(args.contact, args.device, args.steps, **kw)
+    if args.log is not None:
+        import csv
+
+        args.log.parent.mkdir(parents=True, exist_ok=True)
+        with open(args.log, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(log[0]))
+            w.writeheader()
+            w.writerows(log)
+        summary["log"] = str(args.log)
+    return summary
+
+
 def main(argv: list[str] | None = None) -> int:
     from physhand_mj.asset import DEFAULT_ASSET
     from physhand_mj.hand_mjcf import HAND_XML
@@ -110,6 +130,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=1, help="constraint passes per substep (count, default 1)")
     p.add_argument("--scheme", choices=["jacobi", "colored"], default="jacobi", help="parallel scheme (default jacobi)")
     p.set_defaults(run=_bench_solver)
+    p = bench.add_parser("cone", help="the paper's cone experiment: a 2,400-vertex sheet falls on a cone")
+    p.add_argument("--contact", choices=["vertex", "opt", "multires"], default="multires",
+                   help="decision-point strategy (default multires)")
+    p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")
+    p.add_argument("--steps", type=int, default=30, help="5 ms steps of 10 substeps (count, default 30)")
+    p.add_argument("--passes", type=int, default=None, help="contact passes per substep (count, default 8)")
+    p.add_argument("--placement", choices=["before", "after", "both"], default=None,
+                   help="where the correction runs in a substep (default after)")
+    p.add_argument("--log", type=Path, default=None, help="write the per-substep log as CSV here")
+    p.set_defaults(run=_bench_cone)
     args = parser.parse_args(argv)
 
     from physhand_mj.asset import AssetError

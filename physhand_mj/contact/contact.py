@@ -15,6 +15,8 @@ from physhand_mj.contact.query import apply_contact, decide_and_project
 from physhand_mj.metrics import penetration_samples, summarize
 from physhand_mj.types import Config, Model, Placement
 
+KEEP_BELOW = 1.0e-5  # m: after a pass, triangles whose decision point is this close stay for the next
+
 
 class Contact:
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
@@ -47,8 +49,8 @@ class Contact:
 
     def record(self, launch, ops: list, state) -> None:
         """Broadphase once, then ``contact_passes`` x (decision points + Eq. 9, averaged apply); after
-        each pass only triangles whose decision point came within a quarter of the margin of an
-        object stay in the list (their neighbours' corrections can move them back into contact)."""
+        each pass only triangles whose decision point came within KEEP_BELOW of an object stay in
+        the list (penetrating ones, and touching ones that a neighbour's correction can push in)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
@@ -66,7 +68,7 @@ class Contact:
             launch(apply_contact, m.n_vertices, [self.delta, self.hits], [state.x])
             if p + 1 < cfg.contact_passes:
                 ops.append(nxt[1].zero_)
-                launch(keep_near, self.n_tris, [cur[0], cur[1], self.decision, 0.25 * cfg.contact_margin],
+                launch(keep_near, self.n_tris, [cur[0], cur[1], self.decision, KEEP_BELOW],
                        [nxt[0], nxt[1]])
 
     def record_metrics(self, launch, state, row: int) -> None:
@@ -76,6 +78,24 @@ class Contact:
                    [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, row], [self.metrics])
 
     # -- host side ---------------------------------------------------------------------------------
+    def run_stage(self, state) -> np.ndarray:
+        """Run one contact stage now (broadphase + passes) on ``state.x``; returns (F, 4) decision
+        points of the last pass (x*, phi(x*)) with phi = FAR for triangles the broadphase skipped.
+        For tests and diagnostics: inside a frame the solver records the same launches."""
+        ops: list = []
+        d = self.model.device
+
+        def launch(kernel, dim, inputs, outputs):
+            if dim:
+                ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
+
+        ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
+        self.record(launch, ops, state)
+        for op in ops:
+            op()
+        wp.synchronize_device(d)
+        return self.decision.numpy()[: self.n_tris].copy()
+
     def read_metrics(self) -> np.ndarray:
         """(substeps + 1, 3) [count, sum depth m, max depth m]; the last row is the frame's end.
         Rows of substeps are zero unless Config.substep_metrics."""

@@ -1,0 +1,273 @@
+"""SDF contact: geom SDFs against numpy references, decision-point strategies on constructed
+triangles, the correction's invariants, broadphase, CPU/CUDA agreement, errors."""
+
+import numpy as np
+import pytest
+import trimesh
+import warp as wp
+
+import physhand_mj as ph
+from physhand_mj.contact import Contact, Objects
+from physhand_mj.contact.sdf import geom_sdf_grad
+from physhand_mj.types import GeomType, Placement, Strategy
+
+DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
+PHI_TOL = 2e-6  # m: float32 evaluation of distances of a few centimetres
+GRAD_TOL = 2e-3  # unit-vector components vs numpy central differences
+
+
+@wp.kernel
+def _eval(gtype: int, size: wp.vec3, mesh: wp.uint64, p: wp.array(dtype=wp.vec3),
+          phi: wp.array(dtype=float), grad: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    d, g = geom_sdf_grad(gtype, p[i], size, mesh)
+    phi[i] = d
+    grad[i] = g
+
+
+def evaluate(gtype, size, points, mesh=0, device="cpu"):
+    n = len(points)
+    phi = wp.zeros(n, dtype=float, device=device)
+    grad = wp.zeros(n, dtype=wp.vec3, device=device)
+    wp.launch(_eval, n, inputs=[int(gtype), wp.vec3(*size), wp.uint64(mesh),
+                                wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)],
+              outputs=[phi, grad], device=device)
+    return phi.numpy().astype(float), grad.numpy().astype(float)
+
+
+def _seg_dist(w, a, b):
+    ab = b - a
+    t = np.clip(((w - a) @ ab) / (ab @ ab), 0, 1)
+    return np.linalg.norm(w - (a + t[:, None] * ab), axis=1)
+
+
+def ref_box(p, b):
+    q = np.abs(p) - b
+    return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+
+
+def ref_cylinder(p, r, h):
+    d = np.stack([np.hypot(p[:, 0], p[:, 1]) - r, np.abs(p[:, 2]) - h], 1)
+    return np.minimum(d.max(axis=1), 0) + np.linalg.norm(np.maximum(d, 0), axis=1)
+
+
+def ref_cone(p, r, h):
+    """Distance to the profile segments (apex-rim, rim-base centre) in the (rho, z) half-plane."""
+    w = np.stack([np.hypot(p[:, 0], p[:, 1]), p[:, 2]], 1)
+    d = np.minimum(_seg_dist(w, np.array([0.0, 0.0]), np.array([r, -h])),
+                   _seg_dist(w, np.array([r, -h]), np.array([0.0, -h])))
+    inside = (w[:, 1] <= 0) & (w[:, 1] >= -h) & (w[:, 0] <= r * (-w[:, 1]) / h)
+    return np.where(inside, -d, d)
+
+
+REFS = {
+    GeomType.PLANE: ((0, 0, 0), lambda p, s: p[:, 2]),
+    GeomType.SPHERE: ((0.03, 0, 0), lambda p, s: np.linalg.norm(p, axis=1) - s[0]),
+    GeomType.CAPSULE: ((0.02, 0.04, 0), lambda p, s: np.linalg.norm(
+        p - np.stack([0 * p[:, 0], 0 * p[:, 0], np.clip(p[:, 2], -s[1], s[1])], 1), axis=1) - s[0]),
+    GeomType.BOX: ((0.03, 0.02, 0.01), lambda p, s: ref_box(p, np.array(s))),
+    GeomType.CYLINDER: ((0.03, 0.02, 0), lambda p, s: ref_cylinder(p, s[0], s[1])),
+    GeomType.CONE: ((0.06, 0.1, 0), lambda p, s: ref_cone(p, s[0], s[1])),
+}
+
+
+def _points(rng, n=400, scale=0.08):
+    p = rng.uniform(-scale, scale, size=(n, 3))
+    near = rng.uniform(-1, 1, size=(n // 4, 3)) * 0.002 + np.array([0.03, 0.02, 0.01])  # near a box corner
+    return np.concatenate([p, near])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("gtype", list(REFS))
+def test_sdf_values_and_gradients_match_numpy(gtype, device):
+    size, ref = REFS[gtype]
+    rng = np.random.default_rng(int(gtype))
+    p = _points(rng)
+    if gtype == GeomType.CONE:
+        p[:, 2] -= 0.04  # centre the samples on the cone's body
+    phi, grad = evaluate(gtype, size, p, device=device)
+    want = ref(p, size)
+    assert np.abs(phi - want).max() < PHI_TOL, f"{gtype.name}: phi off by {np.abs(phi - want).max():.2e} m"
+    assert (phi < 0).any() and (phi > 0).any(), "samples must cover inside and outside"
+    # gradient vs central differences of the reference, away from the kinks of the distance field
+    h = 1e-6
+    fd = np.stack([(ref(p + h * e, size) - ref(p - h * e, size)) / (2 * h) for e in np.eye(3)], 1)
+    smooth = np.abs(np.linalg.norm(fd, axis=1) - 1) < 1e-3
+    for e in np.eye(3):  # a kink lies between p - h e and p + h e if the one-sided slopes differ
+        left = (ref(p, size) - ref(p - h * e, size)) / h
+        right = (ref(p + h * e, size) - ref(p, size)) / h
+        smooth &= np.abs(left - right) < 1e-3
+    assert smooth.sum() > 0.8 * len(p)
+    err = np.abs(grad[smooth] - fd[smooth]).max()
+    assert err < GRAD_TOL, f"{gtype.name}: gradient off by {err:.2e}"
+
+
+def test_ellipsoid_sign_surface_and_sphere_case():
+    radii = np.array([0.04, 0.025, 0.015])
+    rng = np.random.default_rng(7)
+    p = rng.uniform(-0.06, 0.06, size=(500, 3))
+    phi, grad = evaluate(GeomType.ELLIPSOID, radii, p)
+    inside = ((p / radii) ** 2).sum(axis=1) < 1
+    assert np.array_equal(phi < 0, inside), "the sign must be exact"
+    u = rng.normal(size=(200, 3))
+    surface = u / np.linalg.norm(u / radii, axis=1, keepdims=True)  # points with (p/r)^2 sum = 1
+    phi_s, grad_s = evaluate(GeomType.ELLIPSOID, radii, surface)
+    assert np.abs(phi_s).max() < 1e-6, "the zero set must be the ellipsoid"
+    normal = surface / radii ** 2
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    assert np.abs(grad_s - normal).max() < 1e-2, "gradient on the surface = the ellipsoid normal"
+    phi_b, _ = evaluate(GeomType.ELLIPSOID, [0.03, 0.03, 0.03], p)
+    assert np.abs(phi_b - (np.linalg.norm(p, axis=1) - 0.03)).max() < PHI_TOL, "exact for a sphere"
+
+
+def test_mesh_sdf_matches_the_analytic_box():
+    half = np.array([0.03, 0.02, 0.01])
+    box = trimesh.creation.box(extents=2 * half)
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.MESH, None, vertices=box.vertices, faces=box.faces, name="box_mesh", mesh_range=1.0)
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.05, 0.05, size=(400, 3))
+    phi, grad = evaluate(GeomType.MESH, objs._host["size"][0], p, mesh=int(objs._host["mesh"][0]))
+    want = ref_box(p, half)
+    assert np.abs(phi - want).max() < PHI_TOL
+    outside = want > 1e-3
+    box_phi, box_grad = evaluate(GeomType.BOX, half, p)
+    assert np.abs(grad[outside] - box_grad[outside]).max() < 1e-4
+
+
+# -- strategies on constructed triangles ------------------------------------------------------------
+
+def _triangle_contact(strategy, sphere_z, radius=0.03, **kw):
+    """A large triangle in the plane z = 0 (vertices 0.1 m from the origin) and a sphere below it
+    whose cap pokes up through the triangle's interior when sphere_z + radius > 0."""
+    ang = np.radians([90, 210, 330])
+    tri = np.stack([0.1 * np.cos(ang), 0.1 * np.sin(ang), np.zeros(3)], 1)
+    body = ph.soft_body(tri, skin_faces=[[0, 1, 2]], vertex_mass=1e-3)
+    cfg = ph.Config(device="cpu", contact=strategy, contact_passes=1, **kw)
+    model = ph.make_model(body, cfg)
+    objs = Objects("cpu", 2)
+    objs.add(GeomType.SPHERE, [radius], pos=(0.0, 0.0, sphere_z), name="ball")
+    solver = ph.Solver(model, cfg, objects=objs)
+    state = solver.make_state()
+    before = state.x.numpy().copy()
+    decision = solver.contact.run_stage(state)[0]
+    return tri, decision, before, state.x.numpy().copy()
+
+
+def _in_triangle(tri, p, tol=1e-6):
+    a, b, c = tri
+    n = np.cross(b - a, c - a)
+    lam = [np.dot(np.cross(c - b, p - b), n), np.dot(np.cross(a - c, p - c), n), np.dot(np.cross(b - a, p - a), n)]
+    return min(lam) / np.dot(n, n) >= -tol and abs(np.dot(p - a, n / np.linalg.norm(n))) < tol
+
+
+def test_vertex_misses_a_cap_through_the_interior_and_multires_finds_it():
+    depth = 0.004  # the sphere top is 4 mm above the triangle plane
+    _, dec_v, before, after_v = _triangle_contact(Strategy.VERTEX, depth - 0.03)
+    assert dec_v[3] > 0 and np.array_equal(before, after_v), "vertex + midpoint queries cannot see it"
+    for strategy in (Strategy.MULTIRES, Strategy.OPT):
+        tri, dec, before, after = _triangle_contact(strategy, depth - 0.03)
+        assert dec[3] < -0.5 * depth, f"{strategy.name} decision phi {dec[3]:.4f} m"
+        assert _in_triangle(tri, dec[:3].astype(float), tol=1e-5), "the decision point lies in the triangle"
+        assert (after[:, 2] > before[:, 2]).all(), "Eq. 9 lifts the triangle off the sphere"
+
+
+def test_triangle_resting_on_a_plane_is_not_moved():
+    tri = np.array([[0.0, 0, 0.0], [0.05, 0, 0.0], [0, 0.05, 0.0]]) + [0, 0, 1e-5]
+    body = ph.soft_body(tri, skin_faces=[[0, 1, 2]], vertex_mass=1e-3)
+    for strategy in (Strategy.VERTEX, Strategy.OPT, Strategy.MULTIRES):
+        cfg = ph.Config(device="cpu", contact=strategy)
+        objs = Objects("cpu", 1)
+        objs.add(GeomType.PLANE, None, name="floor")
+        solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
+        state = solver.make_state()
+        solver.contact.run_stage(state)
+        assert np.array_equal(state.x.numpy(), tri.astype(np.float32)), strategy.name
+
+
+@pytest.mark.parametrize("strategy", [Strategy.VERTEX, Strategy.OPT, Strategy.MULTIRES])
+def test_correction_never_increases_penetration(strategy):
+    """A bumpy sheet pressed onto a sphere: one contact stage must not deepen any sample."""
+    from physhand_mj.bodies import sheet
+
+    body = sheet(20, 20, 0.004, height=0.027)
+    rng = np.random.default_rng(1)
+    cfg = ph.Config(device="cpu", contact=strategy)
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.SPHERE, [0.03], name="ball")
+    solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
+    state = solver.make_state()
+    x = body.positions + rng.normal(scale=0.001, size=body.positions.shape) * [0, 0, 1]
+    state.x.assign(x.astype(np.float32))
+
+    def metrics():
+        solver.contact.metrics.zero_()
+        solver.contact.record_metrics(lambda k, dim, inputs, outputs: wp.launch(k, dim, inputs=inputs,
+                                                                                 outputs=outputs, device="cpu"),
+                                      state, 0)
+        return solver.contact.read_metrics()[0]
+
+    m0 = metrics()
+    solver.contact.run_stage(state)
+    m1 = metrics()
+    assert m0[0] > 50, "the setup must start penetrating"
+    assert m1[0] <= m0[0] and m1[2] <= m0[2] + 1e-9, f"count {m0[0]} -> {m1[0]}, max {m0[2]:.2e} -> {m1[2]:.2e} m"
+
+
+def test_broadphase_skips_far_triangles():
+    from physhand_mj.bodies import sheet
+
+    body = sheet(30, 30, 0.005, height=0.0)
+    cfg = ph.Config(device="cpu", contact_passes=1)  # active_count then holds the broadphase's list
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.SPHERE, [0.01], pos=(0.05, 0.05, 0.0105), name="ball")  # over one corner region
+    solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
+    state = solver.make_state()
+    solver.contact.run_stage(state)
+    active = solver.contact.active_count.numpy()[0]
+    x = body.positions
+    c = x[body.skin_faces].mean(axis=1)
+    r = np.linalg.norm(x[body.skin_faces] - c[:, None], axis=2).max(axis=1)
+    near = (np.linalg.norm(c - [0.05, 0.05, 0.0105], axis=1) - 0.01 - r <= cfg.contact_margin).sum()
+    assert 0 < active <= near < 0.2 * len(body.skin_faces), (active, near)
+
+
+def test_placement_after_leaves_less_penetration_than_before():
+    from physhand_mj.bench import bench_cone
+
+    res = {p: bench_cone("multires", "cpu", 30, contact_placement=p)[0] for p in (Placement.BEFORE, Placement.AFTER)}
+    before, after = res[Placement.BEFORE], res[Placement.AFTER]
+    assert after["penetration_count_mean"] < 0.7 * before["penetration_count_mean"], res
+    assert after["penetration_count_final"] == 0 < before["penetration_count_final"], res
+
+
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
+def test_cone_cpu_and_cuda_agree():
+    from physhand_mj.bench import bench_cone
+
+    cpu, _ = bench_cone("multires", "cpu", 12)
+    gpu, _ = bench_cone("multires", "cuda", 12)
+    for key in ("penetration_count_final", "penetration_count_max"):
+        assert abs(cpu[key] - gpu[key]) <= 2, (key, cpu[key], gpu[key])
+
+
+def test_object_errors_say_what_to_fix():
+    objs = Objects("cpu", 1)
+    with pytest.raises(ValueError, match="positive"):
+        objs.add(GeomType.SPHERE, [-1.0])
+    with pytest.raises(ValueError, match="vertices and faces"):
+        objs.add(GeomType.MESH, None, name="m")
+    objs.add(GeomType.SPHERE, [0.01])
+    with pytest.raises(ValueError, match="at most 1"):
+        objs.add(GeomType.BOX, [0.01, 0.01, 0.01])
+    with pytest.raises(ValueError, match="non-finite"):
+        objs.set_pose(0, (np.nan, 0, 0), (1, 0, 0, 0))
+    body = ph.soft_body(np.eye(3) * 0.01, skin_faces=[[0, 1, 2]], vertex_mass=1e-3)
+    with pytest.raises(ValueError, match="objects live on"):
+        Contact(ph.make_model(body, ph.Config(device="cpu")), _objects_on_other_device(), ph.Config(device="cpu"))
+
+
+def _objects_on_other_device():
+    o = Objects("cpu", 1)
+    o.device = "cuda:0"  # a mismatch is what matters here
+    return o
