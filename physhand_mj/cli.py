@@ -85,6 +85,10 @@ def _bench_cone(args) -> dict:
     from physhand_mj.types import Placement
 
     kw = {} if args.passes is None else dict(contact_passes=args.passes)
+    if args.samples is not None:
+        kw["multires_samples"] = args.samples
+    if args.rounds is not None:
+        kw["multires_rounds"] = args.rounds
     if args.placement is not None:
         kw["contact_placement"] = Placement[args.placement.upper()]
     summary, log = bench_cone(args.contact, args.device, args.steps, **kw)
@@ -138,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--passes", type=int, default=None, help="contact passes per substep (count, default 8)")
     p.add_argument("--placement", choices=["before", "after", "both"], default=None,
                    help="where the correction runs in a substep (default after)")
+    p.add_argument("--samples", type=int, default=None, help="multires samples per round (count, default 10)")
+    p.add_argument("--rounds", type=int, default=None, help="multires rounds (count, default 3; the paper: 16 x 2)")
     p.add_argument("--log", type=Path, default=None, help="write the per-substep log as CSV here")
     p.set_defaults(run=_bench_cone)
     args = parser.parse_args(argv)
