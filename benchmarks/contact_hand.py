@@ -69,7 +69,7 @@ def main():
         "sphere": lambda o: o.add(GeomType.SPHERE, [r], pos=centre, name="sphere"),
         "box": lambda o: o.add(GeomType.BOX, [0.015] * 3, pos=point + normal * (0.015 - DEPTH), name="box"),
         "mesh": lambda o: o.add(GeomType.MESH, None, pos=centre, vertices=ico.vertices, faces=ico.faces,
-                                name="icosphere", mesh_range=0.05),
+                                name="icosphere", mesh_range=0.01),
     }
     base, _, _ = frame_ms(asset, pose, None, args.device, args.frames, Strategy.NONE)
     rows = []
