@@ -271,3 +271,36 @@ def _objects_on_other_device():
     o = Objects("cpu", 1)
     o.device = "cuda:0"  # a mismatch is what matters here
     return o
+
+
+def test_compound_object_is_the_union_of_its_geoms():
+    from physhand_mj.contact.query import scene_phi, scene_phi_grad
+
+    @wp.kernel
+    def union(p: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+              pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64),
+              count: wp.array(dtype=int), phi: wp.array(dtype=float), phi2: wp.array(dtype=float),
+              grad: wp.array(dtype=wp.vec3)):
+        i = wp.tid()
+        phi[i] = scene_phi(p[i], gtype, size, pose, radius, mesh, count[0])
+        d, g, arg = scene_phi_grad(p[i], gtype, size, pose, radius, mesh, count[0])
+        phi2[i] = d
+        grad[i] = g
+
+    objs = Objects("cpu", 2)
+    objs.add(GeomType.SPHERE, [0.02], pos=(-0.015, 0, 0), name="a", obj="dumbbell")
+    objs.add(GeomType.BOX, [0.01, 0.01, 0.01], pos=(0.02, 0, 0), quat=(0.9238795, 0, 0, 0.3826834), name="b",
+             obj="dumbbell")
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-0.05, 0.05, size=(300, 3))
+    n = len(p)
+    phi, phi2, grad = (wp.zeros(n, dtype=float), wp.zeros(n, dtype=float), wp.zeros(n, dtype=wp.vec3))
+    wp.launch(union, n, inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3), objs.gtype, objs.size, objs.pose,
+                                objs.radius, objs.mesh, objs.count], outputs=[phi, phi2, grad], device="cpu")
+    rot = np.array([[np.cos(np.pi / 4), -np.sin(np.pi / 4), 0], [np.sin(np.pi / 4), np.cos(np.pi / 4), 0], [0, 0, 1]])
+    want = np.minimum(np.linalg.norm(p - [-0.015, 0, 0], axis=1) - 0.02,
+                      ref_box((p - [0.02, 0, 0]) @ rot, np.array([0.01, 0.01, 0.01])))
+    assert np.abs(phi.numpy() - want).max() < PHI_TOL
+    assert np.abs(phi2.numpy() - want).max() < PHI_TOL
+    assert np.allclose(np.linalg.norm(grad.numpy(), axis=1), 1, atol=1e-4)
+    assert objs.object_names == ["dumbbell"]
