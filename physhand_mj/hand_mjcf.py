@@ -23,17 +23,22 @@ def scene_path(name: str) -> Path:
     return path
 
 
-def skin_geom_id(model) -> int:
-    """Id of the hand's skin mesh geom; ValueError if the model has no physhand hand."""
+def skin_geom_id(model, prefix: str = "") -> int:
+    """Id of the hand's skin mesh geom (``prefix`` as given to ``MjSpec.attach``); ValueError if the
+    model has no physhand hand."""
     import mujoco
 
-    gid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, SKIN_GEOM)
+    gid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, prefix + SKIN_GEOM)
     if gid < 0:
-        raise ValueError(f"the model has no geom '{SKIN_GEOM}': include mjcf/hand/myohand.xml in the scene")
+        raise ValueError(f"the model has no geom '{prefix + SKIN_GEOM}': include mjcf/hand/myohand.xml in the "
+                         f"scene (or pass the prefix used to attach it)")
+    if model.geom_type[gid] != mujoco.mjtGeom.mjGEOM_MESH:
+        raise ValueError(f"geom '{prefix + SKIN_GEOM}' must be a mesh geom")
     return gid
 
 
-def set_skin_vertices(model, data, world_vertices: np.ndarray) -> None:
+def set_skin_vertices(model, data, world_vertices: np.ndarray, faces: np.ndarray | None = None,
+                      prefix: str = "") -> None:
     """Write world-frame skin vertices (n_skin, 3) into the model's skin mesh.
 
     MuJoCo stores a mesh in its own centred frame and places it with the geom pose, so the world
@@ -41,7 +46,7 @@ def set_skin_vertices(model, data, world_vertices: np.ndarray) -> None:
     ``mj_kinematics``). The passive viewer shows the change after ``viewer.update_mesh(mesh_id)``,
     a ``mujoco.Renderer`` after ``mujoco.mjr_uploadMesh``, a Renderer created afterwards at once.
     """
-    gid = skin_geom_id(model)
+    gid = skin_geom_id(model, prefix)
     mid = model.geom_dataid[gid]
     n = model.mesh_vertnum[mid]
     v = np.asarray(world_vertices, dtype=np.float64)
@@ -51,7 +56,18 @@ def set_skin_vertices(model, data, world_vertices: np.ndarray) -> None:
         raise ValueError("skin vertices hold non-finite values")
     rot = data.geom_xmat[gid].reshape(3, 3)
     adr = model.mesh_vertadr[mid]
-    model.mesh_vert[adr: adr + n] = (v - data.geom_xpos[gid]) @ rot
+    local = (v - data.geom_xpos[gid]) @ rot
+    model.mesh_vert[adr: adr + n] = local
+    if faces is not None and model.mesh_normalnum[mid] == n:
+        # area-weighted vertex normals; MuJoCo indexes normals per face corner (mesh_facenormal)
+        f = np.asarray(faces)
+        fn = np.cross(local[f[:, 1]] - local[f[:, 0]], local[f[:, 2]] - local[f[:, 0]])
+        vn = np.zeros_like(local)
+        for k in range(3):
+            np.add.at(vn, f[:, k], fn)
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+        nadr = model.mesh_normaladr[mid]
+        model.mesh_normal[nadr: nadr + n] = vn
 
 
 def rest_skin_world(model, data, asset) -> np.ndarray:

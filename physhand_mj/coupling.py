@@ -1,0 +1,205 @@
+"""SoftHand: the soft hand inside a MuJoCo scene (MuJoCo moves bones and objects, the solver moves
+the skin, the skin goes back into MuJoCo).
+
+    hand = SoftHand(model, data)           # finds the bones and the skin geom, gathers the objects
+    while ...:
+        mujoco.mj_step(model, data)
+        hand.step()                         # bones + objects in, one solver frame, skin written back
+    hand.skin_vertices, hand.contacts(), hand.metrics()
+
+The skin mesh in ``model.mesh_vert`` / ``mesh_normal`` is updated in place. A ``mujoco.Renderer``
+made afterwards shows it; an existing one needs ``mujoco.mjr_uploadMesh(model, renderer._mjr_context,
+mesh_id)`` (physhand_mj.render.upload_skin does it); the passive viewer needs
+``viewer.update_mesh(mesh_id)``. ``hand.skin_mesh_id`` is that id.
+"""
+
+from __future__ import annotations
+
+import time
+
+import mujoco
+import numpy as np
+
+from physhand_mj.asset import load_asset
+from physhand_mj.contact import Objects
+from physhand_mj.hand_mjcf import body_ids, set_skin_vertices, skin_geom_id
+from physhand_mj.solver import Solver, SolverError, make_model
+from physhand_mj.solver.model import quat_to_mat
+from physhand_mj.types import Config, GeomType
+
+_MJ_GEOM = {mujoco.mjtGeom.mjGEOM_PLANE: GeomType.PLANE, mujoco.mjtGeom.mjGEOM_SPHERE: GeomType.SPHERE,
+            mujoco.mjtGeom.mjGEOM_CAPSULE: GeomType.CAPSULE, mujoco.mjtGeom.mjGEOM_ELLIPSOID: GeomType.ELLIPSOID,
+            mujoco.mjtGeom.mjGEOM_CYLINDER: GeomType.CYLINDER, mujoco.mjtGeom.mjGEOM_BOX: GeomType.BOX,
+            mujoco.mjtGeom.mjGEOM_MESH: GeomType.MESH}
+
+
+def _mat_to_quat(mats: np.ndarray) -> np.ndarray:
+    out = np.empty((len(mats), 4))
+    for i, m in enumerate(mats):
+        mujoco.mju_mat2Quat(out[i], m)
+    return out
+
+
+class SoftHand:
+    """The layered soft hand of ``asset`` (default: the embedded MyoHand) in a compiled MuJoCo model.
+
+    Args:
+      model, data: the scene's MjModel / MjData (the hand included from mjcf/hand/ or attached).
+      config: solver options (SI units); ``Config.frame_dt`` defaults to ``model.opt.timestep``.
+      asset: the layered body; its ``body_names`` must name bodies of the model (after ``prefix``).
+      prefix: the prefix the hand's names carry (``MjSpec.attach(..., prefix=...)``).
+      object_geoms / object_bodies / object_groups: restrict contact to these geom names, bodies or
+        geom groups (default: every geom not belonging to the hand).
+      settle_frames: frames over which the bones move from the rest pose to the model's current pose
+        before the first ``step`` (so a grasp keyframe does not start with a jump).
+    Raises ValueError for a model without the hand, missing bone bodies, unsupported object geoms
+    (height fields, SDF plugins: filter them out), SolverError for non-finite bone poses.
+    """
+
+    def __init__(self, model, data, config: Config | None = None, *, asset=None, prefix: str = "",
+                 object_geoms=None, object_bodies=None, object_groups=None, settle_frames: int = 20):
+        self.model, self.data = model, data
+        self.asset = asset if asset is not None else load_asset()
+        cfg = config or Config(frame_dt=float(model.opt.timestep))
+        self.config = cfg.validate()
+        self.skin_geom = skin_geom_id(model, prefix)
+        self.skin_mesh_id = int(model.geom_dataid[self.skin_geom])
+        if model.mesh_vertnum[self.skin_mesh_id] != self.asset.n_skin:
+            raise ValueError(f"the skin mesh has {model.mesh_vertnum[self.skin_mesh_id]} vertices, the asset "
+                             f"{self.asset.n_skin}: the MJCF and the asset come from different builds")
+        self.bones = body_ids(model, [prefix + str(b) for b in self.asset.body_names])
+        self.prefix = prefix
+        mujoco.mj_kinematics(model, data)
+        self.object_geoms = self._select_objects(object_geoms, object_bodies, object_groups)
+        self.objects = Objects(str(self._device()), max(len(self.object_geoms), 1))
+        for g in self.object_geoms:
+            self._add_geom(g)
+        self.solver = Solver(make_model(self.asset, self.config), self.config,
+                             objects=self.objects if self.object_geoms else None)
+        pos, quat = self._bone_poses()
+        root_pos, root_quat = self._rest_placement(pos[0], quat[0])
+        self.state = self.solver.make_state(root_pos, root_quat)
+        self._timing = dict(sync=0.0, solver=0.0, writeback=0.0, frames=0)
+        self._last = {}
+        rest_pos, rest_quat = self.state.pose_host[1][:, :3].astype(float), self.state.pose_host[1][:, 3:].astype(float)
+        rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
+        for k in range(settle_frames):
+            a = (k + 1) / settle_frames
+            self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+            self.solver.step(self.state)
+        self._write_back()
+
+    # -- setup -----------------------------------------------------------------------------------
+    def _device(self):
+        import warp as wp
+
+        return wp.get_device(self.config.device)
+
+    def _hand_bodies(self) -> set:
+        m = self.model
+        roots = {int(m.body_rootid[b]) for b in self.bones}
+        return {b for b in range(m.nbody) if int(m.body_rootid[b]) in roots and b != 0}
+
+    def _select_objects(self, names, bodies, groups) -> list[int]:
+        m = self.model
+        hand = self._hand_bodies()
+        out = []
+        for g in range(m.ngeom):
+            if g == self.skin_geom or int(m.geom_bodyid[g]) in hand:
+                continue
+            name = m.geom(g).name
+            if names is not None and name not in names:
+                continue
+            if bodies is not None and m.body(int(m.geom_bodyid[g])).name not in bodies:
+                continue
+            if groups is not None and int(m.geom_group[g]) not in groups:
+                continue
+            if int(m.geom_type[g]) not in _MJ_GEOM:
+                kind = mujoco.mjtGeom(int(m.geom_type[g])).name
+                raise ValueError(f"geom '{name or g}' is a {kind}, which the soft skin cannot collide with; "
+                                 f"leave it out with object_geoms / object_bodies / object_groups")
+            out.append(g)
+        return out
+
+    def _add_geom(self, g: int) -> None:
+        m, d = self.model, self.data
+        gtype = _MJ_GEOM[int(m.geom_type[g])]
+        name = m.geom(g).name or f"geom{g}"
+        body = m.body(int(m.geom_bodyid[g])).name or name
+        quat = _mat_to_quat(d.geom_xmat[g].reshape(1, 9))[0]
+        if gtype == GeomType.MESH:
+            mid = int(m.geom_dataid[g])
+            va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
+            fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
+            self.objects.add(gtype, None, d.geom_xpos[g], quat, name=name, obj=body,
+                             vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
+                             mesh_range=float(2 * m.geom_rbound[g] + 0.01))
+        else:
+            self.objects.add(gtype, m.geom_size[g], d.geom_xpos[g], quat, name=name, obj=body)
+
+    def _bone_poses(self):
+        pos, quat = self.data.xpos[self.bones].copy(), self.data.xquat[self.bones].copy()
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
+            bad = [self.model.body(int(b)).name for b, p in zip(self.bones, np.isfinite(pos).all(1) & np.isfinite(quat).all(1)) if not p]
+            raise SolverError(f"non-finite MuJoCo pose for bones {bad}: check qpos / ctrl (NaN in data)")
+        return pos, quat
+
+    def _rest_placement(self, pos0, quat0):
+        """World pose of the asset frame if bone 0 is at (pos0, quat0): T_world = T_bone T_bone_rest^-1."""
+        r0 = quat_to_mat(self.asset.body_rest_quat[0])
+        rw = quat_to_mat(quat0)
+        rot = rw @ r0.T
+        pos = pos0 - rot @ self.asset.body_rest_pos[0]
+        q = np.empty(4)
+        mujoco.mju_mat2Quat(q, rot.ravel())
+        return pos, q
+
+    # -- per frame -------------------------------------------------------------------------------
+    def step(self) -> dict:
+        """One solver frame with the bones and objects where MuJoCo has them now; skin written back."""
+        t0 = time.perf_counter()
+        pos, quat = self._bone_poses()
+        self.solver.set_body_poses(self.state, pos, quat)
+        if self.object_geoms:
+            g = self.object_geoms
+            self.objects.set_poses(self.data.geom_xpos[g], _mat_to_quat(self.data.geom_xmat[g]))
+        t1 = time.perf_counter()
+        out = self.solver.step(self.state)
+        t2 = time.perf_counter()
+        self._write_back()
+        t3 = time.perf_counter()
+        tm = self._timing
+        tm["sync"] += t1 - t0
+        tm["solver"] += t2 - t1
+        tm["writeback"] += t3 - t2
+        tm["frames"] += 1
+        self._last = out
+        return out
+
+    def _write_back(self) -> None:
+        self._skin = self.state.x.numpy()[: self.asset.n_skin].astype(np.float64)
+        set_skin_vertices(self.model, self.data, self._skin, self.asset.skin_faces, self.prefix)
+
+    @property
+    def skin_vertices(self) -> np.ndarray:
+        """(n_skin, 3) world-frame skin positions (m) after the last step."""
+        return self._skin.copy()
+
+    def metrics(self) -> dict:
+        """Penetration count / max / avg (um) at the end of the last frame (DESIGN definitions), the
+        guard counts, finite flag, and the mean time per frame of each stage (ms)."""
+        tm = self._timing
+        n = max(tm["frames"], 1)
+        out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0)
+        out.update(self._last)
+        out["finite"] = bool(np.all(np.isfinite(self._skin)))
+        out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
+                   ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])
+        return out
+
+
+def _nlerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
+    dot = np.sum(q0 * q1, axis=1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    q = (1 - a) * q0 + a * q1
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
