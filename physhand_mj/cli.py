@@ -14,16 +14,56 @@ from pathlib import Path
 
 
 def _demo(args) -> dict:
-    """Load the hand, render its layers (until the solver lands: the rest pose)."""
+    """The default scene: the soft hand closes on a glass under position control (grasp_glass)."""
+    import mujoco
+    from tqdm import tqdm
+
     import physhand_mj as ph
     from physhand_mj import figures
+    from physhand_mj.coupling import SoftHand
+    from physhand_mj.render import make_renderer, write_png
 
-    t0 = time.perf_counter()
-    asset, model, data = ph.open_hand_scene("hand_only", "open")
+    if args.frames < 1:
+        raise ValueError(f"--frames must be >= 1, got {args.frames}")
     out = Path(args.out)
-    png = figures.render_layers(model, data, out / "demo.png")
-    return dict(command="demo", picture=str(png), scene="hand_only", keyframe="open",
-                seconds=round(time.perf_counter() - t0, 2), **asset.summary())
+    out.mkdir(parents=True, exist_ok=True)
+    writer = None
+    if args.video:
+        try:
+            import imageio.v2 as imageio
+        except ImportError as e:
+            raise ImportError("--video needs the video extra: pip install -e '.[video]'") from e
+        writer = imageio.get_writer(out / "demo.mp4", fps=50, codec="libx264", quality=7, macro_block_size=8)
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    mujoco.mj_forward(model, data)
+    t0 = time.perf_counter()
+    hand = SoftHand(model, data, ph.Config(device=args.device))
+    setup_s = time.perf_counter() - t0
+    renderer = make_renderer(model, 960, 720)
+    camera = figures.contact_camera(hand.skin_vertices)
+    vmax = None  # colour scale of the pressure heat map: each frame's 95th percentile
+    try:
+        for f in tqdm(range(args.frames), desc="demo", unit="frame", file=sys.stderr, disable=args.frames < 20):
+            mujoco.mj_step(model, data)
+            hand.step()
+            if writer is not None and f % 2 == 1:
+                writer.append_data(figures.render_contact_frame(renderer, model, data, hand, camera, vmax))
+        png = write_png(figures.render_contact_frame(renderer, model, data, hand, camera, vmax), out / "demo.png")
+    finally:
+        renderer.close()
+        if writer is not None:
+            writer.close()
+    m = hand.metrics()
+    objects = {k: dict(contact_vertices=len(v["vertices"]), area_cm2=round(v["area_m2"] * 1e4, 2),
+                       force_n=round(v["force_n"], 3)) for k, v in hand.contacts()["objects"].items() if len(v["vertices"])}
+    return dict(command="demo", picture=str(png), video=str(out / "demo.mp4") if writer is not None else None,
+                scene="grasp_glass", keyframe="approach", frames=args.frames,
+                penetration_count=m["penetration_count"], penetration_max_um=round(m["penetration_max_um"], 3),
+                penetration_avg_um=round(m["penetration_avg_um"], 3), ms_per_frame=round(m["ms_per_frame"], 2),
+                finite=m["finite"], inverted_tets=m["inverted"], objects=objects,
+                device=str(hand.solver.device), setup_s=round(setup_s, 2))
 
 
 def _build_from_files(args) -> dict:
@@ -110,8 +150,11 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="physhand", description="PhysHand soft hand for MuJoCo")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("demo", help="render the embedded hand's layers to DIR/demo.png")
+    p = sub.add_parser("demo", help="the soft hand closes on a glass; writes DIR/demo.png (and demo.mp4)")
     p.add_argument("--out", default="demo_out", help="output directory (default: demo_out)")
+    p.add_argument("--video", action="store_true", help="also write DIR/demo.mp4 (needs the video extra)")
+    p.add_argument("--frames", type=int, default=80, help="5 ms frames to simulate (count, default 80)")
+    p.add_argument("--device", default=None, help="Warp device (default: Warp's, CUDA if present)")
     p.set_defaults(run=_demo)
     p = sub.add_parser("build-hand", help="regenerate the embedded MyoHand asset (needs the build extra)")
     p.add_argument("--out", type=Path, default=DEFAULT_ASSET, help="asset .npz path (default: the embedded one)")
@@ -150,10 +193,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from physhand_mj.asset import AssetError
     from physhand_mj.render import RenderUnavailable
+    from physhand_mj.solver import SolverError
 
     try:
         result = args.run(args)
-    except (AssetError, RenderUnavailable, FileNotFoundError, ValueError, ImportError) as e:
+    except (AssetError, RenderUnavailable, FileNotFoundError, ValueError, ImportError, SolverError) as e:
         print(f"physhand {args.command}: error: {e}".replace("\n", " "), file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -185,6 +185,42 @@ class SoftHand:
         """(n_skin, 3) world-frame skin positions (m) after the last step."""
         return self._skin.copy()
 
+    def contacts(self) -> dict:
+        """Contact report of the last frame.
+
+        Returns ``{"objects": {name: {...}}, "pressure_pa": (n_skin,) array}``. Per object (geoms
+        grouped by MuJoCo body): ``vertices`` (skin vertex ids the contact moved), ``area_m2`` (their
+        share of the skin area), ``force_n`` (normal force estimate: each Eq. 9 projection of a
+        vertex of mass m by dx in a substep of length h is an impulse m dx / h, i.e. the multiplier of
+        a hard constraint; forces are averaged over the frame's substeps), ``penetration_count`` and
+        ``deepest_um`` (the 21-sample metric against that object alone). ``pressure_pa`` is force
+        per vertex area, a heat map over the skin.
+        """
+        import warp as wp
+
+        n = self.asset.n_skin
+        c = self.solver.contact
+        if c is None:
+            return {"objects": {}, "pressure_pa": np.zeros(n)}
+        h, s = self.config.substep_dt, self.config.substeps
+        push = c.push.numpy()[:n].astype(float)
+        vobj = c.vertex_obj.numpy()[:n]
+        force = self.asset.mass[:n] * push / (h * h * s)
+        area = vertex_areas(self._skin, self.asset.skin_faces)
+        pressure = np.where(area > 0, force / np.maximum(area, 1e-12), 0.0)
+        scratch = wp.zeros((1, 3), dtype=float, device=c.metrics.device)
+        out = {}
+        for k, name in enumerate(self.objects.object_names):
+            scratch.zero_()
+            c.record_metrics(lambda kern, dim, inputs, outputs: wp.launch(kern, dim, inputs=inputs, outputs=outputs,
+                                                                          device=c.metrics.device),
+                             self.state, 0, obj=k, out=scratch)
+            row = scratch.numpy()[0]
+            idx = np.flatnonzero((vobj == k) & (push > 0))
+            out[name] = dict(vertices=idx, area_m2=float(area[idx].sum()), force_n=float(force[idx].sum()),
+                             penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6)
+        return {"objects": out, "pressure_pa": pressure}
+
     def metrics(self) -> dict:
         """Penetration count / max / avg (um) at the end of the last frame (DESIGN definitions), the
         guard counts, finite flag, and the mean time per frame of each stage (ms)."""
@@ -196,6 +232,16 @@ class SoftHand:
         out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
                    ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])
         return out
+
+
+def vertex_areas(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """A third of the area of each vertex's triangles (m^2)."""
+    f = np.asarray(faces)
+    a = 0.5 * np.linalg.norm(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]), axis=1)
+    out = np.zeros(len(x))
+    for k in range(3):
+        np.add.at(out, f[:, k], a / 3.0)
+    return out
 
 
 def _nlerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:

@@ -91,3 +91,51 @@ def render_cutaway(asset, path: str | Path, *, normal=(0.0, 0.0, 1.0), width: in
     finally:
         renderer.close()
     return write_png(pixels, path)
+
+
+def pressure_rgba(p: np.ndarray, vmax: float) -> np.ndarray:
+    """Blue (0) -> yellow -> red (vmax) colours for pressures (Pa)."""
+    t = np.clip(np.asarray(p, float) / max(vmax, 1e-9), 0.0, 1.0)[:, None]
+    lo, mid, hi = np.array([0.2, 0.35, 0.95]), np.array([1.0, 0.85, 0.1]), np.array([0.9, 0.1, 0.1])
+    rgb = np.where(t < 0.5, lo + (mid - lo) * (2 * t), mid + (hi - mid) * (2 * t - 1))
+    return np.concatenate([rgb, np.ones_like(t)], axis=1)
+
+
+def add_pressure_markers(scene, points: np.ndarray, pressure: np.ndarray, vmax: float,
+                         radius: float = 0.0012) -> int:
+    """Append small spheres at ``points`` coloured by ``pressure`` to a ``mujoco.MjvScene`` (the skin
+    is one mesh, which MuJoCo cannot colour per vertex). Returns how many fitted."""
+    import mujoco
+
+    rgba = pressure_rgba(pressure, vmax).astype(np.float32)
+    room = scene.maxgeom - scene.ngeom
+    n = min(len(points), room)
+    for i in range(n):
+        g = scene.geoms[scene.ngeom]
+        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([radius, 0, 0]), points[i],
+                            np.eye(3).ravel(), rgba[i])
+        scene.ngeom += 1
+    return n
+
+
+def contact_camera(skin: np.ndarray, distance: float = 0.3, azimuth: float = -70.0, elevation: float = -35.0):
+    return look_at_camera(skin.mean(axis=0), distance, azimuth, elevation)
+
+
+def render_contact_frame(renderer, model, data, hand, camera, vmax: float | None = None) -> np.ndarray:
+    """One frame: the deformed skin (uploaded to this renderer's GL context) with the contact
+    pressure heat map as markers on the skin vertices in contact (colour scale 0..vmax Pa; default
+    the 95th percentile of this frame's contact pressures)."""
+    import mujoco
+
+    mujoco.mjr_uploadMesh(model, renderer._mjr_context, hand.skin_mesh_id)
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = [1, 0, 1, 0, 0, 0]  # objects (0) and skin (2); bones and proxies hidden
+    renderer.update_scene(data, camera=camera, scene_option=opt)
+    report = hand.contacts()
+    p = report["pressure_pa"]
+    idx = np.flatnonzero(p > 0)
+    if vmax is None:
+        vmax = float(np.percentile(p[idx], 95)) if len(idx) else 1.0
+    add_pressure_markers(renderer.scene, hand.skin_vertices[idx], p[idx], vmax)
+    return renderer.render()

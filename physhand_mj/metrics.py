@@ -13,6 +13,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.query import scene_phi
+from physhand_mj.contact.sdf import geom_sdf
 
 ORDER = 5  # 21 samples per triangle
 
@@ -27,9 +28,12 @@ def penetration_samples(
     radius: wp.array(dtype=float),
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
+    geom_obj: wp.array(dtype=int),
+    obj_filter: int,
     row: int,
     out: wp.array2d(dtype=float),
 ):
+    """obj_filter >= 0 restricts the samples' SDF to the geoms of that object."""
     t = wp.tid()
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
@@ -37,7 +41,7 @@ def penetration_samples(
     m = (a + b + c) * (1.0 / 3.0)
     r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
     n = geom_count[0]
-    if scene_phi(m, gtype, size, pose, radius, mesh, n) > r:
+    if obj_filter < 0 and scene_phi(m, gtype, size, pose, radius, mesh, n) > r:
         return
     count = float(0.0)
     total = float(0.0)
@@ -46,7 +50,15 @@ def penetration_samples(
         for j in range(6 - i):
             u = float(i) / 5.0
             v = float(j) / 5.0
-            d = scene_phi(a * (1.0 - u - v) + b * u + c * v, gtype, size, pose, radius, mesh, n)
+            p = a * (1.0 - u - v) + b * u + c * v
+            d = float(1.0e6)
+            if obj_filter < 0:
+                d = scene_phi(p, gtype, size, pose, radius, mesh, n)
+            else:
+                for g in range(n):
+                    if geom_obj[g] == obj_filter:
+                        tf = pose[g]
+                        d = wp.min(d, geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(tf), p), size[g], mesh[g]))
             if d < 0.0:
                 count += 1.0
                 total += -d

@@ -37,6 +37,8 @@ class Contact:
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
+        self.push = wp.zeros(model.n_vertices, dtype=float, device=d)  # m, summed over the frame
+        self.vertex_obj = wp.full(model.n_vertices, -1, dtype=int, device=d)
         self.metrics = wp.zeros((config.substeps + 1, 3), dtype=float, device=d)
         self._metrics_host = wp.zeros((config.substeps + 1, 3), dtype=float, device="cpu",
                                       pinned=wp.get_device(d).is_cuda)
@@ -62,20 +64,25 @@ class Contact:
         for p in range(cfg.contact_passes):
             cur, nxt = lists[p % 2], lists[(p + 1) % 2]
             launch(decide_and_project, self.n_tris,
-                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, cur[0], cur[1],
+                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, o.obj, cur[0], cur[1],
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, state.x],
-                   [self.delta, self.hits, self.decision])
-            launch(apply_contact, m.n_vertices, [self.delta, self.hits], [state.x])
+                   [self.delta, self.hits, self.decision, self.vertex_obj])
+            launch(apply_contact, m.n_vertices, [self.delta, self.hits], [state.x, self.push])
             if p + 1 < cfg.contact_passes:
                 ops.append(nxt[1].zero_)
                 launch(keep_near, self.n_tris, [cur[0], cur[1], self.decision, KEEP_BELOW],
                        [nxt[0], nxt[1]])
 
-    def record_metrics(self, launch, state, row: int) -> None:
+    def begin_frame(self, ops: list) -> None:
+        """Reset the per-frame report buffers (metrics, push, touched object)."""
+        ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]
+
+    def record_metrics(self, launch, state, row: int, obj: int = -1, out=None) -> None:
         m, o = self.model, self.objects
         if self.n_tris:
             launch(penetration_samples, self.n_tris,
-                   [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, row], [self.metrics])
+                   [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, o.obj, obj, row],
+                   [self.metrics if out is None else out])
 
     # -- host side ---------------------------------------------------------------------------------
     def run_stage(self, state) -> np.ndarray:

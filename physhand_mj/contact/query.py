@@ -83,6 +83,7 @@ def decide_and_project(
     radius: wp.array(dtype=float),
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
+    geom_obj: wp.array(dtype=int),
     # Contact in:
     active: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
@@ -96,10 +97,11 @@ def decide_and_project(
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     decision: wp.array(dtype=wp.vec4),
+    vertex_obj: wp.array(dtype=int),
 ):
     """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < 0, Eq. 9
-    corrections into ``delta`` (summed) and ``hits`` (counts) of its three vertices.
-    decision[t] = (x*, phi(x*)) for diagnostics."""
+    corrections into ``delta`` (summed) and ``hits`` (counts) of its three vertices, and the object
+    touched into ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics."""
     k = wp.tid()
     if k >= active_count[0]:
         return
@@ -225,6 +227,10 @@ def decide_and_project(
         wp.atomic_add(hits, i0, 1.0)
         wp.atomic_add(hits, i1, 1.0)
         wp.atomic_add(hits, i2, 1.0)
+        o = geom_obj[arg]
+        vertex_obj[i0] = o
+        vertex_obj[i1] = o
+        vertex_obj[i2] = o
 
 
 @wp.kernel
@@ -232,11 +238,15 @@ def apply_contact(
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
+    push: wp.array(dtype=float),
 ):
-    """x_i += (sum of the Eq. 9 corrections of vertex i) / (number of penetrating triangles of i)."""
+    """x_i += (sum of the Eq. 9 corrections of vertex i) / (number of penetrating triangles of i);
+    push_i accumulates |correction| over the frame (the contact report's force estimate)."""
     i = wp.tid()
     n = hits[i]
     if n > 0.0:
-        x[i] = x[i] + delta[i] * (1.0 / n)
+        dx = delta[i] * (1.0 / n)
+        x[i] = x[i] + dx
+        push[i] = push[i] + wp.length(dx)
         delta[i] = wp.vec3(0.0)
         hits[i] = 0.0

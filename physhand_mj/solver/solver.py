@@ -167,7 +167,9 @@ class Solver:
         """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
-        ops = [self.contact.metrics.zero_] if self.contact is not None else []
+        ops = []
+        if self.contact is not None:
+            self.contact.begin_frame(ops)
 
         def launch(kernel, dim, inputs, outputs):
             if dim:

@@ -1,0 +1,126 @@
+"""SoftHand in MuJoCo scenes: write-back, bones, contact report, errors."""
+
+import mujoco
+import numpy as np
+import pytest
+
+import physhand_mj as ph
+from physhand_mj.coupling import SoftHand
+from physhand_mj.hand_mjcf import skin_geom_id
+
+
+def _scene(name="grasp_glass", key="approach"):
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path(name)))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key(key).id)
+    mujoco.mj_forward(model, data)
+    return model, data
+
+
+@pytest.fixture(scope="module")
+def glass_grasp():
+    model, data = _scene()
+    hand = SoftHand(model, data, ph.Config(device="cpu"))
+    for _ in range(60):
+        mujoco.mj_step(model, data)
+        hand.step()
+    return model, data, hand
+
+
+def test_written_back_mesh_equals_the_skin(glass_grasp):
+    model, data, hand = glass_grasp
+    gid = skin_geom_id(model)
+    mid = model.geom_dataid[gid]
+    local = model.mesh_vert[model.mesh_vertadr[mid]: model.mesh_vertadr[mid] + model.mesh_vertnum[mid]]
+    world = local @ data.geom_xmat[gid].reshape(3, 3).T + data.geom_xpos[gid]
+    assert np.abs(world - hand.skin_vertices).max() < 1e-6
+    normals = model.mesh_normal[model.mesh_normaladr[mid]: model.mesh_normaladr[mid] + model.mesh_normalnum[mid]]
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-5)
+
+
+def test_skeleton_vertices_follow_their_bodies(glass_grasp):
+    model, data, hand = glass_grasp
+    asset = hand.asset
+    skel = np.flatnonzero(asset.layer == ph.Layer.SKELETON)
+    b = asset.vertex_body[skel]
+    from physhand_mj.solver.model import quat_to_mat
+    local = np.einsum("kji,kj->ki", quat_to_mat(asset.body_rest_quat)[b], asset.positions[skel] - asset.body_rest_pos[b])
+    bones = hand.bones[b]
+    want = np.einsum("kij,kj->ki", data.xmat[bones].reshape(-1, 3, 3), local) + data.xpos[bones]
+    assert np.abs(hand.state.x.numpy()[skel] - want).max() < 2e-6
+
+
+def test_glass_grasp_contact_report(glass_grasp):
+    _, _, hand = glass_grasp
+    report = hand.contacts()
+    glass = report["objects"]["glass"]
+    assert len(glass["vertices"]) > 30 and glass["area_m2"] > 1e-4 and glass["force_n"] > 0.5, glass
+    m = hand.metrics()
+    assert m["finite"] and m["nonfinite"] == 0
+    assert m["penetration_max_um"] < 100.0, m
+    p = report["pressure_pa"]
+    assert p.shape == (hand.asset.n_skin,) and (p > 0).sum() == len(glass["vertices"])
+
+
+def _palm_press(depth):
+    """hand_only + a static sphere pressed ``depth`` m into the palm, built with MjSpec."""
+    asset = ph.load_asset()
+    spec = mujoco.MjSpec.from_file(str(ph.scene_path("hand_only")))
+    model0 = spec.compile()
+    data0 = mujoco.MjData(model0)
+    mujoco.mj_resetDataKeyframe(model0, data0, model0.key("open").id)
+    mujoco.mj_forward(model0, data0)
+    n = np.asarray(asset.meta["palm_normal"])
+    names = list(asset.body_names)
+    c = asset.body_rest_pos[names.index("3proxph_r")] - 0.02 * np.asarray(asset.meta["finger_axis"])
+    skin = asset.skin_vertices
+    lateral = np.linalg.norm((skin - c) - np.outer((skin - c) @ n, n), axis=1)
+    s = skin[lateral < 0.01][np.argmax((skin[lateral < 0.01] - c) @ n)]
+    pos, quat = ph.mount_pose(model0, data0)
+    from physhand_mj.solver.model import quat_to_mat
+    rot = quat_to_mat(quat)
+    centre = rot @ s + pos + rot @ n * (0.02 - depth)
+    body = spec.worldbody.add_body(name="ball", pos=centre)
+    body.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.02, 0, 0], contype=0, conaffinity=0)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("open").id)
+    mujoco.mj_forward(model, data)
+    hand = SoftHand(model, data, ph.Config(device="cpu", gravity=(0.0, 0.0, 0.0)), object_geoms=["ball"],
+                    settle_frames=5)
+    for _ in range(15):
+        mujoco.mj_step(model, data)
+        hand.step()
+    return hand
+
+
+def test_force_estimate_grows_with_press_depth():
+    forces = [_palm_press(d).contacts()["objects"]["ball"]["force_n"] for d in (0.001, 0.003)]
+    assert 0 < forces[0] < forces[1], forces
+
+
+def test_model_without_the_hand_is_refused():
+    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom type='sphere' size='0.1'/></worldbody></mujoco>")
+    with pytest.raises(ValueError, match="physhand_skin"):
+        SoftHand(model, mujoco.MjData(model))
+
+
+def test_unsupported_object_geom_is_refused_with_the_fix():
+    spec = mujoco.MjSpec.from_file(str(ph.scene_path("hand_only")))
+    hf = spec.add_hfield(name="terrain", size=[0.1, 0.1, 0.01, 0.01], nrow=4, ncol=4)
+    hf.userdata = [0.0] * 16
+    spec.worldbody.add_geom(name="ground_hf", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain")
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    with pytest.raises(ValueError, match="HFIELD.*object_geoms"):
+        SoftHand(model, data, settle_frames=0)
+    SoftHand(model, data, settle_frames=0, object_geoms=["floor"])  # filtered out: fine
+
+
+def test_non_finite_pose_is_reported():
+    model, data = _scene("hand_only", "open")
+    hand = SoftHand(model, data, ph.Config(device="cpu"), settle_frames=0)
+    data.qpos[3] = np.nan
+    mujoco.mj_kinematics(model, data)
+    with pytest.raises(ph.SolverError, match="non-finite"):
+        hand.step()
