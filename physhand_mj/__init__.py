@@ -12,6 +12,8 @@ Public API (everything else is private):
   :class:`Model`, :class:`State`, :class:`Solver`, :class:`SolverError`; :func:`soft_body` builds a
   layered body from arrays; :func:`body_ids`, :func:`bone_poses_at`, :func:`mount_pose` read bone
   poses from MuJoCo.
+- :class:`SoftHand`: the soft hand coupled to a MuJoCo model (bones and objects in, deformed skin
+  back into the model's mesh, contact report).
 """
 
 from physhand_mj.render import select_gl_backend as _select_gl_backend
@@ -20,6 +22,7 @@ _select_gl_backend()  # before anything imports mujoco: MuJoCo reads MUJOCO_GL a
 
 from physhand_mj.asset import DEFAULT_ASSET, SCHEMA_VERSION, AssetError, HandAsset, load_asset  # noqa: E402
 from physhand_mj.bodies import soft_body  # noqa: E402
+from physhand_mj.coupling import SoftHand  # noqa: E402
 from physhand_mj.hand_mjcf import (  # noqa: E402
     HAND_XML, body_ids, bone_poses_at, mount_pose, open_hand_scene, rest_skin_world, scene_path, set_skin_vertices)
 from physhand_mj.render import RenderUnavailable  # noqa: E402
@@ -28,6 +31,6 @@ from physhand_mj.types import Config, Layer, Model, NonFinite, Scheme, State  # 
 
 __version__ = "0.1.0"
 __all__ = ["DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
-           "NonFinite", "RenderUnavailable", "Scheme", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
+           "NonFinite", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
            "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",
            "set_skin_vertices", "soft_body"]

@@ -144,6 +144,43 @@ def _bench_cone(args) -> dict:
     return summary
 
 
+def _view(args) -> dict:
+    """MuJoCo's passive viewer on SCENE.xml with the soft skin updated live."""
+    import os
+
+    import mujoco
+
+    import physhand_mj as ph
+
+    path = Path(args.scene)
+    if not path.is_file():
+        raise FileNotFoundError(f"no scene file {path}")
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
+        raise ValueError("no display (DISPLAY is unset): the viewer needs a desktop session; "
+                         "use `physhand demo` or SoftHand with mujoco.Renderer for pictures")
+    import mujoco.viewer
+
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    if args.keyframe is not None:
+        kid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, args.keyframe)
+        if kid < 0:
+            raise ValueError(f"{path.name} has no keyframe '{args.keyframe}'")
+        mujoco.mj_resetDataKeyframe(model, data, kid)
+    mujoco.mj_forward(model, data)
+    hand = ph.SoftHand(model, data)
+    frames = 0
+    with mujoco.viewer.launch_passive(model, data) as viewer:
+        while viewer.is_running():
+            mujoco.mj_step(model, data)
+            hand.step()
+            viewer.update_mesh(hand.skin_mesh_id)
+            viewer.sync()
+            frames += 1
+    return dict(command="view", scene=str(path), frames=frames, **{k: hand.metrics()[k] for k in (
+        "penetration_count", "penetration_max_um", "ms_per_frame")})
+
+
 def main(argv: list[str] | None = None) -> int:
     from physhand_mj.asset import DEFAULT_ASSET
     from physhand_mj.hand_mjcf import HAND_XML
@@ -166,6 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--bones", type=Path, help="other input: folder of bone meshes named BODY.stl/.obj/.ply")
     p.add_argument("--model", type=Path, help="other input: MJCF whose bodies (at qpos0) carry the bones")
     p.set_defaults(run=_build_hand)
+    p = sub.add_parser("view", help="MuJoCo's passive viewer with the soft skin updated live")
+    p.add_argument("scene", help="scene MJCF that includes the hand (e.g. mjcf/scenes/grasp_glass.xml)")
+    p.add_argument("--keyframe", default=None, help="keyframe to start from (name)")
+    p.set_defaults(run=_view)
     bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")

@@ -124,3 +124,15 @@ def test_non_finite_pose_is_reported():
     mujoco.mj_kinematics(model, data)
     with pytest.raises(ph.SolverError, match="non-finite"):
         hand.step()
+
+
+def test_view_without_display_says_so(monkeypatch, capsys):
+    from physhand_mj.cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["view", str(ph.scene_path("grasp_glass"))]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "display" in err
+    assert main(["view", "missing_scene.xml"]) == 1
+    assert "no scene file" in capsys.readouterr().err

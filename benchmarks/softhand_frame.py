@@ -1,0 +1,59 @@
+"""Full frame of the soft hand in MuJoCo, split by stage: the grasp_glass scene (the demo), 80 frames.
+
+Stages per 5 ms frame: MuJoCo step (mj_step), sync (bone and object poses in), solver (the XPBD frame
+with contact and metrics), write-back (skin vertices and normals into the mesh). Also the solver
+frame with contact switched off, to isolate the contact's share.
+Writes docs/benchmarks/softhand_frame_<device>.json. Run: python benchmarks/softhand_frame.py [--device]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+import physhand_mj as ph
+from physhand_mj.bench import device_name
+from physhand_mj.types import Strategy
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(device: str, frames: int, contact: Strategy) -> dict:
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    mujoco.mj_forward(model, data)
+    hand = ph.SoftHand(model, data, ph.Config(device=device, contact=contact))
+    mj = 0.0
+    for f in range(frames):
+        t = time.perf_counter()
+        mujoco.mj_step(model, data)
+        mj += time.perf_counter() - t
+        hand.step()
+    m = hand.metrics()
+    return dict(contact=contact.name.lower(), ms_mujoco=round(mj / frames * 1e3, 3), ms_sync=round(m["ms_sync"], 3),
+                ms_solver=round(m["ms_solver"], 3), ms_writeback=round(m["ms_writeback"], 3),
+                ms_total=round(mj / frames * 1e3 + m["ms_per_frame"], 3),
+                penetration_count=m["penetration_count"], penetration_max_um=round(m["penetration_max_um"], 3))
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--frames", type=int, default=80)
+    args = p.parse_args()
+    rows = [run(args.device, args.frames, s) for s in (Strategy.NONE, Strategy.MULTIRES)]
+    for r in rows:
+        print(json.dumps(r), flush=True)
+    dev = device_name(args.device if args.device != "cuda" else "cuda:0")
+    (ROOT / "docs" / "benchmarks" / f"softhand_frame_{args.device.split(':')[0]}.json").write_text(
+        json.dumps(dict(device=dev, frames=args.frames, rows=rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()
