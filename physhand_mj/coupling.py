@@ -238,10 +238,7 @@ def vertex_areas(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """A third of the area of each vertex's triangles (m^2)."""
     f = np.asarray(faces)
     a = 0.5 * np.linalg.norm(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]), axis=1)
-    out = np.zeros(len(x))
-    for k in range(3):
-        np.add.at(out, f[:, k], a / 3.0)
-    return out
+    return np.bincount(f.ravel(), np.repeat(a / 3.0, 3), minlength=len(x))
 
 
 def _nlerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:

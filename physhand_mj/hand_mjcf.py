@@ -62,9 +62,9 @@ def set_skin_vertices(model, data, world_vertices: np.ndarray, faces: np.ndarray
         # area-weighted vertex normals; MuJoCo indexes normals per face corner (mesh_facenormal)
         f = np.asarray(faces)
         fn = np.cross(local[f[:, 1]] - local[f[:, 0]], local[f[:, 2]] - local[f[:, 0]])
-        vn = np.zeros_like(local)
-        for k in range(3):
-            np.add.at(vn, f[:, k], fn)
+        idx = f.ravel()
+        w = np.repeat(fn, 3, axis=0)  # each face normal to its three corners (bincount: fast scatter-add)
+        vn = np.stack([np.bincount(idx, w[:, k], minlength=n) for k in range(3)], axis=1)
         vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
         nadr = model.mesh_normaladr[mid]
         model.mesh_normal[nadr: nadr + n] = vn
