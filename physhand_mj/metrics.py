@@ -41,7 +41,7 @@ def penetration_samples(
     m = (a + b + c) * (1.0 / 3.0)
     r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
     n = geom_count[0]
-    if obj_filter < 0 and scene_phi(m, gtype, size, pose, radius, mesh, n) > r:
+    if obj_filter < 0 and scene_phi(m, gtype, size, pose, radius, mesh, n, -1) > r:
         return
     count = float(0.0)
     total = float(0.0)
@@ -53,7 +53,7 @@ def penetration_samples(
             p = a * (1.0 - u - v) + b * u + c * v
             d = float(1.0e6)
             if obj_filter < 0:
-                d = scene_phi(p, gtype, size, pose, radius, mesh, n)
+                d = scene_phi(p, gtype, size, pose, radius, mesh, n, -1)
             else:
                 for g in range(n):
                     if geom_obj[g] == obj_filter:

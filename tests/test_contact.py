@@ -282,8 +282,8 @@ def test_compound_object_is_the_union_of_its_geoms():
               count: wp.array(dtype=int), phi: wp.array(dtype=float), phi2: wp.array(dtype=float),
               grad: wp.array(dtype=wp.vec3)):
         i = wp.tid()
-        phi[i] = scene_phi(p[i], gtype, size, pose, radius, mesh, count[0])
-        d, g, arg = scene_phi_grad(p[i], gtype, size, pose, radius, mesh, count[0])
+        phi[i] = scene_phi(p[i], gtype, size, pose, radius, mesh, count[0], -1)
+        d, g, arg = scene_phi_grad(p[i], gtype, size, pose, radius, mesh, count[0], -1)
         phi2[i] = d
         grad[i] = g
 

@@ -24,21 +24,30 @@ def find_active(
     geom_count: wp.array(dtype=int),
     margin: float,
     active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
 ):
+    """Append each triangle that can reach a geom, with the bit mask of those geoms (bits 0-30;
+    later geoms are always queried), so decision points query only the geoms near their triangle."""
     t = wp.tid()
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
     m = (a + b + c) * (1.0 / 3.0)
     r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
+    mask = int(0)
     for g in range(geom_count[0]):
         tf = pose[g]
         if wp.length(m - wp.transform_get_translation(tf)) - radius[g] - r <= margin:
             if geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(tf), m), size[g], mesh[g]) - r <= margin:
-                slot = wp.atomic_add(active_count, 0, 1)
-                active[slot] = t
-                return
+                if g < 31:
+                    mask = mask | (1 << g)
+                else:
+                    mask = mask | (1 << 30)  # any bit: the triangle is active; geoms >= 31 are always tried
+    if mask != 0:
+        slot = wp.atomic_add(active_count, 0, 1)
+        active[slot] = t
+        active_mask[slot] = mask
 
 
 @wp.kernel
@@ -49,10 +58,12 @@ def reset_counter(counter: wp.array(dtype=int)):
 @wp.kernel
 def keep_near(
     active_in: wp.array(dtype=int),
+    mask_in: wp.array(dtype=int),
     count_in: wp.array(dtype=int),
     decision: wp.array(dtype=wp.vec4),
     threshold: float,
     active_out: wp.array(dtype=int),
+    mask_out: wp.array(dtype=int),
     count_out: wp.array(dtype=int),
 ):
     """Next contact pass: only triangles whose decision point came within ``threshold`` (m) of an
@@ -64,3 +75,4 @@ def keep_near(
     if decision[t][3] < threshold:
         slot = wp.atomic_add(count_out, 0, 1)
         active_out[slot] = t
+        mask_out[slot] = mask_in[k]

@@ -32,7 +32,9 @@ class Contact:
         self.n_tris = n_tris
         self.active = wp.zeros(max(n_tris, 1), dtype=int, device=d)
         self.active_count = wp.zeros(1, dtype=int, device=d)
+        self.active_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per active slot
         self.active2 = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # ping-pong list between passes
+        self.active2_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
         self.active2_count = wp.zeros(1, dtype=int, device=d)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
@@ -59,19 +61,19 @@ class Contact:
         ops.append(self.active_count.zero_)
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count,
                                           cfg.contact_margin],
-               [self.active, self.active_count])
-        lists = [(self.active, self.active_count), (self.active2, self.active2_count)]
+               [self.active, self.active_mask, self.active_count])
+        lists = [(self.active, self.active_mask, self.active_count), (self.active2, self.active2_mask, self.active2_count)]
         for p in range(cfg.contact_passes):
             cur, nxt = lists[p % 2], lists[(p + 1) % 2]
             launch(decide_and_project, self.n_tris,
-                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, o.obj, cur[0], cur[1],
+                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, o.obj, cur[0], cur[1], cur[2],
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, state.x],
                    [self.delta, self.hits, self.decision, self.vertex_obj])
             launch(apply_contact, m.n_vertices, [self.delta, self.hits], [state.x, self.push])
             if p + 1 < cfg.contact_passes:
-                ops.append(nxt[1].zero_)
-                launch(keep_near, self.n_tris, [cur[0], cur[1], self.decision, KEEP_BELOW],
-                       [nxt[0], nxt[1]])
+                ops.append(nxt[2].zero_)
+                launch(keep_near, self.n_tris, [cur[0], cur[1], cur[2], self.decision, KEEP_BELOW],
+                       [nxt[0], nxt[1], nxt[2]])
 
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""

@@ -32,12 +32,15 @@ MULTIRES = wp.constant(int(Strategy.MULTIRES))
 @wp.func
 def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
               pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.uint64), count: int):
-    """min over the geoms of phi at world point p (m); geoms whose bounding sphere is farther than
-    the best value so far are skipped (phi >= |p - c| - R)."""
+              mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
+    """min over the geoms of phi at world point p (m). Only geoms whose bit is set in ``mask`` (the
+    broadphase's list for this triangle; -1 = all; geoms past the 31st are always tried) count, and
+    geoms whose bounding sphere is farther than the best value so far are skipped (phi >= |p - c| - R)."""
     best = float(FAR)
     for g in range(count):
         t = pose[g]
+        if (g < 31 and ((mask >> g) & 1) == 0):
+            continue
         if wp.length(p - wp.transform_get_translation(t)) - radius[g] < best:
             d = geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(t), p), size[g], mesh[g])
             best = wp.min(best, d)
@@ -47,13 +50,16 @@ def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.ve
 @wp.func
 def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
                    pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.uint64), count: int):
-    """(phi, unit world gradient, geom index) of the closest geom at world point p."""
+                   mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
+    """(phi, unit world gradient, geom index) of the closest geom at world point p (``mask`` as in
+    :func:`scene_phi`)."""
     best = float(FAR)
     grad = wp.vec3(0.0, 0.0, 1.0)
-    arg = int(-1)
+    arg = int(0)
     for g in range(count):
         t = pose[g]
+        if (g < 31 and ((mask >> g) & 1) == 0):
+            continue
         if wp.length(p - wp.transform_get_translation(t)) - radius[g] < best:
             d, n = geom_sdf_grad(gtype[g], wp.transform_point(wp.transform_inverse(t), p), size[g], mesh[g])
             if d < best:
@@ -86,6 +92,7 @@ def decide_and_project(
     geom_obj: wp.array(dtype=int),
     # Contact in:
     active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
     strategy: int,
     samples: int,
@@ -106,6 +113,7 @@ def decide_and_project(
     if k >= active_count[0]:
         return
     t = active[k]
+    near = active_mask[k]
     i0 = faces[t, 0]
     i1 = faces[t, 1]
     i2 = faces[t, 2]
@@ -128,7 +136,7 @@ def decide_and_project(
                 p = (b + c) * 0.5
             elif q == 5:
                 p = (c + a) * 0.5
-            d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms)
+            d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -138,7 +146,7 @@ def decide_and_project(
         w2 = float(1.0 / 3.0)
         for q in range(opt_queries):
             p = a * w0 + b * w1 + c * w2
-            d, g, arg = scene_phi_grad(p, gtype, size, pose, radius, mesh, n_geoms)
+            d, g, arg = scene_phi_grad(p, gtype, size, pose, radius, mesh, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -176,7 +184,7 @@ def decide_and_project(
                     u = float(i) * inv
                     v = float(j) * inv
                     p = ta * (1.0 - u - v) + tb * u + tc * v
-                    d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms)
+                    d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
                     n += 1
                     if d < d0:
                         d2 = d1
@@ -195,7 +203,7 @@ def decide_and_project(
                         p2 = p
             if n < samples:  # spend a leftover query on the centroid
                 p = (ta + tb + tc) * (1.0 / 3.0)
-                d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms)
+                d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
                 if d < d0:
                     d2 = d1
                     p2 = p1
@@ -219,7 +227,7 @@ def decide_and_project(
             tc = p2
     decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
     if best < 0.0:
-        d, g, arg = scene_phi_grad(best_p, gtype, size, pose, radius, mesh, n_geoms)
+        d, g, arg = scene_phi_grad(best_p, gtype, size, pose, radius, mesh, n_geoms, near)
         corr = g * (-d)  # Eq. 9 with the gradient and depth at x*
         wp.atomic_add(delta, i0, corr)
         wp.atomic_add(delta, i1, corr)
