@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.broadphase import triangle_bound
 from physhand_mj.contact.query import scene_phi
 from physhand_mj.contact.sdf import geom_sdf
 
@@ -38,8 +39,7 @@ def penetration_samples(
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
-    m = (a + b + c) * (1.0 / 3.0)
-    r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
+    m, r = triangle_bound(a, b, c)
     n = geom_count[0]
     if obj_filter < 0 and scene_phi(m, gtype, size, pose, radius, mesh, n, -1) > r:
         return

@@ -12,6 +12,13 @@ import warp as wp
 from physhand_mj.contact.sdf import geom_sdf
 
 
+@wp.func
+def triangle_bound(a: wp.vec3, b: wp.vec3, c: wp.vec3):
+    """(centroid, circumradius about it): every point of the triangle lies within r of m."""
+    m = (a + b + c) * (1.0 / 3.0)
+    return m, wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
+
+
 @wp.kernel
 def find_active(
     faces: wp.array2d(dtype=int),
@@ -30,11 +37,7 @@ def find_active(
     """Append each triangle that can reach a geom, with the bit mask of those geoms (bits 0-30;
     later geoms are always queried), so decision points query only the geoms near their triangle."""
     t = wp.tid()
-    a = x[faces[t, 0]]
-    b = x[faces[t, 1]]
-    c = x[faces[t, 2]]
-    m = (a + b + c) * (1.0 / 3.0)
-    r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
+    m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
     mask = int(0)
     for g in range(geom_count[0]):
         tf = pose[g]

@@ -78,6 +78,18 @@ def lattice_order(samples: int):
     return order
 
 
+@wp.func
+def keep_three_lowest(d: float, p: wp.vec3, d0: float, p0: wp.vec3, d1: float, p1: wp.vec3, d2: float, p2: wp.vec3):
+    """Insert sample (d, p) into the ascending three lowest (d0 <= d1 <= d2) of Algorithm 2."""
+    if d < d0:
+        return d, p, d0, p0, d1, p1
+    if d < d1:
+        return d0, p0, d, p, d1, p1
+    if d < d2:
+        return d0, p0, d1, p1, d, p
+    return d0, p0, d1, p1, d2, p2
+
+
 @wp.kernel
 def decide_and_project(
     # Model:
@@ -186,39 +198,11 @@ def decide_and_project(
                     p = ta * (1.0 - u - v) + tb * u + tc * v
                     d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
                     n += 1
-                    if d < d0:
-                        d2 = d1
-                        p2 = p1
-                        d1 = d0
-                        p1 = p0
-                        d0 = d
-                        p0 = p
-                    elif d < d1:
-                        d2 = d1
-                        p2 = p1
-                        d1 = d
-                        p1 = p
-                    elif d < d2:
-                        d2 = d
-                        p2 = p
+                    d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if n < samples:  # spend a leftover query on the centroid
                 p = (ta + tb + tc) * (1.0 / 3.0)
                 d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
-                if d < d0:
-                    d2 = d1
-                    p2 = p1
-                    d1 = d0
-                    p1 = p0
-                    d0 = d
-                    p0 = p
-                elif d < d1:
-                    d2 = d1
-                    p2 = p1
-                    d1 = d
-                    p1 = p
-                elif d < d2:
-                    d2 = d
-                    p2 = p
+                d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if d0 < best:
                 best = d0
                 best_p = p0

@@ -67,26 +67,10 @@ def sdf_ellipsoid(p: wp.vec3, r: wp.vec3):
 
 
 @wp.func
-def sdf_cone(p: wp.vec3, radius: float, height: float):
-    """Exact cone (Quilez), tip at the origin, axis +z, base disc of ``radius`` at z = -height."""
-    qx = radius
-    qy = -height
-    wx = wp.sqrt(p[0] * p[0] + p[1] * p[1])
-    wy = p[2]
-    t = wp.clamp((wx * qx + wy * qy) / (qx * qx + qy * qy), 0.0, 1.0)
-    ax = wx - qx * t
-    ay = wy - qy * t
-    bx = wx - qx * wp.clamp(wx / qx, 0.0, 1.0)
-    by = wy - qy
-    d = wp.min(ax * ax + ay * ay, bx * bx + by * by)
-    s = wp.max(-(wx * qy - wy * qx), -(wy - qy))  # k = sign(qy) = -1
-    return wp.sqrt(d) * wp.sign(s)
-
-
-@wp.func
 def sdf_cone_grad(p: wp.vec3, radius: float, height: float):
-    """(phi, gradient) of :func:`sdf_cone`: in the (rho, z) half-plane the gradient is sign(phi) times
-    the unit vector from the closest surface point, mapped back along the radial direction."""
+    """(phi, gradient) of the exact cone (Quilez), tip at the origin, axis +z, base disc of ``radius``
+    at z = -height: in the (rho, z) half-plane the distance to the profile's two segments, signed;
+    the gradient is sign(phi) times the unit vector from the closest surface point."""
     qx = radius
     qy = -height
     rho = wp.sqrt(p[0] * p[0] + p[1] * p[1])
@@ -132,7 +116,8 @@ def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
     if gtype == ELLIPSOID:
         return sdf_ellipsoid(p, size)
     if gtype == CONE:
-        return sdf_cone(p, size[0], size[1])
+        d, g = sdf_cone_grad(p, size[0], size[1])
+        return d
     if gtype == MESH:
         hit = wp.mesh_query_point_sign_normal(mesh, p, size[0])
         if hit.result:
