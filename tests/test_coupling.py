@@ -136,3 +136,18 @@ def test_view_without_display_says_so(monkeypatch, capsys):
     assert err.count("\n") == 0 and "display" in err
     assert main(["view", "missing_scene.xml"]) == 1
     assert "no scene file" in capsys.readouterr().err
+
+
+def test_pads_asset_is_built_by_the_same_builder():
+    """The shipped Jaco pads asset rebuilds identically from dm-control's model (build extra)."""
+    from physhand_mj.build.pads import build_pads
+    from physhand_mj.robots import PAD_BODIES, PADS_ASSET, jaco_hand_xml
+
+    model = mujoco.MjModel.from_xml_path(str(jaco_hand_xml()))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    fresh = build_pads(model, data, list(PAD_BODIES))
+    shipped = ph.load_asset(PADS_ASSET)
+    assert fresh.n_vertices == shipped.n_vertices and len(fresh.tets) == len(shipped.tets)
+    assert np.allclose(fresh.positions, shipped.positions)
+    assert list(shipped.body_names) == list(PAD_BODIES)
