@@ -22,15 +22,12 @@ import numpy as np
 
 from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
+from physhand_mj.contact.objects import MJ_GEOM_TYPES
 from physhand_mj.hand_mjcf import body_ids, set_skin_vertices, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
 from physhand_mj.solver.model import quat_to_mat
 from physhand_mj.types import Config, GeomType
 
-_MJ_GEOM = {mujoco.mjtGeom.mjGEOM_PLANE: GeomType.PLANE, mujoco.mjtGeom.mjGEOM_SPHERE: GeomType.SPHERE,
-            mujoco.mjtGeom.mjGEOM_CAPSULE: GeomType.CAPSULE, mujoco.mjtGeom.mjGEOM_ELLIPSOID: GeomType.ELLIPSOID,
-            mujoco.mjtGeom.mjGEOM_CYLINDER: GeomType.CYLINDER, mujoco.mjtGeom.mjGEOM_BOX: GeomType.BOX,
-            mujoco.mjtGeom.mjGEOM_MESH: GeomType.MESH}
 
 
 def _mat_to_quat(mats: np.ndarray) -> np.ndarray:
@@ -114,7 +111,7 @@ class SoftHand:
                 continue
             if groups is not None and int(m.geom_group[g]) not in groups:
                 continue
-            if int(m.geom_type[g]) not in _MJ_GEOM:
+            if int(m.geom_type[g]) not in MJ_GEOM_TYPES:
                 kind = mujoco.mjtGeom(int(m.geom_type[g])).name
                 raise ValueError(f"geom '{name or g}' is a {kind}, which the soft skin cannot collide with; "
                                  f"leave it out with object_geoms / object_bodies / object_groups")
@@ -123,7 +120,7 @@ class SoftHand:
 
     def _add_geom(self, g: int) -> None:
         m, d = self.model, self.data
-        gtype = _MJ_GEOM[int(m.geom_type[g])]
+        gtype = MJ_GEOM_TYPES[int(m.geom_type[g])]
         name = m.geom(g).name or f"geom{g}"
         body = m.body(int(m.geom_bodyid[g])).name or name
         quat = _mat_to_quat(d.geom_xmat[g].reshape(1, 9))[0]

@@ -54,11 +54,6 @@ def find_active(
 
 
 @wp.kernel
-def reset_counter(counter: wp.array(dtype=int)):
-    counter[0] = 0
-
-
-@wp.kernel
 def keep_near(
     active_in: wp.array(dtype=int),
     mask_in: wp.array(dtype=int),

@@ -12,7 +12,7 @@ import warp as wp
 from physhand_mj.contact.broadphase import find_active, keep_near
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
-from physhand_mj.metrics import penetration_samples, summarize
+from physhand_mj.metrics import penetration_samples
 from physhand_mj.types import Config, Model, Placement
 
 KEEP_BELOW = 1.0e-5  # m: after a pass, triangles whose decision point is this close stay for the next
@@ -105,12 +105,14 @@ class Contact:
         wp.synchronize_device(d)
         return self.decision.numpy()[: self.n_tris].copy()
 
-    def read_metrics(self) -> np.ndarray:
+    def copy_metrics(self) -> None:
+        """Start the device-to-host copy of the metrics (the caller synchronises once per frame)."""
+        wp.copy(self._metrics_host, self.metrics)
+
+    def read_metrics(self, synchronize: bool = True) -> np.ndarray:
         """(substeps + 1, 3) [count, sum depth m, max depth m]; the last row is the frame's end.
         Rows of substeps are zero unless Config.substep_metrics."""
-        wp.copy(self._metrics_host, self.metrics)
-        wp.synchronize_device(self.metrics.device)
+        if synchronize:
+            self.copy_metrics()
+            wp.synchronize_device(self.metrics.device)
         return self._metrics_host.numpy().copy()
-
-    def frame_metrics(self, rows: np.ndarray) -> dict:
-        return summarize(rows[-1])

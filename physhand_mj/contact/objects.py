@@ -14,8 +14,9 @@ import warp as wp
 
 from physhand_mj.types import GeomType
 
-_MJ_TO_GEOM = {0: GeomType.PLANE, 2: GeomType.SPHERE, 3: GeomType.CAPSULE, 4: GeomType.ELLIPSOID,
-               5: GeomType.CYLINDER, 6: GeomType.BOX, 7: GeomType.MESH}  # mujoco.mjtGeom values
+# mujoco.mjtGeom values of the geoms the skin can collide with (height fields and SDF plugins are not)
+MJ_GEOM_TYPES = {0: GeomType.PLANE, 2: GeomType.SPHERE, 3: GeomType.CAPSULE, 4: GeomType.ELLIPSOID,
+                 5: GeomType.CYLINDER, 6: GeomType.BOX, 7: GeomType.MESH}
 PLANE_RADIUS = 1.0e6  # bounding radius of the unbounded plane (m)
 
 
@@ -61,6 +62,7 @@ class Objects:
     object_names: list = field(default_factory=list)
     _meshes: list = field(default_factory=list)
     _host: dict = field(default_factory=dict)
+    _pose_buf: object = None
 
     def __post_init__(self):
         d, c = self.device, max(int(self.capacity), 1)
@@ -74,6 +76,7 @@ class Objects:
         self._host = dict(gtype=np.zeros(c, np.int32), size=np.zeros((c, 3), np.float32),
                           pose=np.zeros((c, 7), np.float32), radius=np.zeros(c, np.float32),
                           mesh=np.zeros(c, np.uint64), obj=np.zeros(c, np.int32))
+        self._pose_buf = wp.empty(c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -129,17 +132,31 @@ class Objects:
         q = quat / np.linalg.norm(quat)
         self._host["pose"][i] = [*pos, q[1], q[2], q[3], q[0]]  # Warp transforms: xyz, then quat x y z w
         if upload:
-            self.upload()
+            self._upload_pose()
 
     def set_poses(self, pos: np.ndarray, quat: np.ndarray) -> None:
-        """All geom poses at once: pos (n, 3) m, quat (n, 4) w x y z, in ``add`` order."""
-        for i in range(len(self.names)):
-            self.set_pose(i, pos[i], quat[i], upload=False)
-        self.upload()
+        """All geom poses at once (the per-frame call): pos (n, 3) m, quat (n, 4) w x y z, in ``add``
+        order. Only the pose array is uploaded, through a preallocated host buffer."""
+        n = len(self.names)
+        pos = np.asarray(pos, float).reshape(n, 3)
+        quat = np.asarray(quat, float).reshape(n, 4)
+        norm = np.linalg.norm(quat, axis=1, keepdims=True)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))) or np.any(norm < 1e-9):
+            bad = [self.names[i] for i in np.flatnonzero(~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)
+                                                           & (norm[:, 0] >= 1e-9)))]
+            raise ValueError(f"geoms {bad}: non-finite or zero pose")
+        q = quat / norm
+        self._host["pose"][:n] = np.concatenate([pos, q[:, 1:], q[:, :1]], axis=1)
+        self._upload_pose()
+
+    def _upload_pose(self) -> None:
+        self._pose_buf.numpy()[:] = self._host["pose"]
+        wp.copy(self.pose, self._pose_buf)
 
     def upload(self) -> None:
+        """All arrays (after ``add``)."""
         h = self._host
         for name in ("gtype", "size", "radius", "mesh", "obj"):
             getattr(self, name).assign(h[name])
-        self.pose.assign(h["pose"])
+        self._upload_pose()
         self.count.assign(np.array([len(self.names)], np.int32))

@@ -146,14 +146,18 @@ class Solver:
             for op in ops:
                 op()
         wp.copy(self._guard_host, state.guard)
-        wp.synchronize_device(self.device)
+        if self.contact is not None:
+            self.contact.copy_metrics()
+        wp.synchronize_device(self.device)  # the frame's one host sync
         g = self._guard_host.numpy()
         state.time += self.config.frame_dt
         state.frames += 1
         out = {"nonfinite": int(g[0]), "inverted": int(g[1])}
         if self.contact is not None:
-            rows = self.contact.read_metrics()
-            out.update(self.contact.frame_metrics(rows))
+            from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
+
+            rows = self.contact.read_metrics(synchronize=False)
+            out.update(summarize(rows[-1]))
             self.substep_metrics = rows[:-1]
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
