@@ -25,7 +25,7 @@ def penetration_samples(
     x: wp.array(dtype=wp.vec3),
     gtype: wp.array(dtype=int),
     size: wp.array(dtype=wp.vec3),
-    pose: wp.array(dtype=wp.transform),
+    inv_pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
@@ -41,7 +41,7 @@ def penetration_samples(
     c = x[faces[t, 2]]
     m, r = triangle_bound(a, b, c)
     n = geom_count[0]
-    if obj_filter < 0 and scene_phi(m, gtype, size, pose, radius, mesh, n, -1) > r:
+    if obj_filter < 0 and scene_phi(m, gtype, size, inv_pose, radius, mesh, n, -1) > r:
         return
     count = float(0.0)
     total = float(0.0)
@@ -53,12 +53,11 @@ def penetration_samples(
             p = a * (1.0 - u - v) + b * u + c * v
             d = float(1.0e6)
             if obj_filter < 0:
-                d = scene_phi(p, gtype, size, pose, radius, mesh, n, -1)
+                d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n, -1)
             else:
                 for g in range(n):
                     if geom_obj[g] == obj_filter:
-                        tf = pose[g]
-                        d = wp.min(d, geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(tf), p), size[g], mesh[g]))
+                        d = wp.min(d, geom_sdf(gtype[g], wp.transform_point(inv_pose[g], p), size[g], mesh[g]))
             if d < 0.0:
                 count += 1.0
                 total += -d

@@ -109,8 +109,11 @@ class Config:
       nonfinite: :class:`NonFinite` policy.
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
         objects); contact_placement: :class:`Placement` of the correction in the substep;
-        contact_passes: query + Eq. 9 projection rounds per placement; contact_margin: broadphase
-        margin (m); multires_samples / multires_rounds: Algorithm 2's samples per round and rounds
+        contact_passes: query + Eq. 9 projection rounds per placement (at most: a pass queries only
+        triangles the previous pass moved); contact_margin: the stage broadphase's margin (m; covers how
+        far one stage's corrections drag a triangle that did not penetrate itself);
+        contact_frame_margin: the frame broadphase's margin (m; must cover how far skin and objects
+        move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); multires_samples / multires_rounds: Algorithm 2's samples per round and rounds
         (default 10 x 3 = 30 queries: on the cone experiment it left 4x fewer penetrating samples
         than the paper's 16 x 2 = 32, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's
         baseline: 32); substep_metrics: evaluate the penetration metrics after every substep (for
@@ -140,9 +143,10 @@ class Config:
     contact: Strategy = Strategy.MULTIRES
     contact_placement: Placement = Placement.AFTER
     contact_passes: int = 8
-    contact_margin: float = 2.0e-3
-    multires_samples: int = 10
-    multires_rounds: int = 3
+    contact_margin: float = 5.0e-4
+    contact_frame_margin: float = 1.0e-2
+    multires_samples: int = 21
+    multires_rounds: int = 2
     opt_queries: int = 32
     substep_metrics: bool = False
     device: str | None = None
@@ -176,6 +180,10 @@ class Config:
         if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):
             raise ValueError(f"Config.multires_samples must be an integer >= 3, got {self.multires_samples!r}")
         nonneg("contact_margin")
+        nonneg("contact_frame_margin")
+        if self.contact_frame_margin < self.contact_margin:
+            raise ValueError(f"Config.contact_frame_margin ({self.contact_frame_margin} m) must be at least "
+                             f"Config.contact_margin ({self.contact_margin} m)")
         self.contact = Strategy(self.contact)
         self.contact_placement = Placement(self.contact_placement)
         self.scheme = Scheme(self.scheme)

@@ -296,7 +296,7 @@ def test_compound_object_is_the_union_of_its_geoms():
     n = len(p)
     phi, phi2, grad = (wp.zeros(n, dtype=float, device="cpu"), wp.zeros(n, dtype=float, device="cpu"),
                        wp.zeros(n, dtype=wp.vec3, device="cpu"))
-    wp.launch(union, n, inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3, device="cpu"), objs.gtype, objs.size, objs.pose,
+    wp.launch(union, n, inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3, device="cpu"), objs.gtype, objs.size, objs.inv_pose,
                                 objs.radius, objs.mesh, objs.count], outputs=[phi, phi2, grad], device="cpu")
     rot = np.array([[np.cos(np.pi / 4), -np.sin(np.pi / 4), 0], [np.sin(np.pi / 4), np.cos(np.pi / 4), 0], [0, 0, 1]])
     want = np.minimum(np.linalg.norm(p - [-0.015, 0, 0], axis=1) - 0.02,

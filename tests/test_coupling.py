@@ -62,6 +62,49 @@ def test_glass_grasp_contact_report(glass_grasp):
     assert p.shape == (hand.asset.n_skin,) and (p > 0).sum() == len(glass["vertices"])
 
 
+def _close_on(kind):
+    """grasp_glass with the glass swapped for a static sphere or box (MjSpec); the hand closes on it
+    under position control, once with the skin's contact and once without (the same bone motion)."""
+    spec = mujoco.MjSpec.from_file(str(ph.scene_path("grasp_glass")))
+    geom = spec.geom("glass")
+    if kind == "sphere":
+        geom.type, geom.size = mujoco.mjtGeom.mjGEOM_SPHERE, [0.04, 0, 0]
+    else:
+        geom.type, geom.size = mujoco.mjtGeom.mjGEOM_BOX, [0.03, 0.03, 0.06]
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    mujoco.mj_forward(model, data)
+    hand = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=["glass"])
+    free = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=[])
+    for _ in range(50):
+        mujoco.mj_step(model, data)
+        hand.step()
+        free.step()
+    return model, data, hand, free
+
+
+@pytest.mark.parametrize("kind", ["sphere", "box"])
+def test_closing_on_a_static_object_ends_without_penetration(kind):
+    model, data, hand, free = _close_on(kind)
+    m = hand.metrics()
+    assert m["finite"] and m["penetration_count"] == 0, m
+    touched = hand.contacts()["objects"]["glass"]
+    assert len(touched["vertices"]) > 20 and touched["force_n"] > 0.1, touched
+    # away from the contact (> 15 mm from the object) the skin is where the contact-free run has it
+    g = model.geom("glass").id
+    local = (hand.skin_vertices - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
+    if kind == "sphere":
+        dist = np.linalg.norm(local, axis=1) - 0.04
+    else:
+        q = np.abs(local) - [0.03, 0.03, 0.06]
+        dist = np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+    far = dist > 0.015
+    diff = np.linalg.norm(hand.skin_vertices - free.skin_vertices, axis=1)
+    assert far.sum() > 1000 and np.percentile(diff[far], 99) < 1.0e-3 and diff[far].max() < 3.0e-3, (
+        np.percentile(diff[far], 99), diff[far].max())
+
+
 def _palm_press(depth):
     """hand_only + a static sphere pressed ``depth`` m into the palm, built with MjSpec."""
     asset = ph.load_asset()

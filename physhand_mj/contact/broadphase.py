@@ -1,10 +1,18 @@
-"""Which skin triangles can touch an object this substep: so contact cost follows contact area.
+"""Which skin triangles can touch an object: so contact cost follows contact area.
 
 A triangle with centroid c and circumradius r (largest centroid-vertex distance) cannot reach a
 geom if phi(c) - r > margin: every SDF is 1-Lipschitz, so no point of the triangle is closer. The
 cheap bound |c - o| - R (bounding sphere, centre o, radius R) is tried first, the exact phi(c)
-(one query) only for triangles inside it. ``margin`` (m) covers the motion within one contact
-stage. Surviving triangles are compacted into ``active`` with an atomic counter.
+(one query) only for triangles inside it. Surviving triangles are compacted into a list with an
+atomic counter, each with the bit mask of the geoms it can reach.
+
+Two levels: once per frame over all triangles with ``Config.contact_frame_margin`` (m: covers the
+skin's and the objects' motion within the frame), then every substep over that frame list only
+with ``Config.contact_margin`` (m: covers the motion within one contact stage). Between the passes
+of one stage, :func:`keep_moved` keeps only triangles a pass moved: a triangle none of whose
+vertices moved has the same decision point as before, which did not penetrate. (A compacted list,
+not an early return in the query kernel: Warp's CPU threads copy every array argument, so a
+thread of the query kernel costs ~90 ns even when it returns at once.)
 """
 
 import warp as wp
@@ -25,28 +33,42 @@ def find_active(
     x: wp.array(dtype=wp.vec3),
     gtype: wp.array(dtype=int),
     size: wp.array(dtype=wp.vec3),
-    pose: wp.array(dtype=wp.transform),
+    inv_pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
     margin: float,
+    use_src: int,
+    src: wp.array(dtype=int),
+    src_mask: wp.array(dtype=int),
+    src_count: wp.array(dtype=int),
     active: wp.array(dtype=int),
     active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
 ):
-    """Append each triangle that can reach a geom, with the bit mask of those geoms (bits 0-30;
-    later geoms are always queried), so decision points query only the geoms near their triangle."""
-    t = wp.tid()
+    """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms
+    (bits 0-30; later geoms are always queried), so decision points query only the geoms near their
+    triangle. With ``use_src`` only the triangles (and geoms) of the list ``src`` are tested, else all."""
+    k = wp.tid()
+    t = k
+    allowed = int(-1)
+    if use_src != 0:
+        if k >= src_count[0]:
+            return
+        t = src[k]
+        allowed = src_mask[k]
     m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
     mask = int(0)
     for g in range(geom_count[0]):
-        tf = pose[g]
-        if wp.length(m - wp.transform_get_translation(tf)) - radius[g] - r <= margin:
-            if geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(tf), m), size[g], mesh[g]) - r <= margin:
-                if g < 31:
-                    mask = mask | (1 << g)
-                else:
-                    mask = mask | (1 << 30)  # any bit: the triangle is active; geoms >= 31 are always tried
+        bit = int(1 << 30)
+        if g < 31:
+            bit = 1 << g
+        if (allowed & bit) == 0:
+            continue
+        q = wp.transform_point(inv_pose[g], m)
+        if wp.length(q) - radius[g] - r <= margin:
+            if geom_sdf(gtype[g], q, size[g], mesh[g]) - r <= margin:
+                mask = mask | bit  # geoms >= 31 share bit 30: the triangle is active, they are always tried
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
         active[slot] = t
@@ -54,23 +76,24 @@ def find_active(
 
 
 @wp.kernel
-def keep_near(
-    active_in: wp.array(dtype=int),
-    mask_in: wp.array(dtype=int),
-    count_in: wp.array(dtype=int),
-    decision: wp.array(dtype=wp.vec4),
-    threshold: float,
-    active_out: wp.array(dtype=int),
-    mask_out: wp.array(dtype=int),
-    count_out: wp.array(dtype=int),
+def keep_moved(
+    faces: wp.array2d(dtype=int),
+    active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    moved: wp.array(dtype=int),
+    stamp: int,
+    out: wp.array(dtype=int),
+    out_mask: wp.array(dtype=int),
+    out_count: wp.array(dtype=int),
 ):
-    """Next contact pass: only triangles whose decision point came within ``threshold`` (m) of an
-    object (phi(x*) = decision[t].w) can still need a correction after their neighbours moved."""
+    """Next contact pass: the triangles of the stage's ``active`` list with a vertex the last pass
+    moved (``moved[i] == stamp``, set by apply_contact)."""
     k = wp.tid()
-    if k >= count_in[0]:
+    if k >= active_count[0]:
         return
-    t = active_in[k]
-    if decision[t][3] < threshold:
-        slot = wp.atomic_add(count_out, 0, 1)
-        active_out[slot] = t
-        mask_out[slot] = mask_in[k]
+    t = active[k]
+    if moved[faces[t, 0]] == stamp or moved[faces[t, 1]] == stamp or moved[faces[t, 2]] == stamp:
+        slot = wp.atomic_add(out_count, 0, 1)
+        out[slot] = t
+        out_mask[slot] = active_mask[k]

@@ -9,13 +9,11 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.broadphase import find_active, keep_near
+from physhand_mj.contact.broadphase import find_active, keep_moved
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
 from physhand_mj.metrics import penetration_samples
 from physhand_mj.types import Config, Model, Placement
-
-KEEP_BELOW = 1.0e-5  # m: after a pass, triangles whose decision point is this close stay for the next
 
 
 class Contact:
@@ -30,12 +28,21 @@ class Contact:
         self.model, self.objects, self.config = model, objects, config
         n_tris = model.skin_faces.shape[0]
         self.n_tris = n_tris
-        self.active = wp.zeros(max(n_tris, 1), dtype=int, device=d)
-        self.active_count = wp.zeros(1, dtype=int, device=d)
-        self.active_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per active slot
-        self.active2 = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # ping-pong list between passes
-        self.active2_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
-        self.active2_count = wp.zeros(1, dtype=int, device=d)
+        stages = config.substeps * (2 if config.contact_placement == Placement.BOTH else 1)
+        # list lengths of one frame, zeroed once per frame: [frame list, one per stage, one per pass]
+        self.counters = wp.zeros(1 + stages * 2 * config.contact_passes, dtype=int, device=d)
+        self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
+        self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
+        self.cand_count = self.counters[0:1]
+        self.active = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the stage's list
+        self.active_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
+        self.active_count = self.cand_count  # replaced per stage by its counter
+        self.pass_list = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # a later pass's list
+        self.pass_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
+        self.moved = wp.zeros(model.n_vertices, dtype=int, device=d)  # number of the pass that last moved i
+        self.touched = wp.zeros(model.n_vertices, dtype=int, device=d)  # vertices a pass corrects
+        self.touched_count = self.cand_count
+        self._slot = 1
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -51,29 +58,49 @@ class Contact:
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
             stage == "after" and p in (Placement.AFTER, Placement.BOTH))
 
-    def record(self, launch, ops: list, state) -> None:
-        """Broadphase once, then ``contact_passes`` x (decision points + Eq. 9, averaged apply); after
-        each pass only triangles whose decision point came within KEEP_BELOW of an object stay in
-        the list (penetrating ones, and touching ones that a neighbour's correction can push in)."""
+    def record_frame(self, launch, ops: list, state) -> None:
+        """Once per frame, before the substeps: the frame's broadphase over all skin triangles with
+        ``contact_frame_margin``; each stage then tests only this list."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        ops.append(self.active_count.zero_)
-        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count,
-                                          cfg.contact_margin],
-               [self.active, self.active_mask, self.active_count])
-        lists = [(self.active, self.active_mask, self.active_count), (self.active2, self.active2_mask, self.active2_count)]
+        ops += [self.counters.zero_, self.moved.zero_]
+        self._slot = 1
+        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                                          cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
+               [self.cand, self.cand_mask, self.cand_count])
+
+    def _counter(self):
+        c = self.counters[self._slot: self._slot + 1]
+        self._slot += 1
+        return c
+
+    def record(self, launch, ops: list, state) -> None:
+        """One contact stage: broadphase over the frame's list, then ``contact_passes`` x (decision
+        points + Eq. 9, averaged apply); a later pass queries only the stage's triangles with a
+        vertex the previous pass moved (the others cannot have changed)."""
+        m, o, cfg = self.model, self.objects, self.config
+        if not self.n_tris:
+            return
+        self.active_count = self._counter()
+        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                                          cfg.contact_margin, 1, self.cand, self.cand_mask, self.cand_count],
+               [self.active, self.active_mask, self.active_count], count=self.cand_count)
+        lst = (self.active, self.active_mask, self.active_count)
         for p in range(cfg.contact_passes):
-            cur, nxt = lists[p % 2], lists[(p + 1) % 2]
+            stamp = self._slot  # unique within the frame (moved is zeroed per frame)
+            self.touched_count = self._counter()
             launch(decide_and_project, self.n_tris,
-                   [m.skin_faces, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, o.obj, cur[0], cur[1], cur[2],
+                   [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, state.x],
-                   [self.delta, self.hits, self.decision, self.vertex_obj])
-            launch(apply_contact, m.n_vertices, [self.delta, self.hits], [state.x, self.push])
+                   [self.delta, self.hits, self.decision, self.vertex_obj, self.touched, self.touched_count],
+                   count=lst[2])
+            launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
+                   [state.x, self.push, self.moved], count=self.touched_count)
             if p + 1 < cfg.contact_passes:
-                ops.append(nxt[2].zero_)
-                launch(keep_near, self.n_tris, [cur[0], cur[1], cur[2], self.decision, KEEP_BELOW],
-                       [nxt[0], nxt[1], nxt[2]])
+                lst = (self.pass_list, self.pass_mask, self._counter())
+                launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
+                                                 self.moved, stamp], list(lst), count=self.active_count)
 
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
@@ -83,7 +110,7 @@ class Contact:
         m, o = self.model, self.objects
         if self.n_tris:
             launch(penetration_samples, self.n_tris,
-                   [m.skin_faces, state.x, o.gtype, o.size, o.pose, o.radius, o.mesh, o.count, o.obj, obj, row],
+                   [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, obj, row],
                    [self.metrics if out is None else out])
 
     # -- host side ---------------------------------------------------------------------------------
@@ -94,11 +121,12 @@ class Contact:
         ops: list = []
         d = self.model.device
 
-        def launch(kernel, dim, inputs, outputs):
+        def launch(kernel, dim, inputs, outputs, count=None):
             if dim:
                 ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
 
         ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
+        self.record_frame(launch, ops, state)
         self.record(launch, ops, state)
         for op in ops:
             op()

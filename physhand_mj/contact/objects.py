@@ -40,11 +40,21 @@ def bounding_radius(gtype: GeomType, size) -> float:
     raise ValueError(f"no bounding radius rule for {gtype!r}")
 
 
+def invert_transforms(tf: np.ndarray) -> np.ndarray:
+    """(n, 7) Warp transforms [p, q x y z w] -> their inverses [-(q^-1 p), q^-1]."""
+    p, q = tf[:, :3].astype(np.float64), tf[:, 3:].astype(np.float64)
+    qv, w = -q[:, :3], q[:, 3:]  # the conjugate: inverse of a unit quaternion
+    t = 2.0 * np.cross(qv, p)
+    rp = p + w * t + np.cross(qv, t)  # q^-1 rotates p
+    return np.concatenate([-rp, qv, w], axis=1).astype(np.float32)
+
+
 @dataclass
 class Objects:
     """Up to ``capacity`` geoms on ``device``. Arrays (G = capacity):
 
-    gtype (G,) int (GeomType), size (G,) vec3 (m), pose (G,) transform (world), radius (G,) float
+    gtype (G,) int (GeomType), size (G,) vec3 (m), pose (G,) transform (world), inv_pose (G,)
+    transform (world -> geom frame: what the queries use, inverted once per frame), radius (G,) float
     (bounding radius, m), mesh (G,) uint64 (wp.Mesh id or 0), obj (G,) int (object index); count (1,)
     int, the number of geoms in use. Host lists keep names and meshes alive.
     """
@@ -54,6 +64,7 @@ class Objects:
     gtype: object = None
     size: object = None
     pose: object = None
+    inv_pose: object = None
     radius: object = None
     mesh: object = None
     obj: object = None
@@ -69,6 +80,7 @@ class Objects:
         self.gtype = wp.zeros(c, dtype=int, device=d)
         self.size = wp.zeros(c, dtype=wp.vec3, device=d)
         self.pose = wp.zeros(c, dtype=wp.transform, device=d)
+        self.inv_pose = wp.zeros(c, dtype=wp.transform, device=d)
         self.radius = wp.zeros(c, dtype=float, device=d)
         self.mesh = wp.zeros(c, dtype=wp.uint64, device=d)
         self.obj = wp.zeros(c, dtype=int, device=d)
@@ -76,7 +88,7 @@ class Objects:
         self._host = dict(gtype=np.zeros(c, np.int32), size=np.zeros((c, 3), np.float32),
                           pose=np.zeros((c, 7), np.float32), radius=np.zeros(c, np.float32),
                           mesh=np.zeros(c, np.uint64), obj=np.zeros(c, np.int32))
-        self._pose_buf = wp.empty(c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
+        self._pose_buf = wp.empty(2 * c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -150,8 +162,12 @@ class Objects:
         self._upload_pose()
 
     def _upload_pose(self) -> None:
-        self._pose_buf.numpy()[:] = self._host["pose"]
-        wp.copy(self.pose, self._pose_buf)
+        c = self.pose.shape[0]
+        buf = self._pose_buf.numpy()
+        buf[:c] = self._host["pose"]
+        buf[c:] = invert_transforms(self._host["pose"])
+        wp.copy(self.pose, self._pose_buf, count=c)
+        wp.copy(self.inv_pose, self._pose_buf, src_offset=c, count=c)
 
     def upload(self) -> None:
         """All arrays (after ``add``)."""

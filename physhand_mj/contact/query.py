@@ -6,9 +6,15 @@ phi(x*) < 0 moves the triangle's three vertices by Eq. 9:
 
     x_i <- x_i - grad phi(x*) / |grad phi(x*)| phi(x*)
 
-Triangles share vertices, so the corrections are summed per vertex and averaged over the
-penetrating triangles that touch it (``apply_contact``); ``Config.contact_passes`` repeats
-query + projection to remove what averaging leaves.
+Triangles share vertices, so the corrections of a vertex are averaged over the penetrating
+triangles that touch it, weighted by their depth -phi(x*) (``apply_contact``: the deepest triangle
+dominates, where a plain average would halve a lone deep correction every pass);
+``Config.contact_passes`` repeats query + projection to remove what averaging leaves.
+
+Triangles that cannot penetrate are left early, exactly (SDFs are 1-Lipschitz): for vertex and opt,
+when phi(centroid) exceeds the circumradius; for multires, when after the first round (a lattice
+of order L over the whole triangle, every point within longest edge / (L sqrt 3) of a sample) the
+lowest sample exceeds that distance.
 
 Strategies (``Strategy``):
 - VERTEX: min over the 3 vertices and 3 edge midpoints (Fuhrmann et al. 2003): 6 queries.
@@ -21,6 +27,7 @@ Strategies (``Strategy``):
 
 import warp as wp
 
+from physhand_mj.contact.broadphase import triangle_bound
 from physhand_mj.contact.sdf import FAR, geom_sdf, geom_sdf_grad
 from physhand_mj.types import Strategy
 
@@ -31,25 +38,25 @@ MULTIRES = wp.constant(int(Strategy.MULTIRES))
 
 @wp.func
 def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+              inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
               mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
     """min over the geoms of phi at world point p (m). Only geoms whose bit is set in ``mask`` (the
     broadphase's list for this triangle; -1 = all; geoms past the 31st are always tried) count, and
-    geoms whose bounding sphere is farther than the best value so far are skipped (phi >= |p - c| - R)."""
+    geoms whose bounding sphere is farther than the best value so far are skipped (phi >= |q| - R
+    for p at q in the geom frame)."""
     best = float(FAR)
     for g in range(count):
-        t = pose[g]
         if (g < 31 and ((mask >> g) & 1) == 0):
             continue
-        if wp.length(p - wp.transform_get_translation(t)) - radius[g] < best:
-            d = geom_sdf(gtype[g], wp.transform_point(wp.transform_inverse(t), p), size[g], mesh[g])
-            best = wp.min(best, d)
+        q = wp.transform_point(inv_pose[g], p)
+        if wp.length(q) - radius[g] < best:
+            best = wp.min(best, geom_sdf(gtype[g], q, size[g], mesh[g]))
     return best
 
 
 @wp.func
 def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                   pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                   inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
                    mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
     """(phi, unit world gradient, geom index) of the closest geom at world point p (``mask`` as in
     :func:`scene_phi`)."""
@@ -57,14 +64,15 @@ def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=
     grad = wp.vec3(0.0, 0.0, 1.0)
     arg = int(0)
     for g in range(count):
-        t = pose[g]
         if (g < 31 and ((mask >> g) & 1) == 0):
             continue
-        if wp.length(p - wp.transform_get_translation(t)) - radius[g] < best:
-            d, n = geom_sdf_grad(gtype[g], wp.transform_point(wp.transform_inverse(t), p), size[g], mesh[g])
+        ti = inv_pose[g]
+        q = wp.transform_point(ti, p)
+        if wp.length(q) - radius[g] < best:
+            d, n = geom_sdf_grad(gtype[g], q, size[g], mesh[g])
             if d < best:
                 best = d
-                grad = wp.transform_vector(t, n)
+                grad = wp.quat_rotate_inv(wp.transform_get_rotation(ti), n)
                 arg = g
     return best, grad, arg
 
@@ -90,6 +98,22 @@ def keep_three_lowest(d: float, p: wp.vec3, d0: float, p0: wp.vec3, d1: float, p
     return d0, p0, d1, p1, d2, p2
 
 
+@wp.func
+def depth_weight(depth: float):
+    """Weight of a triangle's correction in its vertices' mean: (depth / 0.1 mm)^4, at least 1e-30
+    (the deepest triangle of a vertex dominates; the floor keeps the weight positive in float32)."""
+    s = depth * 1.0e4
+    return wp.max(s * s * s * s, 1.0e-30)
+
+
+@wp.func
+def touch(hits: wp.array(dtype=float), i: int, w: float, touched: wp.array(dtype=int),
+          touched_count: wp.array(dtype=int)):
+    """hits[i] += w (> 0); the first hit of vertex i in a pass appends i to ``touched``."""
+    if wp.atomic_add(hits, i, w) == 0.0:
+        touched[wp.atomic_add(touched_count, 0, 1)] = i
+
+
 @wp.kernel
 def decide_and_project(
     # Model:
@@ -97,7 +121,7 @@ def decide_and_project(
     # Objects:
     gtype: wp.array(dtype=int),
     size: wp.array(dtype=wp.vec3),
-    pose: wp.array(dtype=wp.transform),
+    inv_pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
@@ -117,10 +141,14 @@ def decide_and_project(
     hits: wp.array(dtype=float),
     decision: wp.array(dtype=wp.vec4),
     vertex_obj: wp.array(dtype=int),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
 ):
     """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < 0, Eq. 9
-    corrections into ``delta`` (summed) and ``hits`` (counts) of its three vertices, and the object
-    touched into ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics."""
+    corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
+    the vertices' first hits of the pass appended to ``touched``, and the object touched into
+    ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
+    point seen)."""
     k = wp.tid()
     if k >= active_count[0]:
         return
@@ -133,8 +161,32 @@ def decide_and_project(
     b = x[i1]
     c = x[i2]
     n_geoms = geom_count[0]
+    # one geom near this triangle (the common case): its data in registers, queried without the
+    # geom loop (Warp's CPU code copies array arguments on every call of scene_phi)
+    single = int(-1)
+    if near > 0 and (near & (near - 1)) == 0 and (near != (1 << 30) or n_geoms <= 31):
+        for bit in range(31):
+            if near == (1 << bit):
+                single = bit
+    s_type = int(0)
+    s_inv = wp.transform_identity()
+    s_size = wp.vec3(0.0)
+    s_mesh = wp.uint64(0)
+    if single >= 0:
+        s_type = gtype[single]
+        s_inv = inv_pose[single]
+        s_size = size[single]
+        s_mesh = mesh[single]
     best = float(FAR)
     best_p = a
+    if strategy != MULTIRES:
+        mc, rc = triangle_bound(a, b, c)
+        dc = geom_sdf(s_type, wp.transform_point(s_inv, mc), s_size, s_mesh)
+        if single < 0:
+            dc = scene_phi(mc, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+        if dc > rc:  # no point of the triangle is inside an object
+            decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
+            return
     if strategy == VERTEX:
         for q in range(6):
             p = a
@@ -148,7 +200,9 @@ def decide_and_project(
                 p = (b + c) * 0.5
             elif q == 5:
                 p = (c + a) * 0.5
-            d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
+            d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
+            if single < 0:
+                d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -158,7 +212,7 @@ def decide_and_project(
         w2 = float(1.0 / 3.0)
         for q in range(opt_queries):
             p = a * w0 + b * w1 + c * w2
-            d, g, arg = scene_phi_grad(p, gtype, size, pose, radius, mesh, n_geoms, near)
+            d, g, arg = scene_phi_grad(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -196,29 +250,38 @@ def decide_and_project(
                     u = float(i) * inv
                     v = float(j) * inv
                     p = ta * (1.0 - u - v) + tb * u + tc * v
-                    d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
+                    d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
+                    if single < 0:
+                        d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
                     n += 1
                     d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if n < samples:  # spend a leftover query on the centroid
                 p = (ta + tb + tc) * (1.0 / 3.0)
-                d = scene_phi(p, gtype, size, pose, radius, mesh, n_geoms, near)
+                d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
+                if single < 0:
+                    d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
                 d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if d0 < best:
                 best = d0
                 best_p = p0
+            if r == 0:
+                longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+                if d0 > longest * inv * 0.5773503:  # every point is within longest / (L sqrt 3) of a sample
+                    break
             ta = p0
             tb = p1
             tc = p2
     decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
     if best < 0.0:
-        d, g, arg = scene_phi_grad(best_p, gtype, size, pose, radius, mesh, n_geoms, near)
+        d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
         corr = g * (-d)  # Eq. 9 with the gradient and depth at x*
-        wp.atomic_add(delta, i0, corr)
-        wp.atomic_add(delta, i1, corr)
-        wp.atomic_add(delta, i2, corr)
-        wp.atomic_add(hits, i0, 1.0)
-        wp.atomic_add(hits, i1, 1.0)
-        wp.atomic_add(hits, i2, 1.0)
+        w = depth_weight(-d)
+        wp.atomic_add(delta, i0, corr * w)
+        wp.atomic_add(delta, i1, corr * w)
+        wp.atomic_add(delta, i2, corr * w)
+        touch(hits, i0, w, touched, touched_count)
+        touch(hits, i1, w, touched, touched_count)
+        touch(hits, i2, w, touched, touched_count)
         o = geom_obj[arg]
         vertex_obj[i0] = o
         vertex_obj[i1] = o
@@ -227,18 +290,25 @@ def decide_and_project(
 
 @wp.kernel
 def apply_contact(
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+    stamp: int,
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
+    moved: wp.array(dtype=int),
 ):
-    """x_i += (sum of the Eq. 9 corrections of vertex i) / (number of penetrating triangles of i);
-    push_i accumulates |correction| over the frame (the contact report's force estimate)."""
-    i = wp.tid()
-    n = hits[i]
-    if n > 0.0:
-        dx = delta[i] * (1.0 / n)
-        x[i] = x[i] + dx
-        push[i] = push[i] + wp.length(dx)
-        delta[i] = wp.vec3(0.0)
-        hits[i] = 0.0
+    """For each touched vertex i: x_i += (depth-weighted mean of its Eq. 9 corrections); push_i
+    accumulates |correction| over the frame (the contact report's force estimate); moved_i = stamp
+    (this pass's number, for the next pass's list); the accumulators are cleared."""
+    k = wp.tid()
+    if k >= touched_count[0]:
+        return
+    i = touched[k]
+    dx = delta[i] * (1.0 / hits[i])
+    x[i] = x[i] + dx
+    push[i] = push[i] + wp.length(dx)
+    delta[i] = wp.vec3(0.0)
+    hits[i] = 0.0
+    moved[i] = stamp

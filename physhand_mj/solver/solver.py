@@ -175,9 +175,14 @@ class Solver:
         if self.contact is not None:
             self.contact.begin_frame(ops)
 
-        def launch(kernel, dim, inputs, outputs):
-            if dim:
-                ops.append(wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True).launch)
+        def launch(kernel, dim, inputs, outputs, count=None):
+            """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
+            the list the kernel walks) a CPU launch runs only that many threads (CPU memory is
+            read on the host for free; CUDA launches ``dim`` threads and the kernel returns early)."""
+            if not dim:
+                return
+            cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True)
+            ops.append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count))
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
         fam = {
@@ -188,6 +193,8 @@ class Solver:
         jacobi = int(cfg.scheme == Scheme.JACOBI)
         launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
                [state.body_sub, state.guard])
+        if self.contact is not None:
+            self.contact.record_frame(launch, ops, state)
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         for s in range(cfg.substeps + 1):
             # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
@@ -228,6 +235,21 @@ class Solver:
             self.contact.record_metrics(launch, state, cfg.substeps)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
         return ops
+
+
+class _ListLaunch:
+    """A recorded CPU launch sized, when run, by the list length in ``count[0]``."""
+
+    def __init__(self, cmd, count):
+        self.cmd, self.count, self.dim = cmd, count.numpy(), -1
+
+    def __call__(self):
+        n = int(self.count[0])
+        if n:
+            if n != self.dim:
+                self.cmd.set_dim(n)
+                self.dim = n
+            self.cmd.launch()
 
 
 def _compose_quat(q: np.ndarray, r: np.ndarray) -> np.ndarray:
