@@ -23,10 +23,11 @@ import numpy as np
 from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
-from physhand_mj.hand_mjcf import body_ids, set_skin_vertices, skin_geom_id
+from physhand_mj.hand_mjcf import body_ids, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
 from physhand_mj.solver.model import quat_to_mat
 from physhand_mj.types import Config, GeomType
+from physhand_mj.writeback import SkinWriter
 
 
 
@@ -77,6 +78,7 @@ class SoftHand:
         root_pos, root_quat = self._rest_placement(pos[0], quat[0])
         self.state = self.solver.make_state(root_pos, root_quat)
         self._timing = dict(sync=0.0, solver=0.0, writeback=0.0, frames=0)
+        self._writer = None
         self._last = {}
         rest_pos, rest_quat = self.state.pose_host[1][:, :3].astype(float), self.state.pose_host[1][:, 3:].astype(float)
         rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
@@ -174,12 +176,14 @@ class SoftHand:
         return out
 
     def _write_back(self) -> None:
-        self._skin = self.state.x.numpy()[: self.asset.n_skin].astype(np.float64)
-        set_skin_vertices(self.model, self.data, self._skin, self.asset.skin_faces, self.prefix)
+        if self._writer is None:
+            self._writer = SkinWriter(self.model, self.skin_mesh_id, self.asset.skin_faces, self.state.x)
+        g = self.skin_geom
+        self._skin = self._writer.write(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
 
     @property
     def skin_vertices(self) -> np.ndarray:
-        """(n_skin, 3) world-frame skin positions (m) after the last step."""
+        """(n_skin, 3) world-frame skin positions (m) after the last step (a copy)."""
         return self._skin.copy()
 
     def contacts(self) -> dict:

@@ -101,7 +101,7 @@ def test_closing_on_a_static_object_ends_without_penetration(kind):
         dist = np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
     far = dist > 0.015
     diff = np.linalg.norm(hand.skin_vertices - free.skin_vertices, axis=1)
-    assert far.sum() > 1000 and np.percentile(diff[far], 99) < 1.0e-3 and diff[far].max() < 3.0e-3, (
+    assert far.sum() > 1000 and np.percentile(diff[far], 99) < 1.5e-3 and diff[far].max() < 3.0e-3, (
         np.percentile(diff[far], 99), diff[far].max())
 
 

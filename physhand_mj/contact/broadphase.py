@@ -10,7 +10,10 @@ Two levels: once per frame over all triangles with ``Config.contact_frame_margin
 skin's and the objects' motion within the frame), then every substep over that frame list only
 with ``Config.contact_margin`` (m: covers the motion within one contact stage). Between the passes
 of one stage, :func:`keep_moved` keeps only triangles a pass moved: a triangle none of whose
-vertices moved has the same decision point as before, which did not penetrate. (A compacted list,
+vertices moved has the same decision point as before, which did not penetrate; nor does one whose
+lowest phi exceeds how far its vertices moved (1-Lipschitz again), within a stage
+(:func:`keep_moved`) and across the stages of a frame (:func:`first_pass_list`; objects do not move
+within a frame). (A compacted list,
 not an early return in the query kernel: Warp's CPU threads copy every array argument, so a
 thread of the query kernel costs ~90 ns even when it returns at once.)
 """
@@ -82,18 +85,66 @@ def keep_moved(
     active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
     moved: wp.array(dtype=int),
+    disp: wp.array(dtype=float),
     stamp: int,
+    bound: wp.array(dtype=float),
     out: wp.array(dtype=int),
     out_mask: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
 ):
-    """Next contact pass: the triangles of the stage's ``active`` list with a vertex the last pass
-    moved (``moved[i] == stamp``, set by apply_contact)."""
+    """Next contact pass: the triangles of the stage's ``active`` list that the last pass moved
+    (``moved[i] == stamp`` for a vertex, by ``disp[i]``) and that can now reach an object: a point
+    of a triangle moves at most as far as its farthest vertex, so a lowest phi ``bound[t]`` above
+    that displacement m stays positive (the bound drops by m and the triangle is skipped)."""
     k = wp.tid()
     if k >= active_count[0]:
         return
     t = active[k]
-    if moved[faces[t, 0]] == stamp or moved[faces[t, 1]] == stamp or moved[faces[t, 2]] == stamp:
-        slot = wp.atomic_add(out_count, 0, 1)
-        out[slot] = t
-        out_mask[slot] = active_mask[k]
+    m = float(0.0)
+    for j in range(3):
+        v = faces[t, j]
+        if moved[v] == stamp:
+            m = wp.max(m, disp[v])
+    if m == 0.0:
+        return
+    if bound[t] > m:
+        bound[t] = bound[t] - m
+        return
+    slot = wp.atomic_add(out_count, 0, 1)
+    out[slot] = t
+    out_mask[slot] = active_mask[k]
+
+
+@wp.kernel
+def first_pass_list(
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    bound: wp.array(dtype=float),
+    eval_x: wp.array2d(dtype=wp.vec3),
+    out: wp.array(dtype=int),
+    out_mask: wp.array(dtype=int),
+    out_count: wp.array(dtype=int),
+):
+    """The stage's first-pass list: its active triangles, less those an earlier stage of this frame
+    found clear by ``bound[t]`` (m) that is still above how far the triangle's vertices moved since
+    (``eval_x``: their positions then); those keep a bound lowered by that distance, re-anchored."""
+    k = wp.tid()
+    if k >= active_count[0]:
+        return
+    t = active[k]
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    m = wp.max(wp.length(a - eval_x[t, 0]), wp.max(wp.length(b - eval_x[t, 1]), wp.length(c - eval_x[t, 2])))
+    if bound[t] > m:
+        bound[t] = bound[t] - m
+        eval_x[t, 0] = a
+        eval_x[t, 1] = b
+        eval_x[t, 2] = c
+        return
+    slot = wp.atomic_add(out_count, 0, 1)
+    out[slot] = t
+    out_mask[slot] = active_mask[k]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.broadphase import find_active, keep_moved
+from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
 from physhand_mj.metrics import penetration_samples
@@ -30,7 +30,7 @@ class Contact:
         self.n_tris = n_tris
         stages = config.substeps * (2 if config.contact_placement == Placement.BOTH else 1)
         # list lengths of one frame, zeroed once per frame: [frame list, one per stage, one per pass]
-        self.counters = wp.zeros(1 + stages * 2 * config.contact_passes, dtype=int, device=d)
+        self.counters = wp.zeros(1 + stages * (1 + 2 * config.contact_passes), dtype=int, device=d)
         self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
         self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
         self.cand_count = self.counters[0:1]
@@ -40,6 +40,9 @@ class Contact:
         self.pass_list = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # a later pass's list
         self.pass_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
         self.moved = wp.zeros(model.n_vertices, dtype=int, device=d)  # number of the pass that last moved i
+        self.disp = wp.zeros(model.n_vertices, dtype=float, device=d)  # m, how far that pass moved i
+        self.bound = wp.zeros(max(n_tris, 1), dtype=float, device=d)  # m, lowest phi per triangle (see query)
+        self.eval_x = wp.zeros((max(n_tris, 1), 3), dtype=wp.vec3, device=d)  # its vertices when bound was set
         self.touched = wp.zeros(model.n_vertices, dtype=int, device=d)  # vertices a pass corrects
         self.touched_count = self.cand_count
         self._slot = 1
@@ -64,7 +67,7 @@ class Contact:
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        ops += [self.counters.zero_, self.moved.zero_]
+        ops += [self.counters.zero_, self.moved.zero_, lambda: self.bound.fill_(-1.0e30)]  # objects moved
         self._slot = 1
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
@@ -86,21 +89,25 @@ class Contact:
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_margin, 1, self.cand, self.cand_mask, self.cand_count],
                [self.active, self.active_mask, self.active_count], count=self.cand_count)
-        lst = (self.active, self.active_mask, self.active_count)
+        lst = (self.pass_list, self.pass_mask, self._counter())
+        launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
+                                              self.bound, self.eval_x], list(lst), count=self.active_count)
         for p in range(cfg.contact_passes):
             stamp = self._slot  # unique within the frame (moved is zeroed per frame)
             self.touched_count = self._counter()
             launch(decide_and_project, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, state.x],
-                   [self.delta, self.hits, self.decision, self.vertex_obj, self.touched, self.touched_count],
+                   [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.eval_x, self.touched,
+                    self.touched_count],
                    count=lst[2])
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
-                   [state.x, self.push, self.moved], count=self.touched_count)
+                   [state.x, self.push, self.moved, self.disp], count=self.touched_count)
             if p + 1 < cfg.contact_passes:
                 lst = (self.pass_list, self.pass_mask, self._counter())
                 launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
-                                                 self.moved, stamp], list(lst), count=self.active_count)
+                                                 self.moved, self.disp, stamp, self.bound], list(lst),
+                       count=self.active_count)
 
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""

@@ -141,6 +141,8 @@ def decide_and_project(
     hits: wp.array(dtype=float),
     decision: wp.array(dtype=wp.vec4),
     vertex_obj: wp.array(dtype=int),
+    bound: wp.array(dtype=float),
+    eval_x: wp.array2d(dtype=wp.vec3),
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
 ):
@@ -148,7 +150,9 @@ def decide_and_project(
     corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
     the vertices' first hits of the pass appended to ``touched``, and the object touched into
     ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
-    point seen)."""
+    point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
+    for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions it
+    holds for in eval_x[t]."""
     k = wp.tid()
     if k >= active_count[0]:
         return
@@ -160,6 +164,9 @@ def decide_and_project(
     a = x[i0]
     b = x[i1]
     c = x[i2]
+    eval_x[t, 0] = a
+    eval_x[t, 1] = b
+    eval_x[t, 2] = c
     n_geoms = geom_count[0]
     # one geom near this triangle (the common case): its data in registers, queried without the
     # geom loop (Warp's CPU code copies array arguments on every call of scene_phi)
@@ -186,6 +193,7 @@ def decide_and_project(
             dc = scene_phi(mc, gtype, size, inv_pose, radius, mesh, n_geoms, near)
         if dc > rc:  # no point of the triangle is inside an object
             decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
+            bound[t] = dc - rc
             return
     if strategy == VERTEX:
         for q in range(6):
@@ -236,6 +244,7 @@ def decide_and_project(
         ta = a
         tb = b
         tc = c
+        certified = float(-FAR)
         for r in range(rounds):
             # the three lowest samples of this round, ascending
             d0 = float(FAR)
@@ -266,12 +275,17 @@ def decide_and_project(
                 best_p = p0
             if r == 0:
                 longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
-                if d0 > longest * inv * 0.5773503:  # every point is within longest / (L sqrt 3) of a sample
+                h = longest * inv * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
+                if d0 > h:
+                    certified = d0 - h
                     break
             ta = p0
             tb = p1
             tc = p2
     decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
+    bound[t] = best
+    if strategy == MULTIRES and certified > -FAR:
+        bound[t] = certified
     if best < 0.0:
         d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
         corr = g * (-d)  # Eq. 9 with the gradient and depth at x*
@@ -298,17 +312,21 @@ def apply_contact(
     x: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
+    disp: wp.array(dtype=float),
 ):
     """For each touched vertex i: x_i += (depth-weighted mean of its Eq. 9 corrections); push_i
     accumulates |correction| over the frame (the contact report's force estimate); moved_i = stamp
-    (this pass's number, for the next pass's list); the accumulators are cleared."""
+    (this pass's number) and disp_i = |correction|, for the next pass's list; the accumulators are
+    cleared."""
     k = wp.tid()
     if k >= touched_count[0]:
         return
     i = touched[k]
     dx = delta[i] * (1.0 / hits[i])
     x[i] = x[i] + dx
-    push[i] = push[i] + wp.length(dx)
+    step = wp.length(dx)
+    push[i] = push[i] + step
     delta[i] = wp.vec3(0.0)
     hits[i] = 0.0
     moved[i] = stamp
+    disp[i] = step
