@@ -181,6 +181,21 @@ def _view(args) -> dict:
         "penetration_count", "penetration_max_um", "ms_per_frame")})
 
 
+def _rollout(args):
+    from physhand_mj.rollout import batch_targets, rollout, rollout_batch
+
+    kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device)
+    src = Path(args.scene)
+    if src.suffix.lower() == ".xml" or not (src.is_dir() or src.is_file()):
+        return rollout(src, args.keyframe, out=args.out, **kw)
+    rows = rollout_batch(batch_targets(src, args.keyframe), args.out, emit=lambda r: print(json.dumps(r), flush=True),
+                         **kw)
+    print(f"physhand rollout: {len(rows)} runs, table {args.out / 'summary.csv'}", file=sys.stderr)
+    if any(r.get("interrupted") for r in rows):
+        return 130
+    return 1 if any("error" in r for r in rows) else None
+
+
 def main(argv: list[str] | None = None) -> int:
     from physhand_mj.asset import DEFAULT_ASSET
     from physhand_mj.hand_mjcf import HAND_XML
@@ -207,6 +222,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("scene", help="scene MJCF that includes the hand (e.g. mjcf/scenes/grasp_glass.xml)")
     p.add_argument("--keyframe", default=None, help="keyframe to start from (name)")
     p.set_defaults(run=_view)
+    p = sub.add_parser("rollout", help="offline rollout of a scene keyframe with a per-substep penetration log")
+    p.add_argument("scene", help="scene MJCF that includes the hand, or a folder of scenes, or a list file "
+                                 "(lines: SCENE.xml [KEYFRAME]) for a batch")
+    p.add_argument("--keyframe", default=None, help="keyframe to start from (name; default: the scene's first; "
+                                                    "a folder batch: all)")
+    p.add_argument("--steps", type=int, default=36, help="5 ms frames to run (count, default 36)")
+    p.add_argument("--substeps", type=int, default=10, help="substeps per frame (count, default 10)")
+    p.add_argument("--contact", choices=["vertex", "opt", "multires"], default="multires",
+                   help="decision-point strategy (default multires)")
+    p.add_argument("--device", default=None, help="Warp device: cpu or cuda[:N] (default: Warp's, CUDA if present)")
+    p.add_argument("--out", type=Path, default=Path("rollout_out"), help="output directory (default rollout_out)")
+    p.set_defaults(run=_rollout)
     bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")
@@ -226,8 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--passes", type=int, default=None, help="contact passes per substep (count, default 8)")
     p.add_argument("--placement", choices=["before", "after", "both"], default=None,
                    help="where the correction runs in a substep (default after)")
-    p.add_argument("--samples", type=int, default=None, help="multires samples per round (count, default 10)")
-    p.add_argument("--rounds", type=int, default=None, help="multires rounds (count, default 3; the paper: 16 x 2)")
+    p.add_argument("--samples", type=int, default=None, help="multires samples per round (count, default 21)")
+    p.add_argument("--rounds", type=int, default=None, help="multires rounds (count, default 2; the paper: 16 x 2)")
     p.add_argument("--log", type=Path, default=None, help="write the per-substep log as CSV here")
     p.set_defaults(run=_bench_cone)
     args = parser.parse_args(argv)
@@ -244,8 +271,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"physhand {args.command}: interrupted", file=sys.stderr)
         return 130
+    if result is None:  # the command printed its own lines (batch rollouts)
+        return 0
+    if isinstance(result, int):
+        return result
     print(json.dumps(result))
-    return 0
+    return 130 if isinstance(result, dict) and result.get("interrupted") else 0
 
 
 if __name__ == "__main__":

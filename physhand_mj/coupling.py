@@ -50,12 +50,16 @@ class SoftHand:
         geom groups (default: every geom not belonging to the hand).
       settle_frames: frames over which the bones move from the rest pose to the model's current pose
         before the first ``step`` (so a grasp keyframe does not start with a jump).
+      settle_contact: whether the skin already collides while settling (False: the first ``step``
+        starts from the undeformed posed skin, penetrations included, as offline rollouts of grasp
+        poses want).
     Raises ValueError for a model without the hand, missing bone bodies, unsupported object geoms
     (height fields, SDF plugins: filter them out), SolverError for non-finite bone poses.
     """
 
     def __init__(self, model, data, config: Config | None = None, *, asset=None, prefix: str = "",
-                 object_geoms=None, object_bodies=None, object_groups=None, settle_frames: int = 20):
+                 object_geoms=None, object_bodies=None, object_groups=None, settle_frames: int = 20,
+                 settle_contact: bool = True):
         self.model, self.data = model, data
         self.asset = asset if asset is not None else load_asset()
         cfg = config or Config(frame_dt=float(model.opt.timestep))
@@ -82,10 +86,11 @@ class SoftHand:
         self._last = {}
         rest_pos, rest_quat = self.state.pose_host[1][:, :3].astype(float), self.state.pose_host[1][:, 3:].astype(float)
         rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
+        settler = self.solver if settle_contact or self.solver.contact is None else Solver(self.solver.model, self.config)
         for k in range(settle_frames):
             a = (k + 1) / settle_frames
-            self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
-            self.solver.step(self.state)
+            settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+            settler.step(self.state)
         self._write_back()
 
     # -- setup -----------------------------------------------------------------------------------
@@ -209,18 +214,53 @@ class SoftHand:
         force = self.asset.mass[:n] * push / (h * h * s)
         area = vertex_areas(self._skin, self.asset.skin_faces)
         pressure = np.where(area > 0, force / np.maximum(area, 1e-12), 0.0)
-        scratch = wp.zeros((1, 3), dtype=float, device=c.metrics.device)
         out = {}
         for k, name in enumerate(self.objects.object_names):
-            scratch.zero_()
-            c.record_metrics(lambda kern, dim, inputs, outputs: wp.launch(kern, dim, inputs=inputs, outputs=outputs,
-                                                                          device=c.metrics.device),
-                             self.state, 0, obj=k, out=scratch)
-            row = scratch.numpy()[0]
+            row = self._measure(k)
             idx = np.flatnonzero((vobj == k) & (push > 0))
             out[name] = dict(vertices=idx, area_m2=float(area[idx].sum()), force_n=float(force[idx].sum()),
                              penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6)
         return {"objects": out, "pressure_pa": pressure}
+
+    def _measure(self, obj: int = -1) -> np.ndarray:
+        """[count, sum depth m, max depth m] of the skin as it is now (against object ``obj``, -1: all)."""
+        import warp as wp
+
+        c = self.solver.contact
+        scratch = wp.zeros((1, 3), dtype=float, device=c.metrics.device)
+        c.record_metrics(lambda kern, dim, inputs, outputs: wp.launch(kern, dim, inputs=inputs, outputs=outputs,
+                                                                      device=c.metrics.device),
+                         self.state, 0, obj=obj, out=scratch)
+        return scratch.numpy()[0].astype(float)
+
+    def penetrating_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """The metric's penetrating samples of the skin as it is now: world points (k, 3) m and
+        their depths (k,) m (for pictures and checks)."""
+        import warp as wp
+
+        from physhand_mj.metrics import ORDER, lattice_phi
+
+        c = self.solver.contact
+        if c is None:
+            return np.zeros((0, 3)), np.zeros(0)
+        m, o = self.solver.model, self.objects
+        f = m.skin_faces.shape[0]
+        k = (ORDER + 1) * (ORDER + 2) // 2
+        pts = wp.zeros((f, k), dtype=wp.vec3, device=m.device)
+        phi = wp.zeros((f, k), dtype=float, device=m.device)
+        wp.launch(lattice_phi, f, inputs=[m.skin_faces, self.state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
+                                          o.count], outputs=[pts, phi], device=m.device)
+        p, d = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
+        inside = d < 0
+        return p[inside].astype(float), -d[inside].astype(float)
+
+    def penetration(self) -> dict:
+        """Penetration count / max / avg (um) of the skin as it is now, e.g. before the first step."""
+        from physhand_mj.metrics import summarize
+
+        if self.solver.contact is None:
+            return summarize(np.zeros(3))
+        return summarize(self._measure())
 
     def metrics(self) -> dict:
         """Penetration count / max / avg (um) at the end of the last frame (DESIGN definitions), the

@@ -139,3 +139,23 @@ def render_contact_frame(renderer, model, data, hand, camera, vmax: float | None
         vmax = float(np.percentile(p[idx], 95)) if len(idx) else 1.0
     add_pressure_markers(renderer.scene, hand.skin_vertices[idx], p[idx], vmax)
     return renderer.render()
+
+
+def render_penetration_frame(renderer, model, data, hand, camera, max_marks: int = 2000) -> np.ndarray:
+    """One frame: the skin as it is (uploaded to this renderer) and the metric's penetrating samples
+    as magenta dots (at most ``max_marks``, the deepest first)."""
+    import mujoco
+
+    mujoco.mjr_uploadMesh(model, renderer._mjr_context, hand.skin_mesh_id)
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = [1, 0, 1, 0, 0, 0]  # objects (0) and skin (2); bones and proxies hidden
+    renderer.update_scene(data, camera=camera, scene_option=opt)
+    pts, depth = hand.penetrating_samples()
+    order = np.argsort(-depth)[:max_marks]
+    scene = renderer.scene
+    for i in order[: scene.maxgeom - scene.ngeom]:
+        g = scene.geoms[scene.ngeom]
+        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([0.0009, 0, 0]), pts[i], np.eye(3).ravel(),
+                            np.array([0.95, 0.1, 0.85, 1.0], np.float32))
+        scene.ngeom += 1
+    return renderer.render()

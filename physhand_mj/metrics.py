@@ -73,3 +73,22 @@ def summarize(row: np.ndarray) -> dict:
     count = int(round(float(row[0])))
     return dict(penetration_count=count, penetration_max_um=float(row[2]) * 1e6,
                 penetration_avg_um=float(row[1]) / count * 1e6 if count else 0.0)
+
+
+@wp.kernel
+def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
+                size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), points: wp.array2d(dtype=wp.vec3),
+                phi: wp.array2d(dtype=float)):
+    """The metric's 21 samples of every triangle and their phi (m), for pictures and checks."""
+    t = wp.tid()
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    k = int(0)
+    for i in range(6):
+        for j in range(6 - i):
+            p = a * (1.0 - float(i) / 5.0 - float(j) / 5.0) + b * (float(i) / 5.0) + c * (float(j) / 5.0)
+            points[t, k] = p
+            phi[t, k] = scene_phi(p, gtype, size, inv_pose, radius, mesh, geom_count[0], -1)
+            k += 1

@@ -113,7 +113,10 @@ class Config:
         triangles the previous pass moved); contact_margin: the stage broadphase's margin (m; covers how
         far one stage's corrections drag a triangle that did not penetrate itself);
         contact_frame_margin: the frame broadphase's margin (m; must cover how far skin and objects
-        move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); multires_samples / multires_rounds: Algorithm 2's samples per round and rounds
+        move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); contact_offset: how far
+        outside an object Eq. 9 puts a triangle's decision point (m; 1 um: float32 rounding of
+        ~0.1 m coordinates is ~10 nm, and the lattice search can miss a minimum by a fraction of a
+        micrometre at sharp edges, both of which would otherwise leave samples a hair inside); multires_samples / multires_rounds: Algorithm 2's samples per round and rounds
         (default 10 x 3 = 30 queries: on the cone experiment it left 4x fewer penetrating samples
         than the paper's 16 x 2 = 32, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's
         baseline: 32); substep_metrics: evaluate the penetration metrics after every substep (for
@@ -145,6 +148,7 @@ class Config:
     contact_passes: int = 8
     contact_margin: float = 5.0e-4
     contact_frame_margin: float = 1.0e-2
+    contact_offset: float = 1.0e-6
     multires_samples: int = 21
     multires_rounds: int = 2
     opt_queries: int = 32
@@ -181,6 +185,7 @@ class Config:
             raise ValueError(f"Config.multires_samples must be an integer >= 3, got {self.multires_samples!r}")
         nonneg("contact_margin")
         nonneg("contact_frame_margin")
+        nonneg("contact_offset")
         if self.contact_frame_margin < self.contact_margin:
             raise ValueError(f"Config.contact_frame_margin ({self.contact_frame_margin} m) must be at least "
                              f"Config.contact_margin ({self.contact_margin} m)")

@@ -54,6 +54,9 @@ class Contact:
         self.metrics = wp.zeros((config.substeps + 1, 3), dtype=float, device=d)
         self._metrics_host = wp.zeros((config.substeps + 1, 3), dtype=float, device="cpu",
                                       pinned=wp.get_device(d).is_cuda)
+        self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
+                                       pinned=wp.get_device(d).is_cuda)
+        self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slot)
 
     # -- recording into the solver's frame --------------------------------------------------------
     def wants(self, stage: str) -> bool:
@@ -69,6 +72,7 @@ class Contact:
             return
         ops += [self.counters.zero_, self.moved.zero_, lambda: self.bound.fill_(-1.0e30)]  # objects moved
         self._slot = 1
+        self._stage_slots = []
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
                [self.cand, self.cand_mask, self.cand_count])
@@ -85,6 +89,7 @@ class Contact:
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
+        self._stage_slots.append((self._slot, self._slot + 2))
         self.active_count = self._counter()
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_margin, 1, self.cand, self.cand_mask, self.cand_count],
@@ -97,7 +102,7 @@ class Contact:
             self.touched_count = self._counter()
             launch(decide_and_project, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
-                    int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, state.x],
+                    int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, cfg.contact_offset, state.x],
                    [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.eval_x, self.touched,
                     self.touched_count],
                    count=lst[2])
@@ -141,8 +146,16 @@ class Contact:
         return self.decision.numpy()[: self.n_tris].copy()
 
     def copy_metrics(self) -> None:
-        """Start the device-to-host copy of the metrics (the caller synchronises once per frame)."""
+        """Start the device-to-host copy of the metrics and list lengths (the caller synchronises
+        once per frame)."""
         wp.copy(self._metrics_host, self.metrics)
+        wp.copy(self._counters_host, self.counters)
+
+    def stage_counts(self) -> np.ndarray:
+        """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
+        triangles and the skin vertices its first pass corrected (in contact at the stage's start)."""
+        c = self._counters_host.numpy()
+        return np.array([[c[a], c[t]] for a, t in self._stage_slots], dtype=int).reshape(-1, 2)
 
     def read_metrics(self, synchronize: bool = True) -> np.ndarray:
         """(substeps + 1, 3) [count, sum depth m, max depth m]; the last row is the frame's end.

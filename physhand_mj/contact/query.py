@@ -134,6 +134,7 @@ def decide_and_project(
     samples: int,
     rounds: int,
     opt_queries: int,
+    offset: float,
     # State in:
     x: wp.array(dtype=wp.vec3),
     # Contact out:
@@ -146,7 +147,8 @@ def decide_and_project(
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
 ):
-    """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < 0, Eq. 9
+    """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
+    (Config.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
     corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
     the vertices' first hits of the pass appended to ``touched``, and the object touched into
     ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
@@ -286,9 +288,9 @@ def decide_and_project(
     bound[t] = best
     if strategy == MULTIRES and certified > -FAR:
         bound[t] = certified
-    if best < 0.0:
+    if best < 0.5 * offset:
         d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
-        corr = g * (-d)  # Eq. 9 with the gradient and depth at x*
+        corr = g * (offset - d)  # Eq. 9 with the gradient and depth at x*, to ``offset`` outside
         w = depth_weight(-d)
         wp.atomic_add(delta, i0, corr * w)
         wp.atomic_add(delta, i1, corr * w)

@@ -1,0 +1,84 @@
+"""The paper's Table 2 (section 4.3): seven generated grasps x three contact strategies, 36 frames of
+10 substeps each; metrics over the 10 substeps of the last frame, as the paper computes them:
+count = penetrating samples summed over those substeps, max = deepest, avg = mean depth of the
+penetrating samples (um); plus the initial (undeformed) penetration, ms per full frame and the
+contact's share (frame time minus the same frame without objects).
+
+Writes docs/benchmarks/hoi_table2_<device>.json and prints a markdown table.
+Run: python benchmarks/hoi_table2.py [--device cpu|cuda] [--steps 36]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+import physhand_mj as ph
+from physhand_mj.bench import device_name
+from physhand_mj.build.hoi import SCENES
+from physhand_mj.rollout import load_scene, rollout
+
+ROOT = Path(__file__).resolve().parents[1]
+STRATEGIES = ("vertex", "opt", "multires")
+
+
+def no_contact_ms(scene: Path, device: str, frames: int = 30) -> float:
+    model, data, _ = load_scene(scene, "grasp")
+    hand = ph.SoftHand(model, data, ph.Config(frame_dt=float(model.opt.timestep), device=device), object_geoms=[])
+    times = []
+    for _ in range(frames):
+        mujoco.mj_step(model, data)
+        t = time.perf_counter()
+        hand.step()
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.mean(times[1:]))
+
+
+def last_frame(log: Path, substeps: int) -> dict:
+    with open(log, newline="") as f:
+        rows = list(csv.DictReader(f))[-substeps:]
+    count = np.array([int(r["penetration_count"]) for r in rows])
+    avg = np.array([float(r["penetration_avg_um"]) for r in rows])
+    total = int(count.sum())
+    return dict(count=total, max_um=max(float(r["penetration_max_um"]) for r in rows),
+                avg_um=float((count * avg).sum() / total) if total else 0.0)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--steps", type=int, default=36)
+    args = p.parse_args()
+    base = no_contact_ms(ph.scene_path("hoi_apple"), args.device)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in SCENES:
+            for c in STRATEGIES:
+                res = rollout(ph.scene_path(f"hoi_{name}"), "grasp", steps=args.steps, contact=c, device=args.device,
+                              out=Path(tmp) / f"{name}-{c}", progress=False)
+                row = dict(scene=name, contact=c, initial_count=res["initial_penetration_count"],
+                           initial_max_um=res["initial_penetration_max_um"], **last_frame(Path(res["log"]), 10),
+                           final_count=res["penetration_count"], ms_per_frame=res["ms_per_frame"],
+                           contact_ms=round(res["ms_per_frame"] - base, 3), finite=res["finite"])
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    dev = device_name(args.device if args.device != "cuda" else "cuda:0")
+    out = ROOT / "docs" / "benchmarks" / f"hoi_table2_{args.device.split(':')[0]}.json"
+    out.write_text(json.dumps(dict(device=dev, steps=args.steps, no_contact_ms=round(base, 3), rows=rows), indent=1))
+    print(f"\n{dev}; frame without contact {base:.2f} ms\n")
+    print("| scene | strategy | initial count / max (mm) | count | max (um) | avg (um) | ms/frame | contact ms |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['scene']} | {r['contact']} | {r['initial_count']} / {r['initial_max_um'] / 1e3:.2f} | {r['count']} | "
+              f"{r['max_um']:.4g} | {r['avg_um']:.4g} | {r['ms_per_frame']:.1f} | {r['contact_ms']:.1f} |")
+
+
+if __name__ == "__main__":
+    main()

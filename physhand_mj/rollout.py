@@ -1,0 +1,203 @@
+"""Offline rollouts with penetration logging: a scene's keyframe, N frames of the soft hand, a log.
+
+    summary = rollout("mjcf/scenes/hoi_apple.xml", keyframe="grasp", steps=36, out="out/apple")
+
+The hand settles from its rest pose into the keyframe's pose *without* contact (so the first frame
+starts from the undeformed posed skin, with the grasp's penetrations), then MuJoCo steps and the
+soft hand runs ``steps`` frames with contact. Written to ``out``:
+
+- ``log.csv``: one row per substep (step, substep, time_s, penetration_count, penetration_max_um,
+  penetration_avg_um, contacts, active_triangles, ms_frame), flushed every frame, so an interrupted
+  run keeps what it logged; row (0, 0) is the settled skin before any contact.
+- ``skin_final.ply``: the final skin, world frame, metres.
+
+``contacts`` counts the skin vertices the substep's contact stage corrected in its first pass
+(those in contact at its start); ``active_triangles`` the triangles its broadphase kept;
+``ms_frame`` the wall time of the frame the substep belongs to (hand.step: sync, solver, write-back).
+Times exclude the first frame, which compiles the contact kernels.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_max_um", "penetration_avg_um",
+               "contacts", "active_triangles", "ms_frame"]
+
+
+def load_scene(scene, keyframe: str | None = None):
+    """(model, data, keyframe name or None) with the keyframe applied and kinematics run. Raises
+    FileNotFoundError / ValueError with one line that says what to fix."""
+    import mujoco
+
+    path = Path(scene)
+    if not path.is_file():
+        raise FileNotFoundError(f"scene file not found: {path}")
+    try:
+        model = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as e:
+        first = " ".join(str(e).split())[:300]
+        raise ValueError(f"malformed MJCF {path}: {first}") from None
+    data = mujoco.MjData(model)
+    names = [model.key(k).name for k in range(model.nkey)]
+    if keyframe is not None:
+        if keyframe not in names:
+            raise ValueError(f"unknown keyframe '{keyframe}' in {path.name}; it has: {', '.join(names) or 'none'}")
+        mujoco.mj_resetDataKeyframe(model, data, names.index(keyframe))
+    elif names:
+        keyframe = names[0]
+        mujoco.mj_resetDataKeyframe(model, data, 0)
+    mujoco.mj_forward(model, data)
+    return model, data, keyframe
+
+
+def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: int = 10, contact: str = "multires",
+            device: str | None = None, out=None, progress: bool = True, hand_kwargs: dict | None = None,
+            on_start=None, on_end=None) -> dict:
+    """Run one rollout (see the module docstring); returns the summary dict. Ctrl-C ends it early
+    with ``interrupted: true`` and everything logged so far. ``on_start(hand, model, data)`` runs on
+    the settled, undeformed hand before the first frame, ``on_end(...)`` after the last (pictures)."""
+    import mujoco
+    import trimesh
+    from tqdm import tqdm
+
+    import physhand_mj as ph
+    from physhand_mj.bench import device_name
+    from physhand_mj.solver import SolverError
+    from physhand_mj.types import Strategy
+
+    if steps < 1 or substeps < 1:
+        raise ValueError(f"--steps and --substeps must be at least 1, got {steps} and {substeps}")
+    model, data, key = load_scene(scene, keyframe)
+    if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.ctrl))):
+        raise SolverError(f"keyframe '{key}' of {Path(scene).name} holds non-finite qpos or ctrl")
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), substeps=substeps, contact=Strategy[contact.upper()],
+                    device=device, substep_metrics=True)
+    hand = ph.SoftHand(model, data, cfg, settle_contact=False, **(hand_kwargs or {}))
+    out = Path(out) if out is not None else Path("rollout_out")
+    out.mkdir(parents=True, exist_ok=True)
+    log_path, skin_path = out / "log.csv", out / "skin_final.ply"
+    start = hand.penetration()
+    if on_start is not None:
+        on_start(hand, model, data)
+    times: list[float] = []
+    interrupted = False
+    last = dict(start)
+    with open(log_path, "w", newline="") as f:
+        log = csv.writer(f)
+        log.writerow(LOG_COLUMNS)
+        log.writerow([0, 0, 0.0, start["penetration_count"], _um(start["penetration_max_um"]),
+                      _um(start["penetration_avg_um"]), 0, 0, 0.0])
+        f.flush()
+        bar = tqdm(total=steps, desc=f"rollout {Path(scene).stem}", unit="frame", disable=not progress, leave=False)
+        try:
+            for step in range(1, steps + 1):
+                mujoco.mj_step(model, data)
+                t = time.perf_counter()
+                res = hand.step()
+                dt = time.perf_counter() - t
+                times.append(dt)
+                last = res
+                rows = getattr(hand.solver, "substep_metrics", None)
+                counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
+                for s in range(substeps):
+                    cnt, total, deepest = rows[s] if rows is not None else (0.0, 0.0, 0.0)
+                    n = int(round(float(cnt)))
+                    act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
+                    log.writerow([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
+                                  _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3)])
+                f.flush()
+                bar.update(1)
+                if res["nonfinite"]:
+                    raise SolverError(f"{res['nonfinite']} skin/flesh positions turned non-finite in frame {step}")
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            bar.close()
+    trimesh.Trimesh(hand.skin_vertices, hand.asset.skin_faces, process=False).export(skin_path)
+    if on_end is not None:
+        on_end(hand, model, data)
+    timed = times[1:] if len(times) > 1 else times
+    m = hand.metrics()
+    d = str(hand.solver.device)
+    return dict(scene=str(scene), keyframe=key, steps=len(times), substeps=substeps, contact=contact,
+                penetration_count=int(last.get("penetration_count", 0)),
+                penetration_max_um=_um(last.get("penetration_max_um", 0.0)),
+                penetration_avg_um=_um(last.get("penetration_avg_um", 0.0)),
+                initial_penetration_count=start["penetration_count"],
+                initial_penetration_max_um=_um(start["penetration_max_um"]),
+                ms_per_frame=round(1e3 * float(np.mean(timed)), 3) if timed else math.nan,
+                finite=bool(m["finite"]) and int(last.get("nonfinite", 0)) == 0, device=d, device_name=device_name(d),
+                interrupted=interrupted, log=str(log_path), skin=str(skin_path))
+
+
+def _um(v: float) -> float:
+    return round(float(v), 4)
+
+
+def batch_targets(source, keyframe: str | None = None) -> list[tuple[Path, str | None]]:
+    """(scene, keyframe) pairs of a batch: a folder (every *.xml; each with ``keyframe`` if given,
+    else all its keyframes) or a list file (lines ``SCENE.xml [KEYFRAME]``, relative to the file,
+    ``#`` comments)."""
+    import mujoco
+
+    src = Path(source)
+    if src.is_dir():
+        out = []
+        for xml in sorted(src.glob("*.xml")):
+            if keyframe is not None:
+                out.append((xml, keyframe))
+                continue
+            try:
+                m = mujoco.MjModel.from_xml_path(str(xml))
+                keys = [m.key(k).name for k in range(m.nkey)] or [None]
+            except ValueError:
+                keys = [None]  # the run reports the malformed file
+            out += [(xml, k) for k in keys]
+        if not out:
+            raise ValueError(f"no *.xml scenes in folder {src}")
+        return out
+    if not src.is_file():
+        raise FileNotFoundError(f"scene file, folder or list not found: {src}")
+    out = []
+    for line in src.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            parts = line.split()
+            out.append(((src.parent / parts[0]).resolve(), parts[1] if len(parts) > 1 else keyframe))
+    if not out:
+        raise ValueError(f"list file {src} names no scenes")
+    return out
+
+
+def rollout_batch(targets, out, *, emit=None, **kwargs) -> list[dict]:
+    """Run each (scene, keyframe) into ``out/<scene>[-<keyframe>]/``; writes ``out/summary.csv``
+    (one row per run; failed runs carry their error). ``emit(summary)`` is called after each run.
+    Ctrl-C stops the batch after the current run's partial log."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    cols = ["scene", "keyframe", "steps", "contact", "initial_penetration_count", "initial_penetration_max_um",
+            "penetration_count", "penetration_max_um", "penetration_avg_um", "ms_per_frame", "finite", "device",
+            "interrupted", "error"]
+    for scene, key in targets:
+        name = Path(scene).stem + (f"-{key}" if key else "")
+        try:
+            res = rollout(scene, key, out=out / name, **kwargs)
+        except (FileNotFoundError, ValueError, RuntimeError) as e:
+            res = dict(scene=str(scene), keyframe=key, error=" ".join(str(e).split()), finite=False)
+        rows.append(res)
+        if emit:
+            emit(res)
+        with open(out / "summary.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+        if res.get("interrupted"):
+            break
+    return rows

@@ -1,0 +1,112 @@
+"""Offline rollouts: penetration removal on a generated grasp, the CSV log, CLI errors, Ctrl-C, batches."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+import physhand_mj as ph
+from physhand_mj.rollout import LOG_COLUMNS, rollout
+
+APPLE = ph.scene_path("hoi_apple")
+
+
+def _read(log):
+    with open(log, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def apple_runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rollout")
+    return {c: rollout(APPLE, "grasp", steps=6, contact=c, device="cpu", out=out / c, progress=False)
+            for c in ("vertex", "multires")}
+
+
+def test_multires_removes_the_initial_penetration_and_vertex_does_not(apple_runs):
+    mr, vx = apple_runs["multires"], apple_runs["vertex"]
+    assert mr["initial_penetration_count"] > 1000 and mr["initial_penetration_max_um"] > 2000, mr
+    assert mr["penetration_count"] == 0 and mr["penetration_max_um"] == 0.0 and mr["finite"], mr
+    assert vx["penetration_count"] > 0, vx
+
+
+def test_log_is_complete_and_matches_the_summary(apple_runs):
+    res = apple_runs["multires"]
+    rows = _read(res["log"])
+    assert list(rows[0]) == LOG_COLUMNS
+    assert len(rows) == 1 + 6 * 10
+    assert [(int(r["step"]), int(r["substep"])) for r in rows[1:11]] == [(1, s) for s in range(1, 11)]
+    assert int(rows[0]["penetration_count"]) == res["initial_penetration_count"]
+    assert int(rows[-1]["penetration_count"]) == res["penetration_count"]
+    t = np.array([float(r["time_s"]) for r in rows[1:]])
+    assert np.allclose(np.diff(t), 0.0005, atol=1e-6)
+    assert int(rows[1]["contacts"]) > 0 and int(rows[1]["active_triangles"]) >= int(rows[1]["contacts"]) // 3
+    skin = trimesh.load(res["skin"], process=False)
+    assert skin.vertices.shape == (ph.load_asset().n_skin, 3)
+
+
+def _cli(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "physhand_mj.cli", "rollout", *map(str, args)], capture_output=True,
+                          text=True, **kw)
+
+
+@pytest.mark.parametrize("case", ["missing", "malformed", "keyframe", "nohand", "nonfinite"])
+def test_cli_bad_inputs_give_one_clear_line(case, tmp_path):
+    scene = tmp_path / "scene.xml"
+    want = {"missing": "scene file not found", "malformed": "malformed MJCF", "keyframe": "unknown keyframe 'nope'",
+            "nohand": "has no geom 'physhand_skin'", "nonfinite": "non-finite"}[case]
+    args = [scene]
+    if case == "malformed":
+        scene.write_text("<mujoco><worldbody><geom type='sphere' size='0.1'></worldbody></mujoco>")
+    elif case == "keyframe":
+        args = [APPLE, "--keyframe", "nope"]
+    elif case == "nohand":
+        scene.write_text("<mujoco><worldbody><geom type='sphere' size='0.1'/></worldbody></mujoco>")
+    elif case == "nonfinite":
+        text = APPLE.read_text().replace('file="../hand/', f'file="{APPLE.parent.parent / "hand"}/')
+        head, rest = text.split('<key name="grasp" qpos="', 1)
+        q, tail = rest.split('"', 1)
+        scene.write_text(head + '<key name="grasp" qpos="' + " ".join(["nan"] + q.split()[1:]) + '"' + tail)
+    r = _cli(*args, "--steps", 2, "--out", tmp_path / "o")
+    assert r.returncode == 1 and r.stdout == "", (r.stdout, r.stderr)
+    line = [x for x in r.stderr.strip().splitlines() if x.startswith("physhand rollout: error:")]
+    assert len(line) == 1 and want in line[0], r.stderr
+
+
+def test_interrupted_rollout_keeps_its_log(tmp_path):
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "physhand_mj.cli", "rollout", str(APPLE), "--steps", "500",
+                             "--device", "cpu", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    log = out / "log.csv"
+    deadline = time.time() + 240
+    while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 32):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr[-500:]
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["interrupted"] and 3 <= summary["steps"] < 500
+    rows = _read(log)
+    assert len(rows) == 1 + summary["steps"] * 10
+    assert (out / "skin_final.ply").exists()
+
+
+def test_batch_runs_a_list_into_one_table(tmp_path):
+    lst = tmp_path / "runs.txt"
+    lst.write_text(f"# scene keyframe\n{APPLE} grasp\n{tmp_path / 'missing.xml'}\n")
+    r = _cli(lst, "--steps", 2, "--device", "cpu", "--out", tmp_path / "b")
+    assert r.returncode == 1, r.stderr
+    lines = [json.loads(x) for x in r.stdout.strip().splitlines()]
+    assert len(lines) == 2 and lines[0]["penetration_count"] == 0 and "error" in lines[1]
+    table = _read(tmp_path / "b" / "summary.csv")
+    assert [t["scene"] for t in table] == [str(APPLE), str(tmp_path / "missing.xml")]
+    assert table[1]["error"].startswith("scene file not found")
