@@ -9,9 +9,8 @@ penetration (um, near zero), then OUT_DIR/grasp_glass.png with the contact press
 import sys
 from pathlib import Path
 
-import mujoco
-
-import physhand_mj as ph
+import physhand_mj as ph  # before mujoco: it picks MuJoCo's offscreen GL backend (MUJOCO_GL)
+import mujoco  # noqa: E402
 from physhand_mj import figures
 from physhand_mj.render import make_renderer, write_png
 

@@ -9,9 +9,8 @@ pad vertices on the cylinder, a force of about 2 N, penetration near zero) and O
 import sys
 from pathlib import Path
 
-import mujoco
-
-import physhand_mj as ph
+import physhand_mj as ph  # before mujoco: it picks MuJoCo's offscreen GL backend (MUJOCO_GL)
+import mujoco  # noqa: E402
 from physhand_mj import figures
 from physhand_mj.render import make_renderer, write_png
 from physhand_mj.robots import jaco_pads_scene

@@ -11,10 +11,10 @@ then positive once the palm touches; and OUT_DIR/mjspec_attach.png.
 import sys
 from pathlib import Path
 
-import mujoco
 import numpy as np
 
-import physhand_mj as ph
+import physhand_mj as ph  # before mujoco: it picks MuJoCo's offscreen GL backend (MUJOCO_GL)
+import mujoco  # noqa: E402
 from physhand_mj import figures
 from physhand_mj.render import make_renderer, write_png
 
