@@ -91,7 +91,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     with open(log_path, "w", newline="") as f:
         log = csv.writer(f)
         log.writerow(LOG_COLUMNS)
-        log.writerow([0, 0, 0.0, start["penetration_count"], _um(start["penetration_max_um"]),
+        log.writerow([0, 0, round(float(data.time), 6), start["penetration_count"], _um(start["penetration_max_um"]),
                       _um(start["penetration_avg_um"]), 0, 0, 0.0])
         f.flush()
         bar = tqdm(total=steps, desc=f"rollout {Path(scene).stem}", unit="frame", disable=not progress, leave=False)
@@ -101,17 +101,19 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 t = time.perf_counter()
                 res = hand.step()
                 dt = time.perf_counter() - t
-                times.append(dt)
-                last = res
                 rows = getattr(hand.solver, "substep_metrics", None)
                 counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
+                lines = []
                 for s in range(substeps):
                     cnt, total, deepest = rows[s] if rows is not None else (0.0, 0.0, 0.0)
                     n = int(round(float(cnt)))
                     act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
-                    log.writerow([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
+                    lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
                                   _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3)])
+                log.writerows(lines)  # a frame's rows go out together: an interrupted log holds whole frames
                 f.flush()
+                times.append(dt)
+                last = res
                 bar.update(1)
                 if res["nonfinite"]:
                     raise SolverError(f"{res['nonfinite']} skin/flesh positions turned non-finite in frame {step}")
@@ -185,8 +187,12 @@ def rollout_batch(targets, out, *, emit=None, **kwargs) -> list[dict]:
     cols = ["scene", "keyframe", "steps", "contact", "initial_penetration_count", "initial_penetration_max_um",
             "penetration_count", "penetration_max_um", "penetration_avg_um", "ms_per_frame", "finite", "device",
             "interrupted", "error"]
-    for scene, key in targets:
+    used = set()
+    for i, (scene, key) in enumerate(targets):
         name = Path(scene).stem + (f"-{key}" if key else "")
+        if name in used:  # the same scene name from two folders: keep both
+            name = f"{name}-{i}"
+        used.add(name)
         try:
             res = rollout(scene, key, out=out / name, **kwargs)
         except (FileNotFoundError, ValueError, RuntimeError) as e:

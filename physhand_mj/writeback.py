@@ -75,24 +75,26 @@ class SkinWriter:
         """Map the skin into the mesh frame of a geom at (origin (3,), rot (3, 3)); returns the world
         positions (n, 3) float64 (m). Raises ValueError if they are not finite."""
         d, n = self.device, self.n
+        if d.is_cpu:
+            self.world[:] = self.x.numpy()[:n]
+        else:
+            wp.copy(self.x_host, self.x, count=n)
+            wp.synchronize_device(d)
+            self.world[:] = self.x_host.numpy()
+        if not np.all(np.isfinite(self.world)):  # before anything reaches MuJoCo's mesh
+            raise ValueError("skin vertices hold non-finite values")
         wp.launch(to_mesh_frame, n, inputs=[self.x, wp.vec3(*origin), wp.mat33(*np.asarray(rot).ravel())],
                   outputs=[self.local, self.normal], device=d)
         if self.with_normals:
             wp.launch(accumulate_normals, self.faces.shape[0], inputs=[self.faces, self.local], outputs=[self.normal],
                       device=d)
             wp.launch(normalize, n, inputs=[self.normal], device=d)
-        if d.is_cpu:
-            self.world[:] = self.x.numpy()[:n]
-        else:
-            wp.copy(self.x_host, self.x, count=n)
+        if not d.is_cpu:
             wp.copy(self.local_host, self.local)
             if self.with_normals:
                 wp.copy(self.normal_host, self.normal)
             wp.synchronize_device(d)
-            self.world[:] = self.x_host.numpy()
             self.vert[:] = self.local_host.numpy()
             if self.with_normals:
                 self.norm[:] = self.normal_host.numpy()
-        if not np.all(np.isfinite(self.world)):
-            raise ValueError("skin vertices hold non-finite values")
         return self.world

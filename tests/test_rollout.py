@@ -90,6 +90,9 @@ def test_interrupted_rollout_keeps_its_log(tmp_path):
     deadline = time.time() + 240
     while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 32):
         time.sleep(0.2)
+    if not log.exists() or len(log.read_text().splitlines()) < 32:
+        proc.kill()
+        pytest.fail("the rollout logged fewer than 3 frames in 240 s")
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr[-500:]

@@ -123,6 +123,7 @@ def first_pass_list(
     active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
     bound: wp.array(dtype=float),
+    bound_mask: wp.array(dtype=int),
     eval_x: wp.array2d(dtype=wp.vec3),
     out: wp.array(dtype=int),
     out_mask: wp.array(dtype=int),
@@ -130,7 +131,8 @@ def first_pass_list(
 ):
     """The stage's first-pass list: its active triangles, less those an earlier stage of this frame
     found clear by ``bound[t]`` (m) that is still above how far the triangle's vertices moved since
-    (``eval_x``: their positions then); those keep a bound lowered by that distance, re-anchored."""
+    (``eval_x``: their positions then) and that was taken over all the geoms now near it
+    (``bound_mask``); those keep a bound lowered by that distance, re-anchored."""
     k = wp.tid()
     if k >= active_count[0]:
         return
@@ -139,7 +141,7 @@ def first_pass_list(
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
     m = wp.max(wp.length(a - eval_x[t, 0]), wp.max(wp.length(b - eval_x[t, 1]), wp.length(c - eval_x[t, 2])))
-    if bound[t] > m:
+    if bound[t] > m and (active_mask[k] & ~bound_mask[t]) == 0:  # the bound covers every geom now near
         bound[t] = bound[t] - m
         eval_x[t, 0] = a
         eval_x[t, 1] = b

@@ -43,6 +43,7 @@ class Contact:
         self.disp = wp.zeros(model.n_vertices, dtype=float, device=d)  # m, how far that pass moved i
         self.bound = wp.zeros(max(n_tris, 1), dtype=float, device=d)  # m, lowest phi per triangle (see query)
         self.eval_x = wp.zeros((max(n_tris, 1), 3), dtype=wp.vec3, device=d)  # its vertices when bound was set
+        self.bound_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the geoms bound was taken over
         self.touched = wp.zeros(model.n_vertices, dtype=int, device=d)  # vertices a pass corrects
         self.touched_count = self.cand_count
         self._slot = 1
@@ -96,14 +97,16 @@ class Contact:
                [self.active, self.active_mask, self.active_count], count=self.cand_count)
         lst = (self.pass_list, self.pass_mask, self._counter())
         launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
-                                              self.bound, self.eval_x], list(lst), count=self.active_count)
+                                              self.bound, self.bound_mask, self.eval_x], list(lst),
+               count=self.active_count)
         for p in range(cfg.contact_passes):
             stamp = self._slot  # unique within the frame (moved is zeroed per frame)
             self.touched_count = self._counter()
             launch(decide_and_project, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, cfg.contact_offset, state.x],
-                   [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.eval_x, self.touched,
+                   [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
+                    self.touched,
                     self.touched_count],
                    count=lst[2])
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
@@ -138,11 +141,15 @@ class Contact:
                 ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
 
         ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
+        kept = (self._slot, self._stage_slots, self.active_count, self.touched_count)
         self.record_frame(launch, ops, state)
         self.record(launch, ops, state)
+        stage_active = self.active_count
+        self._slot, self._stage_slots, self.active_count, self.touched_count = kept  # the solver frame's
         for op in ops:
             op()
         wp.synchronize_device(d)
+        self.stage_active_count = int(stage_active.numpy()[0])
         return self.decision.numpy()[: self.n_tris].copy()
 
     def copy_metrics(self) -> None:

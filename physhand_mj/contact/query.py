@@ -143,6 +143,7 @@ def decide_and_project(
     decision: wp.array(dtype=wp.vec4),
     vertex_obj: wp.array(dtype=int),
     bound: wp.array(dtype=float),
+    bound_mask: wp.array(dtype=int),
     eval_x: wp.array2d(dtype=wp.vec3),
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
@@ -153,8 +154,8 @@ def decide_and_project(
     the vertices' first hits of the pass appended to ``touched``, and the object touched into
     ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
     point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
-    for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions it
-    holds for in eval_x[t]."""
+    for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
+    geoms (bound_mask[t]) it holds for in eval_x[t]."""
     k = wp.tid()
     if k >= active_count[0]:
         return
@@ -169,6 +170,7 @@ def decide_and_project(
     eval_x[t, 0] = a
     eval_x[t, 1] = b
     eval_x[t, 2] = c
+    bound_mask[t] = near
     n_geoms = geom_count[0]
     # one geom near this triangle (the common case): its data in registers, queried without the
     # geom loop (Warp's CPU code copies array arguments on every call of scene_phi)
