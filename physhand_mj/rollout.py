@@ -58,10 +58,11 @@ def load_scene(scene, keyframe: str | None = None):
 
 def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: int = 10, contact: str = "multires",
             device: str | None = None, out=None, progress: bool = True, hand_kwargs: dict | None = None,
-            on_start=None, on_end=None) -> dict:
+            on_start=None, on_end=None, config: dict | None = None) -> dict:
     """Run one rollout (see the module docstring); returns the summary dict. Ctrl-C ends it early
     with ``interrupted: true`` and everything logged so far. ``on_start(hand, model, data)`` runs on
-    the settled, undeformed hand before the first frame, ``on_end(...)`` after the last (pictures)."""
+    the settled, undeformed hand before the first frame, ``on_end(...)`` after the last (pictures).
+    ``config``: further :class:`~physhand_mj.Config` fields (SI units), e.g. ``{"contact_passes": 4}``."""
     import mujoco
     import trimesh
     from tqdm import tqdm
@@ -77,7 +78,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.ctrl))):
         raise SolverError(f"keyframe '{key}' of {Path(scene).name} holds non-finite qpos or ctrl")
     cfg = ph.Config(frame_dt=float(model.opt.timestep), substeps=substeps, contact=Strategy[contact.upper()],
-                    device=device, substep_metrics=True)
+                    device=device, substep_metrics=True, **(config or {}))
     hand = ph.SoftHand(model, data, cfg, settle_contact=False, **(hand_kwargs or {}))
     out = Path(out) if out is not None else Path("rollout_out")
     out.mkdir(parents=True, exist_ok=True)

@@ -69,13 +69,16 @@ def _close_on(kind):
     geom = spec.geom("glass")
     if kind == "sphere":
         geom.type, geom.size = mujoco.mjtGeom.mjGEOM_SPHERE, [0.04, 0, 0]
-    else:
+    elif kind == "box":
         geom.type, geom.size = mujoco.mjtGeom.mjGEOM_BOX, [0.03, 0.03, 0.06]
+    else:  # a compound object: the glass with a box handle where the fingertips close
+        spec.body("glass").add_geom(name="handle", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.006, 0.006, 0.02],
+                                    pos=[0.036, -0.012, 0.01])
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    hand = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=["glass"])
+    hand = SoftHand(model, data, ph.Config(device="cpu"), object_bodies=["glass"])
     free = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=[])
     for _ in range(50):
         mujoco.mj_step(model, data)
@@ -84,13 +87,21 @@ def _close_on(kind):
     return model, data, hand, free
 
 
-@pytest.mark.parametrize("kind", ["sphere", "box"])
+@pytest.mark.parametrize("kind", ["sphere", "box", "compound"])
 def test_closing_on_a_static_object_ends_without_penetration(kind):
     model, data, hand, free = _close_on(kind)
     m = hand.metrics()
     assert m["finite"] and m["penetration_count"] == 0, m
     touched = hand.contacts()["objects"]["glass"]
     assert len(touched["vertices"]) > 20 and touched["force_n"] > 0.1, touched
+    if kind == "compound":  # both geoms of the object are touched, and neither is penetrated
+        assert len(hand.objects.names) == 2 and len(hand.penetrating_samples()[0]) == 0
+        g = model.geom("handle").id
+        local = (hand.skin_vertices[touched["vertices"]] - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
+        q = np.abs(local) - model.geom_size[g]
+        near_handle = np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0) < 1e-3
+        assert near_handle.sum() > 10 and (~near_handle).sum() > 100, near_handle.sum()
+        return
     # away from the contact (> 15 mm from the object) the skin is where the contact-free run has it
     g = model.geom("glass").id
     local = (hand.skin_vertices - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
