@@ -116,9 +116,10 @@ class Config:
         move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); contact_offset: how far
         outside an object Eq. 9 puts a triangle's decision point (m; 1 um: float32 rounding of
         ~0.1 m coordinates is ~10 nm, and the lattice search can miss a minimum by a fraction of a
-        micrometre at sharp edges, both of which would otherwise leave samples a hair inside); multires_samples / multires_rounds: Algorithm 2's samples per round and rounds
-        (default 10 x 3 = 30 queries: on the cone experiment it left 4x fewer penetrating samples
-        than the paper's 16 x 2 = 32, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's
+        micrometre at sharp edges, both of which would otherwise leave samples a hair inside);
+        multires_samples / multires_rounds: Algorithm 2's samples per round and rounds (default
+        21 x 2 = 42 queries: an order-5 first round catches narrow penetrations at sharp rims that
+        10 x 3 and the paper's 16 x 2 miss, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's
         baseline: 32); substep_metrics: evaluate the penetration metrics after every substep (for
         logs), not only at the end of the frame.
       device: Warp device, ``"cpu"`` or ``"cuda"`` / ``"cuda:0"``; None picks Warp's default.
