@@ -155,7 +155,7 @@ def render_penetration_frame(renderer, model, data, hand, camera, max_marks: int
     scene = renderer.scene
     for i in order[: scene.maxgeom - scene.ngeom]:
         g = scene.geoms[scene.ngeom]
-        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([0.0009, 0, 0]), pts[i], np.eye(3).ravel(),
+        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([0.0015, 0, 0]), pts[i], np.eye(3).ravel(),
                             np.array([0.95, 0.1, 0.85, 1.0], np.float32))
         scene.ngeom += 1
     return renderer.render()

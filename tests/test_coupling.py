@@ -210,3 +210,14 @@ def test_pads_asset_is_built_by_the_same_builder():
     assert abs(fresh.n_vertices - shipped.n_vertices) <= 0.03 * shipped.n_vertices
     assert abs(len(fresh.tets) - len(shipped.tets)) <= 0.03 * len(shipped.tets)
     assert list(shipped.body_names) == list(PAD_BODIES)
+
+
+def test_a_frame_faster_than_the_broadphase_margin_is_reported():
+    model, data = _scene()
+    hand = SoftHand(model, data, ph.Config(device="cpu"), settle_frames=2)
+    mujoco.mj_step(model, data)
+    hand.step()
+    data.mocap_pos[0] += [0.0, 0.0, 0.02]  # the whole hand jumps 2 cm within one frame
+    mujoco.mj_step(model, data)
+    with pytest.warns(RuntimeWarning, match="contact_frame_margin"):
+        hand.step()

@@ -68,6 +68,7 @@ class Solver:
         self._pose_host = wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu",
                                    pinned=self.device.is_cuda)
         self._guard_host = wp.zeros(2, dtype=int, device="cpu", pinned=self.device.is_cuda)
+        self._warned_fast = False
 
     # -- state -------------------------------------------------------------------------------
     def make_state(self, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0)) -> State:
@@ -124,6 +125,17 @@ class Solver:
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
+        elif self.contact is not None and not self._warned_fast:
+            jump = float(np.max(np.linalg.norm(state.pose_host[1][:, :3] - state.pose_host[0][:, :3], axis=1)))
+            if jump > self.config.contact_frame_margin - self.config.contact_margin:
+                import warnings
+
+                self._warned_fast = True
+                warnings.warn(f"a bone moved {jump * 1e3:.1f} mm in one frame, more than "
+                              f"Config.contact_frame_margin - contact_margin "
+                              f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
+                              f"contacts may be missed; raise contact_frame_margin or use shorter frames",
+                              RuntimeWarning, stacklevel=2)
         self._pose_host.numpy()[:] = state.pose_host
         wp.copy(state.body_pose, self._pose_host)
         state.pose_host[0] = state.pose_host[1]
