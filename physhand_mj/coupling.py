@@ -87,10 +87,12 @@ class SoftHand:
         rest_pos, rest_quat = self.state.pose_host[1][:, :3].astype(float), self.state.pose_host[1][:, 3:].astype(float)
         rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
         settler = self.solver if settle_contact or self.solver.contact is None else Solver(self.solver.model, self.config)
+        settler.warn_fast_motion = False  # settling moves the bones on purpose
         for k in range(settle_frames):
             a = (k + 1) / settle_frames
             settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
             settler.step(self.state)
+        self.solver.warn_fast_motion = True
         self._write_back()
 
     # -- setup -----------------------------------------------------------------------------------

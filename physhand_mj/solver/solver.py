@@ -69,6 +69,7 @@ class Solver:
                                    pinned=self.device.is_cuda)
         self._guard_host = wp.zeros(2, dtype=int, device="cpu", pinned=self.device.is_cuda)
         self._warned_fast = False
+        self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
 
     # -- state -------------------------------------------------------------------------------
     def make_state(self, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0)) -> State:
@@ -125,7 +126,7 @@ class Solver:
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
-        elif self.contact is not None and not self._warned_fast:
+        elif self.contact is not None and self.warn_fast_motion and not self._warned_fast:
             jump = float(np.max(np.linalg.norm(state.pose_host[1][:, :3] - state.pose_host[0][:, :3], axis=1)))
             if jump > self.config.contact_frame_margin - self.config.contact_margin:
                 import warnings
