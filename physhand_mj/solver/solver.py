@@ -126,7 +126,7 @@ class Solver:
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
-        elif self.contact is not None and self.warn_fast_motion and not self._warned_fast:
+        elif self.contact is not None and self.warn_fast_motion and not self._warned_fast and self.model.n_bodies:
             jump = float(np.max(np.linalg.norm(state.pose_host[1][:, :3] - state.pose_host[0][:, :3], axis=1)))
             if jump > self.config.contact_frame_margin - self.config.contact_margin:
                 import warnings
