@@ -124,6 +124,8 @@ class Config:
         logs), not only at the end of the frame.
       device: Warp device, ``"cpu"`` or ``"cuda"`` / ``"cuda:0"``; None picks Warp's default.
       cuda_graph: capture one frame as a CUDA graph on CUDA devices.
+      tiled_contact: on CUDA, run multires with a block of 32 threads per triangle (a lane per
+        lattice sample; needs multires_samples < 32), else a thread per triangle.
     """
 
     frame_dt: float = 0.005
@@ -156,6 +158,7 @@ class Config:
     substep_metrics: bool = False
     device: str | None = None
     cuda_graph: bool = True
+    tiled_contact: bool = True
 
     def validate(self) -> "Config":
         """Raise ValueError naming the option to fix; returns self."""

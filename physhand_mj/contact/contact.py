@@ -11,9 +11,9 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved
 from physhand_mj.contact.objects import Objects
-from physhand_mj.contact.query import apply_contact, decide_and_project
+from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
 from physhand_mj.metrics import penetration_samples
-from physhand_mj.types import Config, Model, Placement
+from physhand_mj.types import Config, Model, Placement, Strategy
 
 
 class Contact:
@@ -47,6 +47,9 @@ class Contact:
         self.touched = wp.zeros(model.n_vertices, dtype=int, device=d)  # vertices a pass corrects
         self.touched_count = self.cand_count
         self._slot = 1
+        # CUDA multires runs the tiled kernel when a block holds the lattice (and the centroid)
+        self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
+                          and config.multires_samples < TILE_LANES and config.tiled_contact)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -102,13 +105,18 @@ class Contact:
         for p in range(cfg.contact_passes):
             stamp = self._slot  # unique within the frame (moved is zeroed per frame)
             self.touched_count = self._counter()
-            launch(decide_and_project, self.n_tris,
-                   [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
-                    int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries, cfg.contact_offset, state.x],
-                   [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
-                    self.touched,
-                    self.touched_count],
-                   count=lst[2])
+            outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
+                    self.touched, self.touched_count]
+            if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
+                launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
+                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
+                        cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, state.x], outs,
+                       block_dim=TILE_LANES)
+            else:
+                launch(decide_and_project, self.n_tris,
+                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
+                        int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
+                        cfg.contact_offset, state.x], outs, count=lst[2])
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
                    [state.x, self.push, self.moved, self.disp], count=self.touched_count)
             if p + 1 < cfg.contact_passes:
@@ -136,9 +144,10 @@ class Contact:
         ops: list = []
         d = self.model.device
 
-        def launch(kernel, dim, inputs, outputs, count=None):
+        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None):
             if dim:
-                ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
+                kw = {} if block_dim is None else dict(block_dim=block_dim)
+                ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
 
         ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
         kept = (self._slot, self._stage_slots, self.active_count, self.touched_count)

@@ -188,13 +188,15 @@ class Solver:
         if self.contact is not None:
             self.contact.begin_frame(ops)
 
-        def launch(kernel, dim, inputs, outputs, count=None):
+        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None):
             """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
             the list the kernel walks) a CPU launch runs only that many threads (CPU memory is
-            read on the host for free; CUDA launches ``dim`` threads and the kernel returns early)."""
+            read on the host for free; CUDA launches ``dim`` threads and the kernel returns early);
+            ``block_dim`` for tiled kernels (CUDA)."""
             if not dim:
                 return
-            cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True)
+            kw = {} if block_dim is None else dict(block_dim=block_dim)
+            cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
             ops.append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count))
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
