@@ -305,3 +305,30 @@ def test_compound_object_is_the_union_of_its_geoms():
     assert np.abs(phi2.numpy() - want).max() < PHI_TOL
     assert np.allclose(np.linalg.norm(grad.numpy(), axis=1), 1, atol=1e-4)
     assert objs.object_names == ["dumbbell"]
+
+
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
+def test_tiled_cuda_multires_matches_the_per_thread_kernel():
+    """The CUDA block-per-triangle multires kernel makes the per-thread kernel's decisions."""
+    from physhand_mj.bodies import sheet
+
+    body = sheet(20, 20, 0.004, height=0.027)
+    x = body.positions + np.random.default_rng(1).normal(scale=0.001, size=body.positions.shape) * [0, 0, 1]
+    out = {}
+    for tiled in (False, True):
+        cfg = ph.Config(device="cuda", tiled_contact=tiled, contact_passes=1)
+        objs = Objects("cuda", 1)
+        objs.add(GeomType.SPHERE, [0.03], name="ball")
+        solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
+        assert solver.contact.tiled == tiled
+        state = solver.make_state()
+        state.x.assign(x.astype(np.float32))
+        decision = solver.contact.run_stage(state)
+        out[tiled] = (decision, state.x.numpy().copy())
+    (d0, x0), (d1, x1) = out[False], out[True]
+    inside = d0[:, 3] < 0
+    assert inside.sum() > 50 and np.array_equal(inside, d1[:, 3] < 0)
+    assert np.abs(d0[:, 3] - d1[:, 3]).max() < 1e-6
+    # near-tied samples can pick a different x* of the same depth, whose gradient differs a little
+    moved = np.abs(x0 - x.astype(np.float32)).max()
+    assert moved > 1e-4 and np.abs(x0 - x1).max() < 0.05 * moved, (np.abs(x0 - x1).max(), moved)

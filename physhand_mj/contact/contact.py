@@ -22,7 +22,7 @@ class Contact:
     capturable = True
 
     def __init__(self, model: Model, objects: Objects, config: Config):
-        if objects.device != model.device:
+        if wp.get_device(objects.device) != wp.get_device(model.device):
             raise ValueError(f"objects live on {objects.device}, the model on {model.device}")
         d = model.device
         self.model, self.objects, self.config = model, objects, config
