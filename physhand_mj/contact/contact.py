@@ -16,13 +16,23 @@ from physhand_mj.metrics import penetration_samples
 from physhand_mj.types import Config, Model, Placement, Strategy
 
 
+def _same_device(a, b) -> bool:
+    """Whether two device names name one device ("cuda" and "cuda:0" do); unknown names differ."""
+    if str(a) == str(b):
+        return True
+    try:
+        return wp.get_device(a) == wp.get_device(b)
+    except (RuntimeError, ValueError):
+        return False
+
+
 class Contact:
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
 
     def __init__(self, model: Model, objects: Objects, config: Config):
-        if wp.get_device(objects.device) != wp.get_device(model.device):
+        if not _same_device(objects.device, model.device):
             raise ValueError(f"objects live on {objects.device}, the model on {model.device}")
         d = model.device
         self.model, self.objects, self.config = model, objects, config
