@@ -114,6 +114,43 @@ def touch(hits: wp.array(dtype=float), i: int, w: float, touched: wp.array(dtype
         touched[wp.atomic_add(touched_count, 0, 1)] = i
 
 
+@wp.func
+def only_geom(near: int, n_geoms: int):
+    """The index of the one geom near a triangle (its broadphase mask has a single bit), else -1;
+    that geom's data is then kept in registers and queried without the geom loop (Warp's CPU code
+    copies array arguments on every call of scene_phi)."""
+    single = int(-1)
+    if near > 0 and (near & (near - 1)) == 0 and (near != (1 << 30) or n_geoms <= 31):
+        for bit in range(31):
+            if near == (1 << bit):
+                single = bit
+    return single
+
+
+@wp.func
+def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, near: int, n_geoms: int,
+            gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
+            radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), geom_obj: wp.array(dtype=int),
+            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
+            touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
+    """Eq. 9 for a triangle (vertices i0, i1, i2) whose decision point is best_p: the correction
+    that puts x* ``offset`` outside the surface along the gradient there, added to its vertices'
+    accumulators with the depth weight; the touched object recorded per vertex."""
+    d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+    corr = g * (offset - d)
+    w = depth_weight(-d)
+    wp.atomic_add(delta, i0, corr * w)
+    wp.atomic_add(delta, i1, corr * w)
+    wp.atomic_add(delta, i2, corr * w)
+    touch(hits, i0, w, touched, touched_count)
+    touch(hits, i1, w, touched, touched_count)
+    touch(hits, i2, w, touched, touched_count)
+    o = geom_obj[arg]
+    vertex_obj[i0] = o
+    vertex_obj[i1] = o
+    vertex_obj[i2] = o
+
+
 @wp.kernel
 def decide_and_project(
     # Model:
@@ -172,13 +209,7 @@ def decide_and_project(
     eval_x[t, 2] = c
     bound_mask[t] = near
     n_geoms = geom_count[0]
-    # one geom near this triangle (the common case): its data in registers, queried without the
-    # geom loop (Warp's CPU code copies array arguments on every call of scene_phi)
-    single = int(-1)
-    if near > 0 and (near & (near - 1)) == 0 and (near != (1 << 30) or n_geoms <= 31):
-        for bit in range(31):
-            if near == (1 << bit):
-                single = bit
+    single = only_geom(near, n_geoms)  # one geom near this triangle (the common case)
     s_type = int(0)
     s_inv = wp.transform_identity()
     s_size = wp.vec3(0.0)
@@ -291,19 +322,8 @@ def decide_and_project(
     if strategy == MULTIRES and certified > -FAR:
         bound[t] = certified
     if best < 0.5 * offset:
-        d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
-        corr = g * (offset - d)  # Eq. 9 with the gradient and depth at x*, to ``offset`` outside
-        w = depth_weight(-d)
-        wp.atomic_add(delta, i0, corr * w)
-        wp.atomic_add(delta, i1, corr * w)
-        wp.atomic_add(delta, i2, corr * w)
-        touch(hits, i0, w, touched, touched_count)
-        touch(hits, i1, w, touched, touched_count)
-        touch(hits, i2, w, touched, touched_count)
-        o = geom_obj[arg]
-        vertex_obj[i0] = o
-        vertex_obj[i1] = o
-        vertex_obj[i2] = o
+        project(best_p, offset, i0, i1, i2, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+                touched, touched_count, vertex_obj)
 
 
 TILE_LANES = 32  # lanes per triangle in the CUDA multires kernel (>= the lattice's sample count)
@@ -380,11 +400,7 @@ def decide_and_project_tiled(
     b = x[i1]
     c = x[i2]
     n_geoms = geom_count[0]
-    single = int(-1)
-    if near > 0 and (near & (near - 1)) == 0 and (near != (1 << 30) or n_geoms <= 31):
-        for bit in range(31):
-            if near == (1 << bit):
-                single = bit
+    single = only_geom(near, n_geoms)
     s_type = int(0)
     s_inv = wp.transform_identity()
     s_size = wp.vec3(0.0)
@@ -456,19 +472,8 @@ def decide_and_project_tiled(
     if certified > -FAR:
         bound[t] = certified
     if best < 0.5 * offset:
-        dd, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
-        corr = g * (offset - dd)  # Eq. 9 with the gradient and depth at x*, to ``offset`` outside
-        w = depth_weight(-dd)
-        wp.atomic_add(delta, i0, corr * w)
-        wp.atomic_add(delta, i1, corr * w)
-        wp.atomic_add(delta, i2, corr * w)
-        touch(hits, i0, w, touched, touched_count)
-        touch(hits, i1, w, touched, touched_count)
-        touch(hits, i2, w, touched, touched_count)
-        o = geom_obj[arg]
-        vertex_obj[i0] = o
-        vertex_obj[i1] = o
-        vertex_obj[i2] = o
+        project(best_p, offset, i0, i1, i2, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+                touched, touched_count, vertex_obj)
 
 
 @wp.kernel
