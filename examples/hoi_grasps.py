@@ -15,24 +15,12 @@ from pathlib import Path
 import physhand_mj as ph
 from physhand_mj import figures
 from physhand_mj.build.hoi import SCENES
-from physhand_mj.render import look_at_camera, make_renderer, write_png
+from physhand_mj.render import write_png
 from physhand_mj.rollout import rollout
 
 
 def picture(path: Path):
-    def take(hand, model, data):
-        renderer = make_renderer(model, 640, 480)
-        body = model.body([n for n in hand.objects.object_names if n != "world"][0]).id
-        geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body]
-        alpha = model.geom_rgba[geoms, 3].copy()
-        model.geom_rgba[geoms, 3] = 0.45  # see the samples inside the object
-        try:
-            cam = look_at_camera(0.5 * (data.xpos[body] + hand.skin_vertices.mean(axis=0)), 0.3, 90.0, -88.0)
-            write_png(figures.render_penetration_frame(renderer, model, data, hand, cam), path)
-        finally:
-            model.geom_rgba[geoms, 3] = alpha
-            renderer.close()
-    return take
+    return lambda hand, model, data: write_png(figures.render_grasp_view(model, data, hand), path)
 
 
 def main(out: Path, scenes=tuple(SCENES), steps: int = 36, contact: str = "multires", device: str | None = None,

@@ -159,3 +159,20 @@ def render_penetration_frame(renderer, model, data, hand, camera, max_marks: int
                             np.array([0.95, 0.1, 0.85, 1.0], np.float32))
         scene.ngeom += 1
     return renderer.render()
+
+
+def render_grasp_view(model, data, hand, width: int = 640, height: int = 480) -> np.ndarray:
+    """Pixels of the hand's object (the first non-world object body) and the skin as it is now,
+    seen from above with the object made translucent and the penetrating samples marked
+    (:func:`render_penetration_frame`); the object's colours are restored afterwards."""
+    renderer = make_renderer(model, width, height)
+    body = model.body([n for n in hand.objects.object_names if n != "world"][0]).id
+    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body]
+    alpha = model.geom_rgba[geoms, 3].copy()
+    model.geom_rgba[geoms, 3] = 0.45  # see the samples inside the object
+    try:
+        cam = look_at_camera(0.5 * (data.xpos[body] + hand.skin_vertices.mean(axis=0)), 0.3, 90.0, -88.0)
+        return render_penetration_frame(renderer, model, data, hand, cam).copy()
+    finally:
+        model.geom_rgba[geoms, 3] = alpha
+        renderer.close()

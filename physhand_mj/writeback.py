@@ -75,26 +75,30 @@ class SkinWriter:
         """Map the skin into the mesh frame of a geom at (origin (3,), rot (3, 3)); returns the world
         positions (n, 3) float64 (m). Raises ValueError if they are not finite."""
         d, n = self.device, self.n
-        if d.is_cpu:
+        if d.is_cpu:  # the kernels write MuJoCo's mesh directly: check before launching them
             self.world[:] = self.x.numpy()[:n]
+            _check_finite(self.world)
         else:
             wp.copy(self.x_host, self.x, count=n)
-            wp.synchronize_device(d)
-            self.world[:] = self.x_host.numpy()
-        if not np.all(np.isfinite(self.world)):  # before anything reaches MuJoCo's mesh
-            raise ValueError("skin vertices hold non-finite values")
         wp.launch(to_mesh_frame, n, inputs=[self.x, wp.vec3(*origin), wp.mat33(*np.asarray(rot).ravel())],
                   outputs=[self.local, self.normal], device=d)
         if self.with_normals:
             wp.launch(accumulate_normals, self.faces.shape[0], inputs=[self.faces, self.local], outputs=[self.normal],
                       device=d)
             wp.launch(normalize, n, inputs=[self.normal], device=d)
-        if not d.is_cpu:
+        if not d.is_cpu:  # one sync for the three copies; MuJoCo's mesh is written after the check
             wp.copy(self.local_host, self.local)
             if self.with_normals:
                 wp.copy(self.normal_host, self.normal)
             wp.synchronize_device(d)
+            self.world[:] = self.x_host.numpy()
+            _check_finite(self.world)
             self.vert[:] = self.local_host.numpy()
             if self.with_normals:
                 self.norm[:] = self.normal_host.numpy()
         return self.world
+
+
+def _check_finite(world: np.ndarray) -> None:
+    if not np.all(np.isfinite(world)):
+        raise ValueError("skin vertices hold non-finite values")

@@ -139,23 +139,11 @@ class _Grasp:
 def generate(name: str, asset, hand_only_xml: Path, *, palm_depth: float = 0.003, finger_depth: float = 0.004,
              bone_clearance: float = 0.0015) -> dict:
     """The keyframe (qpos), mount pose and object pose of scene ``name`` (see the module docstring)."""
-    import mujoco
+    from physhand_mj.build.scenes import palm_mount
 
     spec = SCENES[name]
     g = _Grasp(asset, hand_only_xml)
-    f = np.asarray(asset.meta["finger_axis"], float)
-    n = np.asarray(asset.meta["palm_normal"], float)
-    n = n - f * (f @ n)
-    n /= np.linalg.norm(n)
-    rot = np.stack([f, n, np.cross(f, n)], axis=1).T  # hand frame -> world: f -> x, n -> y
-    mquat = np.empty(4)
-    mujoco.mju_mat2Quat(mquat, rot.ravel())
-    names = list(asset.body_names)
-    c = asset.body_rest_pos[names.index("3proxph_r")] + 0.012 * f
-    skin0 = asset.skin_vertices
-    lateral = np.linalg.norm((skin0 - c) - np.outer((skin0 - c) @ n, n), axis=1)
-    palm_pt = skin0[lateral < 0.012][np.argmax((skin0[lateral < 0.012] - c) @ n)]
-    mpos = PALM - rot @ palm_pt
+    mpos, mquat = palm_mount(asset, PALM)
     g.place(mpos, mquat)
     mesh = bowl_mesh(*spec["geoms"][0][1]) if spec["geoms"][0][0] == "mesh" else None
     R = spec["rot"]
@@ -181,7 +169,7 @@ def generate(name: str, asset, hand_only_xml: Path, *, palm_depth: float = 0.003
     qpos = g.open.copy()
     flex = {}
     for joints, bodies in list(FINGER_CHAINS.values()) + [THUMB_CHAIN]:
-        bset = [names.index(b) for b in bodies]
+        bset = [g.names.index(b) for b in bodies]
         on_skin, on_skel = np.isin(g.skin_body, bset), np.isin(g.skel_body, bset)
         for j in joints:  # proximal first: each joint closes toward the fist until its chain touches
             i = g.adr[j]

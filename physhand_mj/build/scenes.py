@@ -143,6 +143,27 @@ def _thumb_clear_of_glass(hand_only_xml: Path, qpos, mount, quat, radius: float,
     return out
 
 
+def palm_mount(asset, palm_world) -> tuple[np.ndarray, np.ndarray]:
+    """Hand-mount pose (position m, quaternion w x y z) that turns the asset's finger axis to +x and
+    its palm normal to +y and puts the palm centre at ``palm_world``: the skin point over the
+    middle finger's proximal phalanx, just distal of its MCP joint, where the fingers start to wrap."""
+    import mujoco
+
+    f = np.asarray(asset.meta["finger_axis"], float)
+    n = np.asarray(asset.meta["palm_normal"], float)
+    n = n - f * (f @ n)
+    n /= np.linalg.norm(n)
+    rot = np.stack([f, n, np.cross(f, n)], axis=1).T  # world = rot @ hand frame
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, rot.ravel())
+    names = list(asset.body_names)
+    c = asset.body_rest_pos[names.index("3proxph_r")] + 0.012 * f
+    skin = asset.skin_vertices
+    lateral = np.linalg.norm((skin - c) - np.outer((skin - c) @ n, n), axis=1)
+    palm = skin[lateral < 0.012][np.argmax((skin[lateral < 0.012] - c) @ n)]
+    return np.asarray(palm_world, float) - rot @ palm, quat
+
+
 def write_grasp_glass_scene(scene_xml: Path, asset, hand_only_xml: Path) -> None:
     """``mjcf/scenes/grasp_glass.xml``: the hand, palm facing +y and fingers along +x, beside a glass
     standing on the floor; keyframes ``approach`` (open hand, closing targets in ctrl: step MuJoCo
@@ -153,23 +174,8 @@ def write_grasp_glass_scene(scene_xml: Path, asset, hand_only_xml: Path) -> None
     """
     import mujoco
 
-    f = np.asarray(asset.meta["finger_axis"], float)
-    n = np.asarray(asset.meta["palm_normal"], float)
-    n = n - f * (f @ n)
-    n /= np.linalg.norm(n)
-    hand = np.stack([f, n, np.cross(f, n)], axis=1)
-    rot = hand.T  # world = rot @ hand-frame: f -> x, n -> y, f x n -> z
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, rot.ravel())
-    names = list(asset.body_names)
-    # just distal of the middle finger's MCP joint: where the fingers start to wrap
-    c = asset.body_rest_pos[names.index("3proxph_r")] + 0.012 * f
-    skin = asset.skin_vertices
-    lateral = np.linalg.norm((skin - c) - np.outer((skin - c) @ n, n), axis=1)
-    palm = skin[lateral < 0.012][np.argmax((skin[lateral < 0.012] - c) @ n)]
     r, hh = GLASS["radius"], GLASS["half_height"]
-    target = np.array([0.0, -(r + 0.003), hh + 0.01])
-    mount = target - rot @ palm
+    mount, quat = palm_mount(asset, np.array([0.0, -(r + 0.003), hh + 0.01]))
     model = mujoco.MjModel.from_xml_path(str(hand_only_xml))
     power = model.key("power")
     open_ = model.key("open")

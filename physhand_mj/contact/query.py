@@ -128,6 +128,15 @@ def only_geom(near: int, n_geoms: int):
 
 
 @wp.func
+def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+              inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.uint64)):
+    """(type, inverse pose, size, mesh id) of geom ``g``; a NONE geom (phi = FAR) for g < 0."""
+    if g < 0:
+        return int(0), wp.transform_identity(), wp.vec3(0.0), wp.uint64(0)
+    return gtype[g], inv_pose[g], size[g], mesh[g]
+
+
+@wp.func
 def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, near: int, n_geoms: int,
             gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), geom_obj: wp.array(dtype=int),
@@ -210,15 +219,7 @@ def decide_and_project(
     bound_mask[t] = near
     n_geoms = geom_count[0]
     single = only_geom(near, n_geoms)  # one geom near this triangle (the common case)
-    s_type = int(0)
-    s_inv = wp.transform_identity()
-    s_size = wp.vec3(0.0)
-    s_mesh = wp.uint64(0)
-    if single >= 0:
-        s_type = gtype[single]
-        s_inv = inv_pose[single]
-        s_size = size[single]
-        s_mesh = mesh[single]
+    s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
     best = float(FAR)
     best_p = a
     if strategy != MULTIRES:
@@ -401,15 +402,7 @@ def decide_and_project_tiled(
     c = x[i2]
     n_geoms = geom_count[0]
     single = only_geom(near, n_geoms)
-    s_type = int(0)
-    s_inv = wp.transform_identity()
-    s_size = wp.vec3(0.0)
-    s_mesh = wp.uint64(0)
-    if single >= 0:
-        s_type = gtype[single]
-        s_inv = inv_pose[single]
-        s_size = size[single]
-        s_mesh = mesh[single]
+    s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
     order = lattice_order(samples)
     n_lat = (order + 1) * (order + 2) / 2
     best = float(FAR)
