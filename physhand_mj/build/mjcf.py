@@ -1,6 +1,12 @@
 """Write the hand MJCF: MyoHand's chain, position actuators, bone display meshes, collision proxies
 set a few millimetres inside the rest skin, and the skin as a non-colliding mesh geom.
 
+Every bone body carries ``gravcomp="1"``: MuJoCo cancels gravity on the hand's own bodies with a
+passive force, as muscle tone does, so the soft position actuators (kp = 2 N m/rad) hold a
+keyframe's pose exactly instead of sagging under the bones' weight (7 mm at the fingertips within
+36 frames without it), and still move the hand when ``ctrl`` changes. Objects keep their gravity.
+See docs/coupling.md, "Holding a pose".
+
 Meshes are written inline (``<mesh vertex=... face=...>``) so the file is includable from any
 directory and attachable with ``MjSpec`` without path resolution issues.
 """
@@ -83,8 +89,13 @@ def fit_palm_box(asset: HandAsset, skin: trimesh.Trimesh) -> tuple[np.ndarray, n
 
 
 def write_hand_mjcf(src: HandSource, asset: HandAsset, path, *, mount_pos=(0.0, 0.0, 0.25),
-                    mount_quat=(1.0, 0.0, 0.0, 0.0), kp: float = 2.0) -> None:
-    """Write ``mjcf/hand/myohand.xml`` (see the module docstring)."""
+                    mount_quat=(1.0, 0.0, 0.0, 0.0), kp: float = 2.0, gravcomp: float = 1.0) -> None:
+    """Write ``mjcf/hand/myohand.xml`` (see the module docstring).
+
+    ``kp``: position-actuator stiffness (N m/rad, critically damped); ``gravcomp``: the fraction of
+    gravity cancelled on every bone body (MuJoCo's ``body/gravcomp``; 0 leaves the hand to sag).
+    """
+    grav = f' gravcomp="{gravcomp:g}"' if gravcomp else ""
     skin = trimesh.Trimesh(asset.skin_vertices, asset.skin_faces, process=False)
     frames = {b: _body_frame(asset, b) for b in asset.body_names}
 
@@ -125,7 +136,7 @@ def write_hand_mjcf(src: HandSource, asset: HandAsset, path, *, mount_pos=(0.0, 
     def emit(body, depth):
         ind = "  " * depth
         pos, quat = (src.root_pos, src.root_quat) if body.parent is None else (body.pos, body.quat)
-        lines = [f'{ind}<body name="{body.name}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">',
+        lines = [f'{ind}<body name="{body.name}" pos="{_fmt(pos)}" quat="{_fmt(quat)}"{grav}>',
                  f'{ind}  <inertial pos="{_fmt(body.ipos)}" quat="{_fmt(body.iquat)}" mass="{body.mass:.6g}" '
                  f'diaginertia="{_fmt(body.inertia)}"/>']
         for j in body.joints:
@@ -187,3 +198,20 @@ def write_hand_mjcf(src: HandSource, asset: HandAsset, path, *, mount_pos=(0.0, 
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(xml)
+
+
+def main() -> None:
+    """Regenerate ``mjcf/hand/myohand.xml`` from the embedded asset and myo-sim's chain without
+    rebuilding the asset (``physhand build-hand`` rebuilds both): ``python -m physhand_mj.build.mjcf``."""
+    from physhand_mj.asset import load_asset
+    from physhand_mj.build import _mount_quat, _palm_normal
+    from physhand_mj.build.myohand import load_myohand
+    from physhand_mj.hand_mjcf import HAND_XML
+
+    src = load_myohand()
+    write_hand_mjcf(src, load_asset(), HAND_XML, mount_quat=_mount_quat(src.finger_axis, _palm_normal(src)))
+    print(HAND_XML)
+
+
+if __name__ == "__main__":
+    main()
