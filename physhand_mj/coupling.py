@@ -201,7 +201,8 @@ class SoftHand:
         share of the skin area), ``force_n`` (normal force estimate: each Eq. 9 projection of a
         vertex of mass m by dx in a substep of length h is an impulse m dx / h, i.e. the multiplier of
         a hard constraint; forces are averaged over the frame's substeps), ``penetration_count`` and
-        ``deepest_um`` (the 21-sample metric against that object alone). ``pressure_pa`` is force
+        ``deepest_um`` (the 21-sample metric against that object alone), ``object_in_skin_count``
+        and ``object_in_skin_deepest_um`` (that object's surface points inside the skin). ``pressure_pa`` is force
         per vertex area, a heat map over the skin.
         """
         import warp as wp
@@ -221,19 +222,33 @@ class SoftHand:
             row = self._measure(k)
             idx = np.flatnonzero((vobj == k) & (push > 0))
             out[name] = dict(vertices=idx, area_m2=float(area[idx].sum()), force_n=float(force[idx].sum()),
-                             penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6)
+                             penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6,
+                             object_in_skin_count=int(round(float(row[3]))),
+                             object_in_skin_deepest_um=float(row[5]) * 1e6)
         return {"objects": out, "pressure_pa": pressure}
 
-    def _measure(self, obj: int = -1) -> np.ndarray:
-        """[count, sum depth m, max depth m] of the skin as it is now (against object ``obj``, -1: all)."""
-        import warp as wp
+    def _measure(self, obj: int = -1, order: int = 5) -> np.ndarray:
+        """Both measures of the skin as it is now (against object ``obj``, -1: all): [count, sum depth
+        m, max depth m] of skin samples on the order-``order`` lattice inside objects, then of object
+        surface points inside the skin."""
+        return self.solver.contact.measure(self.state, obj=obj, order=order)
 
+    def object_points_inside(self) -> tuple[np.ndarray, np.ndarray]:
+        """The objects' surface points inside the skin as it is now: world points (k, 3) m and their
+        depths (k,) m (distance to the closest skin point), for pictures and checks."""
         c = self.solver.contact
-        scratch = wp.zeros((1, 3), dtype=float, device=c.metrics.device)
-        c.record_metrics(lambda kern, dim, inputs, outputs: wp.launch(kern, dim, inputs=inputs, outputs=outputs,
-                                                                      device=c.metrics.device),
-                         self.state, 0, obj=obj, out=scratch)
-        return scratch.numpy()[0].astype(float)
+        if c is None or not len(c.points):
+            return np.zeros((0, 3)), np.zeros(0)
+        self._measure()
+        pts = c.points
+        depth = pts.depth.numpy()[: len(pts)].astype(float)
+        hit = np.flatnonzero(depth > 0)
+        g = pts.geom_host[hit]
+        o = self.objects._host["pose"][g].astype(float)  # [p, q x y z w]
+        from physhand_mj.solver.model import quat_to_mat
+
+        world = np.array([quat_to_mat(np.r_[q[6], q[3:6]]) @ p + q[:3] for p, q in zip(pts.pts_host[hit], o)])
+        return world.reshape(-1, 3), depth[hit]
 
     def penetrating_samples(self) -> tuple[np.ndarray, np.ndarray]:
         """The metric's penetrating samples of the skin as it is now: world points (k, 3) m and
@@ -256,21 +271,32 @@ class SoftHand:
         inside = d < 0
         return p[inside].astype(float), -d[inside].astype(float)
 
-    def penetration(self) -> dict:
-        """Penetration count / max / avg (um) of the skin as it is now, e.g. before the first step."""
+    def penetration(self, order: int = 5) -> dict:
+        """Both penetration measures of the skin as it is now (e.g. before the first step):
+        penetration_count / _max_um / _avg_um (skin samples on the order-``order`` lattice inside
+        objects; the paper's metric is order 5, checks use 9 or more) and object_in_skin_count /
+        _max_um / _avg_um (object surface points inside the closed skin)."""
         from physhand_mj.metrics import summarize
 
         if self.solver.contact is None:
-            return summarize(np.zeros(3))
-        return summarize(self._measure())
+            return summarize(np.zeros(6))
+        return summarize(self._measure(order=order))
 
     def metrics(self) -> dict:
-        """Penetration count / max / avg (um) at the end of the last frame (DESIGN definitions), the
-        guard counts, finite flag, and the mean time per frame of each stage (ms)."""
+        """Both penetration measures at the end of the last frame (DESIGN definitions: skin samples
+        inside objects, ``penetration_*``; object surface points inside the skin, ``object_in_skin_*``,
+        evaluated now unless Config.object_metrics evaluated it in the frame), the guard counts,
+        finite flag, and the mean time per frame of each stage (ms)."""
         tm = self._timing
         n = max(tm["frames"], 1)
-        out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0)
+        out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0, object_in_skin_count=0,
+                   object_in_skin_max_um=0.0, object_in_skin_avg_um=0.0)
         out.update(self._last)
+        if self.solver.contact is not None and not self.config.object_metrics and tm["frames"]:
+            from physhand_mj.metrics import summarize  # the second measure on demand (Config.object_metrics)
+
+            row = self.solver.contact.measure(self.state)
+            out.update({k: v for k, v in summarize(row).items() if k.startswith("object_in_skin")})
         out["finite"] = bool(np.all(np.isfinite(self._skin)))
         out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
                    ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])

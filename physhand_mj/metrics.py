@@ -1,10 +1,16 @@
-"""Penetration metrics as the paper measures them (section 4.2-4.3; DESIGN "Metrics").
+"""Penetration measured both ways (paper section 4.2-4.3; DESIGN "Metrics").
 
-Every skin triangle is sampled on the order-5 barycentric lattice (21 points: vertices, edge points,
-interior); a sample with phi < 0 against any object is a penetration. Per evaluation the kernel adds,
-into one row of ``out``: [penetrating samples, sum of their depths |phi| (m), max depth (m)].
-Triangles with phi(centroid) > circumradius for every geom are skipped: SDFs are 1-Lipschitz, so
-none of their samples can penetrate.
+1. Skin samples inside objects, as the paper measures: every skin triangle is sampled on the
+   order-5 barycentric lattice (21 points: vertices, edge points, interior); a sample with phi < 0
+   against any object is a penetration. The kernel adds into one row of ``out``: [penetrating
+   samples, sum of their depths |phi| (m), max depth (m)]. Triangles with phi(centroid) >
+   circumradius for every geom are skipped: SDFs are 1-Lipschitz, so none of their samples can
+   penetrate. Checks use a denser lattice (``order`` 9 or more: samples no strategy queries).
+2. Object surface points inside the closed skin (corners, points along sharp edges, an even
+   surface sampling; contact/inside.py), columns 3-5 of the same row: what a tip or an edge pokes
+   through a triangle between skin samples.
+
+:func:`summarize` names them ``penetration_*`` (1) and ``object_in_skin_*`` (2).
 """
 
 from __future__ import annotations
@@ -32,9 +38,11 @@ def penetration_samples(
     geom_obj: wp.array(dtype=int),
     obj_filter: int,
     row: int,
+    order: int,
     out: wp.array2d(dtype=float),
 ):
-    """obj_filter >= 0 restricts the samples' SDF to the geoms of that object."""
+    """Samples on the order-``order`` lattice ((order + 1)(order + 2) / 2 per triangle; the metric's
+    is 5); obj_filter >= 0 restricts the samples' SDF to the geoms of that object."""
     t = wp.tid()
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
@@ -46,10 +54,10 @@ def penetration_samples(
     count = float(0.0)
     total = float(0.0)
     deepest = float(0.0)
-    for i in range(6):
-        for j in range(6 - i):
-            u = float(i) / 5.0
-            v = float(j) / 5.0
+    for i in range(order + 1):
+        for j in range(order + 1 - i):
+            u = float(i) / float(order)
+            v = float(j) / float(order)
             p = a * (1.0 - u - v) + b * u + c * v
             d = float(1.0e6)
             if obj_filter < 0:
@@ -69,10 +77,16 @@ def penetration_samples(
 
 
 def summarize(row: np.ndarray) -> dict:
-    """[count, sum depth m, max depth m] -> penetration_count, penetration_max_um, penetration_avg_um."""
-    count = int(round(float(row[0])))
-    return dict(penetration_count=count, penetration_max_um=float(row[2]) * 1e6,
-                penetration_avg_um=float(row[1]) / count * 1e6 if count else 0.0)
+    """A metrics row -> penetration_count / _max_um / _avg_um (skin samples inside objects) and, for
+    a 6-column row, object_in_skin_count / _max_um / _avg_um (object points inside the skin)."""
+    out = {}
+    for prefix, k in (("penetration", 0), ("object_in_skin", 3)):
+        if k + 2 >= len(row):
+            break
+        count = int(round(float(row[k])))
+        out.update({f"{prefix}_count": count, f"{prefix}_max_um": float(row[k + 2]) * 1e6,
+                    f"{prefix}_avg_um": float(row[k + 1]) / count * 1e6 if count else 0.0})
+    return out
 
 
 @wp.kernel

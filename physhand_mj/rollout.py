@@ -14,7 +14,9 @@ soft hand runs ``steps`` frames with contact. Written to ``out``:
 ``contacts`` counts the skin vertices the substep's contact stage corrected in its first pass
 (those in contact at its start); ``active_triangles`` the triangles its broadphase kept;
 ``ms_frame`` the wall time of the frame the substep belongs to (hand.step: sync, solver, write-back).
-Times exclude the first frame, which compiles the contact kernels.
+Times exclude the first frame, which compiles the contact kernels. ``object_in_skin_count`` /
+``_max_um``: the second measure (object surface points inside the closed skin), on the last row
+of each frame (and row 0), evaluated after the frame's timing; empty on the other rows.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_max_um", "penetration_avg_um",
-               "contacts", "active_triangles", "ms_frame"]
+               "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um"]
 
 
 def load_scene(scene, keyframe: str | None = None):
@@ -93,7 +95,8 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
         log = csv.writer(f)
         log.writerow(LOG_COLUMNS)
         log.writerow([0, 0, round(float(data.time), 6), start["penetration_count"], _um(start["penetration_max_um"]),
-                      _um(start["penetration_avg_um"]), 0, 0, 0.0])
+                      _um(start["penetration_avg_um"]), 0, 0, 0.0, start["object_in_skin_count"],
+                      _um(start["object_in_skin_max_um"])])
         f.flush()
         bar = tqdm(total=steps, desc=f"rollout {Path(scene).stem}", unit="frame", disable=not progress, leave=False)
         try:
@@ -102,19 +105,22 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 t = time.perf_counter()
                 res = hand.step()
                 dt = time.perf_counter() - t
+                both = hand.penetration()  # the frame's end, both measures (not timed)
                 rows = getattr(hand.solver, "substep_metrics", None)
                 counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
                 lines = []
                 for s in range(substeps):
-                    cnt, total, deepest = rows[s] if rows is not None else (0.0, 0.0, 0.0)
+                    cnt, total, deepest = rows[s][:3] if rows is not None else (0.0, 0.0, 0.0)
                     n = int(round(float(cnt)))
                     act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
                     lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
-                                  _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3)])
+                                  _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
+                                  *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]))
+                                    if s + 1 == substeps else ("", ""))])
                 log.writerows(lines)  # a frame's rows go out together: an interrupted log holds whole frames
                 f.flush()
                 times.append(dt)
-                last = res
+                last = dict(res, **{k: v for k, v in both.items() if k.startswith("object_in_skin")})
                 bar.update(1)
                 if res["nonfinite"]:
                     raise SolverError(f"{res['nonfinite']} skin/flesh positions turned non-finite in frame {step}")
@@ -132,8 +138,13 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 penetration_count=int(last.get("penetration_count", 0)),
                 penetration_max_um=_um(last.get("penetration_max_um", 0.0)),
                 penetration_avg_um=_um(last.get("penetration_avg_um", 0.0)),
+                object_in_skin_count=int(last.get("object_in_skin_count", 0)),
+                object_in_skin_max_um=_um(last.get("object_in_skin_max_um", 0.0)),
+                object_in_skin_avg_um=_um(last.get("object_in_skin_avg_um", 0.0)),
                 initial_penetration_count=start["penetration_count"],
                 initial_penetration_max_um=_um(start["penetration_max_um"]),
+                initial_object_in_skin_count=start["object_in_skin_count"],
+                initial_object_in_skin_max_um=_um(start["object_in_skin_max_um"]),
                 ms_per_frame=round(1e3 * float(np.mean(timed)), 3) if timed else math.nan,
                 finite=bool(m["finite"]) and int(last.get("nonfinite", 0)) == 0, device=d, device_name=device_name(d),
                 interrupted=interrupted, log=str(log_path), skin=str(skin_path))
@@ -186,7 +197,8 @@ def rollout_batch(targets, out, *, emit=None, **kwargs) -> list[dict]:
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     cols = ["scene", "keyframe", "steps", "contact", "initial_penetration_count", "initial_penetration_max_um",
-            "penetration_count", "penetration_max_um", "penetration_avg_um", "ms_per_frame", "finite", "device",
+            "penetration_count", "penetration_max_um", "penetration_avg_um", "initial_object_in_skin_count",
+            "object_in_skin_count", "object_in_skin_max_um", "ms_per_frame", "finite", "device",
             "interrupted", "error"]
     used = set()
     for i, (scene, key) in enumerate(targets):

@@ -117,6 +117,16 @@ class Config:
         outside an object Eq. 9 puts a triangle's decision point (m; 1 um: float32 rounding of
         ~0.1 m coordinates is ~10 nm, and the lattice search can miss a minimum by a fraction of a
         micrometre at sharp edges, both of which would otherwise leave samples a hair inside);
+        feature_contact: also push the skin off object features (corners, tips, sharp edges) that lie
+        inside it (contact/features.py: the object's side of the contact, which the skin's decision
+        points cannot see when a feature is smaller than a triangle);
+        side_aware: where the SDF gradient at a decision point points out of the hand, leave the
+          object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
+          ``project``; fixes deep starts past an object's mid-plane, but off by default: it still
+          disturbs closing on boxes, docs/contact.md);
+        object_metrics: evaluate the second penetration measure (object surface points inside the
+        closed skin, contact/inside.py) at the end of every frame; otherwise ``SoftHand.metrics`` /
+        ``penetration`` evaluate it when called (it costs about as much as a CPU frame);
         multires_samples / multires_rounds: Algorithm 2's samples per round and rounds (default
         21 x 2 = 42 queries: an order-5 first round catches narrow penetrations at sharp rims that
         10 x 3 and the paper's 16 x 2 miss, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's
@@ -156,6 +166,9 @@ class Config:
     multires_rounds: int = 2
     opt_queries: int = 32
     substep_metrics: bool = False
+    feature_contact: bool = False
+    side_aware: bool = False
+    object_metrics: bool = False
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool = True

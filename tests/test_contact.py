@@ -201,11 +201,7 @@ def test_correction_never_increases_penetration(strategy):
     state.x.assign(x.astype(np.float32))
 
     def metrics():
-        solver.contact.metrics.zero_()
-        solver.contact.record_metrics(lambda k, dim, inputs, outputs: wp.launch(k, dim, inputs=inputs,
-                                                                                 outputs=outputs, device="cpu"),
-                                      state, 0)
-        return solver.contact.read_metrics()[0]
+        return solver.contact.measure(state)
 
     m0 = metrics()
     solver.contact.run_stage(state)

@@ -10,6 +10,8 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved
+from physhand_mj.contact.features import feature_contact, near_features
+from physhand_mj.contact.inside import ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
 from physhand_mj.metrics import penetration_samples
@@ -65,9 +67,19 @@ class Contact:
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
         self.push = wp.zeros(model.n_vertices, dtype=float, device=d)  # m, summed over the frame
         self.vertex_obj = wp.full(model.n_vertices, -1, dtype=int, device=d)
-        self.metrics = wp.zeros((config.substeps + 1, 3), dtype=float, device=d)
-        self._metrics_host = wp.zeros((config.substeps + 1, 3), dtype=float, device="cpu",
+        # per row: [skin samples inside objects: count, sum depth, max depth (m),
+        #          object points inside the skin: count, sum depth, max depth (m)]
+        self.metrics = wp.zeros((config.substeps + 1, 6), dtype=float, device=d)
+        self._metrics_host = wp.zeros((config.substeps + 1, 6), dtype=float, device="cpu",
                                       pinned=wp.get_device(d).is_cuda)
+        self._points = None  # ObjectPoints, built at the first recording (objects are final then)
+        self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
+        # the object's side (features.py, the second measure) needs an inside: a closed skin
+        f = model.skin_faces.numpy()
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        self.closed_skin = bool(len(f)) and bool(np.all(np.unique(e, axis=0, return_counts=True)[1] == 2))
+        self.feat = None  # the frame's list of object feature points near the skin (features.py)
+        self.feat_count = wp.zeros(1, dtype=int, device=d)
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
                                        pinned=wp.get_device(d).is_cuda)
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slot)
@@ -90,6 +102,14 @@ class Contact:
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
                [self.cand, self.cand_mask, self.cand_count])
+        pts = self.points
+        if cfg.feature_contact and self.closed_skin and pts.n_features:
+            if self.feat is None:
+                self.feat = wp.zeros(pts.n_features, dtype=int, device=m.device)
+            skin = self.volume(state, winding=False).mesh
+            ops += [self.feat_count.zero_, skin.refit]
+            launch(near_features, pts.n_features, [skin.id, pts.feature, pts.pts, pts.geom, o.pose, o.count,
+                                                   cfg.contact_frame_margin], [self.feat, self.feat_count])
 
     def _counter(self):
         c = self.counters[self._slot: self._slot + 1]
@@ -117,16 +137,24 @@ class Contact:
             self.touched_count = self._counter()
             outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
                     self.touched, self.touched_count]
+            if self.feat is not None:  # features.py
+                skin = self.volume(state, winding=False).mesh
+                ops.append(self._refit_op(skin))
+                launch(feature_contact, self.points.n_features,
+                       [skin.id, m.skin_faces, self.feat, self.feat_count, self.points.pts, self.points.geom, o.pose,
+                        o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, state.x],
+                       [self.delta, self.hits, self.touched, self.touched_count, self.vertex_obj],
+                       count=self.feat_count)
             if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
                 launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
                        [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
-                        cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, state.x], outs,
+                        cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                        block_dim=TILE_LANES)
             else:
                 launch(decide_and_project, self.n_tris,
                        [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
                         int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
-                        cfg.contact_offset, state.x], outs, count=lst[2])
+                        cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
                    [state.x, self.push, self.moved, self.disp], count=self.touched_count)
             if p + 1 < cfg.contact_passes:
@@ -139,14 +167,65 @@ class Contact:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]
 
-    def record_metrics(self, launch, state, row: int, obj: int = -1, out=None) -> None:
+    @property
+    def points(self) -> ObjectPoints:
+        """The objects' surface points (built on first use)."""
+        if self._points is None:
+            self._points = ObjectPoints(self.objects)
+        return self._points
+
+    def volume(self, state, winding: bool = True) -> SkinVolume:
+        """The closed skin of ``state`` as a mesh, with winding-number data or not (made on first use)."""
+        key = (id(state.x), winding)
+        v = self._volumes.get(key)
+        if v is None:
+            v = self._volumes[key] = SkinVolume(state.x, self.model.n_skin, self.model.skin_faces, winding)
+        return v
+
+    def _refit_op(self, mesh):
+        """An op refitting ``mesh``; on the CPU only when the frame lists features (free to read)."""
+        if wp.get_device(self.model.device).is_cuda:
+            return mesh.refit
+        count = self.feat_count.numpy()
+        return lambda: mesh.refit() if count[0] else None
+
+    def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
+                       order: int = 5):
+        """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
+        metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2) and, with
+        ``objects_side``, object surface points inside the closed skin (columns 3-5). ``obj`` >= 0:
+        that object only."""
         m, o = self.model, self.objects
-        if self.n_tris:
-            launch(penetration_samples, self.n_tris,
-                   [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, obj, row],
-                   [self.metrics if out is None else out])
+        out = self.metrics if out is None else out
+        if not self.n_tris:
+            return
+        launch(penetration_samples, self.n_tris,
+               [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, obj, row, order],
+               [out])
+        pts = self.points
+        if objects_side and self.closed_skin and len(pts):
+            vol = self.volume(state)
+            ops += vol.ops()
+            launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, o.pose, o.count, o.obj,
+                                                    obj, row], [out, pts.depth])
 
     # -- host side ---------------------------------------------------------------------------------
+    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True) -> np.ndarray:
+        """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
+        sum depth m, max depth m] of skin samples inside objects, then of object points inside the
+        skin. Runs at once, outside any frame (reports, pictures, checks)."""
+        d = self.model.device
+        out = wp.zeros((1, 6), dtype=float, device=d)
+        ops: list = []
+
+        def launch(kernel, dim, inputs, outputs, **_):
+            ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
+
+        self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order)
+        for op in ops:
+            op()
+        return out.numpy()[0].astype(float)
+
     def run_stage(self, state) -> np.ndarray:
         """Run one contact stage now (broadphase + passes) on ``state.x``; returns (F, 4) decision
         points of the last pass (x*, phi(x*)) with phi = FAR for triangles the broadphase skipped.
@@ -184,8 +263,10 @@ class Contact:
         return np.array([[c[a], c[t]] for a, t in self._stage_slots], dtype=int).reshape(-1, 2)
 
     def read_metrics(self, synchronize: bool = True) -> np.ndarray:
-        """(substeps + 1, 3) [count, sum depth m, max depth m]; the last row is the frame's end.
-        Rows of substeps are zero unless Config.substep_metrics."""
+        """(substeps + 1, 6): per row [count, sum depth m, max depth m] of skin samples inside objects,
+        then of object points inside the skin; the last row is the frame's end. Rows of substeps are
+        zero unless Config.substep_metrics (and their object columns are always zero: the second
+        measure runs at the frame's end)."""
         if synchronize:
             self.copy_metrics()
             wp.synchronize_device(self.metrics.device)

@@ -136,17 +136,45 @@ def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
     return gtype[g], inv_pose[g], size[g], mesh[g]
 
 
+SIDE_COS = wp.constant(0.6)  # cos of the angle beyond which Eq. 9 would push the skin out through the object
+MARCH_STEPS = wp.constant(32)  # sphere-tracing steps of the side-aware exit (each >= MARCH_MIN)
+MARCH_MIN = wp.constant(2.0e-5)  # m
+
+
 @wp.func
-def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, near: int, n_geoms: int,
+def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
+            near: int, n_geoms: int,
             gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), geom_obj: wp.array(dtype=int),
             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
             touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
-    """Eq. 9 for a triangle (vertices i0, i1, i2) whose decision point is best_p: the correction
-    that puts x* ``offset`` outside the surface along the gradient there, added to its vertices'
-    accumulators with the depth weight; the touched object recorded per vertex."""
+    """Eq. 9 for a triangle (vertices i0, i1, i2, outward unit normal nt) whose decision point is
+    best_p: the correction that puts x* ``offset`` outside the surface along the gradient there,
+    added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
+
+    Side-aware: where the gradient points out of the hand (dot(grad, nt) > SIDE_COS) the object's
+    nearest surface lies beyond the skin, on the far side of an object the skin has passed more than
+    half way into (a thin wall, a capsule past its axis, a deep start); Eq. 9 would put the skin on
+    the object's far side and the object inside the hand. The triangle then leaves the object the way
+    it came, into the hand along -nt (``side_aware``: the skin is closed, so it has an inside): by
+    sphere tracing from x* (inside an SDF a step of |phi| never
+    passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
     d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
     corr = g * (offset - d)
+    if side_aware != 0 and wp.dot(g, nt) > SIDE_COS:
+        t = float(0.0)
+        exited = int(0)
+        for k in range(MARCH_STEPS):
+            dd = scene_phi(best_p - nt * t, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+            if dd >= offset:
+                exited = 1
+                break
+            t += wp.max(offset - dd, MARCH_MIN)
+            if t > 2.0 * (offset - d) + 5.0e-4:
+                break
+        if exited == 0:
+            return
+        corr = -nt * t
     w = depth_weight(-d)
     wp.atomic_add(delta, i0, corr * w)
     wp.atomic_add(delta, i1, corr * w)
@@ -181,6 +209,7 @@ def decide_and_project(
     rounds: int,
     opt_queries: int,
     offset: float,
+    side_aware: int,
     # State in:
     x: wp.array(dtype=wp.vec3),
     # Contact out:
@@ -323,7 +352,8 @@ def decide_and_project(
     if strategy == MULTIRES and certified > -FAR:
         bound[t] = certified
     if best < 0.5 * offset:
-        project(best_p, offset, i0, i1, i2, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+        nt = wp.normalize(wp.cross(b - a, c - a))
+        project(best_p, offset, i0, i1, i2, nt, side_aware, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
                 touched, touched_count, vertex_obj)
 
 
@@ -372,6 +402,7 @@ def decide_and_project_tiled(
     samples: int,
     rounds: int,
     offset: float,
+    side_aware: int,
     # State in:
     x: wp.array(dtype=wp.vec3),
     # Contact out:
@@ -465,7 +496,8 @@ def decide_and_project_tiled(
     if certified > -FAR:
         bound[t] = certified
     if best < 0.5 * offset:
-        project(best_p, offset, i0, i1, i2, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+        nt = wp.normalize(wp.cross(b - a, c - a))
+        project(best_p, offset, i0, i1, i2, nt, side_aware, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
                 touched, touched_count, vertex_obj)
 
 

@@ -170,7 +170,7 @@ class Solver:
             from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
 
             rows = self.contact.read_metrics(synchronize=False)
-            out.update(summarize(rows[-1]))
+            out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
             self.substep_metrics = rows[:-1]
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
@@ -245,9 +245,9 @@ class Solver:
                 if contact.wants("after"):
                     contact.record(launch, ops, state)
                 if cfg.substep_metrics:
-                    contact.record_metrics(launch, state, s)
+                    contact.record_metrics(launch, ops, state, s, objects_side=False)
         if self.contact is not None:
-            self.contact.record_metrics(launch, state, cfg.substeps)
+            self.contact.record_metrics(launch, ops, state, cfg.substeps, objects_side=cfg.object_metrics)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
         return ops
 
