@@ -83,7 +83,7 @@ def test_object_points_inside_the_skin_by_winding_number(asset):
     ("mesh_cone", "palm", -0.004),      # 30-degree cone mesh starting 4 mm deep
     pytest.param("knife", "palm", -0.004,  # 30-degree knife edge starting 4 mm deep
                  marks=pytest.mark.xfail(reason="known gap (docs/contact.md): the feature push and Eq. 9 "
-                                                "feature push alternate at the palm, up to 12 samples / 270 um "
+                                                "alternate at the palm, up to 12 samples / 270 um "
                                                 "in the last frames, 0 at frame 14", strict=False)),
     ("plate", "fingertip", -0.004),     # a 1 mm plate, edge first, 4 mm deep
     pytest.param("capsule", "palm", -0.004,  # r 3 mm lying 4 mm deep: its axis 1 mm inside the skin

@@ -7,11 +7,13 @@ Geoms of one object form a union (the minimum of their SDFs).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, WINDING_ACCURACY
 from physhand_mj.types import GeomType
 
 # mujoco.mjtGeom values of the geoms the skin can collide with (height fields and SDF plugins are not)
@@ -47,6 +49,121 @@ def invert_transforms(tf: np.ndarray) -> np.ndarray:
     t = 2.0 * np.cross(qv, p)
     rp = p + w * t + np.cross(qv, t)  # q^-1 rotates p
     return np.concatenate([-rp, qv, w], axis=1).astype(np.float32)
+
+
+INSIDE_MIN_AREA = 0.9  # an open mesh must bound a region behind this fraction of its face area
+_PROBE_DEPTH = 1.0e-3  # probes sit this fraction of sqrt(face area) behind / before each face centroid
+
+
+@wp.kernel
+def _winding_above(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), threshold: float,
+                   above: wp.array(dtype=wp.int32)):
+    # 1 where the generalised winding number at the point exceeds ``threshold``
+    i = wp.tid()
+    hit = wp.mesh_query_point_sign_winding_number(mesh, points[i], 1.0e6, WINDING_ACCURACY, threshold)
+    above[i] = wp.where(hit.result and hit.sign < 0.0, 1, 0)
+
+
+def _warp_mesh(v: np.ndarray, f: np.ndarray, device: str, winding: bool) -> wp.Mesh:
+    return wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
+                   indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32, device=device),
+                   support_winding_number=winding)
+
+
+def _bounded_area(mesh, tm) -> tuple[float, float]:
+    """Area fractions of the faces with the winding number's inside (w > 1/2) just behind them, as
+    oriented, and as they would be flipped (w < -1/2 just before them). Faces inside another part
+    (w = 2 behind) count: they bound the union no less."""
+    area = tm.area_faces
+    ok = area > 1e-12 * area.max()
+    depth = _PROBE_DEPTH * np.sqrt(area[ok])[:, None]
+    above = wp.empty(int(ok.sum()), dtype=wp.int32, device=mesh.device)
+    out = []
+    for side, threshold in ((-1.0, 0.5), (1.0, -0.5)):
+        probes = tm.triangles_center[ok] + side * depth * tm.face_normals[ok]
+        pts = wp.array(probes.astype(np.float32), dtype=wp.vec3, device=mesh.device)
+        wp.launch(_winding_above, len(probes), inputs=[mesh.id, pts, threshold], outputs=[above], device=mesh.device)
+        out.append(above.numpy().astype(bool))
+    weight = area[ok] / area[ok].sum()
+    return float(weight[out[0]].sum()), float(weight[~out[1]].sum())
+
+
+def prepare_mesh(vertices, faces, *, name: str = "", sign: str = "auto", device: str = "cpu"):
+    """A ``wp.Mesh`` whose signed distance is right, and its sign method (``sdf.MESH_SIGN_*``).
+
+    Vertices are merged (an STL's triangle soup becomes one surface) and faces that repeat a vertex
+    dropped. A closed mesh (watertight, consistently wound, no two parts whose boxes overlap) gets
+    the pseudo-normal sign; its winding is made consistent and, if it encloses negative volume,
+    turned outward (a warning says so). Anything else gets the winding-number sign, closing holes
+    over, and is flipped if its faces point inward; a surface that bounds no region (an open sheet,
+    a closed one folded onto itself) is a ``ValueError`` that says how to fix it."""
+    import trimesh  # lazily: only mesh geoms need it
+
+    what = f"mesh geom '{name}'"
+    if sign not in ("auto", "winding"):
+        raise ValueError(f"{what}: mesh_sign must be 'auto' or 'winding', got {sign!r}")
+    v = np.asarray(vertices, np.float64).reshape(-1, 3)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if not len(f) or not np.all(np.isfinite(v)) or f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"{what}: empty faces, non-finite vertices or bad indices")
+    tm = trimesh.Trimesh(v, f, process=True)  # merges duplicate vertices
+    f = tm.faces
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+    if not keep.all():
+        tm.update_faces(keep)
+    if not len(tm.faces) or tm.area <= 0.0:
+        raise ValueError(f"{what}: all faces are degenerate (zero area)")
+    repaired = []
+    if not tm.is_winding_consistent:
+        trimesh.repair.fix_winding(tm)
+        repaired.append("made its face winding consistent")
+    closed = tm.is_watertight and tm.is_winding_consistent and not _parts_overlap(tm)
+    extent = float(np.ptp(tm.vertices, axis=0).max())
+    if closed:
+        with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by a zero volume
+            volume = float(tm.volume)
+        if abs(volume) <= 1e-9 * extent ** 3:
+            raise ValueError(f"{what} is closed but encloses no volume (a surface folded onto itself): "
+                             f"give it a thickness (or use a thin box geom)")
+        if volume < 0.0:
+            tm.invert()
+            repaired.append("turned its inside-out faces outward")
+    winding = sign == "winding" or not closed
+    m = _warp_mesh(tm.vertices, tm.faces, device, winding)
+    if winding:
+        kept, flipped = _bounded_area(m, tm)
+        if flipped > kept:
+            tm.invert()
+            m = _warp_mesh(tm.vertices, tm.faces, device, True)
+            repaired.append("turned its inward-facing faces outward")
+        if max(kept, flipped) < INSIDE_MIN_AREA:
+            raise ValueError(
+                f"{what} does not bound a region (only {100 * max(kept, flipped):.0f}% of its area has the winding "
+                f"number's inside behind it): an open sheet or a surface with large holes has no inside to push "
+                f"the skin out of. Close it (e.g. trimesh.repair.fill_holes(mesh), or a watertight remesh) or give "
+                f"it a thickness (a thin box geom for a plate)")
+    if repaired:
+        warnings.warn(f"{what}: {' and '.join(repaired)}", stacklevel=3)
+    return m, MESH_SIGN_WINDING if winding else MESH_SIGN_PSEUDO
+
+
+def _parts_overlap(tm, max_parts: int = 512) -> bool:
+    """Whether two connected parts of the mesh have overlapping boxes (they may intersect or nest,
+    where only the winding number gives the union's sign); past ``max_parts`` parts, assume so."""
+    import trimesh
+
+    labels = trimesh.graph.connected_component_labels(tm.face_adjacency, node_count=len(tm.faces))
+    parts = int(labels.max()) + 1
+    if parts == 1:
+        return False
+    if parts > max_parts:
+        return True
+    order = np.argsort(labels, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
+    lo = np.minimum.reduceat(tm.triangles.min(axis=1)[order], starts, axis=0)
+    hi = np.maximum.reduceat(tm.triangles.max(axis=1)[order], starts, axis=0)
+    overlap = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
+    return bool(np.triu(overlap, 1).any())
 
 
 @dataclass
@@ -94,10 +211,13 @@ class Objects:
         return len(self.names)
 
     def add(self, gtype: GeomType, size, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), *,
-            name: str = "", obj: str | None = None, vertices=None, faces=None, mesh_range: float = 1.0) -> int:
+            name: str = "", obj: str | None = None, vertices=None, faces=None, mesh_range: float = 1.0,
+            mesh_sign: str = "auto") -> int:
         """Add a geom (sizes in m, pose: position m and quaternion w x y z). A MESH takes
         ``vertices`` (V, 3) m and ``faces`` (F, 3) in the geom frame; ``mesh_range`` (m) is how far
-        its distance query looks. ``obj`` groups geoms into one object (default: the geom's name)."""
+        its distance query looks; ``mesh_sign`` is "auto" (see :func:`prepare_mesh`) or "winding"
+        (force the winding-number sign, e.g. for a mesh that passes through itself). ``obj`` groups
+        geoms into one object (default: the geom's name)."""
         gtype = GeomType(gtype)
         if gtype == GeomType.NONE:
             raise ValueError("GeomType.NONE cannot be added")
@@ -112,16 +232,11 @@ class Objects:
         if gtype == GeomType.MESH:
             if vertices is None or faces is None:
                 raise ValueError(f"mesh geom '{name}' needs vertices and faces")
-            v = np.asarray(vertices, np.float32).reshape(-1, 3)
-            f = np.asarray(faces, np.int32).reshape(-1, 3)
-            if not len(f) or not np.all(np.isfinite(v)) or f.min() < 0 or f.max() >= len(v):
-                raise ValueError(f"mesh geom '{name}': empty faces, non-finite vertices or bad indices")
-            m = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device=self.device),
-                        indices=wp.array(f.ravel(), dtype=wp.int32, device=self.device))
+            m, sign = prepare_mesh(vertices, faces, name=name, sign=mesh_sign, device=self.device)
             self._meshes.append(m)
             mesh_id = m.id
-            size = np.array([mesh_range, 0.0, 0.0])
-            h["radius"][i] = float(np.linalg.norm(v, axis=1).max())
+            size = np.array([mesh_range, float(sign), 0.0])
+            h["radius"][i] = float(np.linalg.norm(m.points.numpy(), axis=1).max())
         else:
             h["radius"][i] = bounding_radius(gtype, size)
         oname = obj if obj is not None else (name or f"object{i}")
