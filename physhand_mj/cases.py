@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from physhand_mj.solver.solver import _compose_quat
 from physhand_mj.types import GeomType
 
 SITES = ("fingertip", "palm")
@@ -33,13 +34,6 @@ def _rot_z_to(n: np.ndarray) -> np.ndarray:
     a = np.cross(z, n)
     q = np.array([1.0 + c, *a])
     return q / np.linalg.norm(q)
-
-
-def _quat_mul(a, b):
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
 
 
 def site_point(asset, site: str):
@@ -152,9 +146,9 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
     asset = asset if asset is not None else ph.load_asset()
     cfg = config.validate()
     p0, n = site_point(asset, case.site)
-    quat = _quat_mul(_rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
+    quat = _compose_quat(_rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
     if case.lay:  # a quarter turn about the geom x axis: its z axis lies across the normal
-        quat = _quat_mul(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
+        quat = _compose_quat(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
     objs = Objects(str(cfg.device or "cpu"), 1)
 
     def place(depth_now):

@@ -243,11 +243,9 @@ class SoftHand:
         pts = c.points
         depth = pts.depth.numpy()[: len(pts)].astype(float)
         hit = np.flatnonzero(depth > 0)
-        g = pts.geom_host[hit]
-        o = self.objects._host["pose"][g].astype(float)  # [p, q x y z w]
-        from physhand_mj.solver.model import quat_to_mat
-
-        world = np.array([quat_to_mat(np.r_[q[6], q[3:6]]) @ p + q[:3] for p, q in zip(pts.pts_host[hit], o)])
+        pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
+        rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
+        world = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]
         return world.reshape(-1, 3), depth[hit]
 
     def penetrating_samples(self) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,8 @@ tests only that list with the pseudo-normal sign (the skin is closed and consist
 
 import warp as wp
 
-from physhand_mj.contact.query import depth_weight, touch
+from physhand_mj.contact.inside import object_point
+from physhand_mj.contact.query import accumulate, depth_weight
 
 
 @wp.kernel
@@ -41,12 +42,10 @@ def near_features(
     out_count: wp.array(dtype=int),
 ):
     """Append the feature points (indices into ``pts``) within ``margin`` (m) of the skin."""
-    k = wp.tid()
-    i = feature[k]
-    g = pts_geom[i]
-    if g >= geom_count[0]:
+    i = feature[wp.tid()]
+    if pts_geom[i] >= geom_count[0]:
         return
-    q = wp.mesh_query_point_no_sign(skin, wp.transform_point(pose[g], pts[i]), margin)
+    q = wp.mesh_query_point_no_sign(skin, object_point(i, pts, pts_geom, pose), margin)
     if q.result:
         out[wp.atomic_add(out_count, 0, 1)] = i
 
@@ -78,7 +77,7 @@ def feature_contact(
         return
     i = cand[k]
     g = pts_geom[i]
-    p = wp.transform_point(pose[g], pts[i])
+    p = object_point(i, pts, pts_geom, pose)
     q = wp.mesh_query_point_sign_normal(skin, p, margin)
     if not q.result:
         return
@@ -107,13 +106,5 @@ def feature_contact(
     v0 = wd * wp.max(w0, 1.0e-3)
     v1 = wd * wp.max(w1, 1.0e-3)
     v2 = wd * wp.max(w2, 1.0e-3)
-    wp.atomic_add(delta, i0, corr * (w0 * inv * v0))
-    wp.atomic_add(delta, i1, corr * (w1 * inv * v1))
-    wp.atomic_add(delta, i2, corr * (w2 * inv * v2))
-    touch(hits, i0, v0, touched, touched_count)
-    touch(hits, i1, v1, touched, touched_count)
-    touch(hits, i2, v2, touched, touched_count)
-    o = geom_obj[g]
-    vertex_obj[i0] = o
-    vertex_obj[i1] = o
-    vertex_obj[i2] = o
+    accumulate(i0, i1, i2, corr * (w0 * inv), corr * (w1 * inv), corr * (w2 * inv), v0, v1, v2, geom_obj[g], delta,
+               hits, touched, touched_count, vertex_obj)

@@ -35,33 +35,38 @@ class SkinVolume:
                             support_winding_number=winding)
         self.box = wp.zeros(2, dtype=wp.vec3, device=x.device)  # the skin's bounding box (lower, upper), m
 
-    def refit(self) -> None:
-        """Refit the BVH (and winding-number data) to the current positions and their bounding box."""
-        self.mesh.refit()
-        self.box.fill_(wp.vec3(1.0e6))
-        wp.launch(_negate_upper, 1, inputs=[self.box], device=self.box.device)
-        wp.launch(skin_box, self.points.shape[0], inputs=[self.points], outputs=[self.box], device=self.box.device)
-
     def ops(self) -> list:
-        """``refit`` as recorded operations for a solver frame."""
-        return [self.mesh.refit, lambda: self.box.fill_(wp.vec3(1.0e6)),
-                lambda: wp.launch(_negate_upper, 1, inputs=[self.box], device=self.box.device),
-                lambda: wp.launch(skin_box, self.points.shape[0], inputs=[self.points], outputs=[self.box],
-                                  device=self.box.device)]
+        """Refit the BVH (and winding-number data) to the current positions, and their bounding
+        box, as operations for a solver frame (run them in order; :meth:`refit` runs them now)."""
+        d = self.box.device
+        return [self.mesh.refit, lambda: wp.launch(reset_box, 1, inputs=[self.box], device=d),
+                lambda: wp.launch(skin_box, self.points.shape[0], inputs=[self.points], outputs=[self.box], device=d)]
+
+    def refit(self) -> None:
+        for op in self.ops():
+            op()
 
 
 @wp.kernel
-def _negate_upper(box: wp.array(dtype=wp.vec3)):
-    box[1] = -box[1]
+def reset_box(box: wp.array(dtype=wp.vec3)):
+    box[0] = wp.vec3(1.0e6)
+    box[1] = wp.vec3(-1.0e6)
 
 
 @wp.kernel
 def skin_box(x: wp.array(dtype=wp.vec3), box: wp.array(dtype=wp.vec3)):
-    """Bounding box of the points x: box[0] = lower, box[1] = upper (reset to +-1e6 before)."""
+    """Bounding box of the points x: box[0] = lower, box[1] = upper (reset_box first)."""
     i = wp.tid()
     p = x[i]
     wp.atomic_min(box, 0, p)
     wp.atomic_max(box, 1, p)
+
+
+@wp.func
+def object_point(i: int, pts: wp.array(dtype=wp.vec3), pts_geom: wp.array(dtype=int),
+                 pose: wp.array(dtype=wp.transform)):
+    """World position of object point i (stored in its geom's frame)."""
+    return wp.transform_point(pose[pts_geom[i]], pts[i])
 
 
 @wp.func
@@ -96,7 +101,7 @@ def object_points_inside(
     g = pts_geom[i]
     d = float(0.0)
     if g < geom_count[0] and (obj_filter < 0 or geom_obj[g] == obj_filter):
-        d = inside_depth(skin, wp.transform_point(pose[g], pts[i]), box[0], box[1])
+        d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[0], box[1])
     depth[i] = d
     if d > 0.0:
         wp.atomic_add(out, row, 3, 1.0)

@@ -115,6 +115,23 @@ def touch(hits: wp.array(dtype=float), i: int, w: float, touched: wp.array(dtype
 
 
 @wp.func
+def accumulate(i0: int, i1: int, i2: int, c0: wp.vec3, c1: wp.vec3, c2: wp.vec3, w0: float, w1: float, w2: float,
+               obj: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
+               touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
+    """Add a triangle's vertex corrections c_j with weights w_j (> 0) into the pass's weighted
+    means (``apply_contact`` divides by the summed weights) and record the touched object."""
+    wp.atomic_add(delta, i0, c0 * w0)
+    wp.atomic_add(delta, i1, c1 * w1)
+    wp.atomic_add(delta, i2, c2 * w2)
+    touch(hits, i0, w0, touched, touched_count)
+    touch(hits, i1, w1, touched, touched_count)
+    touch(hits, i2, w2, touched, touched_count)
+    vertex_obj[i0] = obj
+    vertex_obj[i1] = obj
+    vertex_obj[i2] = obj
+
+
+@wp.func
 def only_geom(near: int, n_geoms: int):
     """The index of the one geom near a triangle (its broadphase mask has a single bit), else -1;
     that geom's data is then kept in registers and queried without the geom loop (Warp's CPU code
@@ -176,16 +193,7 @@ def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.ve
             return
         corr = -nt * t
     w = depth_weight(-d)
-    wp.atomic_add(delta, i0, corr * w)
-    wp.atomic_add(delta, i1, corr * w)
-    wp.atomic_add(delta, i2, corr * w)
-    touch(hits, i0, w, touched, touched_count)
-    touch(hits, i1, w, touched, touched_count)
-    touch(hits, i2, w, touched, touched_count)
-    o = geom_obj[arg]
-    vertex_obj[i0] = o
-    vertex_obj[i1] = o
-    vertex_obj[i2] = o
+    accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geom_obj[arg], delta, hits, touched, touched_count, vertex_obj)
 
 
 @wp.kernel
