@@ -193,6 +193,35 @@ class SoftHand:
         """(n_skin, 3) world-frame skin positions (m) after the last step (a copy)."""
         return self._skin.copy()
 
+    def reset(self, settle_frames: int = 20) -> None:
+        """Start over (a new episode): the rest shape placed at the hand's first bone where MuJoCo has
+        it now, velocities, multipliers and timing zeroed, then ``settle_frames`` frames moving the
+        bones to their current pose with contact against the objects where they are now (as at
+        construction with ``settle_contact=True``). Reuses the state's arrays (recorded frames stay)."""
+        import warp as wp
+
+        mujoco.mj_kinematics(self.model, self.data)
+        pos, quat = self._bone_poses()
+        fresh = self.solver.make_state(*self._rest_placement(pos[0], quat[0]))
+        for name in ("x", "v", "x_prev", "x_safe", "delta", "lam_edge", "lam_tet", "lam_dih", "body_pose", "body_sub",
+                     "guard"):
+            wp.copy(getattr(self.state, name), getattr(fresh, name))
+        self.state.pose_host[:] = fresh.pose_host
+        self.state.pose_fresh, self.state.time, self.state.frames = fresh.pose_fresh, 0.0, 0
+        if self.object_geoms:
+            g = self.object_geoms
+            self.objects.set_poses(self.data.geom_xpos[g], _mat_to_quat(self.data.geom_xmat[g]))
+        rest_pos = fresh.pose_host[1][:, :3].astype(float)
+        rest_quat = fresh.pose_host[1][:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
+        self.solver.warn_fast_motion = False  # settling moves the bones on purpose
+        for k in range(settle_frames):
+            a = (k + 1) / settle_frames
+            self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+            self._last = self.solver.step(self.state)
+        self.solver.warn_fast_motion = True
+        self._timing = dict(sync=0.0, solver=0.0, writeback=0.0, frames=0)
+        self._write_back()
+
     def contacts(self) -> dict:
         """Contact report of the last frame.
 

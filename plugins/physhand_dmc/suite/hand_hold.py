@@ -1,0 +1,140 @@
+"""hand_hold: the soft hand holds one of the paper's HOI objects against gravity.
+
+The object (apple, bowl, box, glass1, glass2, phone, toothpaste) and the grasp keyframe come from
+``mjcf/scenes/hoi_<object>.xml``; here the object is free (a free joint, dynamic in MuJoCo) and
+collides with the hand's capsule proxies, which push it; the soft skin deforms against it (SoftHand).
+An episode starts in the grasp keyframe (ctrl = its pose) with the object moved by up to
+``object_jitter`` (m) per axis, drawn from the task's RNG.
+
+Gravity: ``gravity="palm"`` (default) points it into the palm (-y: the palm faces +y), so the
+fingers cradle the object and must keep it from rolling off; ``gravity="down"`` keeps the HOI
+scenes' -z, along the palm, where the grasp must hold by friction alone. A floor perpendicular to
+gravity 20 cm from the palm catches a dropped object.
+
+Reward (in [0, 1]): ``hold * (0.5 + 0.5 * firm) * no_penetration`` with ``hold`` = 1 while the
+object is within 1 cm of its start (Gaussian tail to 0.1 at 6 cm), ``firm`` = 1 from
+``min_force`` N of soft-contact normal force on the object (linear below), ``no_penetration`` = 1
+while the skin's deepest penetrating sample is < 0.05 mm (0.1 at 1.05 mm).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from dm_control.mujoco import wrapper
+from dm_control.utils import containers, rewards
+
+from physhand_dmc.physics import SoftPhysics
+from physhand_dmc.task import SoftTask, check_nonneg, check_positive, make_environment, solver_config
+from physhand_mj.hand_mjcf import SCENES_DIR
+
+XML = Path(__file__).with_suffix(".xml")
+OBJECTS = ("apple", "bowl", "box", "glass1", "glass2", "phone", "toothpaste")
+# Object masses (kg): light household objects (an empty glass, a small apple, ...).
+MASS = dict(apple=0.12, bowl=0.15, box=0.10, glass1=0.15, glass2=0.15, phone=0.15, toothpaste=0.10)
+GRAVITY = {"palm": (0.0, -9.81, 0.0), "down": (0.0, 0.0, -9.81)}
+_DEFAULT_TIME_LIMIT = 2.0  # s
+_CONTROL_TIMESTEP = 0.01  # s: two MuJoCo steps (and two soft-hand frames) per env step
+
+SUITE = containers.TaggedTasks()
+
+
+def build_model(obj: str, gravity: str = "palm") -> mujoco.MjModel:
+    """The domain XML with ``obj`` (free, colliding with the hand's proxies) and its grasp keyframe."""
+    if obj not in OBJECTS:
+        raise ValueError(f"unknown object {obj!r}; choose one of {list(OBJECTS)}")
+    if gravity not in GRAVITY:
+        raise ValueError(f"gravity must be one of {list(GRAVITY)}, got {gravity!r}")
+    scene = SCENES_DIR / f"hoi_{obj}.xml"
+    hoi = mujoco.MjSpec.from_file(str(scene))
+    spec = mujoco.MjSpec.from_file(str(XML))
+    spec.option.gravity = GRAVITY[gravity]
+    src = hoi.body(obj)
+    body = spec.worldbody.add_body(name=obj, pos=list(src.pos), quat=list(src.quat))
+    body.add_freejoint(name=f"{obj}_free")
+    for g in src.geoms:
+        geom = body.add_geom(name=g.name, type=g.type, size=list(g.size), pos=list(g.pos), quat=list(g.quat),
+                             rgba=list(g.rgba), contype=1, conaffinity=1, condim=4, friction=[1.0, 0.01, 0.001],
+                             mass=MASS[obj] / len(src.geoms))
+        if g.type == mujoco.mjtGeom.mjGEOM_MESH:
+            mesh = hoi.mesh(g.meshname)
+            spec.add_mesh(name=mesh.name, file=str((scene.parent / mesh.file).resolve()),
+                          inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)
+            geom.meshname = mesh.name
+    down = np.asarray(GRAVITY[gravity]) / 9.81
+    floor_pos = np.asarray(src.pos) + 0.2 * down
+    floor_quat = [0.7071068, -0.7071068, 0, 0] if gravity == "palm" else [1, 0, 0, 0]  # normal against gravity
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.5, 0.5, 0.01],
+                            pos=floor_pos.tolist(), quat=floor_quat, rgba=[0.55, 0.58, 0.62, 1])
+    key = hoi.key("grasp")
+    nq_hand = len(key.qpos)
+    spec.add_key(name="grasp", qpos=list(key.qpos)[:nq_hand] + list(src.pos) + list(src.quat),
+                 ctrl=list(key.ctrl), mpos=list(key.mpos), mquat=list(key.mquat))
+    return spec.compile()
+
+
+def make_physics(obj: str, gravity: str, config) -> SoftPhysics:
+    model = build_model(obj, gravity)
+    physics = SoftPhysics.from_model(wrapper.MjModel(model))
+    physics.reset(0)
+    physics.make_soft(solver_config(config, float(model.opt.timestep)), object_bodies=[obj])
+    return physics
+
+
+class Hold(SoftTask):
+    """Keep the object in the hand, in firm soft contact, without penetration."""
+
+    def __init__(self, obj: str, random=None, settle_frames: int = 20, object_jitter: float = 0.002,
+                 min_force: float = 1.0):
+        super().__init__(random=random, settle_frames=settle_frames)
+        self.obj = obj
+        self.object_jitter = check_nonneg("object_jitter", object_jitter, "m")
+        self.min_force = check_positive("min_force", min_force, "N")
+        self._start = np.zeros(3)
+
+    def initialize_episode(self, physics):
+        m, d = physics.model, physics.data
+        mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0)
+        j = int(m.body_jntadr[m.name2id(self.obj, "body")])
+        self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        self._hand_q = np.arange(self._qadr)  # the hand's hinge joints precede the object's free joint
+        d.qpos[self._qadr: self._qadr + 3] += self.random.uniform(-self.object_jitter, self.object_jitter, 3)
+        self._start = d.qpos[self._qadr: self._qadr + 3].copy()
+        self.finish_reset(physics)
+        super().initialize_episode(physics)
+
+    def _task_observations(self, physics, obs):
+        d = physics.data
+        obs["joint_pos"] = d.qpos[self._hand_q].copy()
+        obs["joint_vel"] = d.qvel[self._hand_q].copy()
+        obs["object_offset"] = d.qpos[self._qadr: self._qadr + 3] - self._start
+        obs["object_quat"] = d.qpos[self._qadr + 3: self._qadr + 7].copy()
+        obs["object_vel"] = d.qvel[self._vadr: self._vadr + 6].copy()
+
+    def get_reward(self, physics):
+        d = physics.data
+        offset = float(np.linalg.norm(d.qpos[self._qadr: self._qadr + 3] - self._start))
+        hold = rewards.tolerance(offset, bounds=(0.0, 0.01), margin=0.05)
+        force = float(physics.soft.sensor.obj_host[0, 1])
+        firm = rewards.tolerance(force, bounds=(self.min_force, np.inf), margin=self.min_force, sigmoid="linear",
+                                 value_at_margin=0.0)
+        return float(hold * (0.5 + 0.5 * firm) * self.no_penetration(physics))
+
+
+def _task(obj: str):
+    def task(time_limit=_DEFAULT_TIME_LIMIT, random=None, environment_kwargs=None, *, settle_frames=20,
+             object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP):
+        check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
+        t = Hold(obj, random=random, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force)
+        physics = make_physics(obj, gravity, config)
+        return make_environment(physics, t, time_limit, control_timestep, environment_kwargs)
+
+    task.__name__ = task.__qualname__ = obj
+    task.__doc__ = f"Hold the {obj} (mjcf/scenes/hoi_{obj}.xml, free) against gravity."
+    return task
+
+
+for _obj in OBJECTS:
+    globals()[_obj] = SUITE.add("benchmarking", "hoi")(_task(_obj))
