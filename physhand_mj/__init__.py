@@ -12,6 +12,8 @@ Public API (everything else is private):
   :class:`Model`, :class:`State`, :class:`Solver`, :class:`SolverError`; :func:`soft_body` builds a
   layered body from arrays; :func:`body_ids`, :func:`bone_poses_at`, :func:`mount_pose` read bone
   poses from MuJoCo.
+- :func:`add_skin`, :class:`SkinAttachment`: the soft skin added to any ``MjSpec`` with the hand's
+  bones (the asset's names, MyoSuite's older names, a prefix or a name map).
 - :class:`SoftHand`: the soft hand coupled to a MuJoCo model (bones and objects in, deformed skin
   back into the model's mesh, contact report).
 """
@@ -21,6 +23,7 @@ from physhand_mj.render import select_gl_backend as _select_gl_backend
 _select_gl_backend()  # before anything imports mujoco: MuJoCo reads MUJOCO_GL at import
 
 from physhand_mj.asset import DEFAULT_ASSET, SCHEMA_VERSION, AssetError, HandAsset, load_asset  # noqa: E402
+from physhand_mj.attach import SkinAttachment, add_skin  # noqa: E402
 from physhand_mj.bodies import soft_body  # noqa: E402
 from physhand_mj.coupling import SoftHand  # noqa: E402
 from physhand_mj.hand_mjcf import (  # noqa: E402
@@ -30,7 +33,7 @@ from physhand_mj.solver import Solver, SolverError, make_model  # noqa: E402
 from physhand_mj.types import Config, Layer, Model, NonFinite, Scheme, State  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
+__all__ = ["add_skin", "SkinAttachment", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
            "NonFinite", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
            "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",
            "set_skin_vertices", "soft_body"]

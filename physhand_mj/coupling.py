@@ -23,7 +23,7 @@ import numpy as np
 from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
-from physhand_mj.hand_mjcf import body_ids, skin_geom_id
+from physhand_mj.hand_mjcf import SKIN_GEOM, body_ids, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
 from physhand_mj.solver.model import quat_to_mat
 from physhand_mj.types import Config, GeomType
@@ -46,8 +46,15 @@ class SoftHand:
       config: solver options (SI units); ``Config.frame_dt`` defaults to ``model.opt.timestep``.
       asset: the layered body; its ``body_names`` must name bodies of the model (after ``prefix``).
       prefix: the prefix the hand's names carry (``MjSpec.attach(..., prefix=...)``).
-      object_geoms / object_bodies / object_groups: restrict contact to these geom names, bodies or
-        geom groups (default: every geom not belonging to the hand).
+      naming: how the model names the bones, as for :func:`physhand_mj.add_skin`: ``"asset"``,
+        ``"myosuite_old"``, ``"auto"``, a prefix string, a dict ``{asset name: model name}`` or the
+        ``naming`` that ``add_skin`` returned (None: the asset's names after ``prefix``).
+      writeback: write the skin into the model's skin mesh geom (``prefix + "physhand_skin"``). False:
+        the compiled-model path for a model without the skin (no spec at hand): nothing in the model
+        changes, ``skin_vertices`` / ``contacts()`` / ``metrics()`` work as usual and
+        :meth:`draw` adds the skin to an ``mjvScene`` for pictures.
+      object_geoms / object_bodies / object_groups: restrict contact to these geom names (or ids),
+        bodies or geom groups (default: every geom not belonging to the hand).
       settle_frames: frames over which the bones move from the rest pose to the model's current pose
         before the first ``step`` (so a grasp keyframe does not start with a jump).
       settle_contact: whether the skin already collides while settling (False: the first ``step``
@@ -59,17 +66,30 @@ class SoftHand:
 
     def __init__(self, model, data, config: Config | None = None, *, asset=None, prefix: str = "",
                  object_geoms=None, object_bodies=None, object_groups=None, settle_frames: int = 20,
-                 settle_contact: bool = True):
+                 settle_contact: bool = True, naming=None, writeback: bool = True):
         self.model, self.data = model, data
         self.asset = asset if asset is not None else load_asset()
         cfg = config or Config(frame_dt=float(model.opt.timestep))
         self.config = cfg.validate()
-        self.skin_geom = skin_geom_id(model, prefix)
-        self.skin_mesh_id = int(model.geom_dataid[self.skin_geom])
-        if model.mesh_vertnum[self.skin_mesh_id] != self.asset.n_skin:
+        self.naming = None
+        if naming is not None:  # the bones' names (and the skin geom's prefix) from a naming scheme
+            from physhand_mj.attach import resolve_naming
+
+            self.naming = resolve_naming([model.body(b).name for b in range(model.nbody)], naming, self.asset, prefix)
+            prefix = self.naming.prefix
+        self.writeback = bool(writeback)
+        if self.writeback:
+            self.skin_geom = skin_geom_id(model, prefix)
+        else:  # compiled-model path: a skin geom, if any, is only kept out of the objects
+            self.skin_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, prefix + SKIN_GEOM)
+        self.skin_mesh_id = int(model.geom_dataid[self.skin_geom]) if self.writeback else -1
+        if self.writeback and model.mesh_vertnum[self.skin_mesh_id] != self.asset.n_skin:
             raise ValueError(f"the skin mesh has {model.mesh_vertnum[self.skin_mesh_id]} vertices, the asset "
                              f"{self.asset.n_skin}: the MJCF and the asset come from different builds")
-        self.bones = body_ids(model, [prefix + str(b) for b in self.asset.body_names])
+        if naming is None:
+            self.bones = body_ids(model, [prefix + str(b) for b in self.asset.body_names])
+        else:
+            self.bones = body_ids(model, self.naming.bones)
         self.prefix = prefix
         mujoco.mj_kinematics(model, data)
         self.object_geoms = self._select_objects(object_geoms, object_bodies, object_groups)
@@ -114,7 +134,7 @@ class SoftHand:
             if g == self.skin_geom or int(m.geom_bodyid[g]) in hand:
                 continue
             name = m.geom(g).name
-            if names is not None and name not in names:
+            if names is not None and name not in names and g not in names:  # names or ids (unnamed geoms)
                 continue
             if bodies is not None and m.body(int(m.geom_bodyid[g])).name not in bodies:
                 continue
@@ -183,10 +203,26 @@ class SoftHand:
         return out
 
     def _write_back(self) -> None:
+        if not self.writeback:  # compiled-model path: the world positions only
+            skin = self.state.x.numpy()[: self.asset.n_skin].astype(np.float64)
+            if not np.all(np.isfinite(skin)):
+                raise ValueError("skin vertices hold non-finite values")
+            self._skin = skin
+            return
         if self._writer is None:
             self._writer = SkinWriter(self.model, self.skin_mesh_id, self.asset.skin_faces, self.state.x)
         g = self.skin_geom
         self._skin = self._writer.write(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
+
+    def draw(self, scene, rgba=(0.87, 0.68, 0.58, 1.0)) -> int:
+        """Add the skin as it is now to ``scene`` (a ``mujoco.MjvScene`` after ``mjv_updateScene`` /
+        ``Renderer.update_scene``) as one triangle geom per skin face, flat-shaded, colour ``rgba``
+        (0-1): the compiled-model path's picture (``writeback=False``); the scene needs room for
+        ``len(asset.skin_faces)`` more geoms (``mujoco.Renderer(..., max_geom=...)``). Returns the
+        number of triangles added."""
+        from physhand_mj.attach import draw_skin
+
+        return draw_skin(scene, self._skin, self.asset.skin_faces, rgba)
 
     @property
     def skin_vertices(self) -> np.ndarray:
