@@ -43,6 +43,7 @@ def test_registry():
 @pytest.mark.parametrize("domain,task", suite.ALL_TASKS, ids=[f"{d}-{t}" for d, t in suite.ALL_TASKS])
 def test_task(domain, task):
     env = _load(domain, task)
+    spec_before_reset = env.observation_spec()
     aspec = env.action_spec()
     assert aspec.shape == (env.physics.model.nu,)
     np.testing.assert_array_equal(aspec.minimum, -1.0)
@@ -52,6 +53,7 @@ def test_task(domain, task):
     # a random-policy episode
     ts = env.reset()
     _check_timestep(env, ts)
+    assert spec_before_reset == env.observation_spec()
     assert set(ts.observation) >= {"joint_pos", "joint_vel", "region_contact", "object_contact"}
     trajectory, actions = [], []
     while not ts.last():

@@ -21,6 +21,8 @@ the solver reads at its one sync.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import warp as wp
 
@@ -173,9 +175,11 @@ class SoftSensor:
         self.region_host = self._region_host.numpy()
         self.obj_host = self._obj_host.numpy()
         self.frames = 0
+        self.seconds = 0.0  # host time spent launching (all of it on the CPU, where kernels run inline)
 
     def launch(self, hand: SoftHand) -> None:
         """Enqueue the pooling of the frame just solved (no sync; see the module docstring)."""
+        t0 = time.perf_counter()
         d = self.device
         self.area.zero_()
         self.region_out.zero_()
@@ -189,6 +193,7 @@ class SoftSensor:
             wp.copy(self._region_host, self.region_out)
             wp.copy(self._obj_host, self.obj_out)
         self.frames += 1
+        self.seconds += time.perf_counter() - t0
 
 
 class SensedHand(SoftHand):

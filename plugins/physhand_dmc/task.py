@@ -79,6 +79,16 @@ class SoftTask(base.Task):
         return np.clip((np.asarray(ctrl, float) - 0.5 * (lo + hi)) / (0.5 * (hi - lo)), -1.0, 1.0)
 
     # -- episodes --------------------------------------------------------------------------------
+    _bound = False
+
+    def bind(self, physics) -> None:
+        """Index arrays into the physics (subclasses); runs once, before the first reset or observation."""
+
+    def _bind_once(self, physics) -> None:
+        if not self._bound:
+            self.bind(physics)
+            self._bound = True
+
     def finish_reset(self, physics) -> None:
         """Call at the end of ``initialize_episode``: kinematics of the new pose, soft tissue reset."""
         physics.forward()
@@ -88,6 +98,7 @@ class SoftTask(base.Task):
     def get_observation(self, physics):
         t0 = time.perf_counter()
         obs = collections.OrderedDict()
+        self._bind_once(physics)
         self._task_observations(physics, obs)
         hand = physics.soft
         s = hand.sensor

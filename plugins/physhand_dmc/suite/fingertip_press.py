@@ -84,7 +84,6 @@ class Press(SoftTask):
         m, d = physics.model, physics.data
         mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0)
         self.target = float(self.random.uniform(*self.force_range))
-        self._hand_q = np.arange(m.nq)
         self.finish_reset(physics)
         super().initialize_episode(physics)
 

@@ -94,12 +94,16 @@ class Hold(SoftTask):
         self.min_force = check_positive("min_force", min_force, "N")
         self._start = np.zeros(3)
 
-    def initialize_episode(self, physics):
-        m, d = physics.model, physics.data
-        mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0)
+    def bind(self, physics):
+        m = physics.model
         j = int(m.body_jntadr[m.name2id(self.obj, "body")])
         self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         self._hand_q = np.arange(self._qadr)  # the hand's hinge joints precede the object's free joint
+
+    def initialize_episode(self, physics):
+        m, d = physics.model, physics.data
+        self._bind_once(physics)
+        mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0)
         d.qpos[self._qadr: self._qadr + 3] += self.random.uniform(-self.object_jitter, self.object_jitter, 3)
         self._start = d.qpos[self._qadr: self._qadr + 3].copy()
         self.finish_reset(physics)

@@ -65,13 +65,17 @@ class Lift(SoftTask):
         self.lift_height = check_positive("lift_height", lift_height, "m")
         self._start = np.zeros(3)
 
-    def initialize_episode(self, physics):
-        m, d = physics.model, physics.data
-        mujoco.mj_resetData(m.ptr, d.ptr)
+    def bind(self, physics):
+        m = physics.model
         j = m.name2id("object_free", "joint")
         self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         self._hand_q = np.array([i for i in range(m.nq) if not self._qadr <= i < self._qadr + 7])
         self._hand_v = np.array([i for i in range(m.nv) if not self._vadr <= i < self._vadr + 6])
+
+    def initialize_episode(self, physics):
+        m, d = physics.model, physics.data
+        self._bind_once(physics)
+        mujoco.mj_resetData(m.ptr, d.ptr)
         for name in FINGER_JOINTS:
             d.qpos[m.jnt_qposadr[m.name2id(PREFIX + name, "joint")]] = 0.15  # open
         d.qpos[self._qadr: self._qadr + 2] += self.random.uniform(-self.object_jitter, self.object_jitter, 2)
