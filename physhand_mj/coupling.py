@@ -163,6 +163,29 @@ class SoftHand:
         else:
             self.objects.add(gtype, m.geom_size[g], d.geom_xpos[g], quat, name=name, obj=body)
 
+    def refresh_objects(self) -> int:
+        """Re-read the type and size of the object geoms from the model (for scenes that edit
+        ``model.geom_size`` / ``geom_type`` between episodes, as MyoSuite's Reorient and ObjHoldRandom
+        envs do at reset); returns how many changed. Mesh geoms keep their mesh; a geom that turns
+        into or out of a mesh raises ValueError (make a new SoftHand)."""
+        from physhand_mj.contact.objects import bounding_radius
+
+        m, h, changed = self.model, self.objects._host, 0
+        for i, g in enumerate(self.object_geoms):
+            gtype = MJ_GEOM_TYPES.get(int(m.geom_type[g]))
+            if gtype is None or (gtype == GeomType.MESH) != (h["gtype"][i] == int(GeomType.MESH)):
+                raise ValueError(f"object geom '{m.geom(g).name or g}' changed to or from a mesh or an unsupported "
+                                 f"type: make a new SoftHand")
+            if gtype == GeomType.MESH:
+                continue
+            size = np.asarray(m.geom_size[g], np.float32)
+            if h["gtype"][i] != int(gtype) or not np.array_equal(h["size"][i], size):
+                h["gtype"][i], h["size"][i], h["radius"][i] = int(gtype), size, bounding_radius(gtype, size)
+                changed += 1
+        if changed:
+            self.objects.upload()
+        return changed
+
     def _bone_poses(self):
         pos, quat = self.data.xpos[self.bones].copy(), self.data.xquat[self.bones].copy()
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):

@@ -1,0 +1,235 @@
+"""SoftSkin: a gymnasium wrapper that puts the soft skin on a MyoSuite hand environment.
+
+    env = physhand_myosuite.make("myoHandObjHoldFixed-v0")      # or SoftSkin(gymnasium.make(...))
+    obs, info = env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    info["physhand"]                     # soft-contact observations of this step (units in the keys)
+    env.log[-1]                          # the per-step log row: penetration, contact, ms per stage
+    frame = env.render()                 # (H, W, 3) uint8, the deformed skin drawn in the env's scene
+
+How (measured choice, see docs/tasks.md): the env's compiled model is left exactly as MyoSuite built
+it (ids, dynamics, rewards unchanged: ObjHoldRandom even edits ``model.geom_size[-1]``, which an
+added geom would take over) and ``SoftHand(..., writeback=False)`` runs on it: after every env step
+(MyoSuite's ``frame_skip`` MuJoCo steps), one solver frame with ``frame_dt`` = the env's control
+step, contact against the env's colliding geoms outside the arm. Pictures add the skin to the
+scene as triangles (``SoftHand.draw``). The soft-contact pooling (per hand region and per object:
+area, force, contacting vertices, deformation) is physhand_dmc's ``SoftSensor``, launched inside
+the frame (no extra host sync).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import time
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+
+import physhand_mj as ph  # before mujoco: it picks MuJoCo's offscreen GL backend
+import mujoco  # noqa: E402
+
+HAND_ENVS = {"asset": ("myoHandReorient8-v0", "myoHandReorient100-v0", "myoHandPoseFixed-v0", "myoHandReachFixed-v0"),
+             "myosuite_old": ("myoHandObjHoldFixed-v0", "myoHandKeyTurnFixed-v0", "myoHandPenTwirlFixed-v0",
+                              "myoHandObjHoldRandom-v0", "myoHandKeyTurnRandom-v0", "myoHandPenTwirlRandom-v0")}
+"""MyoSuite 3.0.0 hand environments by bone naming (checked by tests/test_myosuite.py for some)."""
+
+
+def env_dt(env) -> float:
+    """The control step (s) of a MyoSuite env: ``dt`` where it has one, else MuJoCo's timestep times
+    ``frame_skip`` (myoHandReorient* has no ``dt``)."""
+    u = env.unwrapped
+    dt = getattr(u, "dt", None)
+    if dt is None:
+        dt = float(u.model.opt.timestep) * int(getattr(u, "frame_skip", 1))
+    return float(dt)
+
+
+def colliding_objects(model, bones) -> list[int]:
+    """Geom ids the skin should touch by default: geoms that collide in MuJoCo (contype or
+    conaffinity non-zero) on bodies outside the arm that carries the hand's bones."""
+    roots = {int(model.body_rootid[b]) for b in bones}
+    return [g for g in range(model.ngeom) if int(model.body_rootid[model.geom_bodyid[g]]) not in roots
+            and (model.geom_contype[g] or model.geom_conaffinity[g])]
+
+
+class SoftSkin(gymnasium.Wrapper):
+    """The soft skin on a MyoSuite hand env (see the module docstring).
+
+    Args:
+      env: a MyoSuite hand env (``gymnasium.make("myoHand...")``); its ``unwrapped.model`` / ``.data``
+        must have the MyoHand bones under either naming.
+      naming: the bones' naming (``"auto"``, ``"asset"``, ``"myosuite_old"``, a prefix or a name map).
+      config: solver options (SI units); ``frame_dt`` is set to the env's control step (s).
+      device, substep_dt: without ``config``: the Warp device (``"cpu"``, ``"cuda"``) and the longest
+        solver substep (s): substeps = ceil(env dt / substep_dt), 40 for a 20 ms env step. At 2 ms
+        substeps (10 per 20 ms) the fingertip skin sags 2.4 mm off its bones instead of 0.2 mm.
+        max_speed (m/s): skin/object speed the frame broadphase covers (``contact_frame_margin`` =
+        max_speed x env dt, at least the default 10 mm).
+      object_geoms: geom names or ids the skin collides with (default :func:`colliding_objects`).
+      observe: append the soft-contact vector (:attr:`soft_obs_names`) to the observation.
+      settle_frames: solver frames that bring the skin from rest to the env's pose at each reset.
+      width, height: picture size (pixels) of :meth:`render`; camera: a model camera name, or None for
+        a free camera on the hand (``distance`` m, ``azimuth`` / ``elevation`` degrees).
+    """
+
+    def __init__(self, env, *, naming="auto", config: ph.Config | None = None, device: str = "cpu",
+                 substep_dt: float = 0.0005, max_speed: float = 2.0,
+                 object_geoms=None, observe: bool = False, settle_frames: int = 10, width: int = 640,
+                 height: int = 480, camera: str | None = None, distance: float = 0.45, azimuth: float = 150.0,
+                 elevation: float = -25.0):
+        super().__init__(env)
+        from physhand_dmc import SensedHand  # the dm-control suite's soft-contact pooling, shared
+
+        u = env.unwrapped
+        if getattr(u, "model", None) is None or getattr(u, "data", None) is None:
+            raise ValueError(f"{type(u).__name__} has no MuJoCo model/data (env.unwrapped.model, .data): "
+                             f"wrap a MyoSuite MuJoCo env")
+        self.model, self.data = u.model, u.data
+        self.dt = env_dt(env)
+        if config is None:  # the project scenes' substep (5 ms / 10): longer ones let the tissue sag
+            config = ph.Config(device=device, substeps=max(1, int(np.ceil(self.dt / substep_dt - 1e-9))),
+                               contact_frame_margin=max(ph.Config.contact_frame_margin, max_speed * self.dt))
+        self.config = dataclasses.replace(config, frame_dt=self.dt).validate()
+        asset = ph.load_asset()
+        from physhand_mj.attach import resolve_naming
+
+        nm = resolve_naming([self.model.body(b).name for b in range(self.model.nbody)], naming, asset)
+        bones = [self.model.body(b).id for b in nm.bones]
+        objects = colliding_objects(self.model, bones) if object_geoms is None else list(object_geoms)
+        mujoco.mj_forward(self.model, self.data)
+        self.hand = SensedHand(self.model, self.data, self.config, asset=asset, naming=nm, writeback=False,
+                               object_geoms=objects, settle_frames=0)  # reset() settles
+        self.sensor = self.hand.attach_sensor()
+        self.settle_frames = settle_frames
+        self.observe = observe
+        regions = self.sensor.region_names
+        self.soft_obs_names = tuple([f"{r}_force_n" for r in regions] + [f"{r}_area_cm2" for r in regions]
+                                    + [f"{r}_deformation_mm" for r in regions]
+                                    + ["penetration_count", "penetration_max_mm"])
+        """Names (with units) of the soft-contact vector appended to the observation (``observe``)."""
+        if observe:
+            base = env.observation_space
+            n = len(self.soft_obs_names)
+            self.observation_space = gymnasium.spaces.Box(
+                np.concatenate([base.low, np.full(n, -np.inf, np.float32)]).astype(np.float32),
+                np.concatenate([base.high, np.full(n, np.inf, np.float32)]).astype(np.float32), dtype=np.float32)
+        self.log: list[dict] = []
+        self._view = dict(width=width, height=height, camera=camera, distance=distance, azimuth=azimuth,
+                          elevation=elevation)
+        self._renderer = None
+        self._steps = 0
+
+    # -- gymnasium ---------------------------------------------------------------------------------
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.hand.refresh_objects()  # MyoSuite's Reorient / ObjHoldRandom resize their object at reset
+        self.hand.reset(self.settle_frames)  # the env's new pose; velocities and multipliers zeroed
+        self.log, self._steps = [], 0
+        soft = self._soft_info()
+        info["physhand"] = soft
+        return self._observation(obs, soft), info
+
+    def step(self, action):
+        t0 = time.perf_counter()
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        t1 = time.perf_counter()
+        frame = self.hand.step()  # bones + objects where MuJoCo left them, one frame, pooling launched
+        t2 = time.perf_counter()
+        soft = self._soft_info(frame)
+        obs = self._observation(obs, soft)
+        t3 = time.perf_counter()
+        self._steps += 1
+        row = dict(step=self._steps, penetration_count=soft["penetration_count"],
+                   penetration_max_um=soft["penetration_max_um"], penetration_avg_um=soft["penetration_avg_um"],
+                   contact_vertices=int(self.sensor.region_host[:, 2].sum()),
+                   contact_area_cm2=float(self.sensor.region_host[:, 0].sum() * 1e4),
+                   contact_force_n=float(self.sensor.region_host[:, 1].sum()), finite=soft["finite"],
+                   ms_env=1e3 * (t1 - t0), ms_soft=1e3 * (t2 - t1), ms_obs=1e3 * (t3 - t2))
+        for k in ("object_in_skin_count", "object_in_skin_max_um"):
+            if k in frame:  # Config.object_metrics: the second measure, evaluated in the frame
+                row[k] = frame[k]
+        self.log.append(row)
+        info["physhand"] = soft
+        return obs, reward, terminated, truncated, info
+
+    def _soft_info(self, frame: dict | None = None) -> dict:
+        """The soft-contact observations of the last frame (host reads of the sensor's outputs)."""
+        frame = frame if frame is not None else self.hand._last
+        reg, obj = self.sensor.region_host, self.sensor.obj_host
+        names = self.sensor.region_names
+        return dict(
+            region_names=names,
+            region_force_n=reg[:, 1].astype(np.float64), region_area_m2=reg[:, 0].astype(np.float64),
+            region_vertices=reg[:, 2].astype(np.int64), region_deformation_m=reg[:, 3].astype(np.float64),
+            objects={o: dict(area_m2=float(obj[k, 0]), force_n=float(obj[k, 1]), vertices=int(obj[k, 2]))
+                     for k, o in enumerate(self.sensor.object_names)},
+            penetration_count=int(frame.get("penetration_count", 0)),
+            penetration_max_um=float(frame.get("penetration_max_um", 0.0)),
+            penetration_avg_um=float(frame.get("penetration_avg_um", 0.0)),
+            finite=bool(frame.get("nonfinite", 0) == 0),
+        )
+
+    def soft_vector(self, soft: dict) -> np.ndarray:
+        """The soft-contact vector (float32, :attr:`soft_obs_names`) of a ``_soft_info`` dict."""
+        return np.concatenate([soft["region_force_n"], soft["region_area_m2"] * 1e4, soft["region_deformation_m"] * 1e3,
+                               [soft["penetration_count"], soft["penetration_max_um"] * 1e-3]]).astype(np.float32)
+
+    def _observation(self, obs, soft):
+        return np.concatenate([np.asarray(obs, np.float32), self.soft_vector(soft)]) if self.observe else obs
+
+    # -- pictures and logs ---------------------------------------------------------------------------
+    @property
+    def render_mode(self):
+        return "rgb_array"
+
+    def render(self):
+        """(height, width, 3) uint8 picture of the env's scene with the deformed skin (flat-shaded
+        triangles added to the scene: the env's compiled model has no skin mesh)."""
+        v = self._view
+        if self._renderer is None:
+            w, h = min(v["width"], self.model.vis.global_.offwidth), min(v["height"], self.model.vis.global_.offheight)
+            try:  # room for the env's geoms and one triangle per skin face
+                self._renderer = mujoco.Renderer(self.model, height=h, width=w,
+                                                 max_geom=10_000 + len(self.hand.asset.skin_faces))
+            except Exception as e:  # no OpenGL backend: one clear line
+                raise ph.RenderUnavailable(f"no offscreen OpenGL for MuJoCo (set MUJOCO_GL=egl or osmesa): {e}") from e
+        r = self._renderer
+        if v["camera"] is not None:
+            r.update_scene(self.data, camera=v["camera"])
+        else:
+            from physhand_mj.render import look_at_camera
+
+            skin = self.hand.skin_vertices
+            r.update_scene(self.data, camera=look_at_camera(0.5 * (skin.min(0) + skin.max(0)), v["distance"],
+                                                            v["azimuth"], v["elevation"]))
+        self.hand.draw(r.scene)
+        return r.render()
+
+    def write_log(self, path) -> Path:
+        """The per-step log as CSV (one row per env step since the last reset)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        keys = list(dict.fromkeys(k for row in self.log for k in row))
+        with path.open("w", newline="") as f:
+            w = csv.DictWriter(f, keys)
+            w.writeheader()
+            w.writerows(self.log)
+        return path
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        super().close()
+
+
+def make(env_id: str, **kwargs) -> SoftSkin:
+    """``SoftSkin(gymnasium.make(env_id), **kwargs)`` for a MyoSuite env id (registers MyoSuite's envs)."""
+    import myosuite  # noqa: F401  (registers the envs)
+
+    if env_id not in gymnasium.registry:
+        hands = sorted(e for e in gymnasium.registry if e.startswith("myoHand"))
+        raise ValueError(f"unknown env '{env_id}'; MyoSuite's hand envs: {hands}")
+    return SoftSkin(gymnasium.make(env_id), **kwargs)
