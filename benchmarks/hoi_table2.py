@@ -1,8 +1,12 @@
-"""The paper's Table 2 (section 4.3): seven generated grasps x three contact strategies, 36 frames of
-10 substeps each; metrics over the 10 substeps of the last frame, as the paper computes them:
-count = penetrating samples summed over those substeps, max = deepest, avg = mean depth of the
-penetrating samples (um); plus the initial (undeformed) penetration, ms per full frame and the
-contact's share (frame time minus the same scene's frame without objects, measured just before).
+"""The paper's Table 2 (section 4.3): seven generated grasps x contact methods, 36 frames of 10
+substeps each, the bones held at the keyframe (gravity compensation); metrics over the 10 substeps
+of the last frame, as the paper computes them: count = penetrating samples summed over those
+substeps, max = deepest, avg = mean depth of the penetrating samples (um); and, as independent
+checks at the last frame's end, skin samples on an order-9 lattice inside the object and object
+surface points inside the closed skin (count, max um); plus the initial (undeformed) penetration,
+ms per full frame and the contact's share (frame time minus the same scene's frame without
+objects, measured just before). Methods: vertex, opt, multires (the paper's: Eq. 9 only) and
+default (multires + the object's features + side-aware exits, ``Config()``).
 
 Writes docs/benchmarks/hoi_table2_<device>.json and prints a markdown table.
 Run: python benchmarks/hoi_table2.py [--device cpu|cuda] [--steps 36]
@@ -26,7 +30,8 @@ from physhand_mj.build.hoi import SCENES
 from physhand_mj.rollout import load_scene, rollout
 
 ROOT = Path(__file__).resolve().parents[1]
-STRATEGIES = ("vertex", "opt", "multires")
+PAPER = {"feature_contact": False, "side_aware": False}
+METHODS = (("vertex", "vertex", PAPER), ("opt", "opt", PAPER), ("multires", "multires", PAPER), ("default", "multires", {}))
 
 
 def no_contact_ms(scene: Path, device: str, frames: int = 20) -> float:
@@ -55,18 +60,30 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu")
     p.add_argument("--steps", type=int, default=36)
+    p.add_argument("--methods", default=",".join(m[0] for m in METHODS))
+    p.add_argument("--scenes", default=",".join(SCENES))
     args = p.parse_args()
+    dense = {}
+
+    def at_end(hand, model, data):
+        dense.update(hand.penetration(order=9))
+
     rows, bases = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        for name in SCENES:
+        for name in args.scenes.split(","):
             base = no_contact_ms(ph.scene_path(f"hoi_{name}"), args.device)  # paired: the host's speed drifts
             bases.append(base)
-            for c in STRATEGIES:
+            for method, c, over in [m for m in METHODS if m[0] in args.methods.split(",")]:
                 res = rollout(ph.scene_path(f"hoi_{name}"), "grasp", steps=args.steps, contact=c, device=args.device,
-                              out=Path(tmp) / f"{name}-{c}", progress=False)
-                row = dict(scene=name, contact=c, initial_count=res["initial_penetration_count"],
-                           initial_max_um=res["initial_penetration_max_um"], **last_frame(Path(res["log"]), 10),
-                           final_count=res["penetration_count"], ms_per_frame=res["ms_per_frame"],
+                              out=Path(tmp) / f"{name}-{method}", progress=False, config=over, on_end=at_end)
+                row = dict(scene=name, contact=method, initial_count=res["initial_penetration_count"],
+                           initial_max_um=res["initial_penetration_max_um"],
+                           initial_obj_count=res["initial_object_in_skin_count"],
+                           initial_obj_max_um=res["initial_object_in_skin_max_um"], **last_frame(Path(res["log"]), 10),
+                           final_count=res["penetration_count"], dense_count=int(dense["penetration_count"]),
+                           dense_max_um=round(float(dense["penetration_max_um"]), 2),
+                           obj_count=res["object_in_skin_count"], obj_max_um=res["object_in_skin_max_um"],
+                           ms_per_frame=res["ms_per_frame"],
                            no_contact_ms=round(base, 3), contact_ms=round(res["ms_per_frame"] - base, 3),
                            finite=res["finite"])
                 rows.append(row)
@@ -75,11 +92,13 @@ def main():
     out = ROOT / "docs" / "benchmarks" / f"hoi_table2_{args.device.split(':')[0]}.json"
     out.write_text(json.dumps(dict(device=dev, steps=args.steps, rows=rows), indent=1))
     print(f"\n{dev}; frame without contact {min(bases):.2f}-{max(bases):.2f} ms\n")
-    print("| scene | strategy | initial count / max (mm) | count | max (um) | avg (um) | ms/frame | contact ms |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| scene | method | initial count / max (mm) | count | max (um) | avg (um) | order 9: count / max (um) | "
+          "object in skin: count / max (um) | ms/frame | contact ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['scene']} | {r['contact']} | {r['initial_count']} / {r['initial_max_um'] / 1e3:.2f} | {r['count']} | "
-              f"{r['max_um']:.4g} | {r['avg_um']:.4g} | {r['ms_per_frame']:.1f} | {r['contact_ms']:.1f} |")
+              f"{r['max_um']:.4g} | {r['avg_um']:.4g} | {r['dense_count']} / {r['dense_max_um']:.4g} | "
+              f"{r['obj_count']} / {r['obj_max_um']:.4g} | {r['ms_per_frame']:.1f} | {r['contact_ms']:.1f} |")
 
 
 if __name__ == "__main__":

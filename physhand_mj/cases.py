@@ -105,7 +105,9 @@ def press_case(kind: str, site: str = "fingertip", depth: float = 0.003, start: 
     """Named cases: ``cone_tip`` (analytic cone, 2 x 17 degree half-angle), ``mesh_cone`` (a
     30-degree cone mesh, 24 sections), ``knife`` (30-degree wedge mesh), ``plate`` (a 1 mm box
     pressed edge-first), ``capsule`` (r 3 mm, pressed past its axis), ``coarse`` (an icosphere of
-    20 faces, radius 8 mm: a coarse scan's corners)."""
+    20 faces, radius 8 mm: a coarse scan's corners), ``bone`` (a sphere of radius 5 mm whose lead
+    goes ``depth`` into the skin: at the fingertip 6 mm puts the distal phalanx, 4.1 mm under the
+    pad, inside it, so no penetration-free skin exists)."""
     import trimesh
 
     if kind == "cone_tip":
@@ -122,6 +124,8 @@ def press_case(kind: str, site: str = "fingertip", depth: float = 0.003, start: 
     if kind == "capsule":  # lying across the skin; depth > 3 mm puts its axis inside the rest skin
         return Case(kind, GeomType.CAPSULE, (0.003, 0.01, 0.0), lead=0.003, site=site, depth=depth, start=start,
                     lay=True)
+    if kind == "bone":
+        return Case(kind, GeomType.SPHERE, (0.005, 0.0, 0.0), lead=0.005, site=site, depth=depth, start=start)
     if kind == "coarse":
         m = trimesh.creation.icosahedron()
         v = m.vertices * 0.008
@@ -135,7 +139,8 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
     (``skin_count``/``skin_max_um``: the order-5 metric; ``dense_count``/``dense_max_um``: order
     ``check_order``; ``obj_count``/``obj_max_um``: object points inside the skin), the largest
     skin displacement from the rest shape (``max_disp_mm``), finiteness, ms per frame, the final
-    skin (``skin``) and the solver pieces (``solver``, ``state``, ``objects``)."""
+    skin (``skin``), the object's last pose (``object_pos`` m, ``object_quat`` w x y z) and the
+    solver pieces (``solver``, ``state``, ``objects``)."""
     import time
 
     import physhand_mj as ph
@@ -168,9 +173,11 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
     rows = {k: [] for k in ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "obj_count", "obj_max_um",
                             "max_disp_mm", "ms")}
     finite = True
+    pos = place(-case.start)
     for f in range(frames):
         a = min((f + 1) / max(case.press_frames, 1), 1.0)
-        objs.set_poses(place(-case.start + a * (case.depth + case.start))[None], quat[None])
+        pos = place(-case.start + a * (case.depth + case.start))
+        objs.set_poses(pos[None], quat[None])
         t = time.perf_counter()
         solver.step(state)
         rows["ms"].append((time.perf_counter() - t) * 1e3)
@@ -190,5 +197,5 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
             progress(f)
     out = {k: np.asarray(v) for k, v in rows.items()}
     out.update(finite=finite, skin=state.x.numpy()[: asset.n_skin].astype(float), solver=solver, state=state,
-               objects=objs)
+               objects=objs, object_pos=pos, object_quat=quat)
     return out

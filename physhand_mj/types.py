@@ -122,8 +122,13 @@ class Config:
         points cannot see when a feature is smaller than a triangle);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
-          ``project``; fixes deep starts past an object's mid-plane, but off by default: it still
-          disturbs closing on boxes, docs/contact.md);
+          ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
+          closed skin and are on by default; off, the contact is the paper's (docs/contact.md);
+        skin_tether: the farthest a skin vertex may be from its rigidly carried position (m; its
+          nearest bone at rest carries it at its rest offset: Model.skin_body), enforced after every
+          contact stage; 0 switches it off. 25 mm: flexed keyframes without contact reach 17 mm at
+          the thumb web, while a start with a bone inside an object (no penetration-free skin
+          exists) would otherwise drag skin vertices several centimetres (docs/contact.md);
         object_metrics: evaluate the second penetration measure (object surface points inside the
         closed skin, contact/inside.py) at the end of every frame; otherwise ``SoftHand.metrics`` /
         ``penetration`` evaluate it when called (it costs about as much as a CPU frame);
@@ -166,8 +171,9 @@ class Config:
     multires_rounds: int = 2
     opt_queries: int = 32
     substep_metrics: bool = False
-    feature_contact: bool = False
-    side_aware: bool = False
+    feature_contact: bool = True
+    side_aware: bool = True
+    skin_tether: float = 0.025
     object_metrics: bool = False
     device: str | None = None
     cuda_graph: bool = True
@@ -201,6 +207,7 @@ class Config:
         if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):
             raise ValueError(f"Config.multires_samples must be an integer >= 3, got {self.multires_samples!r}")
         nonneg("contact_margin")
+        nonneg("skin_tether")
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
         if self.contact_frame_margin < self.contact_margin:
@@ -227,6 +234,9 @@ class Model:
         the skeleton).
       vertex_body: (N,) int, bone body index of each skeleton vertex, -1 elsewhere;
         body_local: (N,) vec3, skeleton vertices' positions in their body frame (m), 0 elsewhere.
+      skin_body: (n_skin,) int, the bone of each skin vertex's nearest skeleton vertex at rest (-1
+        without a skeleton); skin_local: (n_skin,) vec3, its rest position in that bone's frame (m):
+        the skin carried rigidly by its bones (Config.skin_tether).
       edge_ids: (E, 2) int; edge_rest: (E,) float (m); edge_alpha: (E,) float (m/N). The edge
         family holds the tet edges (Eq. 2) and the flesh attachments (Eq. 4, an edge constraint);
         edge_is_att: (E,) numpy bool marks the attachments.
@@ -249,6 +259,8 @@ class Model:
     inv_mass: object
     vertex_body: object
     body_local: object
+    skin_body: object
+    skin_local: object
     edge_ids: object
     edge_rest: object
     edge_alpha: object
@@ -278,7 +290,8 @@ class State:
     body_pose: (2, B) transforms of the bones at the start / end of the frame (uploaded each frame
     from pose_host, (2, B, 7) float32 numpy: position, quaternion x y z w);
     body_sub: (substeps, B) their interpolated poses at the end of each substep;
-    guard: (2,) int counters [non-finite vertices, inverted tets] of the last frame; time: s.
+    guard: (3,) int counters [non-finite vertices, inverted tets, skin vertices the tether held
+    (summed over substeps)] of the last frame; time: s.
     """
 
     x: object

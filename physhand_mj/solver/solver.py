@@ -67,7 +67,7 @@ class Solver:
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
         self._pose_host = wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu",
                                    pinned=self.device.is_cuda)
-        self._guard_host = wp.zeros(2, dtype=int, device="cpu", pinned=self.device.is_cuda)
+        self._guard_host = wp.zeros(3, dtype=int, device="cpu", pinned=self.device.is_cuda)
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
 
@@ -93,7 +93,7 @@ class Solver:
             body_pose=wp.zeros((2, m.n_bodies), dtype=wp.transform, device=d),
             pose_host=np.zeros((2, m.n_bodies, 7), np.float32),
             body_sub=wp.zeros((self.config.substeps, m.n_bodies), dtype=wp.transform, device=d),
-            guard=wp.zeros(2, dtype=int, device=d),
+            guard=wp.zeros(3, dtype=int, device=d),
         )
         self.set_body_poses(st, bp, bq)
         st.pose_host[0] = st.pose_host[1]
@@ -122,7 +122,9 @@ class Solver:
     # -- the frame -------------------------------------------------------------------------------
     def step(self, state: State) -> dict:
         """Advance one frame (``config.frame_dt``). Returns the frame's guard counts
-        ``{"nonfinite": int, "inverted": int}``; raises SolverError under ``NonFinite.RAISE``."""
+        ``{"nonfinite": int, "inverted": int}`` (with contact and a tether also ``"tethered"``: skin
+        vertices Config.skin_tether held, summed over substeps) and, with contact, the penetration
+        summary; raises SolverError under ``NonFinite.RAISE``."""
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
@@ -166,6 +168,8 @@ class Solver:
         state.time += self.config.frame_dt
         state.frames += 1
         out = {"nonfinite": int(g[0]), "inverted": int(g[1])}
+        if self.contact is not None and self.config.skin_tether > 0:
+            out["tethered"] = int(g[2])
         if self.contact is not None:
             from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
 
@@ -244,6 +248,12 @@ class Solver:
                     pending = -1
                 if contact.wants("after"):
                     contact.record(launch, ops, state)
+            if contact is not None and cfg.skin_tether > 0:  # contact can drag the skin, nothing else can
+                if pending >= 0:
+                    launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
+                    pending = -1
+                launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.skin_local, state.body_sub, s, cfg.skin_tether],
+                       [state.x, state.guard])
                 if cfg.substep_metrics:
                     contact.record_metrics(launch, ops, state, s, objects_side=False)
         if self.contact is not None:
