@@ -101,7 +101,7 @@ def inside_points(res, order=9):
 def panel(res, case, asset, width, height):
     skin = res["skin"]
     ov, of = object_mesh(case, res["object_pos"], res["object_quat"])
-    spec = mesh_scene_spec([("skin", skin, asset.skin_faces, [0.93, 0.75, 0.65, 0.55]),
+    spec = mesh_scene_spec([("skin", skin, asset.skin_faces, [0.93, 0.75, 0.65, 0.3]),
                             ("object", ov, of, [0.35, 0.45, 0.6, 1.0])])
     model = spec.compile()
     data = mujoco.MjData(model)
@@ -115,14 +115,14 @@ def panel(res, case, asset, width, height):
         view = -(0.8 * side + 0.6 * n)  # camera forward: across the contact, a little from outside
         az = np.degrees(np.arctan2(view[1], view[0]))
         el = np.degrees(np.arcsin(np.clip(view[2] / np.linalg.norm(view), -1, 1)))
-        r.update_scene(data, camera=look_at_camera(p0, 0.05, az, el))
+        r.update_scene(data, camera=look_at_camera(p0, 0.04, az, el))
         scn = r.scene
         for pts, dep, rgba in ((obj, od, [0.9, 0.05, 0.05, 1]), (smp, sd, [1.0, 0.55, 0.0, 1])):
             for p, d in zip(pts[:800], dep[:800]):
                 if scn.ngeom >= scn.maxgeom:
                     break
                 g = scn.geoms[scn.ngeom]
-                size = 0.00025 + min(float(d), 0.002) * 0.3
+                size = 0.0004 + min(float(d), 0.002) * 0.4
                 mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([size, 0, 0]), p, np.eye(3).ravel(),
                                     np.asarray(rgba, np.float32))
                 scn.ngeom += 1

@@ -16,28 +16,54 @@ PAPER = {
     "bowl": [(32120, 3129.6544, 845.0303), (190, 260.9675, 35.4007), (11, 0.0427, 0.0093), ("18", "145", "1,480", "16")],
     "box": [(58827, 989.9247, 133.4961), (820, 0.4664, 0.0110), (7, 0.0050, 0.0016), ("17", "201", "1,073", "12")],
 }
-STRATS = ("vertex", "opt", "multires")
+METHODS = ("vertex", "opt", "multires", "default")
+
+
+def cell(r, a, b, c=None):
+    if r is None:
+        return "-"
+    if c is None:
+        return f"{r[a]} / {r[b]:.3g}"
+    return f"{r[a]} / {r[b]:.3g} / {r[c]:.3g}"
 
 
 def main():
-    runs = {d: json.loads((ROOT / "docs" / "benchmarks" / f"hoi_table2_{d}.json").read_text()) for d in ("cpu", "cuda")}
+    runs = {}
+    for d in ("cpu", "cuda"):
+        f = ROOT / "docs" / "benchmarks" / f"hoi_table2_{d}.json"
+        if f.exists():
+            run = json.loads(f.read_text())
+            if run["rows"] and "dense_count" in run["rows"][0]:  # runs before both measures are left out
+                runs[d] = run
+    devs = list(runs)
     idx = {(d, r["scene"], r["contact"]): r for d, run in runs.items() for r in run["rows"]}
-    print(f"CPU: {runs['cpu']['device']}; GPU: {runs['cuda']['device']}. Ours: count / max um / avg um over the 10 "
-          "substeps of frame 36 (the paper's way), CPU and GPU; full frame ms (solver + contact + write-back) and, in "
-          "brackets, the contact's share.\n")
-    print("| scene (initial, undeformed) | strategy | ours CPU: count / max / avg | ours GPU: count / max / avg | "
-          "ours ms/frame CPU (contact) | ours ms/frame GPU (contact) | paper: count / max / avg | paper contact ms CPU / GPU |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("; ".join(f"{d.upper()}: {run['device']}" for d, run in runs.items()) + ". Count / max um / avg um over "
+          "the 10 substeps of frame 36 (the paper's way); order 9 and object points in the skin at the end of frame 36 "
+          "(count / max um); full frame ms (solver + contact + write-back) and, in brackets, the contact's share.\n")
+    cols = [f"{d.upper()}: {c}" for d in devs for c in ("count / max / avg", "order 9", "object in skin", "ms/frame (contact)")]
+    print("| scene (initial, undeformed) | method | " + " | ".join(cols) + " | paper: count / max / avg | paper contact ms CPU / GPU |")
+    print("|---|---|" + "---|" * len(cols) + "---|---|")
     for scene, paper in PAPER.items():
-        for k, s in enumerate(STRATS):
-            c, g = idx[("cpu", scene, s)], idx[("cuda", scene, s)]
-            head = f"{scene} ({c['initial_count']} samples, {c['initial_max_um'] / 1e3:.2f} mm)" if k == 0 else ""
-            pc, pm, pa = paper[k]
+        for k, s in enumerate(METHODS):
+            rows = [idx.get((d, scene, s)) for d in devs]
+            if not rows or rows[0] is None:
+                continue
+            c = rows[0]
+            head = (f"{scene} ({c['initial_count']} samples, {c['initial_max_um'] / 1e3:.2f} mm; "
+                    f"{c.get('initial_obj_count', '-')} object points)") if k == 0 else ""
             t = paper[3]
-            ptime = {"vertex": f"{t[0]} / -", "opt": f"{t[1]} / -", "multires": f"{t[2]} / {t[3]}"}[s]
-            print(f"| {head} | {s} | {c['count']} / {c['max_um']:.3g} / {c['avg_um']:.3g} | "
-                  f"{g['count']} / {g['max_um']:.3g} / {g['avg_um']:.3g} | {c['ms_per_frame']:.1f} ({c['contact_ms']:.1f}) | "
-                  f"{g['ms_per_frame']:.2f} ({g['contact_ms']:.2f}) | {pc} / {pm:.4g} / {pa:.4g} | {ptime} |")
+            if s == "default":
+                pcell, ptime = "-", "-"
+            else:
+                pc, pm, pa = paper[k]
+                pcell = f"{pc} / {pm:.4g} / {pa:.4g}"
+                ptime = {"vertex": f"{t[0]} / -", "opt": f"{t[1]} / -", "multires": f"{t[2]} / {t[3]}"}[s]
+            cells = []
+            for r in rows:
+                cells += [cell(r, "count", "max_um", "avg_um"), cell(r, "dense_count", "dense_max_um"),
+                          cell(r, "obj_count", "obj_max_um"),
+                          f"{r['ms_per_frame']:.1f} ({r['contact_ms']:.1f})" if r else "-"]
+            print(f"| {head} | {s} | " + " | ".join(cells) + f" | {pcell} | {ptime} |")
 
 
 if __name__ == "__main__":
