@@ -28,9 +28,9 @@ from physhand_mj.types import Strategy  # noqa: E402
 
 KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")
 # (name, strategy, Config overrides)
-METHODS = (("vertex", Strategy.VERTEX, {"feature_contact": False, "side_aware": False}),
-           ("opt", Strategy.OPT, {"feature_contact": False, "side_aware": False}),
-           ("multires", Strategy.MULTIRES, {"feature_contact": False, "side_aware": False}),
+PAPER = {"feature_contact": False, "side_aware": False, "skin_tether": 0.0}  # the paper's contact, no tether
+METHODS = (("vertex", Strategy.VERTEX, PAPER), ("opt", Strategy.OPT, PAPER),
+           ("multires", Strategy.MULTIRES, PAPER),
            ("multires+features", Strategy.MULTIRES, {"feature_contact": True, "side_aware": False}),
            ("default", Strategy.MULTIRES, {}))  # multires + features + side-aware
 

@@ -30,7 +30,7 @@ from physhand_mj.build.hoi import SCENES
 from physhand_mj.rollout import load_scene, rollout
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = {"feature_contact": False, "side_aware": False}
+PAPER = {"feature_contact": False, "side_aware": False, "skin_tether": 0.0}  # the paper's contact, no tether
 METHODS = (("vertex", "vertex", PAPER), ("opt", "opt", PAPER), ("multires", "multires", PAPER), ("default", "multires", {}))
 
 

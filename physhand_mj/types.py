@@ -123,10 +123,11 @@ class Config:
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
-          closed skin and are on by default; off, the contact is the paper's (docs/contact.md);
+          closed skin and are on by default; off (and skin_tether 0), the contact is the paper's
+          (docs/contact.md);
         skin_tether: the farthest a skin vertex may be from its rigidly carried position (m; its
-          nearest bone at rest carries it at its rest offset: Model.skin_body), enforced after every
-          contact stage; 0 switches it off. 25 mm: flexed keyframes without contact reach 17 mm at
+          nearest bone at rest carries it at its rest offset: Model.skin_body), enforced at the end
+          of every substep of a solver with objects; 0 switches it off. 25 mm: flexed keyframes without contact reach 17 mm at
           the thumb web, while a start with a bone inside an object (no penetration-free skin
           exists) would otherwise drag skin vertices several centimetres (docs/contact.md);
         object_metrics: evaluate the second penetration measure (object surface points inside the
@@ -141,6 +142,9 @@ class Config:
       cuda_graph: capture one frame as a CUDA graph on CUDA devices.
       tiled_contact: on CUDA, run multires with a block of 32 threads per triangle (a lane per
         lattice sample; needs multires_samples < 32), else a thread per triangle.
+      skip_idle: run the contact work only when an object is within contact_frame_margin of the
+        skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
+        same either way); False runs every recorded contact launch every frame (for comparisons).
     """
 
     frame_dt: float = 0.005
@@ -178,6 +182,7 @@ class Config:
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool = True
+    skip_idle: bool = True
 
     def validate(self) -> "Config":
         """Raise ValueError naming the option to fix; returns self."""

@@ -85,7 +85,9 @@ class Contact:
         self.feat_stage_counts = wp.zeros(max(stages, 1), dtype=int, device=d)  # one per stage of a frame
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
                                        pinned=wp.get_device(d).is_cuda)
-        self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slot)
+        self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
+        self.pass_slots = []  # per recorded pass: the slot of its triangle list's length
+        self._feat_host = wp.zeros(1, dtype=int, device="cpu", pinned=wp.get_device(d).is_cuda)
 
     # -- recording into the solver's frame --------------------------------------------------------
     def wants(self, stage: str) -> bool:
@@ -93,18 +95,31 @@ class Contact:
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
             stage == "after" and p in (Placement.AFTER, Placement.BOTH))
 
-    def record_frame(self, launch, ops: list, state) -> None:
+    def record_frame(self, launch, ops: list, state, gated=None) -> None:
         """Once per frame, before the substeps: the frame's broadphase over all skin triangles with
-        ``contact_frame_margin``; each stage then tests only this list."""
+        ``contact_frame_margin``; each stage then tests only this list. ``gated(record, 1)``
+        (the solver's) records what follows the broadphase into a block run only when its list is
+        not empty (physhand_mj/activity.py); the caller zeroes ``counters`` first."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        ops += [self.counters.zero_, self.moved.zero_, lambda: self.bound.fill_(-1.0e30)]  # objects moved
+        if gated is None:
+            ops.append(self.counters.zero_)
         self._slot = 1
         self._stage_slots = []
+        self.pass_slots = []
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
                [self.cand, self.cand_mask, self.cand_count])
+        if gated is None:
+            self._record_frame_lists(launch, ops, state)
+        else:
+            gated(lambda sub: self._record_frame_lists(launch, sub, state), 1)
+
+    def _record_frame_lists(self, launch, ops: list, state) -> None:
+        """The per-frame resets and the frame's feature list (after the broadphase)."""
+        m, o, cfg = self.model, self.objects, self.config
+        ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30)]  # objects moved
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.feat is None:
@@ -127,12 +142,14 @@ class Contact:
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        self._stage_slots.append((self._slot, self._slot + 2))
+        # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
+        self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
         self.active_count = self._counter()
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           cfg.contact_margin, 1, self.cand, self.cand_mask, self.cand_count],
                [self.active, self.active_mask, self.active_count], count=self.cand_count)
         lst = (self.pass_list, self.pass_mask, self._counter())
+        self.pass_slots.append(self._slot - 1)
         launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
                                               self.bound, self.bound_mask, self.eval_x], list(lst),
                count=self.active_count)
@@ -176,6 +193,7 @@ class Contact:
                    [state.x, self.push, self.moved, self.disp], count=self.touched_count)
             if p + 1 < cfg.contact_passes:
                 lst = (self.pass_list, self.pass_mask, self._counter())
+                self.pass_slots.append(self._slot - 1)
                 launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
                                                  self.moved, self.disp, stamp, self.bound], list(lst),
                        count=self.active_count)
@@ -257,11 +275,12 @@ class Contact:
                 ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
 
         ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
-        kept = (self._slot, self._stage_slots, self.active_count, self.touched_count)
+        kept = (self._slot, self._stage_slots, self.active_count, self.touched_count, self.pass_slots)
         self.record_frame(launch, ops, state)
         self.record(launch, ops, state)
         stage_active = self.active_count
-        self._slot, self._stage_slots, self.active_count, self.touched_count = kept  # the solver frame's
+        (self._slot, self._stage_slots, self.active_count, self.touched_count,
+         self.pass_slots) = kept  # the solver frame's
         for op in ops:
             op()
         wp.synchronize_device(d)
@@ -273,12 +292,20 @@ class Contact:
         once per frame)."""
         wp.copy(self._metrics_host, self.metrics)
         wp.copy(self._counters_host, self.counters)
+        if self.feat is not None:
+            wp.copy(self._feat_host, self.feat_count)
+
+    def features_listed(self) -> int:
+        """Object feature points in the last frame's list (after the frame's sync)."""
+        return int(self._feat_host.numpy()[0]) if self.feat is not None else 0
 
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
-        triangles and the skin vertices its first pass corrected (in contact at the stage's start)."""
+        triangles and the skin vertices its first pass corrected (in contact at the stage's start; Eq. 9's
+        and the feature push's, a vertex both moved counted twice)."""
         c = self._counters_host.numpy()
-        return np.array([[c[a], c[t]] for a, t in self._stage_slots], dtype=int).reshape(-1, 2)
+        return np.array([[c[a], c[t] + (c[f] if f >= 0 else 0)] for a, t, f in self._stage_slots],
+                        dtype=int).reshape(-1, 2)
 
     def read_metrics(self, synchronize: bool = True) -> np.ndarray:
         """(substeps + 1, 6): per row [count, sum depth m, max depth m] of skin samples inside objects,

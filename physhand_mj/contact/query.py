@@ -525,8 +525,8 @@ def apply_contact(
 ):
     """For each touched vertex i: x_i += (depth-weighted mean of its Eq. 9 corrections); push_i
     accumulates |correction| over the frame (the contact report's force estimate); moved_i = stamp
-    (this pass's number) and disp_i = |correction|, for the next pass's list; the accumulators are
-    cleared."""
+    (this pass's number) and disp_i = |correction| (summed if this pass already moved i), for the
+    next pass's list; the accumulators are cleared."""
     k = wp.tid()
     if k >= touched_count[0]:
         return
@@ -537,5 +537,8 @@ def apply_contact(
     push[i] = push[i] + step
     delta[i] = wp.vec3(0.0)
     hits[i] = 0.0
+    if moved[i] == stamp:  # moved twice in this pass (the feature push, then Eq. 9): how far in all
+        disp[i] = disp[i] + step
+    else:
+        disp[i] = step
     moved[i] = stamp
-    disp[i] = step
