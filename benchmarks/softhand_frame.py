@@ -39,7 +39,9 @@ def run(device: str, frames: int, contact: Strategy) -> dict:
     return dict(contact=contact.name.lower(), ms_mujoco=round(mj / frames * 1e3, 3), ms_sync=round(m["ms_sync"], 3),
                 ms_solver=round(m["ms_solver"], 3), ms_writeback=round(m["ms_writeback"], 3),
                 ms_total=round(mj / frames * 1e3 + m["ms_per_frame"], 3),
-                penetration_count=m["penetration_count"], penetration_max_um=round(m["penetration_max_um"], 3))
+                penetration_count=m["penetration_count"], penetration_max_um=round(m["penetration_max_um"], 3),
+                **{k: m.get(k) for k in ("objects_near", "triangles_tested", "features_listed", "ops_run",
+                                         "contact_ops_run")})  # the last frame's work (activity.py)
 
 
 def main():

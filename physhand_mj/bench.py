@@ -115,7 +115,7 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
         edges=int((~m.edge_is_att).sum()), attachments=int(m.edge_is_att.sum()), dihedrals=int(m.dih_ids.shape[0]),
         device=str(solver.device), device_name=device_name(str(solver.device)),
         cuda_graph=solver._capturable(), setup_s=round(setup_s, 3), warmup_s=round(warmup_s, 3),
-        nonfinite=guard.get("nonfinite", 0), inverted=guard.get("inverted", 0),
+        nonfinite=guard.get("nonfinite", 0), inverted=guard.get("inverted", 0), ops_run=guard.get("ops_run"),
     )
 
 

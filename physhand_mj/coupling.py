@@ -372,7 +372,12 @@ class SoftHand:
         """Both penetration measures at the end of the last frame (DESIGN definitions: skin samples
         inside objects, ``penetration_*``; object surface points inside the skin, ``object_in_skin_*``,
         evaluated now unless Config.object_metrics evaluated it in the frame), the guard counts,
-        finite flag, and the mean time per frame of each stage (ms)."""
+        finite flag, the mean time per frame of each stage (ms), and what the last frame ran
+        (physhand_mj/activity.py): ``objects_near`` (objects in the work set; -1 on CUDA, where the
+        host does not decide it), ``triangles_frame`` / ``triangles_stage`` (the frame's and the
+        stages' broadphase lists), ``triangles_tested`` (triangles the contact passes queried),
+        ``features_listed``, ``ops_run`` / ``contact_ops_run`` (recorded launches, memsets and refits
+        run; with no object near no contact op runs)."""
         tm = self._timing
         n = max(tm["frames"], 1)
         out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0, object_in_skin_count=0,

@@ -17,6 +17,9 @@ soft hand runs ``steps`` frames with contact. Written to ``out``:
 Times exclude the first frame, which compiles the contact kernels. ``object_in_skin_count`` /
 ``_max_um``: the second measure (object surface points inside the closed skin), on the last row
 of each frame (and row 0), evaluated after the frame's timing; empty on the other rows.
+``objects_near`` / ``triangles_tested`` / ``features_listed`` / ``ops_run``: what the frame ran
+(physhand_mj/activity.py: objects in the work set, triangles the contact passes queried, object
+feature points listed, recorded ops run), on the last row of each frame.
 """
 
 from __future__ import annotations
@@ -29,7 +32,9 @@ from pathlib import Path
 import numpy as np
 
 LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_max_um", "penetration_avg_um",
-               "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um"]
+               "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um",
+               "objects_near", "triangles_tested", "features_listed", "ops_run"]
+ACTIVITY = LOG_COLUMNS[-4:]  # what ran in the frame (physhand_mj/activity.py), on its last row
 
 
 def load_scene(scene, keyframe: str | None = None):
@@ -96,7 +101,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
         log.writerow(LOG_COLUMNS)
         log.writerow([0, 0, round(float(data.time), 6), start["penetration_count"], _um(start["penetration_max_um"]),
                       _um(start["penetration_avg_um"]), 0, 0, 0.0, start["object_in_skin_count"],
-                      _um(start["object_in_skin_max_um"])])
+                      _um(start["object_in_skin_max_um"]), "", "", "", ""])
         f.flush()
         bar = tqdm(total=steps, desc=f"rollout {Path(scene).stem}", unit="frame", disable=not progress, leave=False)
         try:
@@ -115,8 +120,8 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                     act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
                     lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
                                   _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
-                                  *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]))
-                                    if s + 1 == substeps else ("", ""))])
+                                  *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]),
+                                     *(res.get(k, "") for k in ACTIVITY)) if s + 1 == substeps else ("",) * 6)])
                 log.writerows(lines)  # a frame's rows go out together: an interrupted log holds whole frames
                 f.flush()
                 times.append(dt)

@@ -58,6 +58,10 @@ class Solver:
             from physhand_mj.contact import Contact
 
             self.contact = Contact(model, objects, self.config)
+        from physhand_mj.activity import Activity
+
+        self.activity = Activity(self)  # what runs each frame (gated contact blocks, the work set)
+        self.last_activity: dict = {}
         self._graphs: dict[tuple, object] = {}
         self._ops: dict[tuple, list] = {}
         h = self.config.substep_dt
@@ -145,8 +149,10 @@ class Solver:
         state.pose_fresh = False
         key = (id(state), id(self.contact))
         ops = self._ops.get(key)
+        self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
         if ops is None:  # record every launch of a frame once: replaying skips Python argument packing
             ops = self._ops[key] = self._record_frame(state)
+            self.activity.finish_recording(ops)
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
         elif self._capturable():
@@ -176,6 +182,12 @@ class Solver:
             rows = self.contact.read_metrics(synchronize=False)
             out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
             self.substep_metrics = rows[:-1]
+            self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
+                                                      self.contact.features_listed(), self.contact)
+        else:
+            self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
+                                      features_listed=0, ops_run=len(ops), contact_ops_run=0)
+        out.update(self.last_activity)
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
                               f"{state.frames}; state kept at their last finite positions")
@@ -189,6 +201,8 @@ class Solver:
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
         ops = []
+        cur = [ops]  # where launches go: the frame's list, or a gated block's (activity.py)
+        self.activity.reset_recording()
         if self.contact is not None:
             self.contact.begin_frame(ops)
 
@@ -201,7 +215,19 @@ class Solver:
                 return
             kw = {} if block_dim is None else dict(block_dim=block_dim)
             cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
-            ops.append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count))
+            cur[0].append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count))
+
+        def gated(record, level):
+            """Record ``record(sub_ops)`` into a block that runs only when contact has work
+            (activity.py: level 0 = an object may be near, 1 = the frame broadphase kept a triangle)."""
+            sub: list = []
+            outer, cur[0] = cur[0], sub
+            try:
+                record(sub)
+            finally:
+                cur[0] = outer
+            if sub:
+                outer.append(self.activity.gate(sub, level))
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
         fam = {
@@ -213,7 +239,9 @@ class Solver:
         launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
                [state.body_sub, state.guard])
         if self.contact is not None:
-            self.contact.record_frame(launch, ops, state)
+            contact = self.contact
+            ops.append(contact.counters.zero_)  # the frame's list lengths (the level-1 gates read one)
+            gated(lambda sub: contact.record_frame(launch, sub, state, gated), 0)
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         for s in range(cfg.substeps + 1):
             # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
@@ -226,7 +254,7 @@ class Solver:
                 break
             contact = self.contact
             if contact is not None and contact.wants("before"):
-                contact.record(launch, ops, state)
+                gated(lambda sub: contact.record(launch, sub, state), 1)
             for it in range(cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
                     names = [name for name in group if m.colors[name]]
@@ -247,17 +275,23 @@ class Solver:
                     launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
                     pending = -1
                 if contact.wants("after"):
-                    contact.record(launch, ops, state)
-            if contact is not None and cfg.skin_tether > 0:  # contact can drag the skin, nothing else can
+                    gated(lambda sub: contact.record(launch, sub, state), 1)
+            if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
                 if pending >= 0:
                     launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
                     pending = -1
-                launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.skin_local, state.body_sub, s, cfg.skin_tether],
-                       [state.x, state.guard])
-                if cfg.substep_metrics:
-                    contact.record_metrics(launch, ops, state, s, objects_side=False)
-        if self.contact is not None:
-            self.contact.record_metrics(launch, ops, state, cfg.substeps, objects_side=cfg.object_metrics)
+
+                def after_contact(sub, s=s):
+                    if cfg.skin_tether > 0:  # contact can drag the skin, nothing else can
+                        launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.skin_local, state.body_sub, s,
+                                                                 cfg.skin_tether], [state.x, state.guard])
+                    if cfg.substep_metrics:  # only when a log asks (rollout)
+                        contact.record_metrics(launch, sub, state, s, objects_side=False)
+
+                gated(after_contact, 1)
+        if self.contact is not None:  # nothing within the frame margin: nothing inside, the rows stay zero
+            gated(lambda sub: self.contact.record_metrics(launch, sub, state, cfg.substeps,
+                                                          objects_side=cfg.object_metrics), 1)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
         return ops
 

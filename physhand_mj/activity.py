@@ -1,0 +1,143 @@
+"""What runs this frame: the contact work set, gated blocks of the recorded frame, the frame's tally.
+
+The solver records a frame once (a list of launches; a CUDA graph on GPUs). Contact work is
+recorded into *gated blocks* that run only when the scene calls for them:
+
+    level 0  an object may be near the hand: the frame broadphase (contact.record_frame) and
+             everything after it. On the CPU the host decides it before the frame from the skin's
+             bounding box (free to read there) and the objects' bounding spheres / planes, grown by
+             Config.contact_frame_margin (the same margin the frame broadphase uses); on CUDA the
+             block always runs (the skin is not on the host).
+    level 1  the frame broadphase kept a triangle (its count, ``Contact.cand_count``): the contact
+             stages, the tether, the penetration metrics. On the CPU the count is read on the host
+             for free; on CUDA the block is a conditional graph node (``wp.capture_if``) on it.
+
+With no object within the frame margin no contact kernel runs (CPU: not even the frame
+broadphase; CUDA: the frame broadphase only). Nothing inside a closed block could change the
+result: skin farther than the margin from every object has no decision point below
+``contact_margin``, no feature near it, no penetrating sample, and nothing for the tether to undo.
+Objects enter and leave the work set through these tests every frame.
+
+:meth:`Activity.report` turns the list lengths the frame already copies back (no extra host sync)
+into what ran: objects near, triangles in the frame list / stage lists / tested by the passes,
+features listed, ops run (launches, memsets, refits) and of those the contact's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.types import GeomType
+
+
+class Activity:
+    """The gated blocks of one solver's recorded frame and the host-side work-set test."""
+
+    def __init__(self, solver):
+        self.solver = solver
+        self.device = solver.device
+        self.enabled = bool(solver.config.skip_idle)
+        c = solver.contact
+        self.cuda_gates = bool(self.enabled and self.device.is_cuda and c is not None and wp.is_conditional_graph_supported())
+        self.near = np.ones(1, np.int32)  # level 0 flag, decided on the host before the frame (CPU)
+        self.objects_near = -1  # objects (MuJoCo bodies) in the work set; -1: not decided on the host
+        self._cand = c.cand_count.numpy() if c is not None and not self.device.is_cuda else None
+        self.reset_recording()
+
+    def reset_recording(self) -> None:
+        self.gates: list[_Gate] = []
+
+    # -- recording -------------------------------------------------------------------------------
+    def gate(self, sub: list, level: int) -> "_Gate":
+        """An op running ``sub`` when the frame's contact has work at ``level`` (see the module doc)."""
+        g = _Gate(self, sub, level)
+        self.gates.append(g)
+        return g
+
+    # -- per frame, host -------------------------------------------------------------------------
+    def begin_frame(self, state) -> None:
+        """Decide level 0 on the CPU: is any object's bounding sphere (a plane: its half-space)
+        within Config.contact_frame_margin of the skin's bounding box?"""
+        c = self.solver.contact
+        if c is None or self.device.is_cuda:
+            self.objects_near = -1 if c is not None else 0
+            return
+        m = self.solver.model
+        skin = state.x.numpy()[: m.n_skin]  # a view: CPU memory
+        lo, hi = skin.min(axis=0), skin.max(axis=0)
+        self.objects_near = objects_near(c.objects, lo, hi, self.solver.config.contact_frame_margin)
+        self.near[0] = int(self.objects_near > 0)
+
+    def report(self, counters: np.ndarray, feat_count: int, contact) -> dict:
+        """What ran in the last frame, from the frame's list lengths (host copies)."""
+        near = bool(self.near[0]) or not self.enabled
+        cand = int(counters[0]) if near else 0
+        gating1 = self.enabled and (not self.device.is_cuda or self.cuda_gates)
+        open1 = near and (cand > 0 or not gating1)
+        contact_ops = sum(g.leaf_ops(open1) for g in self.gates if g.top and (near if g.level == 0 else open1))
+        ops = self.ungated_ops + contact_ops
+        tested = int(sum(int(counters[s]) for s in contact.pass_slots)) if open1 else 0
+        stage = int(sum(int(counters[a]) for a, *_ in contact._stage_slots)) if open1 else 0
+        return dict(objects_near=self.objects_near, triangles_frame=cand, triangles_stage=stage,
+                    triangles_tested=tested, features_listed=int(feat_count) if open1 else 0,
+                    ops_run=ops, contact_ops_run=contact_ops)
+
+    def finish_recording(self, ops: list) -> None:
+        """Count the recorded frame's ops outside the gated blocks."""
+        self.ungated_ops = sum(1 for op in ops if not isinstance(op, _Gate))
+
+
+class _Gate:
+    """A block of recorded ops running when its level is open: on the CPU decided on the host; on
+    CUDA level 1 is a conditional graph node, level 0 always runs."""
+
+    def __init__(self, activity: Activity, sub: list, level: int):
+        self.activity, self.sub, self.level = activity, sub, level
+        self.top = True
+        for op in sub:
+            if isinstance(op, _Gate):
+                op.top = False
+
+    def __call__(self):
+        a = self.activity
+        if not a.enabled:
+            self.run_all()
+        elif a.device.is_cuda:
+            if self.level == 1 and a.cuda_gates:
+                wp.capture_if(a.solver.contact.cand_count, on_true=self.run_all)
+            else:
+                self.run_all()
+        elif a.near[0] and (self.level == 0 or a._cand[0]):
+            self.run_all()
+
+    def run_all(self):
+        for op in self.sub:
+            op()
+
+    def leaf_ops(self, open1: bool) -> int:
+        """Ops this block runs (nested blocks of level 1 only when ``open1``)."""
+        return sum(1 if not isinstance(op, _Gate) else op.leaf_ops(open1) if (op.level == 0 or open1) else 0
+                   for op in self.sub)
+
+
+def objects_near(objects, lo: np.ndarray, hi: np.ndarray, margin: float) -> int:
+    """Objects (geoms grouped by ``obj``) with a geom within ``margin`` (m) of the box [lo, hi]: a
+    geom's bounding sphere about its origin, a plane's half-space below its local z = 0."""
+    h = objects._host
+    n = len(objects)
+    if not n:
+        return 0
+    pose = h["pose"][:n].astype(np.float64)  # [p, q x y z w]
+    p, q = pose[:, :3], pose[:, 3:]
+    near = np.zeros(n, bool)
+    plane = h["gtype"][:n] == int(GeomType.PLANE)
+    if np.any(~plane):  # distance from the sphere's centre to the box
+        d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+        near |= ~plane & (d - h["radius"][:n] <= margin)
+    if np.any(plane):  # the lowest box corner along the plane's normal (local z)
+        x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        nrm = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)
+        low = np.where(nrm > 0, lo, hi)  # the corner deepest below the plane
+        near |= plane & (np.einsum("ij,ij->i", low - p, nrm) <= margin)
+    return int(len(np.unique(h["obj"][:n][near])))

@@ -1,0 +1,207 @@
+"""Only the effects a scene calls for (physhand_mj/activity.py): with no object near the hand no
+contact kernel runs, objects enter and leave the work set through the broadphase, skipping changes
+no result, and switching an effect off removes exactly its launches."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+import physhand_mj as ph
+from physhand_mj.activity import _Gate
+from physhand_mj.contact import Objects
+from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+from physhand_mj.solver import Solver, make_model
+from physhand_mj.types import Config, GeomType
+
+R = 0.02  # m, the sphere's radius
+FAR = (1.0, 1.0, 1.0)  # m, far from the hand
+
+
+@pytest.fixture(scope="module")
+def scene():
+    wp.init()
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
+    return asset, mount_pose(model, data), poses
+
+
+def _solver(scene, gtype=GeomType.SPHERE, size=(R, 0.0, 0.0), **config):
+    asset, mount, poses = scene
+    cfg = Config(device="cpu", **config)
+    objects = Objects("cpu", 1)
+    objects.add(gtype, size, pos=FAR, name="ball")
+    solver = Solver(make_model(asset, cfg), cfg, objects=objects)
+    state = solver.make_state(*mount)
+    top = state.x.numpy()[: asset.n_skin]
+    top = top[np.argmax(top[:, 2])].astype(float)  # the back of the hand (palm down): its highest skin point
+    return solver, state, objects, top
+
+
+def _step(solver, state, poses):
+    solver.set_body_poses(state, *poses)
+    return solver.step(state)
+
+
+def _kernel_name(op):
+    cmd = getattr(op, "cmd", None) or getattr(op, "__self__", None)
+    k = getattr(cmd, "kernel", None)
+    return None if k is None else f"{k.module.name}.{k.key}"
+
+
+def _leaves(ops, inside=False):
+    """(list, index, inside a gated block) of every recorded op, through the gated blocks."""
+    for i, op in enumerate(ops):
+        if isinstance(op, _Gate):
+            yield from _leaves(op.sub, True)
+        else:
+            yield ops, i, inside
+
+
+def _instrument(solver, state):
+    """Wrap every recorded op so that running it logs its kernel (or None for memsets, refits)."""
+    ran = []
+    ops = solver._ops[(id(state), id(solver.contact))]
+    for lst, i, _ in list(_leaves(ops)):
+        op = lst[i]
+
+        def wrapped(op=op, name=_kernel_name(op)):
+            ran.append(name)
+            op()
+
+        lst[i] = wrapped
+    return ran
+
+
+def _is_contact_kernel(name):
+    return name is not None and (".contact." in name or ".metrics" in name or name.endswith("tether_skin"))
+
+
+def test_no_object_near_runs_no_contact_kernel(scene):
+    solver, state, objects, top = _solver(scene)
+    poses = scene[2]
+    _step(solver, state, poses)  # records (and compiles) the frame
+    ran = _instrument(solver, state)
+    out = _step(solver, state, poses)
+    contact = [k for k in ran if _is_contact_kernel(k)]
+    assert contact == [], f"contact kernels ran with no object near: {sorted(set(contact))}"
+    assert out["contact_ops_run"] == 0 and out["objects_near"] == 0 and out["triangles_frame"] == 0
+    assert out["ops_run"] == len(ran), (out["ops_run"], len(ran))
+    # the ball enters the work set: the broadphase lists triangles and the contact runs
+    objects.set_pose(0, top + [0.0, 0.0, R - 0.002], (1.0, 0.0, 0.0, 0.0))
+    ran.clear()
+    out = _step(solver, state, poses)
+    names = set(ran)
+    assert {"find_active", "decide_and_project", "apply_contact", "penetration_samples"} <= {
+        n.rsplit(".", 1)[1] for n in names if n}, names
+    assert out["objects_near"] == 1 and out["triangles_frame"] > 0 and out["triangles_tested"] > 0
+    assert out["contact_ops_run"] > 0 and out["ops_run"] == len(ran), (out["ops_run"], len(ran))
+    counts = solver.contact.stage_counts()
+    assert out["triangles_stage"] == counts[:, 0].sum()
+    # ... and leaves it
+    objects.set_pose(0, FAR, (1.0, 0.0, 0.0, 0.0))
+    ran.clear()
+    out = _step(solver, state, poses)
+    assert not [k for k in ran if _is_contact_kernel(k)] and out["objects_near"] == 0
+    assert out["penetration_count"] == 0 and not solver.contact.push.numpy().any()
+
+
+def test_object_within_margin_but_not_touching_runs_the_broadphase_only(scene):
+    solver, state, objects, top = _solver(scene)
+    poses = scene[2]
+    # inside the host box test, outside the triangles' frame margin (the sphere's bounding box
+    # overlaps the grown skin box but no triangle is within 1 cm): the broadphase runs, nothing else
+    lo = state.x.numpy()[: solver.model.n_skin].min(axis=0).astype(float)
+    objects.set_pose(0, lo - (R + 0.006) / np.sqrt(3.0), (1.0, 0.0, 0.0, 0.0))
+    _step(solver, state, poses)
+    ran = _instrument(solver, state)
+    out = _step(solver, state, poses)
+    contact = {k.rsplit(".", 1)[1] for k in ran if _is_contact_kernel(k)}
+    assert out["objects_near"] == 1 and out["triangles_frame"] == 0
+    assert contact == {"find_active"}, contact
+
+
+def test_skipping_changes_no_result(scene):
+    """An object approaching, touching and pressing: skip_idle on and off give the same skin, bit
+    for bit (CPU), the same metrics and the same contact report."""
+    runs = []
+    for skip in (True, False):
+        solver, state, objects, top = _solver(scene, GeomType.BOX, (0.015, 0.015, 0.015), skip_idle=skip)
+        outs = []
+        for k in range(12):
+            objects.set_pose(0, top + [0.0, 0.0, 0.015 + 0.03 - 0.0035 * k], (1.0, 0.0, 0.0, 0.0))
+            outs.append(_step(solver, state, scene[2]))
+        runs.append((state.x.numpy().copy(), outs, solver.contact.push.numpy().copy()))
+    (x1, o1, p1), (x2, o2, p2) = runs
+    assert np.array_equal(x1, x2), float(np.abs(x1 - x2).max())
+    assert np.array_equal(p1, p2)
+    keys = ("penetration_count", "penetration_max_um", "tethered", "triangles_frame", "triangles_tested",
+            "features_listed")
+    assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]
+    assert o1[0]["contact_ops_run"] == 0 < o2[0]["contact_ops_run"]  # far: skipped
+    assert o1[-1]["contact_ops_run"] == o2[-1]["contact_ops_run"] > 0  # touching: the same work
+    assert o1[-1]["features_listed"] > 0  # the box's corners and edges near the skin
+
+
+def _recorded(solver, state, poses):
+    _step(solver, state, poses)
+    ops = solver._ops[(id(state), id(solver.contact))]
+    return [_kernel_name(lst[i]) for lst, i, _ in _leaves(ops)]
+
+
+def _without(names, drop):
+    return [n for n in names if n is None or not n.endswith(drop)]
+
+
+@pytest.mark.parametrize("effect, config, kernels", [
+    # a Jacobi group fewer: its averaging launch goes with it (one per substep)
+    ("smoothness", dict(smoothness=False), ("solve_dihedrals", "apply_jacobi")),
+    ("tether", dict(skin_tether=0.0), ("tether_skin",)),
+    ("substep metrics", dict(substep_metrics=True), ("penetration_samples",)),
+])
+def test_switching_an_effect_off_removes_exactly_its_launches(scene, effect, config, kernels):
+    base_s, base_st, *_ = _solver(scene)
+    other_s, other_st, *_ = _solver(scene, **config)
+    base, other = _recorded(base_s, base_st, scene[2]), _recorded(other_s, other_st, scene[2])
+    more, less = (other, base) if effect == "substep metrics" else (base, other)
+    assert len(more) > len(less), effect
+    count = lambda names, k: sum(1 for n in names if n and n.endswith(k))
+    subs = base_s.config.substeps
+    assert count(more, kernels[0]) - count(less, kernels[0]) == subs  # one per substep
+    if effect == "smoothness":
+        assert count(more, "apply_jacobi") - count(less, "apply_jacobi") == subs
+    for k in kernels:
+        more = _without(more, k)
+        less = _without(less, k)
+    assert more == less, f"{effect}: launches other than {kernels} changed"
+
+
+def test_substep_metrics_only_when_asked_and_change_nothing_else(scene):
+    runs = []
+    for sub in (False, True):
+        solver, state, objects, top = _solver(scene, substep_metrics=sub)
+        objects.set_pose(0, top + [0.0, 0.0, R - 0.002], (1.0, 0.0, 0.0, 0.0))
+        for _ in range(3):
+            out = _step(solver, state, scene[2])
+        runs.append((state.x.numpy().copy(), out, solver.substep_metrics.copy()))
+    (x1, o1, r1), (x2, o2, r2) = runs
+    assert np.array_equal(x1, x2)
+    assert o1["penetration_count"] == o2["penetration_count"]
+    assert not r1.any() and r2[:, 0].sum() >= 0 and r2.shape == r1.shape
+    assert np.array_equal(r2[:, 3:], np.zeros_like(r2[:, 3:]))  # the second measure runs at the frame's end only
+
+
+def test_softhand_metrics_say_what_ran():
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    mujoco.mj_forward(model, data)
+    hand = ph.SoftHand(model, data, ph.Config(device="cpu"), settle_frames=2)
+    mujoco.mj_step(model, data)
+    hand.step()
+    m = hand.metrics()
+    for k in ("objects_near", "triangles_frame", "triangles_tested", "features_listed", "ops_run", "contact_ops_run"):
+        assert isinstance(m[k], int) and m[k] >= (-1 if k == "objects_near" else 0), (k, m[k])
+    assert m["ops_run"] >= m["contact_ops_run"]
