@@ -42,16 +42,19 @@ class Activity:
         self.cuda_gates = bool(self.enabled and self.device.is_cuda and c is not None and wp.is_conditional_graph_supported())
         self.near = np.ones(1, np.int32)  # level 0 flag, decided on the host before the frame (CPU)
         self.objects_near = -1  # objects (MuJoCo bodies) in the work set; -1: not decided on the host
-        self._cand = c.cand_count.numpy() if c is not None and not self.device.is_cuda else None
+        cpu = c is not None and not self.device.is_cuda
+        self._cand = c.cand_count.numpy() if cpu else None
+        self._counters = c.counters.numpy() if cpu else None  # views: CPU memory
         self.reset_recording()
 
     def reset_recording(self) -> None:
         self.gates: list[_Gate] = []
 
     # -- recording -------------------------------------------------------------------------------
-    def gate(self, sub: list, level: int) -> "_Gate":
-        """An op running ``sub`` when the frame's contact has work at ``level`` (see the module doc)."""
-        g = _Gate(self, sub, level)
+    def gate(self, sub: list, level: int, slots=()) -> "_Gate":
+        """An op running ``sub`` when the frame's contact has work at ``level`` (see the module doc;
+        level 2: a contact pass, run when the previous pass moved a vertex: counters at ``slots``)."""
+        g = _Gate(self, sub, level, tuple(slots))
         self.gates.append(g)
         return g
 
@@ -75,7 +78,8 @@ class Activity:
         cand = int(counters[0]) if near else 0
         gating1 = self.enabled and (not self.device.is_cuda or self.cuda_gates)
         open1 = near and (cand > 0 or not gating1)
-        contact_ops = sum(g.leaf_ops(open1) for g in self.gates if g.top and (near if g.level == 0 else open1))
+        contact_ops = sum(g.leaf_ops(open1, counters) for g in self.gates
+                          if g.top and (near if g.level == 0 else open1))
         ops = self.ungated_ops + contact_ops
         tested = int(sum(int(counters[s]) for s in contact.pass_slots)) if open1 else 0
         stage = int(sum(int(counters[a]) for a, *_ in contact._stage_slots)) if open1 else 0
@@ -92,8 +96,8 @@ class _Gate:
     """A block of recorded ops running when its level is open: on the CPU decided on the host; on
     CUDA level 1 is a conditional graph node, level 0 always runs."""
 
-    def __init__(self, activity: Activity, sub: list, level: int):
-        self.activity, self.sub, self.level = activity, sub, level
+    def __init__(self, activity: Activity, sub: list, level: int, slots: tuple = ()):
+        self.activity, self.sub, self.level, self.slots = activity, sub, level, slots
         self.top = True
         for op in sub:
             if isinstance(op, _Gate):
@@ -103,22 +107,32 @@ class _Gate:
         a = self.activity
         if not a.enabled:
             self.run_all()
-        elif a.device.is_cuda:
+        elif a.device.is_cuda:  # (level 2 always runs on CUDA: its later passes find empty lists)
             if self.level == 1 and a.cuda_gates:
                 wp.capture_if(a.solver.contact.cand_count, on_true=self.run_all)
             else:
                 self.run_all()
-        elif a.near[0] and (self.level == 0 or a._cand[0]):
+        elif a.near[0] and (self.level == 0 or a._cand[0]) and (
+                self.level < 2 or any(a._counters[s] for s in self.slots)):
             self.run_all()
 
     def run_all(self):
         for op in self.sub:
             op()
 
-    def leaf_ops(self, open1: bool) -> int:
-        """Ops this block runs (nested blocks of level 1 only when ``open1``)."""
-        return sum(1 if not isinstance(op, _Gate) else op.leaf_ops(open1) if (op.level == 0 or open1) else 0
-                   for op in self.sub)
+    def leaf_ops(self, open1: bool, counters) -> int:
+        """Ops this block runs (nested blocks of level 1 only when ``open1``, of level 2 when one of
+        their counters is not zero)."""
+        return sum(1 if not isinstance(op, _Gate) else op.leaf_ops(open1, counters) if op.opens(open1, counters)
+                   else 0 for op in self.sub)
+
+    def opens(self, open1: bool, counters) -> bool:
+        if self.level == 0:
+            return True
+        if self.level == 1:
+            return open1
+        gating = self.activity.enabled and not self.activity.device.is_cuda
+        return open1 and (not gating or any(counters[s] for s in self.slots))
 
 
 def objects_near(objects, lo: np.ndarray, hi: np.ndarray, margin: float) -> int:

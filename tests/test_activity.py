@@ -139,7 +139,8 @@ def test_skipping_changes_no_result(scene):
             "features_listed")
     assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]
     assert o1[0]["contact_ops_run"] == 0 < o2[0]["contact_ops_run"]  # far: skipped
-    assert o1[-1]["contact_ops_run"] == o2[-1]["contact_ops_run"] > 0  # touching: the same work
+    # touching: the same work, less the passes after one that moved nothing (they would repeat it)
+    assert 0 < o1[-1]["contact_ops_run"] <= o2[-1]["contact_ops_run"]
     assert o1[-1]["features_listed"] > 0  # the box's corners and edges near the skin
 
 

@@ -135,10 +135,12 @@ class Contact:
         self._slot += 1
         return c
 
-    def record(self, launch, ops: list, state) -> None:
+    def record(self, launch, ops: list, state, gated=None) -> None:
         """One contact stage: broadphase over the frame's list, then ``contact_passes`` x (decision
         points + Eq. 9, averaged apply); a later pass queries only the stage's triangles with a
-        vertex the previous pass moved (the others cannot have changed)."""
+        vertex the previous pass moved (the others cannot have changed). With the solver's ``gated``
+        a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
+        skin: activity.py level 2)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
@@ -162,8 +164,24 @@ class Contact:
                    [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, o.pose,
                     cfg.contact_frame_margin, cfg.contact_margin], [self.feat_stage, feat_count],
                    count=self.feat_count)
+        else:
+            skin = feat_count = None
+        prev: tuple = ()  # counter slots of the vertices the previous pass moved
         for p in range(cfg.contact_passes):
+            if p and gated is not None:
+                box: dict = {}
+                gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin, feat_count)),
+                      2, prev)
+                lst, prev = box["r"]
+            else:
+                lst, prev = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
+
+    def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
+        """One pass of a stage; returns the next pass's list and this pass's touched counter slots."""
+        m, o, cfg = self.model, self.objects, self.config
+        if True:  # (the pass loop's body)
             stamp = self._slot  # unique within the frame (moved is zeroed per frame)
+            moved_slots = [self._slot]
             self.touched_count = self._counter()
             outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
                     self.touched, self.touched_count]
@@ -171,6 +189,7 @@ class Contact:
                 # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
                 if p:  # (pass 0 sees the skin stage_features refitted for)
                     ops.append(self._refit_op(skin, feat_count))
+                moved_slots.append(self._slot)
                 feat_touched = self._counter()
                 launch(feature_contact, self.points.n_features,
                        [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
@@ -197,6 +216,7 @@ class Contact:
                 launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
                                                  self.moved, self.disp, stamp, self.bound], list(lst),
                        count=self.active_count)
+        return lst, tuple(moved_slots)
 
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""

@@ -217,9 +217,10 @@ class Solver:
             cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
             cur[0].append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count))
 
-        def gated(record, level):
+        def gated(record, level, slots=()):
             """Record ``record(sub_ops)`` into a block that runs only when contact has work
-            (activity.py: level 0 = an object may be near, 1 = the frame broadphase kept a triangle)."""
+            (activity.py: level 0 = an object may be near, 1 = the frame broadphase kept a triangle,
+            2 = one of the contact counters at ``slots`` is not zero)."""
             sub: list = []
             outer, cur[0] = cur[0], sub
             try:
@@ -227,7 +228,7 @@ class Solver:
             finally:
                 cur[0] = outer
             if sub:
-                outer.append(self.activity.gate(sub, level))
+                outer.append(self.activity.gate(sub, level, slots))
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
         fam = {
@@ -254,7 +255,7 @@ class Solver:
                 break
             contact = self.contact
             if contact is not None and contact.wants("before"):
-                gated(lambda sub: contact.record(launch, sub, state), 1)
+                gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             for it in range(cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
                     names = [name for name in group if m.colors[name]]
@@ -275,7 +276,7 @@ class Solver:
                     launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
                     pending = -1
                 if contact.wants("after"):
-                    gated(lambda sub: contact.record(launch, sub, state), 1)
+                    gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
                 if pending >= 0:
                     launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
