@@ -33,7 +33,7 @@ from physhand_mj.types import GeomType  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = (("knife", "fingertip", -0.004), ("mesh_cone", "palm", 0.002), ("plate", "fingertip", -0.004))
-METHODS = (("paper (multires, Eq. 9)", dict(feature_contact=False, side_aware=False)),
+METHODS = (("paper (multires, Eq. 9)", dict(feature_contact=False, side_aware=False, skin_tether=0.0)),
            ("default (+ features, side-aware)", {}))
 
 
