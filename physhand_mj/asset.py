@@ -194,7 +194,10 @@ def validate_asset(a: HandAsset, where: str = "asset") -> None:
     if len(a.rest_qpos) != len(a.rest_qpos_names):
         fail("rest_qpos and rest_qpos_names differ in length")
     if np.any(a.tet_rest_volume <= 0):
-        fail(f"{int(np.sum(a.tet_rest_volume <= 0))} tets have non-positive rest volume")
+        bad = np.flatnonzero(a.tet_rest_volume <= 0)
+        fail(f"{len(bad)} tets have non-positive rest volume (degenerate or inverted; first {bad[:5].tolist()}): "
+             f"drop degenerate tets and order each tet's vertices for a positive volume (soft_body reorients)")
+    _check_skin(a, fail)
     x = a.positions
     t = a.tets
     vol = np.einsum("ij,ij->i", np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]]), x[t[:, 3]] - x[t[:, 0]]) / 6
@@ -204,3 +207,26 @@ def validate_asset(a: HandAsset, where: str = "asset") -> None:
         fail("edges must have positive rest length")
     if np.any(a.mass[~skel] <= 0) or not np.isfinite(a.density) or a.density <= 0:
         fail("flesh and skin vertices need positive mass and the density must be positive")
+
+
+def _check_skin(a: HandAsset, fail) -> None:
+    """The skin surface: no zero-area triangle (its normal and Eq. 6 angle are undefined), no edge
+    in more than two triangles (non-manifold), and closed where the body has tets (the inside that
+    the object-side contact and the second penetration measure need)."""
+    f = a.skin_faces
+    if not len(f):
+        return
+    x = a.positions
+    area = 0.5 * np.linalg.norm(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]), axis=1)
+    if np.any(area <= 1e-14):
+        bad = np.flatnonzero(area <= 1e-14)
+        fail(f"{len(bad)} skin triangles have zero area (first {bad[:5].tolist()}): remove them or merge their "
+             f"vertices")
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    edges, count = np.unique(e, axis=0, return_counts=True)
+    if np.any(count > 2):
+        fail(f"the skin is non-manifold: {int(np.sum(count > 2))} edges lie in more than two triangles (first "
+             f"{edges[count > 2][0].tolist()}): split the surface so each edge joins at most two")
+    if len(a.tets) and np.any(count == 1):
+        fail(f"the skin of a body with tets must be closed: {int(np.sum(count == 1))} edges lie in one triangle "
+             f"only (first {edges[count == 1][0].tolist()}): close its holes (or pass no skin_faces)")

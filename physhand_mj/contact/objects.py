@@ -166,6 +166,11 @@ def _parts_overlap(tm, max_parts: int = 512) -> bool:
     return bool(np.triu(overlap, 1).any())
 
 
+# sizes an SDF reads per type (MuJoCo's conventions; types.GeomType)
+_SIZES_USED = {GeomType.SPHERE: 1, GeomType.CAPSULE: 2, GeomType.CYLINDER: 2, GeomType.CONE: 2,
+               GeomType.ELLIPSOID: 3, GeomType.BOX: 3}
+
+
 @dataclass
 class Objects:
     """Up to ``capacity`` geoms on ``device``. Arrays (G = capacity):
@@ -218,14 +223,19 @@ class Objects:
         its distance query looks; ``mesh_sign`` is "auto" (see :func:`prepare_mesh`) or "winding"
         (force the winding-number sign, e.g. for a mesh that passes through itself). ``obj`` groups
         geoms into one object (default: the geom's name)."""
-        gtype = GeomType(gtype)
+        try:
+            gtype = GeomType(gtype)
+        except ValueError:
+            raise ValueError(f"geom '{name}': unsupported geom type {gtype!r}; use one of "
+                             f"{[t.name for t in GeomType if t != GeomType.NONE]}") from None
         if gtype == GeomType.NONE:
             raise ValueError("GeomType.NONE cannot be added")
         if len(self.names) >= self.capacity:
             raise ValueError(f"Objects holds at most {self.capacity} geoms; make it with a larger capacity")
         size = np.zeros(3) if size is None else np.resize(np.asarray(size, float), 3)
-        if not np.all(np.isfinite(size)) or (gtype not in (GeomType.PLANE, GeomType.MESH) and np.any(size[:1] <= 0)):
-            raise ValueError(f"geom '{name}': sizes must be finite and positive, got {size}")
+        used = _SIZES_USED.get(gtype, 0)  # a zero size the SDF uses makes a degenerate shape
+        if not np.all(np.isfinite(size)) or np.any(size[:used] <= 0):
+            raise ValueError(f"geom '{name}': sizes must be finite and positive ({gtype.name} uses {used}), got {size}")
         i = len(self.names)
         h = self._host
         mesh_id = 0

@@ -1,0 +1,85 @@
+"""Sharp tips, knife edges and thin walls pressed into the palm and the fingertips (issue 14).
+
+Each run: the embedded hand at rest in hand_only, one object (physhand_mj.cases) pressed from 2 mm
+outside to ``depth`` into the rest skin over 8 frames (or starting there), held 10 frames, pulled
+20 mm out over 4 frames and left away 6 frames; default Config (multires, the object's features,
+side-aware exits, the 25 mm tether). Asserted every frame: positions finite, no skin vertex over 25
+mm from its rigidly carried position, tet volume within 2 %; while held: penetration by both
+measures (order-9 skin samples in the object, object points in the skin) not growing (the second
+half of the hold within the first half's worst + 2 samples / 20 um) and, for the cases that close,
+zero; after the object left: no tet inverted, zero by both measures. Measured margins:
+docs/stability.md.
+"""
+
+import numpy as np
+import pytest
+
+import physhand_mj as ph
+from physhand_mj.cases import Case, press_case
+from physhand_mj.types import GeomType
+from stress_harness import Stress, press_schedule
+
+PRESS, HOLD, LEAVE, FREE = 8, 10, 4, 6
+VOLUME_TOL = 0.02
+
+
+def _run(scene, case, depth, first):
+    run = Stress(scene, ph.Config(device="cpu"), case)
+    for d in press_schedule(depth, first, PRESS if first != depth else 0, HOLD if first != depth else PRESS + HOLD,
+                            LEAVE, FREE):
+        run.frame(depth=d)
+    return run
+
+
+# (kind, site, depth m, first depth m: -0.002 = pressed in from 2 mm outside, = depth: starts there,
+#  worst um allowed while held by either measure: 0 = clean from the end of the press)
+SHARP = [
+    ("cone_tip", "fingertip", 0.004, -0.002, 0.0),
+    ("cone_tip", "palm", 0.006, 0.006, 400.0),  # the tip flickers in and out: 0-4 points, <= 279 um
+    ("mesh_cone", "palm", 0.006, -0.002, 1000.0),  # its tip flickers: 0-3 points, <= 735 um
+    ("knife", "fingertip", 0.004, 0.004, 50.0),  # one frame with 2 edge points, 3.5 um
+    ("knife", "palm", 0.006, -0.002, 300.0),
+]
+
+
+@pytest.mark.parametrize("kind, site, depth, first, worst_um", SHARP)
+def test_sharp_tip_or_knife_edge(scene, margins, kind, site, depth, first, worst_um):
+    run = _run(scene, press_case(kind, site=site, depth=depth), depth, first)
+    held = (PRESS, PRESS + HOLD)
+    out = run.check(volume_tol=VOLUME_TOL, hold=held, free_from=PRESS + HOLD + LEAVE,
+                    clean_after=PRESS if worst_um == 0 else None)
+    r = run.arrays()
+    worst = max(np.nanmax(r["skin_max_um"][slice(*held)]), np.nanmax(r["obj_max_um"][slice(*held)]))
+    assert worst <= max(worst_um, 0.0), f"held penetration {worst:.1f} um > {worst_um} um: {run.report()}"
+    margins.update(out, case=f"{kind} {site}", depth_mm=depth * 1e3, start="deep" if first == depth else "press",
+                   held_worst_um=round(float(worst), 1), held_bound_um=worst_um)
+
+
+# thin walls: a 1 mm plate edge first (cases.py) and a 1 mm wall lying flat, starting past its mid-plane
+WALL = Case("wall", GeomType.BOX, (0.012, 0.012, 0.0005), lead=0.001)
+THIN = [
+    ("plate", "palm", 0.004, -0.002, 50.0),
+    ("plate", "fingertip", 0.004, 0.004, 50.0),
+    # the skin starts 0.8 mm into a 1 mm wall (past its mid-plane); clean from frame 3, then from
+    # frame 11 the palm's skin passes the wall's mid-plane and Eq. 9 puts it through: a 1 mm wall is
+    # at most 0.5 mm deep anywhere, under side-aware exits' 0.5 mm floor (docs/stability.md)
+    pytest.param("wall", "palm", 0.0008, 0.0008, 50.0, marks=pytest.mark.xfail(
+        strict=True, reason="known gap: a 1 mm wall flat on the palm tunnels during the hold (side-aware "
+                            "exits act only deeper than 0.5 mm, the wall's half-thickness)")),
+    ("wall", "fingertip", 0.0008, 0.0008, 50.0),
+]
+
+
+@pytest.mark.parametrize("kind, site, depth, first, worst_um", THIN)
+def test_thin_wall(scene, margins, kind, site, depth, first, worst_um):
+    import dataclasses
+
+    case = press_case(kind, site=site, depth=depth) if kind != "wall" else dataclasses.replace(WALL, site=site)
+    run = _run(scene, case, depth, first)
+    held = (PRESS, PRESS + HOLD)
+    out = run.check(volume_tol=VOLUME_TOL, hold=held, free_from=PRESS + HOLD + LEAVE)
+    r = run.arrays()
+    worst = max(np.nanmax(r["skin_max_um"][slice(*held)]), np.nanmax(r["obj_max_um"][slice(*held)]))
+    assert worst <= worst_um, f"held penetration {worst:.1f} um > {worst_um} um: {run.report()}"
+    margins.update(out, case=f"{kind} {site}", depth_mm=depth * 1e3, start="deep" if first == depth else "press",
+                   held_worst_um=round(float(worst), 1), held_bound_um=worst_um)
