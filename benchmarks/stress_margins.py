@@ -36,8 +36,9 @@ def main(argv=None) -> int:
         wall = time.perf_counter() - t
         tail = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else proc.stderr.strip()[-300:]
         margins = json.loads(raw.read_text()) if raw.exists() else {}
+    failed = [ln for ln in proc.stdout.splitlines() if ln.startswith(("FAILED", "ERROR"))]
     out = dict(command="python benchmarks/stress_margins.py" + (" --soak" if args.soak else ""),
-               pytest=" ".join(cmd[1:]), device=device_name("cpu"), result=tail, wall_s=round(wall, 1),
+               pytest=" ".join(cmd[1:]), device=device_name("cpu"), result=tail, failed=failed, wall_s=round(wall, 1),
                tests=margins)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
