@@ -3,8 +3,10 @@
 Every movable vertex (skin and flesh) is a body with three slide joints, as ``<flexcomp dof="full">``
 makes them; skeleton vertices sit in the world body (pinned, as physhand_mj's inverse mass 0).
 The flex's elements are the body's tets, its elasticity MuJoCo's linear tet FEM (``young``,
-``poisson``), integrated with ``integrator="discrete"`` (MuJoCo 3.17 integrates flex elasticity
-implicitly only there; under Euler the hand's tets blow up at 0.25 ms steps, measured).
+``poisson``). ``integrator="discrete"`` is the only one under which MuJoCo 3.17 integrates flex
+elasticity implicitly (stable at 0.5 ms with poisson 0.495), but on the hand its steps with contact
+took minutes (docs/peers.md); run_cpu.py uses Euler at 0.1 ms with poisson 0.3 (Euler diverged at
+0.25 ms on the hand, measured).
 
 Matched to physhand_mj's ``Config`` defaults (docs/peers.md says what is and is not):
 - masses: the asset's lumped vertex masses (density 1100 kg/m^3), gravity -9.81 m/s^2 along z;
@@ -43,14 +45,14 @@ _GEOM = {GeomType.SPHERE: mujoco.mjtGeom.mjGEOM_SPHERE, GeomType.CAPSULE: mujoco
 
 
 def flex_spec(asset, case=None, *, young: float = YOUNG, poisson: float = POISSON, damping: float = DAMPING,
-              radius: float = RADIUS, steps: int = 10, solref=None, gravity=(0.0, 0.0, -9.81)) -> mujoco.MjSpec:
+              radius: float = RADIUS, steps: int = 10, solref=None, integrator: str = "discrete", gravity=(0.0, 0.0, -9.81)) -> mujoco.MjSpec:
     """An MjSpec with ``asset``'s tet mesh as one dim-3 flex (vertices in asset order) and, with a
     ``case``, its object as a mocap body ``object`` (geom ``object``). Raises ValueError for an
     object MuJoCo has no geom for (the analytic cone: use the mesh cone)."""
     s = mujoco.MjSpec()
     s.modelname = "peer_flex"
     s.option.timestep = FRAME_DT / steps
-    s.option.integrator = mujoco.mjtIntegrator.mjINT_DISCRETE
+    s.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}")
     s.option.gravity = list(gravity)
     x = np.asarray(asset.positions, float)
     movable = np.asarray(asset.layer) != Layer.SKELETON
