@@ -183,3 +183,55 @@ def _queries(cfg) -> int:
     if cfg.contact == Strategy.OPT:
         return cfg.opt_queries
     return cfg.multires_samples * cfg.multires_rounds
+
+
+def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False, frames: int | None = None,
+                   repeats: int | None = None, workloads=None, progress=None) -> dict:
+    """What accuracy costs in time (physhand_mj/accuracy.py): every swept contact setting on the HOI
+    grasps and hard cases; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
+    ``.json`` (the rows, one row per setting with its Pareto flags, the device) and ``.png`` (the
+    Pareto fronts). ``quick``: 2 settings, 2 workloads, 2 frames, 1 repeat (a smoke run)."""
+    import csv
+    import json
+
+    import warp as wp
+
+    from physhand_mj import accuracy as acc
+
+    wp.init()
+    if device.startswith("cuda") and not wp.is_cuda_available():
+        raise ValueError("--device cuda: no CUDA device is visible to Warp on this machine")
+    frames = frames if frames is not None else (2 if quick else 20)
+    repeats = repeats if repeats is not None else (1 if quick else 2)
+    if repeats < 1:
+        raise ValueError(f"--repeats must be >= 1, got {repeats}")
+    workloads = tuple(workloads) if workloads else (acc.QUICK_WORKLOADS if quick else acc.WORKLOADS)
+    points = acc.sweep_points(quick)
+    t0 = time.perf_counter()
+    rows = acc.run_sweep(points, workloads, device=device, frames=frames, repeats=repeats, progress=progress)
+    table = acc.summarize_points(points, rows)
+    dev = str(wp.get_device(device))
+    tag = dev.split(":")[0]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path, json_path, png_path = (out / f"accuracy_{tag}.{e}" for e in ("csv", "json", "png"))
+    with open(csv_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=acc.ROW_COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+    name = device_name(dev)
+    json_path.write_text(json.dumps(dict(device=dev, device_name=name, frames=frames, repeats=repeats,
+                                         workloads=list(workloads), hold_frames=acc.HOLD, points=table, rows=rows),
+                                    indent=1))
+    acc.plot_front(table, png_path, f"physhand bench accuracy: {len(points)} settings x {len(workloads)} workloads, "
+                                    f"{frames} frames, {name}")
+    default = next((p for p in table if p["default"]), None)
+    front = [dict(point=p["point"], ms_per_frame=p["ms_per_frame"], skin_um=p["skin_um"], object_um=p["object_um"])
+             for p in sorted(table, key=lambda p: p["ms_per_frame"]) if p["pareto_both"]]
+    return dict(command="bench accuracy", device=dev, device_name=name, points=len(points), workloads=list(workloads),
+                frames=frames, repeats=repeats, pareto=front,
+                default_on_front=None if default is None else dict(skin=default["pareto_skin"],
+                                                                   object=default["pareto_object"],
+                                                                   both=default["pareto_both"]),
+                seconds=round(time.perf_counter() - t0, 1), csv=str(csv_path), json=str(json_path),
+                plot=str(png_path))

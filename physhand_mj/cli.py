@@ -144,6 +144,15 @@ def _bench_cone(args) -> dict:
     return summary
 
 
+def _bench_accuracy(args) -> dict:
+    from physhand_mj.bench import bench_accuracy
+
+    workloads = args.workloads.split(",") if args.workloads else None
+    return bench_accuracy(device=args.device, out=args.out, quick=args.quick, frames=args.frames,
+                          repeats=args.repeats, workloads=workloads,
+                          progress=lambda line: print(f"physhand bench accuracy: {line}", file=sys.stderr, flush=True))
+
+
 def _view(args) -> dict:
     """MuJoCo's passive viewer on SCENE.xml with the soft skin updated live."""
     import os
@@ -257,6 +266,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rounds", type=int, default=None, help="multires rounds (count, default 2; the paper: 16 x 2)")
     p.add_argument("--log", type=Path, default=None, help="write the per-substep log as CSV here")
     p.set_defaults(run=_bench_cone)
+    p = bench.add_parser("accuracy", help="accuracy against time: contact settings swept over HOI grasps and hard "
+                                          "cases; CSV, JSON and a Pareto plot in DIR")
+    p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")
+    p.add_argument("--out", type=Path, default=Path("accuracy_out"), help="output directory (default accuracy_out)")
+    p.add_argument("--quick", action="store_true", help="a smoke run: 2 settings, 2 workloads, 2 frames")
+    p.add_argument("--frames", type=int, default=None, help="5 ms frames per run (count, default 20; --quick 2)")
+    p.add_argument("--repeats", type=int, default=None,
+                   help="timing passes in alternating order; the fastest median counts (count, default 2; --quick 1)")
+    p.add_argument("--workloads", default=None,
+                   help="comma-separated hoi:SCENE and case:KIND@SITE (default: box, apple, glass2, knife@fingertip, "
+                        "cone_tip@palm, plate@fingertip)")
+    p.set_defaults(run=_bench_accuracy)
     args = parser.parse_args(argv)
 
     from physhand_mj.asset import AssetError

@@ -1,0 +1,89 @@
+"""`physhand bench accuracy`: the Pareto front, the per-setting summary and a --quick run's files."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import warp as wp
+
+from physhand_mj.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, pareto_front, summarize_points,
+                                  sweep_points)
+from physhand_mj.cli import main
+
+
+def test_pareto_front_excludes_dominated_points():
+    costs = np.array([
+        [10.0, 5.0],   # front: fastest
+        [20.0, 1.0],   # front
+        [30.0, 0.0],   # front: most accurate
+        [25.0, 1.0],   # dominated by row 1 (slower, as deep)
+        [40.0, 3.0],   # dominated by rows 1 and 2
+        [20.0, 1.0],   # equal to row 1: kept with it
+        [np.nan, 0.0],  # unmeasured: never on the front
+    ])
+    assert pareto_front(costs).tolist() == [True, True, True, False, False, True, False]
+    # three objectives: a point better in one measure only stays on the front
+    c3 = np.array([[10.0, 0.0, 9.0], [10.0, 9.0, 0.0], [12.0, 0.0, 9.0]])
+    assert pareto_front(c3).tolist() == [True, True, False]
+    with pytest.raises(ValueError, match="2-D"):
+        pareto_front([1.0, 2.0])
+
+
+def test_summary_takes_the_worst_workload_and_flags_the_front():
+    pts = [SweepPoint("vertex", features=False, side_aware=False), SweepPoint(), SweepPoint(passes=2)]
+
+    def row(pt, w, ms, skin, obj):
+        return dict(point=pt.name, workload=w, ms_per_frame=ms, hold_skin_max_um=skin, hold_object_max_um=obj,
+                    skin5_count=int(skin > 0), skin9_count=0, object_count=int(obj > 0), finite=True)
+
+    rows = [row(pts[0], "a", 10, 500, 900), row(pts[0], "b", 20, 0, 0),        # fast, deep
+            row(pts[1], "a", 40, 0, 0), row(pts[1], "b", 60, 2, 0),            # slow, shallow
+            row(pts[2], "a", 45, 0, 0), row(pts[2], "b", 65, 3, 1)]            # slower and deeper than pts[1]
+    table = summarize_points(pts, rows)
+    assert [set(POINT_COLUMNS) <= set(t) for t in table] == [True] * 3
+    assert [t["ms_per_frame"] for t in table] == [15, 50, 55]
+    assert [(t["skin_um"], t["object_um"]) for t in table] == [(500, 900), (2, 0), (3, 1)]
+    assert [t["pareto_both"] for t in table] == [True, True, False]
+    assert [t["default"] for t in table] == [False, True, False]
+
+
+def test_sweep_names_are_unique_and_hold_the_default():
+    pts = sweep_points()
+    assert len({p.name for p in pts}) == len(pts)
+    assert sum(p.is_default() for p in pts) == 1
+    assert {p.contact for p in pts} == {"vertex", "opt", "multires"}
+    assert {p.passes for p in pts} >= {2, 4, 8} and {p.substeps for p in pts} >= {5, 10}
+
+
+def test_bench_accuracy_quick_writes_csv_json_png(tmp_path, capsys):
+    assert main(["bench", "accuracy", "--quick", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1, lines
+    out = json.loads(lines[0])
+    assert out["command"] == "bench accuracy" and out["points"] == 2 and out["frames"] == 2
+    assert out["device"] == "cpu" and "cpu" in out["device_name"]
+    with open(tmp_path / "accuracy_cpu.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames == ROW_COLUMNS
+        rows = list(reader)
+    assert len(rows) == 2 * len(out["workloads"])
+    assert all(float(r["ms_per_frame"]) > 0 and r["finite"] == "True" for r in rows)
+    data = json.loads((tmp_path / "accuracy_cpu.json").read_text())
+    assert len(data["points"]) == 2 and list(data["points"][0]) == POINT_COLUMNS
+    assert data["device_name"] == out["device_name"] and len(data["rows"]) == len(rows)
+    assert out["default_on_front"] is not None and out["pareto"]  # the front is never empty
+    assert (tmp_path / "accuracy_cpu.png").stat().st_size > 10_000
+
+
+def test_bench_accuracy_errors_are_one_line(capsys, tmp_path):
+    assert main(["bench", "accuracy", "--quick", "--frames", "1", "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--frames" in err
+    assert main(["bench", "accuracy", "--quick", "--workloads", "hoi:box,case:knife@elbow", "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "knife@elbow" in err
+    if not wp.is_cuda_available():
+        assert main(["bench", "accuracy", "--quick", "--device", "cuda", "--out", str(tmp_path)]) == 1
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "CUDA" in err
