@@ -85,7 +85,10 @@ def test_interrupted_rollout_keeps_its_log(tmp_path):
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "physhand_mj.cli", "rollout", str(APPLE), "--steps", "500",
                              "--device", "cpu", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            # a test run in a background job inherits SIGINT ignored, and Python then
+                            # installs no KeyboardInterrupt handler: start the child with the default
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     log = out / "log.csv"
     deadline = time.time() + 240
     while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 32):
