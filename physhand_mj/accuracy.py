@@ -97,7 +97,10 @@ def sweep_points(quick: bool = False) -> list[SweepPoint]:
             P(samples=16, rounds=2, passes=4, substeps=5), P(samples=16, rounds=2, passes=2, substeps=5),
             P(samples=10, rounds=3, passes=4, substeps=5), P(samples=10, rounds=3, passes=2, substeps=10),
             P("vertex", passes=4, substeps=5), P("opt", passes=4, substeps=5),
-            P(features=False, side_aware=False, passes=4, substeps=5), P(substeps=5, iterations=2)]
+            P(features=False, side_aware=False, passes=4, substeps=5), P(substeps=5, iterations=2),
+            # around the cheap accurate corner the first run found (8 passes, 5 substeps)
+            P("vertex", substeps=5), P("opt", substeps=5), P(samples=16, rounds=2, substeps=5),
+            P(samples=10, rounds=3, substeps=5), P("opt", substeps=5, iterations=2)]
     return pts
 
 
