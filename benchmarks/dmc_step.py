@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -21,26 +20,8 @@ from pathlib import Path
 import numpy as np
 
 import physhand_mj as ph
+from physhand_mj.bench import device_name
 from physhand_dmc import suite
-
-
-def device_name(device: str) -> str:
-    import warp as wp
-
-    d = wp.get_device(device)
-    if d.is_cuda:
-        return f"{d.name} ({d.alias})"
-    cpu = platform.processor() or "cpu"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return f"{cpu}, {os.cpu_count()} cores (Warp cpu)"
 
 
 def measure(domain: str, task: str, steps: int, device: str) -> dict:

@@ -22,10 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import physhand_mj as ph  # noqa: E402  (picks the GL backend before mujoco loads)
 import mujoco  # noqa: E402
 import trimesh  # noqa: E402
-import warp as wp  # noqa: E402
 
 from physhand_mj.cases import press_case, run_case, site_point  # noqa: E402
-from physhand_mj.contact.query import scene_phi  # noqa: E402
 from physhand_mj.metrics import summarize  # noqa: E402
 from physhand_mj.render import look_at_camera, make_renderer, mesh_scene_spec, write_png  # noqa: E402
 from physhand_mj.solver.model import quat_to_mat  # noqa: E402
@@ -55,47 +53,10 @@ def object_mesh(case, pos, quat):
     return v, np.asarray(m.faces)
 
 
-@wp.kernel
-def lattice_phi_n(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
-                  size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                  mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), order: int,
-                  points: wp.array2d(dtype=wp.vec3), phi: wp.array2d(dtype=float)):
-    """The order-``order`` lattice samples of every triangle and their phi (m)."""
-    t = wp.tid()
-    a = x[faces[t, 0]]
-    b = x[faces[t, 1]]
-    c = x[faces[t, 2]]
-    k = int(0)
-    for i in range(order + 1):
-        for j in range(order + 1 - i):
-            u = float(i) / float(order)
-            v = float(j) / float(order)
-            p = a * (1.0 - u - v) + b * u + c * v
-            points[t, k] = p
-            phi[t, k] = scene_phi(p, gtype, size, inv_pose, radius, mesh, geom_count[0], -1)
-            k += 1
-
-
 def inside_points(res, order=9):
     """(object points inside the skin, their depths), (order-``order`` skin samples inside the object, depths)."""
     c, state = res["solver"].contact, res["state"]
-    c.measure(state, order=5)  # fills the object points' depths
-    pts = c.points
-    depth = pts.depth.numpy()[: len(pts)].astype(float)
-    hit = np.flatnonzero(depth > 0)
-    pose = res["objects"]._host["pose"][pts.geom_host[hit]].astype(float)
-    rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
-    obj = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]
-    m, o = res["solver"].model, res["objects"]
-    f = m.skin_faces.shape[0]
-    k = (order + 1) * (order + 2) // 2
-    sp = wp.zeros((f, k), dtype=wp.vec3, device=m.device)
-    sphi = wp.zeros((f, k), dtype=float, device=m.device)
-    wp.launch(lattice_phi_n, f, inputs=[m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                        order], outputs=[sp, sphi], device=m.device)
-    sp, sphi = sp.numpy().reshape(-1, 3), sphi.numpy().ravel()
-    bad = sphi < 0
-    return (obj.reshape(-1, 3), depth[hit]), (sp[bad].astype(float), -sphi[bad].astype(float))
+    return c.object_points_inside(state), c.penetrating_samples(state, order)
 
 
 def panel(res, case, asset, width, height):

@@ -325,37 +325,13 @@ class SoftHand:
         """The objects' surface points inside the skin as it is now: world points (k, 3) m and their
         depths (k,) m (distance to the closest skin point), for pictures and checks."""
         c = self.solver.contact
-        if c is None or not len(c.points):
-            return np.zeros((0, 3)), np.zeros(0)
-        self._measure()
-        pts = c.points
-        depth = pts.depth.numpy()[: len(pts)].astype(float)
-        hit = np.flatnonzero(depth > 0)
-        pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
-        rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
-        world = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]
-        return world.reshape(-1, 3), depth[hit]
+        return c.object_points_inside(self.state) if c is not None else (np.zeros((0, 3)), np.zeros(0))
 
-    def penetrating_samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """The metric's penetrating samples of the skin as it is now: world points (k, 3) m and
-        their depths (k,) m (for pictures and checks)."""
-        import warp as wp
-
-        from physhand_mj.metrics import ORDER, lattice_phi
-
+    def penetrating_samples(self, order: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """The penetrating skin samples (order-``order`` lattice; the metric's: 5) as the skin is
+        now: world points (k, 3) m and their depths (k,) m (for pictures and checks)."""
         c = self.solver.contact
-        if c is None:
-            return np.zeros((0, 3)), np.zeros(0)
-        m, o = self.solver.model, self.objects
-        f = m.skin_faces.shape[0]
-        k = (ORDER + 1) * (ORDER + 2) // 2
-        pts = wp.zeros((f, k), dtype=wp.vec3, device=m.device)
-        phi = wp.zeros((f, k), dtype=float, device=m.device)
-        wp.launch(lattice_phi, f, inputs=[m.skin_faces, self.state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
-                                          o.count], outputs=[pts, phi], device=m.device)
-        p, d = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
-        inside = d < 0
-        return p[inside].astype(float), -d[inside].astype(float)
+        return c.penetrating_samples(self.state, order) if c is not None else (np.zeros((0, 3)), np.zeros(0))
 
     def penetration(self, order: int = 5) -> dict:
         """Both penetration measures of the skin as it is now (e.g. before the first step):

@@ -92,17 +92,19 @@ def summarize(row: np.ndarray) -> dict:
 @wp.kernel
 def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
                 size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), points: wp.array2d(dtype=wp.vec3),
-                phi: wp.array2d(dtype=float)):
-    """The metric's 21 samples of every triangle and their phi (m), for pictures and checks."""
+                mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), order: int,
+                points: wp.array2d(dtype=wp.vec3), phi: wp.array2d(dtype=float)):
+    """The order-``order`` lattice samples of every triangle ((order + 1)(order + 2) / 2; the
+    metric's 21 at order 5) and their phi (m), for pictures and checks."""
     t = wp.tid()
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
+    n = float(order)
     k = int(0)
-    for i in range(6):
-        for j in range(6 - i):
-            p = a * (1.0 - float(i) / 5.0 - float(j) / 5.0) + b * (float(i) / 5.0) + c * (float(j) / 5.0)
+    for i in range(order + 1):
+        for j in range(order + 1 - i):
+            p = a * (1.0 - float(i) / n - float(j) / n) + b * (float(i) / n) + c * (float(j) / n)
             points[t, k] = p
             phi[t, k] = scene_phi(p, gtype, size, inv_pose, radius, mesh, geom_count[0], -1)
             k += 1

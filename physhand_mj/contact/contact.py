@@ -14,7 +14,7 @@ from physhand_mj.contact.features import feature_contact, near_features, stage_f
 from physhand_mj.contact.inside import ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
-from physhand_mj.metrics import penetration_samples
+from physhand_mj.metrics import lattice_phi, penetration_samples
 from physhand_mj.types import Config, Model, Placement, Strategy
 
 
@@ -281,6 +281,38 @@ class Contact:
         for op in ops:
             op()
         return out.numpy()[0].astype(float)
+
+    def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
+        their depths (k,) m (distance to the closest skin point), for pictures and checks."""
+        pts = self.points
+        if not len(pts):
+            return np.zeros((0, 3)), np.zeros(0)
+        self.measure(state)  # fills pts.depth
+        depth = pts.depth.numpy()[: len(pts)].astype(float)
+        hit = np.flatnonzero(depth > 0)
+        pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
+        from physhand_mj.solver.model import quat_to_mat
+
+        rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
+        world = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]
+        return world.reshape(-1, 3), depth[hit]
+
+    def penetrating_samples(self, state, order: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """The skin samples on the order-``order`` lattice inside objects now: world points (k, 3) m
+        and their depths (k,) m (for pictures and checks)."""
+        m, o, d = self.model, self.objects, self.model.device
+        f = self.n_tris
+        if not f:
+            return np.zeros((0, 3)), np.zeros(0)
+        k = (order + 1) * (order + 2) // 2
+        pts = wp.zeros((f, k), dtype=wp.vec3, device=d)
+        phi = wp.zeros((f, k), dtype=float, device=d)
+        wp.launch(lattice_phi, f, inputs=[m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
+                                          o.count, order], outputs=[pts, phi], device=d)
+        p, s = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
+        inside = s < 0
+        return p[inside].astype(float), -s[inside].astype(float)
 
     def run_stage(self, state) -> np.ndarray:
         """Run one contact stage now (broadphase + passes) on ``state.x``; returns (F, 4) decision

@@ -95,6 +95,14 @@ class SoftTask(base.Task):
         physics.reset_soft(self.settle_frames)
 
     # -- observations ----------------------------------------------------------------------------
+    def free_object_observations(self, physics, obs) -> None:
+        """The free object's pose and velocity (its joint at ``self._qadr`` / ``self._vadr``) into
+        ``obs``: offset from its episode start ``self._start`` (m), quaternion, 6-D velocity."""
+        d = physics.data
+        obs["object_offset"] = d.qpos[self._qadr: self._qadr + 3] - self._start
+        obs["object_quat"] = d.qpos[self._qadr + 3: self._qadr + 7].copy()
+        obs["object_vel"] = d.qvel[self._vadr: self._vadr + 6].copy()
+
     def get_observation(self, physics):
         t0 = time.perf_counter()
         obs = collections.OrderedDict()

@@ -88,9 +88,7 @@ class Lift(SoftTask):
         d = physics.data
         obs["joint_pos"] = d.qpos[self._hand_q].copy()
         obs["joint_vel"] = d.qvel[self._hand_v].copy()
-        obs["object_offset"] = d.qpos[self._qadr: self._qadr + 3] - self._start
-        obs["object_quat"] = d.qpos[self._qadr + 3: self._qadr + 7].copy()
-        obs["object_vel"] = d.qvel[self._vadr: self._vadr + 6].copy()
+        self.free_object_observations(physics, obs)
 
     def get_reward(self, physics):
         d = physics.data
