@@ -10,10 +10,14 @@ recorded into *gated blocks* that run only when the scene calls for them:
              block always runs (the skin is not on the host).
     level 1  the frame broadphase kept a triangle (its count, ``Contact.cand_count``): the contact
              stages, the tether, the penetration metrics. On the CPU the count is read on the host
-             for free; on CUDA the block is a conditional graph node (``wp.capture_if``) on it.
+             for free. On CUDA the frame broadphase runs first, on its own (``Solver.step``: two
+             ops), its count comes to pinned host memory with one sync, and the host launches one
+             of two recorded graphs: the frame with these blocks or without them. (A conditional
+             graph node, ``wp.capture_if``, cannot hold them: ``wp.Mesh.refit`` allocates scratch
+             memory on CUDA, which a conditional body may not; measured on an H100, Warp 1.19.)
 
 With no object within the frame margin no contact kernel runs (CPU: not even the frame
-broadphase; CUDA: the frame broadphase only). Nothing inside a closed block could change the
+broadphase; CUDA: the frame broadphase and one sync only). Nothing inside a closed block could change the
 result: skin farther than the margin from every object has no decision point below
 ``contact_margin``, no feature near it, no penetrating sample, and nothing for the tether to undo.
 Objects enter and leave the work set through these tests every frame.
@@ -39,7 +43,10 @@ class Activity:
         self.device = solver.device
         self.enabled = bool(solver.config.skip_idle)
         c = solver.contact
-        self.cuda_gates = bool(self.enabled and self.device.is_cuda and c is not None and wp.is_conditional_graph_supported())
+        # CUDA: level 1 decided on the host from the frame broadphase run ahead (Solver.step); a
+        # test may set it on the CPU before the first frame to run that path there
+        self.gate_ahead = bool(self.enabled and self.device.is_cuda and c is not None)
+        self.open1 = True  # CUDA: the frame broadphase kept a triangle (set by Solver.step before the frame)
         self.near = np.ones(1, np.int32)  # level 0 flag, decided on the host before the frame (CPU)
         self.objects_near = -1  # objects (MuJoCo bodies) in the work set; -1: not decided on the host
         cpu = c is not None and not self.device.is_cuda
@@ -63,7 +70,7 @@ class Activity:
         """Decide level 0 on the CPU: is any object's bounding sphere (a plane: its half-space)
         within Config.contact_frame_margin of the skin's bounding box?"""
         c = self.solver.contact
-        if c is None or self.device.is_cuda:
+        if c is None or self.device.is_cuda or self.gate_ahead:
             self.objects_near = -1 if c is not None else 0
             return
         m = self.solver.model
@@ -76,7 +83,9 @@ class Activity:
         """What ran in the last frame, from the frame's list lengths (host copies)."""
         near = bool(self.near[0]) or not self.enabled
         cand = int(counters[0]) if near else 0
-        gating1 = self.enabled and (not self.device.is_cuda or self.cuda_gates)
+        gating1 = self.enabled and (not self.device.is_cuda or self.gate_ahead)
+        if self.gate_ahead:
+            near = True  # level 0 is not decided on the host then
         open1 = near and (cand > 0 or not gating1)
         contact_ops = sum(g.leaf_ops(open1, counters) for g in self.gates
                           if g.top and (near if g.level == 0 else open1))
@@ -94,7 +103,8 @@ class Activity:
 
 class _Gate:
     """A block of recorded ops running when its level is open: on the CPU decided on the host; on
-    CUDA level 1 is a conditional graph node, level 0 always runs."""
+    CUDA level 1 is decided on the host before the frame's graph (one graph per outcome), level 0
+    always runs."""
 
     def __init__(self, activity: Activity, sub: list, level: int, slots: tuple = ()):
         self.activity, self.sub, self.level, self.slots = activity, sub, level, slots
@@ -107,10 +117,8 @@ class _Gate:
         a = self.activity
         if not a.enabled:
             self.run_all()
-        elif a.device.is_cuda:  # (level 2 always runs on CUDA: its later passes find empty lists)
-            if self.level == 1 and a.cuda_gates:
-                wp.capture_if(a.solver.contact.cand_count, on_true=self.run_all)
-            else:
+        elif a.gate_ahead or a.device.is_cuda:  # (level 2 always runs on CUDA: its later passes find empty lists)
+            if self.level != 1 or not a.gate_ahead or a.open1:
                 self.run_all()
         elif a.near[0] and (self.level == 0 or a._cand[0]) and (
                 self.level < 2 or any(a._counters[s] for s in self.slots)):
@@ -131,7 +139,8 @@ class _Gate:
             return True
         if self.level == 1:
             return open1
-        gating = self.activity.enabled and not self.activity.device.is_cuda
+        a = self.activity
+        gating = a.enabled and not (a.device.is_cuda or a.gate_ahead)
         return open1 and (not gating or any(counters[s] for s in self.slots))
 
 

@@ -98,7 +98,7 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
         times.append(time.perf_counter() - t)
     ms = np.asarray(times) * 1e3
     device_ms = None
-    graph = solver._graphs.get((id(state), id(None)))
+    graph = solver.last_graph
     if graph is not None:  # GPU cost only: the captured frame replayed back to back, one sync
         wp.synchronize_device(solver.device)
         t = time.perf_counter()

@@ -144,6 +144,36 @@ def test_skipping_changes_no_result(scene):
     assert o1[-1]["features_listed"] > 0  # the box's corners and edges near the skin
 
 
+def test_the_cuda_gating_path_changes_no_result(scene):
+    """CUDA decides level 1 on the host from the frame broadphase run ahead of the frame's graph
+    (Solver.step; a conditional graph node cannot hold a mesh refit). That path, forced on the CPU,
+    gives the always-on run's skin bit for bit, runs only the broadphase while the box is far, and
+    reports the ops it ran."""
+    runs = []
+    for ahead in (True, False):
+        solver, state, objects, top = _solver(scene, GeomType.BOX, (0.015, 0.015, 0.015), skip_idle=ahead)
+        solver.activity.gate_ahead = ahead  # before the first frame records
+        outs, rans, ran = [], [], []
+        for k in range(12):
+            objects.set_pose(0, top + [0.0, 0.0, 0.015 + 0.03 - 0.0035 * k], (1.0, 0.0, 0.0, 0.0))
+            outs.append(_step(solver, state, scene[2]))
+            rans.append(list(ran))
+            if not k:
+                ran = _instrument(solver, state)
+            ran.clear()
+        runs.append((state.x.numpy().copy(), outs, rans, solver))
+    (x1, o1, r1, s1), (x2, o2, _, _) = runs
+    assert np.array_equal(x1, x2), float(np.abs(x1 - x2).max())
+    keys = ("penetration_count", "penetration_max_um", "triangles_frame", "triangles_tested", "features_listed")
+    assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]
+    far, touch = 1, len(o1) - 1
+    assert o1[far]["triangles_frame"] == 0 and o1[touch]["triangles_frame"] > 0
+    assert not [k for k in r1[far] if _is_contact_kernel(k)]  # the broadphase ran ahead, outside the frame's ops
+    assert o1[far]["contact_ops_run"] == 0 < o1[touch]["contact_ops_run"]
+    assert o1[touch]["ops_run"] == len(r1[touch]) + 2  # + the broadphase and its counter reset, run ahead
+    assert o1[far]["ops_run"] == len(r1[far]) + 2
+
+
 def _recorded(solver, state, poses):
     _step(solver, state, poses)
     ops = solver._ops[(id(state), id(solver.contact))]

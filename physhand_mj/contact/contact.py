@@ -95,11 +95,12 @@ class Contact:
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
             stage == "after" and p in (Placement.AFTER, Placement.BOTH))
 
-    def record_frame(self, launch, ops: list, state, gated=None) -> None:
+    def record_frame(self, launch, ops: list, state, gated=None, launch_pre=None) -> None:
         """Once per frame, before the substeps: the frame's broadphase over all skin triangles with
         ``contact_frame_margin``; each stage then tests only this list. ``gated(record, 1)``
         (the solver's) records what follows the broadphase into a block run only when its list is
-        not empty (physhand_mj/activity.py); the caller zeroes ``counters`` first."""
+        not empty (physhand_mj/activity.py); the caller zeroes ``counters`` first. ``launch_pre``
+        records the broadphase elsewhere (CUDA: ahead of the frame's graph, Solver.step)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
@@ -108,9 +109,10 @@ class Contact:
         self._slot = 1
         self._stage_slots = []
         self.pass_slots = []
-        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                          cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
-               [self.cand, self.cand_mask, self.cand_count])
+        (launch_pre or launch)(find_active, self.n_tris,
+                               [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                                cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
+                               [self.cand, self.cand_mask, self.cand_count])
         if gated is None:
             self._record_frame_lists(launch, ops, state)
         else:

@@ -64,6 +64,9 @@ class Solver:
         self.last_activity: dict = {}
         self._graphs: dict[tuple, object] = {}
         self._ops: dict[tuple, list] = {}
+        self.last_graph = None
+        self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
+        self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
         self._h = h
         self._inv_h2 = 1.0 / (h * h)
@@ -150,19 +153,30 @@ class Solver:
         key = (id(state), id(self.contact))
         ops = self._ops.get(key)
         self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
-        if ops is None:  # record every launch of a frame once: replaying skips Python argument packing
-            ops = self._ops[key] = self._record_frame(state)
-            self.activity.finish_recording(ops)
+        first = ops is None
+        if first:  # record every launch of a frame once: replaying skips Python argument packing
+            ops = self._ops[key] = self._record_frame(state, key)
+            self.activity.finish_recording(ops + self._pre.get(key, []))
+        act = self.activity
+        if act.gate_ahead:  # the frame broadphase ahead of the frame: its count picks the graph
+            for op in self._pre[key]:
+                op()
+            wp.copy(self._cand_host, self.contact.cand_count)
+            wp.synchronize_device(self.device)
+            act.open1 = bool(self._cand_host.numpy()[0])
+        if first:
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
         elif self._capturable():
-            graph = self._graphs.get(key)
+            gkey = key + (act.open1,)
+            graph = self._graphs.get(gkey)
             if graph is None:
                 with wp.ScopedCapture(device=self.device) as cap:
                     for op in ops:
                         op()
-                graph = self._graphs[key] = cap.graph
+                graph = self._graphs[gkey] = cap.graph
             wp.capture_launch(graph)
+            self.last_graph = graph  # (bench.py replays it for the GPU-only cost)
         else:
             for op in ops:
                 op()
@@ -196,7 +210,7 @@ class Solver:
     def _capturable(self) -> bool:
         return self.device.is_cuda and self.config.cuda_graph
 
-    def _record_frame(self, state: State) -> list:
+    def _record_frame(self, state: State, key=None) -> list:
         """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
@@ -241,8 +255,19 @@ class Solver:
                [state.body_sub, state.guard])
         if self.contact is not None:
             contact = self.contact
-            ops.append(contact.counters.zero_)  # the frame's list lengths (the level-1 gates read one)
-            gated(lambda sub: contact.record_frame(launch, sub, state, gated), 0)
+            if self.activity.gate_ahead:  # CUDA: the broadphase runs ahead of the frame's graph (step)
+                pre = self._pre[key] = [contact.counters.zero_]
+
+                def launch_pre(*args, **kw):
+                    saved, cur[0] = cur[0], pre
+                    try:
+                        launch(*args, **kw)
+                    finally:
+                        cur[0] = saved
+            else:
+                ops.append(contact.counters.zero_)  # the frame's list lengths (the level-1 gates read one)
+                launch_pre = None
+            gated(lambda sub: contact.record_frame(launch, sub, state, gated, launch_pre), 0)
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         for s in range(cfg.substeps + 1):
             # end substep s-1 (velocity update) and begin substep s (prediction) in one launch

@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# The GPU measurements of one device session, in phases that each fit one device call (600 s).
+# Run on the GPU machine after ../shared/tools/device_bundle.sh's setup, from the project root:
+#   PYTHONPATH=/tmp/site:$PWD:$PWD/plugins bash benchmarks/gpu_session.sh PHASE
+# Each step has its own time limit, so one slow or failing step cannot eat the phase; its log goes to
+# $OUT/logs/, and every JSON/CSV/PNG a step writes under docs/ is copied to $OUT/ (same paths).
+#   tests    the CUDA tests (CPU/CUDA agreement, hard cases on CUDA), softhand_frame, activity_frame
+#   frames   hoi_table2 (vertex/opt/multires/default), hard_contact (multires, default), bench solver,
+#            dm-control task steps
+#   peers    Newton VBD/XPBD and MuJoCo Warp flex, physhand bench accuracy (10 frames, 1 repeat)
+set -uo pipefail
+phase=${1:?phase: tests, frames or peers}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT/logs"
+stamp=$(mktemp)
+export MUJOCO_GL=${MUJOCO_GL:-disable}
+step() {  # step NAME SECONDS command...
+  local name=$1 limit=$2; shift 2
+  local t0=$SECONDS
+  timeout "$limit" "$@" >"$OUT/logs/$name.log" 2>&1
+  local rc=$?
+  echo "[$name] rc=$rc $((SECONDS - t0)) s"
+  tail -n 4 "$OUT/logs/$name.log" | cut -c1-300
+}
+case $phase in
+  tests)
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+    step pytest_cuda 420 python3 -m pytest -q -p no:cacheprovider -o addopts="" \
+      tests/test_contact.py::test_cone_cpu_and_cuda_agree \
+      tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel \
+      tests/test_solver.py::test_cpu_and_cuda_agree tests/test_hard_contact.py::test_hard_case_on_cuda
+    step softhand_frame 60 python3 benchmarks/softhand_frame.py --device cuda
+    step activity_frame 100 python3 benchmarks/activity_frame.py --device cuda
+    ;;
+  frames)
+    step hoi_table2 240 python3 benchmarks/hoi_table2.py --device cuda --methods vertex,opt,multires,default
+    step hard_contact 200 python3 benchmarks/hard_contact.py --device cuda --methods multires,default \
+      --out docs/benchmarks/hard_contact_cuda.json
+    step bench_solver 30 python3 -m physhand_mj.cli bench solver --device cuda
+    step dmc_step 120 python3 benchmarks/dmc_step.py --device cuda
+    ;;
+  peers)
+    step newton 180 python3 benchmarks/peers/newton_gpu.py --device cuda
+    step mujoco_warp 120 python3 benchmarks/peers/mujoco_warp_gpu.py --device cuda
+    step accuracy 280 python3 -m physhand_mj.cli bench accuracy --device cuda --frames 10 --repeats 1 \
+      --out docs/benchmarks/accuracy_cuda
+    ;;
+  *) echo "unknown phase $phase"; exit 2 ;;
+esac
+find docs -newer "$stamp" -type f \( -name '*.json' -o -name '*.csv' -o -name '*.png' -o -name '*.md' \) \
+  -exec cp --parents {} "$OUT/" \;
+rm -f "$stamp"
