@@ -81,6 +81,9 @@ class Contact:
         self.closed_skin = bool(len(f)) and bool(np.all(np.unique(e, axis=0, return_counts=True)[1] == 2))
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
         self.feat_count = wp.zeros(1, dtype=int, device=d)
+        # m, the radius a feature's skin query tries first (features.closest_signed): a pass's
+        # features lie within ~contact_margin of the skin; the frame margin is the fallback
+        self.near_query = float(min(config.contact_frame_margin, max(4.0 * config.contact_margin, 1.0e-3)))
         self.feat_stage = None  # the stage's features: inside the skin or within contact_margin of it
         self.feat_stage_counts = wp.zeros(max(stages, 1), dtype=int, device=d)  # one per stage of a frame
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
@@ -164,7 +167,7 @@ class Contact:
             ops.append(self._refit_op(skin))
             launch(stage_features, self.points.n_features,
                    [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, o.pose,
-                    cfg.contact_frame_margin, cfg.contact_margin], [self.feat_stage, feat_count],
+                    cfg.contact_frame_margin, cfg.contact_margin, self.near_query], [self.feat_stage, feat_count],
                    count=self.feat_count)
         else:
             skin = feat_count = None
@@ -195,7 +198,8 @@ class Contact:
                 feat_touched = self._counter()
                 launch(feature_contact, self.points.n_features,
                        [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
-                        o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, state.x],
+                        o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, self.near_query,
+                        state.x],
                        [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                        count=feat_count)
                 launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],

@@ -22,6 +22,12 @@ from physhand_mj.types import GeomType
 INSIDE_RANGE = 0.05  # m: farthest a point inside the hand can be from the skin (the palm is ~3 cm thick)
 
 
+# The BVH builder of the skin meshes: Warp picks LBVH on CUDA (built on the GPU, looser boxes) and
+# SAH on the CPU; a refit keeps the tree's topology, and the feature queries (one GPU thread walks
+# the tree per feature: latency-bound) visit fewer nodes in an SAH tree. Built once per state.
+BVH_CONSTRUCTOR = "sah"
+
+
 class SkinVolume:
     """A ``wp.Mesh`` over ``x[:n_skin]`` with faces ``faces`` (F, 3); with ``winding`` (the measure's)
     it carries Warp's fast-winding-number data (a refit then costs ~15 x more: 1.3 vs 0.09 ms for
@@ -32,7 +38,7 @@ class SkinVolume:
         self.points = x[:n_skin]
         self.mesh = wp.Mesh(points=self.points, indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32,
                                                                   device=x.device),
-                            support_winding_number=winding)
+                            support_winding_number=winding, bvh_constructor=BVH_CONSTRUCTOR)
         self.box = wp.zeros(2, dtype=wp.vec3, device=x.device)  # the skin's bounding box (lower, upper), m
 
     def ops(self) -> list:
