@@ -2,6 +2,11 @@
 # The GPU measurements of one device session, in phases that each fit one device call (600 s).
 # Run on the GPU machine after ../shared/tools/device_bundle.sh's setup, from the project root:
 #   PYTHONPATH=/tmp/site:$PWD:$PWD/plugins bash benchmarks/gpu_session.sh PHASE
+# A fresh machine compiles every Warp kernel first (physhand_mj's CUDA tests took 330 s that way on
+# an H100, a warm cache 15 s). Bring the cache back once (`tar -C ~/.cache/warp -cf - . | xz >
+# $OUT/warp_cache.tar.xz`), keep it in an ignored folder (.devc/), carry it with the setup call and
+# unpack it first (`mkdir -p ~/.cache/warp && tar -C ~/.cache/warp -xJf .devc/warp_cache.tar.xz`):
+# only the modules changed since then compile again.
 # Each step has its own time limit, so one slow or failing step cannot eat the phase; its log goes to
 # $OUT/logs/, and every JSON/CSV/PNG a step writes under docs/ is copied to $OUT/ (same paths).
 #   tests    the CUDA tests (CPU/CUDA agreement, hard cases on CUDA), softhand_frame, activity_frame
