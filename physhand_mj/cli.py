@@ -195,10 +195,23 @@ def _rollout(args):
 
     kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device)
     src = Path(args.scene)
-    if src.suffix.lower() == ".xml" or not (src.is_dir() or src.is_file()):
+    if args.workers is not None and args.ray is None:
+        raise ValueError("--workers needs --ray (the serial batch runs one rollout at a time)")
+    single = src.suffix.lower() == ".xml" or not (src.is_dir() or src.is_file())
+    if single and args.ray is None:
         return rollout(src, args.keyframe, out=args.out, **kw)
-    rows = rollout_batch(batch_targets(src, args.keyframe), args.out, emit=lambda r: print(json.dumps(r), flush=True),
-                         **kw)
+    targets = [(src, args.keyframe)] if single else batch_targets(src, args.keyframe)
+
+    def emit(row):
+        print(json.dumps(row), flush=True)
+
+    if args.ray is not None:  # one Ray task per rollout (physhand_mj/distributed.py)
+        from physhand_mj.distributed import rollout_ray
+
+        rows = rollout_ray(targets, args.out, address=None if args.ray == "local" else args.ray,
+                           num_workers=args.workers, emit=emit, **kw)
+    else:
+        rows = rollout_batch(targets, args.out, emit=emit, **kw)
     print(f"physhand rollout: {len(rows)} runs, table {args.out / 'summary.csv'}", file=sys.stderr)
     if any(r.get("interrupted") for r in rows):
         return 130
@@ -242,6 +255,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="decision-point strategy (default multires)")
     p.add_argument("--device", default=None, help="Warp device: cpu or cuda[:N] (default: Warp's, CUDA if present)")
     p.add_argument("--out", type=Path, default=Path("rollout_out"), help="output directory (default rollout_out)")
+    p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                   help="run the batch's rollouts as Ray tasks: alone, on a local Ray; or on the cluster at ADDRESS "
+                        "(auto, ray://HOST:10001); needs the ray extra (docs/scale.md)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="with --ray: rollouts at once (count; default: one per GPU, else one per CPU)")
     p.set_defaults(run=_rollout)
     bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")

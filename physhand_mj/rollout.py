@@ -194,34 +194,61 @@ def batch_targets(source, keyframe: str | None = None) -> list[tuple[Path, str |
     return out
 
 
+SUMMARY_COLUMNS = ["scene", "keyframe", "steps", "contact", "initial_penetration_count", "initial_penetration_max_um",
+                   "penetration_count", "penetration_max_um", "penetration_avg_um", "initial_object_in_skin_count",
+                   "object_in_skin_count", "object_in_skin_max_um", "ms_per_frame", "finite", "device",
+                   "interrupted", "error"]  # the columns of a batch's summary.csv, one row per run
+
+
+def run_names(targets) -> list[str]:
+    """The run folder names of a batch, in order: ``<scene>[-<keyframe>]``, and ``-<index>`` after a
+    name already taken (the same scene name from two folders: keep both)."""
+    names, used = [], set()
+    for i, (scene, key) in enumerate(targets):
+        name = Path(scene).stem + (f"-{key}" if key else "")
+        if name in used:
+            name = f"{name}-{i}"
+        used.add(name)
+        names.append(name)
+    return names
+
+
+def failed_row(scene, keyframe, error) -> dict:
+    """The summary row of a run that failed: its scene, keyframe and the error on one line."""
+    return dict(scene=str(scene), keyframe=keyframe, error=" ".join(str(error).split()), finite=False)
+
+
+def write_summary(rows, out) -> Path:
+    """Write ``out/summary.csv`` (:data:`SUMMARY_COLUMNS`, one row per run); returns its path. It is
+    written under a temporary name and renamed: the table on disk is always a whole one."""
+    path = Path(out) / "summary.csv"
+    tmp = path.with_name("summary.csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    tmp.replace(path)
+    return path
+
+
 def rollout_batch(targets, out, *, emit=None, **kwargs) -> list[dict]:
     """Run each (scene, keyframe) into ``out/<scene>[-<keyframe>]/``; writes ``out/summary.csv``
     (one row per run; failed runs carry their error). ``emit(summary)`` is called after each run.
-    Ctrl-C stops the batch after the current run's partial log."""
+    Ctrl-C stops the batch after the current run's partial log. On a Ray cluster:
+    :func:`physhand_mj.distributed.rollout_ray`."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    targets = list(targets)
     rows = []
-    cols = ["scene", "keyframe", "steps", "contact", "initial_penetration_count", "initial_penetration_max_um",
-            "penetration_count", "penetration_max_um", "penetration_avg_um", "initial_object_in_skin_count",
-            "object_in_skin_count", "object_in_skin_max_um", "ms_per_frame", "finite", "device",
-            "interrupted", "error"]
-    used = set()
-    for i, (scene, key) in enumerate(targets):
-        name = Path(scene).stem + (f"-{key}" if key else "")
-        if name in used:  # the same scene name from two folders: keep both
-            name = f"{name}-{i}"
-        used.add(name)
+    for (scene, key), name in zip(targets, run_names(targets)):
         try:
             res = rollout(scene, key, out=out / name, **kwargs)
         except (FileNotFoundError, ValueError, RuntimeError) as e:
-            res = dict(scene=str(scene), keyframe=key, error=" ".join(str(e).split()), finite=False)
+            res = failed_row(scene, key, e)
         rows.append(res)
         if emit:
             emit(res)
-        with open(out / "summary.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
-            w.writeheader()
-            w.writerows(rows)
+        write_summary(rows, out)
         if res.get("interrupted"):
             break
     return rows

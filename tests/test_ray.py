@@ -1,0 +1,148 @@
+"""Rollouts on Ray (physhand_mj/distributed.py) against the serial batch: same rows, same files, a
+failed entry, retries after a killed worker or an exception, Ctrl-C on the driver. A local Ray of
+2 CPU workers; CPU rollouts are deterministic, so the two agree exactly but for timings."""
+
+import _thread
+import csv
+import logging
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+ray = pytest.importorskip("ray")
+
+import physhand_mj as ph  # noqa: E402
+from physhand_mj.distributed import rollout_ray  # noqa: E402
+from physhand_mj.rollout import SUMMARY_COLUMNS, rollout_batch  # noqa: E402
+
+APPLE, BOX, GLASS = (ph.scene_path(s) for s in ("hoi_apple", "hoi_box", "hoi_glass1"))
+STEPS = 2
+TIMED = {"ms_per_frame", "ms_frame"}  # wall times: the only columns allowed to differ
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    yield
+    ray.shutdown()
+
+
+def _read(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _untimed(rows, cols=SUMMARY_COLUMNS):
+    return [{c: r.get(c) for c in cols if c not in TIMED} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def both(local_ray, tmp_path_factory):
+    """The same 3-entry list (the last one missing) run serially and on Ray."""
+    tmp = tmp_path_factory.mktemp("ray")
+    targets = [(APPLE, "grasp"), (tmp / "missing.xml", None), (BOX, "grasp")]
+    serial = rollout_batch(targets, tmp / "serial", steps=STEPS, device="cpu", progress=False)
+    emitted = []
+    t = time.perf_counter()
+    rows = rollout_ray(targets, tmp / "ray", steps=STEPS, device="cpu", progress=False, emit=emitted.append)
+    return dict(tmp=tmp, serial=serial, ray=rows, emitted=emitted, ray_s=time.perf_counter() - t)
+
+
+def test_ray_rows_match_the_serial_batch(both):
+    serial, rows = both["serial"], both["ray"]
+    assert _untimed(rows) == _untimed(serial), (rows, serial)
+    assert [r["scene"] for r in rows] == [str(APPLE), str(both["tmp"] / "missing.xml"), str(BOX)]
+    assert rows[0]["initial_penetration_count"] > 1000 and rows[0]["penetration_count"] == 0, rows[0]
+    assert sorted(r["scene"] for r in both["emitted"]) == sorted(r["scene"] for r in rows)
+
+
+def test_failed_entry_is_a_row_with_its_error_and_the_others_finish(both):
+    bad = both["ray"][1]
+    assert bad["error"].startswith("scene file not found") and bad["finite"] is False, bad
+    assert all("error" not in r and r["finite"] and r["steps"] == STEPS for r in both["ray"][::2])
+
+
+def test_run_folders_hold_the_same_files(both):
+    ser, par = both["tmp"] / "serial", both["tmp"] / "ray"
+    assert sorted(p.name for p in par.iterdir()) == sorted(p.name for p in ser.iterdir())
+    for run in ("hoi_apple-grasp", "hoi_box-grasp"):
+        assert sorted(p.name for p in (par / run).iterdir()) == ["log.csv", "skin_final.ply"]
+        a, b = _read(ser / run / "log.csv"), _read(par / run / "log.csv")
+        assert len(a) == 1 + STEPS * 10 and _untimed(a, a[0]) == _untimed(b, a[0])
+        assert (ser / run / "skin_final.ply").read_bytes() == (par / run / "skin_final.ply").read_bytes()
+    assert _untimed(_read(par / "summary.csv")) == _untimed(_read(ser / "summary.csv"))
+    assert both["ray"][0]["log"] == str(par / "hoi_apple-grasp" / "log.csv")
+
+
+def test_a_worker_on_another_node_ships_its_files(local_ray, tmp_path):
+    """Under Ray Client or on another node the run goes to a temporary folder there and its files
+    come back to the driver's run folder (here: a driver node id no worker has)."""
+    from physhand_mj.distributed import _collect, _run_one
+
+    ref = ray.remote(_run_one).options(num_cpus=1).remote(str(APPLE), "grasp", str(tmp_path / "unused"),
+                                                          "another-node", os.getcwd(), dict(steps=1, device="cpu"))
+    row = _collect(ray, ref, (APPLE, "grasp"), tmp_path / "run", tmp_path / "run", 0)
+    assert not (tmp_path / "unused").exists() and row["steps"] == 1 and row["scene"] == str(APPLE), row
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
+    assert len(_read(row["log"])) == 1 + 10 and row["skin"] == str(tmp_path / "run" / "skin_final.ply")
+
+
+# rollout(on_start=...) runs in the worker; functions made here (not module attributes) travel by
+# value, as the worker cannot import this test module
+def _crash_once(marker):
+    def on_start(hand, model, data):
+        if not os.path.exists(marker):
+            open(marker, "w").close()
+            os._exit(1)  # the worker dies: Ray reruns the task
+    return on_start
+
+
+def _always_raise():
+    def on_start(hand, model, data):
+        raise RuntimeError("flaky device")
+    return on_start
+
+
+def test_killed_worker_is_retried_then_an_exception_fails_after_its_retries(local_ray, tmp_path):
+    rows = rollout_ray([(APPLE, "grasp")], tmp_path / "a", steps=1, device="cpu", progress=False, max_retries=1,
+                       on_start=_crash_once(str(tmp_path / "crashed")))
+    assert (tmp_path / "crashed").exists() and rows[0]["steps"] == 1 and "error" not in rows[0], rows
+    rows = rollout_ray([(APPLE, "grasp")], tmp_path / "b", steps=1, device="cpu", progress=False, max_retries=0,
+                       on_start=_always_raise())
+    assert rows[0]["error"] == "RuntimeError: flaky device (failed 1 times)", rows
+    assert _read(tmp_path / "b" / "summary.csv")[0]["error"] == rows[0]["error"]
+
+
+def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp_path):
+    """Two long runs on the two workers, a third waiting: SIGINT on the driver once both logged 3 frames."""
+    out = tmp_path / "c"
+    logs = [out / "hoi_apple-grasp" / "log.csv", out / "hoi_box-grasp" / "log.csv"]
+    done = threading.Event()
+
+    def interrupt():
+        deadline = time.time() + 120
+        while time.time() < deadline and not all(p.exists() and len(p.read_text().splitlines()) > 31 for p in logs):
+            if done.wait(0.2):
+                return
+        if not done.is_set():
+            _thread.interrupt_main()
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)  # a background job may ignore SIGINT
+    try:
+        threading.Thread(target=interrupt, daemon=True).start()
+        rows = rollout_ray([(APPLE, "grasp"), (BOX, "grasp"), (GLASS, "grasp")], out, steps=400, device="cpu",
+                           num_workers=2, progress=False)
+    finally:
+        done.set()
+        signal.signal(signal.SIGINT, old)
+    assert [r["interrupted"] for r in rows] == [True] * 3, rows
+    for r, log in zip(rows[:2], logs):
+        assert 3 <= r["steps"] < 400 and "error" not in r, r
+        assert len(_read(log)) == 1 + r["steps"] * 10
+        assert log.with_name("skin_final.ply").exists()
+    assert rows[2]["error"] == "cancelled (Ctrl-C)" and not (out / "hoi_glass1-grasp").exists()
+    table = _read(out / "summary.csv")
+    assert [t["interrupted"] for t in table] == ["True"] * 3 and int(table[0]["steps"]) == rows[0]["steps"]
