@@ -4,6 +4,8 @@ Solver frames (set_body_poses + step, one host sync) of the embedded hand, open 
   none        the solver without objects (the full solver frame: the reference)
   far         a sphere 1 m away (no object near): skip_idle on (after) and off (before)
   touch       a 2 cm sphere pressing 2 mm into the back of the hand (analytic contact)
+  asleep      the still hand with the sphere far, after it fell asleep (Config.sleep_speed; the
+              other cases run with sleeping off, so they measure the awake frame)
   glass       the demo (grasp_glass, SoftHand.step during the approach/closing): contact vs NONE
 Configurations run interleaved, ``--repeats`` rounds of ``--frames`` frames each; per configuration
 the median over all frames is reported (the CPU host is shared: ratios within one run are what to
@@ -25,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _solver_case(device, objects_at, skip_idle=True, radius=0.02):
+def _solver_case(device, objects_at, skip_idle=True, radius=0.02, sleep=False):
     import physhand_mj as ph
     from physhand_mj.contact import Objects
     from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
@@ -35,7 +37,7 @@ def _solver_case(device, objects_at, skip_idle=True, radius=0.02):
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
     poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
-    cfg = Config(device=device, skip_idle=skip_idle)
+    cfg = Config(device=device, skip_idle=skip_idle, **({} if sleep else {"sleep_speed": 0.0}))
     objects = None
     if objects_at is not None:
         objects = Objects(device, 1)
@@ -51,6 +53,12 @@ def _solver_case(device, objects_at, skip_idle=True, radius=0.02):
         solver.set_body_poses(state, *poses)
         return solver.step(state)
 
+    if sleep:  # settle until asleep (Config.sleep_speed)
+        for _ in range(600):
+            if frame()["asleep"]:
+                break
+        else:
+            raise RuntimeError("the still hand did not fall asleep in 600 frames")
     return frame, solver, state
 
 
@@ -120,6 +128,7 @@ def main():
         "far, skip_idle off (before)": _solver_case(args.device, "far", skip_idle=False),
         "far, skip_idle on (after)": _solver_case(args.device, "far"),
         "touch (sphere, 2 mm)": _solver_case(args.device, "touch"),
+        "still hand asleep, object far": _solver_case(args.device, "far", sleep=True),
     }
     if not args.no_glass:
         cases["glass demo, contact NONE"] = _glass_case(args.device, "NONE")

@@ -79,7 +79,7 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
     asset = hand_asset(resolution, asset_path)
     _, model, data = open_hand_scene("hand_only", "open")  # MuJoCo bones: the same for every resolution
     ids = body_ids(model, asset.body_names)
-    cfg = Config(device=device, **config)
+    cfg = Config(device=device, **{"sleep_speed": 0.0, **config})  # the awake solver's cost (a still hand sleeps)
     t0 = time.perf_counter()
     solver = Solver(make_model(asset, cfg), cfg)
     state = solver.make_state(*mount_pose(model, data))

@@ -272,6 +272,7 @@ class SoftHand:
             self.objects.set_poses(self.data.geom_xpos[g], _mat_to_quat(self.data.geom_xmat[g]))
         rest_pos = fresh.pose_host[1][:, :3].astype(float)
         rest_quat = fresh.pose_host[1][:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
+        self.solver.wake(self.state)  # a new episode settles before it may sleep
         self.solver.warn_fast_motion = False  # settling moves the bones on purpose
         for k in range(settle_frames):
             a = (k + 1) / settle_frames

@@ -145,6 +145,12 @@ class Config:
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).
+      sleep_speed: the hand falls asleep after ``sleep_frames`` frames (count) in which no soft
+        vertex ended faster than this (m/s; 0: never sleep), when no object is within
+        contact_frame_margin and no bone moves relative to the others by more than
+        ``sleep_bone_motion`` (m per frame). Asleep, a frame is one launch: every vertex rides with
+        its bone (the one of its nearest skeleton vertex at rest) from the last solved shape, at rest;
+        any of the three conditions failing wakes it for that frame (physhand_mj/activity.py).
     """
 
     frame_dt: float = 0.005
@@ -183,6 +189,9 @@ class Config:
     cuda_graph: bool = True
     tiled_contact: bool = True
     skip_idle: bool = True
+    sleep_speed: float = 3.0e-3
+    sleep_frames: int = 10
+    sleep_bone_motion: float = 1.0e-5
 
     def validate(self) -> "Config":
         """Raise ValueError naming the option to fix; returns self."""
@@ -215,6 +224,10 @@ class Config:
         nonneg("skin_tether")
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
+        nonneg("sleep_speed")
+        nonneg("sleep_bone_motion")
+        if not (isinstance(self.sleep_frames, int) and self.sleep_frames >= 1):
+            raise ValueError(f"Config.sleep_frames must be an integer >= 1, got {self.sleep_frames!r}")
         if self.contact_frame_margin < self.contact_margin:
             raise ValueError(f"Config.contact_frame_margin ({self.contact_frame_margin} m) must be at least "
                              f"Config.contact_margin ({self.contact_margin} m)")
@@ -266,6 +279,7 @@ class Model:
     body_local: object
     skin_body: object
     skin_local: object
+    vertex_carrier: object
     edge_ids: object
     edge_rest: object
     edge_alpha: object
@@ -295,8 +309,9 @@ class State:
     body_pose: (2, B) transforms of the bones at the start / end of the frame (uploaded each frame
     from pose_host, (2, B, 7) float32 numpy: position, quaternion x y z w);
     body_sub: (substeps, B) their interpolated poses at the end of each substep;
-    guard: (3,) int counters [non-finite vertices, inverted tets, skin vertices the tether held
-    (summed over substeps)] of the last frame; time: s.
+    guard: (4,) int counters [non-finite vertices, inverted tets, skin vertices the tether held
+    (summed over substeps), soft vertices ending the frame faster than Config.sleep_speed] of the
+    last frame; time: s.
     """
 
     x: object

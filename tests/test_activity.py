@@ -236,3 +236,77 @@ def test_softhand_metrics_say_what_ran():
     for k in ("objects_near", "triangles_frame", "triangles_tested", "features_listed", "ops_run", "contact_ops_run"):
         assert isinstance(m[k], int) and m[k] >= (-1 if k == "objects_near" else 0), (k, m[k])
     assert m["ops_run"] >= m["contact_ops_run"]
+
+
+# -- sleeping: a still hand with no object near costs one launch per frame --------------------------
+
+def _until_asleep(solver, state, poses, limit=500):
+    for k in range(limit):
+        out = _step(solver, state, poses)
+        if out["asleep"]:
+            return k, out
+    raise AssertionError(f"the still hand did not fall asleep in {limit} frames")
+
+
+def _moved(poses, rot, shift, about):
+    """Bone poses (pos (B, 3), quat (B, 4) w x y z) moved as one rigid body: rotated by ``rot``
+    (3 x 3) about ``about`` and shifted by ``shift`` (m)."""
+    from physhand_mj.solver.model import quat_to_mat
+
+    pos, quat = poses
+    mats = quat_to_mat(quat)
+    new_pos = (pos - about) @ rot.T + about + shift
+    new = rot @ mats
+    w = np.sqrt(np.maximum(1.0 + np.trace(new, axis1=1, axis2=2), 1e-12)) / 2.0
+    q = np.stack([w, (new[:, 2, 1] - new[:, 1, 2]) / (4 * w), (new[:, 0, 2] - new[:, 2, 0]) / (4 * w),
+                  (new[:, 1, 0] - new[:, 0, 1]) / (4 * w)], axis=1)
+    return new_pos, q
+
+
+def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene):
+    solver, state, objects, top = _solver(scene)
+    poses = scene[2]
+    k, out = _until_asleep(solver, state, poses)
+    assert out["ops_run"] <= 5 and out["contact_ops_run"] == 0 and out["penetration_count"] == 0
+    x0 = state.x.numpy().astype(np.float64)
+    # the whole hand carried rigidly (1 degree about its first bone, 2 mm along x) stays asleep and
+    # its skin is the sleeping shape moved by that transform
+    c, s = np.cos(np.radians(1.0)), np.sin(np.radians(1.0))
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    about, shift = poses[0][0], np.array([0.002, 0.0, 0.0])
+    out = _step(solver, state, _moved(poses, rot, shift, about))
+    assert out["asleep"]
+    want = (x0 - about) @ rot.T + about + shift
+    assert np.abs(state.x.numpy() - want).max() < 2e-6
+    assert not state.v.numpy().any()
+    # an object coming within the frame margin wakes it: the contact runs
+    objects.set_pose(0, want[np.argmax(want[: solver.model.n_skin, 2])] + [0.0, 0.0, R - 0.001],
+                     (1.0, 0.0, 0.0, 0.0))
+    out = _step(solver, state, _moved(poses, rot, shift, about))
+    assert not out["asleep"] and out["contact_ops_run"] > 0 and out["triangles_tested"] > 0
+
+
+def test_a_woken_hand_matches_an_always_awake_run(scene):
+    """Asleep, then a finger bends: the skin stays within 0.1 mm of a run that never slept."""
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    qpos = model.key("open").qpos.copy()
+    joint = next(j for j in range(model.njnt) if model.joint(j).name == "mcp2_flexion_r")
+    runs = []
+    for sleep in (Config().sleep_speed, 0.0):
+        cfg = Config(device="cpu", sleep_speed=sleep)
+        solver = Solver(make_model(asset, cfg), cfg)
+        state = solver.make_state(*scene[1])
+        asleep = [_step(solver, state, scene[2])["asleep"] for _ in range(300)]
+        still = state.x.numpy().copy()
+        woke = []
+        for k in range(30):  # bend the index finger's MCP by 0.004 rad per frame
+            q = qpos.copy()
+            q[model.jnt_qposadr[joint]] += 0.004 * (k + 1)
+            woke.append(_step(solver, state, bone_poses_at(model, data, q, ids))["asleep"])
+        runs.append((asleep, still, woke, state.x.numpy().copy()))
+    (asleep, still_a, woke, bent_a), (never, still_b, _, bent_b) = runs
+    assert any(asleep) and not any(never) and not any(woke)
+    assert np.abs(still_a - still_b).max() < 1e-4
+    assert np.abs(bent_a - bent_b).max() < 1e-4

@@ -19,6 +19,7 @@ def begin_frame(
         guard[0] = 0
         guard[1] = 0
         guard[2] = 0
+        guard[3] = 0
     if b >= body_pose.shape[1]:
         return
     s = float(k + 1) / float(body_sub.shape[0])
@@ -45,6 +46,8 @@ def advance(
     relaxation: float,
     start: int,
     body_sub: wp.array2d(dtype=wp.transform),
+    speed_limit: float,
+    vertex_carrier: wp.array(dtype=int),
     # State in/out:
     x_safe: wp.array(dtype=wp.vec3),
     # State in/out:
@@ -66,6 +69,9 @@ def advance(
     its bone's pose at the end of that substep (begin_frame) applied to its body-frame
     position: bones are an input, constraints never move them (w = 0). A non-finite position met here
     (set from outside the solver) is reset to the end of the last frame (x_safe) and counted.
+    After the last substep, soft vertices moving faster than ``speed_limit`` (m/s; > 0) relative to
+    their carrier bone (the rigid velocity it gives them over the last substep) are counted in
+    guard[3] (the sleep test, activity.py: only moving vertices touch the counter).
     """
     i = wp.tid()
     xi = x[i]
@@ -97,8 +103,40 @@ def advance(
             xi = xi + vi * h
     else:
         x_safe[i] = xi
+        if speed_limit > 0.0 and w > 0.0:
+            vr = vi
+            b = vertex_carrier[i]
+            ns = body_sub.shape[0]
+            if b >= 0 and ns >= 2:
+                p = x_prev[i]
+                ride = wp.transform_point(body_sub[ns - 1, b], wp.transform_point(wp.transform_inverse(body_sub[ns - 2, b]), p))
+                vr = vi - (ride - p) * (1.0 / h)
+            if wp.length(vr) > speed_limit:
+                wp.atomic_add(guard, 3, 1)
     x[i] = xi
     v[i] = vi
+
+
+@wp.kernel
+def carry_asleep(
+    vertex_carrier: wp.array(dtype=int),
+    body_pose: wp.array2d(dtype=wp.transform),
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    x_safe: wp.array(dtype=wp.vec3),
+):
+    """A sleeping hand's frame: every vertex rides rigidly with its carrier bone from the start to
+    the end of the frame (x <- T_end T_start^-1 x), at rest (v = 0)."""
+    i = wp.tid()
+    xi = x[i]
+    b = vertex_carrier[i]
+    if b >= 0:
+        xi = wp.transform_point(body_pose[1, b], wp.transform_point(wp.transform_inverse(body_pose[0, b]), xi))
+    x[i] = xi
+    x_prev[i] = xi
+    x_safe[i] = xi
+    v[i] = wp.vec3(0.0)
 
 
 @wp.kernel

@@ -121,6 +121,15 @@ def make_model(asset, config: Config | None = None) -> Model:
         skin_body = vb[near].astype(np.int32)
         skin_local = np.einsum("kji,kj->ki", rot[skin_body], x[:ns] - asset.body_rest_pos[skin_body])
 
+    # every vertex's carrier (a sleeping hand's rigid ride, activity.py): its own bone for the
+    # skeleton, the bone of the nearest skeleton vertex at rest for the others
+    carrier = vb.copy()
+    if len(kv):
+        from scipy.spatial import cKDTree
+
+        soft = np.flatnonzero(~kin)
+        carrier[soft] = vb[kv[cKDTree(x[kv]).query(x[soft])[1]]]
+
     def arr(a, dtype, shape=None):
         a = np.ascontiguousarray(a)
         if shape is not None:
@@ -135,6 +144,7 @@ def make_model(asset, config: Config | None = None) -> Model:
         body_names=tuple(str(b) for b in asset.body_names),
         rest_x=v3(x), inv_mass=f32(inv_mass),
         vertex_body=arr(vb, int), body_local=v3(local), skin_body=arr(skin_body, int), skin_local=v3(skin_local),
+        vertex_carrier=arr(carrier, int),
         edge_ids=i2(fam["edge"][0], 2), edge_rest=f32(fam["edge"][1]), edge_alpha=f32(fam["edge"][2]),
         tet_ids=i2(fam["tet"][0], 4), tet_rest6v=f32(fam["tet"][1]), tet_alpha=f32(fam["tet"][2]),
         edge_is_att=edge_is_att,

@@ -33,6 +33,31 @@ from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
+def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float:
+    """How far (m) the bones move relative to the first one over a frame: for poses (B, 7) [p, q
+    x y z w] at its start and end, the largest distance between where a bone's own motion and the
+    first bone's motion take that bone's origin, plus the angle between their rotations times
+    ``lever`` (m, a hand's size). 0 for a hand moving as one rigid body."""
+    if start.shape[0] < 2:
+        return 0.0
+
+    def mats(q):  # x y z w -> rotation matrices
+        x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+                         np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+                         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+    p0, p1 = start[:, :3].astype(np.float64), end[:, :3].astype(np.float64)
+    r0, r1 = mats(start[:, 3:].astype(np.float64)), mats(end[:, 3:].astype(np.float64))
+    m = r1 @ np.swapaxes(r0, -1, -2)  # each bone's rotation over the frame
+    root = m[0] @ (p0 - p0[0]).T  # where the first bone's motion takes every origin (3, B)
+    dist = np.linalg.norm(root.T + p1[0] - p1, axis=1)
+    rel = m @ m[0].T  # rotation of each bone relative to the first's
+    axis = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], -1)
+    ang = np.arctan2(0.5 * np.linalg.norm(axis, axis=1), 0.5 * (np.trace(rel, axis1=1, axis2=2) - 1.0))
+    return float(np.max(dist + ang * lever))
+
+
 class SolverError(RuntimeError):
     """The solver met a state it cannot continue from (non-finite input or state under RAISE)."""
 
@@ -66,6 +91,8 @@ class Solver:
         self._ops: dict[tuple, list] = {}
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
+        self._still: dict[int, int] = {}  # per state: frames in a row that ended settled (sleeping)
+        self._sleep_ops: dict[tuple, list] = {}
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
         self._h = h
@@ -74,7 +101,7 @@ class Solver:
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
         self._pose_host = wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu",
                                    pinned=self.device.is_cuda)
-        self._guard_host = wp.zeros(3, dtype=int, device="cpu", pinned=self.device.is_cuda)
+        self._guard_host = wp.zeros(4, dtype=int, device="cpu", pinned=self.device.is_cuda)
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
 
@@ -100,7 +127,7 @@ class Solver:
             body_pose=wp.zeros((2, m.n_bodies), dtype=wp.transform, device=d),
             pose_host=np.zeros((2, m.n_bodies, 7), np.float32),
             body_sub=wp.zeros((self.config.substeps, m.n_bodies), dtype=wp.transform, device=d),
-            guard=wp.zeros(3, dtype=int, device=d),
+            guard=wp.zeros(4, dtype=int, device=d),
         )
         self.set_body_poses(st, bp, bq)
         st.pose_host[0] = st.pose_host[1]
@@ -146,6 +173,7 @@ class Solver:
                               f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
                               f"contacts may be missed; raise contact_frame_margin or use shorter frames",
                               RuntimeWarning, stacklevel=2)
+        rigid = bone_motion(state.pose_host[0], state.pose_host[1]) <= self.config.sleep_bone_motion
         self._pose_host.numpy()[:] = state.pose_host
         wp.copy(state.body_pose, self._pose_host)
         state.pose_host[0] = state.pose_host[1]
@@ -164,6 +192,8 @@ class Solver:
             wp.copy(self._cand_host, self.contact.cand_count)
             wp.synchronize_device(self.device)
             act.open1 = bool(self._cand_host.numpy()[0])
+        if not first and rigid and self._may_sleep(state):
+            return self._sleep_frame(state, key)
         if first:
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
@@ -202,10 +232,65 @@ class Solver:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
         out.update(self.last_activity)
+        # settled: rigid bone motion and no soft vertex faster than Config.sleep_speed (activity.py)
+        self._still[id(state)] = self._still.get(id(state), 0) + 1 if rigid and not g[3] else 0
+        out["asleep"] = False
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
                               f"{state.frames}; state kept at their last finite positions")
         return out
+
+    # -- sleeping (activity.py) -------------------------------------------------------------------
+    def _may_sleep(self, state: State) -> bool:
+        """Settled for Config.sleep_frames frames and no object near (this frame's test: the CPU's
+        host box test, or the frame broadphase run ahead on CUDA; no objects at all: nothing near)."""
+        cfg, act = self.config, self.activity
+        if cfg.sleep_speed <= 0 or self._still.get(id(state), 0) < cfg.sleep_frames:
+            return False
+        if self.contact is None:
+            return True
+        if act.gate_ahead:
+            return not act.open1
+        return act.enabled and act.objects_near == 0
+
+    def _sleep_frame(self, state: State, key) -> dict:
+        """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed."""
+        ops = self._sleep_ops.get(key)
+        if ops is None:
+            m, d = self.model, self.device
+            ops = [state.guard.zero_]
+            if self.contact is not None:
+                self.contact.begin_frame(ops)
+            cmd = wp.launch(integrate.carry_asleep, m.n_vertices, inputs=[m.vertex_carrier, state.body_pose],
+                            outputs=[state.x, state.v, state.x_prev, state.x_safe], device=d, record_cmd=True)
+            ops.append(cmd.launch)
+            self._sleep_ops[key] = ops
+        for op in ops:
+            op()
+        if self.contact is not None:
+            self.contact.copy_metrics()
+        wp.synchronize_device(self.device)
+        state.time += self.config.frame_dt
+        state.frames += 1
+        ran = len(ops) + len(self._pre.get(key, ())) * int(self.activity.gate_ahead)
+        self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
+                                  features_listed=0, ops_run=ran, contact_ops_run=0)
+        out = {"nonfinite": 0, "inverted": 0}
+        if self.contact is not None:
+            if self.config.skin_tether > 0:
+                out["tethered"] = 0
+            from physhand_mj.metrics import summarize
+
+            rows = self.contact.read_metrics(synchronize=False)
+            out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
+            self.substep_metrics = rows[:-1]
+        out.update(self.last_activity)
+        out["asleep"] = True
+        return out
+
+    def wake(self, state: State) -> None:
+        """Forget that ``state`` had settled (it sleeps again after Config.sleep_frames still frames)."""
+        self._still.pop(id(state), None)
 
     def _capturable(self) -> bool:
         return self.device.is_cuda and self.config.cuda_graph
@@ -273,7 +358,8 @@ class Solver:
             # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
             launch(integrate.advance, n, [m.inv_mass, m.vertex_body, m.body_local, m.vertex_count, self._gravity,
                                           self._h, self._damp, int(s > 0), pending, cfg.relaxation,
-                                          s if s < cfg.substeps else -1, state.body_sub],
+                                          s if s < cfg.substeps else -1, state.body_sub, float(cfg.sleep_speed),
+                                          m.vertex_carrier],
                    [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard])
             pending = -1
             if s == cfg.substeps:
