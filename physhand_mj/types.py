@@ -148,9 +148,13 @@ class Config:
       sleep_speed: the hand falls asleep after ``sleep_frames`` frames (count) in which no soft
         vertex ended faster than this (m/s; 0: never sleep), when no object is within
         contact_frame_margin and no bone moves relative to the others by more than
-        ``sleep_bone_motion`` (m per frame). Asleep, a frame is one launch: every vertex rides with
-        its bone (the one of its nearest skeleton vertex at rest) from the last solved shape, at rest;
-        any of the three conditions failing wakes it for that frame (physhand_mj/activity.py).
+        ``sleep_bone_motion`` (m per frame). Asleep, a frame is one kernel launch (plus the report
+        resets): every vertex rides rigidly with its bone (the one of its nearest skeleton vertex at
+        rest) from the last solved shape, with that bone's velocity. It wakes (and must settle
+        again) when an object comes near, a bone moves relative to the others by more than
+        ``sleep_bone_motion`` since it fell asleep, the first bone turns by more than 2 degrees
+        (gravity turns in the hand) or its velocity changes by more than ``sleep_speed``
+        (physhand_mj/activity.py).
     """
 
     frame_dt: float = 0.005
@@ -329,3 +333,5 @@ class State:
     pose_fresh: bool = False
     time: float = 0.0
     frames: int = 0
+    still: int = 0  # frames in a row that ended settled (the sleep test, activity.py)
+    sleep_onset: object = None  # asleep: (bone poses (B, 7) when it fell asleep, first bone's velocity m/s)

@@ -267,18 +267,20 @@ def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene):
     solver, state, objects, top = _solver(scene)
     poses = scene[2]
     k, out = _until_asleep(solver, state, poses)
-    assert out["ops_run"] <= 5 and out["contact_ops_run"] == 0 and out["penetration_count"] == 0
+    assert out["ops_run"] <= 6 and out["contact_ops_run"] == 0 and out["penetration_count"] == 0
     x0 = state.x.numpy().astype(np.float64)
-    # the whole hand carried rigidly (1 degree about its first bone, 2 mm along x) stays asleep and
-    # its skin is the sleeping shape moved by that transform
+    # the whole hand turned rigidly (1 degree about its first bone's origin: under the 2 degrees
+    # that wake it, and that bone does not start moving) stays asleep and its skin is the sleeping
+    # shape moved by that transform (a sudden shift would wake it: its first bone's velocity changes)
     c, s = np.cos(np.radians(1.0)), np.sin(np.radians(1.0))
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    about, shift = poses[0][0], np.array([0.002, 0.0, 0.0])
+    about, shift = poses[0][0], np.zeros(3)
     out = _step(solver, state, _moved(poses, rot, shift, about))
     assert out["asleep"]
     want = (x0 - about) @ rot.T + about + shift
     assert np.abs(state.x.numpy() - want).max() < 2e-6
-    assert not state.v.numpy().any()
+    # ... moving with its bones' velocity over the frame
+    assert np.abs(state.v.numpy() - (want - x0) / solver.config.frame_dt).max() < 2e-6 / solver.config.frame_dt
     # an object coming within the frame margin wakes it: the contact runs
     objects.set_pose(0, want[np.argmax(want[: solver.model.n_skin, 2])] + [0.0, 0.0, R - 0.001],
                      (1.0, 0.0, 0.0, 0.0))
@@ -287,26 +289,58 @@ def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene):
 
 
 def test_a_woken_hand_matches_an_always_awake_run(scene):
-    """Asleep, then a finger bends: the skin stays within 0.1 mm of a run that never slept."""
+    """Carried at a steady 5 cm/s it falls asleep (settled relative to its bones), then a finger
+    bends: the skin stays within 0.1 mm of a run that never slept (it wakes moving with its bones)."""
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
     ids = body_ids(model, asset.body_names)
     qpos = model.key("open").qpos.copy()
     joint = next(j for j in range(model.njnt) if model.joint(j).name == "mcp2_flexion_r")
+    speed = np.array([0.05, 0.0, 0.0]) * Config().frame_dt  # m per frame
+    carried = lambda poses, k: (poses[0] + speed * k, poses[1])  # noqa: E731
     runs = []
     for sleep in (Config().sleep_speed, 0.0):
         cfg = Config(device="cpu", sleep_speed=sleep)
         solver = Solver(make_model(asset, cfg), cfg)
         state = solver.make_state(*scene[1])
-        asleep = [_step(solver, state, scene[2])["asleep"] for _ in range(300)]
+        asleep = [_step(solver, state, carried(scene[2], k))["asleep"] for k in range(300)]
         still = state.x.numpy().copy()
         woke = []
         for k in range(30):  # bend the index finger's MCP by 0.004 rad per frame
             q = qpos.copy()
             q[model.jnt_qposadr[joint]] += 0.004 * (k + 1)
-            woke.append(_step(solver, state, bone_poses_at(model, data, q, ids))["asleep"])
+            woke.append(_step(solver, state, carried(bone_poses_at(model, data, q, ids), 300 + k))["asleep"])
         runs.append((asleep, still, woke, state.x.numpy().copy()))
     (asleep, still_a, woke, bent_a), (never, still_b, _, bent_b) = runs
     assert any(asleep) and not any(never) and not any(woke)
     assert np.abs(still_a - still_b).max() < 1e-4
     assert np.abs(bent_a - bent_b).max() < 1e-4
+
+
+def test_a_sleeping_hand_wakes_when_gravity_turns_in_it_or_a_finger_creeps(scene):
+    """Per-frame tests alone would miss slow changes: the hand turning as one body (gravity turns
+    in it: woken before 2 degrees) and a finger bending below the per-frame tolerance (woken once
+    it has moved 10 um relative to the others since falling asleep)."""
+    solver, state, _, _ = _solver(scene)
+    poses = scene[2]
+    _until_asleep(solver, state, poses)
+    about = poses[0][0]
+    for k in range(1, 40):  # 0.1 degree per frame about the vertical through the first bone
+        c, s = np.cos(np.radians(0.1 * k)), np.sin(np.radians(0.1 * k))
+        out = _step(solver, state, _moved(poses, np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]),
+                                           np.zeros(3), about))
+        if not out["asleep"]:
+            break
+    assert not out["asleep"] and 0.1 * k <= 2.1, f"still asleep after turning {0.1 * k:.1f} degrees"
+    turned = _moved(poses, np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.zeros(3), about)
+    _until_asleep(solver, state, turned, limit=400)
+    # a finger creeping 2 um per frame at its tip stays under the per-frame tolerance (10 um)
+    pos, quat = turned
+    tip = solver.model.body_names.index("distph2_r") if "distph2_r" in solver.model.body_names else len(pos) - 1
+    for k in range(1, 30):
+        p = pos.copy()
+        p[tip] = p[tip] + np.array([0.0, 0.0, 2e-6]) * k
+        out = _step(solver, state, (p, quat))
+        if not out["asleep"]:
+            break
+    assert not out["asleep"] and k * 2e-6 <= 12e-6, f"still asleep after the tip crept {k * 2} um"

@@ -121,22 +121,30 @@ def advance(
 def carry_asleep(
     vertex_carrier: wp.array(dtype=int),
     body_pose: wp.array2d(dtype=wp.transform),
+    frame_dt: float,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     x_prev: wp.array(dtype=wp.vec3),
     x_safe: wp.array(dtype=wp.vec3),
+    guard: wp.array(dtype=int),
 ):
     """A sleeping hand's frame: every vertex rides rigidly with its carrier bone from the start to
-    the end of the frame (x <- T_end T_start^-1 x), at rest (v = 0)."""
+    the end of the frame (x <- T_end T_start^-1 x) with that motion's velocity (so a hand carried at
+    a steady speed wakes moving with it). A non-finite position (set from outside) restarts from
+    the last finite one (x_safe) and is counted in guard[0], as in ``advance``."""
     i = wp.tid()
-    xi = x[i]
+    x0 = x[i]
+    if not (wp.isfinite(x0[0]) and wp.isfinite(x0[1]) and wp.isfinite(x0[2])):
+        x0 = x_safe[i]
+        wp.atomic_add(guard, 0, 1)
+    xi = x0
     b = vertex_carrier[i]
     if b >= 0:
-        xi = wp.transform_point(body_pose[1, b], wp.transform_point(wp.transform_inverse(body_pose[0, b]), xi))
+        xi = wp.transform_point(body_pose[1, b], wp.transform_point(wp.transform_inverse(body_pose[0, b]), x0))
     x[i] = xi
     x_prev[i] = xi
     x_safe[i] = xi
-    v[i] = wp.vec3(0.0)
+    v[i] = (xi - x0) * (1.0 / frame_dt)
 
 
 @wp.kernel

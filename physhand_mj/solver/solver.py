@@ -33,6 +33,16 @@ from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
+SLEEP_TURN = math.radians(2.0)  # rad: the first bone's turn since the hand fell asleep that wakes it
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (rad) between two orientations given as poses [p, q x y z w]."""
+    d = abs(float(np.dot(a[3:].astype(np.float64), b[3:].astype(np.float64))))
+    d /= max(float(np.linalg.norm(a[3:]) * np.linalg.norm(b[3:])), 1e-30)
+    return 2.0 * math.acos(min(d, 1.0))
+
+
 def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float:
     """How far (m) the bones move relative to the first one over a frame: for poses (B, 7) [p, q
     x y z w] at its start and end, the largest distance between where a bone's own motion and the
@@ -91,7 +101,6 @@ class Solver:
         self._ops: dict[tuple, list] = {}
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
-        self._still: dict[int, int] = {}  # per state: frames in a row that ended settled (sleeping)
         self._sleep_ops: dict[tuple, list] = {}
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
@@ -173,7 +182,8 @@ class Solver:
                               f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
                               f"contacts may be missed; raise contact_frame_margin or use shorter frames",
                               RuntimeWarning, stacklevel=2)
-        rigid = bone_motion(state.pose_host[0], state.pose_host[1]) <= self.config.sleep_bone_motion
+        # the sleep test's bone conditions (activity.py), from the poses on the host
+        rigid = self._bones_still(state)
         self._pose_host.numpy()[:] = state.pose_host
         wp.copy(state.body_pose, self._pose_host)
         state.pose_host[0] = state.pose_host[1]
@@ -213,7 +223,7 @@ class Solver:
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None:
             self.contact.copy_metrics()
-        wp.synchronize_device(self.device)  # the frame's one host sync
+        wp.synchronize_device(self.device)  # the frame's host sync (on CUDA with contact: its second)
         g = self._guard_host.numpy()
         state.time += self.config.frame_dt
         state.frames += 1
@@ -233,7 +243,8 @@ class Solver:
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
         out.update(self.last_activity)
         # settled: rigid bone motion and no soft vertex faster than Config.sleep_speed (activity.py)
-        self._still[id(state)] = self._still.get(id(state), 0) + 1 if rigid and not g[3] else 0
+        state.still = state.still + 1 if rigid and not g[3] else 0
+        state.sleep_onset = None
         out["asleep"] = False
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
@@ -245,7 +256,7 @@ class Solver:
         """Settled for Config.sleep_frames frames and no object near (this frame's test: the CPU's
         host box test, or the frame broadphase run ahead on CUDA; no objects at all: nothing near)."""
         cfg, act = self.config, self.activity
-        if cfg.sleep_speed <= 0 or self._still.get(id(state), 0) < cfg.sleep_frames:
+        if cfg.sleep_speed <= 0 or state.still < cfg.sleep_frames:
             return False
         if self.contact is None:
             return True
@@ -261,21 +272,27 @@ class Solver:
             ops = [state.guard.zero_]
             if self.contact is not None:
                 self.contact.begin_frame(ops)
-            cmd = wp.launch(integrate.carry_asleep, m.n_vertices, inputs=[m.vertex_carrier, state.body_pose],
-                            outputs=[state.x, state.v, state.x_prev, state.x_safe], device=d, record_cmd=True)
+                if not self.activity.gate_ahead:  # (run ahead on CUDA, which zeroes them)
+                    ops.append(self.contact.counters.zero_)
+            cmd = wp.launch(integrate.carry_asleep, m.n_vertices,
+                            inputs=[m.vertex_carrier, state.body_pose, float(self.config.frame_dt)],
+                            outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
+                            record_cmd=True)
             ops.append(cmd.launch)
             self._sleep_ops[key] = ops
         for op in ops:
             op()
+        wp.copy(self._guard_host, state.guard)
         if self.contact is not None:
             self.contact.copy_metrics()
         wp.synchronize_device(self.device)
         state.time += self.config.frame_dt
         state.frames += 1
         ran = len(ops) + len(self._pre.get(key, ())) * int(self.activity.gate_ahead)
-        self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
+        near = self.activity.objects_near if self.contact is not None else 0
+        self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                   features_listed=0, ops_run=ran, contact_ops_run=0)
-        out = {"nonfinite": 0, "inverted": 0}
+        out = {"nonfinite": int(self._guard_host.numpy()[0]), "inverted": 0}
         if self.contact is not None:
             if self.config.skin_tether > 0:
                 out["tethered"] = 0
@@ -290,7 +307,36 @@ class Solver:
 
     def wake(self, state: State) -> None:
         """Forget that ``state`` had settled (it sleeps again after Config.sleep_frames still frames)."""
-        self._still.pop(id(state), None)
+        state.still = 0
+        state.sleep_onset = None
+
+    def _bones_still(self, state: State) -> bool:
+        """The sleep test's bone conditions for this frame (poses on the host, before the upload):
+        no bone moves relative to the others by more than Config.sleep_bone_motion in the frame, and,
+        while asleep, since it fell asleep; nor has the first bone turned by more than SLEEP_TURN
+        (gravity turns in the hand) or changed its velocity by more than Config.sleep_speed. Falling
+        short of any resets the settle count (the hand must settle again)."""
+        cfg = self.config
+        if cfg.sleep_speed <= 0:
+            return False
+        p0, p1 = state.pose_host[0], state.pose_host[1]
+        static = np.array_equal(p0, p1)  # bones at rest: skips the ~0.1 ms of numpy below
+        if not static and bone_motion(p0, p1) > cfg.sleep_bone_motion:
+            state.still = 0
+            return False
+        if state.still < cfg.sleep_frames or not len(p0):
+            return True
+        vel = (p1[0, :3].astype(np.float64) - p0[0, :3]) / cfg.frame_dt
+        if state.sleep_onset is None:  # falls asleep this frame (if nothing else keeps it awake)
+            state.sleep_onset = (p0.copy(), vel)
+            return True
+        onset, vel0 = state.sleep_onset
+        if np.linalg.norm(vel - vel0) > cfg.sleep_speed or bone_motion(onset, p1) > cfg.sleep_bone_motion \
+                or _turn(onset[0], p1[0]) > SLEEP_TURN:
+            state.still = 0
+            state.sleep_onset = None
+            return False
+        return True
 
     def _capturable(self) -> bool:
         return self.device.is_cuda and self.config.cuda_graph
