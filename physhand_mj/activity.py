@@ -88,7 +88,7 @@ class Activity:
             near = True  # level 0 is not decided on the host then
         open1 = near and (cand > 0 or not gating1)
         contact_ops = sum(g.leaf_ops(open1, counters) for g in self.gates
-                          if g.top and (near if g.level == 0 else open1))
+                          if g.top and (near if g.level == 0 else open1)) + self.ahead_ops
         ops = self.ungated_ops + contact_ops
         tested = int(sum(int(counters[s]) for s in contact.pass_slots)) if open1 else 0
         stage = int(sum(int(counters[a]) for a, *_ in contact._stage_slots)) if open1 else 0
@@ -96,9 +96,11 @@ class Activity:
                     triangles_tested=tested, features_listed=int(feat_count) if open1 else 0,
                     ops_run=ops, contact_ops_run=contact_ops)
 
-    def finish_recording(self, ops: list) -> None:
-        """Count the recorded frame's ops outside the gated blocks."""
+    def finish_recording(self, ops: list, ahead: list = ()) -> None:
+        """Count the recorded frame's ops outside the gated blocks, and the contact ops run ahead
+        of it (``ahead``: CUDA's frame broadphase and its counter reset, Solver.step)."""
         self.ungated_ops = sum(1 for op in ops if not isinstance(op, _Gate))
+        self.ahead_ops = len(ahead)
 
 
 class _Gate:

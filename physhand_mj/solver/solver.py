@@ -194,7 +194,7 @@ class Solver:
         first = ops is None
         if first:  # record every launch of a frame once: replaying skips Python argument packing
             ops = self._ops[key] = self._record_frame(state, key)
-            self.activity.finish_recording(ops + self._pre.get(key, []))
+            self.activity.finish_recording(ops, self._pre.get(key, []))
         act = self.activity
         if act.gate_ahead:  # the frame broadphase ahead of the frame: its count picks the graph
             for op in self._pre[key]:
@@ -288,10 +288,10 @@ class Solver:
         wp.synchronize_device(self.device)
         state.time += self.config.frame_dt
         state.frames += 1
-        ran = len(ops) + len(self._pre.get(key, ())) * int(self.activity.gate_ahead)
+        ahead = len(self._pre.get(key, ())) * int(self.activity.gate_ahead)  # (CUDA: the broadphase ran)
         near = self.activity.objects_near if self.contact is not None else 0
         self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
-                                  features_listed=0, ops_run=ran, contact_ops_run=0)
+                                  features_listed=0, ops_run=len(ops) + ahead, contact_ops_run=ahead)
         out = {"nonfinite": int(self._guard_host.numpy()[0]), "inverted": 0}
         if self.contact is not None:
             if self.config.skin_tether > 0:
