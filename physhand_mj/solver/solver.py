@@ -167,7 +167,9 @@ class Solver:
         """Advance one frame (``config.frame_dt``). Returns the frame's guard counts
         ``{"nonfinite": int, "inverted": int}`` (with contact and a tether also ``"tethered"``: skin
         vertices Config.skin_tether held, summed over substeps) and, with contact, the penetration
-        summary; raises SolverError under ``NonFinite.RAISE``."""
+        summary; what ran (activity.py: ``objects_near`` ... ``contact_ops_run``) and ``asleep``
+        (the frame only carried a settled hand along its bones: Config.sleep_speed); raises
+        SolverError under ``NonFinite.RAISE``."""
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
