@@ -263,11 +263,15 @@ def _moved(poses, rot, shift, about):
     return new_pos, q
 
 
-def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene):
+@pytest.mark.parametrize("ahead", [False, True], ids=["cpu-gates", "cuda-gates"])
+def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene, ahead):
+    """Also along CUDA's path (the broadphase run ahead decides 'no object near'), forced on the CPU."""
     solver, state, objects, top = _solver(scene)
+    solver.activity.gate_ahead = ahead  # before the first frame records
     poses = scene[2]
     k, out = _until_asleep(solver, state, poses)
-    assert out["ops_run"] <= 6 and out["contact_ops_run"] == 0 and out["penetration_count"] == 0
+    assert out["ops_run"] <= 6 + 2 * ahead and out["contact_ops_run"] == 2 * ahead
+    assert out["penetration_count"] == 0
     x0 = state.x.numpy().astype(np.float64)
     # the whole hand turned rigidly (1 degree about its first bone's origin: under the 2 degrees
     # that wake it, and that bone does not start moving) stays asleep and its skin is the sleeping
