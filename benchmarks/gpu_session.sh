@@ -43,6 +43,7 @@ case $phase in
       --out docs/benchmarks/hard_contact_cuda.json
     step bench_solver 30 python3 -m physhand_mj.cli bench solver --device cuda
     step dmc_step 120 python3 benchmarks/dmc_step.py --device cuda
+    step batch 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,16,64,256,1024 --frames 20
     ;;
   peers)
     step newton 180 python3 benchmarks/peers/newton_gpu.py --device cuda

@@ -24,6 +24,7 @@ _select_gl_backend()  # before anything imports mujoco: MuJoCo reads MUJOCO_GL a
 
 from physhand_mj.asset import DEFAULT_ASSET, SCHEMA_VERSION, AssetError, HandAsset, load_asset  # noqa: E402
 from physhand_mj.attach import SkinAttachment, add_skin  # noqa: E402
+from physhand_mj.batch import BatchedHands, replicate_asset  # noqa: E402
 from physhand_mj.bodies import soft_body  # noqa: E402
 from physhand_mj.coupling import SoftHand  # noqa: E402
 from physhand_mj.hand_mjcf import (  # noqa: E402
@@ -33,7 +34,7 @@ from physhand_mj.solver import Solver, SolverError, make_model  # noqa: E402
 from physhand_mj.types import Config, Layer, Model, NonFinite, Scheme, State  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["add_skin", "SkinAttachment", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
+__all__ = ["add_skin", "SkinAttachment", "BatchedHands", "replicate_asset", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
            "NonFinite", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
            "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",
            "set_skin_vertices", "soft_body"]

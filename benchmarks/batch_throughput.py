@@ -1,0 +1,89 @@
+"""Hand-frames per second of batched worlds (physhand_mj/batch.py; no contact yet).
+
+W copies of the embedded hand in one solver, open pose, each world's index finger bending at its own
+rate; ``--frames`` 5 ms frames timed after 2 warm-up frames (compilation, recording and graph
+capture excluded), one host sync per frame. Memory per world: the bytes of the replicated model's
+and state's device arrays divided by W.
+
+    python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5]
+
+Writes docs/benchmarks/batch_throughput_<device>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _nbytes(obj) -> int:
+    import dataclasses
+
+    import warp as wp
+
+    total = 0
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, wp.array):
+            total += v.capacity
+    return total
+
+
+def main() -> None:
+    import warp as wp
+
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.bench import device_name
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.types import Config
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
+    p.add_argument("--worlds", default="1,2,4,8", help="comma-separated world counts")
+    p.add_argument("--frames", type=int, default=5, help="timed 5 ms frames per world count")
+    a = p.parse_args()
+    wp.init()
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    mount = mount_pose(model, data)
+    q0 = model.key("open").qpos.copy()
+    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
+    rows = []
+    for w in [int(s) for s in a.worlds.split(",")]:
+        hands = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0), *mount)
+
+        def poses(f):
+            ps = []
+            for k in range(w):
+                q = q0.copy()
+                q[adr] += 0.3 * np.sin(0.05 * f * (1 + k % 7))
+                ps.append(bone_poses_at(model, data, q, ids))
+            return np.stack([x[0] for x in ps]), np.stack([x[1] for x in ps])
+
+        for f in range(2):
+            hands.step(*poses(f))
+        inputs = [poses(f) for f in range(2, 2 + a.frames)]  # (bone poses from MuJoCo: not timed)
+        t = time.perf_counter()
+        for pos, quat in inputs:
+            hands.step(pos, quat)
+        ms = (time.perf_counter() - t) / a.frames * 1e3
+        mem = (_nbytes(hands.solver.model) + _nbytes(hands.state)) / w
+        rows.append(dict(worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
+                         mb_per_world=round(mem / 2**20, 2), vertices=hands.replicated.n_vertices))
+        print(json.dumps(rows[-1]), flush=True)
+    dev = device_name(a.device if a.device != "cuda" else "cuda:0")
+    out = ROOT / "docs" / "benchmarks" / f"batch_throughput_{a.device.split(':')[0]}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, contact=False, rows=rows), indent=1))
+    print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))
+
+
+if __name__ == "__main__":
+    main()

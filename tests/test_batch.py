@@ -1,0 +1,68 @@
+"""Batched worlds (physhand_mj/batch.py): W hands in one solver step equal W serial runs, world by
+world; the replicated asset keeps every world's skin first and its constraints inside the world."""
+
+import numpy as np
+import pytest
+
+import physhand_mj as ph
+from physhand_mj.batch import BatchedHands, replicate_asset
+from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+from physhand_mj.solver import Solver, make_model
+from physhand_mj.types import Config, Layer
+
+
+@pytest.fixture(scope="module")
+def setup():
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    return asset, model, data, body_ids(model, asset.body_names), mount_pose(model, data)
+
+
+def test_replicated_asset_layout(setup):
+    asset = setup[0]
+    rep = replicate_asset(asset, 3)
+    n, ns = asset.n_vertices, asset.n_skin
+    assert rep.n_vertices == 3 * n and rep.n_skin == 3 * ns
+    assert np.all(rep.layer[: 3 * ns] == Layer.SKIN)  # all skins lead, as the solver expects
+    assert len(rep.tets) == 3 * len(asset.tets) and len(rep.body_names) == 3 * len(asset.body_names)
+    # world 1's skin is its own copy, and its faces and tets stay inside world 1's vertices
+    np.testing.assert_array_equal(rep.positions[ns:2 * ns], asset.positions[:ns])
+    f1 = rep.skin_faces[len(asset.skin_faces):2 * len(asset.skin_faces)]
+    assert f1.min() >= ns and f1.max() < 2 * ns
+    t1 = rep.tets[len(asset.tets):2 * len(asset.tets)]
+    world = np.where(t1 < 3 * ns, t1 // ns, (t1 - 3 * ns) // (n - ns))
+    assert np.all(world == 1)
+    vb = rep.vertex_body[rep.vertex_body >= 0]
+    assert vb.max() == 3 * len(asset.body_names) - 1
+    with pytest.raises(ValueError, match="worlds"):
+        replicate_asset(asset, 0)
+
+
+def test_batched_worlds_equal_serial_runs(setup):
+    """Two worlds, one holding the hand open, one bending the index finger: each equals its own
+    serial solver's run (bit for bit on the CPU: the same constraints in the same order)."""
+    asset, model, data, ids, mount = setup
+    q0 = model.key("open").qpos.copy()
+    q1 = q0.copy()
+    q1[model.jnt_qposadr[model.joint("mcp2_flexion_r").id]] += 0.6
+    open_, bent = (bone_poses_at(model, data, q, ids) for q in (q0, q1))
+    cfg = Config(device="cpu")
+    batch = BatchedHands(asset, 2, cfg, *mount)
+    serial = []
+    for _ in range(2):
+        s = Solver(make_model(asset, cfg), cfg)
+        serial.append((s, s.make_state(*mount)))
+    for f in range(8):
+        a = min((f + 1) / 4, 1.0)
+        poses = [open_, (bent[0] * a + open_[0] * (1 - a), bent[1])]
+        out = batch.step(np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]))
+        assert out["nonfinite"] == 0
+        for (s, st), p in zip(serial, poses):
+            s.set_body_poses(st, *p)
+            s.step(st)
+    for w, (_, st) in enumerate(serial):
+        assert np.abs(batch.positions(w) - st.x.numpy()).max() <= 1e-7
+        assert np.array_equal(batch.skin(w), st.x.numpy()[: asset.n_skin])
+    assert np.abs(batch.skin(0) - batch.skin(1)).max() > 1e-3  # the worlds did differ
+    with pytest.raises(ValueError, match="bone poses"):
+        batch.step(np.stack([open_[0]]), np.stack([open_[1]]))
