@@ -34,6 +34,15 @@ def test_replicated_asset_layout(setup):
     assert np.all(world == 1)
     vb = rep.vertex_body[rep.vertex_body >= 0]
     assert vb.max() == 3 * len(asset.body_names) - 1
+    # every vertex's carrier bone and every skin vertex's tether bone lie in its own world (the
+    # worlds share rest positions: nearest-vertex ties must not cross them)
+    from physhand_mj.batch import vertex_world
+
+    m = make_model(rep, Config(device="cpu"))
+    nb = len(asset.body_names)
+    world = vertex_world(rep.n_vertices, rep.n_skin, 3)
+    np.testing.assert_array_equal(m.vertex_carrier.numpy() // nb, world)
+    np.testing.assert_array_equal(m.skin_body.numpy() // nb, world[: rep.n_skin])
     with pytest.raises(ValueError, match="worlds"):
         replicate_asset(asset, 0)
 
@@ -66,3 +75,38 @@ def test_batched_worlds_equal_serial_runs(setup):
     assert np.abs(batch.skin(0) - batch.skin(1)).max() > 1e-3  # the worlds did differ
     with pytest.raises(ValueError, match="bone poses"):
         batch.step(np.stack([open_[0]]), np.stack([open_[1]]))
+
+
+def test_batched_worlds_with_their_own_objects(setup):
+    """Two worlds, each with its own sphere: world 1's presses the back of its hand, world 0's
+    waits 10 cm away. Each ends like a serial solver given the same sphere (within float32
+    rounding at the 1 m apart the worlds are solved), world 1 pressed, world 0 untouched, and
+    nothing penetrates."""
+    from physhand_mj.contact import Objects
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    cfg = Config(device="cpu")
+    batch = BatchedHands(asset, 2, cfg, *mount, objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]]  # world 0: away; world 1: 2 mm in
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]] * 2)
+    serial = []
+    for w in range(2):
+        objs = Objects("cpu", 1)
+        objs.add(GeomType.SPHERE, (0.02, 0, 0), where[w], name="ball")
+        s = Solver(make_model(asset, cfg), cfg, objects=objs)
+        serial.append((s, s.make_state(*mount)))
+    for _ in range(4):
+        out = batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), np.stack(where)[:, None], ident[:, None])
+        for s, st in serial:
+            s.set_body_poses(st, *poses)
+            s.step(st)
+    assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
+    rest = serial[0][1].x.numpy()
+    for w, (_, st) in enumerate(serial):
+        assert np.abs(batch.positions(w) - st.x.numpy()).max() < 5e-5
+    moved = np.abs(batch.skin(1) - rest[: asset.n_skin]).max()
+    assert moved > 1e-3 > np.abs(batch.skin(0) - rest[: asset.n_skin]).max() * 10  # world 1 pressed, world 0 not

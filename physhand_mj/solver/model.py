@@ -114,10 +114,19 @@ def make_model(asset, config: Config | None = None) -> Model:
     ns = int(asset.n_skin)
     skin_body = np.full(ns, -1, np.int32)
     skin_local = np.zeros((ns, 3))
+    # batched worlds (physhand_mj/batch.py) share their rest positions: a 4th coordinate keeps
+    # every nearest-vertex query inside its own world
+    worlds = int(asset.meta.get("worlds", 1)) if isinstance(asset.meta, dict) else 1
+    if worlds > 1:
+        from physhand_mj.batch import vertex_world
+
+        xw = np.c_[x, 1.0e3 * vertex_world(n, ns, worlds)]
+    else:
+        xw = x
     if len(kv) and ns:
         from scipy.spatial import cKDTree
 
-        near = kv[cKDTree(x[kv]).query(x[:ns])[1]]
+        near = kv[cKDTree(xw[kv]).query(xw[:ns])[1]]
         skin_body = vb[near].astype(np.int32)
         skin_local = np.einsum("kji,kj->ki", rot[skin_body], x[:ns] - asset.body_rest_pos[skin_body])
 
@@ -128,7 +137,7 @@ def make_model(asset, config: Config | None = None) -> Model:
         from scipy.spatial import cKDTree
 
         soft = np.flatnonzero(~kin)
-        carrier[soft] = vb[kv[cKDTree(x[kv]).query(x[soft])[1]]]
+        carrier[soft] = vb[kv[cKDTree(xw[kv]).query(xw[soft])[1]]]
 
     def arr(a, dtype, shape=None):
         a = np.ascontiguousarray(a)
