@@ -105,6 +105,12 @@ def test_batched_worlds_with_their_own_objects(setup):
             s.set_body_poses(st, *poses)
             s.step(st)
     assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
+    # checked by measures the contact does not use: an order-9 skin lattice and the spheres' surface
+    # points inside the closed skin of every world
+    from physhand_mj.metrics import summarize
+
+    dense = summarize(batch.solver.contact.measure(batch.state, order=9))
+    assert dense["penetration_count"] == 0 and dense["object_in_skin_count"] == 0, dense
     rest = serial[0][1].x.numpy()
     for w, (_, st) in enumerate(serial):
         assert np.abs(batch.positions(w) - st.x.numpy()).max() < 5e-5

@@ -43,6 +43,12 @@ def _turn(a: np.ndarray, b: np.ndarray) -> float:
     return 2.0 * math.acos(min(d, 1.0))
 
 
+def frame_rigid(start: np.ndarray, end: np.ndarray, tol: float) -> bool:
+    """No bone moved relative to the others by more than ``tol`` (m) between two (B, 7) pose sets
+    (bones at rest: equal arrays, no numpy work)."""
+    return bool(np.array_equal(start, end) or bone_motion(start, end) <= tol)
+
+
 def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float:
     """How far (m) the bones move relative to the first one over a frame: for poses (B, 7) [p, q
     x y z w] at its start and end, the largest distance between where a bone's own motion and the
@@ -50,15 +56,8 @@ def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float
     ``lever`` (m, a hand's size). 0 for a hand moving as one rigid body."""
     if start.shape[0] < 2:
         return 0.0
-
-    def mats(q):  # x y z w -> rotation matrices
-        x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-                         np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-                         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
-
     p0, p1 = start[:, :3].astype(np.float64), end[:, :3].astype(np.float64)
-    r0, r1 = mats(start[:, 3:].astype(np.float64)), mats(end[:, 3:].astype(np.float64))
+    r0, r1 = quat_to_mat(start[:, [6, 3, 4, 5]]), quat_to_mat(end[:, [6, 3, 4, 5]])  # (x y z w -> w x y z)
     m = r1 @ np.swapaxes(r0, -1, -2)  # each bone's rotation over the frame
     root = m[0] @ (p0 - p0[0]).T  # where the first bone's motion takes every origin (3, B)
     dist = np.linalg.norm(root.T + p1[0] - p1, axis=1)
@@ -184,8 +183,10 @@ class Solver:
                               f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
                               f"contacts may be missed; raise contact_frame_margin or use shorter frames",
                               RuntimeWarning, stacklevel=2)
-        # the sleep test's bone conditions (activity.py), from the poses on the host
-        rigid = self._bones_still(state)
+        # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
+        # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
+        frame_poses = (state.pose_host[0].copy(), state.pose_host[1].copy())
+        rigid = self._bones_still(state) if self._settled(state) else None
         self._pose_host.numpy()[:] = state.pose_host
         wp.copy(state.body_pose, self._pose_host)
         state.pose_host[0] = state.pose_host[1]
@@ -233,18 +234,16 @@ class Solver:
         if self.contact is not None and self.config.skin_tether > 0:
             out["tethered"] = int(g[2])
         if self.contact is not None:
-            from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
-
-            rows = self.contact.read_metrics(synchronize=False)
-            out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
-            self.substep_metrics = rows[:-1]
+            self._contact_summary(out)
             self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
         else:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
         out.update(self.last_activity)
-        # settled: rigid bone motion and no soft vertex faster than Config.sleep_speed (activity.py)
+        # settled: no soft vertex faster than Config.sleep_speed and rigid bone motion (activity.py)
+        if self.config.sleep_speed > 0 and not g[3] and rigid is None:
+            rigid = frame_rigid(*frame_poses, self.config.sleep_bone_motion)
         state.still = state.still + 1 if rigid and not g[3] else 0
         state.sleep_onset = None
         out["asleep"] = False
@@ -298,11 +297,7 @@ class Solver:
         if self.contact is not None:
             if self.config.skin_tether > 0:
                 out["tethered"] = 0
-            from physhand_mj.metrics import summarize
-
-            rows = self.contact.read_metrics(synchronize=False)
-            out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
-            self.substep_metrics = rows[:-1]
+            self._contact_summary(out)
         out.update(self.last_activity)
         out["asleep"] = True
         return out
@@ -312,6 +307,17 @@ class Solver:
         state.still = 0
         state.sleep_onset = None
 
+    def _contact_summary(self, out: dict) -> None:
+        """The frame's penetration summary (its metrics row, read at the frame's sync) into ``out``."""
+        from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
+
+        rows = self.contact.read_metrics(synchronize=False)
+        out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
+        self.substep_metrics = rows[:-1]
+
+    def _settled(self, state: State) -> bool:
+        return self.config.sleep_speed > 0 and state.still >= self.config.sleep_frames
+
     def _bones_still(self, state: State) -> bool:
         """The sleep test's bone conditions for this frame (poses on the host, before the upload):
         no bone moves relative to the others by more than Config.sleep_bone_motion in the frame, and,
@@ -319,14 +325,11 @@ class Solver:
         (gravity turns in the hand) or changed its velocity by more than Config.sleep_speed. Falling
         short of any resets the settle count (the hand must settle again)."""
         cfg = self.config
-        if cfg.sleep_speed <= 0:
-            return False
         p0, p1 = state.pose_host[0], state.pose_host[1]
-        static = np.array_equal(p0, p1)  # bones at rest: skips the ~0.1 ms of numpy below
-        if not static and bone_motion(p0, p1) > cfg.sleep_bone_motion:
+        if not frame_rigid(p0, p1, cfg.sleep_bone_motion):
             state.still = 0
             return False
-        if state.still < cfg.sleep_frames or not len(p0):
+        if not len(p0):
             return True
         vel = (p1[0, :3].astype(np.float64) - p0[0, :3]) / cfg.frame_dt
         if state.sleep_onset is None:  # falls asleep this frame (if nothing else keeps it awake)
