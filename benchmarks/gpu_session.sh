@@ -12,9 +12,11 @@
 #   tests    the CUDA tests (CPU/CUDA agreement, hard cases on CUDA), softhand_frame, activity_frame
 #   frames   hoi_table2 (vertex/opt/multires/default), hard_contact (multires, default), bench solver,
 #            dm-control task steps
-#   peers    Newton VBD/XPBD and MuJoCo Warp flex, physhand bench accuracy (10 frames, 1 repeat)
+#   peers    Newton VBD/XPBD and MuJoCo Warp flex (compiled side by side first), batch throughput,
+#            and the kernel cache of all three packages back as $OUT/warp_cache.tar.xz
+#   accuracy physhand bench accuracy (20 frames as on the CPU, 1 repeat)
 set -uo pipefail
-phase=${1:?phase: tests, frames or peers}
+phase=${1:?phase: tests, frames, peers or accuracy}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -46,9 +48,20 @@ case $phase in
     step batch 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,16,64,256,1024 --frames 20
     ;;
   peers)
-    step newton 180 python3 benchmarks/peers/newton_gpu.py --device cuda
-    step mujoco_warp 120 python3 benchmarks/peers/mujoco_warp_gpu.py --device cuda
-    step accuracy 280 python3 -m physhand_mj.cli bench accuracy --device cuda --frames 10 --repeats 1 \
+    # compile both peers' kernels at once (CPU-bound: NVRTC), then time them one after the other
+    timeout 330 python3 benchmarks/peers/newton_gpu.py --device cuda --frames 2 --press-frames 1 \
+      --out /tmp/warm_newton.json >"$OUT/logs/warm_newton.log" 2>&1 &
+    timeout 330 python3 benchmarks/peers/mujoco_warp_gpu.py --device cuda --frames 2 --press-frames 1 \
+      --out /tmp/warm_mjw.json >"$OUT/logs/warm_mjw.log" 2>&1 &
+    wait
+    echo "[warm-up] $SECONDS s"; tail -n 2 "$OUT"/logs/warm_*.log | cut -c1-300
+    step newton 120 python3 benchmarks/peers/newton_gpu.py --device cuda
+    step mujoco_warp 90 python3 benchmarks/peers/mujoco_warp_gpu.py --device cuda
+    step batch 100 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,16,64,256,1024,4096 --frames 20
+    tar -C ~/.cache/warp -cf - . | xz -T0 -3 >"$OUT/warp_cache.tar.xz"
+    ;;
+  accuracy)
+    step accuracy 560 python3 -m physhand_mj.cli bench accuracy --device cuda --frames 20 --repeats 1 \
       --out docs/benchmarks/accuracy_cuda
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
