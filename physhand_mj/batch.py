@@ -1,4 +1,4 @@
-"""Batched worlds: W hands advanced by one solver step (issue 15, first part).
+"""Batched worlds: W hands advanced by one solver step (issue 15).
 
 W copies of one asset become one body with W disconnected components (``replicate_asset``): the
 skins of all worlds first (the solver's layout: skin vertices lead), then every world's flesh and
@@ -9,11 +9,13 @@ Newton's replicated builders and mujoco_warp's ``nworld``. Worlds never interact
 crosses them, and each world is solved at its own place in space (``BatchedHands.offsets``), far
 enough apart that no distance-limited contact query reaches another world.
 
-:class:`BatchedHands` keeps the per-world views: bone poses in per world, skins out per world.
-Per-world recovery is per vertex already (``integrate.advance`` resets a non-finite vertex to its
-last position), but the frame's guard counts and penetration summary are summed over worlds. Not
-built yet: per-world metrics and guards, a world-indexed broadphase for thousands of worlds,
-``physhand rollout --batch``.
+:class:`BatchedHands` keeps the per-world views: bone poses in per world, skins out per world,
+and per-world reports: the guard counts (non-finite vertices, inverted tets, tethered skin) and
+both penetration measures per world (:meth:`BatchedHands.metrics`, ``step()["worlds"]``); a world
+that goes non-finite is reset vertex by vertex (``integrate.advance``) and reported alone. The
+contact is world-indexed: a skin triangle's broadphase tests only its own world's geoms
+(contact/broadphase.py), and the metrics measure each world against its own objects.
+``physhand rollout LIST --batch W`` (physhand_mj/batch_rollout.py) runs rollouts W at a time.
 """
 
 from __future__ import annotations
@@ -95,6 +97,8 @@ class BatchedHands:
 
     def __init__(self, asset, worlds: int, config=None, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0),
                  objects=(), spacing: float | None = None):
+        """``pos`` (3,) m / ``quat`` (4,) w x y z place the rest shape of every world; (W, 3) and
+        (W, 4) place each world's own (in its frame)."""
         from physhand_mj.contact import Objects
         from physhand_mj.solver import Solver, make_model
         from physhand_mj.types import Config
@@ -112,43 +116,144 @@ class BatchedHands:
         if objects:
             self.objects = Objects(str(self.config.device or "cpu"), self.worlds * len(objects))
             for w in range(self.worlds):
-                for spec in objects:
-                    spec = dict(spec)
+                for spec in objects:  # (coupling.geom_spec's dicts too: their pose is set by step)
+                    spec = {k: v for k, v in spec.items() if k not in ("pos", "quat")}
                     name = f"{spec.pop('name', 'object')}#{w}"
+                    obj = f"{spec.pop('obj')}#{w}" if spec.get("obj") else name
+                    spec.pop("obj", None)
                     self.objects.add(spec.pop("gtype"), spec.pop("size", None), self.offsets[w] + 1e3,
-                                     name=name, obj=name, **spec)  # parked far away until step poses them
+                                     name=name, obj=obj, **spec)  # parked far away until step poses them
         self.solver = Solver(make_model(self.replicated, self.config), self.config, objects=self.objects)
-        self.state = self.solver.make_state(pos, quat)
         self.n_bodies = len(asset.body_names)
-        # shift each world to its place: positions (x, x_prev, x_safe) and the bones' host poses
+        pos, quat = np.asarray(pos, float), np.asarray(quat, float)
+        each = pos.ndim == 2
+        if each and (pos.shape != (self.worlds, 3) or quat.shape != (self.worlds, 4)):
+            raise ValueError(f"placements per world must be {(self.worlds, 3)} positions and {(self.worlds, 4)} "
+                             f"quaternions, got {pos.shape} and {quat.shape}")
+        self.state = self.solver.make_state(*((pos, quat) if not each else ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))))
         world = vertex_world(self.replicated.n_vertices, self.replicated.n_skin, self.worlds)
+        if each:
+            self._place(pos, quat, world)
+        # shift each world to its place: positions (x, x_prev, x_safe) and the bones' host poses
         shift = self.offsets[world].astype(np.float32)
         import warp as wp
 
         for name in ("x", "x_prev", "x_safe"):
             arr = getattr(self.state, name)
             arr.assign(wp.array(arr.numpy() + shift, dtype=wp.vec3, device="cpu"))
-        body_shift = np.repeat(self.offsets, self.n_bodies, axis=0).astype(np.float32)
-        self.state.pose_host[:, :, :3] += body_shift
+        self.body_shift = np.repeat(self.offsets, self.n_bodies, axis=0)
+        self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
+        self.last_worlds: list[dict] = []
 
-    def step(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None) -> dict:
-        """One frame of every world: bone poses at its end, ``pos`` (W, B, 3) m, ``quat`` (W, B, 4)
-        w x y z, bodies ordered as ``asset.body_names``; with objects their poses ``object_pos``
-        (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z, in each world's frame. Returns the
-        solver's frame dict (summed over worlds)."""
+    def _place(self, pos: np.ndarray, quat: np.ndarray, world: np.ndarray) -> None:
+        """Each world's rest shape placed by its own rigid transform (as ``Solver.make_state`` places
+        one hand), in its frame."""
+        import warp as wp
+
+        from physhand_mj.solver.model import quat_to_mat
+        from physhand_mj.solver.solver import _compose_quat
+
+        m = self.solver.model
+        rot = quat_to_mat(quat).reshape(self.worlds, 3, 3)
+        x = np.einsum("nij,nj->ni", rot[world], m.rest_x.numpy().astype(np.float64)) + pos[world]
+        for name in ("x", "x_prev", "x_safe"):
+            getattr(self.state, name).assign(wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu"))
+        bw = np.repeat(np.arange(self.worlds), self.n_bodies)
+        bp = np.einsum("nij,nj->ni", rot[bw], m.body_rest_pos) + pos[bw]
+        bq = np.concatenate([_compose_quat(quat[w], m.body_rest_quat[w * self.n_bodies:(w + 1) * self.n_bodies])
+                             for w in range(self.worlds)])
+        self.solver.set_body_poses(self.state, bp, bq)
+        self.state.pose_host[0] = self.state.pose_host[1]
+
+    def settle(self, pos: np.ndarray, quat: np.ndarray, frames: int = 20) -> None:
+        """Move every world's bones from where they are (the rest placement after construction) to
+        ``pos`` (W, B, 3) m / ``quat`` (W, B, 4) w x y z over ``frames`` frames without contact, as
+        ``SoftHand(..., settle_contact=False)`` does for one hand (a grasp keyframe starts from the
+        undeformed posed skin, its penetrations included)."""
+        from physhand_mj.coupling import _nlerp
+        from physhand_mj.solver import Solver
+
+        pos, quat = self._check_poses(pos, quat)
+        settler = Solver(self.solver.model, self.config)
+        settler.warn_fast_motion = False  # settling moves the bones on purpose
+        hp = self.state.pose_host[1]
+        rest_pos = hp[:, :3].astype(float)
+        rest_quat = hp[:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
+        target = pos.reshape(-1, 3) + self.body_shift
+        for k in range(frames):
+            a = (k + 1) / frames
+            settler.set_body_poses(self.state, (1 - a) * rest_pos + a * target, _nlerp(rest_quat, quat.reshape(-1, 4), a))
+            settler.step(self.state)
+
+    def set_object_poses(self, object_pos, object_quat) -> None:
+        """Every world's object poses, ``object_pos`` (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z,
+        each in its world's frame (``step`` takes them too)."""
+        if self.objects is None:
+            return
+        if object_pos is None or object_quat is None:
+            raise ValueError(f"object poses are needed: object_pos {(self.worlds, self.n_objects, 3)} m and "
+                             f"object_quat {(self.worlds, self.n_objects, 4)} w x y z")
+        op = np.asarray(object_pos, float).reshape(self.worlds, self.n_objects, 3) + self.offsets[:, None]
+        self.objects.set_poses(op.reshape(-1, 3), np.asarray(object_quat, float).reshape(-1, 4))
+
+    def _check_poses(self, pos, quat):
         pos, quat = np.asarray(pos, float), np.asarray(quat, float)
         want = (self.worlds, self.n_bodies)
         if pos.shape != want + (3,) or quat.shape != want + (4,):
             raise ValueError(f"bone poses must be {want + (3,)} positions and {want + (4,)} quaternions, "
                              f"got {pos.shape} and {quat.shape}")
-        if self.objects is not None:
-            if object_pos is None or object_quat is None:
-                raise ValueError(f"object poses are needed: object_pos {(self.worlds, self.n_objects, 3)} m and "
-                                 f"object_quat {(self.worlds, self.n_objects, 4)} w x y z")
-            op = np.asarray(object_pos, float).reshape(self.worlds, self.n_objects, 3) + self.offsets[:, None]
-            self.objects.set_poses(op.reshape(-1, 3), np.asarray(object_quat, float).reshape(-1, 4))
+        return pos, quat
+
+    def step(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None) -> dict:
+        """One frame of every world: bone poses at its end, ``pos`` (W, B, 3) m, ``quat`` (W, B, 4)
+        w x y z, bodies ordered as ``asset.body_names``; with objects their poses ``object_pos``
+        (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z, in each world's frame. Returns the
+        solver's frame dict (counts summed over worlds, the batch's penetration summary) with
+        ``worlds``: per world its guard counts and the frame's skin-sample penetration summary
+        (:meth:`frame_worlds`)."""
+        pos, quat = self._check_poses(pos, quat)
+        self.set_object_poses(object_pos, object_quat)
         self.solver.set_body_poses(self.state, (pos + self.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
-        return self.solver.step(self.state)
+        out = self.solver.step(self.state)
+        out["worlds"] = self.last_worlds = self.frame_worlds()
+        return out
+
+    def frame_worlds(self) -> list[dict]:
+        """Per world, the last frame's ``nonfinite`` / ``inverted`` / ``tethered`` guard counts and its
+        skin samples inside objects at the frame's end (``penetration_count`` / ``_max_um`` /
+        ``_avg_um``, the solver's frame metric): what ``Solver.step`` reports for one hand."""
+        from physhand_mj.metrics import summarize
+
+        g = self.solver.guard_worlds
+        c = self.solver.contact
+        rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
+        return [dict(nonfinite=int(g[w, 0]), inverted=int(g[w, 1]), tethered=int(g[w, 2]), **summarize(rows[w]))
+                for w in range(self.worlds)]
+
+    def penetration(self, order: int = 5) -> list[dict]:
+        """Both penetration measures of every world's skin as it is now, each world against its own
+        objects: ``penetration_*`` (skin samples on the order-``order`` lattice inside objects; the
+        metric's is 5) and ``object_in_skin_*`` (object surface points inside the closed skin), as
+        ``SoftHand.penetration`` gives them for one hand (counts, um)."""
+        from physhand_mj.metrics import summarize
+
+        c = self.solver.contact
+        rows = c.measure_worlds(self.state, order=order) if c is not None else np.zeros((self.worlds, 6))
+        return [summarize(r) for r in rows]
+
+    def metrics(self, order: int = 5) -> list[dict]:
+        """Per world: both penetration measures now (:meth:`penetration`), the last frame's guard
+        counts (``nonfinite``, ``inverted``, ``tethered``) and ``finite`` (its skin holds finite
+        positions now)."""
+        x = self.state.x.numpy()
+        ns = self.asset.n_skin
+        guards = self.frame_worlds() if self.state.frames else [
+            dict(nonfinite=0, inverted=0, tethered=0)] * self.worlds
+        out = []
+        for w, pen in enumerate(self.penetration(order)):
+            g = {k: guards[w][k] for k in ("nonfinite", "inverted", "tethered")}
+            out.append(dict(pen, **g, finite=bool(np.all(np.isfinite(x[w * ns:(w + 1) * ns])))))
+        return out
 
     def skin(self, world: int) -> np.ndarray:
         """(n_skin, 3) skin positions (m) of one world, in its frame."""

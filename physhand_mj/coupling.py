@@ -82,10 +82,7 @@ class SoftHand:
             self.skin_geom = skin_geom_id(model, prefix)
         else:  # compiled-model path: a skin geom, if any, is only kept out of the objects
             self.skin_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, prefix + SKIN_GEOM)
-        self.skin_mesh_id = int(model.geom_dataid[self.skin_geom]) if self.writeback else -1
-        if self.writeback and model.mesh_vertnum[self.skin_mesh_id] != self.asset.n_skin:
-            raise ValueError(f"the skin mesh has {model.mesh_vertnum[self.skin_mesh_id]} vertices, the asset "
-                             f"{self.asset.n_skin}: the MJCF and the asset come from different builds")
+        self.skin_mesh_id = check_skin_mesh(model, self.skin_geom, self.asset) if self.writeback else -1
         if naming is None:
             self.bones = body_ids(model, [prefix + str(b) for b in self.asset.body_names])
         else:
@@ -121,47 +118,12 @@ class SoftHand:
 
         return wp.get_device(self.config.device)
 
-    def _hand_bodies(self) -> set:
-        m = self.model
-        roots = {int(m.body_rootid[b]) for b in self.bones}
-        return {b for b in range(m.nbody) if int(m.body_rootid[b]) in roots and b != 0}
-
     def _select_objects(self, names, bodies, groups) -> list[int]:
-        m = self.model
-        hand = self._hand_bodies()
-        out = []
-        for g in range(m.ngeom):
-            if g == self.skin_geom or int(m.geom_bodyid[g]) in hand:
-                continue
-            name = m.geom(g).name
-            if names is not None and name not in names and g not in names:  # names or ids (unnamed geoms)
-                continue
-            if bodies is not None and m.body(int(m.geom_bodyid[g])).name not in bodies:
-                continue
-            if groups is not None and int(m.geom_group[g]) not in groups:
-                continue
-            if int(m.geom_type[g]) not in MJ_GEOM_TYPES:
-                kind = mujoco.mjtGeom(int(m.geom_type[g])).name
-                raise ValueError(f"geom '{name or g}' is a {kind}, which the soft skin cannot collide with; "
-                                 f"leave it out with object_geoms / object_bodies / object_groups")
-            out.append(g)
-        return out
+        return select_object_geoms(self.model, self.bones, self.skin_geom, names, bodies, groups)
 
     def _add_geom(self, g: int) -> None:
-        m, d = self.model, self.data
-        gtype = MJ_GEOM_TYPES[int(m.geom_type[g])]
-        name = m.geom(g).name or f"geom{g}"
-        body = m.body(int(m.geom_bodyid[g])).name or name
-        quat = _mat_to_quat(d.geom_xmat[g].reshape(1, 9))[0]
-        if gtype == GeomType.MESH:
-            mid = int(m.geom_dataid[g])
-            va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
-            fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
-            self.objects.add(gtype, None, d.geom_xpos[g], quat, name=name, obj=body,
-                             vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
-                             mesh_range=float(2 * m.geom_rbound[g] + 0.01))
-        else:
-            self.objects.add(gtype, m.geom_size[g], d.geom_xpos[g], quat, name=name, obj=body)
+        spec = geom_spec(self.model, self.data, g)
+        self.objects.add(spec.pop("gtype"), spec.pop("size"), spec.pop("pos"), spec.pop("quat"), **spec)
 
     def refresh_objects(self) -> int:
         """Re-read the type and size of the object geoms from the model (for scenes that edit
@@ -194,14 +156,7 @@ class SoftHand:
         return pos, quat
 
     def _rest_placement(self, pos0, quat0):
-        """World pose of the asset frame if bone 0 is at (pos0, quat0): T_world = T_bone T_bone_rest^-1."""
-        r0 = quat_to_mat(self.asset.body_rest_quat[0])
-        rw = quat_to_mat(quat0)
-        rot = rw @ r0.T
-        pos = pos0 - rot @ self.asset.body_rest_pos[0]
-        q = np.empty(4)
-        mujoco.mju_mat2Quat(q, rot.ravel())
-        return pos, q
+        return rest_placement(self.asset, pos0, quat0)
 
     # -- per frame -------------------------------------------------------------------------------
     def step(self) -> dict:
@@ -369,6 +324,77 @@ class SoftHand:
         out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
                    ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])
         return out
+
+
+def select_object_geoms(model, bones, skin_geom: int, names=None, bodies=None, groups=None) -> list[int]:
+    """The geoms the skin collides with: every geom outside the hand (the trees of the ``bones``'
+    bodies) but the skin geom, restricted to geom ``names`` (or ids), ``bodies`` and geom ``groups``
+    when given. Raises ValueError for a geom type the skin cannot collide with."""
+    m = model
+    roots = {int(m.body_rootid[b]) for b in bones}
+    hand = {b for b in range(m.nbody) if int(m.body_rootid[b]) in roots and b != 0}
+    out = []
+    for g in range(m.ngeom):
+        if g == skin_geom or int(m.geom_bodyid[g]) in hand:
+            continue
+        name = m.geom(g).name
+        if names is not None and name not in names and g not in names:  # names or ids (unnamed geoms)
+            continue
+        if bodies is not None and m.body(int(m.geom_bodyid[g])).name not in bodies:
+            continue
+        if groups is not None and int(m.geom_group[g]) not in groups:
+            continue
+        if int(m.geom_type[g]) not in MJ_GEOM_TYPES:
+            kind = mujoco.mjtGeom(int(m.geom_type[g])).name
+            raise ValueError(f"geom '{name or g}' is a {kind}, which the soft skin cannot collide with; "
+                             f"leave it out with object_geoms / object_bodies / object_groups")
+        out.append(g)
+    return out
+
+
+def geom_spec(model, data, g: int) -> dict:
+    """:meth:`Objects.add`'s arguments for MuJoCo geom ``g`` as ``data`` has it now: ``gtype``,
+    ``size`` (m), ``pos`` (m), ``quat`` (w x y z), ``name``, ``obj`` (its body's name: geoms of one
+    body form one object) and, for a mesh, ``vertices``, ``faces`` and ``mesh_range``."""
+    m, d = model, data
+    gtype = MJ_GEOM_TYPES[int(m.geom_type[g])]
+    name = m.geom(g).name or f"geom{g}"
+    body = m.body(int(m.geom_bodyid[g])).name or name
+    quat = _mat_to_quat(d.geom_xmat[g].reshape(1, 9))[0]
+    if gtype == GeomType.MESH:
+        mid = int(m.geom_dataid[g])
+        va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
+        fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
+        return dict(gtype=gtype, size=None, pos=d.geom_xpos[g], quat=quat, name=name, obj=body,
+                    vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
+                    mesh_range=float(2 * m.geom_rbound[g] + 0.01))
+    return dict(gtype=gtype, size=m.geom_size[g], pos=d.geom_xpos[g], quat=quat, name=name, obj=body)
+
+
+def geom_quats(data, geoms) -> np.ndarray:
+    """(k, 4) w x y z orientations of ``geoms`` as ``data`` has them now."""
+    return _mat_to_quat(data.geom_xmat[geoms])
+
+
+def check_skin_mesh(model, skin_geom: int, asset) -> int:
+    """The skin geom's mesh id, after checking that it has the asset's skin vertex count."""
+    mid = int(model.geom_dataid[skin_geom])
+    if model.mesh_vertnum[mid] != asset.n_skin:
+        raise ValueError(f"the skin mesh has {model.mesh_vertnum[mid]} vertices, the asset "
+                         f"{asset.n_skin}: the MJCF and the asset come from different builds")
+    return mid
+
+
+def rest_placement(asset, pos0, quat0):
+    """World pose (position m, quaternion w x y z) of the asset frame when its bone 0 is at
+    (pos0, quat0): T_world = T_bone T_bone_rest^-1."""
+    r0 = quat_to_mat(asset.body_rest_quat[0])
+    rw = quat_to_mat(quat0)
+    rot = rw @ r0.T
+    pos = pos0 - rot @ asset.body_rest_pos[0]
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, rot.ravel())
+    return pos, q
 
 
 def vertex_areas(x: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -29,27 +29,41 @@ ORDER = 5  # 21 samples per triangle
 def penetration_samples(
     faces: wp.array2d(dtype=int),
     x: wp.array(dtype=wp.vec3),
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.uint64),
+    gtype: wp.array2d(dtype=int),
+    size: wp.array2d(dtype=wp.vec3),
+    inv_pose: wp.array2d(dtype=wp.transform),
+    radius: wp.array2d(dtype=float),
+    mesh: wp.array2d(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
-    geom_obj: wp.array(dtype=int),
+    geom_obj: wp.array2d(dtype=int),
     obj_filter: int,
     row: int,
     order: int,
+    tris_per_world: int,
+    rows_per_world: int,
     out: wp.array2d(dtype=float),
 ):
     """Samples on the order-``order`` lattice ((order + 1)(order + 2) / 2 per triangle; the metric's
-    is 5); obj_filter >= 0 restricts the samples' SDF to the geoms of that object."""
+    is 5); obj_filter >= 0 restricts the samples' SDF to the geoms of that object.
+
+    Per world (batched worlds, physhand_mj/batch.py): the geom arrays come as (W, k) views, world w's
+    k geoms in row w; triangle t belongs to world w = t // ``tris_per_world``, is measured against
+    its world's geoms only and adds into row w ``rows_per_world`` + ``row`` of ``out``. One world:
+    (1, capacity) views, w = 0."""
     t = wp.tid()
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
     m, r = triangle_bound(a, b, c)
-    n = geom_count[0]
-    if obj_filter < 0 and scene_phi(m, gtype, size, inv_pose, radius, mesh, n, -1) > r:
+    w = t // tris_per_world
+    k = gtype.shape[1]
+    n = wp.max(wp.min(k, geom_count[0] - w * k), 0)
+    wtype = gtype[w]
+    wsize = size[w]
+    winv = inv_pose[w]
+    wrad = radius[w]
+    wmesh = mesh[w]
+    if obj_filter < 0 and scene_phi(m, wtype, wsize, winv, wrad, wmesh, n, -1) > r:
         return
     count = float(0.0)
     total = float(0.0)
@@ -61,19 +75,31 @@ def penetration_samples(
             p = a * (1.0 - u - v) + b * u + c * v
             d = float(1.0e6)
             if obj_filter < 0:
-                d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n, -1)
+                d = scene_phi(p, wtype, wsize, winv, wrad, wmesh, n, -1)
             else:
                 for g in range(n):
-                    if geom_obj[g] == obj_filter:
-                        d = wp.min(d, geom_sdf(gtype[g], wp.transform_point(inv_pose[g], p), size[g], mesh[g]))
+                    if geom_obj[w, g] == obj_filter:
+                        d = wp.min(d, geom_sdf(wtype[g], wp.transform_point(winv[g], p), wsize[g], wmesh[g]))
             if d < 0.0:
                 count += 1.0
                 total += -d
                 deepest = wp.max(deepest, -d)
     if count > 0.0:
-        wp.atomic_add(out, row, 0, count)
-        wp.atomic_add(out, row, 1, total)
-        wp.atomic_max(out, row, 2, deepest)
+        o = w * rows_per_world + row
+        wp.atomic_add(out, o, 0, count)
+        wp.atomic_add(out, o, 1, total)
+        wp.atomic_max(out, o, 2, deepest)
+
+
+def reduce_worlds(rows: np.ndarray) -> np.ndarray:
+    """Metrics rows of W worlds, (W, ..., 6), as the batch's (..., 6): counts and depth sums
+    added, maximum depths the largest (one world: its rows as they are)."""
+    rows = np.asarray(rows)
+    if len(rows) == 1:
+        return rows[0]
+    out = rows.sum(axis=0)
+    out[..., 2::3] = rows[..., 2::3].max(axis=0)
+    return out
 
 
 def summarize(row: np.ndarray) -> dict:

@@ -75,17 +75,11 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     from tqdm import tqdm
 
     import physhand_mj as ph
-    from physhand_mj.bench import device_name
     from physhand_mj.solver import SolverError
-    from physhand_mj.types import Strategy
 
-    if steps < 1 or substeps < 1:
-        raise ValueError(f"--steps and --substeps must be at least 1, got {steps} and {substeps}")
-    model, data, key = load_scene(scene, keyframe)
-    if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.ctrl))):
-        raise SolverError(f"keyframe '{key}' of {Path(scene).name} holds non-finite qpos or ctrl")
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), substeps=substeps, contact=Strategy[contact.upper()],
-                    device=device, substep_metrics=True, **(config or {}))
+    check_counts(steps, substeps)
+    model, data, key = load_rollout_scene(scene, keyframe)
+    cfg = rollout_config(model, substeps, contact, device, config)
     hand = ph.SoftHand(model, data, cfg, settle_contact=False, **(hand_kwargs or {}))
     out = Path(out) if out is not None else Path("rollout_out")
     out.mkdir(parents=True, exist_ok=True)
@@ -99,9 +93,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     with open(log_path, "w", newline="") as f:
         log = csv.writer(f)
         log.writerow(LOG_COLUMNS)
-        log.writerow([0, 0, round(float(data.time), 6), start["penetration_count"], _um(start["penetration_max_um"]),
-                      _um(start["penetration_avg_um"]), 0, 0, 0.0, start["object_in_skin_count"],
-                      _um(start["object_in_skin_max_um"]), "", "", "", ""])
+        log.writerow(start_row(data, start))
         f.flush()
         bar = tqdm(total=steps, desc=f"rollout {Path(scene).stem}", unit="frame", disable=not progress, leave=False)
         try:
@@ -113,16 +105,8 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 both = hand.penetration()  # the frame's end, both measures (not timed)
                 rows = getattr(hand.solver, "substep_metrics", None)
                 counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
-                lines = []
-                for s in range(substeps):
-                    cnt, total, deepest = rows[s][:3] if rows is not None else (0.0, 0.0, 0.0)
-                    n = int(round(float(cnt)))
-                    act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
-                    lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
-                                  _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
-                                  *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]),
-                                     *(res.get(k, "") for k in ACTIVITY)) if s + 1 == substeps else ("",) * 6)])
-                log.writerows(lines)  # a frame's rows go out together: an interrupted log holds whole frames
+                # a frame's rows go out together: an interrupted log holds whole frames
+                log.writerows(frame_rows(step, data, cfg, rows, counts, dt, both, res))
                 f.flush()
                 times.append(dt)
                 last = dict(res, **{k: v for k, v in both.items() if k.startswith("object_in_skin")})
@@ -136,9 +120,69 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     trimesh.Trimesh(hand.skin_vertices, hand.asset.skin_faces, process=False).export(skin_path)
     if on_end is not None:
         on_end(hand, model, data)
-    timed = times[1:] if len(times) > 1 else times
     m = hand.metrics()
-    d = str(hand.solver.device)
+    return summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
+                       interrupted, log_path, skin_path)
+
+
+def check_counts(steps: int, substeps: int) -> None:
+    """--steps and --substeps: at least 1 each (ValueError with one line)."""
+    if steps < 1 or substeps < 1:
+        raise ValueError(f"--steps and --substeps must be at least 1, got {steps} and {substeps}")
+
+
+def load_rollout_scene(scene, keyframe: str | None = None):
+    """:func:`load_scene`, and a SolverError when the keyframe holds non-finite qpos or ctrl."""
+    from physhand_mj.solver import SolverError
+
+    model, data, key = load_scene(scene, keyframe)
+    if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.ctrl))):
+        raise SolverError(f"keyframe '{key}' of {Path(scene).name} holds non-finite qpos or ctrl")
+    return model, data, key
+
+
+def rollout_config(model, substeps: int, contact: str, device, config: dict | None = None):
+    """The rollout's :class:`~physhand_mj.Config`: the scene's time step as the frame, per-substep
+    metrics on (the log), ``config``'s further fields."""
+    import physhand_mj as ph
+    from physhand_mj.types import Strategy
+
+    return ph.Config(frame_dt=float(model.opt.timestep), substeps=substeps, contact=Strategy[contact.upper()],
+                     device=device, substep_metrics=True, **(config or {}))
+
+
+def start_row(data, start: dict) -> list:
+    """The log's row (0, 0): the settled skin before any contact, both measures."""
+    return [0, 0, round(float(data.time), 6), start["penetration_count"], _um(start["penetration_max_um"]),
+            _um(start["penetration_avg_um"]), 0, 0, 0.0, start["object_in_skin_count"],
+            _um(start["object_in_skin_max_um"]), "", "", "", ""]
+
+
+def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: dict) -> list:
+    """A frame's log rows, one per substep: ``rows`` (substeps, >= 3) the substeps' metrics rows
+    (count, sum depth m, max depth m; None: no contact), ``counts`` (stages, 2) the contact stages'
+    [active triangles, corrected vertices] (None: no contact), ``dt`` the frame's wall time (s),
+    ``both`` the frame end's two measures (summarized) and ``res`` what the frame ran."""
+    lines = []
+    for s in range(cfg.substeps):
+        cnt, total, deepest = rows[s][:3] if rows is not None else (0.0, 0.0, 0.0)
+        n = int(round(float(cnt)))
+        act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
+        lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
+                      _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
+                      *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]),
+                         *(res.get(k, "") for k in ACTIVITY)) if s + 1 == cfg.substeps else ("",) * 6)])
+    return lines
+
+
+def summary_row(scene, key, times, substeps: int, contact: str, start: dict, last: dict, finite: bool, device: str,
+                interrupted: bool, log_path, skin_path) -> dict:
+    """A rollout's summary: ``times`` the frames' wall times (s; the first, which compiles, is not
+    counted), ``start`` / ``last`` the measures before the first and after the last frame."""
+    from physhand_mj.bench import device_name
+
+    timed = times[1:] if len(times) > 1 else times
+    d = device
     return dict(scene=str(scene), keyframe=key, steps=len(times), substeps=substeps, contact=contact,
                 penetration_count=int(last.get("penetration_count", 0)),
                 penetration_max_um=_um(last.get("penetration_max_um", 0.0)),
@@ -151,7 +195,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 initial_object_in_skin_count=start["object_in_skin_count"],
                 initial_object_in_skin_max_um=_um(start["object_in_skin_max_um"]),
                 ms_per_frame=round(1e3 * float(np.mean(timed)), 3) if timed else math.nan,
-                finite=bool(m["finite"]) and int(last.get("nonfinite", 0)) == 0, device=d, device_name=device_name(d),
+                finite=finite and int(last.get("nonfinite", 0)) == 0, device=d, device_name=device_name(d),
                 interrupted=interrupted, log=str(log_path), skin=str(skin_path))
 
 

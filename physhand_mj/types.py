@@ -268,6 +268,8 @@ class Model:
       skin_faces: (F, 3) int.
       vertex_count: (G, N) float, per Jacobi group (solver.model.JACOBI_GROUPS) the number of its
         constraints touching each movable vertex (Jacobi averaging).
+      vertex_world: (N,) int, the world of each vertex (batched worlds, physhand_mj/batch.py: the
+        asset replicated ``worlds`` times; all 0 for one hand).
     Host data: ``colors``: per family, the [start, end) ranges of its colours when the scheme is
     COLORED (constraints are stored sorted by colour), a single range otherwise.
     """
@@ -300,6 +302,8 @@ class Model:
     colors: dict = field(default_factory=dict)
     body_rest_pos: np.ndarray | None = None
     body_rest_quat: np.ndarray | None = None
+    vertex_world: object = None
+    worlds: int = 1
 
 
 @dataclass
@@ -315,7 +319,8 @@ class State:
     body_sub: (substeps, B) their interpolated poses at the end of each substep;
     guard: (4,) int counters [non-finite vertices, inverted tets, skin vertices the tether held
     (summed over substeps), soft vertices ending the frame faster than Config.sleep_speed] of the
-    last frame; time: s.
+    last frame; with batched worlds (Model.worlds W > 1) (4 + 4 W,): then the same four per world
+    (world w at [4 + 4 w, 8 + 4 w)); time: s.
     """
 
     x: object

@@ -30,6 +30,14 @@ def triangle_bound(a: wp.vec3, b: wp.vec3, c: wp.vec3):
     return m, wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
 
 
+@wp.func
+def world_geoms(t: int, tris_per_world: int, geoms_per_world: int, count: int):
+    """[g0, g1): the geoms in use of the world of triangle ``t`` (worlds hold ``tris_per_world``
+    triangles and ``geoms_per_world`` geoms each, in blocks)."""
+    g0 = (t // tris_per_world) * geoms_per_world
+    return g0, wp.min(g0 + geoms_per_world, count)
+
+
 @wp.kernel
 def find_active(
     faces: wp.array2d(dtype=int),
@@ -40,6 +48,8 @@ def find_active(
     radius: wp.array(dtype=float),
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
     margin: float,
     use_src: int,
     src: wp.array(dtype=int),
@@ -51,7 +61,12 @@ def find_active(
 ):
     """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms
     (bits 0-30; later geoms are always queried), so decision points query only the geoms near their
-    triangle. With ``use_src`` only the triangles (and geoms) of the list ``src`` are tested, else all."""
+    triangle. With ``use_src`` only the triangles (and geoms) of the list ``src`` are tested, else all.
+    World-indexed (batched worlds, physhand_mj/batch.py): triangle t belongs to world
+    w = t // ``tris_per_world`` and tests only that world's geoms [w k, (w + 1) k), k =
+    ``geoms_per_world``, so a world's broadphase work does not grow with the number of worlds; one
+    world passes its triangle count and the geom capacity (w = 0: every geom in use). Mask bits
+    stay global geom indices (the decision points read them so)."""
     k = wp.tid()
     t = k
     allowed = int(-1)
@@ -62,7 +77,8 @@ def find_active(
         allowed = src_mask[k]
     m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
     mask = int(0)
-    for g in range(geom_count[0]):
+    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
+    for g in range(g0, g1):
         bit = int(1 << 30)
         if g < 31:
             bit = 1 << g
@@ -150,3 +166,27 @@ def first_pass_list(
     slot = wp.atomic_add(out_count, 0, 1)
     out[slot] = t
     out_mask[slot] = active_mask[k]
+
+
+@wp.kernel
+def tally_worlds(
+    items: wp.array(dtype=int),
+    count: wp.array(dtype=int),
+    per_world: int,
+    item_world: wp.array(dtype=int),
+    col: int,
+    out: wp.array2d(dtype=int),
+):
+    """Batched worlds: count the entries of a list (``count[0]`` long) per world into out[w, col];
+    an entry's world is item // ``per_world`` (triangles), or item_world[item] when per_world is 0
+    (vertices)."""
+    k = wp.tid()
+    if k >= count[0]:
+        return
+    i = items[k]
+    w = int(0)
+    if per_world > 0:
+        w = i // per_world
+    else:
+        w = item_world[i]
+    wp.atomic_add(out, w, col, 1)

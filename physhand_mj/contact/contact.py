@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved
+from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
 from physhand_mj.contact.features import feature_contact, near_features, stage_features
 from physhand_mj.contact.inside import ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
-from physhand_mj.metrics import lattice_phi, penetration_samples
+from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 from physhand_mj.types import Config, Model, Placement, Strategy
 
 
@@ -41,6 +41,19 @@ class Contact:
         n_tris = model.skin_faces.shape[0]
         self.n_tris = n_tris
         stages = config.substeps * (2 if config.contact_placement == Placement.BOTH else 1)
+        # batched worlds (physhand_mj/batch.py): world w holds triangles [w F_w, (w + 1) F_w) and
+        # geoms [w k, (w + 1) k); every list and metric is indexed by world (one world: w = 0)
+        self.worlds = w = int(getattr(model, "worlds", 1))
+        if w > 1 and (n_tris % w or objects.capacity % w):
+            raise ValueError(f"batched worlds: {n_tris} skin triangles and {objects.capacity} geoms do not split "
+                             f"into {w} equal worlds")
+        self.tris_per_world = max(n_tris // w, 1)
+        self.geoms_per_world = max(objects.capacity // w, 1)
+        self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
+        # per world and contact stage: [active triangles, vertices the first pass corrected] (W > 1)
+        self.world_stage = wp.zeros((w, max(stages, 1) * 2), dtype=int, device=d) if w > 1 else None
+        self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
+                                          pinned=wp.get_device(d).is_cuda) if w > 1 else None
         # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
         # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices]
         self.counters = wp.zeros(1 + stages * (1 + 3 * config.contact_passes), dtype=int, device=d)
@@ -70,8 +83,9 @@ class Contact:
         self.vertex_obj = wp.full(model.n_vertices, -1, dtype=int, device=d)
         # per row: [skin samples inside objects: count, sum depth, max depth (m),
         #          object points inside the skin: count, sum depth, max depth (m)]
-        self.metrics = wp.zeros((config.substeps + 1, 6), dtype=float, device=d)
-        self._metrics_host = wp.zeros((config.substeps + 1, 6), dtype=float, device="cpu",
+        # (batched worlds: W blocks of these rows, world w's at [w (substeps + 1), (w + 1) (substeps + 1)))
+        self.metrics = wp.zeros((w * (config.substeps + 1), 6), dtype=float, device=d)
+        self._metrics_host = wp.zeros((w * (config.substeps + 1), 6), dtype=float, device="cpu",
                                       pinned=wp.get_device(d).is_cuda)
         self._points = None  # ObjectPoints, built at the first recording (objects are final then)
         self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
@@ -114,7 +128,8 @@ class Contact:
         self.pass_slots = []
         (launch_pre or launch)(find_active, self.n_tris,
                                [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                cfg.contact_frame_margin, 0, self.cand, self.cand_mask, self.cand_count],
+                                self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin, 0, self.cand,
+                                self.cand_mask, self.cand_count],
                                [self.cand, self.cand_mask, self.cand_count])
         if gated is None:
             self._record_frame_lists(launch, ops, state)
@@ -153,15 +168,19 @@ class Contact:
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
         self.active_count = self._counter()
         launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                          cfg.contact_margin, 1, self.cand, self.cand_mask, self.cand_count],
+                                          self.tris_per_world, self.geoms_per_world, cfg.contact_margin, 1, self.cand,
+                                          self.cand_mask, self.cand_count],
                [self.active, self.active_mask, self.active_count], count=self.cand_count)
+        stage = len(self._stage_slots) - 1
+        if self.world_stage is not None:  # the stage's active triangles per world
+            launch(tally_worlds, self.n_tris, [self.active, self.active_count, self.tris_per_world, m.vertex_world,
+                                               2 * stage], [self.world_stage], count=self.active_count)
         lst = (self.pass_list, self.pass_mask, self._counter())
         self.pass_slots.append(self._slot - 1)
         launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
                                               self.bound, self.bound_mask, self.eval_x], list(lst),
                count=self.active_count)
         if self.feat is not None:  # the stage's features (features.py)
-            stage = len(self._stage_slots) - 1
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = self.volume(state, winding=False).mesh
             ops.append(self._refit_op(skin))
@@ -204,6 +223,7 @@ class Contact:
                        count=feat_count)
                 launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
                        [state.x, self.push, self.moved, self.disp], count=feat_touched)
+                self._tally_touched(launch, p, feat_touched)
             if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
                 launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
                        [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
@@ -216,6 +236,7 @@ class Contact:
                         cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
                    [state.x, self.push, self.moved, self.disp], count=self.touched_count)
+            self._tally_touched(launch, p, self.touched_count)
             if p + 1 < cfg.contact_passes:
                 lst = (self.pass_list, self.pass_mask, self._counter())
                 self.pass_slots.append(self._slot - 1)
@@ -224,9 +245,19 @@ class Contact:
                        count=self.active_count)
         return lst, tuple(moved_slots)
 
+    def _tally_touched(self, launch, p: int, count) -> None:
+        """Batched worlds: the vertices a stage's first pass corrected (``self.touched``, ``count``
+        long), per world (the log's ``contacts``)."""
+        if self.world_stage is not None and p == 0:
+            m = self.model
+            launch(tally_worlds, m.n_vertices, [self.touched, count, 0, m.vertex_world,
+                                                2 * (len(self._stage_slots) - 1) + 1], [self.world_stage], count=count)
+
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]
+        if self.world_stage is not None:
+            ops.append(self.world_stage.zero_)
 
     @property
     def points(self) -> ObjectPoints:
@@ -261,23 +292,39 @@ class Contact:
         out = self.metrics if out is None else out
         if not self.n_tris:
             return
+        per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
+        v = self.world_views()
         launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, obj, row, order],
-               [out])
+               [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count, v["obj"],
+                obj, row, order, self.tris_per_world, per], [out])
         pts = self.points
         if objects_side and self.closed_skin and len(pts):
             vol = self.volume(state)
             ops += vol.ops()
             launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, o.pose, o.count, o.obj,
-                                                    obj, row], [out, pts.depth])
+                                                    obj, row, self.geoms_per_world, per], [out, pts.depth])
+
+    def world_views(self) -> dict:
+        """The objects' per-geom arrays as (W, k) views: world w's geoms in row w (one world:
+        (1, capacity))."""
+        if self._views is None:
+            o, w = self.objects, self.worlds
+            self._views = {name: getattr(o, name).reshape((w, o.capacity // w))
+                           for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
+        return self._views
 
     # -- host side ---------------------------------------------------------------------------------
     def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True) -> np.ndarray:
         """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
         sum depth m, max depth m] of skin samples inside objects, then of object points inside the
         skin. Runs at once, outside any frame (reports, pictures, checks)."""
+        return reduce_worlds(self.measure_worlds(state, obj, order, objects_side))
+
+    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True) -> np.ndarray:
+        """:meth:`measure` per world: (W, 6) float rows, world w's skin against world w's objects
+        (batched worlds, physhand_mj/batch.py; one world: (1, 6))."""
         d = self.model.device
-        out = wp.zeros((1, 6), dtype=float, device=d)
+        out = wp.zeros((self.worlds, 6), dtype=float, device=d)
         ops: list = []
 
         def launch(kernel, dim, inputs, outputs, **_):
@@ -286,7 +333,7 @@ class Contact:
         self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order)
         for op in ops:
             op()
-        return out.numpy()[0].astype(float)
+        return out.numpy().astype(float)
 
     def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
         """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
@@ -350,6 +397,8 @@ class Contact:
         once per frame)."""
         wp.copy(self._metrics_host, self.metrics)
         wp.copy(self._counters_host, self.counters)
+        if self.world_stage is not None:
+            wp.copy(self._world_stage_host, self.world_stage)
         if self.feat is not None:
             wp.copy(self._feat_host, self.feat_count)
 
@@ -373,4 +422,19 @@ class Contact:
         if synchronize:
             self.copy_metrics()
             wp.synchronize_device(self.metrics.device)
-        return self._metrics_host.numpy().copy()
+        return reduce_worlds(self.read_metrics_worlds(synchronize=False)).copy()
+
+    def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
+        """:meth:`read_metrics` per world: (W, substeps + 1, 6) (batched worlds; one world: (1, ...))."""
+        if synchronize:
+            self.copy_metrics()
+            wp.synchronize_device(self.metrics.device)
+        return self._metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
+
+    def stage_counts_worlds(self) -> np.ndarray:
+        """(W, stages, 2) int: :meth:`stage_counts` per world (after the frame's sync; one world:
+        the frame's own, (1, stages, 2))."""
+        if self.world_stage is None:
+            return self.stage_counts()[None]
+        n = len(self._stage_slots)
+        return self._world_stage_host.numpy().reshape(self.worlds, -1, 2)[:, :n].copy()

@@ -97,12 +97,16 @@ def object_points_inside(
     geom_obj: wp.array(dtype=int),
     obj_filter: int,
     row: int,
+    geoms_per_world: int,
+    rows_per_world: int,
     out: wp.array2d(dtype=float),
     depth: wp.array(dtype=float),
 ):
     """Object surface points (geom-local ``pts`` of geom ``pts_geom``) inside the skin: adds into
     out[row, 3:6] [count, sum of depths m, max depth m]; depth[i] (m, 0 outside) per point.
-    ``obj_filter`` >= 0 keeps only that object's points."""
+    ``obj_filter`` >= 0 keeps only that object's points. Batched worlds (physhand_mj/batch.py): the
+    point of geom g belongs to world w = g // ``geoms_per_world`` and adds into row
+    w ``rows_per_world`` + ``row`` (one world: the geom capacity, w = 0)."""
     i = wp.tid()
     g = pts_geom[i]
     d = float(0.0)
@@ -110,9 +114,10 @@ def object_points_inside(
         d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[0], box[1])
     depth[i] = d
     if d > 0.0:
-        wp.atomic_add(out, row, 3, 1.0)
-        wp.atomic_add(out, row, 4, d)
-        wp.atomic_max(out, row, 5, d)
+        o = (g // geoms_per_world) * rows_per_world + row
+        wp.atomic_add(out, o, 3, 1.0)
+        wp.atomic_add(out, o, 4, d)
+        wp.atomic_max(out, o, 5, d)
 
 
 class ObjectPoints:

@@ -5,6 +5,14 @@ import warp as wp
 from physhand_mj.solver.tet import six_volume
 
 
+@wp.func
+def count_guard(guard: wp.array(dtype=int), k: int, world: int):
+    """guard[k] += 1, and with batched worlds (guard longer than 4) world ``world``'s own slot."""
+    wp.atomic_add(guard, k, 1)
+    if guard.shape[0] > 4:
+        wp.atomic_add(guard, 4 + 4 * world + k, 1)
+
+
 @wp.kernel
 def begin_frame(
     body_pose: wp.array2d(dtype=wp.transform),
@@ -16,10 +24,8 @@ def begin_frame(
     (body_pose[1]) poses: lerp of positions, slerp of rotations. Launched over (substeps, max(B, 1))."""
     k, b = wp.tid()
     if k == 0 and b == 0:
-        guard[0] = 0
-        guard[1] = 0
-        guard[2] = 0
-        guard[3] = 0
+        for j in range(guard.shape[0]):  # [0, 4): the frame's; batched worlds: then 4 per world
+            guard[j] = 0
     if b >= body_pose.shape[1]:
         return
     s = float(k + 1) / float(body_sub.shape[0])
@@ -48,6 +54,7 @@ def advance(
     body_sub: wp.array2d(dtype=wp.transform),
     speed_limit: float,
     vertex_carrier: wp.array(dtype=int),
+    vertex_world: wp.array(dtype=int),
     # State in/out:
     x_safe: wp.array(dtype=wp.vec3),
     # State in/out:
@@ -86,14 +93,14 @@ def advance(
         if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
             xi = x_prev[i]
             vi = wp.vec3(0.0)
-            wp.atomic_add(guard, 0, 1)
+            count_guard(guard, 0, vertex_world[i])
         elif w > 0.0:
             vi = (xi - x_prev[i]) * (1.0 / h)
     if start >= 0:
         if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
             xi = x_safe[i]
             vi = wp.vec3(0.0)
-            wp.atomic_add(guard, 0, 1)
+            count_guard(guard, 0, vertex_world[i])
         x_prev[i] = xi
         b = vertex_body[i]
         if b >= 0:
@@ -112,7 +119,7 @@ def advance(
                 ride = wp.transform_point(body_sub[ns - 1, b], wp.transform_point(wp.transform_inverse(body_sub[ns - 2, b]), p))
                 vr = vi - (ride - p) * (1.0 / h)
             if wp.length(vr) > speed_limit:
-                wp.atomic_add(guard, 3, 1)
+                count_guard(guard, 3, vertex_world[i])
     x[i] = xi
     v[i] = vi
 
@@ -120,6 +127,7 @@ def advance(
 @wp.kernel
 def carry_asleep(
     vertex_carrier: wp.array(dtype=int),
+    vertex_world: wp.array(dtype=int),
     body_pose: wp.array2d(dtype=wp.transform),
     frame_dt: float,
     x: wp.array(dtype=wp.vec3),
@@ -136,7 +144,7 @@ def carry_asleep(
     x0 = x[i]
     if not (wp.isfinite(x0[0]) and wp.isfinite(x0[1]) and wp.isfinite(x0[2])):
         x0 = x_safe[i]
-        wp.atomic_add(guard, 0, 1)
+        count_guard(guard, 0, vertex_world[i])
     xi = x0
     b = vertex_carrier[i]
     if b >= 0:
@@ -170,18 +178,20 @@ def apply_jacobi(
 @wp.kernel
 def count_inverted(
     tets: wp.array2d(dtype=int),
+    vertex_world: wp.array(dtype=int),
     x: wp.array(dtype=wp.vec3),
     guard: wp.array(dtype=int),
 ):
     """guard[1] += number of tets whose signed volume is <= 0 (inverted or flat)."""
     j = wp.tid()
     if six_volume(x[tets[j, 0]], x[tets[j, 1]], x[tets[j, 2]], x[tets[j, 3]]) <= 0.0:
-        wp.atomic_add(guard, 1, 1)
+        count_guard(guard, 1, vertex_world[tets[j, 0]])
 
 
 @wp.kernel
 def tether_skin(
     skin_body: wp.array(dtype=int),
+    vertex_world: wp.array(dtype=int),
     skin_local: wp.array(dtype=wp.vec3),
     body_sub: wp.array2d(dtype=wp.transform),
     sub: int,
@@ -200,4 +210,4 @@ def tether_skin(
     n = wp.length(d)
     if n > bound:
         x[i] = r + d * (bound / n)
-        wp.atomic_add(guard, 2, 1)
+        count_guard(guard, 2, vertex_world[i])

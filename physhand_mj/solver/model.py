@@ -117,10 +117,12 @@ def make_model(asset, config: Config | None = None) -> Model:
     # batched worlds (physhand_mj/batch.py) share their rest positions: a 4th coordinate keeps
     # every nearest-vertex query inside its own world
     worlds = int(asset.meta.get("worlds", 1)) if isinstance(asset.meta, dict) else 1
+    world = np.zeros(n, np.int32)
     if worlds > 1:
         from physhand_mj.batch import vertex_world
 
-        xw = np.c_[x, 1.0e3 * vertex_world(n, ns, worlds)]
+        world = vertex_world(n, ns, worlds).astype(np.int32)
+        xw = np.c_[x, 1.0e3 * world]
     else:
         xw = x
     if len(kv) and ns:
@@ -160,4 +162,5 @@ def make_model(asset, config: Config | None = None) -> Model:
         dih_ids=i2(fam["dih"][0], 4), dih_rest=f32(fam["dih"][1]), dih_alpha=float(cfg.smooth_compliance),
         skin_faces=i2(asset.skin_faces, 3), guard_tets=i2(asset.tets[keep(asset.tets)], 4), vertex_count=wp.array(count.astype(np.float32), dtype=float, device=device), colors=colors,
         body_rest_pos=np.asarray(asset.body_rest_pos, float), body_rest_quat=np.asarray(asset.body_rest_quat, float),
+        vertex_world=arr(world, int), worlds=worlds,
     )

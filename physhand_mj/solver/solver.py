@@ -109,7 +109,8 @@ class Solver:
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
         self._pose_host = wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu",
                                    pinned=self.device.is_cuda)
-        self._guard_host = wp.zeros(4, dtype=int, device="cpu", pinned=self.device.is_cuda)
+        self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
+        self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
 
@@ -135,7 +136,7 @@ class Solver:
             body_pose=wp.zeros((2, m.n_bodies), dtype=wp.transform, device=d),
             pose_host=np.zeros((2, m.n_bodies, 7), np.float32),
             body_sub=wp.zeros((self.config.substeps, m.n_bodies), dtype=wp.transform, device=d),
-            guard=wp.zeros(4, dtype=int, device=d),
+            guard=wp.zeros(self._guard_len(), dtype=int, device=d),
         )
         self.set_body_poses(st, bp, bq)
         st.pose_host[0] = st.pose_host[1]
@@ -228,6 +229,7 @@ class Solver:
             self.contact.copy_metrics()
         wp.synchronize_device(self.device)  # the frame's host sync (on CUDA with contact: its second)
         g = self._guard_host.numpy()
+        self._read_guard_worlds(g)
         state.time += self.config.frame_dt
         state.frames += 1
         out = {"nonfinite": int(g[0]), "inverted": int(g[1])}
@@ -276,7 +278,7 @@ class Solver:
                 if not self.activity.gate_ahead:  # (run ahead on CUDA, which zeroes them)
                     ops.append(self.contact.counters.zero_)
             cmd = wp.launch(integrate.carry_asleep, m.n_vertices,
-                            inputs=[m.vertex_carrier, state.body_pose, float(self.config.frame_dt)],
+                            inputs=[m.vertex_carrier, m.vertex_world, state.body_pose, float(self.config.frame_dt)],
                             outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
                             record_cmd=True)
             ops.append(cmd.launch)
@@ -293,6 +295,7 @@ class Solver:
         near = self.activity.objects_near if self.contact is not None else 0
         self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                   features_listed=0, ops_run=len(ops) + ahead, contact_ops_run=ahead)
+        self._read_guard_worlds(self._guard_host.numpy())
         out = {"nonfinite": int(self._guard_host.numpy()[0]), "inverted": 0}
         if self.contact is not None:
             if self.config.skin_tether > 0:
@@ -314,6 +317,15 @@ class Solver:
         rows = self.contact.read_metrics(synchronize=False)
         out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
         self.substep_metrics = rows[:-1]
+
+    def _guard_len(self) -> int:
+        """The guard's length: the frame's four counts, then (batched worlds) four per world."""
+        w = int(getattr(self.model, "worlds", 1))
+        return 4 + (4 * w if w > 1 else 0)
+
+    def _read_guard_worlds(self, g: np.ndarray) -> None:
+        """``guard_worlds`` (W, 4) of the frame just read back (one world: the frame's own counts)."""
+        self.guard_worlds = g[4:].reshape(-1, 4).copy() if len(g) > 4 else g[None, :4].copy()
 
     def _settled(self, state: State) -> bool:
         return self.config.sleep_speed > 0 and state.still >= self.config.sleep_frames
@@ -410,7 +422,7 @@ class Solver:
             launch(integrate.advance, n, [m.inv_mass, m.vertex_body, m.body_local, m.vertex_count, self._gravity,
                                           self._h, self._damp, int(s > 0), pending, cfg.relaxation,
                                           s if s < cfg.substeps else -1, state.body_sub, float(cfg.sleep_speed),
-                                          m.vertex_carrier],
+                                          m.vertex_carrier, m.vertex_world],
                    [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard])
             pending = -1
             if s == cfg.substeps:
@@ -446,7 +458,7 @@ class Solver:
 
                 def after_contact(sub, s=s):
                     if cfg.skin_tether > 0:  # contact can drag the skin, nothing else can
-                        launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.skin_local, state.body_sub, s,
+                        launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.vertex_world, m.skin_local, state.body_sub, s,
                                                                  cfg.skin_tether], [state.x, state.guard])
                     if cfg.substep_metrics:  # only when a log asks (rollout)
                         contact.record_metrics(launch, sub, state, s, objects_side=False)
@@ -455,7 +467,7 @@ class Solver:
         if self.contact is not None:  # nothing within the frame margin: nothing inside, the rows stay zero
             gated(lambda sub: self.contact.record_metrics(launch, sub, state, cfg.substeps,
                                                           objects_side=cfg.object_metrics), 1)
-        launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, state.x], [state.guard])
+        launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x], [state.guard])
         return ops
 
 
