@@ -197,8 +197,13 @@ def _rollout(args):
     src = Path(args.scene)
     if args.workers is not None and args.ray is None:
         raise ValueError("--workers needs --ray (the serial batch runs one rollout at a time)")
+    if args.batch is not None and args.ray is not None:
+        raise ValueError("--batch and --ray do not combine yet: run batched worlds on one machine, or one rollout "
+                         "per Ray task")
+    if args.batch is not None and args.batch < 1:
+        raise ValueError(f"--batch must be at least 1 (worlds per batch), got {args.batch}")
     single = src.suffix.lower() == ".xml" or not (src.is_dir() or src.is_file())
-    if single and args.ray is None:
+    if single and args.ray is None and args.batch is None:
         return rollout(src, args.keyframe, out=args.out, **kw)
     targets = [(src, args.keyframe)] if single else batch_targets(src, args.keyframe)
 
@@ -210,6 +215,10 @@ def _rollout(args):
 
         rows = rollout_ray(targets, args.out, address=None if args.ray == "local" else args.ray,
                            num_workers=args.workers, emit=emit, **kw)
+    elif args.batch is not None:  # W worlds per solver step (physhand_mj/batch_rollout.py)
+        from physhand_mj.batch_rollout import rollout_batched
+
+        rows = rollout_batched(targets, args.out, worlds=args.batch, emit=emit, **kw)
     else:
         rows = rollout_batch(targets, args.out, emit=emit, **kw)
     print(f"physhand rollout: {len(rows)} runs, table {args.out / 'summary.csv'}", file=sys.stderr)
@@ -260,6 +269,9 @@ def main(argv: list[str] | None = None) -> int:
                         "(auto, ray://HOST:10001); needs the ray extra (docs/scale.md)")
     p.add_argument("--workers", type=int, default=None,
                    help="with --ray: rollouts at once (count; default: one per GPU, else one per CPU)")
+    p.add_argument("--batch", type=int, default=None, metavar="W",
+                   help="run the list W worlds at a time in one solver step (count of worlds per batch); runs whose "
+                        "scenes hold the same objects share a batch (docs/scale.md)")
     p.set_defaults(run=_rollout)
     bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")

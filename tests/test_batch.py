@@ -116,3 +116,56 @@ def test_batched_worlds_with_their_own_objects(setup):
         assert np.abs(batch.positions(w) - st.x.numpy()).max() < 5e-5
     moved = np.abs(batch.skin(1) - rest[: asset.n_skin]).max()
     assert moved > 1e-3 > np.abs(batch.skin(0) - rest[: asset.n_skin]).max() * 10  # world 1 pressed, world 0 not
+
+
+def test_metrics_and_guards_per_world(setup):
+    """Per-world reports: a sphere 2 mm into world 1's hand shows in world 1's two measures only; a
+    non-finite vertex set in world 1 is reset and counted in world 1 alone; the batch's frame
+    counts are the worlds' sums."""
+    import warp as wp
+
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    batch = BatchedHands(asset, 2, Config(device="cpu"), *mount,
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]])[:, None]
+    ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+    batch.set_object_poses(where, ident)
+    pen = batch.penetration()
+    assert pen[0]["penetration_count"] == 0 and pen[0]["object_in_skin_count"] == 0, pen
+    assert pen[1]["penetration_count"] > 0 and 1500 < pen[1]["penetration_max_um"] <= 2100, pen
+    assert pen[1]["object_in_skin_count"] > 0, pen
+    both = batch.solver.contact.measure(batch.state)  # the batch's row: the worlds' sum / maximum
+    assert int(both[0]) == pen[1]["penetration_count"] and abs(both[2] * 1e6 - pen[1]["penetration_max_um"]) < 1e-3
+    x = batch.state.x.numpy()
+    x[asset.n_skin + 5] = np.nan  # a skin vertex of world 1
+    batch.state.x.assign(wp.array(x, dtype=wp.vec3, device="cpu"))
+    out = batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), where, ident)
+    w0, w1 = out["worlds"]
+    assert w0["nonfinite"] == 0 and w1["nonfinite"] >= 1 and out["nonfinite"] == w1["nonfinite"], out["worlds"]
+    assert out["penetration_count"] == w0["penetration_count"] + w1["penetration_count"]
+    m = batch.metrics()
+    assert m[0]["finite"] and m[1]["finite"] and m[1]["nonfinite"] == w1["nonfinite"] and m[0]["nonfinite"] == 0
+
+
+def test_broadphase_tests_only_the_triangles_own_world(setup):
+    """Worlds placed on top of each other (spacing 0): world 0's sphere pressing the hand activates
+    world 0's triangles only; world 1's triangles test world 1's sphere (far away) alone."""
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    batch = BatchedHands(asset, 2, Config(device="cpu"), *mount, spacing=0.0,
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = np.stack([top + [0.0, 0.0, 0.02 - 0.002], top + [0.0, 0.3, 0.3]])[:, None]
+    batch.set_object_poses(where, np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2))
+    c = batch.solver.contact
+    decision = c.run_stage(batch.state)
+    f = len(asset.skin_faces)
+    hit = decision[:, 3] < 1.0  # triangles the stage queried (skipped ones keep phi = 1e6)
+    assert hit[:f].sum() > 0 and hit[f:].sum() == 0, (hit[:f].sum(), hit[f:].sum())

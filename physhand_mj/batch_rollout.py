@@ -1,0 +1,255 @@
+"""Rollouts in batches of W worlds: ``physhand rollout LIST --batch W`` (issue 15).
+
+    from physhand_mj.batch_rollout import rollout_batched
+    from physhand_mj.rollout import batch_targets
+    rows = rollout_batched(batch_targets("runs.txt"), "out/batch", worlds=8, steps=36)
+
+The runs of a list whose scenes hold the same objects (the same geoms: types, sizes, meshes, and the
+same time step) share a batch; the others go to batches of their own. A batch is one
+:class:`~physhand_mj.batch.BatchedHands`: each run keeps its own MjModel / MjData, stepped with
+``mujoco.mj_step`` one world after another, and its bone and object poses go into the batch, whose
+one solver frame advances every world. Each run then writes what the serial
+:func:`~physhand_mj.rollout.rollout` writes (``log.csv``, ``skin_final.ply``, its summary row, its
+JSON line), from per-world measures: every world is measured against its own objects.
+
+Differences from the serial run, by construction: worlds holding objects are solved 1 m apart
+(float32 rounds positions at that scale: the skins agree with the serial ones to tens of um, see
+docs/scale.md); ``ms_frame`` / ``ms_per_frame`` are the batch frame's wall time divided by W (the
+cost of one hand-frame); ``objects_near``, ``triangles_tested``, ``features_listed`` and ``ops_run``
+count what the batch frame ran for all its worlds.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from physhand_mj.rollout import (LOG_COLUMNS, check_counts, failed_row, frame_rows, load_rollout_scene,
+                                 rollout_config, run_names, start_row, summary_row, write_summary)
+
+
+class _Run:
+    """One run of a batch: its scene, its MuJoCo model and data, its log."""
+
+    def __init__(self, index: int, scene, key, out: Path, asset):
+        from physhand_mj.coupling import check_skin_mesh, geom_spec, select_object_geoms
+        from physhand_mj.hand_mjcf import body_ids, skin_geom_id
+
+        self.index, self.scene, self.out = index, scene, out
+        self.model, self.data, self.key = load_rollout_scene(scene, key)
+        skin = skin_geom_id(self.model, "")
+        check_skin_mesh(self.model, skin, asset)
+        self.bones = body_ids(self.model, [str(b) for b in asset.body_names])
+        self.geoms = select_object_geoms(self.model, self.bones, skin)
+        self.specs = [geom_spec(self.model, self.data, g) for g in self.geoms]
+        self.times: list[float] = []
+        self.error: str | None = None
+        self.file = self.log = None
+
+    def signature(self) -> tuple:
+        """What a batch must share: the frame (time step) and the objects' geoms."""
+        h = hashlib.sha1()
+        for s in self.specs:
+            h.update(str((int(s["gtype"]), None if s["size"] is None else np.asarray(s["size"], np.float64).tobytes(),
+                          s.get("mesh_range"))).encode())
+            for k in ("vertices", "faces"):
+                if k in s:
+                    h.update(np.ascontiguousarray(s[k]).tobytes())
+        return float(self.model.opt.timestep), len(self.specs), h.hexdigest()
+
+    def bone_poses(self):
+        """(B, 3) m, (B, 4) w x y z of the bones now (SolverError if MuJoCo's state is not finite)."""
+        from physhand_mj.solver import SolverError
+
+        pos, quat = self.data.xpos[self.bones].copy(), self.data.xquat[self.bones].copy()
+        ok = np.isfinite(pos).all(1) & np.isfinite(quat).all(1)
+        if not ok.all():
+            bad = [self.model.body(int(b)).name for b, o in zip(self.bones, ok) if not o]
+            raise SolverError(f"non-finite MuJoCo pose for bones {bad}: check qpos / ctrl (NaN in data)")
+        return pos, quat
+
+    def object_poses(self):
+        from physhand_mj.coupling import geom_quats
+
+        if not self.geoms:
+            return np.zeros((0, 3)), np.zeros((0, 4))
+        return self.data.geom_xpos[self.geoms].copy(), geom_quats(self.data, self.geoms)
+
+
+def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int = 10, contact: str = "multires",
+                    device: str | None = None, config: dict | None = None, emit=None, progress: bool = True,
+                    spacing: float | None = None) -> list[dict]:
+    """Run each (scene, keyframe) of ``targets`` into ``out/<scene>[-<keyframe>]/``, up to ``worlds``
+    runs with the same objects at once in one :class:`~physhand_mj.batch.BatchedHands`; writes
+    ``out/summary.csv`` after every batch and returns the rows in the order of ``targets`` (failed
+    runs carry their error, as in :func:`~physhand_mj.rollout.rollout_batch`). ``emit(row)`` is called
+    for each run as its batch ends. Ctrl-C ends the batch running (its runs ``interrupted``, logs and
+    skins kept) and the list. ``steps`` / ``substeps`` / ``contact`` / ``device`` / ``config`` as
+    for :func:`~physhand_mj.rollout.rollout`; ``spacing``: m between worlds (BatchedHands' default: 1 m
+    when they hold objects)."""
+    import physhand_mj as ph
+
+    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
+        raise ValueError(f"--batch must be an integer >= 1 (worlds per batch), got {worlds!r}")
+    check_counts(steps, substeps)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    targets = list(targets)
+    names = run_names(targets)
+    rows: list[dict | None] = [None] * len(targets)
+    asset = ph.load_asset()
+    open_batches: dict[tuple, list[_Run]] = {}
+    kw = dict(steps=steps, substeps=substeps, contact=contact, device=device, config=config, progress=progress,
+              spacing=spacing)
+
+    def finish(runs):
+        if not runs:
+            return False
+        try:
+            stop = _run_batch(runs, asset, rows, len(targets), **kw)
+        except (ValueError, RuntimeError) as e:  # the batch could not start: each of its runs fails with it
+            stop = False
+            for r in runs:
+                rows[r.index] = rows[r.index] or failed_row(r.scene, r.key, e)
+        for r in runs:
+            if emit:
+                emit(rows[r.index])
+        write_summary([r for r in rows if r is not None], out)
+        return stop
+
+    stopped = False
+    try:
+        for i, ((scene, key), name) in enumerate(zip(targets, names)):
+            try:
+                run = _Run(i, scene, key, out / name, asset)
+            except (FileNotFoundError, ValueError, RuntimeError) as e:
+                rows[i] = failed_row(scene, key, e)
+                if emit:
+                    emit(rows[i])
+                write_summary([r for r in rows if r is not None], out)
+                continue
+            group = open_batches.setdefault(run.signature(), [])
+            group.append(run)
+            if len(group) == worlds:
+                del open_batches[run.signature()]
+                if finish(group):
+                    stopped = True
+                    break
+        if not stopped:
+            for group in list(open_batches.values()):
+                if finish(group):
+                    break
+    finally:
+        write_summary([r for r in rows if r is not None], out)
+    return [r for r in rows if r is not None]
+
+
+def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, substeps, contact, device, config,
+               progress, spacing) -> bool:
+    """One batch to its end; fills ``rows``; returns True after Ctrl-C."""
+    import mujoco
+    import trimesh
+    from tqdm import tqdm
+
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.coupling import rest_placement
+    from physhand_mj.solver import SolverError
+
+    W = len(runs)
+    cfg = rollout_config(runs[0].model, substeps, contact, device, config)
+    cfg.validate()
+    poses = []
+    for r in runs:
+        mujoco.mj_kinematics(r.model, r.data)
+        poses.append(r.bone_poses())
+    place = [rest_placement(asset, p[0][0], p[1][0]) for p in poses]
+    hands = BatchedHands(asset, W, cfg, np.array([p for p, _ in place]), np.array([q for _, q in place]),
+                         objects=runs[0].specs, spacing=spacing)
+    hands.settle(np.stack([p for p, _ in poses]), np.stack([q for _, q in poses]))
+    k = len(runs[0].geoms)
+    if k:
+        hands.set_object_poses(*(np.stack(a) for a in zip(*(r.object_poses() for r in runs))))
+    starts = hands.penetration()
+    c = hands.solver.contact
+    alive = [True] * W
+    last = [dict(s) for s in starts]
+    interrupted = False
+    for r, start in zip(runs, starts):
+        r.out.mkdir(parents=True, exist_ok=True)
+        r.file = open(r.out / "log.csv", "w", newline="")
+        r.log = csv.writer(r.file)
+        r.log.writerow(LOG_COLUMNS)
+        r.log.writerow(start_row(r.data, start))
+        r.file.flush()
+    first = runs[0].index + 1
+    bar = tqdm(total=steps, desc=f"batch of {W} (runs {first}-{runs[-1].index + 1} of {total})", unit="frame",
+               file=sys.stderr, disable=not progress, leave=False)
+    frame_pos = [p for p in poses]
+    frame_obj = [r.object_poses() for r in runs]
+    try:
+        for step in range(1, steps + 1):
+            for w, r in enumerate(runs):
+                if not alive[w]:
+                    continue  # a failed world keeps its last poses: it no longer logs
+                mujoco.mj_step(r.model, r.data)
+                try:
+                    frame_pos[w] = r.bone_poses()
+                    frame_obj[w] = r.object_poses()
+                    if not (np.all(np.isfinite(frame_obj[w][0])) and np.all(np.isfinite(frame_obj[w][1]))):
+                        raise SolverError(f"non-finite MuJoCo pose for object geoms of {Path(r.scene).name}")
+                except SolverError as e:
+                    _fail(r, e, rows)
+                    alive[w] = False
+            if not any(alive):
+                break
+            pos, quat = np.stack([p for p, _ in frame_pos]), np.stack([q for _, q in frame_pos])
+            t = time.perf_counter()
+            if k:
+                res = hands.step(pos, quat, np.stack([o for o, _ in frame_obj]), np.stack([q for _, q in frame_obj]))
+            else:
+                res = hands.step(pos, quat)
+            dt = (time.perf_counter() - t) / W  # the cost of one hand-frame
+            both = hands.penetration()  # the frame's end, both measures (not timed)
+            subrows = c.read_metrics_worlds(synchronize=False) if c is not None else None
+            counts = c.stage_counts_worlds() if c is not None else None
+            for w, r in enumerate(runs):
+                if not alive[w]:
+                    continue
+                world = dict(res, **res["worlds"][w])  # the batch frame's activity, this world's measures
+                r.log.writerows(frame_rows(step, r.data, cfg, None if subrows is None else subrows[w][:-1],
+                                           None if counts is None else counts[w], dt, both[w], world))
+                r.file.flush()
+                r.times.append(dt)
+                last[w] = dict(world, **{key: v for key, v in both[w].items() if key.startswith("object_in_skin")})
+                if world["nonfinite"]:
+                    _fail(r, SolverError(f"{world['nonfinite']} skin/flesh positions turned non-finite in frame "
+                                         f"{step}"), rows)
+                    alive[w] = False
+            bar.update(1)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        bar.close()
+        for r in runs:
+            if r.file is not None:
+                r.file.close()
+    d = str(hands.solver.device)
+    for w, r in enumerate(runs):
+        if rows[r.index] is not None:  # failed: no skin, as the serial run
+            continue
+        skin = hands.skin(w).astype(np.float64)
+        skin_path = r.out / "skin_final.ply"
+        trimesh.Trimesh(skin, asset.skin_faces, process=False).export(skin_path)
+        rows[r.index] = summary_row(r.scene, r.key, r.times, substeps, contact, starts[w], last[w],
+                                    bool(np.all(np.isfinite(skin))), d, interrupted, r.out / "log.csv", skin_path)
+    return interrupted
+
+
+def _fail(run: _Run, error: Exception, rows: list) -> None:
+    """A world's run ends with ``error`` (as the serial run's exception would): its log stays."""
+    rows[run.index] = failed_row(run.scene, run.key, error)
