@@ -1,13 +1,14 @@
-"""Hand-frames per second of batched worlds (physhand_mj/batch.py; no contact yet).
+"""Hand-frames per second of batched worlds (physhand_mj/batch.py), without or with contact.
 
 W copies of the embedded hand in one solver, open pose, each world's index finger bending at its own
 rate; ``--frames`` 5 ms frames timed after 2 warm-up frames (compilation, recording and graph
-capture excluded), one host sync per frame. Memory per world: the bytes of the replicated model's
-and state's device arrays divided by W.
+capture excluded), one host sync per frame. ``--objects``: each world holds a sphere (r = 2 cm)
+pressing the back of its hand 2 mm (the worlds then lie 1 m apart; the contact is world-indexed).
+Memory per world: the bytes of the replicated model's and state's device arrays divided by W.
 
-    python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5]
+    python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5] [--objects]
 
-Writes docs/benchmarks/batch_throughput_<device>.json.
+Writes docs/benchmarks/batch_throughput_<device>[_objects].json.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ def main() -> None:
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
     p.add_argument("--worlds", default="1,2,4,8", help="comma-separated world counts")
     p.add_argument("--frames", type=int, default=5, help="timed 5 ms frames per world count")
+    p.add_argument("--objects", action="store_true",
+                   help="each world holds a sphere (radius 2 cm) pressing the back of its hand 2 mm")
     a = p.parse_args()
     wp.init()
     asset = ph.load_asset()
@@ -57,8 +60,16 @@ def main() -> None:
     q0 = model.key("open").qpos.copy()
     adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
     rows = []
+    from physhand_mj.types import GeomType
+
     for w in [int(s) for s in a.worlds.split(",")]:
-        hands = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0), *mount)
+        objects = [dict(gtype=GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")] if a.objects else ()
+        hands = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0), *mount, objects=objects)
+        ball = ()
+        if a.objects:  # 2 mm into the back of the hand (its highest skin point, open pose)
+            skin = hands.skin(0)
+            top = skin[np.argmax(skin[:, 2])].astype(float)
+            ball = (np.tile(top + [0.0, 0.0, 0.02 - 0.002], (w, 1))[:, None], np.tile([1.0, 0.0, 0.0, 0.0], (w, 1))[:, None])
 
         def poses(f):
             ps = []
@@ -69,19 +80,25 @@ def main() -> None:
             return np.stack([x[0] for x in ps]), np.stack([x[1] for x in ps])
 
         for f in range(2):
-            hands.step(*poses(f))
+            out = hands.step(*poses(f), *ball)
         inputs = [poses(f) for f in range(2, 2 + a.frames)]  # (bone poses from MuJoCo: not timed)
         t = time.perf_counter()
         for pos, quat in inputs:
-            hands.step(pos, quat)
+            out = hands.step(pos, quat, *ball)
         ms = (time.perf_counter() - t) / a.frames * 1e3
         mem = (_nbytes(hands.solver.model) + _nbytes(hands.state)) / w
         rows.append(dict(worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
                          mb_per_world=round(mem / 2**20, 2), vertices=hands.replicated.n_vertices))
+        if a.objects:  # the contact did work in every world, and nothing stayed inside
+            pen = hands.penetration()
+            rows[-1].update(triangles_tested=out.get("triangles_tested"),
+                            penetration_count_max=max(p["penetration_count"] for p in pen),
+                            object_in_skin_count_max=max(p["object_in_skin_count"] for p in pen))
         print(json.dumps(rows[-1]), flush=True)
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
-    out = ROOT / "docs" / "benchmarks" / f"batch_throughput_{a.device.split(':')[0]}.json"
-    out.write_text(json.dumps(dict(device=dev, frames=a.frames, contact=False, rows=rows), indent=1))
+    tag = a.device.split(":")[0] + ("_objects" if a.objects else "")
+    out = ROOT / "docs" / "benchmarks" / f"batch_throughput_{tag}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, contact=bool(a.objects), rows=rows), indent=1))
     print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))
 
 

@@ -46,6 +46,7 @@ case $phase in
     step bench_solver 30 python3 -m physhand_mj.cli bench solver --device cuda
     step dmc_step 120 python3 benchmarks/dmc_step.py --device cuda
     step batch 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,16,64,256,1024 --frames 20
+    step batch_objects 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,16,64,256 --frames 20 --objects
     ;;
   peers)
     # compile both peers' kernels at once (CPU-bound: NVRTC), then time them one after the other

@@ -90,9 +90,9 @@ class BatchedHands:
     origin); float32 then rounds positions at the offset's scale (a world at 1 m ends ~10 um from
     the same run at the origin after 8 frames: the solver's rounding, not the physics). Without
     objects all worlds share the origin and equal serial runs bit for bit (CPU). Poses in and
-    positions out are in each world's own frame. The frame broadphase tests every triangle against
-    every world's geoms (a bounding-sphere test each: fine for tens of worlds, not thousands), and
-    the frame's penetration summary is summed over worlds.
+    positions out are in each world's own frame. A triangle's broadphase tests only its world's
+    geoms; :meth:`penetration`, :meth:`metrics` and ``step()["worlds"]`` report per world (the
+    frame dict's own counts and penetration summary are the batch's: sums, deepest).
     """
 
     def __init__(self, asset, worlds: int, config=None, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0),

@@ -11,7 +11,7 @@ the serial batch's columns after every finished run. A worker on the driver's no
 folder in place; a worker on another node runs into a temporary folder and sends the files back,
 so the outputs land in one folder on the driver either way (scene files must be readable at the
 same path on every node). Each task runs one hand: batched worlds (several hands in one solver
-step) are not built.
+step, physhand_mj/batch_rollout.py) run on one machine and do not combine with Ray yet.
 """
 
 from __future__ import annotations
