@@ -28,7 +28,7 @@ Strategies (``Strategy``):
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import FAR, geom_sdf, geom_sdf_grad
+from physhand_mj.contact.sdf import BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, SPHERE, geom_sdf, geom_sdf_grad
 from physhand_mj.types import Strategy
 
 VERTEX = wp.constant(int(Strategy.VERTEX))
@@ -154,9 +154,28 @@ def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
 
 
 SIDE_COS = wp.constant(0.6)  # cos of the angle beyond which Eq. 9 would push the skin out through the object
-SIDE_DEPTH = wp.constant(5.0e-4)  # m: shallower decision points always take Eq. 9 (a box's edges tilt the gradient)
+SIDE_DEPTH = wp.constant(5.0e-4)  # m: shallower decision points take Eq. 9 (a box's edges tilt the gradient)
+SIDE_FRAC = wp.constant(0.1)  # ... or shallower than this fraction of a thinner geom's half-thickness (side_floor)
 MARCH_STEPS = wp.constant(32)  # sphere-tracing steps of the side-aware exit (each >= MARCH_MIN)
 MARCH_MIN = wp.constant(2.0e-5)  # m
+
+
+@wp.func
+def side_floor(gtype: int, size: wp.vec3):
+    """Depth (m) past which a decision point in geom ``gtype`` of ``size`` may take the side-aware
+    exit: SIDE_DEPTH, or SIDE_FRAC of the geom's half-thickness where that is less (box: least half
+    extent; sphere, capsule: radius; cylinder: radius or half height; ellipsoid: least radius; plane,
+    cone and mesh: SIDE_DEPTH). No point of an object is deeper than its half-thickness, so with a
+    fixed 0.5 mm floor a 1 mm wall never took the exit and Eq. 9 carried skin that had passed its
+    mid-plane out through the far side (docs/contact.md). Boxes at least 10 mm thick keep 0.5 mm."""
+    half = float(FAR)
+    if gtype == BOX or gtype == ELLIPSOID:
+        half = wp.min(size[0], wp.min(size[1], size[2]))
+    elif gtype == SPHERE or gtype == CAPSULE:
+        half = size[0]
+    elif gtype == CYLINDER:
+        half = wp.min(size[0], size[1])
+    return wp.min(SIDE_DEPTH, SIDE_FRAC * half)
 
 
 @wp.func
@@ -171,16 +190,16 @@ def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.ve
     added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
 
     Side-aware: where the gradient points out of the hand (dot(grad, nt) > SIDE_COS) at a decision
-    point deeper than SIDE_DEPTH (shallow contact at a box's edge tilts the gradient) the object's
-    nearest surface lies beyond the skin, on the far side of an object the skin has passed more than
-    half way into (a thin wall, a capsule past its axis, a deep start); Eq. 9 would put the skin on
-    the object's far side and the object inside the hand. The triangle then leaves the object the way
-    it came, into the hand along -nt (``side_aware``: the skin is closed, so it has an inside): by
-    sphere tracing from x* (inside an SDF a step of |phi| never
-    passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
+    point deeper than :func:`side_floor` (0.5 mm, less in thin geoms: shallow contact at a box's edge
+    tilts the gradient) the object's nearest surface lies beyond the skin, on the far side of an
+    object the skin has passed more than half way into (a thin wall, a capsule past its axis, a deep
+    start); Eq. 9 would put the skin on the object's far side and the object inside the hand. The
+    triangle then leaves the object the way it came, into the hand along -nt (``side_aware``: the
+    skin is closed, so it has an inside): by sphere tracing from x* (inside an SDF a step of |phi|
+    never passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
     d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
     corr = g * (offset - d)
-    if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > SIDE_DEPTH:
+    if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > side_floor(gtype[arg], size[arg]):
         t = float(0.0)
         exited = int(0)
         for k in range(MARCH_STEPS):
