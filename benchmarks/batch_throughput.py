@@ -7,6 +7,7 @@ pressing the back of its hand 2 mm (the worlds then lie 1 m apart; the contact i
 Memory per world: the bytes of the replicated model's and state's device arrays divided by W.
 
     python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5] [--objects]
+    python benchmarks/batch_throughput.py --plot     # docs/images/batch_throughput.png from the JSONs
 
 Writes docs/benchmarks/batch_throughput_<device>[_objects].json.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -36,7 +38,38 @@ def _nbytes(obj) -> int:
     return total
 
 
+def plot(out: Path) -> Path:
+    """Hand-frames per second against worlds, every batch_throughput_*.json in docs/benchmarks."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for f in sorted((ROOT / "docs" / "benchmarks").glob("batch_throughput_*.json")):
+        d = json.loads(f.read_text())
+        w = [r["worlds"] for r in d["rows"]]
+        hz = [r["hand_frames_per_s"] for r in d["rows"]]
+        dev = "H100" if "H100" in d["device"] else ("CPU" if d["device"].startswith("cpu") else d["device"])
+        ax.plot(w, hz, "o-" if d["contact"] else "s--",
+                label=f"{dev}, {'a sphere pressing each hand' if d['contact'] else 'no contact'}")
+    ax.axhline(10_000, color="0.5", lw=0.8, ls=":")
+    ax.axhline(50_000, color="0.5", lw=0.8, ls=":")
+    ax.text(1, 10_000 * 1.08, "target with contact (H100)", fontsize=7, color="0.4")
+    ax.text(1, 50_000 * 1.08, "target without contact (H100)", fontsize=7, color="0.4")
+    ax.set(xscale="log", yscale="log", xlabel="worlds W (hands in one solver step)",
+           ylabel="hand-frames per second (5 ms frames)", title="BatchedHands throughput")
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(out, dpi=130)
+    return out
+
+
 def main() -> None:
+    if "--plot" in sys.argv[1:]:
+        print(plot(ROOT / "docs" / "images" / "batch_throughput.png").relative_to(ROOT))
+        return
     import warp as wp
 
     import physhand_mj as ph

@@ -8,7 +8,7 @@
 # unpack it first (`mkdir -p ~/.cache/warp && tar -C ~/.cache/warp -xJf .devc/warp_cache.tar.xz`):
 # only the modules changed since then compile again.
 # Each step has its own time limit, so one slow or failing step cannot eat the phase; its log goes to
-# $OUT/logs/, and every JSON/CSV/PNG a step writes under docs/ is copied to $OUT/ (same paths).
+# $OUT/logs/, and every JSON/CSV/PNG a step writes under docs/ is copied to $OUT/ (flat).
 #   tests    the CUDA tests (CPU/CUDA agreement, hard cases on CUDA), softhand_frame, activity_frame
 #   frames   hoi_table2 (vertex/opt/multires/default), hard_contact (multires, default), bench solver,
 #            dm-control task steps
@@ -62,11 +62,13 @@ case $phase in
     tar -C ~/.cache/warp -cf - . | xz -T0 -3 >"$OUT/warp_cache.tar.xz"
     ;;
   accuracy)
-    step accuracy 560 python3 -m physhand_mj.cli bench accuracy --device cuda --frames 20 --repeats 1 \
-      --out docs/benchmarks/accuracy_cuda
+    step accuracy 530 python3 -m physhand_mj.cli bench accuracy --device cuda --frames 20 --repeats 1 \
+      --out "$OUT"
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac
+# flat into $OUT: nested folders under $OUT did not come back (2026-11-23: "left out (depth)"), and each
+# device call runs in a fresh copy of the tree, so a later call cannot fetch what an earlier one wrote
 find docs -newer "$stamp" -type f \( -name '*.json' -o -name '*.csv' -o -name '*.png' -o -name '*.md' \) \
-  -exec cp --parents {} "$OUT/" \;
+  -exec cp {} "$OUT/" \;
 rm -f "$stamp"

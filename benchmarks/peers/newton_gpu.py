@@ -1,5 +1,4 @@
-"""Newton's soft solvers (VBD and XPBD) as peers, on the GPU (prepared, NOT yet measured: no GPU in
-the session that wrote it, and newton was not installed there, so this script has not run yet).
+"""Newton's soft solvers (VBD and XPBD) as peers, on the GPU (measured on an H100: docs/peers.md).
 
     python benchmarks/peers/newton_gpu.py --device cuda [--solver vbd,xpbd] [--frames 8] [--out docs/benchmarks/peers_newton_cuda.json]
 
@@ -11,7 +10,7 @@ sphere or mesh shape, its pose written every substep). Each 5 ms frame is ``subs
 from common.Measure on the particle positions copied back after every frame (not timed).
 
 Newton's API moves between releases; this targets newton 1.8 (``newton.ModelBuilder``,
-``newton.solvers.SolverVBD`` / ``SolverXPBD``, ``model.collide``). Where newton is missing, the
+``newton.solvers.SolverVBD`` / ``SolverXPBD``, ``newton.CollisionPipeline``). Where newton is missing, the
 device is not CUDA, or a call fails, it says so in one line and exits 2: fix the call named there.
 """
 
@@ -32,6 +31,13 @@ from run_cpu import KEYS, summary, table  # noqa: E402
 from physhand_mj.bench import device_name  # noqa: E402
 from physhand_mj.types import GeomType, Layer  # noqa: E402
 
+import warp as wp  # noqa: E402  (physhand_mj's own dependency)
+
+
+@wp.kernel
+def _set_pose(body_q: wp.array(dtype=wp.transform), body: int, poses: wp.array(dtype=wp.transform), j: int):
+    body_q[body] = poses[j]  # the kinematic object's pose at substep j (written, not integrated)
+
 
 def fail(msg):
     print(msg, file=sys.stderr)
@@ -50,11 +56,16 @@ def build(newton, wp, asset, case, poisson, device):
         b.particle_mass[i] = 0.0  # pinned, as physhand_mj's inverse mass 0
     _, quat, start = object_path(asset, case, 1)
     q = wp.quat(float(quat[1]), float(quat[2]), float(quat[3]), float(quat[0]))  # Warp order x y z w
-    body = b.add_body(xform=wp.transform(wp.vec3(*start), q))
+    # a kinematic object (Newton's is_kinematic, no mass): its pose is written every substep and no
+    # solver may push it away (a 4 g dynamic sphere was knocked off its path by Newton's XPBD in the
+    # first H100 run, so the skin never met it)
+    body = b.add_body(xform=wp.transform(wp.vec3(*start), q), is_kinematic=True)
+    cfg = newton.ModelBuilder.ShapeConfig(density=0.0)
     if case.gtype == GeomType.SPHERE:
-        b.add_shape_sphere(body, radius=float(case.size[0]))
+        b.add_shape_sphere(body, radius=float(case.size[0]), cfg=cfg)
     elif case.gtype == GeomType.MESH:
-        b.add_shape_mesh(body, mesh=newton.Mesh(np.asarray(case.vertices, np.float32), np.asarray(case.faces, np.int32).ravel()))
+        b.add_shape_mesh(body, mesh=newton.Mesh(np.asarray(case.vertices, np.float32), np.asarray(case.faces, np.int32).ravel()),
+                         cfg=cfg)
     else:
         raise ValueError(f"{case.gtype.name}: add a shape for it here")
     b.color()  # VBD needs a particle colouring
@@ -100,24 +111,53 @@ def main():
             meas = Measure(asset, case)
             rows = {k: [] for k in KEYS}
             ms = []
-            q = [float(quat[1]), float(quat[2]), float(quat[3]), float(quat[0])]
+            # Newton's own recipe (its examples): one CollisionPipeline and one Contacts buffer made once,
+            # the object's pose written on the device by a kernel from a per-substep pose array, and
+            # the frame (substeps x (pose, collide, step)) captured as one CUDA graph after the first
+            # frame; with an even substep count the state swap ends where it began.
+            pipeline = newton.CollisionPipeline(model)
+            contacts = pipeline.contacts()
+            poses = wp.zeros(a.substeps, dtype=wp.transform, device=a.device)
+            states = [s0, s1]
+
+            def frame():
+                for j in range(a.substeps):
+                    wp.launch(_set_pose, 1, inputs=[states[0].body_q, body, poses, j], device=a.device)
+                    pipeline.collide(states[0], contacts)
+                    solver.step(states[0], states[1], control, contacts, h)
+                    states.reverse()
+
+            graph = None
+            use_graph = wp.get_device(a.device).is_cuda and a.substeps % 2 == 0
             for k in range(a.frames):
                 p0 = start if k == 0 else path[k - 1]
+                host = np.array([[*(p0 + (j + 1) / a.substeps * (path[k] - p0)), quat[1], quat[2], quat[3], quat[0]]
+                                 for j in range(a.substeps)], np.float32)
                 wp.synchronize_device(a.device)
                 t = time.perf_counter()
-                for j in range(a.substeps):
-                    p = p0 + (j + 1) / a.substeps * (path[k] - p0)
-                    bq = s0.body_q.numpy()
-                    bq[body] = [*p, *q]
-                    s0.body_q.assign(bq)  # kinematic object: its pose is written, not integrated
-                    contacts = model.collide(s0)
-                    solver.step(s0, s1, control, contacts, h)
-                    s0, s1 = s1, s0
+                poses.assign(wp.array(host, dtype=wp.transform, device="cpu"))
+                if graph is not None:
+                    wp.capture_launch(graph)
+                else:
+                    frame()
                 wp.synchronize_device(a.device)
                 ms.append((time.perf_counter() - t) * 1e3)
-                for key, v in meas(s0.particle_q.numpy(), path[k], quat).items():
+                if k == 0 and use_graph:  # capture after the first (compiling) frame: the next frame is replayed
+                    try:
+                        with wp.ScopedCapture(device=a.device) as cap:
+                            frame()
+                        graph = cap.graph
+                        wp.capture_launch(graph)  # the captured frame has not run: run it (frame 1's poses
+                        # are frame 0's again: one extra held frame, not timed, before frame 1)
+                        wp.synchronize_device(a.device)
+                    except Exception as e:  # a call that cannot be captured: time it eagerly, say so
+                        print(f"newton {name}: graph capture failed ({type(e).__name__}: {e}); eager frames",
+                              file=sys.stderr)
+                        use_graph = False
+                for key, v in meas(states[0].particle_q.numpy(), path[k], quat).items():
                     rows[key].append(v)
-            runs.append(dict(object=case.name, site=case.site, solver=f"newton {name}", **summary(rows, ms, skip=1)))
+            runs.append(dict(object=case.name, site=case.site, solver=f"newton {name}", graph=graph is not None,
+                             **summary(rows, ms, skip=1)))
     result = dict(device=device_name(a.device), command="python benchmarks/peers/newton_gpu.py " + " ".join(sys.argv[1:]),
                   frames=a.frames, depth_mm=a.depth * 1e3, poisson=a.poisson, young_pa=YOUNG, runs=runs)
     Path(a.out).write_text(json.dumps(result, indent=1) + "\n")
