@@ -246,6 +246,26 @@ class Config:
         """h = frame_dt / substeps (s)."""
         return self.frame_dt / self.substeps
 
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "Config":
+        """A named setting of the accuracy sweep's recommendation table (docs/accuracy.md), with
+        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: half the
+        frame at the same end-of-frame depth on the sweep's workloads, but the flesh about 2.5-3 x
+        softer under gravity and held presses at the palm 1.5-6 x deeper), ``"dataset"`` (opt
+        decision points: the shallowest held skin on the CPU sweep) and ``"robot_pads"`` (opt at 5
+        substeps: sharp rigid objects in a control loop)."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")
+        return cls(**{**PRESETS[name], **overrides}).validate()
+
+
+PRESETS: dict[str, dict] = {
+    "default": {},
+    "interactive": {"substeps": 5},
+    "dataset": {"contact": Strategy.OPT},
+    "robot_pads": {"contact": Strategy.OPT, "substeps": 5},
+}
+
 
 @dataclass(frozen=True)
 class Model:

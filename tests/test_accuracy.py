@@ -87,3 +87,23 @@ def test_bench_accuracy_errors_are_one_line(capsys, tmp_path):
         assert main(["bench", "accuracy", "--quick", "--device", "cuda", "--out", str(tmp_path)]) == 1
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "CUDA" in err
+
+
+def test_config_presets_are_the_recommended_sweep_points():
+    """Config.preset names the settings of docs/accuracy.md's recommendation table: each equals a
+    point the sweep measured (so its figures there are the preset's), and a bad name says the choices."""
+    import dataclasses
+
+    from physhand_mj.accuracy import sweep_points
+    from physhand_mj.types import Config
+
+    by_name = {p.name: p for p in sweep_points()}
+    want = {"default": "multires 21x2+feat+side p8 s10", "interactive": "multires 21x2+feat+side p8 s5",
+            "dataset": "opt+feat+side p8 s10", "robot_pads": "opt+feat+side p8 s5"}
+    for preset, point in want.items():
+        a = dataclasses.asdict(Config.preset(preset, device="cpu"))
+        b = dataclasses.asdict(by_name[point].config("cpu").validate())
+        assert a == b, (preset, {k: (a[k], b[k]) for k in a if a[k] != b[k]})
+    assert Config.preset("interactive", substeps=7).substeps == 7  # overrides win
+    with pytest.raises(ValueError, match="unknown Config preset 'fast'.*interactive"):
+        Config.preset("fast")
