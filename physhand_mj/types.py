@@ -235,6 +235,14 @@ class Config:
         if self.contact_frame_margin < self.contact_margin:
             raise ValueError(f"Config.contact_frame_margin ({self.contact_frame_margin} m) must be at least "
                              f"Config.contact_margin ({self.contact_margin} m)")
+        if self.frame_dt / self.substeps > MAX_STABLE_SUBSTEP * (1 + 1e-9):
+            import warnings
+
+            need = math.ceil(self.frame_dt / MAX_STABLE_SUBSTEP - 1e-9)
+            warnings.warn(f"Config: substeps of {self.frame_dt / self.substeps * 1e3:.3g} ms (frame_dt {self.frame_dt} s / "
+                          f"substeps {self.substeps}) are longer than {MAX_STABLE_SUBSTEP * 1e3:g} ms: the flesh sags "
+                          f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
+                          f">= {need}", RuntimeWarning, stacklevel=2)
         self.contact = Strategy(self.contact)
         self.contact_placement = Placement(self.contact_placement)
         self.scheme = Scheme(self.scheme)
@@ -258,6 +266,8 @@ class Config:
             raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")
         return cls(**{**PRESETS[name], **overrides}).validate()
 
+
+MAX_STABLE_SUBSTEP = 2.0e-3  # s: longer substeps collapse the flesh (tests/stress/test_stress_fast.py: 5 and 10 ms do)
 
 PRESETS: dict[str, dict] = {
     "default": {},

@@ -107,3 +107,18 @@ def test_config_presets_are_the_recommended_sweep_points():
     assert Config.preset("interactive", substeps=7).substeps == 7  # overrides win
     with pytest.raises(ValueError, match="unknown Config preset 'fast'.*interactive"):
         Config.preset("fast")
+
+
+def test_substeps_longer_than_the_stable_limit_warn_with_the_fix():
+    """20 ms frames with 4 substeps (5 ms) collapse the flesh (tests/stress): validate() says so and
+    how many substeps hold; 2 ms substeps do not warn."""
+    import warnings
+
+    from physhand_mj.types import Config
+
+    with pytest.warns(RuntimeWarning, match=r"substeps of 5 ms .* use substeps >= 10"):
+        Config(frame_dt=0.02, substeps=4).validate()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Config(frame_dt=0.02, substeps=10).validate()
+        Config().validate()
