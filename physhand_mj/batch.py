@@ -14,7 +14,8 @@ and per-world reports: the guard counts (non-finite vertices, inverted tets, tet
 both penetration measures per world (:meth:`BatchedHands.metrics`, ``step()["worlds"]``); a world
 that goes non-finite is reset vertex by vertex (``integrate.advance``) and reported alone. The
 contact is world-indexed: a skin triangle's broadphase tests only its own world's geoms
-(contact/broadphase.py), and the metrics measure each world against its own objects.
+(contact/broadphase.py), its decision points query only those (world-relative masks,
+contact/query.py), and the metrics measure each world against its own objects.
 ``physhand rollout LIST --batch W`` (physhand_mj/batch_rollout.py) runs rollouts W at a time.
 """
 
@@ -90,8 +91,8 @@ class BatchedHands:
     origin); float32 then rounds positions at the offset's scale (a world at 1 m ends ~10 um from
     the same run at the origin after 8 frames: the solver's rounding, not the physics). Without
     objects all worlds share the origin and equal serial runs bit for bit (CPU). Poses in and
-    positions out are in each world's own frame. A triangle's broadphase tests only its world's
-    geoms; :meth:`penetration`, :meth:`metrics` and ``step()["worlds"]`` report per world (the
+    positions out are in each world's own frame. A triangle's broadphase and decision points test
+    only its world's geoms; :meth:`penetration`, :meth:`metrics` and ``step()["worlds"]`` report per world (the
     frame dict's own counts and penetration summary are the batch's: sums, deepest).
     """
 

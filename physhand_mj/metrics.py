@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.query import scene_phi
+from physhand_mj.contact.broadphase import triangle_bound, world_geoms
+from physhand_mj.contact.query import scene_phi, world_phi
 from physhand_mj.contact.sdf import geom_sdf
 
 ORDER = 5  # 21 samples per triangle
@@ -118,11 +118,13 @@ def summarize(row: np.ndarray) -> dict:
 @wp.kernel
 def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
                 size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), order: int,
-                points: wp.array2d(dtype=wp.vec3), phi: wp.array2d(dtype=float)):
+                mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), tris_per_world: int,
+                geoms_per_world: int, order: int, points: wp.array2d(dtype=wp.vec3), phi: wp.array2d(dtype=float)):
     """The order-``order`` lattice samples of every triangle ((order + 1)(order + 2) / 2; the
-    metric's 21 at order 5) and their phi (m), for pictures and checks."""
+    metric's 21 at order 5) and their phi (m) against the triangle's world's geoms (batched worlds:
+    as broadphase.world_geoms; one world: all), for pictures and checks."""
     t = wp.tid()
+    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
@@ -132,5 +134,5 @@ def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype:
         for j in range(order + 1 - i):
             p = a * (1.0 - float(i) / n - float(j) / n) + b * (float(i) / n) + c * (float(j) / n)
             points[t, k] = p
-            phi[t, k] = scene_phi(p, gtype, size, inv_pose, radius, mesh, geom_count[0], -1)
+            phi[t, k] = world_phi(p, gtype, size, inv_pose, radius, mesh, g0, g1 - g0, -1)
             k += 1

@@ -169,3 +169,55 @@ def test_broadphase_tests_only_the_triangles_own_world(setup):
     f = len(asset.skin_faces)
     hit = decision[:, 3] < 1.0  # triangles the stage queried (skipped ones keep phi = 1e6)
     assert hit[:f].sum() > 0 and hit[f:].sum() == 0, (hit[:f].sum(), hit[f:].sum())
+
+
+def test_masks_world_relative_past_31_geoms(setup):
+    """40 worlds with a sphere each (40 geoms: past the 31 mask bits): every triangle's broadphase
+    mask is relative to its world's geoms (bit 0 = its own sphere, in every world, the 31st on
+    included), and the farthest world (39, at (4, 5, 0) m) ends exactly as a serial solver with
+    that world's hand and sphere at the same place: same skin and all positions, same active
+    triangles and corrected vertices per stage (no other world's geom took part)."""
+    import warp as wp
+
+    from physhand_mj.contact import Objects
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    W, far = 40, 39
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    cfg = Config(device="cpu", substeps=3)  # (3: 1.7 ms substeps, no stability warning)
+    batch = BatchedHands(asset, W, cfg, *mount, objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = top + [0.0, 0.0, 0.02 - 0.002]  # 2 mm into the back of every world's hand
+    off = batch.offsets[far]
+    assert batch.solver.contact.geoms_per_world == 1 and np.linalg.norm(off) > 6.0
+    # the serial solver: world 39's hand and sphere where the batch solves them (shifted as BatchedHands shifts)
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.SPHERE, (0.02, 0, 0), where + off, name="ball")
+    s = Solver(make_model(asset, cfg), cfg, objects=objs)
+    st = s.make_state(*mount)
+    for name in ("x", "x_prev", "x_safe"):
+        arr = getattr(st, name)
+        arr.assign(wp.array(arr.numpy() + off.astype(np.float32), dtype=wp.vec3, device="cpu"))
+    st.pose_host[:, :, :3] += off.astype(np.float32)
+    for _ in range(2):
+        out = batch.step(np.stack([poses[0]] * W), np.stack([poses[1]] * W), np.tile(where, (W, 1))[:, None],
+                         np.array([[[1.0, 0.0, 0.0, 0.0]]] * W))
+        s.set_body_poses(st, poses[0] + off, poses[1])
+        ref = s.step(st)
+    c = batch.solver.contact
+    n = int(c.cand_count.numpy()[0])
+    tris, masks = c.cand.numpy()[:n], c.cand_mask.numpy()[:n]
+    world = tris // c.tris_per_world
+    assert len(np.unique(world)) == W, np.unique(world)  # every world's sphere is near its hand
+    np.testing.assert_array_equal(masks, 1)  # bit 0: the world's own (only) geom, also past geom 31
+    # the far world equals its serial run bit for bit (the same constraints and queries, in order)
+    np.testing.assert_array_equal(batch.state.x.numpy()[far * asset.n_skin:(far + 1) * asset.n_skin],
+                                  st.x.numpy()[: asset.n_skin])
+    np.testing.assert_array_equal(batch.positions(far), st.x.numpy() - off.astype(np.float32))
+    np.testing.assert_array_equal(c.stage_counts_worlds()[far], s.contact.stage_counts())
+    assert s.contact.stage_counts()[0, 0] > 0
+    # W times one hand's broadphase work (worlds at other offsets round a little differently)
+    assert abs(out["triangles_tested"] - W * ref["triangles_tested"]) <= 0.05 * W * ref["triangles_tested"]
+    assert out["worlds"][far]["penetration_count"] == ref["penetration_count"] == 0

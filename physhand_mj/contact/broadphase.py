@@ -59,14 +59,15 @@ def find_active(
     active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
 ):
-    """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms
-    (bits 0-30; later geoms are always queried), so decision points query only the geoms near their
-    triangle. With ``use_src`` only the triangles (and geoms) of the list ``src`` are tested, else all.
+    """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms,
+    so decision points query only the geoms near their triangle. With ``use_src`` only the triangles (and geoms) of the list ``src`` are tested, else all.
     World-indexed (batched worlds, physhand_mj/batch.py): triangle t belongs to world
     w = t // ``tris_per_world`` and tests only that world's geoms [w k, (w + 1) k), k =
     ``geoms_per_world``, so a world's broadphase work does not grow with the number of worlds; one
-    world passes its triangle count and the geom capacity (w = 0: every geom in use). Mask bits
-    stay global geom indices (the decision points read them so)."""
+    world passes its triangle count and the geom capacity (w = 0: every geom in use). Mask bits are
+    world-relative: bit j is geom w k + j (j < 31; the world's geoms from its 31st on share bit 30,
+    and the decision points, query.world_phi, always try those, within the world's [w k, (w + 1) k)
+    only); one world's bits are its global geom indices, as before batching."""
     k = wp.tid()
     t = k
     allowed = int(-1)
@@ -80,14 +81,14 @@ def find_active(
     g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
     for g in range(g0, g1):
         bit = int(1 << 30)
-        if g < 31:
-            bit = 1 << g
+        if g - g0 < 31:
+            bit = 1 << (g - g0)
         if (allowed & bit) == 0:
             continue
         q = wp.transform_point(inv_pose[g], m)
         if wp.length(q) - radius[g] - r <= margin:
             if geom_sdf(gtype[g], q, size[g], mesh[g]) - r <= margin:
-                mask = mask | bit  # geoms >= 31 share bit 30: the triangle is active, they are always tried
+                mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
         active[slot] = t

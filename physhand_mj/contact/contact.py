@@ -226,12 +226,14 @@ class Contact:
                 self._tally_touched(launch, p, feat_touched)
             if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
                 launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
-                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
+                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj,
+                        self.tris_per_world, self.geoms_per_world, *lst,
                         cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                        block_dim=TILE_LANES)
             else:
                 launch(decide_and_project, self.n_tris,
-                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj, *lst,
+                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj,
+                        self.tris_per_world, self.geoms_per_world, *lst,
                         int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
                         cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
@@ -362,7 +364,8 @@ class Contact:
         pts = wp.zeros((f, k), dtype=wp.vec3, device=d)
         phi = wp.zeros((f, k), dtype=float, device=d)
         wp.launch(lattice_phi, f, inputs=[m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
-                                          o.count, order], outputs=[pts, phi], device=d)
+                                          o.count, self.tris_per_world, self.geoms_per_world, order],
+                  outputs=[pts, phi], device=d)
         p, s = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
         inside = s < 0
         return p[inside].astype(float), -s[inside].astype(float)

@@ -11,6 +11,10 @@ triangles that touch it, weighted by their depth -phi(x*) (``apply_contact``: th
 dominates, where a plain average would halve a lone deep correction every pass);
 ``Config.contact_passes`` repeats query + projection to remove what averaging leaves.
 
+Batched worlds (physhand_mj/batch.py): a triangle's queries loop over its own world's k geoms only
+(:func:`world_phi` from base w k, the broadphase mask's bits relative to it), so a world's query
+cost does not grow with the number of worlds W.
+
 Triangles that cannot penetrate are left early, exactly (SDFs are 1-Lipschitz): for vertex and opt,
 when phi(centroid) exceeds the circumradius; for multires, when after the first round (a lattice
 of order L over the whole triangle, every point within longest edge / (L sqrt 3) of a sample) the
@@ -27,7 +31,7 @@ Strategies (``Strategy``):
 
 import warp as wp
 
-from physhand_mj.contact.broadphase import triangle_bound
+from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.sdf import BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, SPHERE, geom_sdf, geom_sdf_grad
 from physhand_mj.types import Strategy
 
@@ -37,17 +41,19 @@ MULTIRES = wp.constant(int(Strategy.MULTIRES))
 
 
 @wp.func
-def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+def world_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
               inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
-    """min over the geoms of phi at world point p (m). Only geoms whose bit is set in ``mask`` (the
-    broadphase's list for this triangle; -1 = all; geoms past the 31st are always tried) count, and
-    geoms whose bounding sphere is farther than the best value so far are skipped (phi >= |q| - R
-    for p at q in the geom frame)."""
+              mesh: wp.array(dtype=wp.uint64), base: int, count: int, mask: int):
+    """min over the geoms [base, base + count) (one world's: batched worlds) of phi at world point
+    p (m). Only geoms whose bit is set in ``mask`` count: bit j is geom base + j (the broadphase's
+    world-relative list for this triangle; -1 = all); geoms base + 31 on share bit 30 and are always
+    tried. Geoms whose bounding sphere is farther than the best value so far are skipped
+    (phi >= |q| - R for p at q in the geom frame)."""
     best = float(FAR)
-    for g in range(count):
-        if (g < 31 and ((mask >> g) & 1) == 0):
+    for j in range(count):
+        if (j < 31 and ((mask >> j) & 1) == 0):
             continue
+        g = base + j
         q = wp.transform_point(inv_pose[g], p)
         if wp.length(q) - radius[g] < best:
             best = wp.min(best, geom_sdf(gtype[g], q, size[g], mesh[g]))
@@ -55,17 +61,18 @@ def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.ve
 
 
 @wp.func
-def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+def world_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
                    inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
-    """(phi, unit world gradient, geom index) of the closest geom at world point p (``mask`` as in
-    :func:`scene_phi`)."""
+                   mesh: wp.array(dtype=wp.uint64), base: int, count: int, mask: int):
+    """(phi, unit world gradient, geom index) of the closest geom of [base, base + count) at world
+    point p (``mask`` as in :func:`world_phi`; the index is global)."""
     best = float(FAR)
     grad = wp.vec3(0.0, 0.0, 1.0)
-    arg = int(0)
-    for g in range(count):
-        if (g < 31 and ((mask >> g) & 1) == 0):
+    arg = int(base)
+    for j in range(count):
+        if (j < 31 and ((mask >> j) & 1) == 0):
             continue
+        g = base + j
         ti = inv_pose[g]
         q = wp.transform_point(ti, p)
         if wp.length(q) - radius[g] < best:
@@ -75,6 +82,22 @@ def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=
                 grad = wp.quat_rotate_inv(wp.transform_get_rotation(ti), n)
                 arg = g
     return best, grad, arg
+
+
+@wp.func
+def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+              inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+              mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
+    """:func:`world_phi` over geoms [0, count) (one world, or a world's (W, k) view row)."""
+    return world_phi(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
+
+
+@wp.func
+def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+                   inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                   mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
+    """:func:`world_phi_grad` over geoms [0, count)."""
+    return world_phi_grad(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
 
 
 @wp.func
@@ -132,15 +155,16 @@ def accumulate(i0: int, i1: int, i2: int, c0: wp.vec3, c1: wp.vec3, c2: wp.vec3,
 
 
 @wp.func
-def only_geom(near: int, n_geoms: int):
-    """The index of the one geom near a triangle (its broadphase mask has a single bit), else -1;
-    that geom's data is then kept in registers and queried without the geom loop (Warp's CPU code
-    copies array arguments on every call of scene_phi)."""
+def only_geom(near: int, base: int, n_geoms: int):
+    """The (global) index of the one geom near a triangle (its world-relative broadphase mask has a
+    single bit; geoms [base, base + n_geoms) are its world's), else -1; that geom's data is then
+    kept in registers and queried without the geom loop (Warp's CPU code copies array arguments on
+    every call of world_phi)."""
     single = int(-1)
     if near > 0 and (near & (near - 1)) == 0 and (near != (1 << 30) or n_geoms <= 31):
         for bit in range(31):
             if near == (1 << bit):
-                single = bit
+                single = base + bit
     return single
 
 
@@ -180,7 +204,7 @@ def side_floor(gtype: int, size: wp.vec3):
 
 @wp.func
 def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
-            near: int, n_geoms: int,
+            near: int, base: int, n_geoms: int,
             gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), geom_obj: wp.array(dtype=int),
             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
@@ -197,13 +221,13 @@ def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.ve
     triangle then leaves the object the way it came, into the hand along -nt (``side_aware``: the
     skin is closed, so it has an inside): by sphere tracing from x* (inside an SDF a step of |phi|
     never passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
-    d, g, arg = scene_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+    d, g, arg = world_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
     corr = g * (offset - d)
     if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > side_floor(gtype[arg], size[arg]):
         t = float(0.0)
         exited = int(0)
         for k in range(MARCH_STEPS):
-            dd = scene_phi(best_p - nt * t, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+            dd = world_phi(best_p - nt * t, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
             if dd >= offset:
                 exited = 1
                 break
@@ -229,6 +253,8 @@ def decide_and_project(
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
     geom_obj: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
     # Contact in:
     active: wp.array(dtype=int),
     active_mask: wp.array(dtype=int),
@@ -259,7 +285,10 @@ def decide_and_project(
     ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
     point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
     for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
-    geoms (bound_mask[t]) it holds for in eval_x[t]."""
+    geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
+    world's geoms [w k, (w + 1) k), w = t // ``tris_per_world``, k = ``geoms_per_world``
+    (broadphase.world_geoms), and its mask's bits are relative to w k; one world passes its
+    triangle count and the geom capacity (w = 0, all geoms: as before batching)."""
     k = wp.tid()
     if k >= active_count[0]:
         return
@@ -275,8 +304,9 @@ def decide_and_project(
     eval_x[t, 1] = b
     eval_x[t, 2] = c
     bound_mask[t] = near
-    n_geoms = geom_count[0]
-    single = only_geom(near, n_geoms)  # one geom near this triangle (the common case)
+    base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
+    n_geoms = end - base
+    single = only_geom(near, base, n_geoms)  # one geom near this triangle (the common case)
     s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
     best = float(FAR)
     best_p = a
@@ -284,7 +314,7 @@ def decide_and_project(
         mc, rc = triangle_bound(a, b, c)
         dc = geom_sdf(s_type, wp.transform_point(s_inv, mc), s_size, s_mesh)
         if single < 0:
-            dc = scene_phi(mc, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+            dc = world_phi(mc, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
         if dc > rc:  # no point of the triangle is inside an object
             decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
             bound[t] = dc - rc
@@ -304,7 +334,7 @@ def decide_and_project(
                 p = (c + a) * 0.5
             d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
             if single < 0:
-                d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+                d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -314,7 +344,7 @@ def decide_and_project(
         w2 = float(1.0 / 3.0)
         for q in range(opt_queries):
             p = a * w0 + b * w1 + c * w2
-            d, g, arg = scene_phi_grad(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+            d, g, arg = world_phi_grad(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -355,14 +385,14 @@ def decide_and_project(
                     p = ta * (1.0 - u - v) + tb * u + tc * v
                     d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
                     if single < 0:
-                        d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+                        d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
                     n += 1
                     d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if n < samples:  # spend a leftover query on the centroid
                 p = (ta + tb + tc) * (1.0 / 3.0)
                 d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
                 if single < 0:
-                    d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+                    d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
                 d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if d0 < best:
                 best = d0
@@ -382,7 +412,7 @@ def decide_and_project(
         bound[t] = certified
     if best < 0.5 * offset:
         nt = wp.normalize(wp.cross(b - a, c - a))
-        project(best_p, offset, i0, i1, i2, nt, side_aware, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+        project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
                 touched, touched_count, vertex_obj)
 
 
@@ -405,10 +435,10 @@ def lattice_uv(idx: int, order: int):
 @wp.func
 def tile_phi(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.uint64,
              gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), n_geoms: int, near: int):
+             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), base: int, n_geoms: int, near: int):
     d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
     if single < 0:
-        d = scene_phi(p, gtype, size, inv_pose, radius, mesh, n_geoms, near)
+        d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
     return d
 
 
@@ -424,6 +454,8 @@ def decide_and_project_tiled(
     mesh: wp.array(dtype=wp.uint64),
     geom_count: wp.array(dtype=int),
     geom_obj: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
     # Contact in:
     active: wp.array(dtype=int),
     active_mask: wp.array(dtype=int),
@@ -460,8 +492,9 @@ def decide_and_project_tiled(
     a = x[i0]
     b = x[i1]
     c = x[i2]
-    n_geoms = geom_count[0]
-    single = only_geom(near, n_geoms)
+    base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
+    n_geoms = end - base
+    single = only_geom(near, base, n_geoms)
     s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
     order = lattice_order(samples)
     n_lat = (order + 1) * (order + 2) / 2
@@ -476,10 +509,10 @@ def decide_and_project_tiled(
         if lane < n_lat:
             u, v = lattice_uv(lane, order)
             d = tile_phi(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
-                         gtype, size, inv_pose, radius, mesh, n_geoms, near)
+                         gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
         elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
             d = tile_phi((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
-                         gtype, size, inv_pose, radius, mesh, n_geoms, near)
+                         gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
         # the three lowest samples (indices j0, j1, j2), ascending
         j0 = wp.tile_argmin(wp.tile(d))[0]
         d0 = wp.tile_min(wp.tile(d))[0]
@@ -526,7 +559,7 @@ def decide_and_project_tiled(
         bound[t] = certified
     if best < 0.5 * offset:
         nt = wp.normalize(wp.cross(b - a, c - a))
-        project(best_p, offset, i0, i1, i2, nt, side_aware, near, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+        project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
                 touched, touched_count, vertex_obj)
 
 
