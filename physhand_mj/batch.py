@@ -106,6 +106,12 @@ class BatchedHands:
 
         self.asset, self.worlds = asset, int(worlds)
         self.config = config if config is not None else Config()
+        from physhand_mj.types import NonFinite
+
+        if NonFinite(self.config.nonfinite) != NonFinite.RECOVER:
+            raise ValueError(f"BatchedHands needs Config.nonfinite=NonFinite.RECOVER (got {NonFinite(self.config.nonfinite).name}): "
+                             "a world that turns non-finite is reset and reported alone (step()['worlds']); "
+                             "raising would stop every world for one")
         self.replicated = replicate_asset(asset, self.worlds)
         if spacing is None:  # apart only where contact could reach across (float32 rounds at 1 m)
             spacing = 1.0 if objects else 0.0

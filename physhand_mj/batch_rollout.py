@@ -88,8 +88,10 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     runs with the same objects at once in one :class:`~physhand_mj.batch.BatchedHands`; writes
     ``out/summary.csv`` after every batch and returns the rows in the order of ``targets`` (failed
     runs carry their error, as in :func:`~physhand_mj.rollout.rollout_batch`). ``emit(row)`` is called
-    for each run as its batch ends. Ctrl-C ends the batch running (its runs ``interrupted``, logs and
-    skins kept) and the list. ``steps`` / ``substeps`` / ``contact`` / ``device`` / ``config`` as
+    for each run as its batch ends. Ctrl-C during a batch's frames ends it (its runs ``interrupted``,
+    logs and skins kept) and the list; during a batch's set-up or settling (before its first frame)
+    it ends the list without rows for that batch's runs. ``config.nonfinite`` must be RECOVER (each
+    world is reset and reported alone). ``steps`` / ``substeps`` / ``contact`` / ``device`` / ``config`` as
     for :func:`~physhand_mj.rollout.rollout`; ``spacing``: m between worlds (BatchedHands' default: 1 m
     when they hold objects)."""
     import physhand_mj as ph
@@ -197,11 +199,11 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                 if not alive[w]:
                     continue  # a failed world keeps its last poses: it no longer logs
                 mujoco.mj_step(r.model, r.data)
-                try:
-                    frame_pos[w] = r.bone_poses()
-                    frame_obj[w] = r.object_poses()
-                    if not (np.all(np.isfinite(frame_obj[w][0])) and np.all(np.isfinite(frame_obj[w][1]))):
+                try:  # checked before it is kept: a failed world keeps its last finite poses
+                    bones, obj = r.bone_poses(), r.object_poses()
+                    if not (np.all(np.isfinite(obj[0])) and np.all(np.isfinite(obj[1]))):
                         raise SolverError(f"non-finite MuJoCo pose for object geoms of {Path(r.scene).name}")
+                    frame_pos[w], frame_obj[w] = bones, obj
                 except SolverError as e:
                     _fail(r, e, rows)
                     alive[w] = False

@@ -221,3 +221,12 @@ def test_masks_world_relative_past_31_geoms(setup):
     # W times one hand's broadphase work (worlds at other offsets round a little differently)
     assert abs(out["triangles_tested"] - W * ref["triangles_tested"]) <= 0.05 * W * ref["triangles_tested"]
     assert out["worlds"][far]["penetration_count"] == ref["penetration_count"] == 0
+
+
+def test_batched_hands_refuse_a_nonfinite_policy_that_stops_every_world():
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.types import NonFinite
+
+    with pytest.raises(ValueError, match="BatchedHands needs Config.nonfinite=NonFinite.RECOVER"):
+        BatchedHands(ph.load_asset(), 2, ph.Config(device="cpu", nonfinite=NonFinite.RAISE))

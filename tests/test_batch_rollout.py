@@ -3,6 +3,7 @@ batch: the same rows, logs and skins; the world at the origin bit for bit, the w
 within the float32 rounding there."""
 
 import csv
+from pathlib import Path
 import json
 import subprocess
 import sys
@@ -114,3 +115,29 @@ def test_cli_batch(tmp_path):
                             str(tmp_path / "c")], capture_output=True, text=True)
         line = [x for x in r.stderr.splitlines() if x.startswith("physhand rollout: error:")]
         assert r.returncode == 1 and r.stdout == "" and len(line) == 1 and want in line[0], r.stderr[-800:]
+
+
+def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
+    """One run's MuJoCo object pose turns NaN after its first frame: that run fails with the serial
+    one-line error, the other world of its batch finishes as in the unbroken batched run."""
+    from physhand_mj import batch_rollout
+
+    tmp = runs["tmp"]
+    bad = _apple_b(tmp)
+    real = batch_rollout._Run.object_poses
+    calls = {}
+
+    def poses(self):
+        pos, quat = real(self)
+        if Path(self.scene).name == bad.name:
+            calls[self.index] = calls.get(self.index, 0) + 1
+            if calls[self.index] > 2:  # the batch's first poses and frame 1 are fine, then NaN
+                pos = np.full_like(pos, np.nan)
+        return pos, quat
+
+    monkeypatch.setattr(batch_rollout._Run, "object_poses", poses)
+    rows = rollout_batched([(APPLE, "grasp"), (bad, None)], tmp / "nan", worlds=2, steps=STEPS, device="cpu",
+                           progress=False)
+    assert "non-finite MuJoCo pose for object geoms" in rows[1]["error"]
+    assert not rows[0].get("error"), rows[0]
+    assert _untimed(rows[0], SUMMARY_COLUMNS) == _untimed(runs["batched"][0], SUMMARY_COLUMNS)

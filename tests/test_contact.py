@@ -328,3 +328,17 @@ def test_tiled_cuda_multires_matches_the_per_thread_kernel():
     # near-tied samples can pick a different x* of the same depth, whose gradient differs a little
     moved = np.abs(x0 - x.astype(np.float32)).max()
     assert moved > 1e-4 and np.abs(x0 - x1).max() < 0.05 * moved, (np.abs(x0 - x1).max(), moved)
+
+
+def test_a_solver_with_an_empty_objects_container_steps():
+    """Objects(device, 0) (no geoms, capacity 0) is a valid, empty scene: frames and metrics run."""
+    import physhand_mj as ph
+    from physhand_mj.contact import Objects
+    from physhand_mj.solver import Solver, make_model
+
+    asset = ph.load_asset()
+    cfg = ph.Config(device="cpu")
+    solver = Solver(make_model(asset, cfg), cfg, objects=Objects("cpu", 0))
+    state = solver.make_state()
+    out = solver.step(state)
+    assert out["nonfinite"] == 0 and out.get("penetration_count", 0) == 0

@@ -311,7 +311,8 @@ class Contact:
         (1, capacity))."""
         if self._views is None:
             o, w = self.objects, self.worlds
-            self._views = {name: getattr(o, name).reshape((w, o.capacity // w))
+            # the allocated length (Objects holds at least one slot, also for capacity 0)
+            self._views = {name: getattr(o, name).reshape((w, getattr(o, name).shape[0] // w))
                            for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
         return self._views
 
