@@ -23,9 +23,12 @@ def begin_frame(
     k, fraction s = (k + 1) / substeps, between the frame's start (body_pose[0]) and end
     (body_pose[1]) poses: lerp of positions, slerp of rotations. Launched over (substeps, max(B, 1))."""
     k, b = wp.tid()
-    if k == 0 and b == 0:
-        for j in range(guard.shape[0]):  # [0, 4): the frame's; batched worlds: then 4 per world
-            guard[j] = 0
+    nb = wp.max(body_sub.shape[1], 1)
+    n = body_sub.shape[0] * nb  # threads of the launch, each zeroing every n-th counter
+    j = k * nb + b
+    while j < guard.shape[0]:  # [0, 4): the frame's; batched worlds: then 4 per world
+        guard[j] = 0
+        j += n
     if b >= body_pose.shape[1]:
         return
     s = float(k + 1) / float(body_sub.shape[0])
