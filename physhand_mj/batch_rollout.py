@@ -105,7 +105,6 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     names = run_names(targets)
     rows: list[dict | None] = [None] * len(targets)
     asset = ph.load_asset()
-    open_batches: dict[tuple, list[_Run]] = {}
     kw = dict(steps=steps, substeps=substeps, contact=contact, device=device, config=config, progress=progress,
               spacing=spacing)
 
@@ -124,31 +123,58 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
         write_summary([r for r in rows if r is not None], out)
         return stop
 
-    stopped = False
     try:
-        for i, ((scene, key), name) in enumerate(zip(targets, names)):
-            try:
-                run = _Run(i, scene, key, out / name, asset)
-            except (FileNotFoundError, ValueError, RuntimeError) as e:
-                rows[i] = failed_row(scene, key, e)
-                if emit:
-                    emit(rows[i])
-                write_summary([r for r in rows if r is not None], out)
+        for item in _grouped(targets, worlds, asset, out, names):
+            if isinstance(item, list):
+                if finish(item):
+                    break
                 continue
-            group = open_batches.setdefault(run.signature(), [])
-            group.append(run)
-            if len(group) == worlds:
-                del open_batches[run.signature()]
-                if finish(group):
-                    stopped = True
-                    break
-        if not stopped:
-            for group in list(open_batches.values()):
-                if finish(group):
-                    break
+            i, e = item
+            rows[i] = failed_row(*targets[i], e)
+            if emit:
+                emit(rows[i])
+            write_summary([r for r in rows if r is not None], out)
     finally:
         write_summary([r for r in rows if r is not None], out)
     return [r for r in rows if r is not None]
+
+
+def _grouped(targets, worlds: int, asset, out: Path, names):
+    """The runs of ``targets`` in the order their batches start: yields a list of up to ``worlds``
+    :class:`_Run` s with the same objects (a batch, as soon as it is full; the unfilled ones at the
+    end), or ``(index, error)`` for a run whose scene could not be loaded."""
+    open_batches: dict[tuple, list[_Run]] = {}
+    for i, ((scene, key), name) in enumerate(zip(targets, names)):
+        try:
+            run = _Run(i, scene, key, out / name, asset)
+        except (FileNotFoundError, ValueError, RuntimeError) as e:
+            yield i, e
+            continue
+        group = open_batches.setdefault(run.signature(), [])
+        group.append(run)
+        if len(group) == worlds:
+            del open_batches[run.signature()]
+            yield group
+    yield from list(open_batches.values())
+
+
+def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dict[int, Exception]]:
+    """How :func:`rollout_batched` groups ``targets`` into batches: ``(groups, failed)``, ``groups``
+    the indices into ``targets`` of each batch (up to ``worlds`` runs whose scenes hold the same
+    objects), in the order they run; ``failed``: index -> error of the runs whose scene could not be
+    loaded (they belong to no batch). Loads every scene (on this machine)."""
+    import physhand_mj as ph
+
+    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
+        raise ValueError(f"--batch must be an integer >= 1 (worlds per batch), got {worlds!r}")
+    targets = list(targets)
+    groups, failed = [], {}
+    for item in _grouped(targets, worlds, asset or ph.load_asset(), Path("."), run_names(targets)):
+        if isinstance(item, list):
+            groups.append([r.index for r in item])
+        else:
+            failed[item[0]] = item[1]
+    return groups, failed
 
 
 def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, substeps, contact, device, config,

@@ -197,9 +197,6 @@ def _rollout(args):
     src = Path(args.scene)
     if args.workers is not None and args.ray is None:
         raise ValueError("--workers needs --ray (the serial batch runs one rollout at a time)")
-    if args.batch is not None and args.ray is not None:
-        raise ValueError("--batch and --ray do not combine yet: run batched worlds on one machine, or one rollout "
-                         "per Ray task")
     if args.batch is not None and args.batch < 1:
         raise ValueError(f"--batch must be at least 1 (worlds per batch), got {args.batch}")
     single = src.suffix.lower() == ".xml" or not (src.is_dir() or src.is_file())
@@ -210,11 +207,11 @@ def _rollout(args):
     def emit(row):
         print(json.dumps(row), flush=True)
 
-    if args.ray is not None:  # one Ray task per rollout (physhand_mj/distributed.py)
+    if args.ray is not None:  # one Ray task per rollout, or per batch of W (physhand_mj/distributed.py)
         from physhand_mj.distributed import rollout_ray
 
         rows = rollout_ray(targets, args.out, address=None if args.ray == "local" else args.ray,
-                           num_workers=args.workers, emit=emit, **kw)
+                           num_workers=args.workers, emit=emit, batch=args.batch, **kw)
     elif args.batch is not None:  # W worlds per solver step (physhand_mj/batch_rollout.py)
         from physhand_mj.batch_rollout import rollout_batched
 
@@ -268,10 +265,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="run the batch's rollouts as Ray tasks: alone, on a local Ray; or on the cluster at ADDRESS "
                         "(auto, ray://HOST:10001); needs the ray extra (docs/scale.md)")
     p.add_argument("--workers", type=int, default=None,
-                   help="with --ray: rollouts at once (count; default: one per GPU, else one per CPU)")
+                   help="with --ray: rollouts (with --batch: batches) at once (count; default: one per GPU, else one "
+                        "per CPU)")
     p.add_argument("--batch", type=int, default=None, metavar="W",
                    help="run the list W worlds at a time in one solver step (count of worlds per batch); runs whose "
-                        "scenes hold the same objects share a batch (docs/scale.md)")
+                        "scenes hold the same objects share a batch; with --ray: one Ray task per batch "
+                        "(docs/scale.md)")
     p.set_defaults(run=_rollout)
     bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")

@@ -10,8 +10,12 @@ and the driver writes ``out/summary.csv`` (and ``summary.parquet`` when pyarrow 
 the serial batch's columns after every finished run. A worker on the driver's node writes its run
 folder in place; a worker on another node runs into a temporary folder and sends the files back,
 so the outputs land in one folder on the driver either way (scene files must be readable at the
-same path on every node). Each task runs one hand: batched worlds (several hands in one solver
-step, physhand_mj/batch_rollout.py) run on one machine and do not combine with Ray yet.
+same path on every node).
+
+With ``batch=W`` each task runs one batch instead: up to W runs whose scenes hold the same objects
+(grouped on the driver as :func:`physhand_mj.batch_rollout.rollout_batched` groups them), in one
+solver step with :func:`~physhand_mj.batch_rollout.rollout_batched`; it writes the same run folders
+and returns their rows, and a batch whose task failed is retried as a whole.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ CANCEL_GRACE_S = 30.0  # after Ctrl-C: how long the driver waits for the cancell
 
 def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | None = None,
                 gpus_per_worker: float | None = None, max_retries: int = 2, emit=None, progress: bool = True,
-                **rollout_kwargs) -> list[dict]:
+                batch: int | None = None, **rollout_kwargs) -> list[dict]:
     """Run each (scene, keyframe) of ``targets`` as one Ray task; returns the summary rows in the
     order of ``targets``.
 
@@ -48,6 +52,12 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     Ctrl-C cancels the tasks (a running one stops after its frame, keeping its partial log, as a
     serial rollout does), writes the summary and returns: runs that did not finish have
     ``interrupted: true`` (those that never gave a summary also ``error: "cancelled (Ctrl-C)"``).
+
+    ``batch``: W, worlds per task: each task runs one batch of up to W runs with the same objects
+    through :func:`~physhand_mj.batch_rollout.rollout_batched` (``rollout_kwargs``: its options,
+    steps, substeps, contact, device, config, spacing); the driver loads every scene once to group
+    them (a scene it cannot load is a failed row at once). ``num_workers`` then counts batches at
+    once; retries, Ctrl-C and the summary work per batch as they do per run.
     """
     try:
         import ray
@@ -60,6 +70,13 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     if max_retries < 0:
         raise ValueError(f"max_retries must be >= 0, got {max_retries}")
     targets = [(scene, key) for scene, key in targets]
+    groups, failed = [[i] for i in range(len(targets))], {}
+    if batch is not None:
+        from physhand_mj.batch_rollout import batch_groups
+        from physhand_mj.rollout import check_counts
+
+        check_counts(rollout_kwargs.get("steps", 36), rollout_kwargs.get("substeps", 10))
+        groups, failed = batch_groups(targets, batch)
     out_user = Path(out)
     out_abs = out_user.resolve()
     out_abs.mkdir(parents=True, exist_ok=True)
@@ -73,6 +90,8 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         local = {} if address is not None else dict(include_dashboard=False)
         ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR, **local)
     rows: list[dict | None] = [None] * len(targets)
+    for i, e in failed.items():
+        rows[i] = failed_row(*targets[i], e)
     try:
         gpus = float(ray.cluster_resources().get("GPU", 0))
         device = rollout_kwargs.pop("device", None)
@@ -85,38 +104,63 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         client = address is not None and str(address).startswith("ray://")
         # a worker on the driver's node writes in place; elsewhere (and under Ray Client) it ships its files
         driver_node = None if client else ray.get_runtime_context().get_node_id()
-        task = ray.remote(_run_one).options(num_cpus=1, num_gpus=gpus_per_worker, max_retries=max_retries,
-                                            retry_exceptions=True)
+        task = ray.remote(_run_one if batch is None else _run_group).options(
+            num_cpus=1, num_gpus=gpus_per_worker, max_retries=max_retries, retry_exceptions=True)
         kwargs = dict(rollout_kwargs, device=device)
-        window = num_workers or len(targets)
+        window = num_workers or max(len(groups), 1)
+
+        def submit(g):
+            run_dirs = [str(out_abs / names[i]) for i in groups[g]]
+            if batch is None:
+                scene, key = targets[groups[g][0]]
+                return task.remote(str(scene), key, run_dirs[0], driver_node, os.getcwd(), kwargs)
+            return task.remote([(str(targets[i][0]), targets[i][1]) for i in groups[g]], run_dirs, driver_node,
+                               os.getcwd(), batch, kwargs)
+
+        def collect(ref, g):
+            job = groups[g]
+            if batch is None:
+                i = job[0]
+                return {i: _collect(ray, ref, targets[i], out_user / names[i], out_abs / names[i], max_retries)}
+            got = _collect_group(ray, ref, [targets[i] for i in job], [out_user / names[i] for i in job],
+                                 [out_abs / names[i] for i in job], max_retries)
+            return dict(zip(job, got))
+
+        if failed:
+            _write_tables(rows, out_abs)
+            if emit:
+                for i in sorted(failed):
+                    emit(rows[i])
         if progress:
-            print(f"rollout_ray: {len(targets)} runs on Ray ({int(ray.cluster_resources().get('CPU', 0))} CPUs, "
-                  f"{gpus:g} GPUs), device {device}, {gpus_per_worker:g} GPU per task"
+            print(f"rollout_ray: {len(targets)} runs"
+                  + (f" in {len(groups)} batches of up to {batch}" if batch is not None else "")
+                  + f" on Ray ({int(ray.cluster_resources().get('CPU', 0))} CPUs, {gpus:g} GPUs), "
+                  f"device {device}, {gpus_per_worker:g} GPU per task"
                   + (f", {num_workers} at once" if num_workers else ""), file=sys.stderr, flush=True)
-        pending: dict = {}  # ObjectRef -> index into targets
+        pending: dict = {}  # ObjectRef -> index into groups (a run, or a batch of runs)
         submitted = 0
         bar = tqdm(total=len(targets), desc="rollouts (ray)", unit="run", file=sys.stderr, disable=not progress)
+        bar.update(len(failed))
         try:
-            while submitted < len(targets) or pending:
-                while submitted < len(targets) and len(pending) < window:
-                    scene, key = targets[submitted]
-                    ref = task.remote(str(scene), key, str(out_abs / names[submitted]), driver_node, os.getcwd(),
-                                      kwargs)
-                    pending[ref] = submitted
+            while submitted < len(groups) or pending:
+                while submitted < len(groups) and len(pending) < window:
+                    pending[submit(submitted)] = submitted
                     submitted += 1
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
-                    i = pending[ref]
-                    rows[i] = _collect(ray, ref, targets[i], out_user / names[i], out_abs / names[i], max_retries)
-                    del pending[ref]  # after its row is kept: a Ctrl-C in between collects it again
+                    got = collect(ref, pending[ref])
+                    for i, row in got.items():
+                        rows[i] = row
+                    del pending[ref]  # after its rows are kept: a Ctrl-C in between collects them again
                     _write_tables(rows, out_abs)
-                    bar.update(1)
+                    bar.update(len(got))
                     if emit:
-                        emit(rows[i])
+                        for row in got.values():
+                            emit(row)
         except KeyboardInterrupt:
             bar.close()
             open_runs = [i for i, r in enumerate(rows) if r is None]
-            _cancel(ray, pending, rows, targets, out_user, out_abs, names, max_retries)
+            _cancel(ray, pending, rows, collect)
             for i in open_runs:
                 if rows[i] is None:
                     scene, key = targets[i]
@@ -161,6 +205,72 @@ def _run_one(scene: str, keyframe, run_dir: str, driver_node, cwd: str, kwargs: 
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _run_group(targets: list, run_dirs: list, driver_node, cwd: str, worlds: int, kwargs: dict):
+    """The Ray task of ``batch=W``: one batch of runs (the same objects, up to W) with
+    :func:`~physhand_mj.batch_rollout.rollout_batched` into a temporary folder; each run's folder
+    then moves to its place in the driver's output when this worker is on the driver's node, else
+    its files go back. Returns ([summary row or None per run], [{file name: bytes} per run])."""
+    import ray
+
+    from physhand_mj.batch_rollout import rollout_batched
+    from physhand_mj.rollout import run_names
+
+    paths = [(str(Path(s) if Path(s).is_absolute() else Path(cwd) / s), key) for s, key in targets]
+    here = driver_node is not None and ray.get_runtime_context().get_node_id() == driver_node
+    tmp = Path(tempfile.mkdtemp(prefix="physhand_batch_"))
+    try:
+        got = iter(rollout_batched(paths, tmp, worlds=worlds, progress=False, **kwargs))
+        row = next(got, None)
+        rows, files = [], []
+        for (scene, key), path, name, run_dir in zip(targets, paths, run_names(paths), run_dirs):
+            mine = row is not None and row.get("scene") == path[0]  # the keyframe may be the scene's default
+            src = tmp / name
+            if mine:
+                row["scene"] = scene
+                rows.append(row)
+                row = next(got, None)
+            else:  # Ctrl-C before this run's batch set up: no row
+                rows.append(None)
+            ship = {}
+            if src.is_dir():
+                if here:
+                    Path(run_dir).mkdir(parents=True, exist_ok=True)
+                    for p in src.iterdir():
+                        shutil.move(str(p), str(Path(run_dir) / p.name))
+                else:
+                    ship = {p.name: p.read_bytes() for p in src.iterdir() if p.is_file()}
+            files.append(ship)
+        return rows, files
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _collect_group(ray, ref, targets, runs_user: list, runs_abs: list, max_retries: int) -> list[dict]:
+    """The summary rows of a finished batch task (one per run of ``targets``); writes the files it
+    shipped into the run folders. A failed or cancelled task: every run of the batch gets the row."""
+    try:
+        res, files = ray.get(ref)
+    except ray.exceptions.TaskCancelledError:
+        return [dict(scene=str(s), keyframe=k, finite=False, interrupted=True, error="cancelled (Ctrl-C)")
+                for s, k in targets]
+    except ray.exceptions.RayError as e:
+        cause = getattr(e, "cause", None) or e
+        return [failed_row(s, k, f"{type(cause).__name__}: {str(cause)[:400]} (failed {max_retries + 1} times)")
+                for s, k in targets]
+    out = []
+    for (scene, key), row, ship, run_user, run_abs in zip(targets, res, files, runs_user, runs_abs):
+        if ship:
+            run_abs.mkdir(parents=True, exist_ok=True)
+            for name, data in ship.items():
+                (run_abs / name).write_bytes(data)
+        if row is None:
+            row = dict(scene=str(scene), keyframe=key, finite=False, interrupted=True, error="cancelled (Ctrl-C)")
+        elif "log" in row:
+            row.update(log=str(run_user / "log.csv"), skin=str(run_user / "skin_final.ply"))
+        out.append(row)
+    return out
+
+
 def _collect(ray, ref, target, run_user: Path, run_abs: Path, max_retries: int) -> dict:
     """The summary row of a finished task; writes the files it shipped into its run folder."""
     scene, key = target
@@ -181,7 +291,7 @@ def _collect(ray, ref, target, run_user: Path, run_abs: Path, max_retries: int) 
     return res
 
 
-def _cancel(ray, pending: dict, rows: list, targets, out_user: Path, out_abs: Path, names, max_retries: int):
+def _cancel(ray, pending: dict, rows: list, collect):
     """Ctrl-C: cancel the unfinished tasks and gather the partial summaries of those that were
     running (a second Ctrl-C stops waiting)."""
     for ref in pending:
@@ -192,8 +302,8 @@ def _cancel(ray, pending: dict, rows: list, targets, out_user: Path, out_abs: Pa
     try:
         done, _ = ray.wait(list(pending), num_returns=len(pending), timeout=CANCEL_GRACE_S)
         for ref in done:
-            i = pending[ref]
-            rows[i] = _collect(ray, ref, targets[i], out_user / names[i], out_abs / names[i], max_retries)
+            for i, row in collect(ref, pending[ref]).items():
+                rows[i] = row
     except KeyboardInterrupt:
         pass
 

@@ -110,7 +110,7 @@ def test_cli_batch(tmp_path):
     lines = [json.loads(x) for x in r.stdout.strip().splitlines()]
     assert len(lines) == 2 and {"penetration_count", "error"} <= set(lines[0]) | set(lines[1])
     assert (tmp_path / "b" / "hoi_apple-grasp" / "skin_final.ply").exists()
-    for args, want in ((["--batch", "0"], "--batch must be at least 1"), (["--batch", "2", "--ray"], "do not combine")):
+    for args, want in ((["--batch", "0"], "--batch must be at least 1"), (["--workers", "2"], "--workers needs --ray")):
         r = subprocess.run([sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), *args, "--out",
                             str(tmp_path / "c")], capture_output=True, text=True)
         line = [x for x in r.stderr.splitlines() if x.startswith("physhand rollout: error:")]

@@ -146,3 +146,53 @@ def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp
     assert rows[2]["error"] == "cancelled (Ctrl-C)" and not (out / "hoi_glass1-grasp").exists()
     table = _read(out / "summary.csv")
     assert [t["interrupted"] for t in table] == ["True"] * 3 and int(table[0]["steps"]) == rows[0]["steps"]
+
+
+def _apple_b(tmp):
+    """hoi_apple with its hand 1 mm further along y and 1 mm lower: the same objects, another grasp
+    (as in tests/test_batch_rollout.py)."""
+    text = APPLE.read_text().replace('file="../hand/', f'file="{APPLE.parent.parent / "hand"}/')
+    old = 'mpos="-0.0816409 -0.0143553 0.202622"'
+    assert old in text
+    path = tmp / "apple_b.xml"
+    path.write_text(text.replace(old, 'mpos="-0.0816409 -0.0133553 0.201622"'))
+    return path
+
+
+def test_batch_on_ray_matches_rollout_batched(local_ray, tmp_path):
+    """--ray --batch 2: the two runs (the same objects) are one batch in one Ray task; rows, logs, skins
+    and the summary as rollout_batched's on the same list (the same batch, so exactly, but timings
+    and what the batch frame ran)."""
+    from physhand_mj.batch_rollout import batch_groups, rollout_batched
+
+    batch_frame = {"objects_near", "triangles_tested", "features_listed", "ops_run"}  # tests/test_batch_rollout.py
+    targets = [(APPLE, "grasp"), (_apple_b(tmp_path), None)]
+    assert batch_groups(targets, 2) == ([[0, 1]], {})
+    local = rollout_batched(targets, tmp_path / "local", worlds=2, steps=STEPS, device="cpu", progress=False)
+    emitted = []
+    rows = rollout_ray(targets, tmp_path / "ray", batch=2, steps=STEPS, device="cpu", progress=False,
+                       emit=emitted.append)
+    cols = [c for c in SUMMARY_COLUMNS if c not in batch_frame | {"log", "skin"}]
+    assert _untimed(rows, cols) == _untimed(local, cols), (rows, local)
+    assert [r["scene"] for r in rows] == [str(APPLE), str(tmp_path / "apple_b.xml")] and len(emitted) == 2
+    assert all("error" not in r and r["finite"] and r["steps"] == STEPS for r in rows), rows
+    assert rows[1]["log"] == str(tmp_path / "ray" / "apple_b" / "log.csv")
+    for run in ("hoi_apple-grasp", "apple_b"):
+        a, b = _read(tmp_path / "local" / run / "log.csv"), _read(tmp_path / "ray" / run / "log.csv")
+        keep = [c for c in a[0] if c not in batch_frame]
+        assert len(a) == 1 + STEPS * 10 and _untimed(a, keep) == _untimed(b, keep)
+        assert ((tmp_path / "local" / run / "skin_final.ply").read_bytes()
+                == (tmp_path / "ray" / run / "skin_final.ply").read_bytes())
+    ray_table, local_table = _read(tmp_path / "ray" / "summary.csv"), _read(tmp_path / "local" / "summary.csv")
+    assert _untimed(ray_table, cols) == _untimed(local_table, cols)
+
+
+def test_a_batch_task_on_another_node_ships_its_files(local_ray, tmp_path):
+    from physhand_mj.distributed import _collect_group, _run_group
+
+    ref = ray.remote(_run_group).options(num_cpus=1).remote([(str(APPLE), "grasp")], [str(tmp_path / "unused")],
+                                                            "another-node", os.getcwd(), 2, dict(steps=1, device="cpu"))
+    rows = _collect_group(ray, ref, [(APPLE, "grasp")], [tmp_path / "run"], [tmp_path / "run"], 0)
+    assert not (tmp_path / "unused").exists() and rows[0]["steps"] == 1 and rows[0]["scene"] == str(APPLE), rows
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
+    assert rows[0]["log"] == str(tmp_path / "run" / "log.csv") and len(_read(rows[0]["log"])) == 1 + 10
