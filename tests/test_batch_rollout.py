@@ -2,7 +2,6 @@
 batch: the same rows, logs and skins; the world at the origin bit for bit, the world solved 1 m away
 within the float32 rounding there."""
 
-import csv
 from pathlib import Path
 import json
 import subprocess
@@ -13,6 +12,7 @@ import pytest
 import trimesh
 
 import physhand_mj as ph
+from rollout_helpers import apple_b, read_csv
 from physhand_mj.batch_rollout import rollout_batched
 from physhand_mj.rollout import LOG_COLUMNS, SUMMARY_COLUMNS, rollout_batch
 
@@ -27,25 +27,11 @@ SKIN_MAX_M, SKIN_MEDIAN_M = 250e-6, 5e-6
 DEPTH_UM, COUNT_REL = 25.0, 0.002
 
 
-def _read(path):
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
-
-
-def _apple_b(tmp):
-    """hoi_apple with its hand 1 mm further along y and 1 mm lower: the same objects, another grasp."""
-    text = APPLE.read_text().replace('file="../hand/', f'file="{APPLE.parent.parent / "hand"}/')
-    old = 'mpos="-0.0816409 -0.0143553 0.202622"'
-    assert old in text
-    path = tmp / "apple_b.xml"
-    path.write_text(text.replace(old, 'mpos="-0.0816409 -0.0133553 0.201622"'))
-    return path
-
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("batched")
-    targets = [(APPLE, "grasp"), (tmp / "missing.xml", None), (BOX, "grasp"), (_apple_b(tmp), None)]
+    targets = [(APPLE, "grasp"), (tmp / "missing.xml", None), (BOX, "grasp"), (apple_b(tmp), None)]
     serial = rollout_batch(targets, tmp / "serial", steps=STEPS, device="cpu", progress=False)
     emitted = []
     batched = rollout_batched(targets, tmp / "batched", worlds=2, steps=STEPS, device="cpu", progress=False,
@@ -73,14 +59,14 @@ def test_rows_equal_the_serial_batch(runs):
     for k in ("initial_penetration_max_um", "initial_object_in_skin_max_um", "penetration_max_um"):
         assert abs(b[k] - s[k]) <= DEPTH_UM, (k, b[k], s[k])
     assert sorted(r["scene"] for r in runs["emitted"]) == sorted(r["scene"] for r in bat)
-    table = _read(runs["tmp"] / "batched" / "summary.csv")
+    table = read_csv(runs["tmp"] / "batched" / "summary.csv")
     assert list(table[0]) == SUMMARY_COLUMNS and [t["scene"] for t in table] == [r["scene"] for r in ser]
 
 
 def test_logs_and_skins_equal_the_serial_ones(runs):
     tmp = runs["tmp"]
     for run, exact in (("hoi_apple-grasp", True), ("hoi_box-grasp", True), ("apple_b", False)):
-        a, b = _read(tmp / "serial" / run / "log.csv"), _read(tmp / "batched" / run / "log.csv")
+        a, b = read_csv(tmp / "serial" / run / "log.csv"), read_csv(tmp / "batched" / run / "log.csv")
         assert list(b[0]) == LOG_COLUMNS and len(a) == len(b) == 1 + STEPS * 10
         skip = TIMED | BATCH_FRAME
         if exact:  # every column but the timings and what the batch frame ran
@@ -123,7 +109,7 @@ def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
     from physhand_mj import batch_rollout
 
     tmp = runs["tmp"]
-    bad = _apple_b(tmp)
+    bad = apple_b(tmp)
     real = batch_rollout._Run.object_poses
     calls = {}
 

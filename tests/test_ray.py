@@ -3,7 +3,6 @@ failed entry, retries after a killed worker or an exception, Ctrl-C on the drive
 2 CPU workers; CPU rollouts are deterministic, so the two agree exactly but for timings."""
 
 import _thread
-import csv
 import logging
 import os
 import signal
@@ -17,6 +16,7 @@ ray = pytest.importorskip("ray")
 import physhand_mj as ph  # noqa: E402
 from physhand_mj.distributed import rollout_ray  # noqa: E402
 from physhand_mj.rollout import SUMMARY_COLUMNS, rollout_batch  # noqa: E402
+from rollout_helpers import apple_b, read_csv  # noqa: E402
 
 APPLE, BOX, GLASS = (ph.scene_path(s) for s in ("hoi_apple", "hoi_box", "hoi_glass1"))
 STEPS = 2
@@ -29,10 +29,6 @@ def local_ray():
     yield
     ray.shutdown()
 
-
-def _read(path):
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def _untimed(rows, cols=SUMMARY_COLUMNS):
@@ -70,10 +66,10 @@ def test_run_folders_hold_the_same_files(both):
     assert sorted(p.name for p in par.iterdir()) == sorted(p.name for p in ser.iterdir())
     for run in ("hoi_apple-grasp", "hoi_box-grasp"):
         assert sorted(p.name for p in (par / run).iterdir()) == ["log.csv", "skin_final.ply"]
-        a, b = _read(ser / run / "log.csv"), _read(par / run / "log.csv")
+        a, b = read_csv(ser / run / "log.csv"), read_csv(par / run / "log.csv")
         assert len(a) == 1 + STEPS * 10 and _untimed(a, a[0]) == _untimed(b, a[0])
         assert (ser / run / "skin_final.ply").read_bytes() == (par / run / "skin_final.ply").read_bytes()
-    assert _untimed(_read(par / "summary.csv")) == _untimed(_read(ser / "summary.csv"))
+    assert _untimed(read_csv(par / "summary.csv")) == _untimed(read_csv(ser / "summary.csv"))
     assert both["ray"][0]["log"] == str(par / "hoi_apple-grasp" / "log.csv")
 
 
@@ -87,7 +83,7 @@ def test_a_worker_on_another_node_ships_its_files(local_ray, tmp_path):
     row = _collect(ray, ref, (APPLE, "grasp"), tmp_path / "run", tmp_path / "run", 0)
     assert not (tmp_path / "unused").exists() and row["steps"] == 1 and row["scene"] == str(APPLE), row
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
-    assert len(_read(row["log"])) == 1 + 10 and row["skin"] == str(tmp_path / "run" / "skin_final.ply")
+    assert len(read_csv(row["log"])) == 1 + 10 and row["skin"] == str(tmp_path / "run" / "skin_final.ply")
 
 
 # rollout(on_start=...) runs in the worker; functions made here (not module attributes) travel by
@@ -113,7 +109,7 @@ def test_killed_worker_is_retried_then_an_exception_fails_after_its_retries(loca
     rows = rollout_ray([(APPLE, "grasp")], tmp_path / "b", steps=1, device="cpu", progress=False, max_retries=0,
                        on_start=_always_raise())
     assert rows[0]["error"] == "RuntimeError: flaky device (failed 1 times)", rows
-    assert _read(tmp_path / "b" / "summary.csv")[0]["error"] == rows[0]["error"]
+    assert read_csv(tmp_path / "b" / "summary.csv")[0]["error"] == rows[0]["error"]
 
 
 def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp_path):
@@ -141,22 +137,11 @@ def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp
     assert [r["interrupted"] for r in rows] == [True] * 3, rows
     for r, log in zip(rows[:2], logs):
         assert 3 <= r["steps"] < 400 and "error" not in r, r
-        assert len(_read(log)) == 1 + r["steps"] * 10
+        assert len(read_csv(log)) == 1 + r["steps"] * 10
         assert log.with_name("skin_final.ply").exists()
     assert rows[2]["error"] == "cancelled (Ctrl-C)" and not (out / "hoi_glass1-grasp").exists()
-    table = _read(out / "summary.csv")
+    table = read_csv(out / "summary.csv")
     assert [t["interrupted"] for t in table] == ["True"] * 3 and int(table[0]["steps"]) == rows[0]["steps"]
-
-
-def _apple_b(tmp):
-    """hoi_apple with its hand 1 mm further along y and 1 mm lower: the same objects, another grasp
-    (as in tests/test_batch_rollout.py)."""
-    text = APPLE.read_text().replace('file="../hand/', f'file="{APPLE.parent.parent / "hand"}/')
-    old = 'mpos="-0.0816409 -0.0143553 0.202622"'
-    assert old in text
-    path = tmp / "apple_b.xml"
-    path.write_text(text.replace(old, 'mpos="-0.0816409 -0.0133553 0.201622"'))
-    return path
 
 
 def test_batch_on_ray_matches_rollout_batched(local_ray, tmp_path):
@@ -166,7 +151,7 @@ def test_batch_on_ray_matches_rollout_batched(local_ray, tmp_path):
     from physhand_mj.batch_rollout import batch_groups, rollout_batched
 
     batch_frame = {"objects_near", "triangles_tested", "features_listed", "ops_run"}  # tests/test_batch_rollout.py
-    targets = [(APPLE, "grasp"), (_apple_b(tmp_path), None)]
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None)]
     assert batch_groups(targets, 2) == ([[0, 1]], {})
     local = rollout_batched(targets, tmp_path / "local", worlds=2, steps=STEPS, device="cpu", progress=False)
     emitted = []
@@ -178,12 +163,12 @@ def test_batch_on_ray_matches_rollout_batched(local_ray, tmp_path):
     assert all("error" not in r and r["finite"] and r["steps"] == STEPS for r in rows), rows
     assert rows[1]["log"] == str(tmp_path / "ray" / "apple_b" / "log.csv")
     for run in ("hoi_apple-grasp", "apple_b"):
-        a, b = _read(tmp_path / "local" / run / "log.csv"), _read(tmp_path / "ray" / run / "log.csv")
+        a, b = read_csv(tmp_path / "local" / run / "log.csv"), read_csv(tmp_path / "ray" / run / "log.csv")
         keep = [c for c in a[0] if c not in batch_frame]
         assert len(a) == 1 + STEPS * 10 and _untimed(a, keep) == _untimed(b, keep)
         assert ((tmp_path / "local" / run / "skin_final.ply").read_bytes()
                 == (tmp_path / "ray" / run / "skin_final.ply").read_bytes())
-    ray_table, local_table = _read(tmp_path / "ray" / "summary.csv"), _read(tmp_path / "local" / "summary.csv")
+    ray_table, local_table = read_csv(tmp_path / "ray" / "summary.csv"), read_csv(tmp_path / "local" / "summary.csv")
     assert _untimed(ray_table, cols) == _untimed(local_table, cols)
 
 
@@ -195,4 +180,4 @@ def test_a_batch_task_on_another_node_ships_its_files(local_ray, tmp_path):
     rows = _collect_group(ray, ref, [(APPLE, "grasp")], [tmp_path / "run"], [tmp_path / "run"], 0)
     assert not (tmp_path / "unused").exists() and rows[0]["steps"] == 1 and rows[0]["scene"] == str(APPLE), rows
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
-    assert rows[0]["log"] == str(tmp_path / "run" / "log.csv") and len(_read(rows[0]["log"])) == 1 + 10
+    assert rows[0]["log"] == str(tmp_path / "run" / "log.csv") and len(read_csv(rows[0]["log"])) == 1 + 10

@@ -1,6 +1,5 @@
 """Offline rollouts: penetration removal on a generated grasp, the CSV log, CLI errors, Ctrl-C, batches."""
 
-import csv
 import json
 import os
 import signal
@@ -15,13 +14,10 @@ import trimesh
 
 import physhand_mj as ph
 from physhand_mj.rollout import LOG_COLUMNS, rollout
+from rollout_helpers import read_csv
 
 APPLE = ph.scene_path("hoi_apple")
 
-
-def _read(log):
-    with open(log, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +36,7 @@ def test_multires_removes_the_initial_penetration_and_vertex_does_not(apple_runs
 
 def test_log_is_complete_and_matches_the_summary(apple_runs):
     res = apple_runs["multires"]
-    rows = _read(res["log"])
+    rows = read_csv(res["log"])
     assert list(rows[0]) == LOG_COLUMNS
     assert len(rows) == 1 + 6 * 10
     assert [(int(r["step"]), int(r["substep"])) for r in rows[1:11]] == [(1, s) for s in range(1, 11)]
@@ -101,7 +97,7 @@ def test_interrupted_rollout_keeps_its_log(tmp_path):
     assert proc.returncode == 130, stderr[-500:]
     summary = json.loads(stdout.strip().splitlines()[-1])
     assert summary["interrupted"] and 3 <= summary["steps"] < 500
-    rows = _read(log)
+    rows = read_csv(log)
     assert len(rows) == 1 + summary["steps"] * 10
     assert (out / "skin_final.ply").exists()
 
@@ -113,6 +109,6 @@ def test_batch_runs_a_list_into_one_table(tmp_path):
     assert r.returncode == 1, r.stderr
     lines = [json.loads(x) for x in r.stdout.strip().splitlines()]
     assert len(lines) == 2 and lines[0]["penetration_count"] == 0 and "error" in lines[1]
-    table = _read(tmp_path / "b" / "summary.csv")
+    table = read_csv(tmp_path / "b" / "summary.csv")
     assert [t["scene"] for t in table] == [str(APPLE), str(tmp_path / "missing.xml")]
     assert table[1]["error"].startswith("scene file not found")
