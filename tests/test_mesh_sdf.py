@@ -302,3 +302,30 @@ def test_meshes_without_an_inside_are_refused_with_the_fix():
     with pytest.raises(ValueError, match="mesh_sign"):
         objs.add(GeomType.MESH, None, vertices=box.vertices, faces=box.faces, name="b", mesh_sign="normal")
     assert len(objs) == 0, "refused meshes are not added"
+
+
+@pytest.mark.parametrize("shape, half_mm", [
+    ("plate", 0.5),    # a 1 mm plate: a wall, its half-thickness
+    ("shell", 1.0),    # a closed 2 mm shell (two concentric spheres, the inner one inverted)
+    ("sphere", 10.0),  # r 10 mm: its diameter's half (the fixed floor keeps acting: 0.1 x 10 mm > 0.5 mm)
+    ("knife", 0.0),    # tapered (30-degree wedge): no wall, the fixed floor
+])
+def test_mesh_half_thickness_finds_walls_and_shells_only(shape, half_mm):
+    """objects.mesh_half_thickness, the side-aware exit's floor for meshes (query.side_floor reads
+    it from size[2]): against the analytic thickness of a plate, a shell and a sphere; 0 for a wedge."""
+    from physhand_mj.cases import _wedge
+
+    if shape == "plate":
+        m = trimesh.creation.box(extents=(0.024, 0.024, 0.001))
+    elif shape == "shell":
+        outer, inner = trimesh.creation.icosphere(4, 0.012), trimesh.creation.icosphere(4, 0.010)
+        inner.invert()
+        m = trimesh.util.concatenate([outer, inner])
+    elif shape == "sphere":
+        m = trimesh.creation.icosphere(4, 0.010)
+    else:
+        m = trimesh.Trimesh(*_wedge())
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.MESH, None, vertices=m.vertices, faces=m.faces, name=shape, mesh_range=0.05)
+    half = float(objs.size.numpy()[0, 2]) * 1e3
+    assert half == pytest.approx(half_mm, rel=0.03, abs=1e-9), half

@@ -32,7 +32,7 @@ Strategies (``Strategy``):
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
-from physhand_mj.contact.sdf import BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, SPHERE, geom_sdf, geom_sdf_grad
+from physhand_mj.contact.sdf import BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_grad
 from physhand_mj.types import Strategy
 
 VERTEX = wp.constant(int(Strategy.VERTEX))
@@ -188,8 +188,9 @@ MARCH_MIN = wp.constant(2.0e-5)  # m
 def side_floor(gtype: int, size: wp.vec3):
     """Depth (m) past which a decision point in geom ``gtype`` of ``size`` may take the side-aware
     exit: SIDE_DEPTH, or SIDE_FRAC of the geom's half-thickness where that is less (box: least half
-    extent; sphere, capsule: radius; cylinder: radius or half height; ellipsoid: least radius; plane,
-    cone and mesh: SIDE_DEPTH). No point of an object is deeper than its half-thickness, so with a
+    extent; sphere, capsule: radius; cylinder: radius or half height; ellipsoid: least radius; mesh:
+    the half-thickness of its thin parts, ``size[2]``, from objects.mesh_half_thickness; plane and
+    cone: SIDE_DEPTH). No point of an object is deeper than its half-thickness, so with a
     fixed 0.5 mm floor a 1 mm wall never took the exit and Eq. 9 carried skin that had passed its
     mid-plane out through the far side (docs/contact.md). Boxes at least 10 mm thick keep 0.5 mm."""
     half = float(FAR)
@@ -199,6 +200,8 @@ def side_floor(gtype: int, size: wp.vec3):
         half = size[0]
     elif gtype == CYLINDER:
         half = wp.min(size[0], size[1])
+    elif gtype == MESH and size[2] > 0.0:
+        half = size[2]  # objects.mesh_half_thickness, measured when the mesh was added
     return wp.min(SIDE_DEPTH, SIDE_FRAC * half)
 
 

@@ -13,6 +13,7 @@ docs/stability.md.
 
 import numpy as np
 import pytest
+import trimesh
 
 import physhand_mj as ph
 from physhand_mj.cases import Case, press_case
@@ -57,6 +58,9 @@ def test_sharp_tip_or_knife_edge(scene, margins, kind, site, depth, first, worst
 
 # thin walls: a 1 mm plate edge first (cases.py) and a 1 mm wall lying flat, its hand-facing face 0.3 mm into the skin
 WALL = Case("wall", GeomType.BOX, (0.012, 0.012, 0.0005), lead=0.001)
+# the same wall as a mesh (12 triangles): its floor comes from objects.mesh_half_thickness (0.5 mm)
+_box = trimesh.creation.box(extents=(0.024, 0.024, 0.001))
+WALL_MESH = Case("wall_mesh", GeomType.MESH, vertices=_box.vertices, faces=_box.faces, lead=0.001)
 THIN = [
     ("plate", "palm", 0.004, -0.002, 50.0),
     ("plate", "fingertip", 0.004, 0.004, 50.0),
@@ -67,6 +71,7 @@ THIN = [
     # (with the fixed 0.5 mm floor it tunnelled: 300-1,050 samples, 200-505 points up to 4.6 mm)
     ("wall", "palm", 0.0008, 0.0008, 50.0),
     ("wall", "fingertip", 0.0008, 0.0008, 50.0),
+    ("wall_mesh", "palm", 0.0008, 0.0008, 50.0),
 ]
 
 
@@ -74,7 +79,8 @@ THIN = [
 def test_thin_wall(scene, margins, kind, site, depth, first, worst_um):
     import dataclasses
 
-    case = press_case(kind, site=site, depth=depth) if kind != "wall" else dataclasses.replace(WALL, site=site)
+    walls = {"wall": WALL, "wall_mesh": WALL_MESH}
+    case = dataclasses.replace(walls[kind], site=site) if kind in walls else press_case(kind, site=site, depth=depth)
     run = _run(scene, case, depth, first)
     held = (PRESS, PRESS + HOLD)
     out = run.check(volume_tol=VOLUME_TOL, hold=held, free_from=PRESS + HOLD + LEAVE)
