@@ -36,11 +36,9 @@ def _run(scene, case, depth, first):
 #  worst um allowed while held by either measure: 0 = clean from the end of the press)
 SHARP = [
     ("cone_tip", "fingertip", 0.004, -0.002, 0.0),
-    # starting 6 mm deep: clean in every frame since the edge/corner rule of features.py (its tip
-    # flickered before: 0-4 points, <= 279 um)
-    ("cone_tip", "palm", 0.006, 0.006, 0.0),
-    ("mesh_cone", "palm", 0.006, -0.002, 1000.0),  # its tip flickers: 0-2 points, <= 598 um (735 before)
-    ("knife", "fingertip", 0.004, 0.004, 50.0),  # held: 0 (one frame with 2 edge points, 3.5 um before)
+    ("cone_tip", "palm", 0.006, 0.006, 400.0),  # the tip flickers in and out: 0-4 points, <= 279 um
+    ("mesh_cone", "palm", 0.006, -0.002, 1000.0),  # its tip flickers: 0-3 points, <= 735 um
+    ("knife", "fingertip", 0.004, 0.004, 50.0),  # one frame with 2 edge points, 3.5 um
     ("knife", "palm", 0.006, -0.002, 300.0),
 ]
 
