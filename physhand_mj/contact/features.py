@@ -11,13 +11,8 @@ Then the skin triangle closest to p is moved so that p touches its interior from
 
 which moves q onto p + offset n (the minimum-norm correction of the three vertices that does so) and
 pushes the skin into the hand, away from the object, whichever side of the object the skin is on.
-Where q lies inside the triangle, n is the triangle's inward normal. Where q is on an edge or a
-corner of the skin (the sign then comes from its angle-weighted pseudo normal) and p is less than
-``max_step`` from it, n = (p - q) / |p - q| for p inside (p lies in that edge's or corner's normal
-cone): one face's normal there can be 80 degrees off it, and a cone's tip 114 um inside the palm,
-at a skin corner, was pushed sideways pass after pass (benchmarks/hard_contact.py, CPU). Deeper
-points keep the face normal until they are that close (along p - q a deep start threw the skin
-8.7 mm in its first frame, against 5.2). One pass moves q at most ``max_step``
+In practice n is the triangle's inward normal (a push along p - q, tangential at an edge of the
+triangle, would slide the skin along the object), and one pass moves q at most ``max_step``
 (Config.contact_margin), so a feature that starts deep inside is worked out over passes and
 substeps instead of throwing the skin across the hand.
 Every contact pass applies these corrections (the depth-weighted mean per vertex, query.apply_contact)
@@ -147,11 +142,6 @@ def feature_contact(
     # (a tangential push would slide the skin along the object), at most ``max_step`` per pass
     m = -wp.normalize(wp.cross(x[i1] - x[i0], x[i2] - x[i0]))
     need = wp.dot(p - c, m) + offset
-    if wp.min(wp.min(w0, w1), w2) < 1.0e-4 and dist > 1.0e-7 and dist < max_step:
-        # closest at an edge or a corner within one pass: p lies in its normal cone (the pseudo
-        # normal's side), so the inward direction is along p - c (module docstring)
-        m = -q.sign * (p - c) / dist
-        need = offset - s
     if need <= 0.0:
         return  # p is outside this triangle's plane: the skin's side handles it
     corr = m * wp.min(need, max_step)
