@@ -9,7 +9,10 @@ per frame for the top 25), then graphs on with the skin BVH built by LBVH and by
 (``physhand_mj.contact.inside.BVH_CONSTRUCTOR``), then (without ``--quick``) with the object's side,
 side-aware exits, the tether or the gating switched off. One JSON line per run.
 
-    python benchmarks/frame_profile.py --device cuda [--frames 10] [--quick]
+    python benchmarks/frame_profile.py --device cuda [--frames 10] [--quick] [--config JSON]
+
+``--config`` sets Config fields for every run, for A/B comparisons, e.g. the BVH feature queries
+against the tiled ones: ``--config '{"tiled_features": false}'``.
 
 On the CPU the timing list is empty (Warp's timing covers CUDA work only); the frame times still print.
 """
@@ -66,15 +69,20 @@ def main() -> None:
     ap.add_argument("--device", default="cuda", help="Warp device: cuda[:N] or cpu")
     ap.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per run (count)")
     ap.add_argument("--quick", action="store_true", help="the profile and the LBVH/SAH pair only")
+    ap.add_argument("--config", default="{}", help="JSON object of Config fields set in every run "
+                    "(e.g. '{\"tiled_features\": false}')")
     a = ap.parse_args()
-    run(a.device, a.frames, graph=False, profile=True)
+    base = json.loads(a.config)
+    if not isinstance(base, dict):
+        ap.error("--config takes a JSON object of Config fields")
+    run(a.device, a.frames, graph=False, profile=True, **base)
     for bvh in ("lbvh", "sah"):
         inside.BVH_CONSTRUCTOR = bvh
-        run(a.device, a.frames)
+        run(a.device, a.frames, **base)
     if not a.quick:
         for config in (dict(feature_contact=False), dict(feature_contact=False, side_aware=False),
                        dict(skin_tether=0.0), dict(skip_idle=False)):
-            run(a.device, a.frames, **config)
+            run(a.device, a.frames, **{**base, **config})
 
 
 if __name__ == "__main__":

@@ -142,6 +142,13 @@ class Config:
       cuda_graph: capture one frame as a CUDA graph on CUDA devices.
       tiled_contact: on CUDA, run multires with a block of 32 threads per triangle (a lane per
         lattice sample; needs multires_samples < 32), else a thread per triangle.
+      tiled_features: on CUDA, run the object's side (feature_contact: each contact stage's feature
+        list and every pass's feature push) with a block of 128 threads per listed feature point,
+        the lanes scanning the frame's broadphase list of skin triangles (those within
+        contact_frame_margin of an object) for the exact closest skin point and its pseudo-normal
+        sign, instead of one thread per feature walking the skin's BVH (refitted before every stage
+        and pass); the same closest point (distance ties: the lowest triangle index) and decisions
+        (contact/features.py). The CPU always walks the BVH.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).
@@ -192,6 +199,7 @@ class Config:
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool = True
+    tiled_features: bool = True
     skip_idle: bool = True
     sleep_speed: float = 3.0e-3
     sleep_frames: int = 10

@@ -8,6 +8,8 @@ import warp as wp
 
 import physhand_mj as ph
 from physhand_mj.contact import Contact, Objects
+from physhand_mj.contact.features import closest_signed, closest_signed_tiled
+from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.sdf import geom_sdf_grad
 from physhand_mj.types import GeomType, Placement, Strategy
 
@@ -342,3 +344,191 @@ def test_a_solver_with_an_empty_objects_container_steps():
     state = solver.make_state()
     out = solver.step(state)
     assert out["nonfinite"] == 0 and out.get("penetration_count", 0) == 0
+
+
+@wp.kernel
+def _feature_query_bvh(skin: wp.uint64, feat: wp.array(dtype=int), pts: wp.array(dtype=wp.vec3),
+                       pts_geom: wp.array(dtype=int), pose: wp.array(dtype=wp.transform), near: float, far: float,
+                       faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=float)):
+    k = wp.tid()
+    p = object_point(feat[k], pts, pts_geom, pose)
+    q = closest_signed(skin, p, near, far)
+    out[k, 0] = -1.0
+    if q.result:
+        c = x[faces[q.face, 0]] * q.u + x[faces[q.face, 1]] * q.v + x[faces[q.face, 2]] * (1.0 - q.u - q.v)
+        out[k, 0] = float(q.face)
+        out[k, 1] = wp.length(p - c)
+        out[k, 2] = q.sign
+
+
+@wp.kernel
+def _feature_query_tiled(tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), feat: wp.array(dtype=int),
+                         pts: wp.array(dtype=wp.vec3), pts_geom: wp.array(dtype=int),
+                         pose: wp.array(dtype=wp.transform), far: float, eps: float, faces: wp.array2d(dtype=int),
+                         x: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=float)):
+    k, lane = wp.tid()
+    p = object_point(feat[k], pts, pts_geom, pose)
+    found, f, u, v, sign = closest_signed_tiled(p, lane, faces, x, tris, tri_count, far, eps)
+    if lane == 0:
+        out[k, 0] = -1.0
+        if found:
+            c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
+            out[k, 0] = float(f)
+            out[k, 1] = wp.length(p - c)
+            out[k, 2] = sign
+
+
+def _feature_pass(c, state, feats, tiled: bool):
+    """One pass's feature corrections (features.py) of the listed features ``feats`` on ``state``:
+    the per-vertex mean correction (n_vertices, 3) and weights, by the BVH kernel or the tiled one
+    (one thread per block on the CPU); the skin is not moved."""
+    from physhand_mj.contact.features import feature_contact, feature_contact_tiled
+
+    m, o, cfg, d = c.model, c.objects, c.config, "cpu"
+    n = m.n_vertices
+    delta, hits = wp.zeros(n, dtype=wp.vec3, device=d), wp.zeros(n, dtype=float, device=d)
+    touched, count, vobj = wp.zeros(n, dtype=int, device=d), wp.zeros(1, dtype=int, device=d), wp.full(n, -1, dtype=int, device=d)
+    lst = wp.array(np.asarray(feats, np.int32), dtype=int, device=d)
+    lst_count = wp.array([len(feats)], dtype=int, device=d)
+    if tiled:
+        wp.launch(feature_contact_tiled, (len(feats), 1),
+                  [m.skin_faces, c.cand, c.cand_count, lst, lst_count, c.points.pts, c.points.geom, o.pose, o.obj,
+                   cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, c.feature_eps, state.x],
+                  [delta, hits, touched, count, vobj], device=d, block_dim=1)
+    else:
+        skin = c.volume(state, winding=False).mesh
+        skin.refit()
+        wp.launch(feature_contact, len(feats),
+                  [skin.id, m.skin_faces, lst, lst_count, c.points.pts, c.points.geom, o.pose, o.obj,
+                   cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, c.near_query, state.x],
+                  [delta, hits, touched, count, vobj], device=d)
+    h = hits.numpy().astype(float)
+    return delta.numpy().astype(float) / np.maximum(h, 1e-300)[:, None], h
+
+
+def test_tiled_feature_query_matches_the_bvh_query():
+    """features.py's block-per-feature query (CUDA's Config.tiled_features; on the CPU a block is one
+    thread, which scans the whole list) over the frame's broadphase list of skin triangles finds,
+    for every listed feature of the knife 1.5 mm deeper in the palm than the contact left it (many
+    inside the skin), the BVH query's closest distance (within 1e-7 m: the same triangle, or another
+    at the same distance where the closest point is a shared edge or corner) and sign; one pass's
+    corrections agree where the triangle is the same."""
+    from physhand_mj.cases import press_case, run_case, site_point
+
+    asset = ph.load_asset()
+    r = run_case(press_case("knife", site="palm", depth=0.004, start=-0.004), ph.Config(device="cpu"), frames=2,
+                 asset=asset)
+    c, state, objs = r["solver"].contact, r["state"], r["objects"]
+    _, n = site_point(asset, "palm")
+    objs.set_poses((r["object_pos"] - 0.0015 * n)[None], r["object_quat"][None])
+    x0 = state.x.numpy().copy()
+    c.run_stage(state)  # the frame's triangle and feature lists for this pose
+    state.x.assign(x0)
+    k = int(c.feat_count.numpy()[0])
+    assert k > 100 and int(c.cand_count.numpy()[0]) > 100
+    out = {}
+    cfg = c.config
+    for tiled in (False, True):
+        o = wp.zeros((k, 3), dtype=float, device="cpu")
+        if tiled:
+            wp.launch(_feature_query_tiled, (k, 1), [c.cand, c.cand_count, c.feat, c.points.pts, c.points.geom,
+                                                     objs.pose, cfg.contact_frame_margin, c.feature_eps,
+                                                     c.model.skin_faces, state.x, o], device="cpu", block_dim=1)
+        else:
+            skin = c.volume(state, winding=False).mesh
+            skin.refit()
+            wp.launch(_feature_query_bvh, k, [skin.id, c.feat, c.points.pts, c.points.geom, objs.pose, c.near_query,
+                                              cfg.contact_frame_margin, c.model.skin_faces, state.x, o], device="cpu")
+        out[tiled] = o.numpy().astype(float)
+    a, b = out[False], out[True]
+    assert np.all(a[:, 0] >= 0) and np.all(b[:, 0] >= 0)  # every listed feature is within the frame margin
+    assert np.abs(a[:, 1] - b[:, 1]).max() < 1e-7, np.abs(a[:, 1] - b[:, 1]).max()
+    assert np.array_equal(a[:, 2], b[:, 2])
+    assert (a[:, 2] < 0).sum() > 20, (a[:, 2] < 0).sum()  # features inside the skin
+    same = np.flatnonzero(a[:, 0] == b[:, 0])
+    assert len(same) > 0.7 * k, (len(same), k)
+    feats = c.feat.numpy()[same]
+    (d0, h0), (d1, h1) = (_feature_pass(c, state, feats, t) for t in (False, True))
+    assert np.array_equal(h0 > 0, h1 > 0) and (h0 > 0).sum() > 10
+    assert np.allclose(h0, h1, rtol=1e-5) and np.abs(d0 - d1).max() < 1e-9, np.abs(d0 - d1).max()
+
+
+def test_tiled_features_hold_the_hard_case_on_the_cpu(monkeypatch):
+    """The tiled feature path recorded into the solver's frame (forced on the CPU, where a block is
+    one thread: CUDA's launches and arguments, no BVH refit per stage and pass) ends the knife
+    starting 4 mm deep at the fingertip at zero by both measures, like the BVH path."""
+    from physhand_mj.cases import press_case, run_case
+
+    init = Contact.__init__
+
+    def tiled_init(self, *args, **kw):
+        init(self, *args, **kw)
+        self.tiled_features = True
+
+    monkeypatch.setattr(Contact, "__init__", tiled_init)
+    r = run_case(press_case("knife", site="fingertip", depth=0.004, start=-0.004), ph.Config(device="cpu"), frames=14)
+    assert r["solver"].contact.tiled_features
+    msg = {k: r[k][-4:].tolist() for k in ("skin_count", "dense_count", "dense_max_um", "obj_count", "obj_max_um")}
+    assert r["finite"] and np.all(r["skin_count"][-4:] == 0) and np.all(r["dense_count"][-4:] == 0), msg
+    assert np.all(r["obj_count"][-4:] == 0), msg
+
+
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
+@pytest.mark.parametrize("kind, site, start", [("knife", "fingertip", -0.004), ("cone_tip", "fingertip", 0.002),
+                                               ("mesh_cone", "palm", -0.004), ("coarse", "palm", -0.004)])
+def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
+    """CUDA (graph captured): the block-per-feature kernels (Config.tiled_features, a block of
+    FEATURE_LANES threads per feature over the frame's triangle list, no BVH refit per pass) and the
+    BVH path both end the hard cases at zero by both measures (tests/test_hard_contact.py's bounds)
+    with the skins close: a feature whose closest skin point is a shared vertex or edge may be
+    pushed along another tied face's normal, and deep starts amplify that (the CPU, the tiled path
+    forced there against the BVH one: up to 2.9 mm at one vertex of the knife in the palm, 99% of
+    the vertices within 0.27 mm, the final largest displacements within 0.2 mm); and on the final
+    state the tiled query (FEATURE_LANES lanes) agrees with the BVH query for every listed feature."""
+    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.contact.features import FEATURE_LANES
+
+    asset = ph.load_asset()
+    out = {}
+    for tiled in (False, True):
+        r = run_case(press_case(kind, site=site, depth=0.004, start=start),
+                     ph.Config(device="cuda", tiled_features=tiled), frames=14, asset=asset)
+        c = r["solver"].contact
+        assert c.tiled_features == tiled and (c.feature_lanes == FEATURE_LANES)
+        msg = {k: r[k][-4:].tolist() for k in ("skin_count", "dense_count", "dense_max_um", "obj_count", "obj_max_um")}
+        assert r["finite"], msg
+        assert np.all(r["skin_count"][-4:] == 0) and np.all(r["dense_count"][-4:] == 0), (tiled, msg)
+        assert np.all(r["obj_count"][-4:] == 0), (tiled, msg)
+        assert r["max_disp_mm"][-1] < 12.0, r["max_disp_mm"].tolist()
+        out[tiled] = r
+    d = np.linalg.norm(out[True]["skin"] - out[False]["skin"], axis=1)
+    assert np.percentile(d, 99) < 5e-4 and d.max() < 5e-3, (np.percentile(d, 99), d.max())
+    assert abs(out[True]["max_disp_mm"][-1] - out[False]["max_disp_mm"][-1]) < 1.0
+    # the query itself on the final state: the tiled kernel launched as on CUDA (FEATURE_LANES lanes)
+    r = out[True]
+    c, state, objs, cfg = r["solver"].contact, r["state"], r["objects"], r["solver"].config
+    x0 = state.x.numpy().copy()
+    c.run_stage(state)  # the frame's triangle and feature lists for this state
+    state.x.assign(x0)
+    k = int(c.feat_count.numpy()[0])
+    if k:
+        res = {}
+        for tiled in (False, True):
+            o = wp.zeros((k, 3), dtype=float, device="cuda")
+            if tiled:
+                wp.launch(_feature_query_tiled, (k, FEATURE_LANES),
+                          [c.cand, c.cand_count, c.feat, c.points.pts, c.points.geom, objs.pose,
+                           cfg.contact_frame_margin, c.feature_eps, c.model.skin_faces, state.x, o], device="cuda",
+                          block_dim=FEATURE_LANES)
+            else:
+                skin = c.volume(state, winding=False).mesh
+                skin.refit()
+                wp.launch(_feature_query_bvh, k, [skin.id, c.feat, c.points.pts, c.points.geom, objs.pose,
+                                                  c.near_query, cfg.contact_frame_margin, c.model.skin_faces, state.x,
+                                                  o], device="cuda")
+            res[tiled] = o.numpy().astype(float)
+        a, b = res[False], res[True]
+        assert np.array_equal(a[:, 0] >= 0, b[:, 0] >= 0)
+        hit = a[:, 0] >= 0
+        assert np.abs(a[hit, 1] - b[hit, 1]).max(initial=0.0) < 1e-7
+        assert np.array_equal(a[hit, 2], b[hit, 2])

@@ -10,7 +10,8 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
-from physhand_mj.contact.features import feature_contact, near_features, stage_features
+from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_tiled, near_features,
+                                          stage_features, stage_features_tiled)
 from physhand_mj.contact.inside import ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
@@ -100,6 +101,17 @@ class Contact:
         self.near_query = float(min(config.contact_frame_margin, max(4.0 * config.contact_margin, 1.0e-3)))
         self.feat_stage = None  # the stage's features: inside the skin or within contact_margin of it
         self.feat_stage_counts = wp.zeros(max(stages, 1), dtype=int, device=d)  # one per stage of a frame
+        # CUDA: the stage's and passes' feature queries by a block per feature over the frame's
+        # triangle list (features.py, stage_features_tiled / feature_contact_tiled; no skin BVH refit
+        # per stage and pass); lanes per block: FEATURE_LANES on CUDA, 1 on the CPU (a block is one
+        # thread there: the CPU runs these kernels only when a test sets tiled_features)
+        self.tiled_features = bool(wp.get_device(d).is_cuda and config.tiled_features)
+        self.feature_lanes = FEATURE_LANES if wp.get_device(d).is_cuda else 1
+        # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
+        # mesh_query_point_sign_normal), here of the rest skin's
+        rest = model.rest_x.numpy()[f] if len(f) else np.zeros((0, 3, 3))
+        edges = np.linalg.norm(rest - np.roll(rest, -1, axis=1), axis=2)
+        self.feature_eps = float(1.0e-3 * edges.mean()) if len(f) else 0.0
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
                                        pinned=wp.get_device(d).is_cuda)
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
@@ -180,7 +192,14 @@ class Contact:
         launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
                                               self.bound, self.bound_mask, self.eval_x], list(lst),
                count=self.active_count)
-        if self.feat is not None:  # the stage's features (features.py)
+        if self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA)
+            feat_count = self.feat_stage_counts[stage: stage + 1]
+            skin = None
+            launch(stage_features_tiled, (self.points.n_features, self.feature_lanes),
+                   [m.skin_faces, state.x, self.cand, self.cand_count, self.feat, self.feat_count, self.points.pts,
+                    self.points.geom, o.pose, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps],
+                   [self.feat_stage, feat_count], block_dim=self.feature_lanes)
+        elif self.feat is not None:  # the stage's features (features.py)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = self.volume(state, winding=False).mesh
             ops.append(self._refit_op(skin))
@@ -211,16 +230,24 @@ class Contact:
                     self.touched, self.touched_count]
             if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
                 # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
-                if p:  # (pass 0 sees the skin stage_features refitted for)
+                if p and not self.tiled_features:  # (pass 0 sees the skin stage_features refitted for)
                     ops.append(self._refit_op(skin, feat_count))
                 moved_slots.append(self._slot)
                 feat_touched = self._counter()
-                launch(feature_contact, self.points.n_features,
-                       [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
-                        o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin, self.near_query,
-                        state.x],
-                       [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
-                       count=feat_count)
+                if self.tiled_features:  # CUDA: a block per feature over the frame's triangle list
+                    launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
+                           [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
+                            self.points.geom, o.pose, o.obj, cfg.contact_frame_margin, cfg.contact_offset,
+                            cfg.contact_margin, self.feature_eps, state.x],
+                           [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                           block_dim=self.feature_lanes)
+                else:
+                    launch(feature_contact, self.points.n_features,
+                           [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
+                            o.pose, o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin,
+                            self.near_query, state.x],
+                           [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                           count=feat_count)
                 launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
                        [state.x, self.push, self.moved, self.disp], count=feat_touched)
                 self._tally_touched(launch, p, feat_touched)
