@@ -32,7 +32,8 @@ PAPER = {"feature_contact": False, "side_aware": False, "skin_tether": 0.0}  # t
 METHODS = (("vertex", Strategy.VERTEX, PAPER), ("opt", Strategy.OPT, PAPER),
            ("multires", Strategy.MULTIRES, PAPER),
            ("multires+features", Strategy.MULTIRES, {"feature_contact": True, "side_aware": False}),
-           ("default", Strategy.MULTIRES, {}))  # multires + features + side-aware
+           ("default", Strategy.MULTIRES, {}),
+           ("standoff", Strategy.MULTIRES, {"feature_offset": 6.0e-5}))  # the default, features end 60 um out
 
 
 def main():
@@ -46,8 +47,8 @@ def main():
     a = ap.parse_args()
     asset = ph.load_asset()
     rows = []
-    print("| case | site | start | method | skin (order 5) | skin (order 9) | object in skin | max disp mm | ms |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| case | site | start | method | skin (order 5) | skin (order 9) | object in skin | object in skin (check) | max disp mm | ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for kind in a.kinds.split(","):
         for site in ("fingertip", "palm"):
             for start in [{"press": 0.002, "deep": -0.004}[k] for k in a.starts.split(",")]:
@@ -59,6 +60,8 @@ def main():
                                skin_count=int(r["skin_count"][-1]), skin_max_um=float(r["skin_max_um"][-1]),
                                dense_count=int(r["dense_count"][-1]), dense_max_um=float(r["dense_max_um"][-1]),
                                obj_count=int(r["obj_count"][-1]), obj_max_um=float(r["obj_max_um"][-1]),
+                               check_count=int(r["check_count"][-1]), check_max_um=float(r["check_max_um"][-1]),
+                               hold_check=int(r["check_count"][-4:].max()),
                                max_disp_mm=float(r["max_disp_mm"].max()), finite=bool(r["finite"]),
                                # the worst of the last 4 frames (the tests hold these at zero)
                                hold_skin=int(r["skin_count"][-4:].max()), hold_dense=int(r["dense_count"][-4:].max()),
@@ -68,6 +71,7 @@ def main():
                     print(f"| {kind} | {site} | {'deep' if start < 0 else 'press'} | {name} | "
                           f"{row['skin_count']} / {row['skin_max_um']:.1f} | {row['dense_count']} / "
                           f"{row['dense_max_um']:.1f} | {row['obj_count']} / {row['obj_max_um']:.1f} | "
+                          f"{row['check_count']} / {row['check_max_um']:.1f} | "
                           f"{row['max_disp_mm']:.1f} | {row['ms_per_frame']:.1f} |", flush=True)
     res = dict(device=a.device, device_name=device_name(a.device), frames=a.frames, rows=rows)
     if a.out:

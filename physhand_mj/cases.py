@@ -137,7 +137,9 @@ def press_case(kind: str, site: str = "fingertip", depth: float = 0.003, start: 
 def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=None, progress=None) -> dict:
     """Run ``case`` for ``frames`` frames; returns per-frame arrays of both measures
     (``skin_count``/``skin_max_um``: the order-5 metric; ``dense_count``/``dense_max_um``: order
-    ``check_order``; ``obj_count``/``obj_max_um``: object points inside the skin), the largest
+    ``check_order``; ``obj_count``/``obj_max_um``: object points inside the skin; ``check_count``/
+    ``check_max_um``: the denser object points of ``Contact.check_points``, which the contact never
+    uses), the largest
     skin displacement from the rest shape (``max_disp_mm``), finiteness, ms per frame, the final
     skin (``skin``), the object's last pose (``object_pos`` m, ``object_quat`` w x y z) and the
     solver pieces (``solver``, ``state``, ``objects``)."""
@@ -171,7 +173,7 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
     state = solver.make_state()
     rest = state.x.numpy()[: asset.n_skin].astype(float).copy()
     rows = {k: [] for k in ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "obj_count", "obj_max_um",
-                            "max_disp_mm", "ms")}
+                            "check_count", "check_max_um", "max_disp_mm", "ms")}
     finite = True
     pos = place(-case.start)
     for f in range(frames):
@@ -183,7 +185,7 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
         rows["ms"].append((time.perf_counter() - t) * 1e3)
         c = solver.contact
         m5 = summarize(c.measure(state, order=5))
-        md = summarize(c.measure(state, order=check_order, objects_side=False))
+        md = summarize(c.measure(state, order=check_order, check=True))
         x = state.x.numpy()[: asset.n_skin].astype(float)
         finite = finite and bool(np.all(np.isfinite(state.x.numpy())))
         rows["skin_count"].append(m5["penetration_count"])
@@ -192,6 +194,8 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
         rows["obj_max_um"].append(m5["object_in_skin_max_um"])
         rows["dense_count"].append(md["penetration_count"])
         rows["dense_max_um"].append(md["penetration_max_um"])
+        rows["check_count"].append(md["object_in_skin_count"])
+        rows["check_max_um"].append(md["object_in_skin_max_um"])
         rows["max_disp_mm"].append(float(np.nanmax(np.linalg.norm(x - rest, axis=1))) * 1e3)
         if progress is not None:
             progress(f)

@@ -119,7 +119,11 @@ class Config:
         micrometre at sharp edges, both of which would otherwise leave samples a hair inside);
         feature_contact: also push the skin off object features (corners, tips, sharp edges) that lie
         inside it (contact/features.py: the object's side of the contact, which the skin's decision
-        points cannot see when a feature is smaller than a triangle);
+        points cannot see when a feature is smaller than a triangle); feature_offset: how far
+        outside the skin such a feature point ends (m; 60 um: edges are sampled every 0.5 mm and
+        skin bent over an edge bulges past it between two samples, which a 4x denser check finds
+        up to 30 um inside the skin when features end 1 um out; 50-70 um clear the hard cases,
+        80 um and more let a 1 mm plate tunnel: docs/contact.md);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
@@ -188,6 +192,7 @@ class Config:
     contact_margin: float = 5.0e-4
     contact_frame_margin: float = 1.0e-2
     contact_offset: float = 1.0e-6
+    feature_offset: float = 6.0e-5
     multires_samples: int = 21
     multires_rounds: int = 2
     opt_queries: int = 32
@@ -236,6 +241,7 @@ class Config:
         nonneg("skin_tether")
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
+        nonneg("feature_offset")
         nonneg("sleep_speed")
         nonneg("sleep_bone_motion")
         if not (isinstance(self.sleep_frames, int) and self.sleep_frames >= 1):

@@ -18,6 +18,12 @@ from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_proj
 from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 from physhand_mj.types import Config, Model, Placement, Strategy
 
+# m, the independent check's object points (Contact.check_points): edges at a quarter of the
+# features' 0.5 mm spacing (midpoints of 4x as many segments: none coincides with a feature point),
+# the surface at half the measure's 1 mm
+CHECK_EDGE_SPACING = 1.25e-4
+CHECK_SURFACE_SPACING = 5.0e-4
+
 
 def _same_device(a, b) -> bool:
     """Whether two device names name one device ("cuda" and "cuda:0" do); unknown names differ."""
@@ -89,6 +95,7 @@ class Contact:
         self._metrics_host = wp.zeros((w * (config.substeps + 1), 6), dtype=float, device="cpu",
                                       pinned=wp.get_device(d).is_cuda)
         self._points = None  # ObjectPoints, built at the first recording (objects are final then)
+        self._check_points = None  # the denser check set (check_points), built on first use
         self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         f = model.skin_faces.numpy()
@@ -237,14 +244,14 @@ class Contact:
                 if self.tiled_features:  # CUDA: a block per feature over the frame's triangle list
                     launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
                            [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
-                            self.points.geom, o.pose, o.obj, cfg.contact_frame_margin, cfg.contact_offset,
+                            self.points.geom, o.pose, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
                             cfg.contact_margin, self.feature_eps, state.x],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            block_dim=self.feature_lanes)
                 else:
                     launch(feature_contact, self.points.n_features,
                            [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
-                            o.pose, o.obj, cfg.contact_frame_margin, cfg.contact_offset, cfg.contact_margin,
+                            o.pose, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
                             self.near_query, state.x],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            count=feat_count)
@@ -295,6 +302,18 @@ class Contact:
             self._points = ObjectPoints(self.objects)
         return self._points
 
+    @property
+    def check_points(self) -> ObjectPoints:
+        """A denser set of object surface points that the contact never uses: edges every
+        CHECK_EDGE_SPACING (a quarter of the features' spacing, none of their points: edge points sit
+        at segment midpoints), the surface every CHECK_SURFACE_SPACING. The independent check of the
+        second measure (the feature push works on :attr:`points`' corners and edges, so a
+        measure on those same points would share the method's own samples)."""
+        if self._check_points is None:
+            self._check_points = ObjectPoints(self.objects, edge_spacing=CHECK_EDGE_SPACING,
+                                              surface_spacing=CHECK_SURFACE_SPACING)
+        return self._check_points
+
     def volume(self, state, winding: bool = True) -> SkinVolume:
         """The closed skin of ``state`` as a mesh, with winding-number data or not (made on first use)."""
         key = (id(state.x), winding)
@@ -312,11 +331,11 @@ class Contact:
         return lambda: mesh.refit() if count[0] else None
 
     def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
-                       order: int = 5):
+                       order: int = 5, points: ObjectPoints | None = None):
         """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
         metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2) and, with
-        ``objects_side``, object surface points inside the closed skin (columns 3-5). ``obj`` >= 0:
-        that object only."""
+        ``objects_side``, object surface points inside the closed skin (columns 3-5; ``points``, default
+        :attr:`points`). ``obj`` >= 0: that object only."""
         m, o = self.model, self.objects
         out = self.metrics if out is None else out
         if not self.n_tris:
@@ -326,7 +345,7 @@ class Contact:
         launch(penetration_samples, self.n_tris,
                [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count, v["obj"],
                 obj, row, order, self.tris_per_world, per], [out])
-        pts = self.points
+        pts = self.points if points is None else points
         if objects_side and self.closed_skin and len(pts):
             vol = self.volume(state)
             ops += vol.ops()
@@ -344,13 +363,16 @@ class Contact:
         return self._views
 
     # -- host side ---------------------------------------------------------------------------------
-    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True) -> np.ndarray:
+    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+                check: bool = False) -> np.ndarray:
         """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
         sum depth m, max depth m] of skin samples inside objects, then of object points inside the
-        skin. Runs at once, outside any frame (reports, pictures, checks)."""
-        return reduce_worlds(self.measure_worlds(state, obj, order, objects_side))
+        skin (``check``: the denser :attr:`check_points` instead of the contact's own points). Runs
+        at once, outside any frame (reports, pictures, checks)."""
+        return reduce_worlds(self.measure_worlds(state, obj, order, objects_side, check))
 
-    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True) -> np.ndarray:
+    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+                       check: bool = False) -> np.ndarray:
         """:meth:`measure` per world: (W, 6) float rows, world w's skin against world w's objects
         (batched worlds, physhand_mj/batch.py; one world: (1, 6))."""
         d = self.model.device
@@ -360,7 +382,8 @@ class Contact:
         def launch(kernel, dim, inputs, outputs, **_):
             ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
 
-        self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order)
+        self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
+                            points=self.check_points if check else None)
         for op in ops:
             op()
         return out.numpy().astype(float)
