@@ -101,6 +101,8 @@ class Solver:
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
+        self._sleep_graphs: dict[tuple, object] = {}  # CUDA: the sleeping frame's ops, captured
+        self._carrier_host = model.vertex_carrier.numpy()  # each vertex's carrier bone (sleeping)
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
         self._h = h
@@ -200,6 +202,8 @@ class Solver:
             ops = self._ops[key] = self._record_frame(state, key)
             self.activity.finish_recording(ops, self._pre.get(key, []))
         act = self.activity
+        if not first and rigid and self._asleep_and_alone(state, frame_poses):
+            return self._sleep_frame(state, key)  # (CUDA: no broadphase ahead, no extra sync)
         if act.gate_ahead:  # the frame broadphase ahead of the frame: its count picks the graph
             for op in self._pre[key]:
                 op()
@@ -247,7 +251,7 @@ class Solver:
         if self.config.sleep_speed > 0 and not g[3] and rigid is None:
             rigid = frame_rigid(*frame_poses, self.config.sleep_bone_motion)
         state.still = state.still + 1 if rigid and not g[3] else 0
-        state.sleep_onset = None
+        state.sleep_onset = state.sleep_box = None
         out["asleep"] = False
         if out["nonfinite"] and self.config.nonfinite == NonFinite.RAISE:
             raise SolverError(f"{out['nonfinite']} vertex positions turned non-finite in frame "
@@ -267,31 +271,88 @@ class Solver:
             return not act.open1
         return act.enabled and act.objects_near == 0
 
+    def _asleep_and_alone(self, state: State, poses) -> bool:
+        """CUDA, a hand that slept last frame and may sleep on: is every object farther than
+        Config.contact_frame_margin from its skin? Decided on the host, without the frame broadphase
+        run ahead and its sync: the sleeping skin rides rigidly with its carrier bones, so the box of
+        each bone's sleeping vertices in that bone's frame (taken once when it fell asleep,
+        ``State.sleep_box``), placed at the frame's start and end poses, bounds the skin all frame;
+        the objects' bounding spheres are tested against that box (activity.objects_near, the CPU's
+        level-0 test). False sends the frame down the usual path (broadphase ahead, then sleep or
+        not). One world only."""
+        from physhand_mj.activity import objects_near
+
+        box = state.sleep_box
+        if box is None or self.contact is None or not self.activity.gate_ahead or not self._settled(state):
+            return False
+        corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
+        local = np.where(corners[None] == 1, box[:, 1][:, None], box[:, 0][:, None])  # (B, 8, 3)
+        world = []
+        for pose in poses:
+            p = pose[:, :3].astype(np.float64)
+            r = quat_to_mat(np.concatenate([pose[:, 6:7], pose[:, 3:6]], axis=1).astype(np.float64))
+            world.append(np.einsum("bij,bkj->bki", r, local) + p[:, None])
+        world = np.concatenate(world, axis=1)[state.sleep_bones].reshape(-1, 3)
+        near = objects_near(self.contact.objects, world.min(axis=0), world.max(axis=0),
+                            self.config.contact_frame_margin)
+        self.activity.objects_near = near
+        return near == 0
+
+    def _take_sleep_box(self, state: State) -> None:
+        """CUDA, the first sleeping frame: each carrier bone's sleeping skin vertices as a box in the
+        bone's frame at the frame's end pose (see :meth:`_asleep_and_alone`); one copy of the skin."""
+        m = self.model
+        if not (self.activity.gate_ahead and self.contact is not None and int(getattr(m, "worlds", 1)) == 1):
+            return
+        x = state.x.numpy()[: m.n_skin].astype(np.float64)
+        carrier = self._carrier_host[: m.n_skin]
+        pose = state.pose_host[0].astype(np.float64)  # the frame's end poses (step moved them up)
+        r = quat_to_mat(np.concatenate([pose[:, 6:7], pose[:, 3:6]], axis=1))
+        local = np.einsum("nji,nj->ni", r[carrier], x - pose[carrier, :3])  # R^T (x - p)
+        bones = np.unique(carrier)
+        box = np.zeros((len(pose), 2, 3))
+        for b in bones:
+            sel = local[carrier == b]
+            box[b] = sel.min(axis=0), sel.max(axis=0)
+        state.sleep_box, state.sleep_bones = box, bones
+
     def _sleep_frame(self, state: State, key) -> dict:
-        """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed."""
+        """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
+        (CUDA: one captured graph)."""
         ops = self._sleep_ops.get(key)
         if ops is None:
             m, d = self.model, self.device
             ops = [state.guard.zero_]
             if self.contact is not None:
                 self.contact.begin_frame(ops)
-                if not self.activity.gate_ahead:  # (run ahead on CUDA, which zeroes them)
-                    ops.append(self.contact.counters.zero_)
+                ops.append(self.contact.counters.zero_)  # (CUDA: also when the broadphase did not run ahead)
             cmd = wp.launch(integrate.carry_asleep, m.n_vertices,
                             inputs=[m.vertex_carrier, m.vertex_world, state.body_pose, float(self.config.frame_dt)],
                             outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
                             record_cmd=True)
             ops.append(cmd.launch)
             self._sleep_ops[key] = ops
-        for op in ops:
-            op()
+        ahead = self.activity.gate_ahead and state.sleep_box is None  # (CUDA: the broadphase ran ahead)
+        if self._capturable():
+            graph = self._sleep_graphs.get(key)
+            if graph is None:
+                with wp.ScopedCapture(device=self.device) as cap:
+                    for op in ops:
+                        op()
+                graph = self._sleep_graphs[key] = cap.graph
+            wp.capture_launch(graph)
+        else:
+            for op in ops:
+                op()
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None:
             self.contact.copy_metrics()
         wp.synchronize_device(self.device)
         state.time += self.config.frame_dt
         state.frames += 1
-        ahead = len(self._pre.get(key, ())) * int(self.activity.gate_ahead)  # (CUDA: the broadphase ran)
+        if state.sleep_box is None:
+            self._take_sleep_box(state)
+        ahead = len(self._pre.get(key, ())) * int(ahead)
         near = self.activity.objects_near if self.contact is not None else 0
         self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                   features_listed=0, ops_run=len(ops) + ahead, contact_ops_run=ahead)
@@ -308,7 +369,7 @@ class Solver:
     def wake(self, state: State) -> None:
         """Forget that ``state`` had settled (it sleeps again after Config.sleep_frames still frames)."""
         state.still = 0
-        state.sleep_onset = None
+        state.sleep_onset = state.sleep_box = None
 
     def _contact_summary(self, out: dict) -> None:
         """The frame's penetration summary (its metrics row, read at the frame's sync) into ``out``."""
@@ -351,7 +412,7 @@ class Solver:
         if np.linalg.norm(vel - vel0) > cfg.sleep_speed or bone_motion(onset, p1) > cfg.sleep_bone_motion \
                 or _turn(onset[0], p1[0]) > SLEEP_TURN:
             state.still = 0
-            state.sleep_onset = None
+            state.sleep_onset = state.sleep_box = None
             return False
         return True
 
