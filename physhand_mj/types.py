@@ -384,5 +384,4 @@ class State:
     frames: int = 0
     still: int = 0  # frames in a row that ended settled (the sleep test, activity.py)
     sleep_onset: object = None  # asleep: (bone poses (B, 7) when it fell asleep, first bone's velocity m/s)
-    sleep_box: object = None  # asleep on CUDA: per carrier bone, the sleeping skin's box in its frame (B, 2, 3) m
-    sleep_bones: object = None  # the carrier bones those boxes hold (indices into sleep_box)
+    sleep_box: object = None  # asleep on CUDA: the sleeping skin's box corners in the first bone's frame (8, 3) m

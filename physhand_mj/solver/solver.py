@@ -34,6 +34,9 @@ wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
 SLEEP_TURN = math.radians(2.0)  # rad: the first bone's turn since the hand fell asleep that wakes it
+# m, the sleeping skin's box (Solver._asleep_and_alone) is grown by this: its bones may drift up to
+# Config.sleep_bone_motion (10 um at a 0.1 m lever) from one rigid motion before the hand wakes
+SLEEP_BOX_SLACK = 1.0e-3
 
 
 def _turn(a: np.ndarray, b: np.ndarray) -> float:
@@ -274,47 +277,42 @@ class Solver:
     def _asleep_and_alone(self, state: State, poses) -> bool:
         """CUDA, a hand that slept last frame and may sleep on: is every object farther than
         Config.contact_frame_margin from its skin? Decided on the host, without the frame broadphase
-        run ahead and its sync: the sleeping skin rides rigidly with its carrier bones, so the box of
-        each bone's sleeping vertices in that bone's frame (taken once when it fell asleep,
-        ``State.sleep_box``), placed at the frame's start and end poses, bounds the skin all frame;
-        the objects' bounding spheres are tested against that box (activity.objects_near, the CPU's
-        level-0 test). False sends the frame down the usual path (broadphase ahead, then sleep or
-        not). One world only."""
+        run ahead and its sync. Asleep, the bones move as one rigid body (within
+        Config.sleep_bone_motion of it since the hand fell asleep, else it wakes) and the skin rides
+        with them, so the sleeping skin's box in the first bone's frame (taken once when it fell
+        asleep, ``State.sleep_box``, grown by SLEEP_BOX_SLACK), placed at the frame's start and end
+        poses of that bone, bounds the skin all frame; the objects' bounding spheres are tested
+        against the world box around those two (activity.objects_near, the CPU's level-0 test).
+        False sends the frame down the usual path (broadphase ahead, then sleep or not). One world.
+        """
         from physhand_mj.activity import objects_near
 
         box = state.sleep_box
         if box is None or self.contact is None or not self.activity.gate_ahead or not self._settled(state):
             return False
-        corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
-        local = np.where(corners[None] == 1, box[:, 1][:, None], box[:, 0][:, None])  # (B, 8, 3)
-        world = []
+        corners = []
         for pose in poses:
-            p = pose[:, :3].astype(np.float64)
-            r = quat_to_mat(np.concatenate([pose[:, 6:7], pose[:, 3:6]], axis=1).astype(np.float64))
-            world.append(np.einsum("bij,bkj->bki", r, local) + p[:, None])
-        world = np.concatenate(world, axis=1)[state.sleep_bones].reshape(-1, 3)
+            p, q = pose[0, :3].astype(np.float64), pose[0, [6, 3, 4, 5]].astype(np.float64)
+            corners.append(box @ quat_to_mat(q).T + p)
+        world = np.concatenate(corners)
         near = objects_near(self.contact.objects, world.min(axis=0), world.max(axis=0),
                             self.config.contact_frame_margin)
         self.activity.objects_near = near
         return near == 0
 
     def _take_sleep_box(self, state: State) -> None:
-        """CUDA, the first sleeping frame: each carrier bone's sleeping skin vertices as a box in the
-        bone's frame at the frame's end pose (see :meth:`_asleep_and_alone`); one copy of the skin."""
+        """CUDA, the first sleeping frame: the skin's 8 box corners in the first bone's frame at the
+        frame's end pose (see :meth:`_asleep_and_alone`); one copy of the skin to the host."""
         m = self.model
-        if not (self.activity.gate_ahead and self.contact is not None and int(getattr(m, "worlds", 1)) == 1):
+        if not (self.activity.gate_ahead and self.contact is not None and m.n_bodies
+                and int(getattr(m, "worlds", 1)) == 1):
             return
         x = state.x.numpy()[: m.n_skin].astype(np.float64)
-        carrier = self._carrier_host[: m.n_skin]
-        pose = state.pose_host[0].astype(np.float64)  # the frame's end poses (step moved them up)
-        r = quat_to_mat(np.concatenate([pose[:, 6:7], pose[:, 3:6]], axis=1))
-        local = np.einsum("nji,nj->ni", r[carrier], x - pose[carrier, :3])  # R^T (x - p)
-        bones = np.unique(carrier)
-        box = np.zeros((len(pose), 2, 3))
-        for b in bones:
-            sel = local[carrier == b]
-            box[b] = sel.min(axis=0), sel.max(axis=0)
-        state.sleep_box, state.sleep_bones = box, bones
+        pose = state.pose_host[0][0].astype(np.float64)  # the frame's end pose (step moved it up)
+        local = (x - pose[:3]) @ quat_to_mat(pose[[6, 3, 4, 5]])  # R^T (x - p), row-wise
+        lo, hi = local.min(axis=0) - SLEEP_BOX_SLACK, local.max(axis=0) + SLEEP_BOX_SLACK
+        pick = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
+        state.sleep_box = np.where(pick == 1, hi, lo)
 
     def _sleep_frame(self, state: State, key) -> dict:
         """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
@@ -409,8 +407,9 @@ class Solver:
             state.sleep_onset = (p0.copy(), vel)
             return True
         onset, vel0 = state.sleep_onset
-        if np.linalg.norm(vel - vel0) > cfg.sleep_speed or bone_motion(onset, p1) > cfg.sleep_bone_motion \
-                or _turn(onset[0], p1[0]) > SLEEP_TURN:
+        moved = not np.array_equal(onset, p1)  # bones where they fell asleep (a still hand): no turn, no drift
+        if np.linalg.norm(vel - vel0) > cfg.sleep_speed or (moved and (
+                bone_motion(onset, p1) > cfg.sleep_bone_motion or _turn(onset[0], p1[0]) > SLEEP_TURN)):
             state.still = 0
             state.sleep_onset = state.sleep_box = None
             return False
