@@ -28,8 +28,8 @@ def scene():
 
 def _solver(scene, gtype=GeomType.SPHERE, size=(R, 0.0, 0.0), **config):
     asset, mount, poses = scene
-    cfg = Config(device="cpu", **config)
-    objects = Objects("cpu", 1)
+    cfg = Config(**{"device": "cpu", **config})
+    objects = Objects(cfg.device, 1)
     objects.add(gtype, size, pos=FAR, name="ball")
     solver = Solver(make_model(asset, cfg), cfg, objects=objects)
     state = solver.make_state(*mount)
@@ -263,10 +263,14 @@ def _moved(poses, rot, shift, about):
     return new_pos, q
 
 
-@pytest.mark.parametrize("ahead", [False, True], ids=["cpu-gates", "cuda-gates"])
-def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene, ahead):
-    """Also along CUDA's path (the broadphase run ahead decides 'no object near'), forced on the CPU."""
-    solver, state, objects, top = _solver(scene)
+@pytest.mark.parametrize("ahead, device", [
+    (False, "cpu"), (True, "cpu"),
+    pytest.param(True, "cuda", marks=pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device"))],
+    ids=["cpu-gates", "cuda-gates", "cuda"])
+def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene, ahead, device):
+    """Also along CUDA's path (the broadphase run ahead decides 'no object near'), forced on the CPU,
+    and on a CUDA device (the sleeping frame a captured graph)."""
+    solver, state, objects, top = _solver(scene, device=device)
     solver.activity.gate_ahead = ahead  # before the first frame records
     poses = scene[2]
     k, out = _until_asleep(solver, state, poses)
