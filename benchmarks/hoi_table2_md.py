@@ -39,8 +39,10 @@ def main():
     idx = {(d, r["scene"], r["contact"]): r for d, run in runs.items() for r in run["rows"]}
     print("; ".join(f"{d.upper()}: {run['device']}" for d, run in runs.items()) + ". Count / max um / avg um over "
           "the 10 substeps of frame 36 (the paper's way); order 9 and object points in the skin at the end of frame 36 "
-          "(count / max um); full frame ms (solver + contact + write-back) and, in brackets, the contact's share.\n")
-    cols = [f"{d.upper()}: {c}" for d in devs for c in ("count / max / avg", "order 9", "object in skin", "ms/frame (contact)")]
+          "(count / max um); check points: the denser object points the contact never uses "
+          "(Contact.check_points; '-': not measured in that run); full frame ms (solver + contact + write-back) and, in brackets, the contact's share.\n")
+    cols = [f"{d.upper()}: {c}" for d in devs for c in ("count / max / avg", "order 9", "object in skin", "check points",
+                                                       "ms/frame (contact)")]
     print("| scene (initial, undeformed) | method | " + " | ".join(cols) + " | paper: count / max / avg | paper contact ms CPU / GPU |")
     print("|---|---|" + "---|" * len(cols) + "---|---|")
     for scene, paper in PAPER.items():
@@ -62,6 +64,7 @@ def main():
             for r in rows:
                 cells += [cell(r, "count", "max_um", "avg_um"), cell(r, "dense_count", "dense_max_um"),
                           cell(r, "obj_count", "obj_max_um"),
+                          cell(r, "check_count", "check_max_um") if r and "check_count" in r else "-",
                           f"{r['ms_per_frame']:.1f} ({r['contact_ms']:.1f})" if r else "-"]
             print(f"| {head} | {s} | " + " | ".join(cells) + f" | {pcell} | {ptime} |")
 

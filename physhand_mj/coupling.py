@@ -289,15 +289,18 @@ class SoftHand:
         c = self.solver.contact
         return c.penetrating_samples(self.state, order) if c is not None else (np.zeros((0, 3)), np.zeros(0))
 
-    def penetration(self, order: int = 5) -> dict:
+    def penetration(self, order: int = 5, check: bool = False) -> dict:
         """Both penetration measures of the skin as it is now (e.g. before the first step):
         penetration_count / _max_um / _avg_um (skin samples on the order-``order`` lattice inside
         objects; the paper's metric is order 5, checks use 9 or more) and object_in_skin_count /
-        _max_um / _avg_um (object surface points inside the closed skin)."""
+        _max_um / _avg_um (object surface points inside the closed skin; ``check``: the denser
+        points of ``Contact.check_points``, none of which the contact's feature push uses)."""
         from physhand_mj.metrics import summarize
 
         if self.solver.contact is None:
             return summarize(np.zeros(6))
+        if check:
+            return summarize(self.solver.contact.measure(self.state, order=order, check=True))
         return summarize(self._measure(order=order))
 
     def metrics(self) -> dict:
