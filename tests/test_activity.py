@@ -292,6 +292,10 @@ def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene, ahea
     assert np.abs(state.x.numpy() - want).max() < 2e-6
     # ... moving with its bones' velocity over the frame
     assert np.abs(state.v.numpy() - (want - x0) / solver.config.frame_dt).max() < 2e-6 / solver.config.frame_dt
+    # held there, still asleep (CUDA's path: the host test cached while nothing moved), the skin unmoved
+    out = _step(solver, state, _moved(poses, rot, shift, about))
+    assert out["asleep"] and out["contact_ops_run"] == 0 and out["objects_near"] == 0
+    assert np.abs(state.x.numpy() - want).max() < 2e-6
     # an object coming within the frame margin wakes it: the contact runs
     objects.set_pose(0, want[np.argmax(want[: solver.model.n_skin, 2])] + [0.0, 0.0, R - 0.001],
                      (1.0, 0.0, 0.0, 0.0))

@@ -293,6 +293,7 @@ class Solver:
         objs = self.contact.objects._host["pose"]
         key = (id(box), poses[0][0].tobytes(), poses[1][0].tobytes(), objs.tobytes())
         if key == self._alone_key:  # this box, its bone and every object where the last test left them
+            self.activity.objects_near = 0
             return True
         corners = []
         for pose in poses:
