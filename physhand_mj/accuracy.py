@@ -11,15 +11,20 @@ workload:
 - ``hoi:<scene>``: a generated HOI grasp (docs/hoi.md) from its keyframe, the hand settled without
   contact first (as ``physhand rollout`` does), then ``frames`` frames of ``SoftHand.step``;
 - ``case:<kind>@<site>``: a hard case (physhand_mj/cases.py) pressed 4 mm into the rest skin from
-  2 mm outside over 15 frames, then held; ``Solver.step`` alone.
+  2 mm outside over 15 frames, then held; ``Solver.step`` alone;
+- ``cone:paper``: the paper's cone experiment (section 4.2; physhand_mj.bench.bench_cone's sheet and
+  cone): a 2,400-vertex open sheet falls on an analytic cone; ``Solver.step``; an open sheet has no
+  inside, so only the skin side is measured (the object features and side-aware exits need a closed
+  skin and do not run: a setting's feature knobs make no difference here).
 
 Measured per run: ms per frame (median of the timed frames: the first frame, which compiles, and on
 CUDA the second, which captures the graph, are excluded; with ``repeats`` > 1 the smallest median
 over the repeats, which run in alternating order so a busy host weighs on every setting alike), and
 both penetration measures (DESIGN.md) at the end of the last frame: skin samples inside the object
 on the metric's order-5 lattice and on an order-9 lattice (count, max um), object surface points
-inside the closed skin (count, max um); ``hold_*``: the worst of the last ``HOLD`` frames (all
-frames when there are fewer).
+inside the closed skin (count, max um), these points being ``Contact.check_points``: edges 4x as
+densely sampled as the features the contact pushes, none of them shared (the independent check,
+docs/contact.md); ``hold_*``: the worst of the last ``HOLD`` frames (all frames when there are fewer).
 
 Per setting: ``ms_per_frame`` = the mean over workloads; ``skin_um`` = the deepest skin sample
 (order 5 or 9) and ``object_um`` = the deepest object point over workloads and the last ``HOLD``
@@ -37,7 +42,7 @@ HOLD = 4  # frames at the end whose worst penetration the Pareto front uses (a s
 # The sharp HOI object (box), a large smooth contact (apple), a cylinder (glass2); a knife edge into the
 # fingertip, a cone tip into the palm, a 1 mm plate edge first into the fingertip.
 WORKLOADS = ("hoi:box", "hoi:apple", "hoi:glass2", "case:knife@fingertip", "case:cone_tip@palm",
-             "case:plate@fingertip")
+             "case:plate@fingertip", "cone:paper")
 QUICK_WORKLOADS = ("hoi:box", "case:knife@fingertip")
 
 
@@ -137,10 +142,10 @@ def _hoi_run(scene: str, pt: SweepPoint, device: str, frames: int, hold_frames: 
         res = hand.step()
         ms.append((time.perf_counter() - t) * 1e3)
         finite = finite and int(res.get("nonfinite", 0)) == 0
-        if f >= frames - hold_frames:  # both measures, not timed
-            p5, p9 = hand.penetration(order=5), hand.penetration(order=9)
+        if f >= frames - hold_frames:  # both measures (the object side on the check points), not timed
+            p5, p9 = hand.penetration(order=5), hand.penetration(order=9, check=True)
             hold.append((p5["penetration_count"], p5["penetration_max_um"], p9["penetration_count"],
-                         p9["penetration_max_um"], p5["object_in_skin_count"], p5["object_in_skin_max_um"]))
+                         p9["penetration_max_um"], p9["object_in_skin_count"], p9["object_in_skin_max_um"]))
     finite = finite and bool(np.all(np.isfinite(hand.skin_vertices)))
     return dict(ms=ms, hold=np.asarray(hold, float), finite=finite)
 
@@ -150,9 +155,43 @@ def _case_run(kind: str, site: str, pt: SweepPoint, device: str, frames: int, ho
 
     r = run_case(press_case(kind, site=site, depth=0.004, start=0.002), pt.config(device), frames=frames,
                  asset=asset)
-    keys = ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "obj_count", "obj_max_um")
+    keys = ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "check_count", "check_max_um")
     hold = np.stack([np.asarray(r[k][-hold_frames:], float) for k in keys], axis=1)
     return dict(ms=list(r["ms"]), hold=hold, finite=bool(r["finite"]))
+
+
+def _cone_run(pt: SweepPoint, device: str, frames: int, hold_frames: int) -> dict:
+    """The paper's cone experiment under setting ``pt`` (the sheet's own material, as
+    physhand_mj.bench.bench_cone builds it; the setting's strategy, passes, substeps, iterations)."""
+    from dataclasses import replace
+
+    from physhand_mj.bench import CONE, SHEET
+    from physhand_mj.bodies import sheet
+    from physhand_mj.contact import Objects
+    from physhand_mj.metrics import summarize
+    from physhand_mj.solver import Solver, make_model
+    from physhand_mj.types import GeomType
+
+    body = sheet(**SHEET)
+    cfg = replace(pt.config(device), volumes=False, attachment=False, edge_compliance_skin=1.0e-6,
+                  smooth_compliance=10.0, damping=0.0).validate()
+    objects = Objects(device, 1)
+    objects.add(GeomType.CONE, [CONE["radius"], CONE["height"]], name="cone")
+    solver = Solver(make_model(body, cfg), cfg, objects=objects)
+    state = solver.make_state()
+    ms, hold, finite = [], [], True
+    for f in range(frames):
+        t = time.perf_counter()
+        out = solver.step(state)
+        ms.append((time.perf_counter() - t) * 1e3)
+        finite = finite and int(out.get("nonfinite", 0)) == 0
+        if f >= frames - hold_frames:  # the skin side (an open sheet has no inside), not timed
+            p5 = summarize(solver.contact.measure(state, order=5, objects_side=False))
+            p9 = summarize(solver.contact.measure(state, order=9, objects_side=False))
+            hold.append((p5["penetration_count"], p5["penetration_max_um"], p9["penetration_count"],
+                         p9["penetration_max_um"], 0.0, 0.0))
+    finite = finite and bool(np.all(np.isfinite(state.x.numpy())))
+    return dict(ms=ms, hold=np.asarray(hold, float), finite=finite)
 
 
 ROW_COLUMNS = ["point", "workload", "contact", "samples", "rounds", "features", "side_aware", "passes", "substeps",
@@ -179,8 +218,10 @@ def check_workloads(workloads) -> None:
             press_case(case)  # ValueError for an unknown kind
             if site not in SITES:
                 raise ValueError(f"workload '{w}': site must be one of {', '.join(SITES)}")
+        elif w == "cone:paper":
+            pass
         else:
-            raise ValueError(f"workload '{w}' must be hoi:SCENE or case:KIND@SITE")
+            raise ValueError(f"workload '{w}' must be hoi:SCENE, case:KIND@SITE or cone:paper")
 
 
 def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats: int = 1, progress=None) -> list[dict]:
@@ -210,6 +251,8 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
             elif kind == "case":
                 case, site = spec.split("@")
                 r = _case_run(case, site, pt, device, frames, hold, asset)
+            else:  # cone:paper
+                r = _cone_run(pt, device, frames, hold)
             med = float(np.median(r["ms"][skip:]))
             ms[i, w] = min(ms.get((i, w), np.inf), med)
             prev = meas.get((i, w))

@@ -304,8 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=None,
                    help="timing passes in alternating order; the fastest median counts (count, default 2; --quick 1)")
     p.add_argument("--workloads", default=None,
-                   help="comma-separated hoi:SCENE and case:KIND@SITE (default: box, apple, glass2, knife@fingertip, "
-                        "cone_tip@palm, plate@fingertip)")
+                   help="comma-separated hoi:SCENE, case:KIND@SITE and cone:paper (the paper's sheet on a cone; "
+                        "default: box, apple, glass2, knife@fingertip, cone_tip@palm, plate@fingertip, cone:paper)")
     p.set_defaults(run=_bench_accuracy)
     args = parser.parse_args(argv)
 

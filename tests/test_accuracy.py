@@ -76,6 +76,23 @@ def test_bench_accuracy_quick_writes_csv_json_png(tmp_path, capsys):
     assert (tmp_path / "accuracy_cpu.png").stat().st_size > 10_000
 
 
+def test_the_cone_experiment_is_a_sweep_workload():
+    """cone:paper runs the paper's sheet on a cone under a setting: vertex (6 queries) leaves the cone
+    tip through the sheet, multires ends the paper's order-5 metric at zero; an open sheet has no
+    inside, so no object point is counted."""
+    from physhand_mj.accuracy import SweepPoint, check_workloads, run_sweep
+
+    rows = run_sweep([SweepPoint("vertex", features=False, side_aware=False), SweepPoint()], ["cone:paper"],
+                     device="cpu", frames=20)
+    vertex, multires = rows
+    assert vertex["finite"] and multires["finite"]
+    assert vertex["skin5_count"] > 0 and vertex["skin5_max_um"] > 100.0, vertex  # measured 16 / 1,859 um
+    assert multires["skin5_count"] == 0, multires
+    assert vertex["object_count"] == multires["object_count"] == 0
+    with pytest.raises(ValueError, match="cone:paper"):
+        check_workloads(["cone:other"])
+
+
 def test_bench_accuracy_errors_are_one_line(capsys, tmp_path):
     assert main(["bench", "accuracy", "--quick", "--frames", "1", "--out", str(tmp_path)]) == 1
     err = capsys.readouterr().err.strip()
