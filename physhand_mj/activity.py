@@ -46,6 +46,13 @@ class Activity:
         # CUDA: level 1 decided on the host from the frame broadphase run ahead (Solver.step); a
         # test may set it on the CPU before the first frame to run that path there
         self.gate_ahead = bool(self.enabled and self.device.is_cuda and c is not None)
+        # CUDA: a contact pass after one that moved nothing is a conditional graph node
+        # (wp.capture_if) that skips it on the device; not with the BVH feature path, whose per-pass
+        # skin refit allocates (a conditional body may not). A test may set it on the CPU before the
+        # first frame (capture_if then reads the flag on the host)
+        cfg = solver.config
+        self.conditional = bool(self.enabled and self.device.is_cuda and cfg.cuda_graph and c is not None
+                                and (not cfg.feature_contact or c.tiled_features))
         self.open1 = True  # CUDA: the frame broadphase kept a triangle (set by Solver.step before the frame)
         self.near = np.ones(1, np.int32)  # level 0 flag, decided on the host before the frame (CPU)
         self.objects_near = -1  # objects (MuJoCo bodies) in the work set; -1: not decided on the host
@@ -62,6 +69,11 @@ class Activity:
         """An op running ``sub`` when the frame's contact has work at ``level`` (see the module doc;
         level 2: a contact pass, run when the previous pass moved a vertex: counters at ``slots``)."""
         g = _Gate(self, sub, level, tuple(slots))
+        if level == 2 and self.conditional:  # the device decides: a flag from the counters, capture_if
+            c = self.solver.contact
+            g.cond = wp.zeros(1, dtype=wp.int32, device=self.device)
+            g.slot_ids = wp.array(np.asarray(slots, np.int32), dtype=int, device=self.device)
+            g.counters = c.counters
         self.gates.append(g)
         return g
 
@@ -103,6 +115,16 @@ class Activity:
         self.ahead_ops = len(ahead)
 
 
+@wp.kernel
+def any_counter(counters: wp.array(dtype=int), slots: wp.array(dtype=int), n: int, cond: wp.array(dtype=wp.int32)):
+    """cond[0] = 1 when any of the counters at ``slots`` (n of them) is not zero (a level-2 gate's
+    test on the device: did the previous contact pass move a vertex?)."""
+    total = int(0)
+    for k in range(n):
+        total += counters[slots[k]]
+    cond[0] = wp.where(total > 0, 1, 0)
+
+
 class _Gate:
     """A block of recorded ops running when its level is open: on the CPU decided on the host; on
     CUDA level 1 is decided on the host before the frame's graph (one graph per outcome), level 0
@@ -115,11 +137,17 @@ class _Gate:
             if isinstance(op, _Gate):
                 op.top = False
 
+    cond = None  # level 2 under Activity.conditional: the device flag capture_if reads
+
     def __call__(self):
         a = self.activity
         if not a.enabled:
             self.run_all()
-        elif a.gate_ahead or a.device.is_cuda:  # (level 2 always runs on CUDA: its later passes find empty lists)
+        elif self.cond is not None:  # a contact pass, skipped on the device when the last one moved nothing
+            wp.launch(any_counter, 1, inputs=[self.counters, self.slot_ids, len(self.slots)], outputs=[self.cond],
+                      device=a.device)
+            wp.capture_if(self.cond, on_true=self.run_all)
+        elif a.gate_ahead or a.device.is_cuda:  # (level 2 always runs on CUDA without conditional nodes)
             if self.level != 1 or not a.gate_ahead or a.open1:
                 self.run_all()
         elif a.near[0] and (self.level == 0 or a._cand[0]) and (
@@ -142,7 +170,7 @@ class _Gate:
         if self.level == 1:
             return open1
         a = self.activity
-        gating = a.enabled and not (a.device.is_cuda or a.gate_ahead)
+        gating = a.enabled and (self.cond is not None or not (a.device.is_cuda or a.gate_ahead))
         return open1 and (not gating or any(counters[s] for s in self.slots))
 
 

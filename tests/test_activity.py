@@ -174,6 +174,30 @@ def test_the_cuda_gating_path_changes_no_result(scene):
     assert o1[far]["ops_run"] == len(r1[far]) + 2
 
 
+def test_conditional_contact_passes_change_no_result(scene):
+    """CUDA (graphs, tiled features) puts each contact pass after the first behind a conditional
+    graph node (wp.capture_if on a flag any_counter sets from the previous pass's counters): a pass
+    after one that moved nothing is skipped on the device. That path, forced on the CPU (capture_if
+    then reads the flag on the host), gives the always-on run's skin bit for bit and reports fewer
+    ops while the box touches."""
+    runs = []
+    for cond in (True, False):
+        solver, state, objects, top = _solver(scene, GeomType.BOX, (0.015, 0.015, 0.015), skip_idle=cond)
+        solver.activity.gate_ahead = cond  # before the first frame records
+        solver.activity.conditional = cond
+        outs = []
+        for k in range(12):
+            objects.set_pose(0, top + [0.0, 0.0, 0.015 + 0.03 - 0.0035 * k], (1.0, 0.0, 0.0, 0.0))
+            outs.append(_step(solver, state, scene[2]))
+        runs.append((state.x.numpy().copy(), outs, solver))
+    (x1, o1, s1), (x2, o2, _) = runs
+    assert any(g.cond is not None for g in s1.activity.gates)  # the passes were conditional
+    assert np.array_equal(x1, x2), float(np.abs(x1 - x2).max())
+    keys = ("penetration_count", "penetration_max_um", "triangles_frame", "triangles_tested", "features_listed")
+    assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]
+    assert 0 < o1[-1]["contact_ops_run"] < o2[-1]["contact_ops_run"]
+
+
 def _recorded(solver, state, poses):
     _step(solver, state, poses)
     ops = solver._ops[(id(state), id(solver.contact))]

@@ -105,7 +105,7 @@ class Solver:
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
         self._sleep_graphs: dict[tuple, object] = {}  # CUDA: the sleeping frame's ops, captured
-        self._alone_key = None  # (first bone's poses, object poses) of the last 'nothing near' test
+        self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
         self._h = h
@@ -319,6 +319,7 @@ class Solver:
         lo, hi = local.min(axis=0) - SLEEP_BOX_SLACK, local.max(axis=0) + SLEEP_BOX_SLACK
         pick = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
         state.sleep_box = np.where(pick == 1, hi, lo)
+        self._alone_key = None  # a new box: test it afresh (an old key could name a freed box's id)
 
     def _sleep_frame(self, state: State, key) -> dict:
         """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
