@@ -15,6 +15,10 @@ recorded into *gated blocks* that run only when the scene calls for them:
              of two recorded graphs: the frame with these blocks or without them. (A conditional
              graph node, ``wp.capture_if``, cannot hold them: ``wp.Mesh.refit`` allocates scratch
              memory on CUDA, which a conditional body may not; measured on an H100, Warp 1.19.)
+    level 2  the previous contact pass of a stage moved a vertex: passes 2..N. On the CPU the host
+             reads that pass's two counters. On CUDA (graphs on, tiled feature queries: no refit
+             inside a pass) each such pass is a conditional graph node, ``wp.capture_if`` on a flag
+             that :func:`any_counter` sets from those counters on the device.
 
 With no object within the frame margin no contact kernel runs (CPU: not even the frame
 broadphase; CUDA: the frame broadphase and one sync only). Nothing inside a closed block could change the
