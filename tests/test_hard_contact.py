@@ -127,6 +127,32 @@ def test_hard_case_flicker_is_bounded(asset, kind, site, start, dense_um, obj_um
     assert r["max_disp_mm"][-1] < DISP_BOUND_MM, r["max_disp_mm"].tolist()
 
 
+@wp.kernel
+def _signed_distance(mesh: wp.uint64, p: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    i = wp.tid()
+    q = wp.mesh_query_point_sign_winding_number(mesh, p[i], 0.05)
+    if q.result:
+        out[i] = q.sign * wp.length(p[i] - wp.mesh_eval_position(mesh, q.face, q.u, q.v))
+
+
+@pytest.mark.parametrize("offset", [1.0e-6, 6.0e-5])
+def test_a_pressed_tip_ends_feature_offset_outside_the_skin(asset, offset):
+    """Config.feature_offset is where a feature point ends: the analytic cone's tip pressed 4 mm into
+    the fingertip ends that far outside the closed skin (winding-number sign, exact closest point;
+    measured 1.0 and 59.9 um)."""
+    r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=0.002),
+                 ph.Config(device="cpu", feature_offset=offset), frames=14, asset=asset)
+    c, state = r["solver"].contact, r["state"]
+    vol = c.volume(state)
+    for op in vol.ops():
+        op()
+    tip = wp.array(np.asarray(r["object_pos"], np.float32)[None], dtype=wp.vec3, device="cpu")  # the cone's apex
+    out = wp.zeros(1, dtype=float, device="cpu")
+    wp.launch(_signed_distance, 1, [vol.mesh.id, tip], [out], device="cpu")
+    d = float(out.numpy()[0])
+    assert abs(d - offset) <= 0.05 * offset + 1e-7, (d, offset)
+
+
 def test_check_points_are_denser_and_share_no_edge_point_with_the_features(asset):
     """The independent check of the object side (Contact.check_points) holds 4x the features' edge
     points and none of theirs: a measure on the contact's own feature points would only confirm what
