@@ -83,7 +83,7 @@ class _Run:
 
 def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int = 10, contact: str = "multires",
                     device: str | None = None, config: dict | None = None, emit=None, progress: bool = True,
-                    spacing: float | None = None) -> list[dict]:
+                    spacing: float | None = None, on_start=None) -> list[dict]:
     """Run each (scene, keyframe) of ``targets`` into ``out/<scene>[-<keyframe>]/``, up to ``worlds``
     runs with the same objects at once in one :class:`~physhand_mj.batch.BatchedHands`; writes
     ``out/summary.csv`` after every batch and returns the rows in the order of ``targets`` (failed
@@ -93,7 +93,8 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     it ends the list without rows for that batch's runs. ``config.nonfinite`` must be RECOVER (each
     world is reset and reported alone). ``steps`` / ``substeps`` / ``contact`` / ``device`` / ``config`` as
     for :func:`~physhand_mj.rollout.rollout`; ``spacing``: m between worlds (BatchedHands' default: 1 m
-    when they hold objects)."""
+    when they hold objects); ``on_start(hands, models, datas)`` runs once per batch after it settled,
+    before its first frame (as ``rollout``'s ``on_start`` per run)."""
     import physhand_mj as ph
 
     if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
@@ -106,7 +107,7 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     rows: list[dict | None] = [None] * len(targets)
     asset = ph.load_asset()
     kw = dict(steps=steps, substeps=substeps, contact=contact, device=device, config=config, progress=progress,
-              spacing=spacing)
+              spacing=spacing, on_start=on_start)
 
     def finish(runs):
         if not runs:
@@ -178,7 +179,7 @@ def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dic
 
 
 def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, substeps, contact, device, config,
-               progress, spacing) -> bool:
+               progress, spacing, on_start=None) -> bool:
     """One batch to its end; fills ``rows``; returns True after Ctrl-C."""
     import mujoco
     import trimesh
@@ -202,6 +203,8 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     k = len(runs[0].geoms)
     if k:
         hands.set_object_poses(*(np.stack(a) for a in zip(*(r.object_poses() for r in runs))))
+    if on_start is not None:
+        on_start(hands, [r.model for r in runs], [r.data for r in runs])
     starts = hands.penetration()
     c = hands.solver.contact
     alive = [True] * W

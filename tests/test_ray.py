@@ -172,6 +172,61 @@ def test_batch_on_ray_matches_rollout_batched(local_ray, tmp_path):
     assert _untimed(ray_table, cols) == _untimed(local_table, cols)
 
 
+def test_killed_batch_worker_is_retried_as_a_whole(local_ray, tmp_path):
+    """--ray --batch 2: the worker running the batch dies once (after the batch settled); Ray reruns the
+    task and both runs of the batch finish, their files in place."""
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None)]
+    rows = rollout_ray(targets, tmp_path / "a", batch=2, steps=1, device="cpu", progress=False, max_retries=1,
+                       on_start=_crash_once(str(tmp_path / "crashed")))
+    assert (tmp_path / "crashed").exists(), "the first attempt ran"
+    assert [r["steps"] for r in rows] == [1, 1] and all("error" not in r for r in rows), rows
+    for run in ("hoi_apple-grasp", "apple_b"):
+        assert len(read_csv(tmp_path / "a" / run / "log.csv")) == 1 + 10
+        assert (tmp_path / "a" / run / "skin_final.ply").exists()
+    assert len(read_csv(tmp_path / "a" / "summary.csv")) == 2
+
+
+def test_ctrl_c_cancels_batches_keeps_partial_logs_and_writes_the_summary(local_ray, tmp_path):
+    """--ray --batch 2: three batches (the two apple runs, the box, the glass) on two workers; SIGINT on
+    the driver once the first two batches logged 3 frames: their runs end interrupted with their logs,
+    the waiting batch's run is cancelled, the summary holds all."""
+    import glob
+    import tempfile
+
+    out = tmp_path / "c"
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None), (BOX, "grasp"), (GLASS, "grasp")]
+    # a batch task writes into a temporary folder on its node and moves the runs into place at its end
+    pattern = os.path.join(tempfile.gettempdir(), "physhand_batch_*", "{}", "log.csv")
+    done = threading.Event()
+
+    def logged(run):
+        return any(len(open(p).read().splitlines()) > 31 for p in glob.glob(pattern.format(run)))
+
+    def interrupt():
+        deadline = time.time() + 180
+        while time.time() < deadline and not (logged("hoi_apple-grasp") and logged("hoi_box-grasp")):
+            if done.wait(0.2):
+                return
+        if not done.is_set():
+            _thread.interrupt_main()
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        threading.Thread(target=interrupt, daemon=True).start()
+        rows = rollout_ray(targets, out, batch=2, steps=400, device="cpu", num_workers=2, progress=False)
+    finally:
+        done.set()
+        signal.signal(signal.SIGINT, old)
+    by_scene = {r["scene"]: r for r in rows}
+    assert len(rows) == 4 and all(r["interrupted"] for r in rows), rows
+    for scene in (str(APPLE), str(tmp_path / "apple_b.xml"), str(BOX)):
+        r = by_scene[scene]
+        assert 3 <= r["steps"] < 400 and "error" not in r, r
+        assert len(read_csv(r["log"])) == 1 + r["steps"] * 10
+    assert by_scene[str(GLASS)]["error"] == "cancelled (Ctrl-C)" and not (out / "hoi_glass1-grasp").exists()
+    assert len(read_csv(out / "summary.csv")) == 4
+
+
 def test_a_batch_task_on_another_node_ships_its_files(local_ray, tmp_path):
     from physhand_mj.distributed import _collect_group, _run_group
 
