@@ -104,7 +104,6 @@ class Solver:
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
-        self._sleep_graphs: dict[tuple, object] = {}  # CUDA: the sleeping frame's ops, captured
         self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
@@ -218,19 +217,10 @@ class Solver:
         if first:
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
-        elif self._capturable():
-            gkey = key + (act.open1,)
-            graph = self._graphs.get(gkey)
-            if graph is None:
-                with wp.ScopedCapture(device=self.device) as cap:
-                    for op in ops:
-                        op()
-                graph = self._graphs[gkey] = cap.graph
-            wp.capture_launch(graph)
-            self.last_graph = graph  # (bench.py replays it for the GPU-only cost)
         else:
-            for op in ops:
-                op()
+            graph = self._replay(ops, key + (act.open1,))
+            if graph is not None:
+                self.last_graph = graph  # (bench.py replays it for the GPU-only cost)
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None:
             self.contact.copy_metrics()
@@ -338,17 +328,7 @@ class Solver:
             ops.append(cmd.launch)
             self._sleep_ops[key] = ops
         ahead = self.activity.gate_ahead and state.sleep_box is None  # (CUDA: the broadphase ran ahead)
-        if self._capturable():
-            graph = self._sleep_graphs.get(key)
-            if graph is None:
-                with wp.ScopedCapture(device=self.device) as cap:
-                    for op in ops:
-                        op()
-                graph = self._sleep_graphs[key] = cap.graph
-            wp.capture_launch(graph)
-        else:
-            for op in ops:
-                op()
+        self._replay(ops, key + ("asleep",))
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
             self.contact.copy_metrics()
@@ -421,6 +401,22 @@ class Solver:
             state.sleep_onset = state.sleep_box = None
             return False
         return True
+
+    def _replay(self, ops: list, gkey):
+        """Run ``ops``: on CUDA with graphs as the graph captured under ``gkey`` (captured on first
+        use) and returned; otherwise one by one (returns None)."""
+        if not self._capturable():
+            for op in ops:
+                op()
+            return None
+        graph = self._graphs.get(gkey)
+        if graph is None:
+            with wp.ScopedCapture(device=self.device) as cap:
+                for op in ops:
+                    op()
+            graph = self._graphs[gkey] = cap.graph
+        wp.capture_launch(graph)
+        return graph
 
     def _capturable(self) -> bool:
         return self.device.is_cuda and self.config.cuda_graph
