@@ -36,6 +36,9 @@ def main():
     ap.add_argument("--depth", type=float, default=0.003)
     ap.add_argument("--variant", default="euler", choices=sorted(VARIANTS))
     ap.add_argument("--out", default="docs/benchmarks/peers_mjwarp_cuda.json")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="compile every loaded Warp module in this many parallel processes after put_model "
+                         "(wp.force_load; 0: Warp's default, modules compiled one by one at first use)")
     ap.add_argument("--smoke", action="store_true", help="allow a CPU device: a check that the script runs, not a measurement")
     a = ap.parse_args()
     try:
@@ -53,6 +56,11 @@ def main():
             with wp.ScopedDevice(a.device):
                 m = mjw.put_model(fr.model)
                 d = mjw.put_data(fr.model, fr.data)
+                if a.workers and not runs:
+                    t0 = time.perf_counter()
+                    wp.force_load(device=a.device, max_workers=a.workers)
+                    print(f"compiled the loaded Warp modules in {time.perf_counter() - t0:.0f} s ({a.workers} workers)",
+                          flush=True)
         except NotImplementedError as e:
             sys.exit(print(f"mujoco_warp cannot take the flex scene: {e}", file=sys.stderr) or 2)
         meas = Measure(asset, case)
@@ -76,6 +84,7 @@ def main():
                     wp.capture_launch(graph)
             wp.synchronize_device(a.device)
             ms.append((time.perf_counter() - t) * 1e3)
+            print(f"{case.name} {case.site} frame {k}: {ms[-1]:.1f} ms", flush=True)
             x = d.flexvert_xpos.numpy().reshape(-1, 3)
             for key, v in meas(x, fr.path[k], fr.quat).items():
                 rows[key].append(v)
