@@ -36,6 +36,10 @@ def main():
     ap.add_argument("--depth", type=float, default=0.003)
     ap.add_argument("--variant", default="euler", choices=sorted(VARIANTS))
     ap.add_argument("--out", default="docs/benchmarks/peers_mjwarp_cuda.json")
+    ap.add_argument("--solver", default="cg", choices=["cg", "newton"],
+                    help="MuJoCo's constraint solver: cg (default here: MuJoCo Warp's newton factorises the "
+                         "dense nv x nv Hessian in one tile kernel, and for the hand's ~30k flex dofs that "
+                         "kernel did not finish compiling in 4 minutes on an H100 machine)")
     ap.add_argument("--workers", type=int, default=0,
                     help="compile every loaded Warp module in this many parallel processes after put_model "
                          "(wp.force_load; 0: Warp's default, modules compiled one by one at first use)")
@@ -52,6 +56,10 @@ def main():
     runs = []
     for case in cases(a.depth, a.start, a.press_frames):
         fr = FlexRun(asset, case, frames=a.frames, **VARIANTS[a.variant])
+        import mujoco
+
+        fr.model.opt.solver = {"cg": mujoco.mjtSolver.mjSOL_CG, "newton": mujoco.mjtSolver.mjSOL_NEWTON}[a.solver]
+        print(f"{case.name} {case.site}: nv {fr.model.nv}, solver {a.solver}", flush=True)
         try:
             with wp.ScopedDevice(a.device):
                 m = mjw.put_model(fr.model)
@@ -88,7 +96,7 @@ def main():
             x = d.flexvert_xpos.numpy().reshape(-1, 3)
             for key, v in meas(x, fr.path[k], fr.quat).items():
                 rows[key].append(v)
-        runs.append(dict(object=case.name, site=case.site, solver=f"mujoco_warp flex ({a.variant})",
+        runs.append(dict(object=case.name, site=case.site, solver=f"mujoco_warp flex ({a.variant}, {a.solver})",
                          **summary(rows, ms, skip=1)))
     result = dict(device=device_name(a.device), command="python benchmarks/peers/mujoco_warp_gpu.py " + " ".join(sys.argv[1:]),
                   frames=a.frames, depth_mm=a.depth * 1e3, variant=VARIANTS[a.variant], runs=runs)
