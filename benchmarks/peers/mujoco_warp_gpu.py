@@ -40,6 +40,8 @@ def main():
                     help="MuJoCo's constraint solver: cg (default here: MuJoCo Warp's newton factorises the "
                          "dense nv x nv Hessian in one tile kernel, and for the hand's ~30k flex dofs that "
                          "kernel did not finish compiling in 4 minutes on an H100 machine)")
+    ap.add_argument("--physhand", action="store_true",
+                    help="also run physhand_mj (Config default on --device) on the same cases and schedule, in the same run")
     ap.add_argument("--workers", type=int, default=0,
                     help="compile every loaded Warp module in this many parallel processes after put_model "
                          "(wp.force_load; 0: Warp's default, modules compiled one by one at first use)")
@@ -98,6 +100,13 @@ def main():
                 rows[key].append(v)
         runs.append(dict(object=case.name, site=case.site, solver=f"mujoco_warp flex ({a.variant}, {a.solver})",
                          **summary(rows, ms, skip=1)))
+    if a.physhand:  # the same work for physhand_mj on the same device (cases.run_case: its own ms timing)
+        from physhand_mj.cases import run_case
+
+        for case in cases(a.depth, a.start, a.press_frames):
+            r = run_case(case, ph.Config(device=a.device), frames=a.frames, check_order=9, asset=asset)
+            runs.append(dict(object=case.name, site=case.site, solver="physhand_mj",
+                             **summary({k: r[k] for k in KEYS}, list(r["ms"]), skip=2)))
     result = dict(device=device_name(a.device), command="python benchmarks/peers/mujoco_warp_gpu.py " + " ".join(sys.argv[1:]),
                   frames=a.frames, depth_mm=a.depth * 1e3, variant=VARIANTS[a.variant], runs=runs)
     Path(a.out).write_text(json.dumps(result, indent=1) + "\n")
