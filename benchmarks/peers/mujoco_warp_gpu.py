@@ -1,4 +1,4 @@
-"""MuJoCo Warp's flex as a peer, on the GPU (prepared, NOT yet measured: no GPU in the session that wrote it).
+"""MuJoCo Warp's flex as a peer, on the GPU (measured on an H100: docs/peers.md).
 
     python benchmarks/peers/mujoco_warp_gpu.py --device cuda [--frames 8] [--variant euler] [--out docs/benchmarks/peers_mjwarp_cuda.json]
 
