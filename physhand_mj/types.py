@@ -93,6 +93,12 @@ class Config:
     Attributes:
       frame_dt: simulated time per ``Solver.step`` call (s); the paper and MuJoCo scenes use 0.005.
       substeps: substeps per frame (Algorithm 1, line 1: ``h = frame_dt / substeps``).
+      max_substep: longest substep the solver runs (s; default 2 ms). ``validate()`` raises
+        ``substeps`` to ``ceil(frame_dt / max_substep)`` where ``frame_dt / substeps`` is longer
+        (a 20 ms frame runs 10 substeps, costing 10 substeps' time), since the Jacobi XPBD flesh sags
+        and inverts under gravity alone at 5-10 ms substeps (docs/stability.md). None keeps the
+        count as given and warns (the run then stays finite and reports the inversions).
+      substeps_requested: the ``substeps`` asked for where ``validate()`` raised it (else None).
       iterations: constraint passes per substep (Algorithm 1, lines 7-13; the paper uses 1).
       gravity: (3,) acceleration in the solver's world frame (m/s^2); zeros to switch it off.
       damping: velocity damping rate (1/s), ``v *= exp(-damping h)`` per substep.
@@ -170,6 +176,8 @@ class Config:
 
     frame_dt: float = 0.005
     substeps: int = 10
+    max_substep: float | None = 2.0e-3
+    substeps_requested: int | None = None
     iterations: int = 1
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     damping: float = 2.0
@@ -249,14 +257,24 @@ class Config:
         if self.contact_frame_margin < self.contact_margin:
             raise ValueError(f"Config.contact_frame_margin ({self.contact_frame_margin} m) must be at least "
                              f"Config.contact_margin ({self.contact_margin} m)")
-        if self.frame_dt / self.substeps > MAX_STABLE_SUBSTEP * (1 + 1e-9):
+        if self.max_substep is not None:
+            ms = self.max_substep
+            if isinstance(ms, bool) or not isinstance(ms, (int, float, np.floating, np.integer)) or not (
+                    math.isfinite(ms) and ms > 0):
+                raise ValueError(f"Config.max_substep must be None or a finite number of seconds > 0 (e.g. 0.002), "
+                                 f"got {ms!r}")
+            if self.frame_dt / self.substeps > ms * (1 + 1e-9):
+                if self.substeps_requested is None:
+                    self.substeps_requested = int(self.substeps)
+                self.substeps = int(math.ceil(self.frame_dt / ms - 1e-9))
+        elif self.frame_dt / self.substeps > MAX_STABLE_SUBSTEP * (1 + 1e-9):
             import warnings
 
             need = math.ceil(self.frame_dt / MAX_STABLE_SUBSTEP - 1e-9)
             warnings.warn(f"Config: substeps of {self.frame_dt / self.substeps * 1e3:.3g} ms (frame_dt {self.frame_dt} s / "
                           f"substeps {self.substeps}) are longer than {MAX_STABLE_SUBSTEP * 1e3:g} ms: the flesh sags "
                           f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
-                          f">= {need}", RuntimeWarning, stacklevel=2)
+                          f">= {need} (or leave Config.max_substep at its default, which does)", RuntimeWarning, stacklevel=2)
         self.contact = Strategy(self.contact)
         self.contact_placement = Placement(self.contact_placement)
         self.scheme = Scheme(self.scheme)

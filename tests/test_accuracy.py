@@ -126,16 +126,29 @@ def test_config_presets_are_the_recommended_sweep_points():
         Config.preset("fast")
 
 
-def test_substeps_longer_than_the_stable_limit_warn_with_the_fix():
-    """20 ms frames with 4 substeps (5 ms) collapse the flesh (tests/stress): validate() says so and
-    how many substeps hold; 2 ms substeps do not warn."""
+def test_substeps_longer_than_the_stable_limit_are_raised_or_warned():
+    """20 ms frames with 4 substeps (5 ms) collapse the flesh (tests/stress): by default validate()
+    runs enough substeps (Config.max_substep, 2 ms: 10), keeps the count asked for and stays so when
+    validated again; with max_substep=None it keeps the count and warns with the count that holds;
+    2 ms substeps are left alone; a bad max_substep says what to give."""
     import warnings
 
     from physhand_mj.types import Config
 
-    with pytest.warns(RuntimeWarning, match=r"substeps of 5 ms .* use substeps >= 10"):
-        Config(frame_dt=0.02, substeps=4).validate()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        Config(frame_dt=0.02, substeps=10).validate()
-        Config().validate()
+        c = Config(frame_dt=0.02, substeps=4).validate()
+        assert (c.substeps, c.substeps_requested, c.substep_dt) == (10, 4, pytest.approx(0.002))
+        c.validate()
+        assert (c.substeps, c.substeps_requested) == (10, 4)
+        assert Config(frame_dt=0.02, substeps=3, max_substep=0.0015).validate().substeps == 14
+        c = Config(frame_dt=0.02, substeps=10).validate()
+        assert (c.substeps, c.substeps_requested) == (10, None)
+        c = Config().validate()
+        assert (c.substeps, c.substeps_requested) == (10, None)
+    with pytest.warns(RuntimeWarning, match=r"substeps of 5 ms .* use substeps >= 10"):
+        c = Config(frame_dt=0.02, substeps=4, max_substep=None).validate()
+    assert (c.substeps, c.substeps_requested) == (4, None)
+    for bad in (0.0, -0.002, float("nan"), float("inf"), "2ms", True):
+        with pytest.raises(ValueError, match="Config.max_substep must be None or a finite number of seconds > 0"):
+            Config(max_substep=bad).validate()
