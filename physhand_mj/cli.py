@@ -256,7 +256,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--keyframe", default=None, help="keyframe to start from (name; default: the scene's first; "
                                                     "a folder batch: all)")
     p.add_argument("--steps", type=int, default=36, help="5 ms frames to run (count, default 36)")
-    p.add_argument("--substeps", type=int, default=10, help="substeps per frame (count, default 10)")
+    p.add_argument("--substeps", type=int, default=10, help="substeps per 5 ms frame (count, default 10; fewer than 3 run as 3: "
+                                                           "Config.max_substep, 2 ms)")
     p.add_argument("--contact", choices=["vertex", "opt", "multires"], default="multires",
                    help="decision-point strategy (default multires)")
     p.add_argument("--device", default=None, help="Warp device: cpu or cuda[:N] (default: Warp's, CUDA if present)")
@@ -279,7 +280,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resolution", type=int, default=None,
                    help="skin vertex count (default: the embedded 5000; others are built once and cached)")
     p.add_argument("--asset", type=Path, default=None, help="time this asset .npz instead")
-    p.add_argument("--substeps", type=int, default=10, help="substeps per 5 ms frame (count, default 10)")
+    p.add_argument("--substeps", type=int, default=10, help="substeps per 5 ms frame (count, default 10; fewer than 3 run as 3: "
+                                                           "Config.max_substep, 2 ms)")
     p.add_argument("--iterations", type=int, default=1, help="constraint passes per substep (count, default 1)")
     p.add_argument("--scheme", choices=["jacobi", "colored"], default="jacobi", help="parallel scheme (default jacobi)")
     p.set_defaults(run=_bench_solver)
