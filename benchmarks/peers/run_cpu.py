@@ -101,7 +101,7 @@ def plot(result: dict, path: Path = PNG) -> None:
     objects = list(dict.fromkeys(r["object"] for r in runs))
     solvers = list(dict.fromkeys(r["solver"] for r in runs))
     colors = {"sphere": "tab:blue", "mesh_cone": "tab:red", "knife": "tab:green"}
-    marks = dict(zip(solvers, "o^sDv"))
+    marks = dict(zip(solvers, "o^sDvP"))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharex=True)
     for ax, key, title in ((axes[0], "skin_max_um_final", "skin samples inside the object (order 5)"),
                            (axes[1], "obj_max_um_final", "object points inside the closed skin")):
@@ -111,7 +111,7 @@ def plot(result: dict, path: Path = PNG) -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        ax.set_xlabel("ms per 5 ms frame (CPU)")
+        ax.set_xlabel(f"ms per 5 ms frame ({result['device'].split(' (')[0]})")
         ax.set_ylabel("deepest penetration at the end, um (0 drawn at 0.5)")
         ax.set_title(title, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
