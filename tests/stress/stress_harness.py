@@ -33,6 +33,19 @@ from physhand_mj.solver.model import quat_to_mat
 from physhand_mj.solver.solver import _compose_quat
 from physhand_mj.types import GeomType
 
+import warp as wp  # noqa: E402
+
+from physhand_mj.contact.sdf import geom_sdf  # noqa: E402
+
+
+@wp.kernel
+def _bone_sdf(x: wp.array(dtype=wp.vec3), idx: wp.array(dtype=int), gtype: wp.array(dtype=int),
+              size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.uint64),
+              out: wp.array(dtype=float)):
+    """The object's (geom 0) signed distance at the skeleton vertices ``idx`` (m, < 0 inside)."""
+    i = wp.tid()
+    out[i] = geom_sdf(gtype[0], wp.transform_point(inv_pose[0], x[idx[i]]), size[0], mesh[0])
+
 # the check points hold about 4x as many edge points per millimetre as the contact's own object
 # points: a growth slack given in points (``grow_count``) is scaled by this for them
 CHECK_DENSITY = 4
@@ -113,7 +126,9 @@ class Stress:
             self.object_pose(-case.start)
             objs.set_poses(self.pos[None], self.quat[None])
         self.rows = {k: [] for k in ("finite", "nonfinite", "carried_mm", "volume", "inverted", "skin_count",
-                                     "skin_max_um", "obj_count", "obj_max_um", "depth_mm", "ms")}
+                                     "skin_max_um", "obj_count", "obj_max_um", "depth_mm", "ms", "bones_in")}
+        self._bones = wp.array(np.flatnonzero(m.inv_mass.numpy() == 0).astype(np.int32), dtype=int, device=m.device)
+        self._bone_d = wp.zeros(self._bones.shape[0], dtype=float, device=m.device)
         self.depth = -case.start if case is not None else None
 
     # -- geometry ----------------------------------------------------------------------------------
@@ -173,6 +188,7 @@ class Stress:
         r["volume"].append(self._volume(x) / self.rest_volume - 1.0)
         r["inverted"].append(out["inverted"])
         r["depth_mm"].append(np.nan if self.depth is None else self.depth * 1e3)
+        r["bones_in"].append(self.bones_inside())
         if self.solver.contact is not None and measure:
             row = self.solver.contact.measure(self.state, order=9, check=True)
         else:
@@ -182,6 +198,16 @@ class Stress:
         r["obj_count"].append(row[3])
         r["obj_max_um"].append(row[5] * 1e6)
         return out
+
+    def bones_inside(self) -> int:
+        """Skeleton vertices inside the object now (0 without one): where > 0 no penetration-free
+        skin exists (the issue's "a bone itself inside the object")."""
+        o = self.objects
+        if o is None:
+            return 0
+        wp.launch(_bone_sdf, self._bones.shape[0], [self.state.x, self._bones, o.gtype, o.size, o.inv_pose, o.mesh],
+                  [self._bone_d], device=self._bones.device)
+        return int((self._bone_d.numpy() < 0).sum())
 
     def arrays(self) -> dict:
         return {k: np.asarray(v) for k, v in self.rows.items()}
