@@ -26,16 +26,14 @@ physhand_mj.cases, carried into the world frame by the mount pose.
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 
 import physhand_mj as ph
 from physhand_mj.cases import Case, _rot_z_to, site_point
+from physhand_mj.contact.sdf import geom_sdf
 from physhand_mj.solver.model import quat_to_mat
 from physhand_mj.solver.solver import _compose_quat
 from physhand_mj.types import GeomType
-
-import warp as wp  # noqa: E402
-
-from physhand_mj.contact.sdf import geom_sdf  # noqa: E402
 
 
 @wp.kernel
