@@ -118,6 +118,49 @@ def test_batched_worlds_with_their_own_objects(setup):
     assert moved > 1e-3 > np.abs(batch.skin(0) - rest[: asset.n_skin]).max() * 10  # world 1 pressed, world 0 not
 
 
+def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup):
+    """A mesh object in every world is one wp.Mesh (its BVH built once, not W times), and a world
+    pressed by it ends like a serial solver with its own copy of the mesh (within the float32
+    rounding of the worlds 1 m apart), by the contact's own measure and the independent ones."""
+    import trimesh
+
+    from physhand_mj.contact import Objects
+    from physhand_mj.metrics import summarize
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    cfg = Config(device="cpu")
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.02)
+    spec = dict(gtype=GeomType.MESH, name="ball", vertices=ball.vertices, faces=ball.faces, mesh_range=0.05)
+    batch = BatchedHands(asset, 3, cfg, *mount, objects=[spec])
+    objs = batch.objects
+    assert len(objs._meshes) == 1 and len(set(objs._host["mesh"][:3].tolist())) == 1 and objs._host["mesh"][0] != 0
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    r_in = float(np.linalg.norm(ball.vertices, axis=1).min())  # the mesh's lowest point lies at least this deep
+    where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, r_in - 0.002], top + [0.0, 0.1, 0.05]]
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]] * 3)
+    serial = []
+    for w in range(2):
+        o = Objects("cpu", 1)
+        o.add(GeomType.MESH, None, where[w], name="ball", vertices=ball.vertices, faces=ball.faces, mesh_range=0.05)
+        sv = Solver(make_model(asset, cfg), cfg, objects=o)
+        serial.append((sv, sv.make_state(*mount)))
+    for _ in range(4):
+        out = batch.step(np.stack([poses[0]] * 3), np.stack([poses[1]] * 3), np.stack(where)[:, None], ident[:, None])
+        for sv, st in serial:
+            sv.set_body_poses(st, *poses)
+            sv.step(st)
+    assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
+    dense = summarize(batch.solver.contact.measure(batch.state, order=9, check=True))
+    assert dense["penetration_count"] == 0 and dense["object_in_skin_count"] == 0, dense
+    rest = serial[0][1].x.numpy()
+    for w, (_, st) in enumerate(serial):
+        assert np.abs(batch.positions(w) - st.x.numpy()).max() < 5e-5
+    assert np.abs(batch.skin(1) - rest[: asset.n_skin]).max() > 1e-3  # world 1 was pressed
+
+
 def test_metrics_and_guards_per_world(setup):
     """Per-world reports: a sphere 2 mm into world 1's hand shows in world 1's two measures only; a
     non-finite vertex set in world 1 is reset and counted in world 1 alone; the batch's frame

@@ -42,6 +42,15 @@ def bounding_radius(gtype: GeomType, size) -> float:
     raise ValueError(f"no bounding radius rule for {gtype!r}")
 
 
+def _mesh_key(vertices, faces, sign: str) -> tuple:
+    """A key for a mesh's exact vertices, faces and sign mode (equal keys: the same wp.Mesh)."""
+    import hashlib
+
+    v = np.ascontiguousarray(np.asarray(vertices, np.float64))
+    f = np.ascontiguousarray(np.asarray(faces, np.int64))
+    return (v.shape, f.shape, sign, hashlib.sha1(v.tobytes() + f.tobytes()).hexdigest())
+
+
 def invert_transforms(tf: np.ndarray) -> np.ndarray:
     """(n, 7) Warp transforms [p, q x y z w] -> their inverses [-(q^-1 p), q^-1]."""
     p, q = tf[:, :3].astype(np.float64), tf[:, 3:].astype(np.float64)
@@ -240,6 +249,7 @@ class Objects:
     names: list = field(default_factory=list)
     object_names: list = field(default_factory=list)
     _meshes: list = field(default_factory=list)
+    _mesh_cache: dict = field(default_factory=dict)  # the same vertices/faces/sign: one wp.Mesh (batched worlds)
     _host: dict = field(default_factory=dict)
     _pose_buf: object = None
 
@@ -288,11 +298,15 @@ class Objects:
         if gtype == GeomType.MESH:
             if vertices is None or faces is None:
                 raise ValueError(f"mesh geom '{name}' needs vertices and faces")
-            m, sign = prepare_mesh(vertices, faces, name=name, sign=mesh_sign, device=self.device)
-            self._meshes.append(m)
+            key = _mesh_key(vertices, faces, mesh_sign)
+            if key not in self._mesh_cache:  # a rigid mesh in its geom frame: shared by every geom that has it
+                m, sign = prepare_mesh(vertices, faces, name=name, sign=mesh_sign, device=self.device)
+                self._meshes.append(m)
+                self._mesh_cache[key] = (m, sign, mesh_half_thickness(m), float(np.linalg.norm(m.points.numpy(), axis=1).max()))
+            m, sign, half, radius = self._mesh_cache[key]
             mesh_id = m.id
-            size = np.array([mesh_range, float(sign), mesh_half_thickness(m)])  # query.side_floor reads [2]
-            h["radius"][i] = float(np.linalg.norm(m.points.numpy(), axis=1).max())
+            size = np.array([mesh_range, float(sign), half])  # query.side_floor reads [2]
+            h["radius"][i] = radius
         else:
             h["radius"][i] = bounding_radius(gtype, size)
         oname = obj if obj is not None else (name or f"object{i}")
