@@ -84,13 +84,14 @@ class BatchedHands:
 
     ``objects``: the geoms every world holds, as dicts of :meth:`Objects.add`'s arguments (``gtype``,
     ``size``, ``name``; ``vertices``/``faces`` for a mesh); each world gets its own copy, posed by
-    ``step(..., object_pos (W, k, 3), object_quat (W, k, 4))``. With objects the worlds are kept
-    apart in space: world w's hand and objects are solved shifted by ``offsets[w]`` (a square grid,
-    ``spacing`` m apart, default 1 m; every query of the contact is distance-limited to ~1 cm, so
-    worlds cannot touch while each world's objects stay within spacing / 2 - 0.15 m of its hand's
-    origin); float32 then rounds positions at the offset's scale (a world at 1 m ends ~10 um from
-    the same run at the origin after 8 frames: the solver's rounding, not the physics). Without
-    objects all worlds share the origin and equal serial runs bit for bit (CPU). Poses in and
+    ``step(..., object_pos (W, k, 3), object_quat (W, k, 4))``. Every world is solved at the
+    origin: the skin side of the contact (broadphase, decision points, metrics) tests a triangle
+    against its own world's geoms only, and the object side (feature lists and pushes, object points
+    inside the skin), which queries one BVH over every world's skin, runs on the skin and geoms moved
+    by ``query_offsets[w]`` (a square grid, ``spacing`` m apart, default 1 m; those queries are
+    distance-limited to ~1 cm, so they stay in their world while each world's objects stay within
+    spacing / 2 - 0.15 m of its hand's origin). Batched worlds then equal serial runs (CPU: bit
+    for bit where the object side's float32 rounding at the offset does not flip a decision). Poses in and
     positions out are in each world's own frame. A triangle's broadphase and decision points test
     only its world's geoms; :meth:`penetration`, :meth:`metrics` and ``step()["worlds"]`` report per world (the
     frame dict's own counts and penetration summary are the batch's: sums, deepest).
@@ -113,11 +114,18 @@ class BatchedHands:
                              "a world that turns non-finite is reset and reported alone (step()['worlds']); "
                              "raising would stop every world for one")
         self.replicated = replicate_asset(asset, self.worlds)
-        if spacing is None:  # apart only where contact could reach across (float32 rounds at 1 m)
-            spacing = 1.0 if objects else 0.0
+        if spacing is None:  # the object side's queries apart by 1 m (the solve stays at the origin)
+            spacing = 1.0
+        if objects and self.worlds > 1 and not (np.isfinite(spacing) and spacing >= 0.3):
+            raise ValueError(f"BatchedHands spacing must be at least 0.3 m with objects (got {spacing!r}): the "
+                             "contact's object side queries each world moved to its place on a grid that many m "
+                             "apart, and a hand with its objects spans ~0.3 m")
         side = int(np.ceil(np.sqrt(self.worlds)))
         k = np.arange(self.worlds)
-        self.offsets = np.stack([k % side, k // side, np.zeros(self.worlds)], axis=1) * float(spacing)
+        # every world is solved at the origin (offsets, kept for callers: zero); only the object side's
+        # queries see world w moved by query_offsets[w] (Contact.set_query_offsets)
+        self.offsets = np.zeros((self.worlds, 3))
+        self.query_offsets = np.stack([k % side, k // side, np.zeros(self.worlds)], axis=1) * float(spacing)
         self.objects = None
         self.n_objects = len(objects)
         if objects:
@@ -131,6 +139,8 @@ class BatchedHands:
                     self.objects.add(spec.pop("gtype"), spec.pop("size", None), self.offsets[w] + 1e3,
                                      name=name, obj=obj, **spec)  # parked far away until step poses them
         self.solver = Solver(make_model(self.replicated, self.config), self.config, objects=self.objects)
+        if self.solver.contact is not None and self.worlds > 1:
+            self.solver.contact.set_query_offsets(self.query_offsets)
         self.n_bodies = len(asset.body_names)
         pos, quat = np.asarray(pos, float), np.asarray(quat, float)
         each = pos.ndim == 2

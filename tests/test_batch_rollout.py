@@ -1,6 +1,7 @@
 """Batched rollouts (physhand_mj/batch_rollout.py, ``physhand rollout LIST --batch W``) against the serial
-batch: the same rows, logs and skins; the world at the origin bit for bit, the world solved 1 m away
-within the float32 rounding there."""
+batch: the same rows, logs and skins, bit for bit (every world is solved at the origin), but for the
+object-side depth of world 1, whose object points are tested against its skin moved 1 m out (float32
+there: 0.01 um apart, measured)."""
 
 from pathlib import Path
 import json
@@ -19,12 +20,10 @@ from physhand_mj.rollout import LOG_COLUMNS, SUMMARY_COLUMNS, rollout_batch
 APPLE, BOX = ph.scene_path("hoi_apple"), ph.scene_path("hoi_box")
 STEPS = 3
 TIMED = {"ms_per_frame", "ms_frame"}  # wall times (batched: the batch frame's / W)
+# the object points' depth inside the skin: world 1's is measured on its skin moved 1 m out
+OBJECT_DEPTH = ("initial_object_in_skin_max_um", "object_in_skin_max_um")
+OBJECT_DEPTH_UM = 0.1
 BATCH_FRAME = {"objects_near", "triangles_tested", "features_listed", "ops_run"}  # what the batch frame ran, all worlds
-# World 1 is solved 1 m from the origin: float32 rounds its positions at ~0.06 um there, and 20
-# settling frames plus 3 frames pushing a 4.4 mm deep grasp out amplify that (measured on this CPU:
-# skin max 86 um per coordinate, median 1.4 um; initial depth 4.7 um; counts 3 of 22,261 samples).
-SKIN_MAX_M, SKIN_MEDIAN_M = 250e-6, 5e-6
-DEPTH_UM, COUNT_REL = 25.0, 0.002
 
 
 
@@ -47,17 +46,15 @@ def test_rows_equal_the_serial_batch(runs):
     ser, bat = runs["serial"], runs["batched"]
     assert [(r["scene"], r["keyframe"]) for r in bat] == [(r["scene"], r["keyframe"]) for r in ser]
     cols = list(ser[0])
-    # apple (world 0 of the apple batch, at the origin) and box (a batch of its own): bit for bit
-    for i in (0, 2):
-        assert _untimed(bat[i], cols) == _untimed(ser[i], cols), (bat[i], ser[i])
+    # apple (world 0 of the apple batch), box (a batch of its own) and apple_b (world 1 of the apple
+    # batch, its hand 1 mm further and lower: a 4.4 mm deep grasp pushed out): bit for bit
+    for i in (0, 2, 3):
+        b, s = _untimed(bat[i], cols), _untimed(ser[i], cols)
+        for k in OBJECT_DEPTH:
+            assert abs(b.pop(k) - s.pop(k)) <= OBJECT_DEPTH_UM, (k, bat[i], ser[i])
+        assert b == s, (bat[i], ser[i])
     assert bat[1] == ser[1] and bat[1]["error"].startswith("scene file not found")
-    b, s = bat[3], ser[3]  # apple_b: world 1, solved 1 m away
-    for k in ("steps", "penetration_count", "object_in_skin_count", "finite", "interrupted", "keyframe"):
-        assert b[k] == s[k], (k, b[k], s[k])
-    assert s["penetration_count"] == 0 and s["initial_penetration_count"] > 1000
-    assert abs(b["initial_penetration_count"] - s["initial_penetration_count"]) <= COUNT_REL * s["initial_penetration_count"]
-    for k in ("initial_penetration_max_um", "initial_object_in_skin_max_um", "penetration_max_um"):
-        assert abs(b[k] - s[k]) <= DEPTH_UM, (k, b[k], s[k])
+    assert ser[3]["penetration_count"] == 0 and ser[3]["initial_penetration_count"] > 1000
     assert sorted(r["scene"] for r in runs["emitted"]) == sorted(r["scene"] for r in bat)
     table = read_csv(runs["tmp"] / "batched" / "summary.csv")
     assert list(table[0]) == SUMMARY_COLUMNS and [t["scene"] for t in table] == [r["scene"] for r in ser]
@@ -65,26 +62,18 @@ def test_rows_equal_the_serial_batch(runs):
 
 def test_logs_and_skins_equal_the_serial_ones(runs):
     tmp = runs["tmp"]
-    for run, exact in (("hoi_apple-grasp", True), ("hoi_box-grasp", True), ("apple_b", False)):
+    for run in ("hoi_apple-grasp", "hoi_box-grasp", "apple_b"):
         a, b = read_csv(tmp / "serial" / run / "log.csv"), read_csv(tmp / "batched" / run / "log.csv")
         assert list(b[0]) == LOG_COLUMNS and len(a) == len(b) == 1 + STEPS * 10
         skip = TIMED | BATCH_FRAME
-        if exact:  # every column but the timings and what the batch frame ran
-            for ra, rb in zip(a, b):
-                assert {c: ra[c] for c in LOG_COLUMNS if c not in skip} == {c: rb[c] for c in LOG_COLUMNS if c not in skip}
-        else:
-            for ra, rb in zip(a, b):
-                assert (ra["step"], ra["substep"], ra["time_s"]) == (rb["step"], rb["substep"], rb["time_s"])
-                n0, n1 = int(ra["penetration_count"]), int(rb["penetration_count"])
-                assert abs(n0 - n1) <= COUNT_REL * n0 + 2, (ra, rb)
-                assert abs(float(ra["penetration_max_um"]) - float(rb["penetration_max_um"])) <= DEPTH_UM, (ra, rb)
+        for ra, rb in zip(a, b):  # every column but the timings and what the batch frame ran
+            da, db = ra["object_in_skin_max_um"], rb["object_in_skin_max_um"]  # ('' on rows that do not measure it)
+            assert (da == db == "") or abs(float(da) - float(db)) <= OBJECT_DEPTH_UM, (da, db)
+            assert {c: ra[c] for c in LOG_COLUMNS if c not in skip | {"object_in_skin_max_um"}} == \
+                {c: rb[c] for c in LOG_COLUMNS if c not in skip | {"object_in_skin_max_um"}}
         sa = trimesh.load(tmp / "serial" / run / "skin_final.ply", process=False).vertices
         sb = trimesh.load(tmp / "batched" / run / "skin_final.ply", process=False).vertices
-        d = np.abs(sa - sb)
-        if exact:
-            assert d.max() == 0.0, (run, d.max())
-        else:
-            assert d.max() < SKIN_MAX_M and np.median(d) < SKIN_MEDIAN_M, (run, d.max(), np.median(d))
+        np.testing.assert_array_equal(sa, sb, err_msg=run)
 
 
 def test_cli_batch(tmp_path):

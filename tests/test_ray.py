@@ -198,9 +198,13 @@ def test_ctrl_c_cancels_batches_keeps_partial_logs_and_writes_the_summary(local_
     # a batch task writes into a temporary folder on its node and moves the runs into place at its end
     pattern = os.path.join(tempfile.gettempdir(), "physhand_batch_*", "{}", "log.csv")
     done = threading.Event()
+    # (batch folders an earlier, interrupted run left behind are not this run's: they would fire the
+    # interrupt at once)
+    stale = set(glob.glob(os.path.join(tempfile.gettempdir(), "physhand_batch_*")))
 
     def logged(run):
-        return any(len(open(p).read().splitlines()) > 31 for p in glob.glob(pattern.format(run)))
+        return any(len(open(p).read().splitlines()) > 31 for p in glob.glob(pattern.format(run))
+                   if os.path.dirname(os.path.dirname(p)) not in stale)
 
     def interrupt():
         deadline = time.time() + 180

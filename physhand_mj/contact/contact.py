@@ -12,7 +12,7 @@ import warp as wp
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_tiled, near_features,
                                           stage_features, stage_features_tiled)
-from physhand_mj.contact.inside import ObjectPoints, SkinVolume, object_points_inside
+from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
 from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
@@ -57,6 +57,9 @@ class Contact:
         self.tris_per_world = max(n_tris // w, 1)
         self.geoms_per_world = max(objects.capacity // w, 1)
         self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
+        # batched worlds solved at one origin but queried apart (set_query_offsets): the object side's
+        # skin meshes hold x + the world's offset and its queries use the geoms' poses so moved
+        self.query_shift = self._qoff = self._qpose = None
         # per world and contact stage: [active triangles, vertices the first pass corrected] (W > 1)
         self.world_stage = wp.zeros((w, max(stages, 1) * 2), dtype=int, device=d) if w > 1 else None
         self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
@@ -164,9 +167,10 @@ class Contact:
             if self.feat is None:
                 self.feat = wp.zeros(pts.n_features, dtype=int, device=m.device)
                 self.feat_stage = wp.zeros(pts.n_features, dtype=int, device=m.device)
-            skin = self.volume(state, winding=False).mesh
-            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, skin.refit]
-            launch(near_features, pts.n_features, [skin.id, pts.feature, pts.pts, pts.geom, o.pose, o.count,
+            vol = self.volume(state, winding=False)
+            qpose = self._query_pose(launch)
+            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *vol.refit_ops()]
+            launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin], [self.feat, self.feat_count])
 
     def _counter(self):
@@ -202,16 +206,19 @@ class Contact:
         if self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
+            ops += self.volume(state, winding=False).sync_ops()
             launch(stage_features_tiled, (self.points.n_features, self.feature_lanes),
-                   [m.skin_faces, state.x, self.cand, self.cand_count, self.feat, self.feat_count, self.points.pts,
-                    self.points.geom, o.pose, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps],
+                   [m.skin_faces, self._query_x(state), self.cand, self.cand_count, self.feat, self.feat_count,
+                    self.points.pts, self.points.geom, self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps],
                    [self.feat_stage, feat_count], block_dim=self.feature_lanes)
         elif self.feat is not None:  # the stage's features (features.py)
             feat_count = self.feat_stage_counts[stage: stage + 1]
-            skin = self.volume(state, winding=False).mesh
+            vol = self.volume(state, winding=False)
+            skin = vol.mesh
+            ops += vol.sync_ops()
             ops.append(self._refit_op(skin))
             launch(stage_features, self.points.n_features,
-                   [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, o.pose,
+                   [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, self._qp,
                     cfg.contact_frame_margin, cfg.contact_margin, self.near_query], [self.feat_stage, feat_count],
                    count=self.feat_count)
         else:
@@ -238,21 +245,24 @@ class Contact:
             if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
                 # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
                 if p and not self.tiled_features:  # (pass 0 sees the skin stage_features refitted for)
+                    ops += self.volume(state, winding=False).sync_ops()
                     ops.append(self._refit_op(skin, feat_count))
+                elif p and self.tiled_features:
+                    ops += self.volume(state, winding=False).sync_ops()
                 moved_slots.append(self._slot)
                 feat_touched = self._counter()
                 if self.tiled_features:  # CUDA: a block per feature over the frame's triangle list
                     launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
                            [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
-                            self.points.geom, o.pose, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
-                            cfg.contact_margin, self.feature_eps, state.x],
+                            self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
+                            cfg.contact_margin, self.feature_eps, self._query_x(state)],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            block_dim=self.feature_lanes)
                 else:
                     launch(feature_contact, self.points.n_features,
                            [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
-                            o.pose, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
-                            self.near_query, state.x],
+                            self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
+                            self.near_query, self._query_x(state)],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            count=feat_count)
                 launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
@@ -315,12 +325,47 @@ class Contact:
         return self._check_points
 
     def volume(self, state, winding: bool = True) -> SkinVolume:
-        """The closed skin of ``state`` as a mesh, with winding-number data or not (made on first use)."""
+        """The closed skin of ``state`` as a mesh, with winding-number data or not (made on first use;
+        shifted per world where :meth:`set_query_offsets` asked)."""
         key = (id(state.x), winding)
         v = self._volumes.get(key)
         if v is None:
-            v = self._volumes[key] = SkinVolume(state.x, self.model.n_skin, self.model.skin_faces, winding)
+            v = self._volumes[key] = SkinVolume(state.x, self.model.n_skin, self.model.skin_faces, winding,
+                                                shift=self.query_shift)
         return v
+
+    def set_query_offsets(self, offsets) -> None:
+        """Batched worlds (physhand_mj/batch.py) solved at one origin: the object side's queries (the
+        feature lists and pushes, the object points inside the skin) run on the skin and the geoms
+        moved by ``offsets`` (W, 3) m per world, so they stay in their world (every such query is
+        distance-limited, to well under the offsets' spacing) while the solve stays at the origin.
+        Call before the first step or measure."""
+        off = np.asarray(offsets, np.float32).reshape(self.worlds, 3)
+        if self._volumes:
+            raise RuntimeError("set_query_offsets must come before the first step or measure")
+        if not np.any(off):
+            return
+        d = self.model.device
+        world = self.model.vertex_world.numpy()[: self.model.n_skin]
+        self.query_shift = wp.array(off[world], dtype=wp.vec3, device=d)
+        self._qoff = wp.array(off, dtype=wp.vec3, device=d)
+        self._qpose = wp.zeros(self.objects.capacity, dtype=wp.transform, device=d)
+
+    def _query_pose(self, launch):
+        """The geoms' poses for the object side's queries (moved per world by the query offsets)."""
+        if self._qpose is None:
+            return self.objects.pose
+        launch(shift_poses, self._qpose.shape[0], [self.objects.pose, self._qoff, self.geoms_per_world], [self._qpose])
+        return self._qpose
+
+    @property
+    def _qp(self):
+        """The poses the object side queries with (set once per frame by :meth:`_query_pose`)."""
+        return self.objects.pose if self._qpose is None else self._qpose
+
+    def _query_x(self, state):
+        """Skin positions as the object side's meshes hold them (shifted per world, or state.x)."""
+        return state.x if self.query_shift is None else self.volume(state, winding=False).points
 
     def _refit_op(self, mesh, count=None):
         """An op refitting ``mesh``; on the CPU only when ``count`` (default: the frame's feature
@@ -349,7 +394,8 @@ class Contact:
         if objects_side and self.closed_skin and len(pts):
             vol = self.volume(state)
             ops += vol.ops()
-            launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, o.pose, o.count, o.obj,
+            launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, self._query_pose(launch),
+                                                    o.count, o.obj,
                                                     obj, row, self.geoms_per_world, per], [out, pts.depth])
 
     def world_views(self) -> dict:

@@ -33,9 +33,14 @@ class SkinVolume:
     it carries Warp's fast-winding-number data (a refit then costs ~15 x more: 1.3 vs 0.09 ms for
     10k triangles on a CPU), without it (the contact stage's) only the BVH."""
 
-    def __init__(self, x, n_skin: int, faces, winding: bool = True):
+    def __init__(self, x, n_skin: int, faces, winding: bool = True, shift=None):
         f = faces.numpy() if hasattr(faces, "numpy") else np.asarray(faces)
-        self.points = x[:n_skin]
+        # ``shift`` (n_skin,) vec3: the mesh holds x + shift (batched worlds at one origin queried
+        # apart, Contact.set_query_offsets); :meth:`sync` copies it in before every refit
+        self.x, self.shift = x[:n_skin], shift
+        self.points = x[:n_skin] if shift is None else wp.zeros(n_skin, dtype=wp.vec3, device=x.device)
+        if shift is not None:  # the BVH is built on the shifted points
+            wp.launch(add_shift, n_skin, inputs=[self.x, shift], outputs=[self.points], device=x.device)
         self.mesh = wp.Mesh(points=self.points, indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32,
                                                                   device=x.device),
                             support_winding_number=winding, bvh_constructor=BVH_CONSTRUCTOR)
@@ -45,12 +50,39 @@ class SkinVolume:
         """Refit the BVH (and winding-number data) to the current positions, and their bounding
         box, as operations for a solver frame (run them in order; :meth:`refit` runs them now)."""
         d = self.box.device
-        return [self.mesh.refit, lambda: wp.launch(reset_box, 1, inputs=[self.box], device=d),
+        return [*self.sync_ops(), self.mesh.refit, lambda: wp.launch(reset_box, 1, inputs=[self.box], device=d),
                 lambda: wp.launch(skin_box, self.points.shape[0], inputs=[self.points], outputs=[self.box], device=d)]
+
+    def sync_ops(self) -> list:
+        """Ops copying the positions (plus their shift) into the mesh's points (none unshifted)."""
+        if self.shift is None:
+            return []
+        d = self.box.device
+        return [lambda: wp.launch(add_shift, self.points.shape[0], inputs=[self.x, self.shift], outputs=[self.points],
+                                  device=d)]
+
+    def refit_ops(self) -> list:
+        """:meth:`sync_ops` then the BVH refit (no bounding box)."""
+        return [*self.sync_ops(), self.mesh.refit]
 
     def refit(self) -> None:
         for op in self.ops():
             op()
+
+
+@wp.kernel
+def add_shift(x: wp.array(dtype=wp.vec3), shift: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = x[i] + shift[i]
+
+
+@wp.kernel
+def shift_poses(pose: wp.array(dtype=wp.transform), offset: wp.array(dtype=wp.vec3), geoms_per_world: int,
+                out: wp.array(dtype=wp.transform)):
+    """out[g] = pose[g] moved by its world's query offset (world g // geoms_per_world)."""
+    g = wp.tid()
+    t = pose[g]
+    out[g] = wp.transform(wp.transform_get_translation(t) + offset[g // geoms_per_world], wp.transform_get_rotation(t))
 
 
 @wp.kernel
