@@ -119,7 +119,7 @@ def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp
     done = threading.Event()
 
     def interrupt():
-        deadline = time.time() + 120
+        deadline = time.time() + 300  # (slow under load: the runs must have logged 3 frames first)
         while time.time() < deadline and not all(p.exists() and len(p.read_text().splitlines()) > 31 for p in logs):
             if done.wait(0.2):
                 return
@@ -207,7 +207,7 @@ def test_ctrl_c_cancels_batches_keeps_partial_logs_and_writes_the_summary(local_
                    if os.path.dirname(os.path.dirname(p)) not in stale)
 
     def interrupt():
-        deadline = time.time() + 180
+        deadline = time.time() + 300  # (slow under load)
         while time.time() < deadline and not (logged("hoi_apple-grasp") and logged("hoi_box-grasp")):
             if done.wait(0.2):
                 return
