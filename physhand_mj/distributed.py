@@ -28,7 +28,7 @@ from pathlib import Path
 
 from physhand_mj.rollout import SUMMARY_COLUMNS, failed_row, run_names, write_summary
 
-CANCEL_GRACE_S = 30.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries
+CANCEL_GRACE_S = 120.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries (s; a worker still compiling a Warp module for its summary took over 30)
 
 
 def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | None = None,
