@@ -28,7 +28,7 @@ from pathlib import Path
 
 from physhand_mj.rollout import SUMMARY_COLUMNS, failed_row, run_names, write_summary
 
-CANCEL_GRACE_S = 120.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries (s; a worker still compiling a Warp module for its summary took over 30)
+CANCEL_GRACE_S = 120.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries (s; 30 lost the rows of running tasks in some full-suite runs: cause not found, a worker still compiling is suspected)
 
 
 def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | None = None,
