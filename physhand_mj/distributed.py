@@ -28,8 +28,7 @@ from pathlib import Path
 
 from physhand_mj.rollout import SUMMARY_COLUMNS, failed_row, run_names, write_summary
 
-WAIT_SLICE_S = 0.25  # s: the driver's wait for the next finished task, in slices (Ctrl-C between them)
-CANCEL_GRACE_S = 120.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries (s; 30 lost the rows of running tasks in some full-suite runs: cause not found, a worker still compiling is suspected)
+CANCEL_GRACE_S = 30.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries
 
 
 def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | None = None,
@@ -147,10 +146,7 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
                 while submitted < len(groups) and len(pending) < window:
                     pending[submit(submitted)] = submitted
                     submitted += 1
-                # in slices of WAIT_SLICE_S: a Ctrl-C reaches Python only between them (a wait without
-                # a timeout can hold it until a run finishes: in a full-suite run the Ctrl-C test's runs ran all
-                # their 400 frames although the interrupt came after 3)
-                done, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SLICE_S)
+                done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
                     got = collect(ref, pending[ref])
                     for i, row in got.items():
