@@ -77,12 +77,35 @@ def test_batched_worlds_equal_serial_runs(setup):
         batch.step(np.stack([open_[0]]), np.stack([open_[1]]))
 
 
+def _beside_serial(batch, asset, cfg, mount, poses, where, geom: dict, serial_worlds: int, frames: int = 4):
+    """Step ``batch`` (every world at ``poses``, world w's one object at ``where[w]``) and, beside it,
+    a serial solver with its own copy of the object ``geom`` (Objects.add's arguments) for each of
+    the first ``serial_worlds`` worlds; returns the batch's last frame dict and the (solver, state)
+    pairs."""
+    from physhand_mj.contact import Objects
+
+    W = batch.worlds
+    serial = []
+    for w in range(serial_worlds):
+        objs = Objects("cpu", 1)
+        g = dict(geom)
+        objs.add(g.pop("gtype"), g.pop("size"), where[w], name="ball", **g)
+        s = Solver(make_model(asset, cfg), cfg, objects=objs)
+        serial.append((s, s.make_state(*mount)))
+    ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * W)
+    for _ in range(frames):
+        out = batch.step(np.stack([poses[0]] * W), np.stack([poses[1]] * W), np.stack(where)[:, None], ident)
+        for s, st in serial:
+            s.set_body_poses(st, *poses)
+            s.step(st)
+    return out, serial
+
+
 def test_batched_worlds_with_their_own_objects(setup):
     """Two worlds, each with its own sphere: world 1's presses the back of its hand, world 0's
     waits 10 cm away. Each ends exactly as a serial solver given the same sphere (all worlds are
     solved at the origin; an analytic sphere has no object-side features), world 1 pressed, world 0
     untouched, and nothing penetrates."""
-    from physhand_mj.contact import Objects
     from physhand_mj.types import GeomType
 
     asset, model, data, ids, mount = setup
@@ -92,18 +115,8 @@ def test_batched_worlds_with_their_own_objects(setup):
     skin = batch.skin(0)
     top = skin[np.argmax(skin[:, 2])].astype(float)
     where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]]  # world 0: away; world 1: 2 mm in
-    ident = np.array([[1.0, 0.0, 0.0, 0.0]] * 2)
-    serial = []
-    for w in range(2):
-        objs = Objects("cpu", 1)
-        objs.add(GeomType.SPHERE, (0.02, 0, 0), where[w], name="ball")
-        s = Solver(make_model(asset, cfg), cfg, objects=objs)
-        serial.append((s, s.make_state(*mount)))
-    for _ in range(4):
-        out = batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), np.stack(where)[:, None], ident[:, None])
-        for s, st in serial:
-            s.set_body_poses(st, *poses)
-            s.step(st)
+    out, serial = _beside_serial(batch, asset, cfg, mount, poses, where, dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0)),
+                                 serial_worlds=2)
     assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
     # checked by measures the contact does not use: an order-9 skin lattice and the spheres' surface
     # points inside the closed skin of every world
@@ -126,7 +139,6 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
     ones; with the BVH feature kernels and with CUDA's tiled ones (forced on the CPU)."""
     import trimesh
 
-    from physhand_mj.contact import Objects
     from physhand_mj.metrics import summarize
     from physhand_mj.types import GeomType
 
@@ -153,18 +165,9 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
     top = skin[np.argmax(skin[:, 2])].astype(float)
     r_in = float(np.linalg.norm(ball.vertices, axis=1).min())  # the mesh's lowest point lies at least this deep
     where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, r_in - 0.002], top + [0.0, 0.1, 0.05]]
-    ident = np.array([[1.0, 0.0, 0.0, 0.0]] * 3)
-    serial = []
-    for w in range(2):
-        o = Objects("cpu", 1)
-        o.add(GeomType.MESH, None, where[w], name="ball", vertices=ball.vertices, faces=ball.faces, mesh_range=0.05)
-        sv = Solver(make_model(asset, cfg), cfg, objects=o)
-        serial.append((sv, sv.make_state(*mount)))
-    for _ in range(4):
-        out = batch.step(np.stack([poses[0]] * 3), np.stack([poses[1]] * 3), np.stack(where)[:, None], ident[:, None])
-        for sv, st in serial:
-            sv.set_body_poses(st, *poses)
-            sv.step(st)
+    out, serial = _beside_serial(batch, asset, cfg, mount, poses, where,
+                                 dict(gtype=GeomType.MESH, size=None, vertices=ball.vertices, faces=ball.faces,
+                                      mesh_range=0.05), serial_worlds=2)
     assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
     assert int(batch.solver.contact.feat_count.numpy()[0]) > 0  # the mesh's corners and edges were listed
     dense = summarize(batch.solver.contact.measure(batch.state, order=9, check=True))

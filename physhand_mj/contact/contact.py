@@ -215,8 +215,7 @@ class Contact:
             feat_count = self.feat_stage_counts[stage: stage + 1]
             vol = self.volume(state, winding=False)
             skin = vol.mesh
-            ops += vol.sync_ops()
-            ops.append(self._refit_op(skin))
+            ops.append(self._refit_op(vol))
             launch(stage_features, self.points.n_features,
                    [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, self._qp,
                     cfg.contact_frame_margin, cfg.contact_margin, self.near_query], [self.feat_stage, feat_count],
@@ -244,11 +243,9 @@ class Contact:
                     self.touched, self.touched_count]
             if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
                 # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
-                if p and not self.tiled_features:  # (pass 0 sees the skin stage_features refitted for)
-                    ops += self.volume(state, winding=False).sync_ops()
-                    ops.append(self._refit_op(skin, feat_count))
-                elif p and self.tiled_features:
-                    ops += self.volume(state, winding=False).sync_ops()
+                if p:  # (pass 0 sees the skin its stage's list was made on)
+                    vol = self.volume(state, winding=False)
+                    ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
                 moved_slots.append(self._slot)
                 feat_touched = self._counter()
                 if self.tiled_features:  # CUDA: a block per feature over the frame's triangle list
@@ -367,13 +364,14 @@ class Contact:
         """Skin positions as the object side's meshes hold them (shifted per world, or state.x)."""
         return state.x if self.query_shift is None else self.volume(state, winding=False).points
 
-    def _refit_op(self, mesh, count=None):
-        """An op refitting ``mesh``; on the CPU only when ``count`` (default: the frame's feature
-        list length) is non-zero (free to read there)."""
+    def _refit_op(self, vol: SkinVolume, count=None):
+        """An op syncing ``vol``'s points (where shifted) and refitting its BVH; on the CPU only when
+        ``count`` (default: the frame's feature list length) is non-zero (free to read there)."""
+        ops = vol.refit_ops()
         if wp.get_device(self.model.device).is_cuda:
-            return mesh.refit
+            return ops[0] if len(ops) == 1 else (lambda: [op() for op in ops])
         count = (self.feat_count if count is None else count).numpy()
-        return lambda: mesh.refit() if count[0] else None
+        return lambda: [op() for op in ops] if count[0] else None
 
     def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
                        order: int = 5, points: ObjectPoints | None = None):
