@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from physhand_mj.types import Layer
+from physhand_mj.types import GeomType, Layer
 
 
 def vertex_world(n: int, n_skin: int, worlds: int) -> np.ndarray:
@@ -136,6 +136,8 @@ class BatchedHands:
                     name = f"{spec.pop('name', 'object')}#{w}"
                     obj = f"{spec.pop('obj')}#{w}" if spec.get("obj") else name
                     spec.pop("obj", None)
+                    if spec.get("gtype") == GeomType.MESH:
+                        spec.setdefault("mesh_grid_spacing", self.config.mesh_grid)
                     self.objects.add(spec.pop("gtype"), spec.pop("size", None), self.offsets[w] + 1e3,
                                      name=name, obj=obj, **spec)  # parked far away until step poses them
         self.solver = Solver(make_model(self.replicated, self.config), self.config, objects=self.objects)

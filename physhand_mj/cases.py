@@ -164,7 +164,7 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
 
     if case.gtype == GeomType.MESH:
         objs.add(GeomType.MESH, None, place(-case.start), quat, name=case.name, vertices=case.vertices,
-                 faces=case.faces, mesh_range=0.05)
+                 faces=case.faces, mesh_range=0.05, mesh_grid_spacing=cfg.mesh_grid)
     else:
         objs.add(case.gtype, case.size, place(-case.start), quat, name=case.name)
     model = make_model(asset, cfg)

@@ -123,6 +123,8 @@ class SoftHand:
 
     def _add_geom(self, g: int) -> None:
         spec = geom_spec(self.model, self.data, g)
+        if spec["gtype"] == GeomType.MESH:
+            spec["mesh_grid_spacing"] = self.config.mesh_grid
         self.objects.add(spec.pop("gtype"), spec.pop("size"), spec.pop("pos"), spec.pop("quat"), **spec)
 
     def refresh_objects(self) -> int:

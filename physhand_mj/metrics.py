@@ -33,7 +33,7 @@ def penetration_samples(
     size: wp.array2d(dtype=wp.vec3),
     inv_pose: wp.array2d(dtype=wp.transform),
     radius: wp.array2d(dtype=float),
-    mesh: wp.array2d(dtype=wp.uint64),
+    mesh: wp.array2d(dtype=wp.vec2ul),
     geom_count: wp.array(dtype=int),
     geom_obj: wp.array2d(dtype=int),
     obj_filter: int,
@@ -118,7 +118,7 @@ def summarize(row: np.ndarray) -> dict:
 @wp.kernel
 def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
                 size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                mesh: wp.array(dtype=wp.uint64), geom_count: wp.array(dtype=int), tris_per_world: int,
+                mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int), tris_per_world: int,
                 geoms_per_world: int, order: int, points: wp.array2d(dtype=wp.vec3), phi: wp.array2d(dtype=float)):
     """The order-``order`` lattice samples of every triangle ((order + 1)(order + 2) / 2; the
     metric's 21 at order 5) and their phi (m) against the triangle's world's geoms (batched worlds:

@@ -19,7 +19,7 @@ GRAD_TOL = 2e-3  # unit-vector components vs numpy central differences
 
 
 @wp.kernel
-def _eval(gtype: int, size: wp.vec3, mesh: wp.uint64, p: wp.array(dtype=wp.vec3),
+def _eval(gtype: int, size: wp.vec3, mesh: wp.vec2ul, p: wp.array(dtype=wp.vec3),
           phi: wp.array(dtype=float), grad: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     d, g = geom_sdf_grad(gtype, p[i], size, mesh)
@@ -31,7 +31,7 @@ def evaluate(gtype, size, points, mesh=0, device="cpu"):
     n = len(points)
     phi = wp.zeros(n, dtype=float, device=device)
     grad = wp.zeros(n, dtype=wp.vec3, device=device)
-    wp.launch(_eval, n, inputs=[int(gtype), wp.vec3(*size), wp.uint64(mesh),
+    wp.launch(_eval, n, inputs=[int(gtype), wp.vec3(*size), wp.vec2ul(int(mesh), 0),
                                 wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)],
               outputs=[phi, grad], device=device)
     return phi.numpy().astype(float), grad.numpy().astype(float)
@@ -129,7 +129,7 @@ def test_mesh_sdf_matches_the_analytic_box():
     objs.add(GeomType.MESH, None, vertices=box.vertices, faces=box.faces, name="box_mesh", mesh_range=1.0)
     rng = np.random.default_rng(3)
     p = rng.uniform(-0.05, 0.05, size=(400, 3))
-    phi, grad = evaluate(GeomType.MESH, objs._host["size"][0], p, mesh=int(objs._host["mesh"][0]))
+    phi, grad = evaluate(GeomType.MESH, objs._host["size"][0], p, mesh=int(objs._host["mesh"][0][0]))
     want = ref_box(p, half)
     assert np.abs(phi - want).max() < PHI_TOL
     outside = want > 1e-3
@@ -276,7 +276,7 @@ def test_compound_object_is_the_union_of_its_geoms():
 
     @wp.kernel
     def union(p: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64),
+              pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul),
               count: wp.array(dtype=int), phi: wp.array(dtype=float), phi2: wp.array(dtype=float),
               grad: wp.array(dtype=wp.vec3)):
         i = wp.tid()

@@ -24,7 +24,7 @@ STEP = 1e-5  # m: step along the gradient in the outward test
 
 
 @wp.kernel
-def _eval(size: wp.vec3, mesh: wp.uint64, p: wp.array(dtype=wp.vec3),
+def _eval(size: wp.vec3, mesh: wp.vec2ul, p: wp.array(dtype=wp.vec3),
           phi: wp.array(dtype=float), grad: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     d, g = geom_sdf_grad(int(GeomType.MESH), p[i], size, mesh)
@@ -32,15 +32,18 @@ def _eval(size: wp.vec3, mesh: wp.uint64, p: wp.array(dtype=wp.vec3),
     grad[i] = g
 
 
-def mesh_sdf(mesh, points, device="cpu", **kw):
-    """(phi, grad, sign method) of ``mesh`` added to an ``Objects``, at ``points`` (geom frame)."""
+def mesh_sdf(mesh, points, device="cpu", grid=False, **kw):
+    """(phi, grad, sign method) of ``mesh`` added to an ``Objects``, at ``points`` (geom frame): the
+    exact BVH query everywhere, or with ``grid`` the query the contact runs (the mesh's distance grid
+    answering the points it proves farther than sdf.GRID_BAND outside)."""
     objs = Objects(device, 1)
     objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="m", mesh_range=1.0, **kw)
     n = len(points)
     phi = wp.full(n, np.inf, dtype=float, device=device)
     grad = wp.zeros(n, dtype=wp.vec3, device=device)
     size = objs._host["size"][0]
-    wp.launch(_eval, n, inputs=[wp.vec3(*size), wp.uint64(int(objs._host["mesh"][0])),
+    ids = objs._host["mesh"][0]
+    wp.launch(_eval, n, inputs=[wp.vec3(*size), wp.vec2ul(int(ids[0]), int(ids[1]) if grid else 0),
                                 wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)],
               outputs=[phi, grad], device=device)
     return phi.numpy().astype(float), grad.numpy().astype(float), int(size[1])
@@ -329,3 +332,56 @@ def test_mesh_half_thickness_finds_walls_and_shells_only(shape, half_mm):
     objs.add(GeomType.MESH, None, vertices=m.vertices, faces=m.faces, name=shape, mesh_range=0.05)
     half = float(objs.size.numpy()[0, 2]) * 1e3
     assert half == pytest.approx(half_mm, rel=0.03, abs=1e-9), half
+
+
+@pytest.mark.parametrize("shape", ["icosphere0", "wedge30_knife"])
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_distance_grid_answers_only_far_points_with_a_lower_bound(shape, device):
+    """objects.mesh_grid: the query the contact runs equals the exact BVH query bit for bit wherever
+    that is below sdf.GRID_BAND (inside, on and near the surface); farther out it may answer a lower
+    bound (never above the exact distance, never below the band, within the grid's node diagonal)
+    without the BVH walk, which it does for most far points; off the grid it is exact again."""
+    from physhand_mj.contact.objects import GRID_PAD
+    from physhand_mj.contact.sdf import GRID_BAND
+
+    mesh = CONVEX[shape]()
+    rng = np.random.default_rng(11)
+    surf = trimesh.sample.sample_surface(mesh, 3000, seed=1)[0]
+    lo, hi = mesh.bounds[0] - GRID_PAD, mesh.bounds[1] + GRID_PAD
+    p = np.concatenate([surf + rng.normal(0.0, 2e-3, surf.shape),  # near, both sides
+                        rng.uniform(lo, hi, (3000, 3)),  # anywhere on the grid
+                        rng.uniform(lo - 0.02, hi + 0.02, (1000, 3))])  # and off it
+    exact, _, _ = mesh_sdf(mesh, p, device)
+    fast, grad, _ = mesh_sdf(mesh, p, device, grid=True)
+    near = exact < GRID_BAND
+    assert near.sum() > 1500 and (~near).sum() > 3000
+    np.testing.assert_array_equal(fast[near], exact[near])
+    assert np.all(fast <= exact + 1e-7) and np.all(fast[~near] >= GRID_BAND * (1 - 1e-6))
+    objs = Objects(device, 1)
+    objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="m")
+    spacing = float(max(next(iter(objs._mesh_cache.values()))[-1].get_voxel_size()))
+    assert 1e-3 <= spacing < 1.5e-3
+    assert np.all(exact - fast <= spacing * np.sqrt(3) + 1e-6), (exact - fast).max()
+    on_grid = np.all((p > lo) & (p < hi), axis=1)
+    answered = ~near & on_grid & (fast < exact - 1e-9)
+    assert answered.sum() > 0.5 * (~near & on_grid).sum()
+    off = ~np.all((p > lo - 5e-3) & (p < hi + 5e-3), axis=1)  # (the last node lies within a spacing past hi)
+    assert off.sum() > 100
+    np.testing.assert_array_equal(fast[off], exact[off])
+    assert np.allclose(np.linalg.norm(grad, axis=1), 1.0, atol=1e-4)
+
+
+def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():
+    """Config.mesh_grid changes only the cost: a mesh cone pressed into the palm and a coarse mesh
+    starting 4 mm deep at the fingertip end with the same skin, bit for bit (measured on all 16 mesh
+    hard cases: docs/contact.md)."""
+    import physhand_mj as ph
+    from physhand_mj.cases import press_case, run_case
+
+    asset = ph.load_asset()
+    for kind, site, start in (("mesh_cone", "palm", 0.002), ("coarse", "fingertip", -0.004)):
+        skins = [run_case(press_case(kind, site=site, depth=0.004, start=start),
+                          ph.Config(device="cpu", mesh_grid=g), frames=6, asset=asset)["skin"] for g in (0.0, 1e-3)]
+        np.testing.assert_array_equal(skins[0], skins[1])
+    with pytest.raises(ValueError, match="mesh_grid"):
+        ph.Config(mesh_grid=-1e-3).validate()

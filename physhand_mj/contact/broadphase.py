@@ -46,7 +46,7 @@ def find_active(
     size: wp.array(dtype=wp.vec3),
     inv_pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.uint64),
+    mesh: wp.array(dtype=wp.vec2ul),
     geom_count: wp.array(dtype=int),
     tris_per_world: int,
     geoms_per_world: int,

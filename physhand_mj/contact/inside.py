@@ -165,7 +165,7 @@ class ObjectPoints:
         for g in range(len(objects.names)):
             t = GeomType(int(h["gtype"][g]))
             if t == GeomType.MESH:
-                m = meshes[int(h["mesh"][g])]
+                m = meshes[int(h["mesh"][g][0])]
                 p, k = mesh_points(m.points.numpy(), m.indices.numpy().reshape(-1, 3), edge_spacing, surface_spacing)
             else:
                 p, k = primitive_points(t, h["size"][g], edge_spacing, surface_spacing)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, WINDING_ACCURACY
+from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, WINDING_ACCURACY, sdf_mesh_grad
 from physhand_mj.types import GeomType
 
 # mujoco.mjtGeom values of the geoms the skin can collide with (height fields and SDF plugins are not)
@@ -202,6 +202,49 @@ def mesh_half_thickness(mesh: wp.Mesh, samples: int = THICKNESS_SAMPLES) -> floa
     return float(0.5 * q10) if q10 >= THICKNESS_EVEN * q50 else 0.0
 
 
+MESH_GRID = 1.0e-3  # m: default node spacing of a mesh's distance grid (mesh_grid; 0 = none)
+GRID_PAD = 1.5e-2  # m: the grid covers the mesh's box grown by this (the frame margin, 1 cm, and more)
+GRID_MAX_NODES = 1_000_000  # larger meshes get a coarser spacing (the grid's memory and build time)
+
+
+@wp.kernel
+def _grid_values(mesh: wp.uint64, size: wp.vec3, origin: wp.vec3, h: float, ny: int, nz: int,
+                 out: wp.array(dtype=float)):
+    i = wp.tid()
+    x = i // (ny * nz)
+    y = (i // nz) % ny
+    z = i % nz
+    d, g = sdf_mesh_grad(origin + h * wp.vec3(float(x), float(y), float(z)), size,
+                         wp.vec2ul(mesh, wp.uint64(0)))
+    out[i] = d
+
+
+def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
+    """The exact signed distance (m) of ``mesh`` (sign method ``sign``) at the nodes of a regular grid
+    over its box grown by GRID_PAD, as a ``wp.Volume`` (node (i, j, k) at the box corner + spacing x
+    (i, j, k); background -1 off the grid), or None for ``spacing`` <= 0. The spacing grows past
+    ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.sdf_mesh_grad uses it
+    only to answer points provably farther than sdf.GRID_BAND outside the mesh (a lower bound of the
+    distance, exact decisions below that band): it skips the BVH query there, which the broadphase
+    and the metrics ask for most of their points. Costs one exact query per node once (about 1 us
+    each on a CPU) and 4 bytes per node."""
+    if spacing is None or spacing <= 0:
+        return None
+    v = mesh.points.numpy().astype(np.float64)
+    lo, hi = v.min(axis=0) - GRID_PAD, v.max(axis=0) + GRID_PAD
+    ext = hi - lo
+    h = max(float(spacing), float(np.cbrt(np.prod(ext) / GRID_MAX_NODES)))
+    n = np.ceil(ext / h).astype(int) + 1
+    d = mesh.points.device
+    out = wp.zeros(int(np.prod(n)), dtype=float, device=d)
+    size = wp.vec3(4.0 * float(np.linalg.norm(ext)), float(sign), 0.0)  # a range that reaches the surface
+    wp.launch(_grid_values, out.shape[0], inputs=[mesh.id, size, wp.vec3(*lo), h, int(n[1]), int(n[2])],
+              outputs=[out], device=d)
+    values = out.numpy().reshape(n)
+    return wp.Volume.load_from_numpy(values, min_world=tuple(float(c) for c in lo), voxel_size=h, bg_value=-1.0,
+                                     device=d)
+
+
 def _parts_overlap(tm, max_parts: int = 512) -> bool:
     """Whether two connected parts of the mesh have overlapping boxes (they may intersect or nest,
     where only the winding number gives the union's sign); past ``max_parts`` parts, assume so."""
@@ -232,7 +275,8 @@ class Objects:
 
     gtype (G,) int (GeomType), size (G,) vec3 (m), pose (G,) transform (world), inv_pose (G,)
     transform (world -> geom frame: what the queries use, inverted once per frame), radius (G,) float
-    (bounding radius, m), mesh (G,) uint64 (wp.Mesh id or 0), obj (G,) int (object index); count (1,)
+    (bounding radius, m), mesh (G,) vec2ul (wp.Mesh id or 0, its distance grid's wp.Volume id or 0:
+    :func:`mesh_grid`), obj (G,) int (object index); count (1,)
     int, the number of geoms in use. Host lists keep names and meshes alive.
     """
 
@@ -260,12 +304,12 @@ class Objects:
         self.pose = wp.zeros(c, dtype=wp.transform, device=d)
         self.inv_pose = wp.zeros(c, dtype=wp.transform, device=d)
         self.radius = wp.zeros(c, dtype=float, device=d)
-        self.mesh = wp.zeros(c, dtype=wp.uint64, device=d)
+        self.mesh = wp.zeros(c, dtype=wp.vec2ul, device=d)
         self.obj = wp.zeros(c, dtype=int, device=d)
         self.count = wp.zeros(1, dtype=int, device=d)
         self._host = dict(gtype=np.zeros(c, np.int32), size=np.zeros((c, 3), np.float32),
                           pose=np.zeros((c, 7), np.float32), radius=np.zeros(c, np.float32),
-                          mesh=np.zeros(c, np.uint64), obj=np.zeros(c, np.int32))
+                          mesh=np.zeros((c, 2), np.uint64), obj=np.zeros(c, np.int32))
         self._pose_buf = wp.empty(2 * c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
 
     def __len__(self) -> int:
@@ -273,11 +317,13 @@ class Objects:
 
     def add(self, gtype: GeomType, size, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), *,
             name: str = "", obj: str | None = None, vertices=None, faces=None, mesh_range: float = 1.0,
-            mesh_sign: str = "auto") -> int:
+            mesh_sign: str = "auto", mesh_grid_spacing: float = MESH_GRID) -> int:
         """Add a geom (sizes in m, pose: position m and quaternion w x y z). A MESH takes
         ``vertices`` (V, 3) m and ``faces`` (F, 3) in the geom frame; ``mesh_range`` (m) is how far
         its distance query looks; ``mesh_sign`` is "auto" (see :func:`prepare_mesh`) or "winding"
-        (force the winding-number sign, e.g. for a mesh that passes through itself). ``obj`` groups
+        (force the winding-number sign, e.g. for a mesh that passes through itself);
+        ``mesh_grid_spacing`` (m) the node spacing of its distance grid (:func:`mesh_grid`; 0: none,
+        every query walks the BVH; the answers below sdf.GRID_BAND are the same). ``obj`` groups
         geoms into one object (default: the geom's name)."""
         try:
             gtype = GeomType(gtype)
@@ -294,17 +340,19 @@ class Objects:
             raise ValueError(f"geom '{name}': sizes must be finite and positive ({gtype.name} uses {used}), got {size}")
         i = len(self.names)
         h = self._host
-        mesh_id = 0
+        mesh_id = (0, 0)
         if gtype == GeomType.MESH:
             if vertices is None or faces is None:
                 raise ValueError(f"mesh geom '{name}' needs vertices and faces")
-            key = _mesh_key(vertices, faces, mesh_sign)
+            key = (*_mesh_key(vertices, faces, mesh_sign), float(mesh_grid_spacing or 0.0))
             if key not in self._mesh_cache:  # a rigid mesh in its geom frame: shared by every geom that has it
                 m, sign = prepare_mesh(vertices, faces, name=name, sign=mesh_sign, device=self.device)
+                grid = mesh_grid(m, sign, mesh_grid_spacing)
                 self._meshes.append(m)
-                self._mesh_cache[key] = (m, sign, mesh_half_thickness(m), float(np.linalg.norm(m.points.numpy(), axis=1).max()))
-            m, sign, half, radius = self._mesh_cache[key]
-            mesh_id = m.id
+                self._mesh_cache[key] = (m, sign, mesh_half_thickness(m), float(np.linalg.norm(m.points.numpy(), axis=1).max()),
+                                         grid)
+            m, sign, half, radius, grid = self._mesh_cache[key]
+            mesh_id = (m.id, grid.id if grid is not None else 0)
             size = np.array([mesh_range, float(sign), half])  # query.side_floor reads [2]
             h["radius"][i] = radius
         else:

@@ -43,7 +43,7 @@ MULTIRES = wp.constant(int(Strategy.MULTIRES))
 @wp.func
 def world_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
               inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.uint64), base: int, count: int, mask: int):
+              mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
     """min over the geoms [base, base + count) (one world's: batched worlds) of phi at world point
     p (m). Only geoms whose bit is set in ``mask`` count: bit j is geom base + j (the broadphase's
     world-relative list for this triangle; -1 = all); geoms base + 31 on share bit 30 and are always
@@ -63,7 +63,7 @@ def world_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.ve
 @wp.func
 def world_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
                    inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.uint64), base: int, count: int, mask: int):
+                   mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
     """(phi, unit world gradient, geom index) of the closest geom of [base, base + count) at world
     point p (``mask`` as in :func:`world_phi`; the index is global)."""
     best = float(FAR)
@@ -87,7 +87,7 @@ def world_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=
 @wp.func
 def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
               inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
+              mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
     """:func:`world_phi` over geoms [0, count) (one world, or a world's (W, k) view row)."""
     return world_phi(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
 
@@ -95,7 +95,7 @@ def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.ve
 @wp.func
 def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
                    inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.uint64), count: int, mask: int):
+                   mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
     """:func:`world_phi_grad` over geoms [0, count)."""
     return world_phi_grad(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
 
@@ -170,10 +170,10 @@ def only_geom(near: int, base: int, n_geoms: int):
 
 @wp.func
 def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.uint64)):
+              inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.vec2ul)):
     """(type, inverse pose, size, mesh id) of geom ``g``; a NONE geom (phi = FAR) for g < 0."""
     if g < 0:
-        return int(0), wp.transform_identity(), wp.vec3(0.0), wp.uint64(0)
+        return int(0), wp.transform_identity(), wp.vec3(0.0), wp.vec2ul(wp.uint64(0), wp.uint64(0))
     return gtype[g], inv_pose[g], size[g], mesh[g]
 
 
@@ -209,7 +209,7 @@ def side_floor(gtype: int, size: wp.vec3):
 def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
             near: int, base: int, n_geoms: int,
             gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-            radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), geom_obj: wp.array(dtype=int),
+            radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_obj: wp.array(dtype=int),
             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
             touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
     """Eq. 9 for a triangle (vertices i0, i1, i2, outward unit normal nt) whose decision point is
@@ -253,7 +253,7 @@ def decide_and_project(
     size: wp.array(dtype=wp.vec3),
     inv_pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.uint64),
+    mesh: wp.array(dtype=wp.vec2ul),
     geom_count: wp.array(dtype=int),
     geom_obj: wp.array(dtype=int),
     tris_per_world: int,
@@ -436,9 +436,9 @@ def lattice_uv(idx: int, order: int):
 
 
 @wp.func
-def tile_phi(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.uint64,
+def tile_phi(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.vec2ul,
              gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.uint64), base: int, n_geoms: int, near: int):
+             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), base: int, n_geoms: int, near: int):
     d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
     if single < 0:
         d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
@@ -454,7 +454,7 @@ def decide_and_project_tiled(
     size: wp.array(dtype=wp.vec3),
     inv_pose: wp.array(dtype=wp.transform),
     radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.uint64),
+    mesh: wp.array(dtype=wp.vec2ul),
     geom_count: wp.array(dtype=int),
     geom_obj: wp.array(dtype=int),
     tris_per_world: int,

@@ -18,7 +18,14 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
   every face within 1e-3 average edge lengths of the closest distance and gets knife edges wrong
   (docs/contact.md). An open or overlapping mesh takes the generalised winding number (> 1/2 is
   inside: holes are closed over), 2-4x dearer. Cost O(log F) per query against O(1) for the
-  analytic shapes. A precomputed grid was not used: it would cap the accuracy at its cell size,
+  analytic shapes. A mesh geom's id is a ``wp.vec2ul``: (wp.Mesh id, grid id or 0). The grid
+  (``objects.mesh_grid``, a ``wp.Volume`` of the exact signed distance at its nodes) answers only
+  points provably farther than :data:`GRID_BAND` outside the mesh, with a lower bound of their
+  distance (the nearest node's distance minus the way to it: a distance is 1-Lipschitz) and the
+  grid's gradient; every point closer than that or inside gets the exact BVH query. Every decision
+  the contact makes at a distance below GRID_BAND (projections, depths, signs, the metrics' inside
+  test) is therefore exact, and the broadphase tests, which ask whether phi exceeds a margin, stay
+  conservative. A grid that interpolated near the surface would cap the accuracy at its cell size,
   while the paper's point is sub-micrometre contact.
 """
 
@@ -40,6 +47,24 @@ MESH_SIGN_PSEUDO = wp.constant(0)  # size[1] of a mesh geom: sign by the closest
 MESH_SIGN_WINDING = wp.constant(1)  # ... by the generalised winding number (open / overlapping meshes)
 WINDING_ACCURACY = wp.constant(2.0)  # Barill et al.'s beta: far clusters by their dipole expansion
 BARY_EPS = wp.constant(1.0e-5)  # barycentric coordinate below which the closest point is on an edge
+GRID_BAND = wp.constant(1.0e-3)  # m: a mesh grid answers only points provably farther than this outside
+
+
+@wp.func
+def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
+    """(a lower bound (m) of p's distance outside the mesh, index-space point) from the mesh's grid:
+    the nearest node's exact distance minus p's distance to that node (a distance function is
+    1-Lipschitz, and a node outside with distance d has no surface within d). -1 where that node is
+    inside or on the surface, or p is off the grid (its background value)."""
+    uvw = wp.volume_world_to_index(grid, p)
+    i = int(wp.floor(uvw[0] + 0.5))
+    j = int(wp.floor(uvw[1] + 0.5))
+    k = int(wp.floor(uvw[2] + 0.5))
+    dc = wp.volume_lookup_f(grid, i, j, k)
+    if dc <= 0.0:
+        return -1.0, uvw
+    c = wp.volume_index_to_world(grid, wp.vec3(float(i), float(j), float(k)))
+    return dc - wp.length(p - c), uvw
 
 
 @wp.func
@@ -190,11 +215,22 @@ def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
 
 
 @wp.func
-def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
-    """(phi, unit gradient) of a mesh: exact distance to the closest point c, signed by the method
-    in ``size[1]``; the gradient is sign (p - c) / |p - c|, on the surface (closer than 1e-6 of the
-    coordinates' size) the unit pseudo normal (winding sign: the face normal)."""
+def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, ids: wp.vec2ul):
+    """(phi, unit gradient) of a mesh (``ids``: its wp.Mesh id, its grid's id or 0): exact distance to
+    the closest point c, signed by the method in ``size[1]``; the gradient is sign (p - c) / |p - c|,
+    on the surface (closer than 1e-6 of the coordinates' size) the unit pseudo normal (winding sign:
+    the face normal). Points the grid proves farther than GRID_BAND outside get that lower bound and
+    the grid's gradient instead (module docstring)."""
     normal = wp.vec3(0.0, 0.0, 1.0)
+    if ids[1] != wp.uint64(0):
+        lb, uvw = grid_lower_bound(ids[1], p)
+        if lb > GRID_BAND:
+            g = wp.vec3(0.0)
+            wp.volume_sample_grad_f(ids[1], uvw, wp.Volume.LINEAR, g)
+            if wp.length(g) > 0.0:
+                normal = wp.normalize(g)
+            return lb, normal
+    mesh = ids[0]
     sign = 1.0
     face = int(0)
     u = float(0.0)
@@ -233,7 +269,7 @@ def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
 
 
 @wp.func
-def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
+def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
     """phi (m) of geom ``gtype`` of ``size`` at local point ``p``; FAR for NONE / no mesh hit."""
     if gtype == PLANE:
         return p[2]
@@ -257,7 +293,7 @@ def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
 
 
 @wp.func
-def _fd_gradient(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
+def _fd_gradient(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
     h = FD_STEP
     gx = geom_sdf(gtype, p + wp.vec3(h, 0.0, 0.0), size, mesh) - geom_sdf(gtype, p - wp.vec3(h, 0.0, 0.0), size, mesh)
     gy = geom_sdf(gtype, p + wp.vec3(0.0, h, 0.0), size, mesh) - geom_sdf(gtype, p - wp.vec3(0.0, h, 0.0), size, mesh)
@@ -277,7 +313,7 @@ def _axis_sign(x: float):
 
 
 @wp.func
-def geom_sdf_grad(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.uint64):
+def geom_sdf_grad(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
     """(phi, unit gradient) at local point ``p``; the gradient is in the geom's local frame."""
     up = wp.vec3(0.0, 0.0, 1.0)
     if gtype == PLANE:

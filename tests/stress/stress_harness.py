@@ -38,7 +38,7 @@ from physhand_mj.types import GeomType
 
 @wp.kernel
 def _bone_sdf(x: wp.array(dtype=wp.vec3), idx: wp.array(dtype=int), gtype: wp.array(dtype=int),
-              size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.uint64),
+              size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.vec2ul),
               out: wp.array(dtype=float)):
     """The object's (geom 0) signed distance at the skeleton vertices ``idx`` (m, < 0 inside)."""
     i = wp.tid()
