@@ -213,7 +213,7 @@ class Config:
     side_aware: bool = True
     skin_tether: float = 0.025
     object_metrics: bool = False
-    mesh_grid: float = 1.0e-3
+    mesh_grid: float = 2.0e-3
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool = True

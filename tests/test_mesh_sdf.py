@@ -360,7 +360,7 @@ def test_the_distance_grid_answers_only_far_points_with_a_lower_bound(shape, dev
     objs = Objects(device, 1)
     objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="m")
     spacing = float(max(next(iter(objs._mesh_cache.values()))[-1].get_voxel_size()))
-    assert 1e-3 <= spacing < 1.5e-3
+    assert spacing == pytest.approx(2e-3, rel=1e-4)
     assert np.all(exact - fast <= spacing * np.sqrt(3) + 1e-6), (exact - fast).max()
     on_grid = np.all((p > lo) & (p < hi), axis=1)
     answered = ~near & on_grid & (fast < exact - 1e-9)

@@ -202,7 +202,7 @@ def mesh_half_thickness(mesh: wp.Mesh, samples: int = THICKNESS_SAMPLES) -> floa
     return float(0.5 * q10) if q10 >= THICKNESS_EVEN * q50 else 0.0
 
 
-MESH_GRID = 1.0e-3  # m: default node spacing of a mesh's distance grid (mesh_grid; 0 = none)
+MESH_GRID = 2.0e-3  # m: default node spacing of a mesh's distance grid (mesh_grid; 0 = none)
 GRID_PAD = 1.5e-2  # m: the grid covers the mesh's box grown by this (the frame margin, 1 cm, and more)
 GRID_MAX_NODES = 1_000_000  # larger meshes get a coarser spacing (the grid's memory and build time)
 
