@@ -267,13 +267,13 @@ class Contact:
                 self._tally_touched(launch, p, feat_touched)
             if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
                 launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
-                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj,
+                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                         self.tris_per_world, self.geoms_per_world, *lst,
                         cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                        block_dim=TILE_LANES)
             else:
                 launch(decide_and_project, self.n_tris,
-                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count, o.obj,
+                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                         self.tris_per_world, self.geoms_per_world, *lst,
                         int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
                         cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])

@@ -276,7 +276,8 @@ class Objects:
     gtype (G,) int (GeomType), size (G,) vec3 (m), pose (G,) transform (world), inv_pose (G,)
     transform (world -> geom frame: what the queries use, inverted once per frame), radius (G,) float
     (bounding radius, m), mesh (G,) vec2ul (wp.Mesh id or 0, its distance grid's wp.Volume id or 0:
-    :func:`mesh_grid`), obj (G,) int (object index); count (1,)
+    :func:`mesh_grid`; what the broadphase and the metrics query), mesh_exact (G,) vec2ul (the same
+    without the grids: what the decision points and Eq. 9 query), obj (G,) int (object index); count (1,)
     int, the number of geoms in use. Host lists keep names and meshes alive.
     """
 
@@ -288,6 +289,7 @@ class Objects:
     inv_pose: object = None
     radius: object = None
     mesh: object = None
+    mesh_exact: object = None
     obj: object = None
     count: object = None
     names: list = field(default_factory=list)
@@ -305,6 +307,7 @@ class Objects:
         self.inv_pose = wp.zeros(c, dtype=wp.transform, device=d)
         self.radius = wp.zeros(c, dtype=float, device=d)
         self.mesh = wp.zeros(c, dtype=wp.vec2ul, device=d)
+        self.mesh_exact = wp.zeros(c, dtype=wp.vec2ul, device=d)
         self.obj = wp.zeros(c, dtype=int, device=d)
         self.count = wp.zeros(1, dtype=int, device=d)
         self._host = dict(gtype=np.zeros(c, np.int32), size=np.zeros((c, 3), np.float32),
@@ -407,5 +410,6 @@ class Objects:
         h = self._host
         for name in ("gtype", "size", "radius", "mesh", "obj"):
             getattr(self, name).assign(h[name])
+        self.mesh_exact.assign(h["mesh"] * np.array([1, 0], np.uint64))
         self._upload_pose()
         self.count.assign(np.array([len(self.names)], np.int32))

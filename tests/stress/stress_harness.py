@@ -99,7 +99,7 @@ class Stress:
             objs = Objects(str(self.config.device or "cpu"), 1)
             if case.gtype == GeomType.MESH:
                 objs.add(GeomType.MESH, None, p_w, q_w, name=case.name, vertices=case.vertices, faces=case.faces,
-                         mesh_range=0.05)
+                         mesh_range=0.05, mesh_grid_spacing=self.config.mesh_grid)
             else:
                 objs.add(case.gtype, case.size, p_w, q_w, name=case.name)
         self.objects = objs
