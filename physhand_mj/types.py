@@ -144,9 +144,10 @@ class Config:
         closed skin, contact/inside.py) at the end of every frame; otherwise ``SoftHand.metrics`` /
         ``penetration`` evaluate it when called (it costs about as much as a CPU frame);
         mesh_grid: node spacing (m) of each mesh object's distance grid (contact/objects.mesh_grid),
-          which answers the queries it proves farther than 1 mm outside the mesh (a lower bound of
-          the distance) without the BVH walk; every answer closer than that is the exact BVH query,
-          so the contact's results are unchanged. 0: no grid (docs/contact.md);
+          which answers the broadphase's and the metrics' queries it proves farther than 1 mm
+          outside the mesh (a lower bound of the distance) without the BVH walk; the broadphase
+          re-asks exactly where a bound keeps a triangle and the decision points never use it, so
+          the contact's results are unchanged. 0: no grid (docs/contact.md);
         multires_samples / multires_rounds: Algorithm 2's samples per round and rounds (default
         21 x 2 = 42 queries: an order-5 first round catches narrow penetrations at sharp rims that
         10 x 3 and the paper's 16 x 2 miss, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's

@@ -22,10 +22,10 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
   (``objects.mesh_grid``, a ``wp.Volume`` of the exact signed distance at its nodes) answers only
   points provably farther than :data:`GRID_BAND` outside the mesh, with a lower bound of their
   distance (the nearest node's distance minus the way to it: a distance is 1-Lipschitz) and the
-  grid's gradient; every point closer than that or inside gets the exact BVH query. Every decision
-  the contact makes at a distance below GRID_BAND (projections, depths, signs, the metrics' inside
-  test) is therefore exact, and the broadphase tests, which ask whether phi exceeds a margin, stay
-  conservative. A grid that interpolated near the surface would cap the accuracy at its cell size,
+  grid's gradient; every point closer than that or inside gets the exact BVH query. The broadphase
+  (which re-asks exactly where a bound keeps a triangle) and the metrics use it; the decision
+  points and Eq. 9 query ``Objects.mesh_exact`` (no grid), so the contact's results are those of
+  the exact distance (docs/contact.md). A grid that interpolated near the surface would cap the accuracy at its cell size,
   while the paper's point is sub-micrometre contact.
 """
 
