@@ -1,0 +1,71 @@
+"""Rollouts on Ray across the GPUs of one machine: wall time and hand-frames per second with 1, 2, ...
+GPUs (issue 15: the 2 GPUs of an H200 pair at >= 1.8 x one GPU).
+
+    python benchmarks/ray_scaling.py [--gpus 1,2] [--runs 256] [--batch 16] [--steps 36]
+                                     [--scene mjcf/scenes/hoi_apple.xml] [--keyframe grasp] [--out FILE]
+
+Per GPU count k: ``physhand rollout LIST --ray --batch W --device cuda`` as a user runs it, in a
+fresh process that sees the first k GPUs (CUDA_VISIBLE_DEVICES), on a local Ray (one batch task per
+GPU at a time); LIST holds ``--runs`` copies of the scene's keyframe. Wall time from the command's
+start to its end (Ray start, worker start, kernel loading from Warp's cache, every batch's setup,
+settling and frames, the logs and PLYs written), hand-frames = runs x steps. Outputs go to a
+temporary folder; the summary's rows are checked (all finite, none failed). One JSON document.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--gpus", default="1,2", help="GPU counts to compare (comma-separated)")
+    ap.add_argument("--runs", type=int, default=256, help="rollouts in the list (count)")
+    ap.add_argument("--batch", type=int, default=16, help="worlds per batch (one Ray task each)")
+    ap.add_argument("--steps", type=int, default=36, help="5 ms frames per rollout")
+    ap.add_argument("--scene", default=str(ROOT / "mjcf" / "scenes" / "hoi_apple.xml"))
+    ap.add_argument("--keyframe", default="grasp")
+    ap.add_argument("--device", default="cuda", help="Warp device of the rollouts (cpu: a local check, Ray's CPU workers)")
+    ap.add_argument("--out", default=None, help="JSON path (default: stdout only)")
+    a = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        lst = Path(tmp) / "runs.txt"
+        lst.write_text("".join(f"{Path(a.scene).resolve()} {a.keyframe}\n" for _ in range(a.runs)))
+        for k in [int(g) for g in a.gpus.split(",")]:
+            out = Path(tmp) / f"out{k}"
+            env = dict(os.environ, CUDA_VISIBLE_DEVICES=",".join(str(i) for i in range(k)))
+            cmd = [sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), "--ray", "--batch", str(a.batch),
+                   "--steps", str(a.steps), "--device", a.device, "--out", str(out)]
+            t = time.perf_counter()
+            p = subprocess.run(cmd, env=env, capture_output=True, text=True)
+            wall = time.perf_counter() - t
+            summary = list(csv.DictReader(open(out / "summary.csv"))) if (out / "summary.csv").exists() else []
+            ok = [r for r in summary if not r.get("error") and r.get("finite") == "True"]
+            row = dict(gpus=k, runs=a.runs, batch=a.batch, steps=a.steps, wall_s=round(wall, 2),
+                       hand_frames_per_s=round(a.runs * a.steps / wall, 1), rows=len(summary), finite_ok=len(ok),
+                       exit=p.returncode, stderr_tail=p.stderr[-600:] if p.returncode else "")
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    if len(rows) > 1:
+        base = rows[0]["wall_s"]
+        for r in rows:
+            r["speedup_vs_first"] = round(base / r["wall_s"], 3)
+    doc = dict(scene=a.scene, keyframe=a.keyframe, rows=rows)
+    print(json.dumps(doc))
+    if a.out:
+        Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
