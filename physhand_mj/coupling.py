@@ -336,16 +336,18 @@ def select_object_geoms(model, bones, skin_geom: int, names=None, bodies=None, g
     bodies) but the skin geom, restricted to geom ``names`` (or ids), ``bodies`` and geom ``groups``
     when given. Raises ValueError for a geom type the skin cannot collide with."""
     m = model
-    roots = {int(m.body_rootid[b]) for b in bones}
-    hand = {b for b in range(m.nbody) if int(m.body_rootid[b]) in roots and b != 0}
+    rootid = m.body_rootid.tolist()
+    roots = {rootid[int(b)] for b in bones}
+    hand = {b for b in range(m.nbody) if rootid[b] in roots and b != 0}
     out = []
+    body_of = m.geom_bodyid.tolist()  # (plain lists and mj_id2name: no per-geom accessor objects)
     for g in range(m.ngeom):
-        if g == skin_geom or int(m.geom_bodyid[g]) in hand:
+        if g == skin_geom or body_of[g] in hand:
             continue
-        name = m.geom(g).name
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or ""
         if names is not None and name not in names and g not in names:  # names or ids (unnamed geoms)
             continue
-        if bodies is not None and m.body(int(m.geom_bodyid[g])).name not in bodies:
+        if bodies is not None and (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, body_of[g]) or "") not in bodies:
             continue
         if groups is not None and int(m.geom_group[g]) not in groups:
             continue
