@@ -148,8 +148,10 @@ def plot(files: list[str], path: Path) -> None:
             ax.set_xticks(range(len(sel)))
             ax.set_xticklabels(labels, fontsize=7)
             ax.set_ylabel("ms per 5 ms frame")
-            ax.set_title(f"{doc['device']}: " + ("contact share (held still)" if group == "share"
-                                                 else "motion (peak joint speed)"), fontsize=8)
+            dev = doc["device"]
+            short = "CPU (Warp CPU kernels)" if dev.startswith("cpu") else dev[dev.find("(") + 1: dev.rfind(")")] or dev
+            ax.set_title(f"{short}: " + ("contact share of the skin (held still)" if group == "share"
+                                         else "motion (peak joint speed)"), fontsize=9)
         row[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
