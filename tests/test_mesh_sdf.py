@@ -369,6 +369,12 @@ def test_the_distance_grid_answers_only_far_points_with_a_lower_bound(shape, dev
     assert off.sum() > 100
     np.testing.assert_array_equal(fast[off], exact[off])
     assert np.allclose(np.linalg.norm(grad, axis=1), 1.0, atol=1e-4)
+    # an open mesh (winding-number sign) gets no grid: across a hole its inside is not bounded by faces
+    open_box = trimesh.creation.box(extents=[0.03, 0.02, 0.01])
+    open_box.faces = open_box.faces[2:]
+    objs = Objects(device, 1)
+    objs.add(GeomType.MESH, None, vertices=open_box.vertices, faces=open_box.faces, name="open")
+    assert int(objs._host["size"][0][1]) == MESH_SIGN_WINDING and int(objs._host["mesh"][0][1]) == 0
 
 
 def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():

@@ -222,13 +222,16 @@ def _grid_values(mesh: wp.uint64, size: wp.vec3, origin: wp.vec3, h: float, ny: 
 def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
     """The exact signed distance (m) of ``mesh`` (sign method ``sign``) at the nodes of a regular grid
     over its box grown by GRID_PAD, as a ``wp.Volume`` (node (i, j, k) at the box corner + spacing x
-    (i, j, k); background -1 off the grid), or None for ``spacing`` <= 0. The spacing grows past
+    (i, j, k); background -1 off the grid), or None for ``spacing`` <= 0 and for meshes signed by the
+    winding number (open or overlapping: their inside is not bounded by faces alone). The spacing grows past
     ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.sdf_mesh_grad uses it
     only to answer points provably farther than sdf.GRID_BAND outside the mesh (a lower bound of the
     distance, exact decisions below that band): it skips the BVH query there, which the broadphase
     and the metrics ask for most of their points. Costs one exact query per node once (about 1 us
     each on a CPU) and 4 bytes per node."""
-    if spacing is None or spacing <= 0:
+    if spacing is None or spacing <= 0 or sign == MESH_SIGN_WINDING:
+        # (an open mesh's inside ends where the winding number crosses 1/2 across a hole, not at a
+        # surface: a ball free of faces may hold both sides, so the bound's sign would not hold)
         return None
     v = mesh.points.numpy().astype(np.float64)
     lo, hi = v.min(axis=0) - GRID_PAD, v.max(axis=0) + GRID_PAD
