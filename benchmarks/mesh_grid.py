@@ -30,7 +30,6 @@ from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
 from physhand_mj.contact.objects import GRID_PAD
 from physhand_mj.contact.sdf import GRID_BAND, geom_sdf
-from physhand_mj.metrics import summarize
 from physhand_mj.types import GeomType
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,7 +66,7 @@ def run_scene(device: str, spacing: float, frames: int) -> dict:
 
 def query_accuracy(device: str, spacing: float, n: int = 200_000) -> dict:
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hoi_bowl")))
-    mid = int(model.geom_dataid[model.geom("bowl").id]) if model.geom("bowl").id >= 0 else model.nmesh - 1
+    mid = int(model.geom_dataid[model.geom("bowl").id])  # the bowl geom's mesh
     va, vn = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
     fa, fn = model.mesh_faceadr[mid], model.mesh_facenum[mid]
     v, f = model.mesh_vert[va: va + vn].astype(float), model.mesh_face[fa: fa + fn]
