@@ -393,14 +393,16 @@ def _feature_pass(c, state, feats, tiled: bool):
     if tiled:
         wp.launch(feature_contact_tiled, (len(feats), 1),
                   [m.skin_faces, c.cand, c.cand_count, lst, lst_count, c.points.pts, c.points.geom, o.pose, o.obj,
-                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x],
+                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
+                   state.x],
                   [delta, hits, touched, count, vobj], device=d, block_dim=1)
     else:
         skin = c.volume(state, winding=False).mesh
         skin.refit()
         wp.launch(feature_contact, len(feats),
                   [skin.id, m.skin_faces, lst, lst_count, c.points.pts, c.points.geom, o.pose, o.obj,
-                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.near_query, state.x],
+                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.near_query, state.x, o.pose,
+                   state.x],
                   [delta, hits, touched, count, vobj], device=d)
     h = hits.numpy().astype(float)
     return delta.numpy().astype(float) / np.maximum(h, 1e-300)[:, None], h

@@ -252,14 +252,14 @@ class Contact:
                     launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
                            [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
                             self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
-                            cfg.contact_margin, self.feature_eps, self._query_x(state)],
+                            cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            block_dim=self.feature_lanes)
                 else:
                     launch(feature_contact, self.points.n_features,
                            [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
                             self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
-                            self.near_query, self._query_x(state)],
+                            self.near_query, self._query_x(state), o.pose, state.x],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            count=feat_count)
                 launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],

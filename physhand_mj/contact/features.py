@@ -131,6 +131,24 @@ def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, 
                hits, touched, touched_count, vertex_obj)
 
 
+@wp.func
+def at_origin(i: int, p: wp.vec3, f: int, u: float, v: float, pts: wp.array(dtype=wp.vec3),
+              pts_geom: wp.array(dtype=int), pose0: wp.array(dtype=wp.transform), faces: wp.array2d(dtype=int),
+              x0: wp.array(dtype=wp.vec3)):
+    """Batched worlds query their object side moved to their place on a grid (Contact.set_query_offsets);
+    the push is computed where the world is solved: feature point ``i`` with the unshifted poses
+    ``pose0``, and its closest point on face ``f`` of the unshifted skin ``x0`` again (as Warp's query
+    computes it, :func:`closest_on_triangle`), so a shifted world pushes as its serial run does. A
+    world that is not shifted (p equal at both places) keeps the query's (u, v). Returns (f, u, v, p0)."""
+    p0 = object_point(i, pts, pts_geom, pose0)
+    if p0[0] == p[0] and p0[1] == p[1] and p0[2] == p[2]:
+        return f, u, v, p0
+    bc = closest_on_triangle(x0[faces[f, 0]], x0[faces[f, 1]], x0[faces[f, 2]], p0)
+    min_v = bc[1]
+    min_w = 1.0 - bc[0] - bc[1]
+    return f, 1.0 - min_v - min_w, min_v, p0
+
+
 @wp.kernel
 def feature_contact(
     skin: wp.uint64,
@@ -146,6 +164,8 @@ def feature_contact(
     max_step: float,
     near: float,
     x: wp.array(dtype=wp.vec3),
+    pose0: wp.array(dtype=wp.transform),
+    x0: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     touched: wp.array(dtype=int),
@@ -163,7 +183,8 @@ def feature_contact(
     q = closest_signed(skin, p, near, margin)
     if not q.result:
         return
-    push_feature(p, q.face, q.u, q.v, q.sign, geom_obj[g], faces, offset, max_step, x, delta, hits, touched,
+    f, u, v, p0 = at_origin(i, p, q.face, q.u, q.v, pts, pts_geom, pose0, faces, x0)
+    push_feature(p0, f, u, v, q.sign, geom_obj[g], faces, offset, max_step, x0, delta, hits, touched,
                  touched_count, vertex_obj)
 
 
@@ -382,6 +403,8 @@ def feature_contact_tiled(
     max_step: float,
     eps: float,
     x: wp.array(dtype=wp.vec3),
+    pose0: wp.array(dtype=wp.transform),
+    x0: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     touched: wp.array(dtype=int),
@@ -399,5 +422,6 @@ def feature_contact_tiled(
     found, f, u, v, sign = closest_signed_tiled(p, lane, faces, x, tris, tri_count, margin, eps)
     if lane != 0 or not found:
         return
-    push_feature(p, f, u, v, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x, delta, hits, touched,
+    f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+    push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
                  touched_count, vertex_obj)
