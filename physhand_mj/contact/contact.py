@@ -102,8 +102,9 @@ class Contact:
         self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         f = model.skin_faces.numpy()
-        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-        self.closed_skin = bool(len(f)) and bool(np.all(np.unique(e, axis=0, return_counts=True)[1] == 2))
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1).astype(np.int64)
+        key = e[:, 0] * (int(e.max(initial=0)) + 1) + e[:, 1]  # one integer per edge: a 1-D unique (fast for W worlds)
+        self.closed_skin = bool(len(f)) and bool(np.all(np.unique(key, return_counts=True)[1] == 2))
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
         self.feat_count = wp.zeros(1, dtype=int, device=d)
         # m, the radius a feature's skin query tries first (features.closest_signed): a pass's

@@ -104,7 +104,7 @@ def make_model(asset, config: Config | None = None) -> Model:
     count = np.zeros((len(JACOBI_GROUPS), n))  # per Jacobi group: constraints touching each movable vertex
     for row, group in enumerate(JACOBI_GROUPS):
         for name in group:
-            np.add.at(count[row], fam[name][0].ravel(), 1.0)
+            count[row] += np.bincount(np.asarray(fam[name][0]).ravel(), minlength=n)[:n]
     count[:, kin] = 0.0
 
     vb = np.where(kin, np.asarray(asset.vertex_body), -1).astype(np.int32)
