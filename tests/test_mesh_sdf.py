@@ -14,7 +14,7 @@ import trimesh
 import warp as wp
 
 from physhand_mj.contact import Objects
-from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, geom_sdf_grad
+from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -28,7 +28,7 @@ def _eval(size: wp.vec3, mesh: wp.vec2ul, p: wp.array(dtype=wp.vec3),
           phi: wp.array(dtype=float), grad: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     d, g = geom_sdf_grad(int(GeomType.MESH), p[i], size, mesh)
-    phi[i] = d
+    phi[i] = geom_sdf(int(GeomType.MESH), p[i], size, mesh)  # (the value query: the grid's where it has one)
     grad[i] = g
 
 

@@ -224,7 +224,7 @@ def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
     over its box grown by GRID_PAD, as a ``wp.Volume`` (node (i, j, k) at the box corner + spacing x
     (i, j, k); background -1 off the grid), or None for ``spacing`` <= 0 and for meshes signed by the
     winding number (open or overlapping: their inside is not bounded by faces alone). The spacing grows past
-    ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.sdf_mesh_grad uses it
+    ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.geom_sdf (values only) uses it
     only to answer points provably farther than sdf.GRID_BAND outside the mesh (a lower bound of the
     distance, exact decisions below that band): it skips the BVH query there, which the broadphase
     and the metrics ask for most of their points. Costs one exact query per node once (about 1 us

@@ -20,9 +20,10 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
   inside: holes are closed over), 2-4x dearer. Cost O(log F) per query against O(1) for the
   analytic shapes. A mesh geom's id is a ``wp.vec2ul``: (wp.Mesh id, grid id or 0). The grid
   (``objects.mesh_grid``, a ``wp.Volume`` of the exact signed distance at its nodes) answers only
-  points provably farther than :data:`GRID_BAND` outside the mesh, with a lower bound of their
-  distance (the nearest node's distance minus the way to it: a distance is 1-Lipschitz) and the
-  grid's gradient; every point closer than that or inside gets the exact BVH query. The broadphase
+  points provably farther than :data:`GRID_BAND` outside the mesh in :func:`geom_sdf` (values only),
+  with a lower bound of their distance (the nearest node's distance minus the way to it: a
+  distance is 1-Lipschitz); every point closer than that or inside, and every gradient query
+  (:func:`geom_sdf_grad`), gets the exact BVH query. The broadphase
   (which re-asks exactly where a bound keeps a triangle) and the metrics use it; the decision
   points and Eq. 9 query ``Objects.mesh_exact`` (no grid), so the contact's results are those of
   the exact distance (docs/contact.md). A grid that interpolated near the surface would cap the accuracy at its cell size,
@@ -52,19 +53,19 @@ GRID_BAND = wp.constant(1.0e-3)  # m: a mesh grid answers only points provably f
 
 @wp.func
 def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
-    """(a lower bound (m) of p's distance outside the mesh, index-space point) from the mesh's grid:
-    the nearest node's exact distance minus p's distance to that node (a distance function is
-    1-Lipschitz, and a node outside with distance d has no surface within d). -1 where that node is
-    inside or on the surface, or p is off the grid (its background value)."""
+    """A lower bound (m) of p's distance outside the mesh from the mesh's grid: the nearest node's
+    exact distance minus p's distance to that node (a distance function is 1-Lipschitz, and a node
+    outside with distance d has no surface within d). -1 where that node is inside or on the
+    surface, or p is off the grid (its background value)."""
     uvw = wp.volume_world_to_index(grid, p)
     i = int(wp.floor(uvw[0] + 0.5))
     j = int(wp.floor(uvw[1] + 0.5))
     k = int(wp.floor(uvw[2] + 0.5))
     dc = wp.volume_lookup_f(grid, i, j, k)
     if dc <= 0.0:
-        return -1.0, uvw
+        return -1.0
     c = wp.volume_index_to_world(grid, wp.vec3(float(i), float(j), float(k)))
-    return dc - wp.length(p - c), uvw
+    return dc - wp.length(p - c)
 
 
 @wp.func
@@ -216,20 +217,11 @@ def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
 
 @wp.func
 def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, ids: wp.vec2ul):
-    """(phi, unit gradient) of a mesh (``ids``: its wp.Mesh id, its grid's id or 0): exact distance to
-    the closest point c, signed by the method in ``size[1]``; the gradient is sign (p - c) / |p - c|,
-    on the surface (closer than 1e-6 of the coordinates' size) the unit pseudo normal (winding sign:
-    the face normal). Points the grid proves farther than GRID_BAND outside get that lower bound and
-    the grid's gradient instead (module docstring)."""
+    """(phi, unit gradient) of a mesh (``ids``: its wp.Mesh id, its grid's id or 0; the gradient
+    path never uses the grid): exact distance to the closest point c, signed by the method in
+    ``size[1]``; the gradient is sign (p - c) / |p - c|, on the surface (closer than 1e-6 of the
+    coordinates' size) the unit pseudo normal (winding sign: the face normal)."""
     normal = wp.vec3(0.0, 0.0, 1.0)
-    if ids[1] != wp.uint64(0):
-        lb, uvw = grid_lower_bound(ids[1], p)
-        if lb > GRID_BAND:
-            g = wp.vec3(0.0)
-            wp.volume_sample_grad_f(ids[1], uvw, wp.Volume.LINEAR, g)
-            if wp.length(g) > 0.0:
-                normal = wp.normalize(g)
-            return lb, normal
     mesh = ids[0]
     sign = 1.0
     face = int(0)
@@ -287,6 +279,10 @@ def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
         d, g = sdf_cone_grad(p, size[0], size[1])
         return d
     if gtype == MESH:
+        if mesh[1] != wp.uint64(0):  # the grid's lower bound where it proves p far outside (module docstring)
+            lb = grid_lower_bound(mesh[1], p)
+            if lb > GRID_BAND:
+                return lb
         d, g = sdf_mesh_grad(p, size, mesh)
         return d
     return FAR
