@@ -20,7 +20,7 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import GRID_BAND, MESH, geom_sdf
+from physhand_mj.contact.sdf import MESH, geom_sdf, grid_lower_bound
 
 
 @wp.func
@@ -68,8 +68,8 @@ def find_active(
     world-relative: bit j is geom w k + j (j < 31; the world's geoms from its 31st on share bit 30,
     and the decision points, query.world_phi, always try those, within the world's [w k, (w + 1) k)
     only); one world's bits are its global geom indices, as before batching. A mesh's distance grid
-    (objects.mesh_grid) rejects the triangles it proves far; a triangle its lower bound keeps is
-    asked again exactly, so the lists are those of the exact distance."""
+    (objects.mesh_grid) rejects the triangles its lower bound proves far; the others are asked the
+    exact distance, so the lists are those of the exact distance."""
     k = wp.tid()
     t = k
     allowed = int(-1)
@@ -89,10 +89,12 @@ def find_active(
             continue
         q = wp.transform_point(inv_pose[g], m)
         if wp.length(q) - radius[g] - r <= margin:
-            d = geom_sdf(gtype[g], q, size[g], mesh[g])
-            if d - r <= margin and d > GRID_BAND and gtype[g] == MESH:  # maybe the grid's lower bound: ask exactly
-                d = geom_sdf(gtype[g], q, size[g], wp.vec2ul(mesh[g][0], wp.uint64(0)))
-            if d - r <= margin:
+            ids = mesh[g]
+            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid rejects what it proves far, in one read
+                if grid_lower_bound(ids[1], q) - r > margin:
+                    continue
+                ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
+            if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:
                 mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
