@@ -7,9 +7,11 @@ pressing the back of its hand 2 mm (the worlds then lie 1 m apart; the contact i
 Memory per world: the bytes of the replicated model's and state's device arrays divided by W.
 
     python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5] [--objects]
+                                          [--config '{"jacobi_gather": true}'] [--tag NAME]
     python benchmarks/batch_throughput.py --plot     # docs/images/batch_throughput.png from the JSONs
 
-Writes docs/benchmarks/batch_throughput_<device>[_objects].json.
+Writes docs/benchmarks/batch_throughput_<device>[_objects][_<tag>].json; each row also gives the
+batch's setup time (``BatchedHands(...)``: replicating the asset, the model, the solver; s).
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ def _nbytes(obj) -> int:
         v = getattr(obj, f.name)
         if isinstance(v, wp.array):
             total += v.capacity
+        elif isinstance(v, (list, tuple)):  # e.g. Model.gather_off: one array per Jacobi group
+            total += sum(a.capacity for a in v if isinstance(a, wp.array))
     return total
 
 
@@ -84,7 +88,10 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=5, help="timed 5 ms frames per world count")
     p.add_argument("--objects", action="store_true",
                    help="each world holds a sphere (radius 2 cm) pressing the back of its hand 2 mm")
+    p.add_argument("--config", default="{}", help="Config fields as JSON, e.g. '{\"jacobi_gather\": true}'")
+    p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
     a = p.parse_args()
+    extra = json.loads(a.config)
     wp.init()
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
@@ -97,20 +104,23 @@ def main() -> None:
 
     for w in [int(s) for s in a.worlds.split(",")]:
         objects = [dict(gtype=GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")] if a.objects else ()
-        hands = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0), *mount, objects=objects)
+        t_setup = time.perf_counter()
+        hands = BatchedHands(asset, w, Config(device=a.device, **{"sleep_speed": 0.0, **extra}), *mount, objects=objects)
+        setup_s = time.perf_counter() - t_setup
         ball = ()
         if a.objects:  # 2 mm into the back of the hand (its highest skin point, open pose)
             skin = hands.skin(0)
             top = skin[np.argmax(skin[:, 2])].astype(float)
             ball = (np.tile(top + [0.0, 0.0, 0.02 - 0.002], (w, 1))[:, None], np.tile([1.0, 0.0, 0.0, 0.0], (w, 1))[:, None])
 
-        def poses(f):
+        def poses(f):  # world k bends its index finger at rate 1 + k % 7: 7 distinct poses a frame
             ps = []
-            for k in range(w):
+            for r in range(min(w, 7)):
                 q = q0.copy()
-                q[adr] += 0.3 * np.sin(0.05 * f * (1 + k % 7))
+                q[adr] += 0.3 * np.sin(0.05 * f * (1 + r))
                 ps.append(bone_poses_at(model, data, q, ids))
-            return np.stack([x[0] for x in ps]), np.stack([x[1] for x in ps])
+            pick = np.arange(w) % 7
+            return np.stack([x[0] for x in ps])[pick], np.stack([x[1] for x in ps])[pick]
 
         for f in range(2):
             out = hands.step(*poses(f), *ball)
@@ -121,7 +131,8 @@ def main() -> None:
         ms = (time.perf_counter() - t) / a.frames * 1e3
         mem = (_nbytes(hands.solver.model) + _nbytes(hands.state)) / w
         rows.append(dict(worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
-                         mb_per_world=round(mem / 2**20, 2), vertices=hands.replicated.n_vertices))
+                         mb_per_world=round(mem / 2**20, 2), vertices=hands.replicated.n_vertices,
+                         setup_s=round(setup_s, 2)))
         if a.objects:  # the contact did work in every world, and nothing stayed inside
             pen = hands.penetration()
             rows[-1].update(triangles_tested=out.get("triangles_tested"),
@@ -129,9 +140,11 @@ def main() -> None:
                             object_in_skin_count_max=max(p["object_in_skin_count"] for p in pen))
         print(json.dumps(rows[-1]), flush=True)
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
-    tag = a.device.split(":")[0] + ("_objects" if a.objects else "")
+    tag = a.device.split(":")[0] + ("_objects" if a.objects else "") + (f"_{a.tag}" if a.tag else "")
     out = ROOT / "docs" / "benchmarks" / f"batch_throughput_{tag}.json"
-    out.write_text(json.dumps(dict(device=dev, frames=a.frames, contact=bool(a.objects), rows=rows), indent=1))
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, contact=bool(a.objects), config=extra,
+                                   command="python benchmarks/batch_throughput.py " + " ".join(sys.argv[1:]),
+                                   rows=rows), indent=1))
     print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))
 
 

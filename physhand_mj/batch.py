@@ -78,6 +78,92 @@ def replicate_asset(asset, worlds: int):
     )
 
 
+def tile_model_arrays(a: dict, worlds: int) -> dict:
+    """One world's host model arrays (``solver.model.model_arrays``) tiled into ``worlds`` worlds laid
+    out as :func:`replicate_asset` lays them out (all skins first, world by world, then each world's
+    other vertices; bodies ``name#w``), every constraint family world by world. Each world's arrays
+    are the single hand's, so a world's model is the serial model exactly (its nearest-vertex
+    choices and rest angles included), and the cost is a copy: no per-world rebuild."""
+    W = int(worlds)
+    n, ns, nb = int(a["n_vertices"]), int(a["n_skin"]), len(a["body_names"])
+    w = np.arange(W)
+
+    def per_vertex(v):  # (n, ...) -> (W n, ...): skins first, then the rest, world by world
+        v = np.asarray(v)
+        return np.concatenate([np.tile(v[:ns], (W,) + (1,) * (v.ndim - 1)),
+                               np.tile(v[ns:], (W,) + (1,) * (v.ndim - 1))])
+
+    def bodies(v):  # (ns,) body indices per skin vertex -> world by world, shifted by w nb (-1 stays)
+        v = np.asarray(v)
+        t = np.tile(v, W)
+        return np.where(t >= 0, t + np.repeat(w * nb, len(v)), -1).astype(v.dtype)
+
+    def vertex_bodies(v):
+        v = np.asarray(v)
+        wv = vertex_world(W * n, W * ns, W)
+        t = per_vertex(v)
+        return np.where(t >= 0, t + wv * nb, -1).astype(v.dtype)
+
+    def ids(v):  # (C, k) vertex ids -> (W C, k), world by world (int32, as the model stores them)
+        v = np.asarray(v, np.int32)
+        skin = v < ns
+        first = np.where(skin, v, v - ns + W * ns).astype(np.int32)  # world 0's ids
+        step = np.where(skin, ns, n - ns).astype(np.int32)  # how far one world moves each
+        out = np.empty((W,) + v.shape, np.int32)
+        out[0] = first
+        for k in range(1, W):  # one add per world, in place (10 x faster than a broadcast product)
+            np.add(out[k - 1], step, out=out[k])
+        return out.reshape((-1,) + v.shape[1:])
+
+    def tiled(v):
+        v = np.asarray(v)
+        return np.tile(v, (W,) + (1,) * (v.ndim - 1))
+
+    # the stored dtypes (solver.model.upload_model) before tiling: each element is cast once, not W times
+    a = dict(a, **{k: np.asarray(a[k], np.float32) for k in (
+        "rest_x", "inv_mass", "body_local", "skin_local", "edge_rest", "edge_alpha", "tet_rest6v", "tet_alpha",
+        "dih_rest", "vertex_count")})
+    sizes = {name: np.asarray(a[f"{name}_ids"]).size for name in ("edge", "tet", "dih")}
+    counts = np.asarray(a["vertex_count"])
+    out = dict(
+        a, n_vertices=W * n, n_skin=W * ns, worlds=W,
+        body_names=tuple(f"{b}#{k}" for k in range(W) for b in a["body_names"]),
+        rest_x=per_vertex(a["rest_x"]), inv_mass=per_vertex(a["inv_mass"]),
+        vertex_body=vertex_bodies(a["vertex_body"]), body_local=per_vertex(a["body_local"]),
+        vertex_carrier=vertex_bodies(a["vertex_carrier"]),
+        vertex_world=vertex_world(W * n, W * ns, W).astype(np.int32),
+        skin_body=bodies(a["skin_body"]), skin_local=tiled(a["skin_local"]),
+        edge_ids=ids(a["edge_ids"]), edge_rest=tiled(a["edge_rest"]), edge_alpha=tiled(a["edge_alpha"]),
+        edge_is_att=tiled(a["edge_is_att"]),
+        tet_ids=ids(a["tet_ids"]), tet_rest6v=tiled(a["tet_rest6v"]), tet_alpha=tiled(a["tet_alpha"]),
+        dih_ids=ids(a["dih_ids"]), dih_rest=tiled(a["dih_rest"]),
+        skin_faces=ids(a["skin_faces"]), guard_tets=ids(a["guard_tets"]),
+        vertex_count=np.concatenate([np.tile(counts[:, :ns], (1, W)), np.tile(counts[:, ns:], (1, W))], axis=1),
+        colors={name: ([(0, W * len(a[f"{name}_ids"]))] if sizes[name] else []) for name in sizes},
+        body_rest_pos=tiled(a["body_rest_pos"]), body_rest_quat=tiled(a["body_rest_quat"]),
+        gather_off=[], gather_slot=[], slot_base={},
+    )
+    from physhand_mj.solver.model import JACOBI_GROUPS
+
+    for group, off, slots in zip(JACOBI_GROUPS, a["gather_off"], a["gather_slot"]):  # solver/gather.py
+        off, slots = np.asarray(off, np.int64), np.asarray(slots, np.int64)
+        base, tbase = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64)
+        size = np.zeros(len(slots), np.int64)
+        b = 0
+        for name in group:  # family of each slot: its base in one world and in the tiled group
+            f = (slots >= a["slot_base"][name]) & (slots < a["slot_base"][name] + sizes[name])
+            base[f], tbase[f], size[f] = a["slot_base"][name], W * a["slot_base"][name], sizes[name]
+            out["slot_base"][name] = W * a["slot_base"][name]
+        local = slots - base + tbase
+        parts = [local[off[lo]:off[hi]] + k * size[off[lo]:off[hi]] for lo, hi in ((0, ns), (ns, n)) for k in range(W)]
+        out["gather_slot"].append(np.concatenate(parts).astype(np.int32))
+        cnt = per_vertex(np.diff(off))
+        toff = np.zeros(W * n + 1, np.int64)
+        np.cumsum(cnt, out=toff[1:])
+        out["gather_off"].append(toff.astype(np.int32))
+    return out
+
+
 class BatchedHands:
     """W hands of one asset in one solver: ``step(pos, quat)`` with bone poses (W, B, 3) m and
     (W, B, 4) w x y z per world advances all W by one frame.
@@ -102,7 +188,7 @@ class BatchedHands:
         """``pos`` (3,) m / ``quat`` (4,) w x y z place the rest shape of every world; (W, 3) and
         (W, 4) place each world's own (in its frame)."""
         from physhand_mj.contact import Objects
-        from physhand_mj.solver import Solver, make_model
+        from physhand_mj.solver import Solver
         from physhand_mj.types import Config
 
         self.asset, self.worlds = asset, int(worlds)
@@ -113,7 +199,6 @@ class BatchedHands:
             raise ValueError(f"BatchedHands needs Config.nonfinite=NonFinite.RECOVER (got {NonFinite(self.config.nonfinite).name}): "
                              "a world that turns non-finite is reset and reported alone (step()['worlds']); "
                              "raising would stop every world for one")
-        self.replicated = replicate_asset(asset, self.worlds)
         if spacing is None:  # the object side's queries apart by 1 m (the solve stays at the origin)
             spacing = 1.0
         if objects and self.worlds > 1 and not (np.isfinite(spacing) and spacing >= 0.3):
@@ -140,7 +225,7 @@ class BatchedHands:
                         spec.setdefault("mesh_grid_spacing", self.config.mesh_grid)
                     self.objects.add(spec.pop("gtype"), spec.pop("size", None), self.offsets[w] + 1e3,
                                      name=name, obj=obj, **spec)  # parked far away until step poses them
-        self.solver = Solver(make_model(self.replicated, self.config), self.config, objects=self.objects)
+        self.solver = Solver(self._model(), self.config, objects=self.objects)
         if self.solver.contact is not None and self.worlds > 1:
             self.solver.contact.set_query_offsets(self.query_offsets)
         self.n_bodies = len(asset.body_names)
@@ -150,7 +235,7 @@ class BatchedHands:
             raise ValueError(f"placements per world must be {(self.worlds, 3)} positions and {(self.worlds, 4)} "
                              f"quaternions, got {pos.shape} and {quat.shape}")
         self.state = self.solver.make_state(*((pos, quat) if not each else ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))))
-        world = vertex_world(self.replicated.n_vertices, self.replicated.n_skin, self.worlds)
+        world = vertex_world(self.solver.model.n_vertices, self.solver.model.n_skin, self.worlds)
         if each:
             self._place(pos, quat, world)
         # shift each world to its place: positions (x, x_prev, x_safe) and the bones' host poses
@@ -163,6 +248,24 @@ class BatchedHands:
         self.body_shift = np.repeat(self.offsets, self.n_bodies, axis=0)
         self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
         self.last_worlds: list[dict] = []
+
+    def _model(self):
+        """The W-world model: one world's arrays tiled (Jacobi: a copy, no per-world rebuild), or for
+        the colored scheme (colours over the whole body) the model of the replicated asset."""
+        from physhand_mj.solver.model import make_model, model_arrays, upload_model
+        from physhand_mj.types import Scheme
+
+        cfg = self.config.validate()
+        if cfg.scheme != Scheme.JACOBI:
+            return make_model(self.replicated, cfg)
+        return upload_model(tile_model_arrays(model_arrays(self.asset, cfg), self.worlds), cfg)
+
+    @property
+    def replicated(self):
+        """The asset replicated W times (:func:`replicate_asset`), built on first use."""
+        if getattr(self, "_replicated", None) is None:
+            self._replicated = replicate_asset(self.asset, self.worlds)
+        return self._replicated
 
     def _place(self, pos: np.ndarray, quat: np.ndarray, world: np.ndarray) -> None:
         """Each world's rest shape placed by its own rigid transform (as ``Solver.make_state`` places

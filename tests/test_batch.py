@@ -47,15 +47,58 @@ def test_replicated_asset_layout(setup):
         replicate_asset(asset, 0)
 
 
-def test_batched_worlds_equal_serial_runs(setup):
+def test_tiled_model_is_the_replicated_assets_model(setup):
+    """BatchedHands builds its model from one world's arrays tiled (batch.tile_model_arrays), not
+    from the replicated asset: every per-vertex array equals the replicated build's, every
+    constraint family holds the same constraints per world (the edge family lists each world's
+    edges and attachments together: the order within a world is kept), and the gather lists sum
+    the same slots per vertex (solver/gather.py)."""
+    from physhand_mj.batch import tile_model_arrays
+    from physhand_mj.solver.model import model_arrays
+
+    asset = setup[0]
+    W = 3
+    cfg = Config(device="cpu", jacobi_gather=True).validate()
+    t = tile_model_arrays(model_arrays(asset, cfg), W)
+    r = model_arrays(replicate_asset(asset, W), cfg)
+    f32 = ("rest_x", "inv_mass", "body_local", "skin_local", "vertex_count")
+    for k in ("vertex_body", "vertex_carrier", "vertex_world", "skin_body", "skin_faces", "guard_tets",
+              "tet_ids", "dih_ids", "body_rest_pos", "body_rest_quat") + f32:
+        a, b = np.asarray(t[k]), np.asarray(r[k])
+        if k in f32:
+            b = b.astype(np.float32)
+        np.testing.assert_array_equal(a, b, err_msg=k)
+    assert t["body_names"] == tuple(r["body_names"]) and t["n_vertices"] == r["n_vertices"] and t["worlds"] == W
+    np.testing.assert_array_equal(t["tet_rest6v"], np.asarray(r["tet_rest6v"], np.float32))
+    np.testing.assert_array_equal(t["dih_rest"], np.asarray(r["dih_rest"], np.float32))
+    # the edge family: the same (ids, rest, compliance, is-attachment) rows, world by world
+    rows = lambda a: np.unique(np.c_[np.asarray(a["edge_ids"], np.float64), np.asarray(a["edge_rest"], np.float32),  # noqa: E731
+                                     np.asarray(a["edge_alpha"], np.float32), a["edge_is_att"]], axis=0)
+    np.testing.assert_array_equal(rows(t), rows(r))
+    assert len(t["edge_ids"]) == len(r["edge_ids"])
+    n = t["n_vertices"]
+    for g, (off_t, off_r) in enumerate(zip(t["gather_off"], r["gather_off"])):
+        np.testing.assert_array_equal(off_t, off_r)  # the same number of slots per vertex
+        slots = np.asarray(t["gather_slot"][g])
+        assert slots.min() >= 0 and np.all(np.diff(slots[off_t[1]:off_t[2]]) > 0)  # ascending per vertex
+        # each slot names its vertex: slot -> (family, row, corner) -> vertex id
+        fam = {0: "edge", 1: "tet", 2: "dih"}[g]
+        ids = np.asarray(t[f"{fam}_ids"])
+        owner = np.repeat(np.arange(n), np.diff(off_t))
+        np.testing.assert_array_equal(ids.ravel()[slots - t["slot_base"][fam]], owner)
+
+
+@pytest.mark.parametrize("gather", [False, True], ids=["atomics", "gather"])
+def test_batched_worlds_equal_serial_runs(setup, gather):
     """Two worlds, one holding the hand open, one bending the index finger: each equals its own
-    serial solver's run (bit for bit on the CPU: the same constraints in the same order)."""
+    serial solver's run (bit for bit on the CPU: the same constraints in the same order), with the
+    Jacobi corrections added by atomics or gathered per vertex (Config.jacobi_gather)."""
     asset, model, data, ids, mount = setup
     q0 = model.key("open").qpos.copy()
     q1 = q0.copy()
     q1[model.jnt_qposadr[model.joint("mcp2_flexion_r").id]] += 0.6
     open_, bent = (bone_poses_at(model, data, q, ids) for q in (q0, q1))
-    cfg = Config(device="cpu")
+    cfg = Config(device="cpu", jacobi_gather=gather)
     batch = BatchedHands(asset, 2, cfg, *mount)
     serial = []
     for _ in range(2):

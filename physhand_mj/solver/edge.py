@@ -2,6 +2,8 @@
 
 import warp as wp
 
+from physhand_mj.solver.gather import scatter
+
 
 @wp.kernel
 def solve_edges(
@@ -18,6 +20,8 @@ def solve_edges(
     x: wp.array(dtype=wp.vec3),
     lam: wp.array(dtype=float),
     delta: wp.array(dtype=wp.vec3),
+    slots: wp.array(dtype=wp.vec3),
+    slot_base: int,
 ):
     """C(x1, x2) = |x1 - x2| - L  (Eq. 2);  grad_x1 C = n = (x1 - x2)/|x1 - x2| = -grad_x2 C,
     so A = w1 + w2 + alpha~ and dx1 = w1 n dlam, dx2 = -w2 n dlam (see solver/__init__.py)."""
@@ -30,13 +34,17 @@ def solve_edges(
     length = wp.length(d)
     at = alpha[j] * inv_h2
     a = w1 + w2 + at
+    s = slot_base + 2 * j  # this constraint's slots (solver/gather.py; unused by the atomic path)
     if length < 1.0e-12 or a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0
+        if slots.shape[0] > 0:
+            slots[s] = wp.vec3(0.0)
+            slots[s + 1] = wp.vec3(0.0)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(length - rest[j] + at * lam_j) / a
     lam[j] = lam_j + dlam
     n = d * (dlam / length)
-    wp.atomic_add(delta, i1, n * w1)
-    wp.atomic_sub(delta, i2, n * w2)
+    scatter(delta, slots, s, i1, n * w1)
+    scatter(delta, slots, s + 1, i2, -(n * w2))

@@ -2,6 +2,7 @@
 
 import warp as wp
 
+from physhand_mj.solver.gather import gathered
 from physhand_mj.solver.tet import six_volume
 
 
@@ -66,6 +67,10 @@ def advance(
     x_prev: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
     guard: wp.array(dtype=int),
+    # Model (the pending group's gather lists, solver/gather.py; empty on the atomic path):
+    gather_off: wp.array(dtype=int),
+    gather_slot: wp.array(dtype=int),
+    slots: wp.array(dtype=wp.vec3),
 ):
     """The per-vertex work between two substeps, in one launch (start < 0 after the last substep
     also commits the frame's finite positions to x_safe).
@@ -91,7 +96,7 @@ def advance(
         if group >= 0:
             n = vertex_count[group, i]
             if n > 0.0:
-                xi = xi + delta[i] * (relaxation / n)
+                xi = xi + gathered(delta, gather_off, gather_slot, slots, i) * (relaxation / n)
             delta[i] = wp.vec3(0.0)
         if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
             xi = x_prev[i]
@@ -168,13 +173,18 @@ def apply_jacobi(
     # State in/out:
     x: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
+    # Model (the group's gather lists, solver/gather.py; empty on the atomic path):
+    gather_off: wp.array(dtype=int),
+    gather_slot: wp.array(dtype=int),
+    slots: wp.array(dtype=wp.vec3),
 ):
     """Jacobi step: x_i += omega / n_i * sum of the corrections of vertex i's n_i constraints of
-    one group of families (groups run one after another: solver.model.JACOBI_GROUPS)."""
+    one group of families (groups run one after another: solver.model.JACOBI_GROUPS): ``delta[i]``
+    plus, when the solver gathers, vertex i's slots."""
     i = wp.tid()
     n = vertex_count[group, i]
     if n > 0.0:
-        x[i] = x[i] + delta[i] * (relaxation / n)
+        x[i] = x[i] + gathered(delta, gather_off, gather_slot, slots, i) * (relaxation / n)
     delta[i] = wp.vec3(0.0)
 
 

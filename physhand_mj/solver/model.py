@@ -7,6 +7,7 @@ import warp as wp
 
 from physhand_mj.solver.attach import attachment_pairs
 from physhand_mj.solver.coloring import color_ranges, greedy_colors
+from physhand_mj.solver.gather import gather_lists
 from physhand_mj.types import Config, Layer, Model, Scheme
 
 FAMILIES = ("edge", "tet", "dih")  # projection order within an iteration (edge includes Eq. 4)
@@ -54,6 +55,12 @@ def make_model(asset, config: Config | None = None) -> Model:
     vertices) are dropped: they can do no work. For ``Scheme.COLORED`` each family is sorted by colour.
     """
     cfg = (config or Config()).validate()
+    return upload_model(model_arrays(asset, cfg), cfg)
+
+
+def model_arrays(asset, cfg: Config) -> dict:
+    """:func:`make_model`'s arrays on the host (numpy), before the upload: :func:`upload_model`
+    turns them into the Model; batched worlds tile one world's (physhand_mj/batch.py)."""
     device = wp.get_device(cfg.device)
     x = np.asarray(asset.positions, dtype=np.float64)
     layer = np.asarray(asset.layer)
@@ -107,6 +114,16 @@ def make_model(asset, config: Config | None = None) -> Model:
             count[row] += np.bincount(np.asarray(fam[name][0]).ravel(), minlength=n)[:n]
     count[:, kin] = 0.0
 
+    # Jacobi without atomics (solver/gather.py): per group, each movable vertex's correction slots
+    gather_off, gather_slot, slot_base = [], [], {}
+    gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else device.is_cuda
+    if cfg.scheme == Scheme.JACOBI and gather:
+        for group in JACOBI_GROUPS:
+            off, slots, bases = gather_lists([fam[name][0] for name in group], movable)
+            gather_off.append(off)
+            gather_slot.append(slots)
+            slot_base.update(zip(group, bases))
+
     vb = np.where(kin, np.asarray(asset.vertex_body), -1).astype(np.int32)
     if (vb[kin] < 0).any():
         raise ValueError("asset: a skeleton vertex has no body (vertex_body < 0)")
@@ -147,26 +164,48 @@ def make_model(asset, config: Config | None = None) -> Model:
         soft = np.flatnonzero(~kin)
         carrier[soft] = vb[kv[cKDTree(xw[kv]).query(xw[soft])[1]]]
 
-    def arr(a, dtype, shape=None):
-        a = np.ascontiguousarray(a)
-        if shape is not None:
-            a = a.reshape(shape)
-        return wp.array(a, dtype=dtype, device=device)
-
-    v3 = lambda a: arr(np.asarray(a, np.float32).reshape(-1, 3), wp.vec3)  # noqa: E731
-    f32 = lambda a: arr(np.asarray(a, np.float32), float)  # noqa: E731
-    i2 = lambda a, k: wp.array(np.asarray(a, np.int32).reshape(-1, k), dtype=int, device=device)  # noqa: E731
-    return Model(
-        device=str(device), n_vertices=n, n_skin=int(asset.n_skin), n_bodies=len(asset.body_names),
-        body_names=tuple(str(b) for b in asset.body_names),
-        rest_x=v3(x), inv_mass=f32(inv_mass),
-        vertex_body=arr(vb, int), body_local=v3(local), skin_body=arr(skin_body, int), skin_local=v3(skin_local),
-        vertex_carrier=arr(carrier, int),
-        edge_ids=i2(fam["edge"][0], 2), edge_rest=f32(fam["edge"][1]), edge_alpha=f32(fam["edge"][2]),
-        tet_ids=i2(fam["tet"][0], 4), tet_rest6v=f32(fam["tet"][1]), tet_alpha=f32(fam["tet"][2]),
-        edge_is_att=edge_is_att,
-        dih_ids=i2(fam["dih"][0], 4), dih_rest=f32(fam["dih"][1]), dih_alpha=float(cfg.smooth_compliance),
-        skin_faces=i2(asset.skin_faces, 3), guard_tets=i2(asset.tets[keep(asset.tets)], 4), vertex_count=wp.array(count.astype(np.float32), dtype=float, device=device), colors=colors,
+    return dict(
+        n_vertices=n, n_skin=ns, body_names=tuple(str(b) for b in asset.body_names), worlds=worlds,
+        rest_x=x, inv_mass=inv_mass, vertex_body=vb, body_local=local, skin_body=skin_body,
+        skin_local=skin_local, vertex_carrier=carrier, vertex_world=world,
+        edge_ids=np.asarray(fam["edge"][0]), edge_rest=np.asarray(fam["edge"][1]),
+        edge_alpha=np.asarray(fam["edge"][2]), edge_is_att=edge_is_att,
+        tet_ids=np.asarray(fam["tet"][0]), tet_rest6v=np.asarray(fam["tet"][1]), tet_alpha=np.asarray(fam["tet"][2]),
+        dih_ids=np.asarray(fam["dih"][0]), dih_rest=np.asarray(fam["dih"][1]), dih_alpha=float(cfg.smooth_compliance),
+        skin_faces=np.asarray(asset.skin_faces), guard_tets=np.asarray(asset.tets[keep(asset.tets)]),
+        vertex_count=count, colors=colors,
         body_rest_pos=np.asarray(asset.body_rest_pos, float), body_rest_quat=np.asarray(asset.body_rest_quat, float),
-        vertex_world=arr(world, int), worlds=worlds,
+        gather_off=gather_off, gather_slot=gather_slot, slot_base=slot_base,
+    )
+
+
+def upload_model(a: dict, cfg: Config) -> Model:
+    """The Model of :func:`model_arrays`' host arrays ``a``, on ``cfg.device``."""
+    device = wp.get_device(cfg.device)
+
+    def arr(v, dtype):
+        return wp.array(np.ascontiguousarray(v), dtype=dtype, device=device)
+
+    v3 = lambda v: arr(np.asarray(v, np.float32).reshape(-1, 3), wp.vec3)  # noqa: E731
+    f32 = lambda v: arr(np.asarray(v, np.float32), float)  # noqa: E731
+    i1 = lambda v: arr(np.asarray(v, np.int32), int)  # noqa: E731
+    i2 = lambda v, k: arr(np.asarray(v, np.int32).reshape(-1, k), int)  # noqa: E731
+    sizes = {name: np.asarray(a[f"{name}_ids"]).size for name in FAMILIES}
+    n_slots = max((sum(sizes[name] for name in group) for group in JACOBI_GROUPS), default=0) if a["gather_off"] else 0
+    return Model(
+        device=str(device), n_vertices=int(a["n_vertices"]), n_skin=int(a["n_skin"]), n_bodies=len(a["body_names"]),
+        body_names=tuple(a["body_names"]),
+        rest_x=v3(a["rest_x"]), inv_mass=f32(a["inv_mass"]),
+        vertex_body=i1(a["vertex_body"]), body_local=v3(a["body_local"]), skin_body=i1(a["skin_body"]),
+        skin_local=v3(a["skin_local"]), vertex_carrier=i1(a["vertex_carrier"]),
+        edge_ids=i2(a["edge_ids"], 2), edge_rest=f32(a["edge_rest"]), edge_alpha=f32(a["edge_alpha"]),
+        tet_ids=i2(a["tet_ids"], 4), tet_rest6v=f32(a["tet_rest6v"]), tet_alpha=f32(a["tet_alpha"]),
+        edge_is_att=np.asarray(a["edge_is_att"]),
+        dih_ids=i2(a["dih_ids"], 4), dih_rest=f32(a["dih_rest"]), dih_alpha=float(a["dih_alpha"]),
+        skin_faces=i2(a["skin_faces"], 3), guard_tets=i2(a["guard_tets"], 4),
+        vertex_count=arr(np.asarray(a["vertex_count"], np.float32), float), colors=a["colors"],
+        body_rest_pos=np.asarray(a["body_rest_pos"], float), body_rest_quat=np.asarray(a["body_rest_quat"], float),
+        vertex_world=i1(a["vertex_world"]), worlds=int(a["worlds"]),
+        gather_off=[i1(v) for v in a["gather_off"]], gather_slot=[i1(v) for v in a["gather_slot"]],
+        slot_base=dict(a["slot_base"]), n_slots=int(n_slots),
     )

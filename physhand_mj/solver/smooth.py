@@ -8,6 +8,8 @@ dihedral-angle gradient (Bridson et al. 2003). |theta| is the paper's arccos(n0 
 
 import warp as wp
 
+from physhand_mj.solver.gather import scatter
+
 
 
 @wp.func
@@ -85,6 +87,8 @@ def solve_dihedrals(
     x: wp.array(dtype=wp.vec3),
     lam: wp.array(dtype=float),
     delta: wp.array(dtype=wp.vec3),
+    slots: wp.array(dtype=wp.vec3),
+    slot_base: int,
 ):
     """C_smo = theta(x_e0, x_e1, x_o0, x_o1) - phi (Eq. 6, signed angle as in the module doc)."""
     j = start + wp.tid()
@@ -109,14 +113,18 @@ def solve_dihedrals(
         c = c + 2.0 * wp.pi
     at = alpha * inv_h2
     a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
+    s = slot_base + 4 * j  # this constraint's slots (solver/gather.py; unused by the atomic path)
     if a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0
+        if slots.shape[0] > 0:
+            for k in range(4):
+                slots[s + k] = wp.vec3(0.0)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(c + at * lam_j) / a
     lam[j] = lam_j + dlam
-    wp.atomic_add(delta, ie0, g0 * (w0 * dlam))
-    wp.atomic_add(delta, ie1, g1 * (w1 * dlam))
-    wp.atomic_add(delta, io0, g2 * (w2 * dlam))
-    wp.atomic_add(delta, io1, g3 * (w3 * dlam))
+    scatter(delta, slots, s + 0, ie0, g0 * (w0 * dlam))
+    scatter(delta, slots, s + 1, ie1, g1 * (w1 * dlam))
+    scatter(delta, slots, s + 2, io0, g2 * (w2 * dlam))
+    scatter(delta, slots, s + 3, io1, g3 * (w3 * dlam))

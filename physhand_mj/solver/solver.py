@@ -134,6 +134,7 @@ class Solver:
             v=wp.zeros(n, dtype=wp.vec3, device=d), x_prev=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
             x_safe=wp.array(x.astype(np.float32), dtype=wp.vec3, device=d),
             delta=wp.zeros(n, dtype=wp.vec3, device=d),
+            corr=wp.zeros(m.n_slots, dtype=wp.vec3, device=d),
             lam_edge=wp.zeros(m.edge_rest.shape[0], dtype=float, device=d),
             lam_tet=wp.zeros(m.tet_rest6v.shape[0], dtype=float, device=d),
             lam_dih=wp.zeros(m.dih_rest.shape[0], dtype=float, device=d),
@@ -462,6 +463,18 @@ class Solver:
             "dih": (solve_dihedrals, m.dih_ids, m.dih_rest, m.dih_alpha),
         }
         jacobi = int(cfg.scheme == Scheme.JACOBI)
+        gather = bool(m.gather_off)  # Config.jacobi_gather: corrections in slots, summed per vertex
+        no_int = wp.empty(0, dtype=int, device=d)
+        no_vec = wp.empty(0, dtype=wp.vec3, device=d)
+
+        def lists(group):
+            """The gather lists and slots the apply of Jacobi group ``group`` reads (empty: atomics)."""
+            if not gather or group < 0:
+                return [no_int, no_int, no_vec]
+            return [m.gather_off[group], m.gather_slot[group], state.corr]
+
+        def apply(group):
+            launch(integrate.apply_jacobi, n, [m.vertex_count, group, cfg.relaxation], [state.x, state.delta] + lists(group))
         launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
                [state.body_sub, state.guard])
         if self.contact is not None:
@@ -486,7 +499,7 @@ class Solver:
                                           self._h, self._damp, int(s > 0), pending, cfg.relaxation,
                                           s if s < cfg.substeps else -1, state.body_sub, float(cfg.sleep_speed),
                                           m.vertex_carrier, m.vertex_world],
-                   [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard])
+                   [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard] + lists(pending))
             pending = -1
             if s == cfg.substeps:
                 break
@@ -499,24 +512,25 @@ class Solver:
                     if not names:
                         continue
                     if pending >= 0:
-                        launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
+                        apply(pending)
                         pending = -1
                     for name in names:
                         kernel, ids, rest, alpha = fam[name]
                         for start, end in m.colors[name]:
                             launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
-                                   [state.x, lams[name], state.delta if jacobi else state.x])
+                                   [state.x, lams[name], state.delta if jacobi else state.x,
+                                    state.corr if gather else no_vec, m.slot_base.get(name, 0)])
                     if jacobi:
                         pending = row
             if contact is not None and (contact.wants("after") or cfg.substep_metrics):
                 if pending >= 0:  # the substep's positions must be final before contact / metrics
-                    launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
+                    apply(pending)
                     pending = -1
                 if contact.wants("after"):
                     gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
                 if pending >= 0:
-                    launch(integrate.apply_jacobi, n, [m.vertex_count, pending, cfg.relaxation], [state.x, state.delta])
+                    apply(pending)
                     pending = -1
 
                 def after_contact(sub, s=s):

@@ -2,6 +2,8 @@
 
 import warp as wp
 
+from physhand_mj.solver.gather import scatter
+
 
 
 @wp.func
@@ -25,6 +27,8 @@ def solve_tets(
     x: wp.array(dtype=wp.vec3),
     lam: wp.array(dtype=float),
     delta: wp.array(dtype=wp.vec3),
+    slots: wp.array(dtype=wp.vec3),
+    slot_base: int,
 ):
     """C(x1..x4) = x21 x x31 . x41 - 6V (Eq. 3). Gradients: g2 = x31 x x41, g3 = x41 x x21,
     g4 = x21 x x31, g1 = -(g2 + g3 + g4); A = sum_i w_i |g_i|^2 + alpha~ (see solver/__init__.py).
@@ -50,14 +54,18 @@ def solve_tets(
     at = alpha[j] * inv_h2
     a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
          + w4 * wp.length_sq(g4) + at)
+    s = slot_base + 4 * j  # this constraint's slots (solver/gather.py; unused by the atomic path)
     if a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0
+        if slots.shape[0] > 0:
+            for k in range(4):
+                slots[s + k] = wp.vec3(0.0)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(wp.dot(g4, x41) - rest6v[j] + at * lam_j) / a
     lam[j] = lam_j + dlam
-    wp.atomic_add(delta, i1, g1 * (w1 * dlam))
-    wp.atomic_add(delta, i2, g2 * (w2 * dlam))
-    wp.atomic_add(delta, i3, g3 * (w3 * dlam))
-    wp.atomic_add(delta, i4, g4 * (w4 * dlam))
+    scatter(delta, slots, s + 0, i1, g1 * (w1 * dlam))
+    scatter(delta, slots, s + 1, i2, g2 * (w2 * dlam))
+    scatter(delta, slots, s + 2, i3, g3 * (w3 * dlam))
+    scatter(delta, slots, s + 3, i4, g4 * (w4 * dlam))

@@ -1,0 +1,70 @@
+"""Jacobi corrections gathered per vertex instead of added with atomics (``Config.jacobi_gather``).
+
+A constraint of k vertices writes its k position corrections into its own k *slots* of a buffer
+(``State.corr``: slot ``base + j k + l`` for vertex l of constraint j of a family, ``base`` the
+family's offset within its Jacobi group), with plain stores. The group's apply (``advance`` /
+``apply_jacobi``) then sums, for every movable vertex, the slots that name it: a CSR list per group
+(``Model.gather_off`` / ``gather_slot``), each vertex's slots in ascending order.
+
+Why: the atomic version adds 3 floats per vertex of every constraint into ``delta`` with float
+atomics in an unspecified order on a GPU, so two CUDA runs differ (by ~0.5 um after a closing, H100).
+The gather sums the same values in a fixed order: CUDA runs repeat bit for bit, and on the CPU it
+is the atomic version bit for bit (Warp's CPU launch runs threads in order, so the atomics added
+the corrections of each vertex in ascending slot order too, starting from ``delta``'s value, which
+the gather starts from as well). It was also meant to speed batches up; measured on an H100
+(benchmarks/batch_throughput.py, docs/scale.md) it does not: the atomics are not what bounds the
+frame, and the slots' extra traffic costs 6 % of the batch throughput and 0.1 ms of one hand's
+frame (benchmarks/jacobi_gather.py). So it is opt-in (``Config.jacobi_gather=True``) for runs that
+must repeat exactly.
+
+Kinematic (skeleton) vertices get no slots in the lists: their corrections are zero (w = 0) and
+nothing applies them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+
+@wp.func
+def scatter(delta: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.vec3), slot: int, i: int, dx: wp.vec3):
+    """Vertex ``i``'s correction ``dx``: into its own slot when the solver gathers (``slots`` not
+    empty), else added to ``delta[i]`` (atomically)."""
+    if slots.shape[0] > 0:
+        slots[slot] = dx
+    else:
+        wp.atomic_add(delta, i, dx)
+
+
+@wp.func
+def gathered(delta: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids: wp.array(dtype=int),
+             slots: wp.array(dtype=wp.vec3), i: int):
+    """``delta[i]`` plus vertex ``i``'s slots (its CSR row ``off[i]:off[i+1]`` of ``slot_ids``), in
+    order; ``delta[i]`` alone when the lists are empty (the atomic path)."""
+    d = delta[i]
+    if off.shape[0] > 0:
+        for k in range(off[i], off[i + 1]):
+            d = d + slots[slot_ids[k]]
+    return d
+
+
+def gather_lists(families: list, movable: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """CSR lists of one Jacobi group: ``families`` its families' (C, k) vertex id arrays in
+    projection order. Returns ``off`` (N + 1,), ``slot_ids`` (the slots of movable vertices, per
+    vertex in ascending slot order) and each family's slot base."""
+    n = len(movable)
+    bases, flat, base = [], [], 0
+    for ids in families:
+        ids = np.asarray(ids)
+        bases.append(base)
+        flat.append(ids.ravel())
+        base += ids.size
+    vert = np.concatenate(flat) if flat else np.zeros(0, np.int64)
+    slot = np.arange(len(vert))
+    use = movable[vert]
+    vert, slot = vert[use], slot[use]
+    order = np.argsort(vert, kind="stable")  # per vertex, slots stay ascending
+    off = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(vert, minlength=n), out=off[1:])
+    return off.astype(np.int32), slot[order].astype(np.int32), bases
