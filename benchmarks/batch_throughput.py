@@ -51,12 +51,16 @@ def plot(out: Path) -> Path:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for f in sorted((ROOT / "docs" / "benchmarks").glob("batch_throughput_*.json")):
+        if f.stem.endswith("_origin"):  # an older run kept for the record (docs/scale.md), not plotted
+            continue
         d = json.loads(f.read_text())
         w = [r["worlds"] for r in d["rows"]]
         hz = [r["hand_frames_per_s"] for r in d["rows"]]
         dev = "H100" if "H100" in d["device"] else ("CPU" if d["device"].startswith("cpu") else d["device"])
+        variant = ", ".join(f"{k}={v}" for k, v in (d.get("config") or {}).items())
         ax.plot(w, hz, "o-" if d["contact"] else "s--",
-                label=f"{dev}, {'a sphere pressing each hand' if d['contact'] else 'no contact'}")
+                label=f"{dev}, {'a sphere pressing each hand' if d['contact'] else 'no contact'}"
+                      + (f" ({variant})" if variant else ""))
     ax.axhline(10_000, color="0.5", lw=0.8, ls=":")
     ax.axhline(50_000, color="0.5", lw=0.8, ls=":")
     ax.text(1, 10_000 * 1.08, "target with contact (H100)", fontsize=7, color="0.4")

@@ -116,7 +116,7 @@ class Config:
         every vertex sums its slots in a fixed order (solver/gather.py) instead of adding them with
         float atomics: the solver then repeats bit for bit on CUDA (the contact keeps its atomics).
         It costs time (H100: one hand's frame 0.52 against 0.40 ms, batches 6 % fewer hand-frames/s;
-        CPU: 20-30 % more), and the CPU gives the atomic result bit for bit either way. Default
+        CPU: 10-20 % more), and the CPU gives the atomic result bit for bit either way. Default
         False; None: on CUDA only.
       nonfinite: :class:`NonFinite` policy.
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
