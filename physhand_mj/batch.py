@@ -149,7 +149,6 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
         off, slots = np.asarray(off, np.int64), np.asarray(slots, np.int64)
         base, tbase = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64)
         size = np.zeros(len(slots), np.int64)
-        b = 0
         for name in group:  # family of each slot: its base in one world and in the tiled group
             f = (slots >= a["slot_base"][name]) & (slots < a["slot_base"][name] + sizes[name])
             base[f], tbase[f], size[f] = a["slot_base"][name], W * a["slot_base"][name], sizes[name]
