@@ -74,6 +74,34 @@ def plot(out: Path) -> Path:
     return out
 
 
+def kernel_split(hands, poses, ball, frames: int) -> dict:
+    """GPU ms per frame of every kernel (memsets and copies as they come), graphs off: ``frames``
+    frames after one to record the ungraphed frame, timed by the driver (``wp.timing_begin``)."""
+    from collections import defaultdict
+
+    import warp as wp
+
+    solver = hands.solver
+    saved = solver.config.cuda_graph
+    solver.config.cuda_graph = False
+    solver._graphs.clear()
+    try:
+        hands.step(*poses(100), *ball)
+        wp.synchronize()
+        wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+        for f in range(frames):
+            hands.step(*poses(101 + f), *ball)
+        wp.synchronize()
+        agg = defaultdict(float)
+        for r in wp.timing_end():
+            agg[r.name] += r.elapsed
+    finally:
+        solver.config.cuda_graph = saved
+        solver._graphs.clear()
+    top = sorted(agg.items(), key=lambda kv: -kv[1])[:12]
+    return {k: round(v / frames, 3) for k, v in top} | {"all": round(sum(agg.values()) / frames, 3)}
+
+
 def main() -> None:
     if "--plot" in sys.argv[1:]:
         print(plot(ROOT / "docs" / "images" / "batch_throughput.png").relative_to(ROOT))
@@ -94,6 +122,8 @@ def main() -> None:
                    help="each world holds a sphere (radius 2 cm) pressing the back of its hand 2 mm")
     p.add_argument("--config", default="{}", help="Config fields as JSON, e.g. '{\"jacobi_gather\": true}'")
     p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
+    p.add_argument("--profile", action="store_true",
+                   help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 12")
     a = p.parse_args()
     extra = json.loads(a.config)
     wp.init()
@@ -137,6 +167,8 @@ def main() -> None:
         rows.append(dict(worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
                          mb_per_world=round(mem / 2**20, 2), vertices=hands.replicated.n_vertices,
                          setup_s=round(setup_s, 2)))
+        if a.profile and hands.solver.device.is_cuda:  # where the frame's GPU time goes, kernel by kernel
+            rows[-1]["kernels_ms_per_frame"] = kernel_split(hands, poses, ball, a.frames)
         if a.objects:  # the contact did work in every world, and nothing stayed inside
             pen = hands.penetration()
             rows[-1].update(triangles_tested=out.get("triangles_tested"),

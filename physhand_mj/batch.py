@@ -146,15 +146,17 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
     from physhand_mj.solver.model import JACOBI_GROUPS
 
     for group, off, slots in zip(JACOBI_GROUPS, a["gather_off"], a["gather_slot"]):  # solver/gather.py
+        # one world's slot base + l C + j (corner l of row j, C rows) is W base + l W C + w C + j in world w
         off, slots = np.asarray(off, np.int64), np.asarray(slots, np.int64)
-        base, tbase = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64)
-        size = np.zeros(len(slots), np.int64)
-        for name in group:  # family of each slot: its base in one world and in the tiled group
-            f = (slots >= a["slot_base"][name]) & (slots < a["slot_base"][name] + sizes[name])
-            base[f], tbase[f], size[f] = a["slot_base"][name], W * a["slot_base"][name], sizes[name]
-            out["slot_base"][name] = W * a["slot_base"][name]
-        local = slots - base + tbase
-        parts = [local[off[lo]:off[hi]] + k * size[off[lo]:off[hi]] for lo, hi in ((0, ns), (ns, n)) for k in range(W)]
+        first, step = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64)
+        for name in group:
+            base, rows = a["slot_base"][name], len(a[f"{name}_ids"])
+            f = (slots >= base) & (slots < base + sizes[name])
+            r = slots[f] - base
+            first[f] = W * base + (r // max(rows, 1)) * W * rows + r % max(rows, 1)
+            step[f] = rows
+            out["slot_base"][name] = W * base
+        parts = [first[off[lo]:off[hi]] + k * step[off[lo]:off[hi]] for lo, hi in ((0, ns), (ns, n)) for k in range(W)]
         out["gather_slot"].append(np.concatenate(parts).astype(np.int32))
         cnt = per_vertex(np.diff(off))
         toff = np.zeros(W * n + 1, np.int64)
@@ -257,7 +259,7 @@ class BatchedHands:
         cfg = self.config.validate()
         if cfg.scheme != Scheme.JACOBI:
             return make_model(self.replicated, cfg)
-        return upload_model(tile_model_arrays(model_arrays(self.asset, cfg), self.worlds), cfg)
+        return upload_model(tile_model_arrays(model_arrays(self.asset, cfg, batch=True), self.worlds), cfg)
 
     @property
     def replicated(self):

@@ -245,8 +245,9 @@ def test_gather_lists_name_each_vertex_slots_in_order():
     off, slots, bases = gather_lists([edges, tets], movable)
     assert bases == [0, 4]  # the tet's slots follow the 4 edge slots
     rows = [slots[off[i]:off[i + 1]].tolist() for i in range(4)]
-    # slot = base + row * k + corner: vertex 0 is edge 0's corner 0 (slot 0) and the tet's corner 1 (5)
-    assert rows == [[0, 5], [1, 2, 7], [3, 4], []]
+    # slot = base + corner * rows + row (corner-major), listed in constraint order (row, corner):
+    # vertex 1 is edge 0's corner 1 (slot 2), then edge 1's corner 0 (1), then the tet's corner 3 (7)
+    assert rows == [[0, 5], [2, 1, 7], [3, 4], []]
 
 
 @pytest.mark.parametrize("device", DEVICES)

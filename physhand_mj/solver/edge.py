@@ -34,17 +34,18 @@ def solve_edges(
     length = wp.length(d)
     at = alpha[j] * inv_h2
     a = w1 + w2 + at
-    s = slot_base + 2 * j  # this constraint's slots (solver/gather.py; unused by the atomic path)
+    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
+    nc = ids.shape[0]
     if length < 1.0e-12 or a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0
         if slots.shape[0] > 0:
             slots[s] = wp.vec3(0.0)
-            slots[s + 1] = wp.vec3(0.0)
+            slots[s + nc] = wp.vec3(0.0)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(length - rest[j] + at * lam_j) / a
     lam[j] = lam_j + dlam
     n = d * (dlam / length)
     scatter(delta, slots, s, i1, n * w1)
-    scatter(delta, slots, s + 1, i2, -(n * w2))
+    scatter(delta, slots, s + nc, i2, -(n * w2))

@@ -1,10 +1,14 @@
 """Jacobi corrections gathered per vertex instead of added with atomics (``Config.jacobi_gather``).
 
 A constraint of k vertices writes its k position corrections into its own k *slots* of a buffer
-(``State.corr``: slot ``base + j k + l`` for vertex l of constraint j of a family, ``base`` the
-family's offset within its Jacobi group), with plain stores. The group's apply (``advance`` /
+(``State.corr``: slot ``base + l C + j`` for corner l of constraint j of a family of C
+constraints, ``base`` the family's offset within its Jacobi group), with plain stores. Corner-major
+slots make the stores of neighbouring threads neighbours in memory (one family's corner l is one
+contiguous block): constraint-major slots (``base + j k + l``) left a warp's stores 48 bytes apart,
+and the partial sector writes cost nearly what the atomics did. The group's apply (``advance`` /
 ``apply_jacobi``) then sums, for every movable vertex, the slots that name it: a CSR list per group
-(``Model.gather_off`` / ``gather_slot``), each vertex's slots in ascending order.
+(``Model.gather_off`` / ``gather_slot``), each vertex's slots in constraint order (j, then l: the
+order in which the atomics add them on the CPU).
 
 Why: the atomic version adds 3 floats per vertex of every constraint into ``delta`` with float
 atomics in an unspecified order on a GPU, so two CUDA runs differ (by ~0.5 um after a closing, H100).
@@ -52,19 +56,22 @@ def gathered(delta: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids:
 def gather_lists(families: list, movable: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """CSR lists of one Jacobi group: ``families`` its families' (C, k) vertex id arrays in
     projection order. Returns ``off`` (N + 1,), ``slot_ids`` (the slots of movable vertices, per
-    vertex in ascending slot order) and each family's slot base."""
+    vertex in constraint order: family, row, corner) and each family's slot base. The slot of
+    corner l of row j of a family is ``base + l C + j`` (corner-major)."""
     n = len(movable)
-    bases, flat, base = [], [], 0
+    bases, verts, slots, base = [], [], [], 0
     for ids in families:
         ids = np.asarray(ids)
+        c, k = ids.shape if ids.ndim == 2 else (0, 0)
         bases.append(base)
-        flat.append(ids.ravel())
+        verts.append(ids.ravel())  # row-major: (row, corner) ascending, the atomics' order
+        slots.append(base + (np.arange(k)[None, :] * c + np.arange(c)[:, None]).ravel())
         base += ids.size
-    vert = np.concatenate(flat) if flat else np.zeros(0, np.int64)
-    slot = np.arange(len(vert))
+    vert = np.concatenate(verts) if verts else np.zeros(0, np.int64)
+    slot = np.concatenate(slots) if slots else np.zeros(0, np.int64)
     use = movable[vert]
     vert, slot = vert[use], slot[use]
-    order = np.argsort(vert, kind="stable")  # per vertex, slots stay ascending
+    order = np.argsort(vert, kind="stable")  # per vertex, constraint order is kept
     off = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(vert, minlength=n), out=off[1:])
     return off.astype(np.int32), slot[order].astype(np.int32), bases

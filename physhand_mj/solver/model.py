@@ -58,9 +58,10 @@ def make_model(asset, config: Config | None = None) -> Model:
     return upload_model(model_arrays(asset, cfg), cfg)
 
 
-def model_arrays(asset, cfg: Config) -> dict:
+def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     """:func:`make_model`'s arrays on the host (numpy), before the upload: :func:`upload_model`
-    turns them into the Model; batched worlds tile one world's (physhand_mj/batch.py)."""
+    turns them into the Model; batched worlds tile one world's (physhand_mj/batch.py, ``batch``
+    True: ``Config.jacobi_gather=None`` then gathers on CUDA)."""
     device = wp.get_device(cfg.device)
     x = np.asarray(asset.positions, dtype=np.float64)
     layer = np.asarray(asset.layer)
@@ -116,7 +117,7 @@ def model_arrays(asset, cfg: Config) -> dict:
 
     # Jacobi without atomics (solver/gather.py): per group, each movable vertex's correction slots
     gather_off, gather_slot, slot_base = [], [], {}
-    gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else device.is_cuda
+    gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else (batch and device.is_cuda)
     if cfg.scheme == Scheme.JACOBI and gather:
         for group in JACOBI_GROUPS:
             off, slots, bases = gather_lists([fam[name][0] for name in group], movable)

@@ -54,18 +54,19 @@ def solve_tets(
     at = alpha[j] * inv_h2
     a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
          + w4 * wp.length_sq(g4) + at)
-    s = slot_base + 4 * j  # this constraint's slots (solver/gather.py; unused by the atomic path)
+    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
+    nc = ids.shape[0]
     if a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0
         if slots.shape[0] > 0:
             for k in range(4):
-                slots[s + k] = wp.vec3(0.0)
+                slots[s + k * nc] = wp.vec3(0.0)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(wp.dot(g4, x41) - rest6v[j] + at * lam_j) / a
     lam[j] = lam_j + dlam
-    scatter(delta, slots, s + 0, i1, g1 * (w1 * dlam))
-    scatter(delta, slots, s + 1, i2, g2 * (w2 * dlam))
-    scatter(delta, slots, s + 2, i3, g3 * (w3 * dlam))
-    scatter(delta, slots, s + 3, i4, g4 * (w4 * dlam))
+    scatter(delta, slots, s + 0 * nc, i1, g1 * (w1 * dlam))
+    scatter(delta, slots, s + 1 * nc, i2, g2 * (w2 * dlam))
+    scatter(delta, slots, s + 2 * nc, i3, g3 * (w3 * dlam))
+    scatter(delta, slots, s + 3 * nc, i4, g4 * (w4 * dlam))
