@@ -61,6 +61,7 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
     cfg = Config(device="cpu", jacobi_gather=True).validate()
     t = tile_model_arrays(model_arrays(asset, cfg), W)
     r = model_arrays(replicate_asset(asset, W), cfg)
+    t_atomic = tile_model_arrays(model_arrays(asset, Config(device="cpu", jacobi_gather=False).validate()), W)
     f32 = ("rest_x", "inv_mass", "body_local", "skin_local", "vertex_count")
     for k in ("vertex_body", "vertex_carrier", "vertex_world", "skin_body", "skin_faces", "guard_tets",
               "tet_ids", "dih_ids", "body_rest_pos", "body_rest_quat") + f32:
@@ -86,7 +87,16 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
         corner, row = np.divmod(slots - t["slot_base"][fam], len(ids))
         owner = np.repeat(np.arange(n), np.diff(off_t))
         np.testing.assert_array_equal(ids[row, corner], owner)
-        flat = row * ids.shape[1] + corner  # the atomics' order on the CPU: row, then corner
+        # the atomics' order on the CPU: the family's rows as the atomic model stores them, then corner
+        # (the gather stores tets in space-filling-curve order and sums them in the asset's)
+        plain = np.asarray(t_atomic[f"{fam}_ids"])
+        rank = np.arange(len(ids))
+        if fam == "tet":  # (tets are unique rows; edges may repeat as tet edge and attachment)
+            key = lambda v: np.ascontiguousarray(v, np.int64).view([("", np.int64)] * v.shape[1]).ravel()  # noqa: E731
+            srt = np.argsort(key(plain))
+            rank = srt[np.searchsorted(key(plain)[srt], key(ids))]
+        assert np.array_equal(plain[rank], ids)
+        flat = rank[row] * ids.shape[1] + corner
         inside = np.ones(len(flat) - 1, bool)  # pairs of neighbours within one vertex's list
         inside[off_t[1:-1][(off_t[1:-1] > 0) & (off_t[1:-1] < len(flat))] - 1] = False
         assert np.all(np.diff(flat)[inside] > 0)

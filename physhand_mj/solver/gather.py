@@ -11,15 +11,16 @@ and the partial sector writes cost nearly what the atomics did. The group's appl
 order in which the atomics add them on the CPU).
 
 Why: the atomic version adds 3 floats per vertex of every constraint into ``delta`` with float
-atomics in an unspecified order on a GPU, so two CUDA runs differ (by ~0.5 um after a closing, H100).
-The gather sums the same values in a fixed order: CUDA runs repeat bit for bit, and on the CPU it
-is the atomic version bit for bit (Warp's CPU launch runs threads in order, so the atomics added
-the corrections of each vertex in ascending slot order too, starting from ``delta``'s value, which
-the gather starts from as well). It was also meant to speed batches up; measured on an H100
-(benchmarks/batch_throughput.py, docs/scale.md) it does not: the atomics are not what bounds the
-frame, and the slots' extra traffic costs 6 % of the batch throughput and 0.1 ms of one hand's
-frame (benchmarks/jacobi_gather.py). So it is opt-in (``Config.jacobi_gather=True``) for runs that
-must repeat exactly.
+atomics, in an unspecified order on a GPU (two CUDA runs differ by ~0.4 um after a closing, H100),
+and on a GPU filled with batched worlds those atomics are most of the constraint kernels' time
+(H100, W = 256: ``solve_tets`` 1.8 ms a launch with them, 0.28 ms with its writes left out). The
+gather sums the same values in a fixed order: CUDA runs repeat bit for bit, a batch's frame takes
+0.7 x the time (benchmarks/batch_throughput.py --profile, docs/scale.md), and on the CPU it is the
+atomic version bit for bit (Warp's CPU launch runs threads in order, so the atomics added the
+corrections of each vertex in this order too, starting from ``delta``'s value, which the gather
+starts from as well). One hand alone gains nothing (0.46 against 0.43 ms a frame on an H100:
+launch-bound), and the CPU pays 10-20 %, so by default only batches on CUDA gather
+(``Config.jacobi_gather``).
 
 Kinematic (skeleton) vertices get no slots in the lists: their corrections are zero (w = 0) and
 nothing applies them.
@@ -53,25 +54,29 @@ def gathered(delta: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids:
     return d
 
 
-def gather_lists(families: list, movable: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+def gather_lists(families: list, movable: np.ndarray, orders: list | None = None) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """CSR lists of one Jacobi group: ``families`` its families' (C, k) vertex id arrays in
     projection order. Returns ``off`` (N + 1,), ``slot_ids`` (the slots of movable vertices, per
     vertex in constraint order: family, row, corner) and each family's slot base. The slot of
-    corner l of row j of a family is ``base + l C + j`` (corner-major)."""
+    corner l of row j of a family is ``base + l C + j`` (corner-major). ``orders``: per family
+    None, or the row's index in the order the sum should follow (a family stored permuted: each
+    vertex then sums in that order, e.g. the asset's, whatever the storage order)."""
     n = len(movable)
-    bases, verts, slots, base = [], [], [], 0
-    for ids in families:
+    bases, verts, slots, ranks, base = [], [], [], [], 0
+    for f, ids in enumerate(families):
         ids = np.asarray(ids)
         c, k = ids.shape if ids.ndim == 2 else (0, 0)
+        rank = np.arange(c) if orders is None or orders[f] is None else np.asarray(orders[f])
         bases.append(base)
-        verts.append(ids.ravel())  # row-major: (row, corner) ascending, the atomics' order
+        verts.append(ids.ravel())
         slots.append(base + (np.arange(k)[None, :] * c + np.arange(c)[:, None]).ravel())
+        ranks.append((base + rank[:, None] * k + np.arange(k)[None, :]).ravel())  # (family, row, corner)
         base += ids.size
-    vert = np.concatenate(verts) if verts else np.zeros(0, np.int64)
-    slot = np.concatenate(slots) if slots else np.zeros(0, np.int64)
+    cat = lambda v: np.concatenate(v) if v else np.zeros(0, np.int64)  # noqa: E731
+    vert, slot, rank = cat(verts), cat(slots), cat(ranks)
     use = movable[vert]
-    vert, slot = vert[use], slot[use]
-    order = np.argsort(vert, kind="stable")  # per vertex, constraint order is kept
+    vert, slot, rank = vert[use], slot[use], rank[use]
+    order = np.lexsort((rank, vert))  # per vertex, in the sum's order
     off = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(vert, minlength=n), out=off[1:])
     return off.astype(np.int32), slot[order].astype(np.int32), bases

@@ -48,6 +48,27 @@ def signed_dihedral(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
     return np.arctan2(np.einsum("ij,ij->i", np.cross(n1, n0), eh), np.einsum("ij,ij->i", n0, n1))
 
 
+def morton_code(p: np.ndarray) -> np.ndarray:
+    """(K, 3) points -> (K,) 30-bit Morton codes of their cells on a 1024^3 grid over their box
+    (a space-filling-curve order: points close in the order are close in space)."""
+    p = np.asarray(p, float)
+    q = ((p - p.min(axis=0)) / max(float(np.ptp(p, axis=0).max()), 1e-12) * 1023).astype(np.int64)
+
+    def spread(v):  # 10 bits -> every third of 30
+        v = (v | (v << 16)) & 0x030000FF
+        v = (v | (v << 8)) & 0x0300F00F
+        v = (v | (v << 4)) & 0x030C30C3
+        return (v | (v << 2)) & 0x09249249
+
+    return spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2)
+
+
+def _vertex_world(n: int, n_skin: int, worlds: int) -> np.ndarray:
+    from physhand_mj.batch import vertex_world
+
+    return vertex_world(n, n_skin, worlds) if worlds > 1 else np.zeros(n, np.int64)
+
+
 def make_model(asset, config: Config | None = None) -> Model:
     """Arrays of the constraint families that ``config`` switches on, on ``config.device``.
 
@@ -119,8 +140,21 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     gather_off, gather_slot, slot_base = [], [], {}
     gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else (batch and device.is_cuda)
     if cfg.scheme == Scheme.JACOBI and gather:
+        # tets in space-filling-curve order of their rest centroids (per world): neighbouring threads
+        # then read neighbouring vertices and a vertex's slots lie close together (H100, 256 worlds:
+        # solve_tets 0.50 -> 0.34 ms, its gather 0.88 -> 0.70 ms a launch). Each vertex still sums in
+        # the tets' asset order (``order``), so the result is the atomic path's bit for bit on the CPU.
+        order = {name: None for name in FAMILIES}
+        ids = np.asarray(fam["tet"][0])
+        if len(ids):
+            meta = asset.meta if isinstance(asset.meta, dict) else {}
+            wv = _vertex_world(n, int(asset.n_skin), int(meta.get("worlds", 1)))
+            perm = np.lexsort((morton_code(x[ids].mean(axis=1)), wv[ids[:, 0]]))
+            fam["tet"] = tuple(np.asarray(v)[perm] for v in fam["tet"])
+            order["tet"] = perm
         for group in JACOBI_GROUPS:
-            off, slots, bases = gather_lists([fam[name][0] for name in group], movable)
+            off, slots, bases = gather_lists([fam[name][0] for name in group], movable,
+                                             [order[name] for name in group])
             gather_off.append(off)
             gather_slot.append(slots)
             slot_base.update(zip(group, bases))
