@@ -352,3 +352,29 @@ def test_batched_hands_refuse_a_nonfinite_policy_that_stops_every_world():
 
     with pytest.raises(ValueError, match="BatchedHands needs Config.nonfinite=NonFinite.RECOVER"):
         BatchedHands(ph.load_asset(), 2, ph.Config(device="cpu", nonfinite=NonFinite.RAISE))
+
+
+def test_kernel_choices_follow_the_batch(setup):
+    """Config's None defaults pick per use: batched worlds gather their Jacobi corrections and run
+    multires a thread per triangle on CUDA (faster there, docs/scale.md), one hand keeps the atomics
+    and the tiled multires; explicit values win; anything else is refused."""
+    import warp as wp
+
+    asset = setup[0]
+    for bad in (dict(tiled_contact="yes"), dict(jacobi_gather=1.0)):
+        with pytest.raises(ValueError, match=list(bad)[0]):
+            Config(**bad).validate()
+    if not wp.is_cuda_available():
+        pytest.skip("no CUDA device: the choices are CUDA's")
+    ball = [dict(gtype=ph.GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")]
+    batch = BatchedHands(asset, 2, Config(device="cuda"), objects=ball)
+    assert batch.solver.model.gather_off and not batch.solver.contact.tiled
+    forced = BatchedHands(asset, 2, Config(device="cuda", tiled_contact=True, jacobi_gather=False), objects=ball)
+    assert not forced.solver.model.gather_off and forced.solver.contact.tiled
+    from physhand_mj.contact import Objects
+
+    objects = Objects("cuda", 1)
+    objects.add(ph.GeomType.SPHERE, (0.02, 0.0, 0.0), (0.0, 0.0, 1.0), name="ball")
+    cfg = Config(device="cuda")
+    one = Solver(make_model(asset, cfg), cfg, objects=objects)
+    assert not one.model.gather_off and one.contact.tiled

@@ -83,9 +83,12 @@ class Contact:
         self.touched = wp.zeros(model.n_vertices, dtype=int, device=d)  # vertices a pass corrects
         self.touched_count = self.cand_count
         self._slot = 1
-        # CUDA multires runs the tiled kernel when a block holds the lattice (and the centroid)
+        # CUDA multires runs the tiled kernel when a block holds the lattice (and the centroid), by
+        # default for one hand only: its launch has a block per skin triangle, which batched worlds
+        # fill with idle blocks (Config.tiled_contact)
+        tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
-                          and config.multires_samples < TILE_LANES and config.tiled_contact)
+                          and config.multires_samples < TILE_LANES and tiled)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
