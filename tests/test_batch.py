@@ -366,7 +366,9 @@ def test_kernel_choices_follow_the_batch(setup):
             Config(**bad).validate()
     if not wp.is_cuda_available():
         pytest.skip("no CUDA device: the choices are CUDA's")
-    ball = [dict(gtype=ph.GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")]
+    from physhand_mj.types import GeomType
+
+    ball = [dict(gtype=GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")]
     batch = BatchedHands(asset, 2, Config(device="cuda"), objects=ball)
     assert batch.solver.model.gather_off and not batch.solver.contact.tiled
     forced = BatchedHands(asset, 2, Config(device="cuda", tiled_contact=True, jacobi_gather=False), objects=ball)
@@ -374,7 +376,7 @@ def test_kernel_choices_follow_the_batch(setup):
     from physhand_mj.contact import Objects
 
     objects = Objects("cuda", 1)
-    objects.add(ph.GeomType.SPHERE, (0.02, 0.0, 0.0), (0.0, 0.0, 1.0), name="ball")
+    objects.add(GeomType.SPHERE, (0.02, 0.0, 0.0), (0.0, 0.0, 1.0), name="ball")
     cfg = Config(device="cuda")
     one = Solver(make_model(asset, cfg), cfg, objects=objects)
     assert not one.model.gather_off and one.contact.tiled
