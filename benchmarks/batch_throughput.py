@@ -11,7 +11,7 @@ Memory per world: the bytes of the replicated model's and state's device arrays 
     python benchmarks/batch_throughput.py --plot     # docs/images/batch_throughput.png from the JSONs
 
 Writes docs/benchmarks/batch_throughput_<device>[_objects][_<tag>].json; each row also gives the
-batch's setup time (``BatchedHands(...)``: replicating the asset, the model, the solver; s).
+batch's setup time (``BatchedHands(...)``: one world's model tiled W times, the upload, the solver; s).
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ def main() -> None:
         ms = (time.perf_counter() - t) / a.frames * 1e3
         mem = (_nbytes(hands.solver.model) + _nbytes(hands.state)) / w
         rows.append(dict(worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
-                         mb_per_world=round(mem / 2**20, 2), vertices=hands.replicated.n_vertices,
+                         mb_per_world=round(mem / 2**20, 2), vertices=hands.solver.model.n_vertices,
                          setup_s=round(setup_s, 2)))
         if a.profile and hands.solver.device.is_cuda:  # where the frame's GPU time goes, kernel by kernel
             rows[-1]["kernels_ms_per_frame"] = kernel_split(hands, poses, ball, a.frames)

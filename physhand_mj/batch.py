@@ -36,12 +36,16 @@ def vertex_world(n: int, n_skin: int, worlds: int) -> np.ndarray:
     return np.where(i < n_skin, i // max(ns, 1), (i - n_skin) // max(per, 1))
 
 
+def _check_worlds(worlds) -> None:
+    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
+        raise ValueError(f"worlds must be an integer >= 1, got {worlds!r}")
+
+
 def replicate_asset(asset, worlds: int):
     """``worlds`` disconnected copies of ``asset`` as one asset: all skins first (world 0's, then
     world 1's, ...), then each world's other vertices; every index array remapped, bodies
     ``name#w``. World w's skin is vertices [w n_skin, (w + 1) n_skin)."""
-    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
-        raise ValueError(f"worlds must be an integer >= 1, got {worlds!r}")
+    _check_worlds(worlds)
     n, ns, nb = asset.n_vertices, asset.n_skin, len(asset.body_names)
     if not np.all(asset.layer[:ns] == Layer.SKIN):
         raise ValueError("asset: skin vertices must come first (layer SKIN for vertices [0, n_skin))")
@@ -84,8 +88,16 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
     other vertices; bodies ``name#w``), every constraint family world by world. Each world's arrays
     are the single hand's, so a world's model is the serial model exactly (its nearest-vertex
     choices and rest angles included), and the cost is a copy: no per-world rebuild."""
+    _check_worlds(worlds)
+    if any(len(r) > 1 for r in a["colors"].values()):
+        raise ValueError("tile_model_arrays tiles Jacobi arrays only: the colored scheme's colours span "
+                         "the whole body (build its batch from replicate_asset)")
     W = int(worlds)
     n, ns, nb = int(a["n_vertices"]), int(a["n_skin"]), len(a["body_names"])
+    per_world = max([n + 1] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
+    if W * per_world >= 2**31:  # vertex, constraint and slot indices are int32 on the device
+        raise ValueError(f"{W} worlds exceed the device's int32 indices ({W} x {per_world} >= 2^31): "
+                         f"use at most {(2**31 - 1) // per_world} worlds per batch")
     w = np.arange(W)
 
     def per_vertex(v):  # (n, ...) -> (W n, ...): skins first, then the rest, world by world
@@ -98,9 +110,10 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
         t = np.tile(v, W)
         return np.where(t >= 0, t + np.repeat(w * nb, len(v)), -1).astype(v.dtype)
 
+    wv = vertex_world(W * n, W * ns, W)
+
     def vertex_bodies(v):
         v = np.asarray(v)
-        wv = vertex_world(W * n, W * ns, W)
         t = per_vertex(v)
         return np.where(t >= 0, t + wv * nb, -1).astype(v.dtype)
 
@@ -131,7 +144,7 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
         rest_x=per_vertex(a["rest_x"]), inv_mass=per_vertex(a["inv_mass"]),
         vertex_body=vertex_bodies(a["vertex_body"]), body_local=per_vertex(a["body_local"]),
         vertex_carrier=vertex_bodies(a["vertex_carrier"]),
-        vertex_world=vertex_world(W * n, W * ns, W).astype(np.int32),
+        vertex_world=wv.astype(np.int32),
         skin_body=bodies(a["skin_body"]), skin_local=tiled(a["skin_local"]),
         edge_ids=ids(a["edge_ids"]), edge_rest=tiled(a["edge_rest"]), edge_alpha=tiled(a["edge_alpha"]),
         edge_is_att=tiled(a["edge_is_att"]),
@@ -192,6 +205,7 @@ class BatchedHands:
         from physhand_mj.solver import Solver
         from physhand_mj.types import Config
 
+        _check_worlds(worlds)
         self.asset, self.worlds = asset, int(worlds)
         self.config = config if config is not None else Config()
         from physhand_mj.types import NonFinite
@@ -259,7 +273,7 @@ class BatchedHands:
         cfg = self.config.validate()
         if cfg.scheme != Scheme.JACOBI:
             return make_model(self.replicated, cfg)
-        return upload_model(tile_model_arrays(model_arrays(self.asset, cfg, batch=True), self.worlds), cfg)
+        return upload_model(tile_model_arrays(model_arrays(self.asset, cfg, batch=self.worlds > 1), self.worlds), cfg)
 
     @property
     def replicated(self):

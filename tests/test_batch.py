@@ -45,6 +45,9 @@ def test_replicated_asset_layout(setup):
     np.testing.assert_array_equal(m.skin_body.numpy() // nb, world[: rep.n_skin])
     with pytest.raises(ValueError, match="worlds"):
         replicate_asset(asset, 0)
+    for bad in (0, -1, 2.0):
+        with pytest.raises(ValueError, match="worlds"):
+            BatchedHands(asset, bad, Config(device="cpu"))
 
 
 def test_tiled_model_is_the_replicated_assets_model(setup):
@@ -61,6 +64,8 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
     cfg = Config(device="cpu", jacobi_gather=True).validate()
     t = tile_model_arrays(model_arrays(asset, cfg), W)
     r = model_arrays(replicate_asset(asset, W), cfg)
+    with pytest.raises(ValueError, match="colored"):  # its colours span the body: not tileable
+        tile_model_arrays(model_arrays(asset, Config(device="cpu", scheme=ph.Scheme.COLORED).validate()), W)
     t_atomic = tile_model_arrays(model_arrays(asset, Config(device="cpu", jacobi_gather=False).validate()), W)
     f32 = ("rest_x", "inv_mass", "body_local", "skin_local", "vertex_count")
     for k in ("vertex_body", "vertex_carrier", "vertex_world", "skin_body", "skin_faces", "guard_tets",
@@ -364,6 +369,8 @@ def test_kernel_choices_follow_the_batch(setup):
     for bad in (dict(tiled_contact="yes"), dict(jacobi_gather=1.0)):
         with pytest.raises(ValueError, match=list(bad)[0]):
             Config(**bad).validate()
+    cpu = BatchedHands(asset, 2, Config(device="cpu"))  # the CPU keeps the atomics (cheaper there)
+    assert not cpu.solver.model.gather_off and cpu.solver.model.n_slots == 0
     if not wp.is_cuda_available():
         pytest.skip("no CUDA device: the choices are CUDA's")
     from physhand_mj.types import GeomType
@@ -371,6 +378,8 @@ def test_kernel_choices_follow_the_batch(setup):
     ball = [dict(gtype=GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")]
     batch = BatchedHands(asset, 2, Config(device="cuda"), objects=ball)
     assert batch.solver.model.gather_off and not batch.solver.contact.tiled
+    lone = BatchedHands(asset, 1, Config(device="cuda"), objects=ball)  # a batch of one is one hand
+    assert not lone.solver.model.gather_off and lone.solver.contact.tiled
     forced = BatchedHands(asset, 2, Config(device="cuda", tiled_contact=True, jacobi_gather=False), objects=ball)
     assert not forced.solver.model.gather_off and forced.solver.contact.tiled
     from physhand_mj.contact import Objects

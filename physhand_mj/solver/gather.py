@@ -15,12 +15,12 @@ atomics, in an unspecified order on a GPU (two CUDA runs differ by ~0.4 um after
 and on a GPU filled with batched worlds those atomics are most of the constraint kernels' time
 (H100, W = 256: ``solve_tets`` 1.8 ms a launch with them, 0.28 ms with its writes left out). The
 gather sums the same values in a fixed order: CUDA runs repeat bit for bit, a batch's frame takes
-0.7 x the time (benchmarks/batch_throughput.py --profile, docs/scale.md), and on the CPU it is the
-atomic version bit for bit (Warp's CPU launch runs threads in order, so the atomics added the
-corrections of each vertex in this order too, starting from ``delta``'s value, which the gather
-starts from as well). One hand alone gains nothing (0.46 against 0.43 ms a frame on an H100:
-launch-bound), and the CPU pays 10-20 %, so by default only batches on CUDA gather
-(``Config.jacobi_gather``).
+0.6 x the time (with the tets in Morton order, solver/model.py; benchmarks/batch_throughput.py
+--profile, docs/scale.md), and on the CPU it is the atomic version bit for bit (Warp's CPU launch
+runs threads in order, so the atomics added the corrections of each vertex in this order too,
+starting from a zeroed ``delta``, as the gather starts from zero). One hand alone gains nothing
+(0.45 against 0.42 ms a frame on an H100: launch-bound), and the CPU pays 10-20 %, so by default
+only batches of several worlds on CUDA gather (``Config.jacobi_gather``).
 
 Kinematic (skeleton) vertices get no slots in the lists: their corrections are zero (w = 0) and
 nothing applies them.
@@ -45,12 +45,14 @@ def scatter(delta: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.vec3), slot
 @wp.func
 def gathered(delta: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids: wp.array(dtype=int),
              slots: wp.array(dtype=wp.vec3), i: int):
-    """``delta[i]`` plus vertex ``i``'s slots (its CSR row ``off[i]:off[i+1]`` of ``slot_ids``), in
-    order; ``delta[i]`` alone when the lists are empty (the atomic path)."""
-    d = delta[i]
-    if off.shape[0] > 0:
-        for k in range(off[i], off[i + 1]):
-            d = d + slots[slot_ids[k]]
+    """Vertex ``i``'s slots (its CSR row ``off[i]:off[i+1]`` of ``slot_ids``) summed in order from
+    zero, or ``delta[i]`` when the lists are empty (the atomic path; the atomics also start from a
+    zeroed ``delta``, and nothing writes ``delta`` when the solver gathers)."""
+    if off.shape[0] == 0:
+        return delta[i]
+    d = wp.vec3(0.0)
+    for k in range(off[i], off[i + 1]):
+        d = d + slots[slot_ids[k]]
     return d
 
 

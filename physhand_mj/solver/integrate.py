@@ -97,7 +97,8 @@ def advance(
             n = vertex_count[group, i]
             if n > 0.0:
                 xi = xi + gathered(delta, gather_off, gather_slot, slots, i) * (relaxation / n)
-            delta[i] = wp.vec3(0.0)
+            if gather_off.shape[0] == 0:  # (the gather leaves delta alone: zero)
+                delta[i] = wp.vec3(0.0)
         if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
             xi = x_prev[i]
             vi = wp.vec3(0.0)
@@ -185,7 +186,8 @@ def apply_jacobi(
     n = vertex_count[group, i]
     if n > 0.0:
         x[i] = x[i] + gathered(delta, gather_off, gather_slot, slots, i) * (relaxation / n)
-    delta[i] = wp.vec3(0.0)
+    if gather_off.shape[0] == 0:  # (the gather leaves delta alone: zero)
+        delta[i] = wp.vec3(0.0)
 
 
 @wp.kernel

@@ -63,12 +63,6 @@ def morton_code(p: np.ndarray) -> np.ndarray:
     return spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2)
 
 
-def _vertex_world(n: int, n_skin: int, worlds: int) -> np.ndarray:
-    from physhand_mj.batch import vertex_world
-
-    return vertex_world(n, n_skin, worlds) if worlds > 1 else np.zeros(n, np.int64)
-
-
 def make_model(asset, config: Config | None = None) -> Model:
     """Arrays of the constraint families that ``config`` switches on, on ``config.device``.
 
@@ -81,8 +75,9 @@ def make_model(asset, config: Config | None = None) -> Model:
 
 def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     """:func:`make_model`'s arrays on the host (numpy), before the upload: :func:`upload_model`
-    turns them into the Model; batched worlds tile one world's (physhand_mj/batch.py, ``batch``
-    True: ``Config.jacobi_gather=None`` then gathers on CUDA)."""
+    turns them into the Model; batched worlds tile one world's (physhand_mj/batch.py; ``batch``:
+    the arrays are for a batch of several worlds, where ``Config.jacobi_gather=None`` gathers on
+    CUDA)."""
     device = wp.get_device(cfg.device)
     x = np.asarray(asset.positions, dtype=np.float64)
     layer = np.asarray(asset.layer)
@@ -136,6 +131,14 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
             count[row] += np.bincount(np.asarray(fam[name][0]).ravel(), minlength=n)[:n]
     count[:, kin] = 0.0
 
+    # the world of every vertex (batched worlds replicated into one asset, physhand_mj/batch.py)
+    worlds = int(asset.meta.get("worlds", 1)) if isinstance(asset.meta, dict) else 1
+    world = np.zeros(n, np.int32)
+    if worlds > 1:
+        from physhand_mj.batch import vertex_world
+
+        world = vertex_world(n, int(asset.n_skin), worlds).astype(np.int32)
+
     # Jacobi without atomics (solver/gather.py): per group, each movable vertex's correction slots
     gather_off, gather_slot, slot_base = [], [], {}
     gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else (batch and device.is_cuda)
@@ -147,9 +150,7 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
         order = {name: None for name in FAMILIES}
         ids = np.asarray(fam["tet"][0])
         if len(ids):
-            meta = asset.meta if isinstance(asset.meta, dict) else {}
-            wv = _vertex_world(n, int(asset.n_skin), int(meta.get("worlds", 1)))
-            perm = np.lexsort((morton_code(x[ids].mean(axis=1)), wv[ids[:, 0]]))
+            perm = np.lexsort((morton_code(x[ids].mean(axis=1)), world[ids[:, 0]]))
             fam["tet"] = tuple(np.asarray(v)[perm] for v in fam["tet"])
             order["tet"] = perm
         for group in JACOBI_GROUPS:
@@ -174,15 +175,7 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     skin_local = np.zeros((ns, 3))
     # batched worlds (physhand_mj/batch.py) share their rest positions: a 4th coordinate keeps
     # every nearest-vertex query inside its own world
-    worlds = int(asset.meta.get("worlds", 1)) if isinstance(asset.meta, dict) else 1
-    world = np.zeros(n, np.int32)
-    if worlds > 1:
-        from physhand_mj.batch import vertex_world
-
-        world = vertex_world(n, ns, worlds).astype(np.int32)
-        xw = np.c_[x, 1.0e3 * world]
-    else:
-        xw = x
+    xw = np.c_[x, 1.0e3 * world] if worlds > 1 else x
     if len(kv) and ns:
         from scipy.spatial import cKDTree
 
