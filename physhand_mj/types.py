@@ -115,10 +115,10 @@ class Config:
       jacobi_gather: Jacobi only: each constraint stores its corrections in slots of its own and
         every vertex sums its slots in a fixed order (solver/gather.py) instead of adding them with
         float atomics: the solver then repeats bit for bit on CUDA (the contact keeps its atomics),
-        and batches run faster there (H100: ~9,800 against ~6,900 hand-frames/s); one hand's frame
-        costs about the same (0.46 against 0.43 ms) and the CPU's 10-20 % more, with the atomic
-        result bit for bit. None (default): batched worlds on CUDA gather (BatchedHands), every
-        other solver adds atomically; True / False: always / never.
+        and batches run faster there (H100: ~10,900 against ~6,900 hand-frames/s); one hand's frame
+        costs about the same (0.45 against 0.42 ms) and the CPU's 10-20 % more, with the atomic
+        result bit for bit. None (default): batches of 2 or more worlds on CUDA gather
+        (BatchedHands), every other solver adds atomically; True / False: always / never.
       nonfinite: :class:`NonFinite` policy.
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
         objects); contact_placement: :class:`Placement` of the correction in the substep;
