@@ -39,6 +39,38 @@ def _signs(mesh_n: wp.uint64, mesh_w: wp.uint64, faces: wp.array2d(dtype=int), x
         out[i, 2] = wp.dot(p[i] - c, -wp.normalize(wp.cross(b - a, d - a))) + offset  # push_feature's need
 
 
+def _local_sign(c, state, pts):
+    """Per object point (len(pts)): the local winding number's side (+1 outside, -1 inside; 0 for points
+    not in the frame's feature list or without a patch) of the contact's last frame, with the skin now."""
+    from physhand_mj.contact.features import FOUR_PI
+
+    out = np.zeros(len(pts), dtype=int)
+    if not getattr(c.config, "feature_winding", False) or c.feat is None:
+        return out
+    n = int(c.feat_count.numpy()[0])
+    feat = c.feat.numpy()[:n]
+    start, length = c.patch_start.numpy()[:n], c.patch_len.numpy()[:n]
+    far, pool = c.far_angle.numpy()[:n], c.patch_pool.numpy()
+    x = state.x.numpy().astype(float)
+    faces = c.model.skin_faces.numpy()
+    pose = c.objects._host["pose"][pts.geom_host].astype(float)
+    from physhand_mj.solver.model import quat_to_mat
+
+    rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
+    world = np.einsum("kij,kj->ki", rot, pts.pts_host) + pose[:, :3]
+    for k, i in enumerate(feat):
+        if length[k] < 0:
+            continue
+        tri = x[faces[pool[start[k]: start[k] + length[k]]]] - world[i]
+        a, b, d = tri[:, 0], tri[:, 1], tri[:, 2]
+        la, lb, ld = (np.linalg.norm(v, axis=1) for v in (a, b, d))
+        num = np.einsum("ij,ij->i", a, np.cross(b, d))
+        den = la * lb * ld + np.einsum("ij,ij->i", a, b) * ld + np.einsum("ij,ij->i", b, d) * la + \
+            np.einsum("ij,ij->i", d, a) * lb
+        out[i] = -1 if (2 * np.arctan2(num, den)).sum() + far[k] > 0.5 * FOUR_PI else 1
+    return out
+
+
 def main():
     from activity_frame import _glass_case
 
@@ -68,10 +100,18 @@ def main():
         near = (np.abs(o[:, 1]) > 0) & (np.abs(o[:, 1]) < 2e-3)
         bad = near & (np.sign(o[:, 0]) != np.sign(o[:, 1]))
         push = bad & (o[:, 0] < 0) & (o[:, 2] > 0)
+        # the local winding number the contact decides with (Config.feature_winding): the patch's solid
+        # angles now plus the far angle from the frame's start, against the full winding number
+        local = _local_sign(c, state, pts)
+        listed = np.flatnonzero(pts.kind_host != 0)
+        lw = local[listed]
+        have = near & (lw != 0)
+        lbad = have & (lw != np.sign(o[:, 1]))
         print(f"frame {f}: {int(near.sum())} feature points within 2 mm of the skin, {int(bad.sum())} classified "
               f"differently, {int(push.sum())} of them outside but taken as inside with the point behind their "
               f"closest triangle's plane (push_feature would push the skin); (pseudo-normal, winding) um: "
-              f"{np.round(o[bad][:4, :2] * 1e6, 1).tolist()}", flush=True)
+              f"{np.round(o[bad][:4, :2] * 1e6, 1).tolist()}; local winding number: {int(have.sum())} of them "
+              f"listed, {int(lbad.sum())} classified differently from the full one", flush=True)
 
 
 if __name__ == "__main__":

@@ -175,6 +175,13 @@ class Config:
         sign, instead of one thread per feature walking the skin's BVH (refitted before every stage
         and pass); the same closest point (distance ties: the lowest triangle index) and decisions
         (contact/features.py). The CPU always walks the BVH.
+      feature_winding: decide whether an object feature point is inside the skin by its local
+        winding number (the solid angles of the skin triangles within contact_frame_margin of it,
+        summed every pass, plus the rest's from Warp's fast winding number at the frame's start;
+        contact/features.py) instead of the pseudo normals alone, which take points in front of a
+        squeezed, turned-over skin triangle as inside and push the skin for nothing. On the CPU it
+        confirms the points the pseudo normal takes as inside; on CUDA the feature kernels scan the
+        point's triangles (instead of the frame's whole list) and take every sign from it.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).
@@ -231,6 +238,7 @@ class Config:
     cuda_graph: bool = True
     tiled_contact: bool | None = None
     tiled_features: bool = True
+    feature_winding: bool = True
     skip_idle: bool = True
     sleep_speed: float = 3.0e-3
     sleep_frames: int = 10

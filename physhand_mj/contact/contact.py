@@ -10,13 +10,21 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
-from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_tiled, near_features,
-                                          stage_features, stage_features_tiled)
+from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_tiled, feature_patches,
+                                          near_features, stage_features, stage_features_tiled)
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
 from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 from physhand_mj.types import Config, Model, Placement, Strategy
+
+# the local winding number's patch pool (features.py): entries per feature point of the objects,
+# within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
+# within 1 cm, at most ~270, and ~100 of its 880 are listed per frame); a patch that does not fit
+# keeps the pseudo-normal sign
+PATCH_POOL_PER_FEATURE = 128
+PATCH_POOL_MIN = 1 << 15
+PATCH_POOL_MAX = 1 << 24
 
 # m, the independent check's object points (Contact.check_points): edges at a quarter of the
 # features' 0.5 mm spacing (midpoints of 4x as many segments: none coincides with a feature point),
@@ -110,6 +118,7 @@ class Contact:
         self.closed_skin = bool(len(f)) and bool(np.all(np.unique(key, return_counts=True)[1] == 2))
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
         self.feat_count = wp.zeros(1, dtype=int, device=d)
+        self.feat_stage_float = wp.zeros(1, dtype=float, device=d)  # stands in for far_angle (feature_winding off)
         # m, the radius a feature's skin query tries first (features.closest_signed): a pass's
         # features lie within ~contact_margin of the skin; the frame margin is the fallback
         self.near_query = float(min(config.contact_frame_margin, max(4.0 * config.contact_margin, 1.0e-3)))
@@ -171,11 +180,29 @@ class Contact:
             if self.feat is None:
                 self.feat = wp.zeros(pts.n_features, dtype=int, device=m.device)
                 self.feat_stage = wp.zeros(pts.n_features, dtype=int, device=m.device)
+                if cfg.feature_winding:
+                    n = pts.n_features
+                    cap = int(min(max(n * PATCH_POOL_PER_FEATURE, PATCH_POOL_MIN), PATCH_POOL_MAX))
+                    self.patch_pool = wp.zeros(cap, dtype=int, device=m.device)
+                    self.patch_used = wp.zeros(1, dtype=int, device=m.device)
+                    self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index
+                    self.patch_start = wp.zeros(n, dtype=int, device=m.device)
+                    self.patch_len = wp.full(n, -1, dtype=int, device=m.device)
+                    self.far_angle = wp.zeros(n, dtype=float, device=m.device)
+                    self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
             ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin], [self.feat, self.feat_count])
+            if cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
+                volw = self.volume(state, winding=True)
+                ops += [self._refit_op(volw), self.patch_used.zero_]
+                launch(feature_patches, pts.n_features,
+                       [vol.mesh.id, volw.mesh.id, m.skin_faces, self._query_x(state), self.feat, self.feat_count,
+                        pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin],
+                       [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
+                        self.far_angle], count=self.feat_count)
 
     def _counter(self):
         c = self.counters[self._slot: self._slot + 1]
@@ -213,7 +240,8 @@ class Contact:
             ops += self.volume(state, winding=False).sync_ops()
             launch(stage_features_tiled, (self.points.n_features, self.feature_lanes),
                    [m.skin_faces, self._query_x(state), self.cand, self.cand_count, self.feat, self.feat_count,
-                    self.points.pts, self.points.geom, self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps],
+                    self.points.pts, self.points.geom, self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
+                    *self._winding_args()],
                    [self.feat_stage, feat_count], block_dim=self.feature_lanes)
         elif self.feat is not None:  # the stage's features (features.py)
             feat_count = self.feat_stage_counts[stage: stage + 1]
@@ -222,7 +250,8 @@ class Contact:
             ops.append(self._refit_op(vol))
             launch(stage_features, self.points.n_features,
                    [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, self._qp,
-                    cfg.contact_frame_margin, cfg.contact_margin, self.near_query], [self.feat_stage, feat_count],
+                    cfg.contact_frame_margin, cfg.contact_margin, self.near_query, m.skin_faces, self._query_x(state),
+                    *self._winding_args()], [self.feat_stage, feat_count, self._side()],
                    count=self.feat_count)
         else:
             skin = feat_count = None
@@ -256,14 +285,16 @@ class Contact:
                     launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
                            [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
                             self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
-                            cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x],
+                            cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
+                            *self._winding_args()],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            block_dim=self.feature_lanes)
                 else:
                     launch(feature_contact, self.points.n_features,
                            [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
                             self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
-                            self.near_query, self._query_x(state), o.pose, state.x],
+                            self.near_query, self._query_x(state), o.pose, state.x, *self._winding_args(),
+                            self._side()],
                            [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                            count=feat_count)
                 launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
@@ -291,6 +322,17 @@ class Contact:
                                                  self.moved, self.disp, stamp, self.bound], list(lst),
                        count=self.active_count)
         return lst, tuple(moved_slots)
+
+    def _winding_args(self) -> list:
+        """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
+        length, far angle]; off: the feature list's arrays stand in (never read)."""
+        if self.config.feature_winding:
+            return [1, self.feat_slot, self.patch_pool, self.patch_start, self.patch_len, self.far_angle]
+        return [0, self.feat, self.feat, self.feat, self.feat, self.feat_stage_float]
+
+    def _side(self):
+        """The CPU's per-stage sides of the listed features (features.stage_features)."""
+        return self.feat_side if self.config.feature_winding else self.feat_stage_float
 
     def _tally_touched(self, launch, p: int, count) -> None:
         """Batched worlds: the vertices a stage's first pass corrected (``self.touched``, ``count``

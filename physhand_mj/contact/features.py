@@ -25,13 +25,151 @@ every contact stage keeps of that list the features inside the skin or less than
 ``Config.contact_margin`` outside it (one signed query each: a pass moves the skin at most that far,
 the same bound as the stage broadphase of triangles), and its passes test only those, refitting the
 skin's BVH before each (no winding data: ~0.1 ms for 10k triangles on a CPU). Signs come from the
-skin's pseudo normals (the skin is closed and consistently wound).
+skin's pseudo normals (the skin is closed and consistently wound), confirmed by a local winding number.
+
+The local winding number (``Config.feature_winding``). Pseudo normals are exact on a closed surface
+that does not fold, but a grasp squeezes skin triangles until some turn over (their normal points
+into the hand), and a feature point in front of such a triangle is taken as inside although it is
+outside: a spurious push. The generalised winding number w(p) = sum of the triangles' solid angles
+/ 4 pi (Jacobson et al. 2013) has no such failure, but its BVH data cost a refit per pass. Split the
+closed skin into the triangles near p (its *patch*: every skin triangle within ``contact_frame_margin``
+of p at the frame's start) and the rest:
+
+    w(p) = (Omega_patch(p) + Omega_far(p)) / 4 pi,   Omega_far = 4 pi w_0(p) - Omega_patch,0(p)
+
+where w_0 is Warp's fast winding number at the frame's start (an integer: -1 past a fold that turned the
+skin inside out), once per frame. Every pass
+sums the patch's solid angles exactly (Van Oosterom and Strackee) and keeps Omega_far from the
+frame's start: the far triangles stay farther from p than the frame broadphase's margin minus the
+frame's motion (the broadphase's own assumption), so their solid angle changes smoothly and little
+(w moves by a few hundredths for a 5 mm slide), far from the 1/2 that decides. On the CPU the
+patch's sum confirms only the points the pseudo normal takes as inside (a push is at stake); the
+CUDA kernels scan the patch instead of the frame's whole triangle list and take every sign from it.
 """
 
 import warp as wp
 
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import accumulate, depth_weight
+
+FOUR_PI = 12.566370614359172
+
+
+@wp.func
+def solid_angle(a: wp.vec3, b: wp.vec3, c: wp.vec3):
+    """Signed solid angle (sr) of triangle (a, b, c), vertices relative to the query point (Van
+    Oosterom and Strackee 1983): its sum over a closed, outward (counter-clockwise) wound surface is
+    4 pi inside and 0 outside."""
+    la = wp.length(a)
+    lb = wp.length(b)
+    lc = wp.length(c)
+    num = wp.dot(a, wp.cross(b, c))
+    den = la * lb * lc + wp.dot(a, b) * lc + wp.dot(b, c) * la + wp.dot(c, a) * lb
+    return 2.0 * wp.atan2(num, den)
+
+
+@wp.func
+def patch_angle(p: wp.vec3, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), pool: wp.array(dtype=int),
+                start: int, n: int):
+    """Sum of the solid angles (sr) at ``p`` of the skin triangles pool[start: start + n]."""
+    s = float(0.0)
+    for j in range(start, start + n):
+        t = pool[j]
+        s += solid_angle(x[faces[t, 0]] - p, x[faces[t, 1]] - p, x[faces[t, 2]] - p)
+    return s
+
+
+@wp.func
+def within(p: wp.vec3, t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), radius: float):
+    """Whether skin triangle ``t`` comes within ``radius`` (m) of ``p``."""
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    bc = closest_on_triangle(a, b, c, p)
+    return wp.length(bc[0] * a + bc[1] * b + (1.0 - bc[0] - bc[1]) * c - p) <= radius
+
+
+@wp.kernel
+def feature_patches(
+    skin: wp.uint64,
+    skin_w: wp.uint64,
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    feat: wp.array(dtype=int),
+    feat_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    radius: float,
+    margin: float,
+    pool_count: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    slot: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+):
+    """Once per frame, for the k-th listed feature point i (module docstring, the local winding
+    number): its patch (the skin triangles whose boxes meet the cube of half-size ``radius`` m around
+    it, from ``skin``'s BVH, that come within ``radius`` of it) appended to ``pool``, and Omega_far = 4 pi w_0 - Omega_patch with w_0
+    ``skin_w``'s fast winding number (an integer, -1 to 1). ``slot[i] = k``. A patch that does not
+    fit the pool gets length -1 (its point keeps the pseudo-normal sign)."""
+    k = wp.tid()
+    if k >= feat_count[0]:
+        return
+    i = feat[k]
+    slot[i] = k
+    p = object_point(i, pts, pts_geom, pose)
+    lo = p - wp.vec3(radius)
+    hi = p + wp.vec3(radius)
+    n = int(0)
+    t = int(0)
+    q = wp.mesh_query_aabb(skin, lo, hi)
+    while wp.mesh_query_aabb_next(q, t):
+        if within(p, t, faces, x, radius):
+            n += 1
+    start = wp.atomic_add(pool_count, 0, n)
+    if start + n > pool.shape[0]:
+        patch_len[k] = -1
+        return
+    size = n
+    n = int(0)
+    q = wp.mesh_query_aabb(skin, lo, hi)
+    while wp.mesh_query_aabb_next(q, t):
+        if within(p, t, faces, x, radius) and n < size:  # (the same triangles as counted)
+            pool[start + n] = t
+            n += 1
+    # w_0 is an integer off the surface, and not only 0 or 1: a squeezed skin folds inside out
+    # (w = -1 at points past the fold, measured on the demo); Warp's query gives only its side of a
+    # threshold, so ask at -1/2 and 1/2 (w_0 = 2 where the skin overlaps itself counts as 1: the
+    # point stays inside unless the skin moves across it twice)
+    w0 = float(-1.0)
+    r = wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, -0.5)
+    if not r.result:
+        w0 = 0.0  # no skin within margin (a listed feature has)
+    elif r.sign < 0.0:
+        w0 = 0.0
+        r = wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, 0.5)
+        if r.sign < 0.0:
+            w0 = 1.0
+    patch_start[k] = start
+    patch_len[k] = n
+    far_angle[k] = FOUR_PI * w0 - patch_angle(p, faces, x, pool, start, n)
+
+
+@wp.func
+def winding_sign(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                 slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
+                 patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float), sign: float):
+    """The side of feature point ``i`` at ``p`` by the local winding number (+1 outside the skin, -1
+    inside); ``sign`` (the pseudo normal's) where its patch did not fit the pool."""
+    k = slot[i]
+    n = patch_len[k]
+    if n < 0:
+        return sign
+    if patch_angle(p, faces, x, pool, patch_start[k], n) + far_angle[k] > 0.5 * FOUR_PI:
+        return -1.0
+    return 1.0
 
 
 @wp.func
@@ -78,11 +216,22 @@ def stage_features(
     margin: float,
     keep: float,
     near: float,
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    winding: int,
+    slot: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
+    side: wp.array(dtype=float),
 ):
     """Of the frame's listed features, append those inside the skin or less than ``keep`` (m)
-    outside it (the stage's list)."""
+    outside it (the stage's list). With ``winding`` (the CPU's local winding number, module
+    docstring) a kept point the pseudo normal takes as inside gets its side checked once per stage:
+    ``side[slot[i]]`` -1 inside, +1 outside, 0 not checked (the pseudo normal took it as outside)."""
     k = wp.tid()
     if k >= cand_count[0]:
         return
@@ -92,6 +241,11 @@ def stage_features(
     if q.result:
         if q.sign * wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v)) < keep:
             out[wp.atomic_add(out_count, 0, 1)] = i
+            if winding != 0:
+                sd = float(0.0)
+                if q.sign < 0.0:
+                    sd = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle, q.sign)
+                side[slot[i]] = sd
 
 
 @wp.func
@@ -166,6 +320,13 @@ def feature_contact(
     x: wp.array(dtype=wp.vec3),
     pose0: wp.array(dtype=wp.transform),
     x0: wp.array(dtype=wp.vec3),
+    winding: int,
+    slot: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+    side: wp.array(dtype=float),
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     touched: wp.array(dtype=int),
@@ -173,7 +334,10 @@ def feature_contact(
     vertex_obj: wp.array(dtype=int),
 ):
     """For each listed feature point inside the skin (or closer than offset / 2 outside it): the
-    correction of the module docstring on its closest skin triangle, into ``delta``/``hits``."""
+    correction of the module docstring on its closest skin triangle, into ``delta``/``hits``. With
+    ``winding`` a point the pseudo normal takes as inside takes its side from the local winding
+    number (module docstring; ``x`` the skin as the queries see it): the stage's check
+    (``side``, :func:`stage_features`) where it made one, else one now (kept for the stage)."""
     k = wp.tid()
     if k >= cand_count[0]:
         return
@@ -183,8 +347,15 @@ def feature_contact(
     q = closest_signed(skin, p, near, margin)
     if not q.result:
         return
+    sign = q.sign
+    if winding != 0 and sign < 0.0:
+        ks = slot[i]
+        sign = side[ks]
+        if sign == 0.0:  # taken as outside when the stage began: check now, for the rest of the stage
+            sign = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle, q.sign)
+            side[ks] = sign
     f, u, v, p0 = at_origin(i, p, q.face, q.u, q.v, pts, pts_geom, pose0, faces, x0)
-    push_feature(p0, f, u, v, q.sign, geom_obj[g], faces, offset, max_step, x0, delta, hits, touched,
+    push_feature(p0, f, u, v, sign, geom_obj[g], faces, offset, max_step, x0, delta, hits, touched,
                  touched_count, vertex_obj)
 
 
@@ -282,11 +453,13 @@ def pseudo_weight(a: wp.vec3, b: wp.vec3, c: wp.vec3, q: wp.vec3, eps: float):
 
 @wp.func
 def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-                         tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), far: float, eps: float):
+                         tris: wp.array(dtype=int), start: int, n: int, far: float, eps: float, angles: int):
     """:func:`closest_signed` for a block: the closest point to ``p`` on the skin triangles listed in
-    ``tris`` (``tri_count[0]`` of them) within ``far`` (m), as (found, face, u, v, sign) with Warp's
+    ``tris[start: start + n]`` within ``far`` (m), as (found, face, u, v, sign, omega) with Warp's
     conventions (the point u x0 + v x1 + (1 - u - v) x2 of face ``face``; sign +1 outside the skin,
-    -1 inside). Every thread of the block calls it (block reductions) and gets the same answer.
+    -1 inside) and, with ``angles``, the sum of the listed triangles' solid angles at p (sr, the
+    local winding number's patch term; 0 without). Every thread of the block calls it (block
+    reductions) and gets the same answer.
 
     Lane ``lane`` tests the list's entries lane, lane + block_dim, ... exactly as Warp's
     mesh_query_point_sign_normal tests a BVH leaf's triangles (slivers skipped; the same closest
@@ -301,14 +474,17 @@ def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x:
     best = far
     face = int(NO_FACE)
     acc = wp.vec3(0.0)
-    n = tri_count[0]
-    j = lane
-    while j < n:
+    omega = float(0.0)
+    j = start + lane
+    end = start + n
+    while j < end:
         t = tris[j]
         j += lanes
         a = x[faces[t, 0]]
         b = x[faces[t, 1]]
         c = x[faces[t, 2]]
+        if angles != 0:  # every listed triangle, slivers too
+            omega += solid_angle(a - p, b - p, c - p)
         e0 = b - a
         e1 = c - a
         e2 = c - b
@@ -339,8 +515,11 @@ def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x:
         near_acc = acc
     f = wp.tile_min(wp.tile(near_face))[0]
     normal_sum = wp.tile_sum(wp.tile(near_acc, preserve_type=True))[0]
+    total = float(0.0)
+    if angles != 0:
+        total = wp.tile_sum(wp.tile(omega))[0]
     if d >= far or f == NO_FACE:
-        return False, int(0), float(0.0), float(0.0), float(1.0)
+        return False, int(0), float(0.0), float(0.0), float(1.0), total
     a = x[faces[f, 0]]
     b = x[faces[f, 1]]
     c = x[faces[f, 2]]
@@ -351,7 +530,28 @@ def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x:
     sign = float(-1.0)
     if wp.dot(normal_sum, p - (a * u + b * min_v + c * min_w)) > 0.0:
         sign = 1.0
-    return True, f, u, min_v, sign
+    return True, f, u, min_v, sign, total
+
+
+@wp.func
+def closest_tiled(p: wp.vec3, i: int, lane: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                  tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), far: float, eps: float, winding: int,
+                  slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
+                  patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
+    """:func:`closest_signed_tiled` for feature point ``i`` at ``p``: with ``winding`` over its patch
+    (the triangles near it, module docstring) with the local winding number's sign; else (or where
+    its patch did not fit the pool) over the frame's list ``tris`` with the pseudo-normal sign."""
+    k = slot[i]
+    if winding != 0:
+        n = patch_len[k]
+        if n >= 0:
+            found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, pool, patch_start[k], n, far, eps, 1)
+            sign = float(1.0)
+            if omega + far_angle[k] > 0.5 * FOUR_PI:
+                sign = -1.0
+            return found, f, u, v, sign
+    found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, tris, 0, tri_count[0], far, eps, 0)
+    return found, f, u, v, sign
 
 
 @wp.kernel
@@ -368,18 +568,25 @@ def stage_features_tiled(
     margin: float,
     keep: float,
     eps: float,
+    winding: int,
+    slot: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
 ):
     """:func:`stage_features` with a block per listed feature (launch (n, FEATURE_LANES) with
-    block_dim FEATURE_LANES on CUDA; (n, 1) on the CPU): the closest point by
-    :func:`closest_signed_tiled` over the skin triangles ``tris`` (the frame's broadphase list)."""
+    block_dim FEATURE_LANES on CUDA; (n, 1) on the CPU): the closest point by :func:`closest_tiled`
+    (the feature's patch, or the skin triangles ``tris``: the frame's broadphase list)."""
     k, lane = wp.tid()
     if k >= cand_count[0]:
         return  # uniform over the block: k is the block's feature
     i = cand[k]
     p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_signed_tiled(p, lane, faces, x, tris, tri_count, margin, eps)
+    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
+                                         patch_start, patch_len, far_angle)
     if lane != 0 or not found:
         return
     c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
@@ -405,6 +612,12 @@ def feature_contact_tiled(
     x: wp.array(dtype=wp.vec3),
     pose0: wp.array(dtype=wp.transform),
     x0: wp.array(dtype=wp.vec3),
+    winding: int,
+    slot: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     touched: wp.array(dtype=int),
@@ -412,14 +625,15 @@ def feature_contact_tiled(
     vertex_obj: wp.array(dtype=int),
 ):
     """:func:`feature_contact` with a block per listed feature (launched as
-    :func:`stage_features_tiled`): the closest point by :func:`closest_signed_tiled`, then lane 0
-    applies the same correction (:func:`push_feature`)."""
+    :func:`stage_features_tiled`): the closest point by :func:`closest_tiled`, then lane 0 applies
+    the same correction (:func:`push_feature`)."""
     k, lane = wp.tid()
     if k >= cand_count[0]:
         return  # uniform over the block
     i = cand[k]
     p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_signed_tiled(p, lane, faces, x, tris, tri_count, margin, eps)
+    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
+                                         patch_start, patch_len, far_angle)
     if lane != 0 or not found:
         return
     f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
