@@ -11,7 +11,7 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_tiled, feature_patches,
-                                          near_features, stage_features, stage_features_tiled)
+                                          feature_patches_tiled, near_features, stage_features, stage_features_tiled)
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
@@ -188,6 +188,7 @@ class Contact:
                     self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index
                     self.patch_start = wp.zeros(n, dtype=int, device=m.device)
                     self.patch_len = wp.full(n, -1, dtype=int, device=m.device)
+                    self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
                     self.far_angle = wp.zeros(n, dtype=float, device=m.device)
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
             vol = self.volume(state, winding=False)
@@ -195,7 +196,14 @@ class Contact:
             ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin], [self.feat, self.feat_count])
-            if cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
+            if cfg.feature_winding and self.tiled_features:  # CUDA: a block per feature over its world's skin
+                ops += [self.patch_used.zero_, self.patch_fill.zero_]
+                launch(feature_patches_tiled, (pts.n_features, self.feature_lanes),
+                       [m.skin_faces, self._query_x(state), self.feat, self.feat_count, pts.pts, pts.geom, qpose,
+                        cfg.contact_frame_margin, self.tris_per_world, self.geoms_per_world],
+                       [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
+                        self.patch_fill, self.far_angle], block_dim=self.feature_lanes)
+            elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
                 volw = self.volume(state, winding=True)
                 ops += [self._refit_op(volw), self.patch_used.zero_]
                 launch(feature_patches, pts.n_features,

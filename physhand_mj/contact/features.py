@@ -555,6 +555,77 @@ def closest_tiled(p: wp.vec3, i: int, lane: int, faces: wp.array2d(dtype=int), x
 
 
 @wp.kernel
+def feature_patches_tiled(
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    feat: wp.array(dtype=int),
+    feat_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    radius: float,
+    tris_per_world: int,
+    geoms_per_world: int,
+    pool_count: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    slot: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    patch_fill: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+):
+    """:func:`feature_patches` with a block per listed feature (CUDA; launch (n, FEATURE_LANES)):
+    the lanes scan every skin triangle of the feature's world, so Omega_far is the far triangles'
+    own solid-angle sum (no winding-number BVH, no integer w_0), and append the patch's triangles
+    (in no fixed order; ``patch_fill`` zeroed per frame). On the CPU (block_dim 1) one thread scans
+    them all."""
+    k, lane = wp.tid()
+    if k >= feat_count[0]:
+        return  # uniform over the block
+    i = feat[k]
+    p = object_point(i, pts, pts_geom, pose)
+    lanes = wp.block_dim()
+    first = (pts_geom[i] // geoms_per_world) * tris_per_world
+    total = float(0.0)
+    near = float(0.0)
+    cnt = int(0)
+    j = first + lane
+    while j < first + tris_per_world:
+        t = j
+        j += lanes
+        a = x[faces[t, 0]]
+        b = x[faces[t, 1]]
+        c = x[faces[t, 2]]
+        w = solid_angle(a - p, b - p, c - p)
+        total += w
+        if within(p, t, faces, x, radius):
+            near += w
+            cnt += 1
+    n = wp.tile_sum(wp.tile(cnt))[0]
+    far = wp.tile_sum(wp.tile(total))[0] - wp.tile_sum(wp.tile(near))[0]
+    mine = int(-1)
+    if lane == 0:
+        mine = wp.atomic_add(pool_count, 0, n)
+    start = wp.tile_max(wp.tile(mine))[0]
+    if start + n > pool.shape[0]:
+        if lane == 0:
+            slot[i] = k
+            patch_len[k] = -1
+        return
+    j = first + lane
+    while j < first + tris_per_world:
+        t = j
+        j += lanes
+        if within(p, t, faces, x, radius):
+            pool[start + wp.atomic_add(patch_fill, k, 1)] = t
+    if lane == 0:
+        slot[i] = k
+        patch_start[k] = start
+        patch_len[k] = n
+        far_angle[k] = far
+
+
+@wp.kernel
 def stage_features_tiled(
     faces: wp.array2d(dtype=int),
     x: wp.array(dtype=wp.vec3),
