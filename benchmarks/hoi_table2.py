@@ -33,6 +33,9 @@ from physhand_mj.rollout import load_scene, rollout
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = {"feature_contact": False, "side_aware": False, "skin_tether": 0.0}  # the paper's contact, no tether
 METHODS = (("vertex", "vertex", PAPER), ("opt", "opt", PAPER), ("multires", "multires", PAPER), ("default", "multires", {}))
+# asked by name only (--methods default,pseudo): the default with the feature push's side from the
+# pseudo normals alone (Config.feature_winding off), for the local winding number's cost in one run
+EXTRA = (("pseudo", "multires", {"feature_winding": False}),)
 
 
 def no_contact_ms(scene: Path, device: str, frames: int = 20) -> float:
@@ -74,7 +77,7 @@ def main():
         for name in args.scenes.split(","):
             base = no_contact_ms(ph.scene_path(f"hoi_{name}"), args.device)  # paired: the host's speed drifts
             bases.append(base)
-            for method, c, over in [m for m in METHODS if m[0] in args.methods.split(",")]:
+            for method, c, over in [m for m in METHODS + EXTRA if m[0] in args.methods.split(",")]:
                 res = rollout(ph.scene_path(f"hoi_{name}"), "grasp", steps=args.steps, contact=c, device=args.device,
                               out=Path(tmp) / f"{name}-{method}", progress=False, config=over, on_end=at_end)
                 row = dict(scene=name, contact=method, initial_count=res["initial_penetration_count"],
@@ -101,7 +104,7 @@ def main():
                 if (r["scene"], r["contact"]) not in ran]
         rows = [dict(r, device=dev) for r in rows] + kept
         rows.sort(key=lambda r: (list(SCENES).index(r["scene"]) if r["scene"] in SCENES else 99,
-                                 [m[0] for m in METHODS].index(r["contact"])))
+                                 [m[0] for m in METHODS + EXTRA].index(r["contact"])))
     out.write_text(json.dumps(dict(device=dev, steps=args.steps, rows=rows), indent=1))
     print(f"\n{dev}; frame without contact {min(bases):.2f}-{max(bases):.2f} ms\n")
     print("| scene | method | initial count / max (mm) | count | max (um) | avg (um) | order 9: count / max (um) | "

@@ -170,11 +170,12 @@ class Config:
         hand-frames/s at W = 1024, docs/scale.md).
       tiled_features: on CUDA, run the object's side (feature_contact: each contact stage's feature
         list and every pass's feature push) with a block of 128 threads per listed feature point,
-        the lanes scanning the frame's broadphase list of skin triangles (those within
-        contact_frame_margin of an object) for the exact closest skin point and its pseudo-normal
-        sign, instead of one thread per feature walking the skin's BVH (refitted before every stage
-        and pass); the same closest point (distance ties: the lowest triangle index) and decisions
-        (contact/features.py). The CPU always walks the BVH.
+        the lanes scanning the point's patch (the skin triangles within contact_frame_margin of it
+        at the frame's start; with feature_winding off, the frame's broadphase list of skin
+        triangles) for the exact closest skin point and its sign, instead of one thread per feature
+        walking the skin's BVH (refitted before every stage and pass); the same closest point
+        (distance ties: the lowest triangle index) and decisions (contact/features.py). The CPU
+        always walks the BVH.
       feature_winding: decide whether an object feature point is inside the skin by its local
         winding number (the solid angles of the skin triangles within contact_frame_margin of it,
         summed every pass, plus the rest's from Warp's fast winding number at the frame's start;
