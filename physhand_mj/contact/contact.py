@@ -24,7 +24,7 @@ from physhand_mj.types import Config, Model, Placement, Strategy
 # keeps the pseudo-normal sign
 PATCH_POOL_PER_FEATURE = 128
 PATCH_POOL_MIN = 1 << 15
-PATCH_POOL_MAX = 1 << 24
+PATCH_POOL_MAX = 1 << 27
 
 # m, the independent check's object points (Contact.check_points): edges at a quarter of the
 # features' 0.5 mm spacing (midpoints of 4x as many segments: none coincides with a feature point),

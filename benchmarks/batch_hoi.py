@@ -1,0 +1,106 @@
+"""Hand-frames per second of batched worlds on the HOI grasps (issue 15), both penetration measures.
+
+Each world holds one HOI scene's generated grasp (docs/hoi.md: the hand at the ``grasp`` keyframe,
+the object where the scene puts it): W copies of one scene in one :class:`~physhand_mj.batch.BatchedHands`,
+set up as ``physhand rollout LIST --batch W`` sets up a batch (the rest placement, 20 settling frames
+without contact, the objects placed), then the bones held at the keyframe (Table 2's setting) while
+the contact resolves the grasp's 2.5-3.8 mm initial penetration: ``--frames`` 5 ms frames timed
+after 2 warm-up frames (compilation, recording and graph capture excluded), one host sync per
+frame; the MuJoCo step is not part of it (the poses are the keyframe's). At the end, per world: skin
+samples inside the object (order 5) and object points inside the skin; the worst world is reported.
+
+    python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
+                                   [--config '{"feature_winding": false}'] [--profile]
+
+Writes docs/benchmarks/batch_hoi_<device>.json (rows: scene, worlds, ms per frame, hand-frames/s,
+setup s, the worst world's measures).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def main() -> None:
+    import warp as wp
+
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.batch_rollout import _Run
+    from physhand_mj.bench import device_name
+    from physhand_mj.coupling import rest_placement
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
+    p.add_argument("--scenes", default="box,apple", help="HOI scenes (hoi_<name>), comma-separated")
+    p.add_argument("--worlds", default="1,2,4", help="comma-separated world counts")
+    p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per world count")
+    p.add_argument("--config", default="{}", help="Config fields as JSON")
+    p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 12)")
+    a = p.parse_args()
+    extra = json.loads(a.config)
+    wp.init()
+    asset = ph.load_asset()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for scene in a.scenes.split(","):
+            run = _Run(0, ph.scene_path(f"hoi_{scene}"), "grasp", Path(tmp), asset)
+            import mujoco
+
+            mujoco.mj_kinematics(run.model, run.data)
+            bone_pos, bone_quat = run.bone_poses()
+            obj_pos, obj_quat = run.object_poses()
+            place = rest_placement(asset, bone_pos[0], bone_quat[0])
+            for w in [int(s) for s in a.worlds.split(",")]:
+                # the rollout's Config (rollout_config) without its per-substep metrics (a log's, not timed here)
+                cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device=a.device, **extra)
+                t0 = time.perf_counter()
+                hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)),
+                                     objects=run.specs, spacing=1.0)
+                setup_s = time.perf_counter() - t0
+                pos, quat = np.tile(bone_pos, (w, 1, 1)), np.tile(bone_quat, (w, 1, 1))
+                hands.settle(pos, quat)
+                op, oq = np.tile(obj_pos, (w, 1, 1)), np.tile(obj_quat, (w, 1, 1))
+                hands.set_object_poses(op, oq)
+                for _ in range(2):
+                    hands.step(pos, quat, op, oq)
+                t = time.perf_counter()
+                for _ in range(a.frames):
+                    out = hands.step(pos, quat, op, oq)
+                ms = (time.perf_counter() - t) / a.frames * 1e3
+                pen = hands.penetration()
+                row = dict(scene=scene, worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
+                           setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
+                           triangles_tested=out.get("triangles_tested"),
+                           penetration_count_max=max(r["penetration_count"] for r in pen),
+                           penetration_max_um=round(max(r["penetration_max_um"] for r in pen), 2),
+                           object_in_skin_count_max=max(r["object_in_skin_count"] for r in pen),
+                           object_in_skin_max_um=round(max(r["object_in_skin_max_um"] for r in pen), 2),
+                           finite=bool(np.isfinite(hands.state.x.numpy()).all()))
+                if a.profile and hands.solver.device.is_cuda:
+                    from batch_throughput import kernel_split
+
+                    row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames)
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+                del hands
+    dev = device_name(a.device if a.device != "cuda" else "cuda:0")
+    out = ROOT / "docs" / "benchmarks" / f"batch_hoi_{a.device.split(':')[0]}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, config=extra,
+                                   command="python benchmarks/batch_hoi.py " + " ".join(sys.argv[1:]), rows=rows),
+                              indent=1))
+    print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))
+
+
+if __name__ == "__main__":
+    main()
