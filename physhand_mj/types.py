@@ -174,8 +174,10 @@ class Config:
         at the frame's start; with feature_winding off, the frame's broadphase list of skin
         triangles) for the exact closest skin point and its sign, instead of one thread per feature
         walking the skin's BVH (refitted before every stage and pass); the same closest point
-        (distance ties: the lowest triangle index) and decisions (contact/features.py). The CPU
-        always walks the BVH.
+        (distance ties: the lowest triangle index) and decisions (contact/features.py). None
+        (default): blocks for one hand and batches under 64 worlds, and for larger batches (with
+        feature_winding) a thread per listed feature scanning its patch (H100, the HOI box grasp at
+        W = 256: 3,302 against 1,907 hand-frames/s; at W = 16 627 against 1,349; docs/scale.md). The CPU always walks the BVH.
       feature_winding: decide whether an object feature point is inside the skin by its local
         winding number (the solid angles of the skin triangles within contact_frame_margin of it,
         summed every pass, plus the rest's from Warp's fast winding number at the frame's start;
@@ -238,7 +240,7 @@ class Config:
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool | None = None
-    tiled_features: bool = True
+    tiled_features: bool | None = None
     feature_winding: bool = True
     skip_idle: bool = True
     sleep_speed: float = 3.0e-3
@@ -272,6 +274,9 @@ class Config:
             raise ValueError(f"Config.relaxation must lie in (0, 2), got {self.relaxation!r}")
         if not (self.tiled_contact is None or isinstance(self.tiled_contact, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_contact must be None (one hand: tiled), True or False, got {self.tiled_contact!r}")
+        if not (self.tiled_features is None or isinstance(self.tiled_features, (bool, np.bool_))):
+            raise ValueError(f"Config.tiled_features must be None (blocks for one hand, a thread per feature for "
+                             f"batches), True or False, got {self.tiled_features!r}")
         if not (self.jacobi_gather is None or isinstance(self.jacobi_gather, (bool, np.bool_))):
             raise ValueError(f"Config.jacobi_gather must be None (on CUDA), True or False, got {self.jacobi_gather!r}")
         if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):

@@ -193,12 +193,13 @@ def test_batched_worlds_with_their_own_objects(setup):
     assert moved > 1e-3 > np.abs(batch.skin(0) - rest[: asset.n_skin]).max() * 10  # world 1 pressed, world 0 not
 
 
-@pytest.mark.parametrize("tiled", [False, True], ids=["bvh", "tiled"])
+@pytest.mark.parametrize("tiled", [False, True, "scan"], ids=["bvh", "tiled", "scan"])
 def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch, tiled):
     """A mesh object in every world is one wp.Mesh (its BVH built once, not W times), and a world
     pressed by it ends like a serial solver with its own copy of the mesh (within the float32
     rounding of its object-side queries 1 m out), by the contact's own measure and the independent
-    ones; with the BVH feature kernels and with CUDA's tiled ones (forced on the CPU)."""
+    ones; with the BVH feature kernels, with CUDA's tiled ones and with CUDA batches' thread per
+    feature over its patch (both forced on the CPU)."""
     import trimesh
 
     from physhand_mj.metrics import summarize
@@ -213,6 +214,7 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
         def tiled_init(self, *args, **kw):
             init(self, *args, **kw)
             self.tiled_features = True
+            self.feature_scan = tiled == "scan"
 
         monkeypatch.setattr(Contact, "__init__", tiled_init)
     poses = bone_poses_at(model, data, model.key("open").qpos, ids)
@@ -221,7 +223,8 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
     spec = dict(gtype=GeomType.MESH, name="ball", vertices=ball.vertices, faces=ball.faces, mesh_range=0.05)
     batch = BatchedHands(asset, 3, cfg, *mount, objects=[spec])
     objs = batch.objects
-    assert batch.solver.contact.tiled_features == tiled
+    assert batch.solver.contact.tiled_features == bool(tiled)
+    assert batch.solver.contact.feature_scan == (tiled == "scan")
     ids = {tuple(r) for r in objs._host["mesh"][:3].tolist()}  # (wp.Mesh id, distance grid id): one of each
     assert len(objs._meshes) == 1 and len(ids) == 1 and min(next(iter(ids))) != 0, ids
     skin = batch.skin(0)
@@ -361,12 +364,13 @@ def test_batched_hands_refuse_a_nonfinite_policy_that_stops_every_world():
 
 def test_kernel_choices_follow_the_batch(setup):
     """Config's None defaults pick per use: batched worlds gather their Jacobi corrections and run
-    multires a thread per triangle on CUDA (faster there, docs/scale.md), one hand keeps the atomics
-    and the tiled multires; explicit values win; anything else is refused."""
+    multires and the feature queries a thread per triangle / feature on CUDA (faster there,
+    docs/scale.md), one hand keeps the atomics and the tiled kernels; explicit values win; anything
+    else is refused."""
     import warp as wp
 
     asset = setup[0]
-    for bad in (dict(tiled_contact="yes"), dict(jacobi_gather=1.0)):
+    for bad in (dict(tiled_contact="yes"), dict(jacobi_gather=1.0), dict(tiled_features=0)):
         with pytest.raises(ValueError, match=list(bad)[0]):
             Config(**bad).validate()
     cpu = BatchedHands(asset, 2, Config(device="cpu"))  # the CPU keeps the atomics (cheaper there)
@@ -378,8 +382,14 @@ def test_kernel_choices_follow_the_batch(setup):
     ball = [dict(gtype=GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")]
     batch = BatchedHands(asset, 2, Config(device="cuda"), objects=ball)
     assert batch.solver.model.gather_off and not batch.solver.contact.tiled
+    assert batch.solver.contact.tiled_features and not batch.solver.contact.feature_scan  # a block per feature
+    from physhand_mj.contact.contact import FEATURE_SCAN_WORLDS
+
+    big = BatchedHands(asset, FEATURE_SCAN_WORLDS, Config(device="cuda"), objects=ball)
+    assert big.solver.contact.tiled_features and big.solver.contact.feature_scan  # a thread per feature
     lone = BatchedHands(asset, 1, Config(device="cuda"), objects=ball)  # a batch of one is one hand
     assert not lone.solver.model.gather_off and lone.solver.contact.tiled
+    assert lone.solver.contact.tiled_features and not lone.solver.contact.feature_scan  # a block per feature
     forced = BatchedHands(asset, 2, Config(device="cuda", tiled_contact=True, jacobi_gather=False), objects=ball)
     assert not forced.solver.model.gather_off and forced.solver.contact.tiled
     from physhand_mj.contact import Objects

@@ -10,8 +10,9 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
-from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_tiled, feature_patches,
-                                          feature_patches_tiled, near_features, stage_features, stage_features_tiled)
+from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
+                                          feature_patches, feature_patches_tiled, near_features, stage_features,
+                                          stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
@@ -25,6 +26,11 @@ from physhand_mj.types import Config, Model, Placement, Strategy
 PATCH_POOL_PER_FEATURE = 128
 PATCH_POOL_MIN = 1 << 15
 PATCH_POOL_MAX = 1 << 27
+
+# batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.tiled_features
+# None): the HOI box grasp on an H100 (benchmarks/batch_hoi.py), hand-frames/s with a block per feature
+# against a thread: W = 16 1,349 / 627, W = 64 1,830 / 1,827, W = 256 1,907 / 3,302, W = 1024 1,859 / 3,745
+FEATURE_SCAN_WORLDS = 64
 
 # m, the independent check's object points (Contact.check_points): edges at a quarter of the
 # features' 0.5 mm spacing (midpoints of 4x as many segments: none coincides with a feature point),
@@ -128,8 +134,16 @@ class Contact:
         # triangle list (features.py, stage_features_tiled / feature_contact_tiled; no skin BVH refit
         # per stage and pass); lanes per block: FEATURE_LANES on CUDA, 1 on the CPU (a block is one
         # thread there: the CPU runs these kernels only when a test sets tiled_features)
-        self.tiled_features = bool(wp.get_device(d).is_cuda and config.tiled_features)
-        self.feature_lanes = FEATURE_LANES if wp.get_device(d).is_cuda else 1
+        # (no BVH refit per stage and pass on CUDA unless tiled_features is False). Batches of
+        # FEATURE_SCAN_WORLDS or more on CUDA (tiled_features None) run a thread per listed feature over its patch
+        # (features.py stage_features_scan / feature_contact_scan: the batch's features fill the GPU)
+        cuda = wp.get_device(d).is_cuda
+        tf = config.tiled_features
+        self.tiled_features = bool(cuda and (tf is None or tf))
+        self.feature_scan = bool(cuda and tf is None and w >= FEATURE_SCAN_WORLDS and config.feature_winding)
+        self.feature_lanes = FEATURE_LANES if cuda else 1
+        self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
+        self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
         # mesh_query_point_sign_normal), here of the rest skin's
         rest = model.rest_x.numpy()[f] if len(f) else np.zeros((0, 3, 3))
@@ -196,7 +210,8 @@ class Contact:
             ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin], [self.feat, self.feat_count])
-            if cfg.feature_winding and self.tiled_features:  # CUDA: a block per feature over its world's skin
+            if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
+                # a block per feature over its world's skin
                 ops += [self.patch_used.zero_, self.patch_fill.zero_]
                 launch(feature_patches_tiled, (pts.n_features, self.feature_lanes),
                        [m.skin_faces, self._query_x(state), self.feat, self.feat_count, pts.pts, pts.geom, qpose,
@@ -242,7 +257,15 @@ class Contact:
         launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
                                               self.bound, self.bound_mask, self.eval_x], list(lst),
                count=self.active_count)
-        if self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA)
+        if self.feat is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
+            feat_count = self.feat_stage_counts[stage: stage + 1]
+            skin = None
+            ops += self.volume(state, winding=False).sync_ops()
+            launch(stage_features_scan, self.points.n_features,
+                   [m.skin_faces, self._query_x(state), self.feat, self.feat_count, self.points.pts, self.points.geom,
+                    self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
+                    *self._winding_args()[1:]], [self.feat_stage, feat_count])
+        elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
             ops += self.volume(state, winding=False).sync_ops()
@@ -289,7 +312,14 @@ class Contact:
                     ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
                 moved_slots.append(self._slot)
                 feat_touched = self._counter()
-                if self.tiled_features:  # CUDA: a block per feature over the frame's triangle list
+                if self.feature_scan:  # CUDA batches: a thread per feature over its patch
+                    launch(feature_contact_scan, self.points.n_features,
+                           [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
+                            self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
+                            cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
+                            *self._winding_args()[1:]],
+                           [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
+                elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
                     launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
                            [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
                             self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
@@ -553,10 +583,26 @@ class Contact:
             wp.copy(self._world_stage_host, self.world_stage)
         if self.feat is not None:
             wp.copy(self._feat_host, self.feat_count)
+            if self.config.feature_winding:
+                wp.copy(self._patch_used_host, self.patch_used)
 
     def features_listed(self) -> int:
-        """Object feature points in the last frame's list (after the frame's sync)."""
-        return int(self._feat_host.numpy()[0]) if self.feat is not None else 0
+        """Object feature points in the last frame's list (after the frame's sync); warns once when
+        their patches (the local winding number's, features.py) overflowed the pool: those points
+        kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches)."""
+        if self.feat is None:
+            return 0
+        if self.config.feature_winding and not self._patch_warned:
+            used = int(self._patch_used_host.numpy()[0])
+            if used > self.patch_pool.shape[0]:
+                import warnings
+
+                self._patch_warned = True
+                warnings.warn(f"contact: the feature points' patches needed {used} entries, the pool holds "
+                              f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
+                              f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
+                              f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
+        return int(self._feat_host.numpy()[0])
 
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active

@@ -452,25 +452,12 @@ def pseudo_weight(a: wp.vec3, b: wp.vec3, c: wp.vec3, q: wp.vec3, eps: float):
 
 
 @wp.func
-def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-                         tris: wp.array(dtype=int), start: int, n: int, far: float, eps: float, angles: int):
-    """:func:`closest_signed` for a block: the closest point to ``p`` on the skin triangles listed in
-    ``tris[start: start + n]`` within ``far`` (m), as (found, face, u, v, sign, omega) with Warp's
-    conventions (the point u x0 + v x1 + (1 - u - v) x2 of face ``face``; sign +1 outside the skin,
-    -1 inside) and, with ``angles``, the sum of the listed triangles' solid angles at p (sr, the
-    local winding number's patch term; 0 without). Every thread of the block calls it (block
-    reductions) and gets the same answer.
-
-    Lane ``lane`` tests the list's entries lane, lane + block_dim, ... exactly as Warp's
-    mesh_query_point_sign_normal tests a BVH leaf's triangles (slivers skipped; the same closest
-    point and distance): it keeps its closest triangle (ties: the lowest face index) and, as Warp
-    does, the angle-weighted sum of the normals of the triangles within ``eps`` (m) of its running
-    minimum. The block's minimum distance d wins (ties: the lowest face index); the sign sums the
-    normal sums of the lanes whose minimum is within ``eps`` of d, i.e. of the triangles within
-    ~eps of d (Warp's own sum depends on the order it meets them in), and is +1 where the sum points
-    from the closest point towards p (Warp's rule). On the CPU a block is one thread (block_dim 1),
-    which then scans the whole list."""
-    lanes = wp.block_dim()
+def scan_closest(p: wp.vec3, lane: int, lanes: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                 tris: wp.array(dtype=int), start: int, n: int, far: float, eps: float, angles: int):
+    """One lane's share of :func:`closest_signed_tiled`: entries lane, lane + lanes, ... of
+    ``tris[start: start + n]``; returns (closest distance within ``far`` or far, its face or
+    NO_FACE, the angle-weighted normal sum of the triangles within ``eps`` of it, the solid-angle
+    sum with ``angles``)."""
     best = far
     face = int(NO_FACE)
     acc = wp.vec3(0.0)
@@ -506,6 +493,49 @@ def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x:
                 best = dist
                 face = t
                 acc = weight * wp.normalize(normal)
+    return best, face, acc, omega
+
+
+@wp.func
+def finish_closest(p: wp.vec3, d: float, f: int, normal_sum: wp.vec3, faces: wp.array2d(dtype=int),
+                   x: wp.array(dtype=wp.vec3), far: float):
+    """(found, face, u, v, sign) of the closest distance ``d`` on face ``f`` with the pseudo-normal
+    sum ``normal_sum`` (Warp's outputs, computed as it does)."""
+    if d >= far or f == NO_FACE:
+        return False, int(0), float(0.0), float(0.0), float(1.0)
+    a = x[faces[f, 0]]
+    b = x[faces[f, 1]]
+    c = x[faces[f, 2]]
+    bc = closest_on_triangle(a, b, c, p)
+    min_v = bc[1]
+    min_w = 1.0 - bc[0] - bc[1]
+    u = 1.0 - min_v - min_w
+    sign = float(-1.0)
+    if wp.dot(normal_sum, p - (a * u + b * min_v + c * min_w)) > 0.0:
+        sign = 1.0
+    return True, f, u, min_v, sign
+
+
+@wp.func
+def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                         tris: wp.array(dtype=int), start: int, n: int, far: float, eps: float, angles: int):
+    """:func:`closest_signed` for a block: the closest point to ``p`` on the skin triangles listed in
+    ``tris[start: start + n]`` within ``far`` (m), as (found, face, u, v, sign, omega) with Warp's
+    conventions (the point u x0 + v x1 + (1 - u - v) x2 of face ``face``; sign +1 outside the skin,
+    -1 inside) and, with ``angles``, the sum of the listed triangles' solid angles at p (sr, the
+    local winding number's patch term; 0 without). Every thread of the block calls it (block
+    reductions) and gets the same answer.
+
+    Lane ``lane`` tests the list's entries lane, lane + block_dim, ... exactly as Warp's
+    mesh_query_point_sign_normal tests a BVH leaf's triangles (slivers skipped; the same closest
+    point and distance): it keeps its closest triangle (ties: the lowest face index) and, as Warp
+    does, the angle-weighted sum of the normals of the triangles within ``eps`` (m) of its running
+    minimum. The block's minimum distance d wins (ties: the lowest face index); the sign sums the
+    normal sums of the lanes whose minimum is within ``eps`` of d, i.e. of the triangles within
+    ~eps of d (Warp's own sum depends on the order it meets them in), and is +1 where the sum points
+    from the closest point towards p (Warp's rule). On the CPU a block is one thread (block_dim 1),
+    which then scans the whole list."""
+    best, face, acc, omega = scan_closest(p, lane, wp.block_dim(), faces, x, tris, start, n, far, eps, angles)
     d = wp.tile_min(wp.tile(best))[0]
     near_face = int(NO_FACE)
     near_acc = wp.vec3(0.0)
@@ -518,19 +548,27 @@ def closest_signed_tiled(p: wp.vec3, lane: int, faces: wp.array2d(dtype=int), x:
     total = float(0.0)
     if angles != 0:
         total = wp.tile_sum(wp.tile(omega))[0]
-    if d >= far or f == NO_FACE:
-        return False, int(0), float(0.0), float(0.0), float(1.0), total
-    a = x[faces[f, 0]]
-    b = x[faces[f, 1]]
-    c = x[faces[f, 2]]
-    bc = closest_on_triangle(a, b, c, p)
-    min_v = bc[1]
-    min_w = 1.0 - bc[0] - bc[1]
-    u = 1.0 - min_v - min_w  # Warp's outputs, computed as it does
-    sign = float(-1.0)
-    if wp.dot(normal_sum, p - (a * u + b * min_v + c * min_w)) > 0.0:
-        sign = 1.0
-    return True, f, u, min_v, sign, total
+    found, f, u, v, sign = finish_closest(p, d, f, normal_sum, faces, x, far)
+    return found, f, u, v, sign, total
+
+
+@wp.func
+def closest_scan(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), far: float, eps: float,
+                 slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
+                 patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
+    """:func:`closest_tiled` by one thread over feature point ``i``'s patch (batched worlds on CUDA:
+    a thread per listed feature, Config.tiled_features None): the same closest point and the local
+    winding number's sign (not found where the patch did not fit the pool: Contact warns)."""
+    k = slot[i]
+    n = patch_len[k]
+    if n < 0:
+        return False, int(0), float(0.0), float(0.0), float(1.0)
+    d, f, acc, omega = scan_closest(p, 0, 1, faces, x, pool, patch_start[k], n, far, eps, 1)
+    found, f, u, v, sign = finish_closest(p, d, f, acc, faces, x, far)
+    sign = float(1.0)
+    if omega + far_angle[k] > 0.5 * FOUR_PI:
+        sign = -1.0
+    return found, f, u, v, sign
 
 
 @wp.func
@@ -706,6 +744,87 @@ def feature_contact_tiled(
     found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
                                          patch_start, patch_len, far_angle)
     if lane != 0 or not found:
+        return
+    f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+    push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
+                 touched_count, vertex_obj)
+
+
+# -- CUDA batches: a thread per listed feature over its patch ---------------------------------------
+# A block per feature fills a batch's launch with idle and reduction-bound blocks (the HOI box at W =
+# 256: 140k listed features, feature_contact_tiled 55 ms of a 135 ms frame on an H100); one thread
+# scanning the feature's ~170 patch triangles has the parallelism of the batch's features.
+
+
+@wp.kernel
+def stage_features_scan(
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    cand: wp.array(dtype=int),
+    cand_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    margin: float,
+    keep: float,
+    eps: float,
+    slot: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+    out: wp.array(dtype=int),
+    out_count: wp.array(dtype=int),
+):
+    """:func:`stage_features_tiled` with a thread per listed feature (:func:`closest_scan`)."""
+    k = wp.tid()
+    if k >= cand_count[0]:
+        return
+    i = cand[k]
+    p = object_point(i, pts, pts_geom, pose)
+    found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len, far_angle)
+    if not found:
+        return
+    c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
+    if sign * wp.length(p - c) < keep:
+        out[wp.atomic_add(out_count, 0, 1)] = i
+
+
+@wp.kernel
+def feature_contact_scan(
+    faces: wp.array2d(dtype=int),
+    cand: wp.array(dtype=int),
+    cand_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    geom_obj: wp.array(dtype=int),
+    margin: float,
+    offset: float,
+    max_step: float,
+    eps: float,
+    x: wp.array(dtype=wp.vec3),
+    pose0: wp.array(dtype=wp.transform),
+    x0: wp.array(dtype=wp.vec3),
+    slot: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+    vertex_obj: wp.array(dtype=int),
+):
+    """:func:`feature_contact_tiled` with a thread per listed feature (:func:`closest_scan`)."""
+    k = wp.tid()
+    if k >= cand_count[0]:
+        return
+    i = cand[k]
+    p = object_point(i, pts, pts_geom, pose)
+    found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len, far_angle)
+    if not found:
         return
     f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
     push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
