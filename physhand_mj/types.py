@@ -198,6 +198,11 @@ class Config:
         ``sleep_bone_motion`` since it fell asleep, the first bone turns by more than 2 degrees
         (gravity turns in the hand) or its velocity changes by more than ``sleep_speed``
         (physhand_mj/activity.py).
+      region_sleep: parts of the hand (the palm, the thumb, each finger) sleep alone under the same
+        tests, each on its own bones, vertices and skin box: asleep, a region's soft vertices ride
+        their carrier bones rigidly (kinematic, as the skeleton) and constraints among them return
+        at once; it wakes when one of its bones moves relative to the first bone or an object comes
+        within contact_frame_margin (physhand_mj/regions.py). One world; off by default.
     """
 
     frame_dt: float = 0.005
@@ -243,6 +248,7 @@ class Config:
     tiled_features: bool | None = None
     feature_winding: bool = True
     skip_idle: bool = True
+    region_sleep: bool = False
     sleep_speed: float = 3.0e-3
     sleep_frames: int = 10
     sleep_bone_motion: float = 1.0e-5
@@ -274,6 +280,8 @@ class Config:
             raise ValueError(f"Config.relaxation must lie in (0, 2), got {self.relaxation!r}")
         if not (self.tiled_contact is None or isinstance(self.tiled_contact, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_contact must be None (one hand: tiled), True or False, got {self.tiled_contact!r}")
+        if not isinstance(self.region_sleep, (bool, np.bool_)):
+            raise ValueError(f"Config.region_sleep must be True or False, got {self.region_sleep!r}")
         if not (self.tiled_features is None or isinstance(self.tiled_features, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_features must be None (blocks for one hand, a thread per feature for "
                              f"batches), True or False, got {self.tiled_features!r}")

@@ -383,3 +383,54 @@ def test_a_sleeping_hand_wakes_when_gravity_turns_in_it_or_a_finger_creeps(scene
         if not out["asleep"]:
             break
     assert not out["asleep"] and k * 2e-6 <= 12e-6, f"still asleep after the tip crept {k * 2} um"
+
+
+def test_regions_sleep_alone_ride_their_bones_and_wake_to_match_an_awake_run(scene):
+    """Config.region_sleep (physhand_mj/regions.py), gravity off so the open hand is settled at once:
+    every region falls asleep; the index then bends and wakes itself and its neighbours (middle
+    finger, palm) while the thumb, ring and little fingers sleep on, riding their still bones (their
+    skin does not move by a bit while the awake flesh next to it does); then the ring and little
+    fingers bend and wake. Throughout, the skin stays within 0.1 mm of a run in which nothing ever
+    sleeps."""
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    qpos = model.key("open").qpos.copy()
+    adr = {k: model.jnt_qposadr[model.joint(f"mcp{k}_flexion_r").id] for k in (2, 4, 5)}
+    def poses(k):
+        q = qpos.copy()
+        q[adr[2]] += 0.004 * min(max(k - 20, 0), 30)  # the index bends in frames 21-50
+        for j in (4, 5):
+            q[adr[j]] += 0.004 * min(max(k - 50, 0), 20)  # ring and little in frames 51-70
+        return bone_poses_at(model, data, q, ids)
+
+    runs = []
+    for regions in (True, False):
+        cfg = Config(device="cpu", gravity=(0.0, 0.0, 0.0), region_sleep=regions, sleep_speed=3e-3 if regions else 0.0)
+        solver = Solver(make_model(asset, cfg), cfg)
+        state = solver.make_state(*scene[1])
+        asleep, xs = [], []
+        for k in range(72):
+            out = _step(solver, state, poses(k))
+            asleep.append(set(out.get("regions_asleep", [])))
+            xs.append(state.x.numpy().astype(float).copy())
+        runs.append((solver, asleep, xs))
+    (solver, asleep, xa), (_, never, xb) = runs
+    assert asleep[19] == {"palm", "thumb", "index", "middle", "ring", "little"}, asleep[19]
+    assert all(a == {"thumb", "ring", "little"} for a in asleep[22:50]), asleep[22:50]
+    assert asleep[71] == {"thumb"}, asleep[71]
+    assert not any(never)
+    # the sleeping ring finger's soft vertices rode their still bones: not moved by a bit, while the
+    # awake middle finger's (its neighbour) did move
+    region = solver.regions.vertex_region.numpy()
+    ring, middle = np.flatnonzero(region == 4), np.flatnonzero(region == 3)
+    assert len(ring) > 300 and np.array_equal(xa[49][ring], xa[21][ring])
+    assert np.abs(xa[49][middle] - xa[21][middle]).max() > 1e-7
+    for k in (19, 49, 71):  # all asleep; the index bent with three regions asleep; all awake but the thumb
+        d = np.linalg.norm(xa[k] - xb[k], axis=1)
+        assert d.max() < 1e-4, (k, d.max())
+
+
+def test_region_sleep_is_refused_unless_a_bool():
+    with pytest.raises(ValueError, match="region_sleep"):
+        Config(region_sleep="yes").validate()

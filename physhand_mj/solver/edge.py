@@ -36,7 +36,7 @@ def solve_edges(
     a = w1 + w2 + at
     s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
     nc = ids.shape[0]
-    if length < 1.0e-12 or a <= 1.0e-20:
+    if length < 1.0e-12 or a <= 1.0e-20 or (w1 == 0.0 and w2 == 0.0):  # (both kinematic: nothing moves)
         if reset != 0:
             lam[j] = 0.0
         if slots.shape[0] > 0:

@@ -71,6 +71,9 @@ def advance(
     gather_off: wp.array(dtype=int),
     gather_slot: wp.array(dtype=int),
     slots: wp.array(dtype=wp.vec3),
+    # Per-region sleeping (physhand_mj/regions.py; empty when off):
+    vertex_region: wp.array(dtype=int),
+    region_fast: wp.array(dtype=int),
 ):
     """The per-vertex work between two substeps, in one launch (start < 0 after the last substep
     also commits the frame's finite positions to x_safe).
@@ -86,7 +89,8 @@ def advance(
     (set from outside the solver) is reset to the end of the last frame (x_safe) and counted.
     After the last substep, soft vertices moving faster than ``speed_limit`` (m/s; > 0) relative to
     their carrier bone (the rigid velocity it gives them over the last substep) are counted in
-    guard[3] (the sleep test, activity.py: only moving vertices touch the counter).
+    guard[3] (the sleep test, activity.py: only moving vertices touch the counter) and, with
+    per-region sleeping, in their region's ``region_fast``.
     """
     i = wp.tid()
     xi = x[i]
@@ -129,6 +133,10 @@ def advance(
                 vr = vi - (ride - p) * (1.0 / h)
             if wp.length(vr) > speed_limit:
                 count_guard(guard, 3, vertex_world[i])
+                if region_fast.shape[0] > 0:
+                    r = vertex_region[i]
+                    if r >= 0:
+                        wp.atomic_add(region_fast, r, 1)
     x[i] = xi
     v[i] = vi
 

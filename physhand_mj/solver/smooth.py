@@ -96,15 +96,24 @@ def solve_dihedrals(
     ie1 = ids[j, 1]
     io0 = ids[j, 2]
     io1 = ids[j, 3]
+    w0 = inv_mass[ie0]
+    w1 = inv_mass[ie1]
+    w2 = inv_mass[io0]
+    w3 = inv_mass[io1]
+    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
+    nc = ids.shape[0]
+    if w0 == 0.0 and w1 == 0.0 and w2 == 0.0 and w3 == 0.0:  # every vertex kinematic: nothing moves
+        if reset != 0:
+            lam[j] = 0.0
+        if slots.shape[0] > 0:
+            for k in range(4):
+                slots[s + k * nc] = wp.vec3(0.0)
+        return
     e0 = x[ie0]
     e1 = x[ie1]
     o0 = x[io0]
     o1 = x[io1]
     theta, g0, g1, g2, g3 = dihedral_angle_gradients(e0, e1, o0, o1)
-    w0 = inv_mass[ie0]
-    w1 = inv_mass[ie1]
-    w2 = inv_mass[io0]
-    w3 = inv_mass[io1]
     c = theta - rest[j]
     # keep C in (-pi, pi]: the signed angle wraps at +-pi
     if c > wp.pi:
@@ -113,8 +122,6 @@ def solve_dihedrals(
         c = c + 2.0 * wp.pi
     at = alpha * inv_h2
     a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
-    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
-    nc = ids.shape[0]
     if a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0

@@ -54,11 +54,19 @@ def frame_rigid(start: np.ndarray, end: np.ndarray, tol: float) -> bool:
 
 def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float:
     """How far (m) the bones move relative to the first one over a frame: for poses (B, 7) [p, q
-    x y z w] at its start and end, the largest distance between where a bone's own motion and the
-    first bone's motion take that bone's origin, plus the angle between their rotations times
-    ``lever`` (m, a hand's size). 0 for a hand moving as one rigid body."""
+    x y z w] at its start and end, the largest of :func:`bone_motions`. 0 for a hand moving as one
+    rigid body."""
     if start.shape[0] < 2:
         return 0.0
+    return float(np.max(bone_motions(start, end, lever)))
+
+
+def bone_motions(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> np.ndarray:
+    """Per bone (B,), m: the distance between where its own motion and the first bone's motion take
+    its origin, plus the angle between their rotations times ``lever`` (m, a hand's size), for poses
+    (B, 7) [p, q x y z w] at the start and end of a motion (the first bone's own: 0)."""
+    if start.shape[0] < 2:
+        return np.zeros(start.shape[0])
     p0, p1 = start[:, :3].astype(np.float64), end[:, :3].astype(np.float64)
     r0, r1 = quat_to_mat(start[:, [6, 3, 4, 5]]), quat_to_mat(end[:, [6, 3, 4, 5]])  # (x y z w -> w x y z)
     m = r1 @ np.swapaxes(r0, -1, -2)  # each bone's rotation over the frame
@@ -67,7 +75,7 @@ def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float
     rel = m @ m[0].T  # rotation of each bone relative to the first's
     axis = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], -1)
     ang = np.arctan2(0.5 * np.linalg.norm(axis, axis=1), 0.5 * (np.trace(rel, axis1=1, axis2=2) - 1.0))
-    return float(np.max(dist + ang * lever))
+    return dist + ang * lever
 
 
 class SolverError(RuntimeError):
@@ -117,6 +125,12 @@ class Solver:
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
+        # per-region sleeping (physhand_mj/regions.py; one world)
+        self.regions = None
+        if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
+            from physhand_mj.regions import RegionSleep
+
+            self.regions = RegionSleep(self)
 
     # -- state -------------------------------------------------------------------------------
     def make_state(self, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0)) -> State:
@@ -193,8 +207,12 @@ class Solver:
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
         frame_poses = (state.pose_host[0].copy(), state.pose_host[1].copy())
         rigid = self._bones_still(state) if self._settled(state) else None
+        if self.regions is not None:
+            self.regions.before_frame(*frame_poses)
         self._pose_host.numpy()[:] = state.pose_host
         wp.copy(state.body_pose, self._pose_host)
+        if self.regions is not None:
+            self.regions.apply(state)
         state.pose_host[0] = state.pose_host[1]
         state.pose_fresh = False
         key = (id(state), id(self.contact))
@@ -225,6 +243,8 @@ class Solver:
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None:
             self.contact.copy_metrics()
+        if self.regions is not None:
+            self.regions.copy_back()
         wp.synchronize_device(self.device)  # the frame's host sync (on CUDA with contact: its second)
         g = self._guard_host.numpy()
         self._read_guard_worlds(g)
@@ -240,6 +260,9 @@ class Solver:
         else:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
+        if self.regions is not None:
+            self.regions.after_frame()
+            self.last_activity.update(self.regions.report())
         out.update(self.last_activity)
         # settled: no soft vertex faster than Config.sleep_speed and rigid bone motion (activity.py)
         if self.config.sleep_speed > 0 and not g[3] and rigid is None:
@@ -349,6 +372,8 @@ class Solver:
                 out["tethered"] = 0
             self._contact_summary(out)
         out.update(self.last_activity)
+        if self.regions is not None:  # (the regions' own state carries on under the whole hand's sleep)
+            out.update(self.regions.report())
         out["asleep"] = True
         return out
 
@@ -356,6 +381,8 @@ class Solver:
         """Forget that ``state`` had settled (it sleeps again after Config.sleep_frames still frames)."""
         state.still = 0
         state.sleep_onset = state.sleep_box = None
+        if self.regions is not None:
+            self.regions.wake_all()
 
     def _contact_summary(self, out: dict) -> None:
         """The frame's penetration summary (its metrics row, read at the frame's sync) into ``out``."""
@@ -493,13 +520,21 @@ class Solver:
                 launch_pre = None
             gated(lambda sub: contact.record_frame(launch, sub, state, gated, launch_pre), 0)
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
+        rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
+        inv_mass, vertex_body, body_local = ((rs.inv_mass, rs.vertex_body, rs.body_local) if rs is not None
+                                             else (m.inv_mass, m.vertex_body, m.body_local))
+        no_int = wp.zeros(0, dtype=int, device=self.device)
+        region_args = [rs.vertex_region, rs.fast] if rs is not None else [no_int, no_int]
+        if rs is not None:
+            rs.record_start(launch)
         for s in range(cfg.substeps + 1):
             # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
-            launch(integrate.advance, n, [m.inv_mass, m.vertex_body, m.body_local, m.vertex_count, self._gravity,
+            launch(integrate.advance, n, [inv_mass, vertex_body, body_local, m.vertex_count, self._gravity,
                                           self._h, self._damp, int(s > 0), pending, cfg.relaxation,
                                           s if s < cfg.substeps else -1, state.body_sub, float(cfg.sleep_speed),
                                           m.vertex_carrier, m.vertex_world],
-                   [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard] + lists(pending))
+                   [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard] + lists(pending)
+                   + region_args)
             pending = -1
             if s == cfg.substeps:
                 break
@@ -517,7 +552,7 @@ class Solver:
                     for name in names:
                         kernel, ids, rest, alpha = fam[name]
                         for start, end in m.colors[name]:
-                            launch(kernel, end - start, [m.inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
+                            launch(kernel, end - start, [inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
                                    [state.x, lams[name], state.delta if jacobi else state.x,
                                     state.corr if gather else no_vec, m.slot_base.get(name, 0)])
                     if jacobi:
@@ -545,6 +580,8 @@ class Solver:
             gated(lambda sub: self.contact.record_metrics(launch, sub, state, cfg.substeps,
                                                           objects_side=cfg.object_metrics), 1)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x], [state.guard])
+        if self.regions is not None:  # each region's skin box (its objects-near test, regions.py)
+            self.regions.record_end(launch, state)
         return ops
 
 

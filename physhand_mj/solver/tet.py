@@ -43,6 +43,15 @@ def solve_tets(
     w2 = inv_mass[i2]
     w3 = inv_mass[i3]
     w4 = inv_mass[i4]
+    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
+    nc = ids.shape[0]
+    if w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0:  # every vertex kinematic: nothing moves
+        if reset != 0:
+            lam[j] = 0.0
+        if slots.shape[0] > 0:
+            for k in range(4):
+                slots[s + k * nc] = wp.vec3(0.0)
+        return
     x1 = x[i1]
     x21 = x[i2] - x1
     x31 = x[i3] - x1
@@ -54,8 +63,6 @@ def solve_tets(
     at = alpha[j] * inv_h2
     a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
          + w4 * wp.length_sq(g4) + at)
-    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
-    nc = ids.shape[0]
     if a <= 1.0e-20:
         if reset != 0:
             lam[j] = 0.0
