@@ -18,8 +18,11 @@ metacarpal and its phalanges) and each finger (its three phalanges). A region fa
 
 Asleep, its vertices are kinematic: each rides its carrier bone rigidly from where it was when the
 region fell asleep (``inv_mass`` 0, ``vertex_body`` its carrier, ``body_local`` its position in that
-bone's frame, the skeleton vertices' own mechanism in ``integrate.advance``), and every constraint
-whose vertices are all asleep returns at once. Awake neighbours see the sleeping side as fixed to
+bone's frame, the skeleton vertices' own mechanism in ``integrate.advance``), and the constraints
+whose vertices are all asleep are left out of the launches (``order``: a compacted list of the
+others per family, rebuilt when a region falls asleep or wakes; on CUDA the launch keeps its size
+and the threads past the list return; where that does not apply, colour ranges or gather slots,
+every constraint runs and returns at once). Awake neighbours see the sleeping side as fixed to
 its bones. A region wakes, before the frame that would break one of the conditions is solved, when
 one of its or its neighbours' bones moves relative to the first bone by more than the tolerance in
 that frame, one of its own since it fell asleep, the first bone turns by more than SLEEP_TURN
@@ -133,6 +136,25 @@ class RegionSleep:
                         ok = (reg[:, a] >= 0) & (reg[:, b] >= 0)
                         adj[reg[ok, a], reg[ok, b]] = True
         self.neighbours = adj
+        # per constraint family, the constraints to solve (those with a vertex awake): the regions of
+        # its soft vertices as a bit mask (bit n: a soft vertex in no region, never asleep); one
+        # colour range per family (Jacobi) and no gather slots (a skipped constraint's slots would go
+        # stale), else every constraint runs and returns at once when all its vertices are asleep
+        self.order: dict = {}
+        self._masks: dict = {}
+        if solver.config.scheme.name == "JACOBI" and not m.gather_off:
+            soft_any = (vb < 0) & (w > 0)
+            bit = np.where(vr >= 0, 1 << np.maximum(vr, 0), np.where(soft_any, 1 << self.n, 0)).astype(np.int64)
+            for name, ids in (("edge", m.edge_ids), ("tet", m.tet_ids), ("dih", m.dih_ids)):
+                e = ids.numpy()
+                if not len(e) or m.colors.get(name) != [(0, len(e))]:
+                    continue
+                mask = np.bitwise_or.reduce(bit[e], axis=1)
+                self._masks[name] = mask
+                order = wp.array(np.arange(len(e), dtype=np.int32), dtype=int, device=d)
+                count = wp.array([len(e)], dtype=int, device=d)
+                self.order[name] = (order, count)
+        self.solved = {name: len(mk) for name, mk in self._masks.items()}  # constraints solved per family
         self.vertices = np.bincount(vr[vr >= 0], minlength=self.n)  # soft vertices per region
         self.vertex_region = wp.array(vr, dtype=int, device=d)
         self.inv_mass = wp.clone(m.inv_mass)
@@ -200,6 +222,16 @@ class RegionSleep:
             return
         m = self.solver.model
         self._asleep_dev.assign(self.asleep.astype(np.int32))
+        asleep_bits = int(sum(1 << r for r in range(self.n) if self.asleep[r]))
+        for name, mask in self._masks.items():  # the awake constraints first, in their order
+            keep = np.flatnonzero(mask & ~asleep_bits).astype(np.int32)
+            order, count = self.order[name]
+            if order.device.is_cpu:
+                order.numpy()[: len(keep)] = keep  # (a view of CPU memory)
+            elif len(keep):
+                wp.copy(order, wp.array(keep, dtype=int, device=order.device), count=len(keep))
+            count.assign(np.array([len(keep)], np.int32))
+            self.solved[name] = len(keep)
         wp.launch(set_region_sleep, m.n_vertices,
                   inputs=[self.vertex_region, m.vertex_carrier, self._asleep_dev, m.inv_mass, m.vertex_body,
                           m.body_local, state.body_pose, state.x],
@@ -235,4 +267,5 @@ class RegionSleep:
     def report(self) -> dict:
         """The regions asleep after the last frame (names) and the soft vertices they hold."""
         names = [REGION_NAMES[r] for r in range(self.n) if self.asleep[r]]
-        return dict(regions_asleep=names, vertices_asleep=int(self.vertices[self.asleep].sum()))
+        return dict(regions_asleep=names, vertices_asleep=int(self.vertices[self.asleep].sum()),
+                    constraints_solved=int(sum(self.solved.values())))

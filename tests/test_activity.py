@@ -385,7 +385,9 @@ def test_a_sleeping_hand_wakes_when_gravity_turns_in_it_or_a_finger_creeps(scene
     assert not out["asleep"] and k * 2e-6 <= 12e-6, f"still asleep after the tip crept {k * 2} um"
 
 
-def test_regions_sleep_alone_ride_their_bones_and_wake_to_match_an_awake_run(scene):
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="no CUDA device"))])
+def test_regions_sleep_alone_ride_their_bones_and_wake_to_match_an_awake_run(scene, device):
     """Config.region_sleep (physhand_mj/regions.py), gravity off so the open hand is settled at once:
     every region falls asleep; the index then bends and wakes itself and its neighbours (middle
     finger, palm) while the thumb, ring and little fingers sleep on, riding their still bones (their
@@ -406,7 +408,7 @@ def test_regions_sleep_alone_ride_their_bones_and_wake_to_match_an_awake_run(sce
 
     runs = []
     for regions in (True, False):
-        cfg = Config(device="cpu", gravity=(0.0, 0.0, 0.0), region_sleep=regions, sleep_speed=3e-3 if regions else 0.0)
+        cfg = Config(device=device, gravity=(0.0, 0.0, 0.0), region_sleep=regions, sleep_speed=3e-3 if regions else 0.0)
         solver = Solver(make_model(asset, cfg), cfg)
         state = solver.make_state(*scene[1])
         asleep, xs = [], []

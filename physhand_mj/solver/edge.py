@@ -22,10 +22,19 @@ def solve_edges(
     delta: wp.array(dtype=wp.vec3),
     slots: wp.array(dtype=wp.vec3),
     slot_base: int,
+    # Per-region sleeping (physhand_mj/regions.py; empty when off): the constraints to solve,
+    # order[0: order_count[0]] (the others have every vertex asleep or on a bone)
+    order: wp.array(dtype=int),
+    order_count: wp.array(dtype=int),
 ):
     """C(x1, x2) = |x1 - x2| - L  (Eq. 2);  grad_x1 C = n = (x1 - x2)/|x1 - x2| = -grad_x2 C,
     so A = w1 + w2 + alpha~ and dx1 = w1 n dlam, dx2 = -w2 n dlam (see solver/__init__.py)."""
-    j = start + wp.tid()
+    t = wp.tid()
+    j = start + t
+    if order.shape[0] > 0:
+        if t >= order_count[0]:
+            return
+        j = order[start + t]
     i1 = ids[j, 0]
     i2 = ids[j, 1]
     w1 = inv_mass[i1]

@@ -89,9 +89,18 @@ def solve_dihedrals(
     delta: wp.array(dtype=wp.vec3),
     slots: wp.array(dtype=wp.vec3),
     slot_base: int,
+    # Per-region sleeping (physhand_mj/regions.py; empty when off): the constraints to solve,
+    # order[0: order_count[0]] (the others have every vertex asleep or on a bone)
+    order: wp.array(dtype=int),
+    order_count: wp.array(dtype=int),
 ):
     """C_smo = theta(x_e0, x_e1, x_o0, x_o1) - phi (Eq. 6, signed angle as in the module doc)."""
-    j = start + wp.tid()
+    t = wp.tid()
+    j = start + t
+    if order.shape[0] > 0:
+        if t >= order_count[0]:
+            return
+        j = order[start + t]
     ie0 = ids[j, 0]
     ie1 = ids[j, 1]
     io0 = ids[j, 2]

@@ -551,10 +551,13 @@ class Solver:
                         pending = -1
                     for name in names:
                         kernel, ids, rest, alpha = fam[name]
+                        order = rs.order.get(name) if rs is not None else None  # (regions.py: awake constraints)
                         for start, end in m.colors[name]:
                             launch(kernel, end - start, [inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
                                    [state.x, lams[name], state.delta if jacobi else state.x,
-                                    state.corr if gather else no_vec, m.slot_base.get(name, 0)])
+                                    state.corr if gather else no_vec, m.slot_base.get(name, 0),
+                                    order[0] if order else no_int, order[1] if order else no_int],
+                                   count=order[1] if order else None)
                     if jacobi:
                         pending = row
             if contact is not None and (contact.wants("after") or cfg.substep_metrics):

@@ -29,12 +29,21 @@ def solve_tets(
     delta: wp.array(dtype=wp.vec3),
     slots: wp.array(dtype=wp.vec3),
     slot_base: int,
+    # Per-region sleeping (physhand_mj/regions.py; empty when off): the constraints to solve,
+    # order[0: order_count[0]] (the others have every vertex asleep or on a bone)
+    order: wp.array(dtype=int),
+    order_count: wp.array(dtype=int),
 ):
     """C(x1..x4) = x21 x x31 . x41 - 6V (Eq. 3). Gradients: g2 = x31 x x41, g3 = x41 x x21,
     g4 = x21 x x31, g1 = -(g2 + g3 + g4); A = sum_i w_i |g_i|^2 + alpha~ (see solver/__init__.py).
     Kinematic vertices have w = 0, so their update adds zero.
     An inverted tet has C < -6V, so the projection pushes it back through zero volume."""
-    j = start + wp.tid()
+    t = wp.tid()
+    j = start + t
+    if order.shape[0] > 0:
+        if t >= order_count[0]:
+            return
+        j = order[start + t]
     i1 = ids[j, 0]
     i2 = ids[j, 1]
     i3 = ids[j, 2]
