@@ -13,8 +13,9 @@ metacarpal and its phalanges) and each finger (its three phalanges). A region fa
   :func:`physhand_mj.solver.solver.bone_motions`),
 - none of its soft vertices moved faster than ``Config.sleep_speed`` relative to its carrier bone
   (the whole-hand test's, counted per region by ``integrate.advance``), and
-- no object came within ``Config.contact_frame_margin`` of the region's skin (its bounding box
-  against the objects' bounding spheres, ``activity.objects_near``).
+- no object came within ``Config.contact_frame_margin`` of the region's skin (a bound of it from its
+  bones, spheres about points fixed to them holding their soft vertices at rest plus BOUND_SLACK,
+  against the objects' bounding spheres, ``activity.objects_near``: host work only).
 
 Asleep, its vertices are kinematic: each rides its carrier bone rigidly from where it was when the
 region fell asleep (``inv_mass`` 0, ``vertex_body`` its carrier, ``body_local`` its position in that
@@ -37,6 +38,7 @@ import numpy as np
 import warp as wp
 
 REGION_NAMES = ("palm", "thumb", "index", "middle", "ring", "little")
+BOUND_SLACK = 0.005  # m: a region's skin bound beyond its soft vertices' rest distance from their bone
 
 
 def body_regions(body_names) -> np.ndarray:
@@ -86,25 +88,8 @@ def set_region_sleep(
 
 
 @wp.kernel
-def reset_region_boxes(box: wp.array2d(dtype=float), fast: wp.array(dtype=int)):
-    r = wp.tid()
-    for k in range(3):
-        box[r, k] = 1.0e30
-        box[r, 3 + k] = -1.0e30
-    fast[r] = 0
-
-
-@wp.kernel
-def region_boxes(x: wp.array(dtype=wp.vec3), region: wp.array(dtype=int), box: wp.array2d(dtype=float)):
-    """Each region's skin bounding box: box[r] = (min x, y, z, max x, y, z), m (launched over the skin)."""
-    i = wp.tid()
-    r = region[i]
-    if r < 0:
-        return
-    p = x[i]
-    for k in range(3):
-        wp.atomic_min(box, r, k, p[k])
-        wp.atomic_max(box, r, 3 + k, p[k])
+def reset_region_fast(fast: wp.array(dtype=int)):
+    fast[wp.tid()] = 0
 
 
 class RegionSleep:
@@ -162,10 +147,23 @@ class RegionSleep:
         self.body_local = wp.clone(m.body_local)
         self._asleep_dev = wp.zeros(self.n, dtype=int, device=d)
         self.fast = wp.zeros(self.n, dtype=int, device=d)
-        self.box = wp.zeros((self.n, 6), dtype=float, device=d)
         pinned = d.is_cuda
         self._fast_host = wp.zeros(self.n, dtype=int, device="cpu", pinned=pinned)
-        self._box_host = wp.zeros((self.n, 6), dtype=float, device="cpu", pinned=pinned)
+        # each region's skin bound from its bones (host only, no kernel or copy): per carrier bone a
+        # sphere about a point fixed to it (its skeleton vertices' centre) holding every soft vertex
+        # it carries at rest, grown by BOUND_SLACK for the flesh's sag and deformation
+        rest = m.rest_x.numpy().astype(np.float64)
+        local = m.body_local.numpy().astype(np.float64)
+        self._centre_local = np.zeros((m.n_bodies, 3))
+        self._radius = np.zeros(m.n_bodies)
+        for b in range(m.n_bodies):
+            skel = vb == b
+            if not skel.any():
+                continue
+            self._centre_local[b] = local[skel].mean(axis=0)
+            centre_rest = rest[skel].mean(axis=0)
+            carried = soft & (carrier == b)
+            self._radius[b] = np.linalg.norm(rest[carried] - centre_rest, axis=1).max(initial=0.0) + BOUND_SLACK
         self.asleep = np.zeros(self.n, bool)
         self.still = np.zeros(self.n, int)  # consecutive still frames per region
         self.near = np.zeros(self.n, bool)  # an object within the margin of the region at the last frame's end
@@ -175,14 +173,24 @@ class RegionSleep:
 
     # -- recording ---------------------------------------------------------------------------------
     def record_start(self, launch) -> None:
-        launch(reset_region_boxes, self.n, [], [self.box, self.fast])
-
-    def record_end(self, launch, state) -> None:
-        launch(region_boxes, self.solver.model.n_skin, [state.x, self.vertex_region], [self.box])
+        launch(reset_region_fast, self.n, [], [self.fast])
 
     def copy_back(self) -> None:
         wp.copy(self._fast_host, self.fast)
-        wp.copy(self._box_host, self.box)
+
+    def boxes(self, poses: np.ndarray) -> np.ndarray:
+        """(R, 2, 3) m: each region's skin bound for bone poses (B, 7) [p, q x y z w]."""
+        from physhand_mj.solver.model import quat_to_mat
+
+        rot = quat_to_mat(poses[:, [6, 3, 4, 5]].astype(np.float64))
+        centre = np.einsum("bij,bj->bi", rot, self._centre_local) + poses[:, :3]
+        out = np.zeros((self.n, 2, 3))
+        for r in range(self.n):
+            b = self.bones[r]
+            if len(b):
+                out[r, 0] = (centre[b] - self._radius[b, None]).min(axis=0)
+                out[r, 1] = (centre[b] + self._radius[b, None]).max(axis=0)
+        return out
 
     # -- host, per frame -------------------------------------------------------------------------
     def before_frame(self, p0: np.ndarray, p1: np.ndarray) -> None:
@@ -238,14 +246,15 @@ class RegionSleep:
                   outputs=[self.inv_mass, self.vertex_body, self.body_local], device=self.solver.device)
         self._dirty = False
 
-    def after_frame(self) -> None:
-        """After the frame's sync: count still frames per region (bones, vertex speeds, objects)."""
+    def after_frame(self, poses: np.ndarray) -> None:
+        """After the frame's sync: count still frames per region (bones, vertex speeds, objects near
+        its skin bound at the frame's end bone ``poses`` (B, 7))."""
         from physhand_mj.activity import objects_near
 
         cfg = self.solver.config
         fast = self._fast_host.numpy()
-        box = self._box_host.numpy()
         c = self.solver.contact
+        box = self.boxes(poses).reshape(self.n, 6) if c is not None and len(c.objects) else None
         for r in range(self.n):
             if not self.vertices[r]:
                 continue
@@ -264,8 +273,11 @@ class RegionSleep:
         self.still[:] = 0
         self.onset = [None] * self.n
 
-    def report(self) -> dict:
-        """The regions asleep after the last frame (names) and the soft vertices they hold."""
-        names = [REGION_NAMES[r] for r in range(self.n) if self.asleep[r]]
-        return dict(regions_asleep=names, vertices_asleep=int(self.vertices[self.asleep].sum()),
-                    constraints_solved=int(sum(self.solved.values())))
+    def report(self, whole_hand: bool = False) -> dict:
+        """The regions asleep after the last frame (names), the soft vertices they hold and the
+        constraints solved; ``whole_hand``: the whole hand slept (every region rode its bones and no
+        constraint was solved; the regions' own state waits for it to wake)."""
+        asleep = self.vertices > 0 if whole_hand else self.asleep
+        names = [REGION_NAMES[r] for r in range(self.n) if asleep[r]]
+        return dict(regions_asleep=names, vertices_asleep=int(self.vertices[asleep].sum()),
+                    constraints_solved=0 if whole_hand else int(sum(self.solved.values())))

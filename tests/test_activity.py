@@ -436,3 +436,23 @@ def test_regions_sleep_alone_ride_their_bones_and_wake_to_match_an_awake_run(sce
 def test_region_sleep_is_refused_unless_a_bool():
     with pytest.raises(ValueError, match="region_sleep"):
         Config(region_sleep="yes").validate()
+
+
+def test_a_region_near_an_object_stays_awake(scene):
+    """Config.region_sleep: with a sphere 5 mm from the little finger's skin (within
+    contact_frame_margin, not touching) the little finger never sleeps while the regions far from it do;
+    moved away, the sphere lets it fall asleep too."""
+    solver, state, objects, _ = _solver(scene, gravity=(0.0, 0.0, 0.0), region_sleep=True)
+    rs = solver.regions
+    x = state.x.numpy().astype(float)
+    little = np.flatnonzero(rs.vertex_region.numpy() == 5)
+    centre = x[: solver.model.n_skin].mean(axis=0)
+    tip = little[np.argmax(np.linalg.norm(x[little] - centre, axis=1))]
+    out_dir = (x[tip] - centre) / np.linalg.norm(x[tip] - centre)
+    objects.set_poses((x[tip] + out_dir * (R + 0.005))[None], np.array([[1.0, 0.0, 0.0, 0.0]]))
+    asleep = [set(_step(solver, state, scene[2])["regions_asleep"]) for _ in range(25)]
+    # (the ring finger, 4-5 mm beside the little one, may be within the margin of the sphere too)
+    assert {"palm", "thumb", "index", "middle"} <= asleep[-1] and "little" not in asleep[-1], asleep[-1]
+    objects.set_poses(np.array([FAR]), np.array([[1.0, 0.0, 0.0, 0.0]]))
+    asleep = [set(_step(solver, state, scene[2])["regions_asleep"]) for _ in range(15)]
+    assert "little" in asleep[-1], asleep[-1]  # (on its own, or with the whole hand asleep)

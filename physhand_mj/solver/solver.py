@@ -261,7 +261,7 @@ class Solver:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
         if self.regions is not None:
-            self.regions.after_frame()
+            self.regions.after_frame(frame_poses[1])
             self.last_activity.update(self.regions.report())
         out.update(self.last_activity)
         # settled: no soft vertex faster than Config.sleep_speed and rigid bone motion (activity.py)
@@ -372,8 +372,8 @@ class Solver:
                 out["tethered"] = 0
             self._contact_summary(out)
         out.update(self.last_activity)
-        if self.regions is not None:  # (the regions' own state carries on under the whole hand's sleep)
-            out.update(self.regions.report())
+        if self.regions is not None:  # (the regions' own state waits under the whole hand's sleep)
+            out.update(self.regions.report(whole_hand=True))
         out["asleep"] = True
         return out
 
@@ -583,8 +583,6 @@ class Solver:
             gated(lambda sub: self.contact.record_metrics(launch, sub, state, cfg.substeps,
                                                           objects_side=cfg.object_metrics), 1)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x], [state.guard])
-        if self.regions is not None:  # each region's skin box (its objects-near test, regions.py)
-            self.regions.record_end(launch, state)
         return ops
 
 
