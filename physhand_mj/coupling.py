@@ -314,7 +314,9 @@ class SoftHand:
         host does not decide it), ``triangles_frame`` / ``triangles_stage`` (the frame's and the
         stages' broadphase lists), ``triangles_tested`` (triangles the contact passes queried),
         ``features_listed``, ``ops_run`` / ``contact_ops_run`` (recorded launches, memsets and refits
-        run; with no object near no contact op runs)."""
+        run; with no object near no contact op runs); with Config.region_sleep also
+        ``regions_asleep`` (names), ``vertices_asleep`` and ``constraints_solved``
+        (physhand_mj/regions.py)."""
         tm = self._timing
         n = max(tm["frames"], 1)
         out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0, object_in_skin_count=0,
