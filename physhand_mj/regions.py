@@ -26,7 +26,7 @@ and the threads past the list return; where that does not apply, colour ranges o
 every constraint runs and returns at once). Awake neighbours see the sleeping side as fixed to
 its bones. A region wakes, before the frame that would break one of the conditions is solved, when
 one of its or its neighbours' bones moves relative to the first bone by more than the tolerance in
-that frame, one of its own since it fell asleep, the first bone turns by more than SLEEP_TURN
+that frame or since it fell asleep, the first bone turns by more than SLEEP_TURN
 (gravity turns in the hand) or changes its velocity by more than ``Config.sleep_speed`` since then,
 or an object comes within the margin; its vertices then go on from their carried positions (no
 jump: they never left them). One world (batched worlds: not yet).
@@ -139,7 +139,9 @@ class RegionSleep:
                 order = wp.array(np.arange(len(e), dtype=np.int32), dtype=int, device=d)
                 count = wp.array([len(e)], dtype=int, device=d)
                 self.order[name] = (order, count)
-        self.solved = {name: len(mk) for name, mk in self._masks.items()}  # constraints solved per family
+        # constraints solved per family (without compacted lists every constraint runs)
+        self.solved = {name: len(mk) for name, mk in self._masks.items()} or {
+            name: int(ids.shape[0]) for name, ids in (("edge", m.edge_ids), ("tet", m.tet_ids), ("dih", m.dih_ids))}
         self.vertices = np.bincount(vr[vr >= 0], minlength=self.n)  # soft vertices per region
         self.vertex_region = wp.array(vr, dtype=int, device=d)
         self.inv_mass = wp.clone(m.inv_mass)
@@ -212,7 +214,10 @@ class RegionSleep:
                 continue
             if self.asleep[r]:
                 onset, vel0 = self.onset[r]
-                since = bone_motions(onset, p1)[self.bones[r]].max(initial=0.0)
+                # since it fell asleep: its own bones and its neighbours' (a neighbour creeping under
+                # the per-frame tolerance would otherwise pull on the frozen web without waking it)
+                near_bones = np.concatenate([self.bones[q] for q in np.flatnonzero(self.neighbours[r])])
+                since = bone_motions(onset, p1)[near_bones].max(initial=0.0)
                 if (self._moved[r] > tol or since > tol or self.near[r] or np.linalg.norm(vel - vel0) > cfg.sleep_speed
                         or _turn(onset[0], p1[0]) > SLEEP_TURN):
                     self.asleep[r] = False

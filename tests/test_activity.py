@@ -454,5 +454,41 @@ def test_a_region_near_an_object_stays_awake(scene):
     # (the ring finger, 4-5 mm beside the little one, may be within the margin of the sphere too)
     assert {"palm", "thumb", "index", "middle"} <= asleep[-1] and "little" not in asleep[-1], asleep[-1]
     objects.set_poses(np.array([FAR]), np.array([[1.0, 0.0, 0.0, 0.0]]))
-    asleep = [set(_step(solver, state, scene[2])["regions_asleep"]) for _ in range(15)]
-    assert "little" in asleep[-1], asleep[-1]  # (on its own, or with the whole hand asleep)
+    # the index bends meanwhile, so the hand as a whole stays awake and the little finger must fall
+    # asleep on its own (a whole-hand sleep would report every region asleep)
+    _, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, ph.load_asset().body_names)
+    q = model.key("open").qpos.copy()
+    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
+    for k in range(15):
+        q[adr] += 0.004
+        out = _step(solver, state, bone_poses_at(model, data, q, ids))
+        assert not out["asleep"]
+    assert rs.asleep[5] and "little" in out["regions_asleep"], out["regions_asleep"]
+    assert not rs.asleep[2]  # the bending index itself is awake
+
+
+def test_a_region_wakes_when_a_neighbour_creeps(scene):
+    """Config.region_sleep: the middle finger bending slower than Config.sleep_bone_motion per frame
+    (5e-5 rad a frame at its MCP: ~9 um at the fingertip) still wakes its neighbours (index, ring,
+    palm) within a few frames: their motion since they fell asleep counts the neighbour's bones too,
+    not only the per-frame step (found in review: they stayed frozen against it, 0.4-0.6 mm off
+    after 1,500 frames)."""
+    solver, state, _, _ = _solver(scene, gravity=(0.0, 0.0, 0.0), region_sleep=True)
+    rs = solver.regions
+    _, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, ph.load_asset().body_names)
+    q = model.key("open").qpos.copy()
+    adr = model.jnt_qposadr[model.joint("mcp3_flexion_r").id]
+    for _ in range(12):
+        _step(solver, state, scene[2])
+    assert rs.asleep.all()
+    for k in range(8):
+        q[adr] += 5e-5
+        poses = bone_poses_at(model, data, q, ids)
+        _step(solver, state, poses)
+    from physhand_mj.solver.solver import bone_motions
+
+    assert bone_motions(*[np.concatenate([p, r[:, [1, 2, 3, 0]]], axis=1) for p, r in (scene[2], poses)]).max() > 1e-5
+    assert not rs.asleep[2] and not rs.asleep[4] and not rs.asleep[0], rs.asleep
+    assert rs.asleep[1]  # the thumb, no neighbour of the middle finger, sleeps on

@@ -579,8 +579,8 @@ def closest_tiled(p: wp.vec3, i: int, lane: int, faces: wp.array2d(dtype=int), x
     """:func:`closest_signed_tiled` for feature point ``i`` at ``p``: with ``winding`` over its patch
     (the triangles near it, module docstring) with the local winding number's sign; else (or where
     its patch did not fit the pool) over the frame's list ``tris`` with the pseudo-normal sign."""
-    k = slot[i]
-    if winding != 0:
+    if winding != 0:  # (slot is read only then: off, a stand-in array is passed)
+        k = slot[i]
         n = patch_len[k]
         if n >= 0:
             found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, pool, patch_start[k], n, far, eps, 1)
