@@ -42,7 +42,7 @@ def _signs(mesh_n: wp.uint64, mesh_w: wp.uint64, faces: wp.array2d(dtype=int), x
 def _local_sign(c, state, pts):
     """Per object point (len(pts)): the local winding number's side (+1 outside, -1 inside; 0 for points
     not in the frame's feature list or without a patch) of the contact's last frame, with the skin now."""
-    from physhand_mj.contact.features import FOUR_PI
+    from physhand_mj.contact.closest import FOUR_PI
 
     out = np.zeros(len(pts), dtype=int)
     if not getattr(c.config, "feature_winding", False) or c.feat is None:

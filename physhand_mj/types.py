@@ -181,7 +181,7 @@ class Config:
       feature_winding: decide whether an object feature point is inside the skin by its local
         winding number (the solid angles of the skin triangles within contact_frame_margin of it,
         summed every pass, plus the rest's from Warp's fast winding number at the frame's start;
-        contact/features.py) instead of the pseudo normals alone, which take points in front of a
+        contact/winding.py) instead of the pseudo normals alone, which take points in front of a
         squeezed, turned-over skin triangle as inside and push the skin for nothing. On the CPU it
         confirms the points the pseudo normal takes as inside; on CUDA the feature kernels scan the
         point's triangles (instead of the frame's whole list) and take every sign from it.

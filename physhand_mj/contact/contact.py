@@ -11,8 +11,8 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
-                                          feature_patches, feature_patches_tiled, near_features, stage_features,
-                                          stage_features_scan, stage_features_tiled)
+                                          near_features, stage_features, stage_features_scan, stage_features_tiled)
+from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume, object_points_inside
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
@@ -588,7 +588,7 @@ class Contact:
 
     def features_listed(self) -> int:
         """Object feature points in the last frame's list (after the frame's sync); warns once when
-        their patches (the local winding number's, features.py) overflowed the pool: those points
+        their patches (the local winding number's, winding.py) overflowed the pool: those points
         kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches)."""
         if self.feat is None:
             return 0

@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from physhand_mj.solver.gather import scatter
+from physhand_mj.solver.gather import idle, scatter
 
 
 @wp.kernel
@@ -46,11 +46,7 @@ def solve_edges(
     s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
     nc = ids.shape[0]
     if length < 1.0e-12 or a <= 1.0e-20 or (w1 == 0.0 and w2 == 0.0):  # (both kinematic: nothing moves)
-        if reset != 0:
-            lam[j] = 0.0
-        if slots.shape[0] > 0:
-            slots[s] = wp.vec3(0.0)
-            slots[s + nc] = wp.vec3(0.0)
+        idle(lam, j, reset, slots, s, nc, 2)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(length - rest[j] + at * lam_j) / a

@@ -43,6 +43,19 @@ def scatter(delta: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.vec3), slot
 
 
 @wp.func
+def idle(lam: wp.array(dtype=float), j: int, reset: int, slots: wp.array(dtype=wp.vec3), s: int, nc: int,
+         corners: int):
+    """Constraint ``j`` moves nothing this iteration (every vertex kinematic, or a degenerate
+    gradient): its lambda reset where Algorithm 1 resets it, its ``corners`` slots zeroed on the
+    gather path (a slot left as it was would be summed again)."""
+    if reset != 0:
+        lam[j] = 0.0
+    if slots.shape[0] > 0:
+        for k in range(corners):
+            slots[s + k * nc] = wp.vec3(0.0)
+
+
+@wp.func
 def gathered(delta: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids: wp.array(dtype=int),
              slots: wp.array(dtype=wp.vec3), i: int):
     """Vertex ``i``'s slots (its CSR row ``off[i]:off[i+1]`` of ``slot_ids``) summed in order from

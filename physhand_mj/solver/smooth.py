@@ -8,7 +8,7 @@ dihedral-angle gradient (Bridson et al. 2003). |theta| is the paper's arccos(n0 
 
 import warp as wp
 
-from physhand_mj.solver.gather import scatter
+from physhand_mj.solver.gather import idle, scatter
 
 
 
@@ -112,11 +112,7 @@ def solve_dihedrals(
     s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
     nc = ids.shape[0]
     if w0 == 0.0 and w1 == 0.0 and w2 == 0.0 and w3 == 0.0:  # every vertex kinematic: nothing moves
-        if reset != 0:
-            lam[j] = 0.0
-        if slots.shape[0] > 0:
-            for k in range(4):
-                slots[s + k * nc] = wp.vec3(0.0)
+        idle(lam, j, reset, slots, s, nc, 4)
         return
     e0 = x[ie0]
     e1 = x[ie1]
@@ -132,11 +128,7 @@ def solve_dihedrals(
     at = alpha * inv_h2
     a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
     if a <= 1.0e-20:
-        if reset != 0:
-            lam[j] = 0.0
-        if slots.shape[0] > 0:
-            for k in range(4):
-                slots[s + k * nc] = wp.vec3(0.0)
+        idle(lam, j, reset, slots, s, nc, 4)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(c + at * lam_j) / a

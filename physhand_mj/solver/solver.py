@@ -523,7 +523,6 @@ class Solver:
         rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
         inv_mass, vertex_body, body_local = ((rs.inv_mass, rs.vertex_body, rs.body_local) if rs is not None
                                              else (m.inv_mass, m.vertex_body, m.body_local))
-        no_int = wp.zeros(0, dtype=int, device=self.device)
         region_args = [rs.vertex_region, rs.fast] if rs is not None else [no_int, no_int]
         if rs is not None:
             rs.record_start(launch)

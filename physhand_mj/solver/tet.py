@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from physhand_mj.solver.gather import scatter
+from physhand_mj.solver.gather import idle, scatter
 
 
 
@@ -55,11 +55,7 @@ def solve_tets(
     s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
     nc = ids.shape[0]
     if w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0:  # every vertex kinematic: nothing moves
-        if reset != 0:
-            lam[j] = 0.0
-        if slots.shape[0] > 0:
-            for k in range(4):
-                slots[s + k * nc] = wp.vec3(0.0)
+        idle(lam, j, reset, slots, s, nc, 4)
         return
     x1 = x[i1]
     x21 = x[i2] - x1
@@ -73,11 +69,7 @@ def solve_tets(
     a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
          + w4 * wp.length_sq(g4) + at)
     if a <= 1.0e-20:
-        if reset != 0:
-            lam[j] = 0.0
-        if slots.shape[0] > 0:
-            for k in range(4):
-                slots[s + k * nc] = wp.vec3(0.0)
+        idle(lam, j, reset, slots, s, nc, 4)
         return
     lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
     dlam = -(wp.dot(g4, x41) - rest6v[j] + at * lam_j) / a

@@ -1,0 +1,242 @@
+"""The local winding number of the object's side: is a feature point inside the closed skin?
+
+The local winding number (``Config.feature_winding``). Pseudo normals are exact on a closed surface
+that does not fold, but a grasp squeezes skin triangles until some turn over (their normal points
+into the hand), and a feature point in front of such a triangle is taken as inside although it is
+outside: a spurious push. The generalised winding number w(p) = sum of the triangles' solid angles
+/ 4 pi (Jacobson et al. 2013) has no such failure, but its BVH data cost a refit per pass. Split the
+closed skin into the triangles near p (its *patch*: every skin triangle within ``contact_frame_margin``
+of p at the frame's start) and the rest:
+
+    w(p) = (Omega_patch(p) + Omega_far(p)) / 4 pi,   Omega_far = 4 pi w_0(p) - Omega_patch,0(p)
+
+where w_0 is Warp's fast winding number at the frame's start (an integer: -1 past a fold that turned the
+skin inside out), once per frame. Every pass
+sums the patch's solid angles exactly (Van Oosterom and Strackee) and keeps Omega_far from the
+frame's start: the far triangles stay farther from p than the frame broadphase's margin minus the
+frame's motion (the broadphase's own assumption), so their solid angle changes smoothly and little
+(w moves by a few hundredths for a 5 mm slide), far from the 1/2 that decides. On the CPU the
+patch's sum confirms only the points the pseudo normal takes as inside (a push is at stake); the
+CUDA kernels scan the patch instead of the frame's whole triangle list and take every sign from it.
+"""
+
+import warp as wp
+
+from physhand_mj.contact.closest import (FOUR_PI, closest_on_triangle, closest_signed_tiled, finish_closest,
+                                         scan_closest, solid_angle)
+from physhand_mj.contact.inside import object_point
+
+
+@wp.func
+def patch_angle(p: wp.vec3, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), pool: wp.array(dtype=int),
+                start: int, n: int):
+    """Sum of the solid angles (sr) at ``p`` of the skin triangles pool[start: start + n]."""
+    s = float(0.0)
+    for j in range(start, start + n):
+        t = pool[j]
+        s += solid_angle(x[faces[t, 0]] - p, x[faces[t, 1]] - p, x[faces[t, 2]] - p)
+    return s
+
+
+@wp.func
+def within(p: wp.vec3, t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), radius: float):
+    """Whether skin triangle ``t`` comes within ``radius`` (m) of ``p``."""
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    bc = closest_on_triangle(a, b, c, p)
+    return wp.length(bc[0] * a + bc[1] * b + (1.0 - bc[0] - bc[1]) * c - p) <= radius
+
+
+@wp.kernel
+def feature_patches(
+    skin: wp.uint64,
+    skin_w: wp.uint64,
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    feat: wp.array(dtype=int),
+    feat_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    radius: float,
+    margin: float,
+    pool_count: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    slot: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+):
+    """Once per frame, for the k-th listed feature point i (module docstring, the local winding
+    number): its patch (the skin triangles whose boxes meet the cube of half-size ``radius`` m around
+    it, from ``skin``'s BVH, that come within ``radius`` of it) appended to ``pool``, and Omega_far = 4 pi w_0 - Omega_patch with w_0
+    ``skin_w``'s fast winding number (an integer, -1 to 1). ``slot[i] = k``. A patch that does not
+    fit the pool gets length -1 (its point keeps the pseudo-normal sign)."""
+    k = wp.tid()
+    if k >= feat_count[0]:
+        return
+    i = feat[k]
+    slot[i] = k
+    p = object_point(i, pts, pts_geom, pose)
+    lo = p - wp.vec3(radius)
+    hi = p + wp.vec3(radius)
+    n = int(0)
+    t = int(0)
+    q = wp.mesh_query_aabb(skin, lo, hi)
+    while wp.mesh_query_aabb_next(q, t):
+        if within(p, t, faces, x, radius):
+            n += 1
+    start = wp.atomic_add(pool_count, 0, n)
+    if start + n > pool.shape[0]:
+        patch_len[k] = -1
+        return
+    size = n
+    n = int(0)
+    q = wp.mesh_query_aabb(skin, lo, hi)
+    while wp.mesh_query_aabb_next(q, t):
+        if within(p, t, faces, x, radius) and n < size:  # (the same triangles as counted)
+            pool[start + n] = t
+            n += 1
+    # w_0 is an integer off the surface, and not only 0 or 1: a squeezed skin folds inside out
+    # (w = -1 at points past the fold, measured on the demo); Warp's query gives only its side of a
+    # threshold, so ask at -1/2 and 1/2 (w_0 = 2 where the skin overlaps itself counts as 1: the
+    # point stays inside unless the skin moves across it twice)
+    w0 = float(-1.0)
+    r = wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, -0.5)
+    if not r.result:
+        w0 = 0.0  # no skin within margin (a listed feature has)
+    elif r.sign < 0.0:
+        w0 = 0.0
+        r = wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, 0.5)
+        if r.sign < 0.0:
+            w0 = 1.0
+    patch_start[k] = start
+    patch_len[k] = n
+    far_angle[k] = FOUR_PI * w0 - patch_angle(p, faces, x, pool, start, n)
+
+
+@wp.func
+def winding_sign(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                 slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
+                 patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float), sign: float):
+    """The side of feature point ``i`` at ``p`` by the local winding number (+1 outside the skin, -1
+    inside); ``sign`` (the pseudo normal's) where its patch did not fit the pool."""
+    k = slot[i]
+    n = patch_len[k]
+    if n < 0:
+        return sign
+    if patch_angle(p, faces, x, pool, patch_start[k], n) + far_angle[k] > 0.5 * FOUR_PI:
+        return -1.0
+    return 1.0
+
+
+@wp.func
+def closest_scan(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), far: float, eps: float,
+                 slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
+                 patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
+    """:func:`closest_tiled` by one thread over feature point ``i``'s patch (batched worlds on CUDA:
+    a thread per listed feature, Config.tiled_features None): the same closest point and the local
+    winding number's sign (not found where the patch did not fit the pool: Contact warns)."""
+    k = slot[i]
+    n = patch_len[k]
+    if n < 0:
+        return False, int(0), float(0.0), float(0.0), float(1.0)
+    d, f, acc, omega = scan_closest(p, 0, 1, faces, x, pool, patch_start[k], n, far, eps, 1)
+    found, f, u, v, sign = finish_closest(p, d, f, acc, faces, x, far)
+    sign = float(1.0)
+    if omega + far_angle[k] > 0.5 * FOUR_PI:
+        sign = -1.0
+    return found, f, u, v, sign
+
+
+@wp.func
+def closest_tiled(p: wp.vec3, i: int, lane: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                  tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), far: float, eps: float, winding: int,
+                  slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
+                  patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
+    """:func:`closest_signed_tiled` for feature point ``i`` at ``p``: with ``winding`` over its patch
+    (the triangles near it, module docstring) with the local winding number's sign; else (or where
+    its patch did not fit the pool) over the frame's list ``tris`` with the pseudo-normal sign."""
+    if winding != 0:  # (slot is read only then: off, a stand-in array is passed)
+        k = slot[i]
+        n = patch_len[k]
+        if n >= 0:
+            found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, pool, patch_start[k], n, far, eps, 1)
+            sign = float(1.0)
+            if omega + far_angle[k] > 0.5 * FOUR_PI:
+                sign = -1.0
+            return found, f, u, v, sign
+    found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, tris, 0, tri_count[0], far, eps, 0)
+    return found, f, u, v, sign
+
+
+@wp.kernel
+def feature_patches_tiled(
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    feat: wp.array(dtype=int),
+    feat_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    radius: float,
+    tris_per_world: int,
+    geoms_per_world: int,
+    pool_count: wp.array(dtype=int),
+    pool: wp.array(dtype=int),
+    slot: wp.array(dtype=int),
+    patch_start: wp.array(dtype=int),
+    patch_len: wp.array(dtype=int),
+    patch_fill: wp.array(dtype=int),
+    far_angle: wp.array(dtype=float),
+):
+    """:func:`feature_patches` with a block per listed feature (CUDA; launch (n, FEATURE_LANES)):
+    the lanes scan every skin triangle of the feature's world, so Omega_far is the far triangles'
+    own solid-angle sum (no winding-number BVH, no integer w_0), and append the patch's triangles
+    (in no fixed order; ``patch_fill`` zeroed per frame). On the CPU (block_dim 1) one thread scans
+    them all."""
+    k, lane = wp.tid()
+    if k >= feat_count[0]:
+        return  # uniform over the block
+    i = feat[k]
+    p = object_point(i, pts, pts_geom, pose)
+    lanes = wp.block_dim()
+    first = (pts_geom[i] // geoms_per_world) * tris_per_world
+    total = float(0.0)
+    near = float(0.0)
+    cnt = int(0)
+    j = first + lane
+    while j < first + tris_per_world:
+        t = j
+        j += lanes
+        a = x[faces[t, 0]]
+        b = x[faces[t, 1]]
+        c = x[faces[t, 2]]
+        w = solid_angle(a - p, b - p, c - p)
+        total += w
+        if within(p, t, faces, x, radius):
+            near += w
+            cnt += 1
+    n = wp.tile_sum(wp.tile(cnt))[0]
+    far = wp.tile_sum(wp.tile(total))[0] - wp.tile_sum(wp.tile(near))[0]
+    mine = int(-1)
+    if lane == 0:
+        mine = wp.atomic_add(pool_count, 0, n)
+    start = wp.tile_max(wp.tile(mine))[0]
+    if start + n > pool.shape[0]:
+        if lane == 0:
+            slot[i] = k
+            patch_len[k] = -1
+        return
+    j = first + lane
+    while j < first + tris_per_world:
+        t = j
+        j += lanes
+        if within(p, t, faces, x, radius):
+            pool[start + wp.atomic_add(patch_fill, k, 1)] = t
+    if lane == 0:
+        slot[i] = k
+        patch_start[k] = start
+        patch_len[k] = n
+        far_angle[k] = far

@@ -1,0 +1,181 @@
+"""The object side's inside test (physhand_mj/contact/winding.py): solid angles against analytic
+winding numbers, and the local winding number against the full one where Warp's pseudo normals
+are wrong (the demo's squeezed skin), on the CPU and CUDA, with CUDA's patches against the BVH's."""
+
+import numpy as np
+import pytest
+import trimesh
+import warp as wp
+
+import physhand_mj as ph
+from physhand_mj.contact.closest import FOUR_PI, solid_angle
+from physhand_mj.contact.features import FEATURE_LANES
+from physhand_mj.contact.inside import object_point
+from physhand_mj.contact.winding import closest_tiled, winding_sign
+
+
+@wp.kernel
+def _solid_angles(p: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int),
+                  out: wp.array(dtype=float)):
+    i = wp.tid()
+    s = float(0.0)
+    for t in range(faces.shape[0]):
+        s += solid_angle(x[faces[t, 0]] - p[i], x[faces[t, 1]] - p[i], x[faces[t, 2]] - p[i])
+    out[i] = s
+
+
+def test_solid_angles_sum_to_the_winding_number():
+    """features.solid_angle summed over a closed, outward-wound mesh is 4 pi inside and 0 outside (a
+    sphere; a point 0.5 mm outside it too), and -4 pi inside the same mesh wound inward."""
+    m = trimesh.creation.icosphere(2, radius=0.01)
+    pts = np.array([[0, 0, 0], [0.004, -0.003, 0.002], [0.02, 0, 0], [0, 0.0105, 0]], np.float32)
+    out = {}
+    for name, faces in (("out", m.faces), ("in", m.faces[:, ::-1])):
+        o = wp.zeros(len(pts), dtype=float, device="cpu")
+        wp.launch(_solid_angles, len(pts), [wp.array(pts, dtype=wp.vec3, device="cpu"),
+                                            wp.array(m.vertices.astype(np.float32), dtype=wp.vec3, device="cpu"),
+                                            wp.array(np.ascontiguousarray(faces, np.int32), dtype=int, device="cpu")],
+                  [o], device="cpu")
+        out[name] = o.numpy() / FOUR_PI
+    np.testing.assert_allclose(out["out"], [1, 1, 0, 0], atol=1e-5)
+    np.testing.assert_allclose(out["in"], [-1, -1, 0, 0], atol=1e-5)
+
+
+@wp.kernel
+def _feature_sides(skin: wp.uint64, feat: wp.array(dtype=int), pts: wp.array(dtype=wp.vec3),
+                   pts_geom: wp.array(dtype=int), pose: wp.array(dtype=wp.transform), far: float,
+                   faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), slot: wp.array(dtype=int),
+                   pool: wp.array(dtype=int), start: wp.array(dtype=int), length: wp.array(dtype=int),
+                   far_angle: wp.array(dtype=float), out: wp.array2d(dtype=float)):
+    k = wp.tid()
+    i = feat[k]
+    p = object_point(i, pts, pts_geom, pose)
+    q = wp.mesh_query_point_sign_normal(skin, p, far)
+    out[k, 0] = 0.0
+    if q.result:
+        out[k, 0] = q.sign
+        out[k, 2] = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+    out[k, 1] = winding_sign(p, i, faces, x, slot, pool, start, length, far_angle, 0.0)
+
+
+@wp.kernel
+def _feature_sides_tiled(tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), feat: wp.array(dtype=int),
+                         pts: wp.array(dtype=wp.vec3), pts_geom: wp.array(dtype=int),
+                         pose: wp.array(dtype=wp.transform), far: float, eps: float, faces: wp.array2d(dtype=int),
+                         x: wp.array(dtype=wp.vec3), slot: wp.array(dtype=int), pool: wp.array(dtype=int),
+                         start: wp.array(dtype=int), length: wp.array(dtype=int), far_angle: wp.array(dtype=float),
+                         out: wp.array(dtype=float)):
+    k, lane = wp.tid()
+    i = feat[k]
+    p = object_point(i, pts, pts_geom, pose)
+    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, far, eps, 1, slot, pool, start,
+                                         length, far_angle)
+    if lane == 0:
+        out[k] = 0.0
+        if found:
+            out[k] = sign
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="no CUDA device"))])
+def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device):
+    """The feature push's inside test (Config.feature_winding, features.py: the solid angles of the
+    skin triangles within contact_frame_margin of a feature point, summed on the skin as it is now,
+    plus the rest's from the frame's start) against the full generalised winding number (every skin
+    triangle's solid angle, numpy): the same side for every listed feature point at the end of each
+    frame of the demo's approach (the farthest the skin has moved since the far part was taken),
+    where Warp's pseudo normals take outside points in front of turned-over skin triangles as inside
+    (they do here: the case is the one docs/contact.md measures). Both the CPU's sum (winding_sign)
+    and the block-per-feature kernels' (closest_tiled: CUDA's, FEATURE_LANES lanes there)."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    mujoco.mj_forward(model, data)
+    hand = ph.SoftHand(model, data, ph.Config(device=device))
+    c, state = hand.solver.contact, hand.state
+    lanes = FEATURE_LANES if device == "cuda" else 1
+    faces = c.model.skin_faces.numpy()
+    pts = c.points
+    checked = pseudo_wrong = tiled_checked = 0
+    for frame in range(12):
+        mujoco.mj_step(model, data)
+        hand.step()
+        if frame < 6:
+            continue
+        n = int(c.feat_count.numpy()[0])
+        assert n > 20
+        skin = c.volume(state, winding=False).mesh
+        skin.refit()
+        out = wp.zeros((n, 3), dtype=float, device=device)
+        wp.launch(_feature_sides, n, [skin.id, c.feat, pts.pts, pts.geom, c.objects.pose, c.config.contact_frame_margin,
+                                      c.model.skin_faces, state.x, c.feat_slot, c.patch_pool, c.patch_start,
+                                      c.patch_len, c.far_angle], [out], device=device)
+        o = out.numpy().astype(float)
+        tiled = wp.zeros(n, dtype=float, device=device)
+        wp.launch(_feature_sides_tiled, (n, lanes), [c.cand, c.cand_count, c.feat, pts.pts, pts.geom, c.objects.pose,
+                                                     c.config.contact_frame_margin, c.feature_eps, c.model.skin_faces,
+                                                     state.x, c.feat_slot, c.patch_pool, c.patch_start, c.patch_len,
+                                                     c.far_angle], [tiled], device=device, block_dim=lanes)
+        assert np.all(c.patch_len.numpy()[:n] > 0)  # every patch fit the pool
+        # the full winding number, every skin triangle, in float64
+        world, _ = _object_points_world(c, c.feat.numpy()[:n])
+        x = state.x.numpy().astype(float)[faces]
+        full = np.array([_solid_angle_sum(x - p) for p in world]) / FOUR_PI
+        assert np.all(np.abs(full - np.round(full)) < 1e-3)  # off the surface: an integer
+        truth = np.where(full > 0.5, -1.0, 1.0)
+        near = (o[:, 0] != 0) & (o[:, 2] < 2e-3)  # within 2 mm of the skin
+        assert np.array_equal(o[:, 1], truth), np.flatnonzero(o[:, 1] != truth)
+        # (the block scan finds no patch triangle within contact_frame_margin of a point the skin moved
+        # away from in the frame: far from any push either way)
+        ts = tiled.numpy()
+        assert np.array_equal(ts[ts != 0], truth[ts != 0]), np.flatnonzero((ts != 0) & (ts != truth))
+        lost = ts == 0
+        assert np.all((o[lost, 0] == 0) | (o[lost, 2] > 0.5 * c.config.contact_frame_margin)), o[lost]
+        tiled_checked += int((ts != 0).sum())
+        checked += int(near.sum())
+        pseudo_wrong += int((near & (o[:, 0] != truth)).sum())
+    assert checked > 100 and pseudo_wrong > 0 and tiled_checked > 100, (checked, pseudo_wrong, tiled_checked)
+    if device == "cpu":  # CUDA's patches (feature_patches_tiled, a block over every skin triangle) against the BVH's
+        from physhand_mj.contact.winding import feature_patches_tiled
+
+        n = int(c.feat_count.numpy()[0])
+        x_start = state.x.numpy().copy()
+        c.run_stage(state)  # the frame's lists and patches for this skin (BVH + winding number)
+        state.x.assign(x_start)
+        n = int(c.feat_count.numpy()[0])
+        used, pool = wp.zeros(1, dtype=int, device="cpu"), wp.zeros_like(c.patch_pool)
+        slot, start, length = (wp.zeros_like(a) for a in (c.feat_slot, c.patch_start, c.patch_len))
+        fill, far = wp.zeros_like(c.patch_len), wp.zeros_like(c.far_angle)
+        wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.feat, c.feat_count, pts.pts, pts.geom,
+                                                  c.objects.pose, c.config.contact_frame_margin, c.tris_per_world,
+                                                  c.geoms_per_world],
+                  [used, pool, slot, start, length, fill, far], device="cpu", block_dim=1)
+        assert np.array_equal(length.numpy()[:n], c.patch_len.numpy()[:n])
+        p0, p1, s0, s1 = c.patch_pool.numpy(), pool.numpy(), c.patch_start.numpy(), start.numpy()
+        for k in range(n):
+            ln = c.patch_len.numpy()[k]
+            assert np.array_equal(np.sort(p0[s0[k]: s0[k] + ln]), np.sort(p1[s1[k]: s1[k] + ln]))
+        # the far part's own solid angle against 4 pi w_0 minus the patch's (w_0 an integer)
+        np.testing.assert_allclose(far.numpy()[:n], c.far_angle.numpy()[:n], atol=2e-3)
+
+
+def _solid_angle_sum(tri):
+    """Sum of the solid angles of triangles ``tri`` (k, 3, 3), vertices relative to the point."""
+    a, b, d = tri[:, 0], tri[:, 1], tri[:, 2]
+    la, lb, ld = (np.linalg.norm(v, axis=1) for v in (a, b, d))
+    num = np.einsum("ij,ij->i", a, np.cross(b, d))
+    den = la * lb * ld + np.einsum("ij,ij->i", a, b) * ld + np.einsum("ij,ij->i", b, d) * la + \
+        np.einsum("ij,ij->i", d, a) * lb
+    return float((2.0 * np.arctan2(num, den)).sum())
+
+
+def _object_points_world(c, idx):
+    """World positions (k, 3) of the contact's object points ``idx`` and their geoms."""
+    from physhand_mj.solver.model import quat_to_mat
+
+    pts = c.points
+    pose = c.objects._host["pose"][pts.geom_host[idx]].astype(float)
+    rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
+    return np.einsum("kij,kj->ki", rot, pts.pts_host[idx].astype(float)) + pose[:, :3], pts.geom_host[idx]
