@@ -127,16 +127,24 @@ class Config:
         far one stage's corrections drag a triangle that did not penetrate itself);
         contact_frame_margin: the frame broadphase's margin (m; must cover how far skin and objects
         move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); contact_offset: how far
-        outside an object Eq. 9 puts a triangle's decision point (m; 1 um: float32 rounding of
-        ~0.1 m coordinates is ~10 nm, and the lattice search can miss a minimum by a fraction of a
-        micrometre at sharp edges, both of which would otherwise leave samples a hair inside);
+        outside an object Eq. 9 puts a triangle's decision point (m; 4 um: float32 rounding of
+        ~0.1 m coordinates is ~10 nm, and the lattice search misses a faceted mesh's minimum by
+        up to ~3.5 um: the HOI bowl's order-9 check found 6 samples up to 2.3 um inside at 1 um,
+        2 up to 0.5 um at 3 um, none at 4 um (nor order 17); docs/contact.md);
         feature_contact: also push the skin off object features (corners, tips, sharp edges) that lie
         inside it (contact/features.py: the object's side of the contact, which the skin's decision
         points cannot see when a feature is smaller than a triangle); feature_offset: how far
-        outside the skin such a feature point ends (m; 60 um: edges are sampled every 0.5 mm and
-        skin bent over an edge bulges past it between two samples, which a 4x denser check finds
-        up to 30 um inside the skin when features end 1 um out; 50-70 um clear the hard cases,
-        80 um and more let a 1 mm plate tunnel: docs/contact.md);
+        outside the skin such a feature point ends (m; 60 um: skin bent over an edge bulges past
+        it between two samples, which a 4x denser check finds up to 30 um inside the skin when
+        features end 1 um out; 50-70 um clear the hard cases, 80 um and more let a 1 mm plate
+        tunnel: docs/contact.md); feature_spacing: the distance between two feature points along
+        an object's sharp edges (m; 0.25 mm: at 0.5 mm the skin wrapped over a 1 mm plate's edge in
+        the palm bulged up to 21 um past the 60 um standoff between two samples in held frames;
+        the bulge grows with the square of the spacing); feature_last: end every contact stage
+        with one more feature push after the last pass's Eq. 9 (the two alternate within a pass,
+        and 8 passes could end with Eq. 9 having moved the skin back over a corner: 18 of 600 held
+        hard-case frames on the CPU left something inside the skin without it, 0 with it and the
+        two settings above; docs/contact.md);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
@@ -231,8 +239,9 @@ class Config:
     contact_passes: int = 8
     contact_margin: float = 5.0e-4
     contact_frame_margin: float = 1.0e-2
-    contact_offset: float = 1.0e-6
+    contact_offset: float = 4.0e-6
     feature_offset: float = 6.0e-5
+    feature_spacing: float = 2.5e-4
     multires_samples: int = 21
     multires_rounds: int = 2
     opt_queries: int = 32
@@ -247,6 +256,7 @@ class Config:
     tiled_contact: bool | None = None
     tiled_features: bool | None = None
     feature_winding: bool = True
+    feature_last: bool = True
     skip_idle: bool = True
     region_sleep: bool = False
     sleep_speed: float = 3.0e-3
@@ -294,6 +304,11 @@ class Config:
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
         nonneg("feature_offset")
+        if not (isinstance(self.feature_spacing, (int, float, np.floating, np.integer))
+                and not isinstance(self.feature_spacing, bool) and math.isfinite(self.feature_spacing)
+                and self.feature_spacing > 0):
+            raise ValueError(f"Config.feature_spacing must be a distance > 0 in m (e.g. 2.5e-4), "
+                             f"got {self.feature_spacing!r}")
         nonneg("mesh_grid")
         nonneg("sleep_speed")
         nonneg("sleep_bone_motion")

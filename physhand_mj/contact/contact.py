@@ -25,7 +25,7 @@ from physhand_mj.types import Config, Model, Placement, Strategy
 # keeps the pseudo-normal sign
 PATCH_POOL_PER_FEATURE = 128
 PATCH_POOL_MIN = 1 << 15
-PATCH_POOL_MAX = 1 << 27
+PATCH_POOL_MAX = 1 << 28
 
 # batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.tiled_features
 # None): the HOI box grasp on an H100 (benchmarks/batch_hoi.py), hand-frames/s with a block per feature
@@ -35,7 +35,7 @@ FEATURE_SCAN_WORLDS = 64
 # m, the independent check's object points (Contact.check_points): edges at a quarter of the
 # features' 0.5 mm spacing (midpoints of 4x as many segments: none coincides with a feature point),
 # the surface at half the measure's 1 mm
-CHECK_EDGE_SPACING = 1.25e-4
+CHECK_EDGE_SUBDIVIDE = 4  # check points: each piece between two feature points cut in 4
 CHECK_SURFACE_SPACING = 5.0e-4
 
 
@@ -80,7 +80,7 @@ class Contact:
                                           pinned=wp.get_device(d).is_cuda) if w > 1 else None
         # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
         # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices]
-        self.counters = wp.zeros(1 + stages * (1 + 3 * config.contact_passes), dtype=int, device=d)
+        self.counters = wp.zeros(1 + stages * (2 + 3 * config.contact_passes), dtype=int, device=d)
         self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
         self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
         self.cand_count = self.counters[0:1]
@@ -307,37 +307,8 @@ class Contact:
                     self.touched, self.touched_count]
             if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
                 # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
-                if p:  # (pass 0 sees the skin its stage's list was made on)
-                    vol = self.volume(state, winding=False)
-                    ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
-                moved_slots.append(self._slot)
-                feat_touched = self._counter()
-                if self.feature_scan:  # CUDA batches: a thread per feature over its patch
-                    launch(feature_contact_scan, self.points.n_features,
-                           [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
-                            self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
-                            cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
-                            *self._winding_args()[1:]],
-                           [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
-                elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
-                    launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
-                           [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
-                            self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
-                            cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
-                            *self._winding_args()],
-                           [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
-                           block_dim=self.feature_lanes)
-                else:
-                    launch(feature_contact, self.points.n_features,
-                           [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
-                            self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
-                            self.near_query, self._query_x(state), o.pose, state.x, *self._winding_args(),
-                            self._side()],
-                           [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
-                           count=feat_count)
-                launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
-                       [state.x, self.push, self.moved, self.disp], count=feat_touched)
-                self._tally_touched(launch, p, feat_touched)
+                moved_slots.append(self._record_features(launch, ops, state, p, skin, feat_count, stamp))
+                self._tally_touched(launch, p, self._feat_touched)
             if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
                 launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
                        [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
@@ -353,6 +324,8 @@ class Contact:
             launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
                    [state.x, self.push, self.moved, self.disp], count=self.touched_count)
             self._tally_touched(launch, p, self.touched_count)
+            if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
+                moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp))
             if p + 1 < cfg.contact_passes:
                 lst = (self.pass_list, self.pass_mask, self._counter())
                 self.pass_slots.append(self._slot - 1)
@@ -360,6 +333,42 @@ class Contact:
                                                  self.moved, self.disp, stamp, self.bound], list(lst),
                        count=self.active_count)
         return lst, tuple(moved_slots)
+
+    def _record_features(self, launch, ops, state, p, skin, feat_count, stamp) -> int:
+        """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
+        as it is now, applied at once; returns the counter slot of the vertices it moved."""
+        m, o, cfg = self.model, self.objects, self.config
+        if p:  # (pass 0 sees the skin its stage's list was made on)
+            vol = self.volume(state, winding=False)
+            ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
+        slot = self._slot
+        feat_touched = self._feat_touched = self._counter()
+        if self.feature_scan:  # CUDA batches: a thread per feature over its patch
+            launch(feature_contact_scan, self.points.n_features,
+                   [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
+                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
+                    cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
+                    *self._winding_args()[1:]],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
+        elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
+            launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
+                   [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
+                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
+                    cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
+                    *self._winding_args()],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                   block_dim=self.feature_lanes)
+        else:
+            launch(feature_contact, self.points.n_features,
+                   [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
+                    self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
+                    self.near_query, self._query_x(state), o.pose, state.x, *self._winding_args(),
+                    self._side()],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                   count=feat_count)
+        launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
+               [state.x, self.push, self.moved, self.disp], count=feat_touched)
+        return slot
 
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
@@ -390,19 +399,19 @@ class Contact:
     def points(self) -> ObjectPoints:
         """The objects' surface points (built on first use)."""
         if self._points is None:
-            self._points = ObjectPoints(self.objects)
+            self._points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing)
         return self._points
 
     @property
     def check_points(self) -> ObjectPoints:
         """A denser set of object surface points that the contact never uses: edges every
-        CHECK_EDGE_SPACING (a quarter of the features' spacing, none of their points: edge points sit
-        at segment midpoints), the surface every CHECK_SURFACE_SPACING. The independent check of the
-        second measure (the feature push works on :attr:`points`' corners and edges, so a
+        Config.feature_spacing / CHECK_EDGE_SUBDIVIDE (each piece that holds a feature point at its
+        midpoint cut in 4: none of their points), the surface every CHECK_SURFACE_SPACING. The
+        independent check of the second measure (the feature push works on :attr:`points`' corners and edges, so a
         measure on those same points would share the method's own samples)."""
         if self._check_points is None:
-            self._check_points = ObjectPoints(self.objects, edge_spacing=CHECK_EDGE_SPACING,
-                                              surface_spacing=CHECK_SURFACE_SPACING)
+            self._check_points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing,
+                                              edge_subdivide=CHECK_EDGE_SUBDIVIDE, surface_spacing=CHECK_SURFACE_SPACING)
         return self._check_points
 
     def volume(self, state, winding: bool = True) -> SkinVolume:

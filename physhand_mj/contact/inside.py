@@ -158,7 +158,7 @@ class ObjectPoints:
     Arrays: ``pts`` (P,) vec3 m, ``geom`` (P,) int, ``kind`` (P,) int (:class:`PointKind`), and
     ``feature`` (the indices of the CORNER and EDGE points) for the contact stage."""
 
-    def __init__(self, objects, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3):
+    def __init__(self, objects, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3, edge_subdivide: int = 1):
         h = objects._host
         meshes = {int(m.id): m for m in objects._meshes}
         pts, geom, kind = [], [], []
@@ -166,9 +166,10 @@ class ObjectPoints:
             t = GeomType(int(h["gtype"][g]))
             if t == GeomType.MESH:
                 m = meshes[int(h["mesh"][g][0])]
-                p, k = mesh_points(m.points.numpy(), m.indices.numpy().reshape(-1, 3), edge_spacing, surface_spacing)
+                p, k = mesh_points(m.points.numpy(), m.indices.numpy().reshape(-1, 3), edge_spacing, surface_spacing,
+                                   edge_subdivide=edge_subdivide)
             else:
-                p, k = primitive_points(t, h["size"][g], edge_spacing, surface_spacing)
+                p, k = primitive_points(t, h["size"][g], edge_spacing, surface_spacing, edge_subdivide)
             pts.append(p)
             kind.append(k)
             geom.append(np.full(len(p), g, np.int32))

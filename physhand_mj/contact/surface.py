@@ -33,15 +33,17 @@ class PointKind(enum.IntEnum):
     CORNER = 2
 
 
-def _segment(a, b, spacing):
-    n = max(int(np.ceil(np.linalg.norm(np.subtract(b, a)) / spacing)), 1)
+def _segment(a, b, spacing, subdivide: int = 1):
+    """Midpoints of the segment's pieces of at most ``spacing``, each cut into ``subdivide`` (the check
+    points' 4: none of them is a midpoint of the undivided pieces, whatever the length)."""
+    n = max(int(np.ceil(np.linalg.norm(np.subtract(b, a)) / spacing)), 1) * subdivide
     t = (np.arange(n) + 0.5) / n  # interior points; the endpoints are corners of their own
     return np.asarray(a, float)[None] + t[:, None] * (np.asarray(b, float) - np.asarray(a, float))[None]
 
 
-def _circle(r, z, spacing):
-    n = max(int(np.ceil(2 * np.pi * r / spacing)), 8)
-    a = 2 * np.pi * np.arange(n) / n
+def _circle(r, z, spacing, subdivide: int = 1):
+    n = max(int(np.ceil(2 * np.pi * r / spacing)), 8) * subdivide
+    a = 2 * np.pi * (np.arange(n) + (0.5 if subdivide > 1 else 0.0)) / n  # subdivided: between the undivided
     return np.stack([r * np.cos(a), r * np.sin(a), np.full(n, z)], 1)
 
 
@@ -75,8 +77,10 @@ def _side(r_of_z, z0, z1, spacing, slant=1.0):
     return np.concatenate(pts) if pts else np.zeros((0, 3))
 
 
-def primitive_points(gtype: GeomType, size, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3):
-    """(points (P, 3) m, kinds (P,) int) on the surface of an analytic geom (MuJoCo sizes)."""
+def primitive_points(gtype: GeomType, size, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3,
+                     edge_subdivide: int = 1):
+    """(points (P, 3) m, kinds (P,) int) on the surface of an analytic geom (MuJoCo sizes); edges in
+    pieces of at most ``edge_spacing``, each cut into ``edge_subdivide`` (_segment)."""
     s = np.resize(np.asarray(size, float), 3)
     out, kinds = [], []
 
@@ -104,7 +108,7 @@ def primitive_points(gtype: GeomType, size, edge_spacing: float = 5e-4, surface_
         for i in range(8):
             for j in range(i + 1, 8):
                 if np.count_nonzero(corners[i] != corners[j]) == 1:
-                    put(_segment(corners[i], corners[j], edge_spacing), PointKind.EDGE)
+                    put(_segment(corners[i], corners[j], edge_spacing, edge_subdivide), PointKind.EDGE)
         for ax in range(3):
             u, v = [a for a in range(3) if a != ax]
             nu = max(int(np.ceil(2 * s[u] / surface_spacing)), 1)
@@ -119,17 +123,18 @@ def primitive_points(gtype: GeomType, size, edge_spacing: float = 5e-4, surface_
     elif gtype == GeomType.CYLINDER:
         r, h = s[0], s[1]
         for z in (-h, h):
-            put(_circle(r, z, edge_spacing), PointKind.EDGE)
+            put(_circle(r, z, edge_spacing, edge_subdivide), PointKind.EDGE)
             put(_disc(r, z, surface_spacing), PointKind.SURFACE)
         put(_side(lambda z: r, -h, h, surface_spacing), PointKind.SURFACE)
     elif gtype == GeomType.CONE:  # tip at the origin, base disc of radius r at z = -h
         r, h = s[0], s[1]
         put([[0.0, 0.0, 0.0]], PointKind.CORNER)
-        put(_circle(r, -h, edge_spacing), PointKind.EDGE)
+        put(_circle(r, -h, edge_spacing, edge_subdivide), PointKind.EDGE)
         put(_disc(r, -h, surface_spacing), PointKind.SURFACE)
         put(_side(lambda z: r * (-z) / h, -h, 0.0, surface_spacing, slant=np.hypot(r, h) / h), PointKind.SURFACE)
         # the tip's neighbourhood densely along the slant (a tip pokes through with its last millimetres)
-        put(_segment([0, 0, 0], [r, 0, -h], edge_spacing)[: max(int(4e-3 / edge_spacing), 1)], PointKind.EDGE)
+        put(_segment([0, 0, 0], [r, 0, -h], edge_spacing, edge_subdivide)[: max(int(4e-3 / edge_spacing), 1) * edge_subdivide],
+            PointKind.EDGE)
     elif gtype == GeomType.PLANE:
         pass  # unbounded: measured from the skin's side only
     else:
@@ -139,7 +144,8 @@ def primitive_points(gtype: GeomType, size, edge_spacing: float = 5e-4, surface_
     return np.concatenate(out), np.concatenate(kinds)
 
 
-def mesh_points(vertices, faces, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3, seed: int = 0):
+def mesh_points(vertices, faces, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3, seed: int = 0,
+                edge_subdivide: int = 1):
     """(points (P, 3) m, kinds (P,) int) on a triangle mesh: its vertices, its sharp edges, an even
     sampling of its faces (deterministic for ``seed``)."""
     import trimesh
@@ -158,7 +164,7 @@ def mesh_points(vertices, faces, edge_spacing: float = 5e-4, surface_spacing: fl
     unique, counts = np.unique(np.sort(tm.edges, axis=1), axis=0, return_counts=True)
     edges = np.concatenate([edges, unique[counts == 1]])
     for a, b in edges:
-        seg = _segment(v[a], v[b], edge_spacing)
+        seg = _segment(v[a], v[b], edge_spacing, edge_subdivide)
         out.append(seg)
         kinds.append(np.full(len(seg), int(PointKind.EDGE), np.int32))
     area = float(tm.area)

@@ -39,13 +39,18 @@ SHARP = [
     ("cone_tip", "palm", 0.006, 0.006, 400.0),  # the tip flickers in and out: 0-4 points, <= 279 um
     ("mesh_cone", "palm", 0.006, -0.002, 1000.0),  # its tip flickers: 0-3 points, <= 735 um
     ("knife", "fingertip", 0.004, 0.004, 50.0),  # one frame with 2 edge points, 3.5 um
-    ("knife", "palm", 0.006, -0.002, 300.0),
+    ("knife", "palm", 0.006, -0.002, 300.0),  # its edge flickers: 0-21 samples, <= 46 um (253 um before
+    # the 4 um contact offset, 0.25 mm feature spacing and last feature push; 2026-11-25)
 ]
-# um: how much the second half of the hold may exceed the first (not growing). A tip held 6 mm deep
-# whose single deepest point flickers in and out by hundreds of micrometres frame to frame gets a
+# um: how much the second half of the hold may exceed the first (not growing). A tip or edge held 6 mm
+# deep whose deepest points flicker in and out by hundreds of micrometres frame to frame gets a
 # flicker's slack (mesh cone, features 60 um out: skin 56 -> 112 um, object 452 -> 622 um between the
-# halves; 1 um out: object 734 -> 488 um); every other case the harness's 20 um
+# halves; 1 um out: object 734 -> 488 um; the knife 6 mm in the palm: object points inside the skin
+# per held frame 0, 0, 2, 0, 11 | 0, 28, 0, 0, 2 and order-9 samples 0, 0, 21, 0, 2 | 0, 0, 0, 0, 13
+# (46 -> 34 um), with the settings before 2026-11-25 25 -> 10 samples, 253 -> 110 um: noise, no
+# trend); every other case the harness's 20 um and 2 samples
 FLICKER_UM = 200.0
+FLICKER_COUNT = 20.0
 
 
 @pytest.mark.parametrize("kind, site, depth, first, worst_um", SHARP)
@@ -54,7 +59,7 @@ def test_sharp_tip_or_knife_edge(scene, margins, kind, site, depth, first, worst
     held = (PRESS, PRESS + HOLD)
     out = run.check(volume_tol=VOLUME_TOL, hold=held, free_from=PRESS + HOLD + LEAVE,
                     clean_after=PRESS if worst_um == 0 else None,
-                    **({"grow_um": FLICKER_UM} if worst_um >= 400.0 else {}))
+                    **({"grow_um": FLICKER_UM, "grow_count": FLICKER_COUNT} if worst_um >= 300.0 else {}))
     r = run.arrays()
     worst = max(np.nanmax(r["skin_max_um"][slice(*held)]), np.nanmax(r["obj_max_um"][slice(*held)]))
     assert worst <= max(worst_um, 0.0), f"held penetration {worst:.1f} um > {worst_um} um: {run.report()}"

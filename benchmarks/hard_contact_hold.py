@@ -1,0 +1,93 @@
+"""Held frames of the hard contact cases, both measures, per Config variant (issue 11).
+
+    python benchmarks/hard_contact_hold.py [--device cpu|cuda] [--frames 40] [--configs '{}' '{"feature_last": false}']
+
+The 24 hard cases of benchmarks/hard_contact.py (six objects at the index fingertip and the palm,
+pressed in over 15 frames or starting 4 mm deep) run ``--frames`` frames with ``Config(**variant)``;
+every frame from 15 on (the object holds still) is a held frame. Counted per variant: held frames
+in which anything is inside (skin samples in the object on the order-5 and order-9 lattices, or
+object points and the denser check points in the skin), the worst depth over them, the cases not
+clean at their last frame, the median solver ms per frame (device named; the first frame, which
+compiles, excluded). A residue that comes and goes frame to frame (the feature push and Eq. 9
+alternating) shows here and not at a last frame. Prints one line per variant (and the dirty
+cases' per-frame depths); writes docs/benchmarks/hard_contact_hold_<device>.json.
+"""
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import physhand_mj as ph  # noqa: E402
+from physhand_mj.bench import device_name  # noqa: E402
+from physhand_mj.cases import press_case, run_case  # noqa: E402
+
+KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")
+PRESS_FRAMES = 15  # press_case's: the object holds still from here on
+
+
+def run_variant(asset, device: str, frames: int, over: dict, progress=None) -> dict:
+    held = total = skin_frames = obj_frames = dirty_end = 0
+    worst, ms, cases = 0.0, [], []
+    for kind in KINDS:
+        for site in ("fingertip", "palm"):
+            for start in (0.002, -0.004):
+                r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device=device, **over),
+                             frames=frames, asset=asset)
+                h = slice(PRESS_FRAMES, frames)
+                skin = np.maximum(np.asarray(r["skin_max_um"][h]), np.asarray(r["dense_max_um"][h]))
+                obj = np.maximum(np.asarray(r["obj_max_um"][h]), np.asarray(r["check_max_um"][h]))
+                bad = (skin > 0) | (obj > 0)
+                held += int(bad.sum())
+                total += len(skin)
+                skin_frames += int((skin > 0).sum())
+                obj_frames += int((obj > 0).sum())
+                worst = max(worst, float(skin.max(initial=0.0)), float(obj.max(initial=0.0)))
+                dirty_end += bool(skin[-1] > 0 or obj[-1] > 0) if len(skin) else 0
+                ms.append(float(np.median(r["ms"][1:])))
+                if bad.any():
+                    cases.append(dict(case=kind, site=site, start_mm=start * 1e3, skin_um=np.round(skin, 1).tolist(),
+                                      object_um=np.round(obj, 1).tolist()))
+                if progress:
+                    progress()
+    return dict(config=over, held_frames=total, held_with_residue=held, skin_frames=skin_frames,
+                object_frames=obj_frames, worst_um=round(worst, 2), cases_dirty_at_end=dirty_end,
+                median_ms=round(float(np.median(ms)), 2), dirty_cases=cases)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
+    ap.add_argument("--frames", type=int, default=40, help="5 ms frames per case (held: 15 on)")
+    ap.add_argument("--configs", nargs="+", default=["{}"], help="Config overrides as JSON, one per variant")
+    ap.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/hard_contact_hold_<device>.json)")
+    a = ap.parse_args()
+    if a.frames <= PRESS_FRAMES:
+        ap.error(f"--frames must exceed {PRESS_FRAMES} (the press)")
+    from tqdm import tqdm
+
+    asset = ph.load_asset()
+    rows = []
+    for spec in a.configs:
+        over = json.loads(spec)
+        with tqdm(total=len(KINDS) * 4, desc=spec, leave=False) as bar:
+            row = run_variant(asset, a.device, a.frames, over, progress=bar.update)
+        rows.append(row)
+        print(f"{spec}: held frames with residue {row['held_with_residue']}/{row['held_frames']} "
+              f"(skin {row['skin_frames']}, object {row['object_frames']}), worst {row['worst_um']} um, "
+              f"cases dirty at the end {row['cases_dirty_at_end']}, median {row['median_ms']} ms", flush=True)
+        for c in row["dirty_cases"]:
+            print(f"  {c['case']} {c['site']} {c['start_mm']:+.0f} mm: skin {c['skin_um']} object {c['object_um']}")
+    dev = device_name(a.device if a.device != "cuda" else "cuda:0")
+    out = Path(a.out) if a.out else Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / \
+        f"hard_contact_hold_{a.device.split(':')[0]}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, held_from=PRESS_FRAMES, rows=rows), indent=1))
+    print(f"{dev}; wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
