@@ -19,6 +19,7 @@ setup s, the worst world's measures).
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 import tempfile
@@ -93,7 +94,8 @@ def main() -> None:
                     row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames)
                 rows.append(row)
                 print(json.dumps(row), flush=True)
-                del hands
+                del hands, out, pen
+                gc.collect()  # the batch's arrays go before the next one's (W = 4096: ~7 GB each)
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
     out = ROOT / "docs" / "benchmarks" / f"batch_hoi_{a.device.split(':')[0]}.json"
     out.write_text(json.dumps(dict(device=dev, frames=a.frames, config=extra,

@@ -142,9 +142,9 @@ class Config:
         the palm bulged up to 21 um past the 60 um standoff between two samples in held frames;
         the bulge grows with the square of the spacing); feature_last: end every contact stage
         with one more feature push after the last pass's Eq. 9 (the two alternate within a pass,
-        and 8 passes could end with Eq. 9 having moved the skin back over a corner: 18 of 600 held
-        hard-case frames on the CPU left something inside the skin without it, 0 with it and the
-        two settings above; docs/contact.md);
+        and 8 passes could end with Eq. 9 having moved the skin back over a corner); with it and
+        the two settings above 0 of 600 held hard-case frames left anything inside the skin on the
+        CPU and an H100, 26 and 18 without the three (docs/contact.md, held frames);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a

@@ -131,8 +131,9 @@ def test_closing_by_both_measures(kind):
     collision proxy 4.1 mm, the ring fingertip's bone 0.8 mm): no penetration-free skin exists
     there, and the skin's residue follows how far the bones go in (the issue's "bone inside the
     object" start; docs/contact.md). Asserted: bones inside, the residue bounded (order 9: 0.09-1.25
-    mm per frame over frames 40-79 on the CPU), and fewer object points in the skin than the paper's
-    contact leaves."""
+    mm per frame over frames 40-79 on the CPU, 0.35 mm at frame 50; 0.04-1.13 mm with the settings
+    before 2026-11-25, when the bound was 0.3 mm at frame 50), and fewer object points in the skin
+    than the paper's contact leaves."""
     model, data, hand, _ = _close_on(kind)
     m = hand.penetration(order=9, check=True)
     if kind == "sphere":
@@ -145,7 +146,7 @@ def test_closing_by_both_measures(kind):
     _, _, paper, _ = _close_on(kind, **PAPER)
     p = paper.penetration(order=9, check=True)
     assert np.all(np.isfinite(hand.skin_vertices))
-    assert m["penetration_max_um"] < 2000 and m["object_in_skin_max_um"] < 2000, m
+    assert m["penetration_max_um"] < 1500 and m["object_in_skin_max_um"] < 1500, m
     assert m["object_in_skin_count"] < p["object_in_skin_count"], (m, p)
 
 

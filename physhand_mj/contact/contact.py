@@ -21,8 +21,8 @@ from physhand_mj.types import Config, Model, Placement, Strategy
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
-# within 1 cm, at most ~270, and ~100 of its 880 are listed per frame); a patch that does not fit
-# keeps the pseudo-normal sign
+# within 1 cm, at most ~270, and ~184 of its ~1,760 (features every 0.25 mm) are listed per frame); a
+# patch that does not fit keeps the pseudo-normal sign
 PATCH_POOL_PER_FEATURE = 128
 PATCH_POOL_MIN = 1 << 15
 PATCH_POOL_MAX = 1 << 28
@@ -32,10 +32,12 @@ PATCH_POOL_MAX = 1 << 28
 # against a thread: W = 16 1,349 / 627, W = 64 1,830 / 1,827, W = 256 1,907 / 3,302, W = 1024 1,859 / 3,745
 FEATURE_SCAN_WORLDS = 64
 
-# m, the independent check's object points (Contact.check_points): edges at a quarter of the
-# features' 0.5 mm spacing (midpoints of 4x as many segments: none coincides with a feature point),
-# the surface at half the measure's 1 mm
-CHECK_EDGE_SUBDIVIDE = 4  # check points: each piece between two feature points cut in 4
+# the independent check's object points (Contact.check_points): each edge piece that holds a feature
+# point (Config.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
+# a feature point; surface rings of revolution shifted half a step off the cone's slant line), the
+# surface every CHECK_SURFACE_SPACING m (half the measure's 1 mm)
+CHECK_EDGE_SUBDIVIDE = 4  # check points: each feature point's piece of edge cut in 4 (even: none coincides)
+assert CHECK_EDGE_SUBDIVIDE % 2 == 0
 CHECK_SURFACE_SPACING = 5.0e-4
 
 
@@ -79,7 +81,8 @@ class Contact:
         self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
                                           pinned=wp.get_device(d).is_cuda) if w > 1 else None
         # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
-        # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices]
+        # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices, and after
+        # the last pass the final feature push's touched vertices (Config.feature_last)]
         self.counters = wp.zeros(1 + stages * (2 + 3 * config.contact_passes), dtype=int, device=d)
         self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
         self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot

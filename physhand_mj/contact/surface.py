@@ -35,15 +35,18 @@ class PointKind(enum.IntEnum):
 
 def _segment(a, b, spacing, subdivide: int = 1):
     """Midpoints of the segment's pieces of at most ``spacing``, each cut into ``subdivide`` (the check
-    points' 4: none of them is a midpoint of the undivided pieces, whatever the length)."""
+    points' 4: for an even ``subdivide`` none of them is a midpoint of the undivided pieces, whatever
+    the length)."""
     n = max(int(np.ceil(np.linalg.norm(np.subtract(b, a)) / spacing)), 1) * subdivide
     t = (np.arange(n) + 0.5) / n  # interior points; the endpoints are corners of their own
     return np.asarray(a, float)[None] + t[:, None] * (np.asarray(b, float) - np.asarray(a, float))[None]
 
 
-def _circle(r, z, spacing, subdivide: int = 1):
+def _circle(r, z, spacing, subdivide: int = 1, shift: float | None = None):
+    """n points on a circle, at angles (k + shift) 2 pi / n: the check points' (subdivided, or a
+    ``shift`` of 1/2) lie between the features' at angles k 2 pi / n (the cone's slant line at 0)."""
     n = max(int(np.ceil(2 * np.pi * r / spacing)), 8) * subdivide
-    a = 2 * np.pi * (np.arange(n) + (0.5 if subdivide > 1 else 0.0)) / n  # subdivided: between the undivided
+    a = 2 * np.pi * (np.arange(n) + ((0.5 if subdivide > 1 else 0.0) if shift is None else shift)) / n
     return np.stack([r * np.cos(a), r * np.sin(a), np.full(n, z)], 1)
 
 
@@ -64,8 +67,9 @@ def _disc(r, z, spacing):
     return np.stack([rho * np.cos(a), rho * np.sin(a), np.full(n, z)], 1)
 
 
-def _side(r_of_z, z0, z1, spacing, slant=1.0):
-    """Points on a surface of revolution r(z), z in [z0, z1], about one per spacing^2."""
+def _side(r_of_z, z0, z1, spacing, slant=1.0, shift: float = 0.0):
+    """Points on a surface of revolution r(z), z in [z0, z1], about one per spacing^2 (rings at
+    angles (k + shift) 2 pi / n: _circle)."""
     h = abs(z1 - z0) * slant
     rows = max(int(np.ceil(h / spacing)), 1)
     pts = []
@@ -73,7 +77,7 @@ def _side(r_of_z, z0, z1, spacing, slant=1.0):
         z = z0 + (z1 - z0) * (i + 0.5) / rows
         r = r_of_z(z)
         if r > 0:
-            pts.append(_circle(r, z, spacing))
+            pts.append(_circle(r, z, spacing, shift=shift))
     return np.concatenate(pts) if pts else np.zeros((0, 3))
 
 
@@ -131,7 +135,9 @@ def primitive_points(gtype: GeomType, size, edge_spacing: float = 5e-4, surface_
         put([[0.0, 0.0, 0.0]], PointKind.CORNER)
         put(_circle(r, -h, edge_spacing, edge_subdivide), PointKind.EDGE)
         put(_disc(r, -h, surface_spacing), PointKind.SURFACE)
-        put(_side(lambda z: r * (-z) / h, -h, 0.0, surface_spacing, slant=np.hypot(r, h) / h), PointKind.SURFACE)
+        # (the check set's rings off the slant line's angle: none of its points is a feature point)
+        put(_side(lambda z: r * (-z) / h, -h, 0.0, surface_spacing, slant=np.hypot(r, h) / h,
+                  shift=0.5 if edge_subdivide > 1 else 0.0), PointKind.SURFACE)
         # the tip's neighbourhood densely along the slant (a tip pokes through with its last millimetres)
         put(_segment([0, 0, 0], [r, 0, -h], edge_spacing, edge_subdivide)[: max(int(4e-3 / edge_spacing), 1) * edge_subdivide],
             PointKind.EDGE)

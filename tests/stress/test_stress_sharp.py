@@ -48,9 +48,9 @@ SHARP = [
 # halves; 1 um out: object 734 -> 488 um; the knife 6 mm in the palm: object points inside the skin
 # per held frame 0, 0, 2, 0, 11 | 0, 28, 0, 0, 2 and order-9 samples 0, 0, 21, 0, 2 | 0, 0, 0, 0, 13
 # (46 -> 34 um), with the settings before 2026-11-25 25 -> 10 samples, 253 -> 110 um: noise, no
-# trend); every other case the harness's 20 um and 2 samples
-FLICKER_UM = 200.0
-FLICKER_COUNT = 20.0
+# trend); every other case the harness's 20 um and 2 samples (x4 check points)
+FLICKER_UM = 200.0  # the two tips held 6 mm deep
+KNIFE_SLACK = {"grow_count": 5.0, "grow_um": 50.0}  # the knife held 6 mm deep: 20 check points, 50 um
 
 
 @pytest.mark.parametrize("kind, site, depth, first, worst_um", SHARP)
@@ -59,7 +59,7 @@ def test_sharp_tip_or_knife_edge(scene, margins, kind, site, depth, first, worst
     held = (PRESS, PRESS + HOLD)
     out = run.check(volume_tol=VOLUME_TOL, hold=held, free_from=PRESS + HOLD + LEAVE,
                     clean_after=PRESS if worst_um == 0 else None,
-                    **({"grow_um": FLICKER_UM, "grow_count": FLICKER_COUNT} if worst_um >= 300.0 else {}))
+                    **({"grow_um": FLICKER_UM} if worst_um >= 400.0 else KNIFE_SLACK if worst_um >= 300.0 else {}))
     r = run.arrays()
     worst = max(np.nanmax(r["skin_max_um"][slice(*held)]), np.nanmax(r["obj_max_um"][slice(*held)]))
     assert worst <= max(worst_um, 0.0), f"held penetration {worst:.1f} um > {worst_um} um: {run.report()}"
