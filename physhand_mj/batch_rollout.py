@@ -22,6 +22,7 @@ count what the batch frame ran for all its worlds.
 from __future__ import annotations
 
 import csv
+import gc
 import hashlib
 import sys
 import time
@@ -118,6 +119,10 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
             stop = False
             for r in runs:
                 rows[r.index] = rows[r.index] or failed_row(r.scene, r.key, e)
+        # free the batch's device arrays before the next batch allocates, cycles included (two W = 4096
+        # batches in one process of benchmarks/batch_hoi.py ran out of an H100's 80 GB until the first
+        # one's references were dropped and collected: docs/scale.md)
+        gc.collect()
         for r in runs:
             if emit:
                 emit(rows[r.index])

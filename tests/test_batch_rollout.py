@@ -116,3 +116,18 @@ def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
     assert "non-finite MuJoCo pose for object geoms" in rows[1]["error"]
     assert not rows[0].get("error"), rows[0]
     assert _untimed(rows[0], SUMMARY_COLUMNS) == _untimed(runs["batched"][0], SUMMARY_COLUMNS)
+
+
+def test_a_finished_batch_is_freed_before_the_next(tmp_path):
+    """Each batch's BatchedHands (its device arrays: ~7 GB at W = 4096) is gone once its batch ends:
+    two W = 4096 batches in one process of benchmarks/batch_hoi.py ran out of an H100's memory until
+    the first one's references were dropped and collected (docs/scale.md). On the CPU the batch is
+    freed at return even without rollout_batched's collect; on CUDA (captured graphs) it was not
+    isolated which reference held it."""
+    import weakref
+
+    seen = []
+    rollout_batched([(APPLE, "grasp"), (apple_b(tmp_path), None)], tmp_path / "out", worlds=1, steps=1,
+                    device="cpu", progress=False,
+                    on_start=lambda hands, models, datas: seen.append(weakref.ref(hands)))
+    assert len(seen) == 2 and seen[0]() is None and seen[1]() is None
