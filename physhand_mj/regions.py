@@ -10,7 +10,7 @@ metacarpal and its phalanges) and each finger (its three phalanges). A region fa
 - its bones and those of the regions it shares a constraint with (a finger's neighbours: the palm and
   the fingers beside it, whose motion pulls on the web between them) moved relative to the first
   bone by at most ``Config.sleep_bone_motion`` (m per frame, the whole-hand test's measure,
-  :func:`physhand_mj.solver.solver.bone_motions`),
+  :func:`physhand_mj.solver.sleep.bone_motions`),
 - none of its soft vertices moved faster than ``Config.sleep_speed`` relative to its carrier bone
   (the whole-hand test's, counted per region by ``integrate.advance``), and
 - no object came within ``Config.contact_frame_margin`` of the region's skin (a bound of it from its
@@ -198,7 +198,7 @@ class RegionSleep:
     def before_frame(self, p0: np.ndarray, p1: np.ndarray) -> None:
         """Wake the regions this frame's bone motion (poses (B, 7) at its start and end) or a near
         object calls for, and put to sleep those that have been still long enough."""
-        from physhand_mj.solver.solver import SLEEP_TURN, _turn, bone_motions
+        from physhand_mj.solver.sleep import SLEEP_TURN, _turn, bone_motions
 
         cfg = self.solver.config
         tol = cfg.sleep_bone_motion

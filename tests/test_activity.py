@@ -487,7 +487,7 @@ def test_a_region_wakes_when_a_neighbour_creeps(scene):
         q[adr] += 5e-5
         poses = bone_poses_at(model, data, q, ids)
         _step(solver, state, poses)
-    from physhand_mj.solver.solver import bone_motions
+    from physhand_mj.solver.sleep import bone_motions
 
     assert bone_motions(*[np.concatenate([p, r[:, [1, 2, 3, 0]]], axis=1) for p, r in (scene[2], poses)]).max() > 1e-5
     assert not rs.asleep[2] and not rs.asleep[4] and not rs.asleep[0], rs.asleep

@@ -204,7 +204,7 @@ def test_no_check_point_is_a_feature_point(spacing):
     holds no feature point (corners excepted: a corner is its own check)."""
     import trimesh
 
-    from physhand_mj.contact.contact import CHECK_EDGE_SUBDIVIDE, CHECK_SURFACE_SPACING
+    from physhand_mj.contact.measures import CHECK_EDGE_SUBDIVIDE, CHECK_SURFACE_SPACING
 
     shapes = [("cone", lambda sub: primitive_points(GeomType.CONE, (0.003, 0.01, 0.0), spacing, CHECK_SURFACE_SPACING
                                                      if sub > 1 else 1e-3, sub)),

@@ -1,7 +1,8 @@
 """The contact stage of a substep (Algorithm 1, line 6): broadphase, decision points, Eq. 9.
 
 :class:`Contact` owns the preallocated contact buffers of one solver and records its launches into
-the solver's frame (so a CUDA graph captures them); it also evaluates the penetration metrics.
+the solver's frame (so a CUDA graph captures them); the penetration metrics are its
+:class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py).
 """
 
 from __future__ import annotations
@@ -13,10 +14,10 @@ from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_mo
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
                                           near_features, stage_features, stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
-from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume, object_points_inside
+from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
+from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
-from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 from physhand_mj.types import Config, Model, Placement, Strategy
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
@@ -32,13 +33,6 @@ PATCH_POOL_MAX = 1 << 28
 # against a thread: W = 16 1,349 / 627, W = 64 1,830 / 1,827, W = 256 1,907 / 3,302, W = 1024 1,859 / 3,745
 FEATURE_SCAN_WORLDS = 64
 
-# the independent check's object points (Contact.check_points): each edge piece that holds a feature
-# point (Config.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
-# a feature point; surface rings of revolution shifted half a step off the cone's slant line), the
-# surface every CHECK_SURFACE_SPACING m (half the measure's 1 mm)
-CHECK_EDGE_SUBDIVIDE = 4  # check points: each feature point's piece of edge cut in 4 (even: none coincides)
-assert CHECK_EDGE_SUBDIVIDE % 2 == 0
-CHECK_SURFACE_SPACING = 5.0e-4
 
 
 def _same_device(a, b) -> bool:
@@ -51,7 +45,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact:
+class Contact(ContactMeasures):
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -302,50 +296,51 @@ class Contact:
     def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list and this pass's touched counter slots."""
         m, o, cfg = self.model, self.objects, self.config
-        if True:  # (the pass loop's body)
-            stamp = self._slot  # unique within the frame (moved is zeroed per frame)
-            moved_slots = [self._slot]
-            self.touched_count = self._counter()
-            outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
-                    self.touched, self.touched_count]
-            if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
-                # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
-                moved_slots.append(self._record_features(launch, ops, state, p, skin, feat_count, stamp))
-                self._tally_touched(launch, p, self._feat_touched)
-            if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
-                launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
-                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
-                        self.tris_per_world, self.geoms_per_world, *lst,
-                        cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
-                       block_dim=TILE_LANES)
-            else:
-                launch(decide_and_project, self.n_tris,
-                       [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
-                        self.tris_per_world, self.geoms_per_world, *lst,
-                        int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
-                        cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
-            launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
-                   [state.x, self.push, self.moved, self.disp], count=self.touched_count)
-            self._tally_touched(launch, p, self.touched_count)
-            if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
-                moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp))
-            if p + 1 < cfg.contact_passes:
-                lst = (self.pass_list, self.pass_mask, self._counter())
-                self.pass_slots.append(self._slot - 1)
-                launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
-                                                 self.moved, self.disp, stamp, self.bound], list(lst),
-                       count=self.active_count)
+        stamp = self._slot  # unique within the frame (moved is zeroed per frame)
+        moved_slots = [self._slot]
+        self.touched_count = self._counter()
+        outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
+                self.touched, self.touched_count]
+        if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
+            # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
+            slot, feat_touched = self._record_features(launch, ops, state, p, skin, feat_count, stamp)
+            moved_slots.append(slot)
+            self._tally_touched(launch, p, feat_touched)
+        if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
+            launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
+                   [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
+                    self.tris_per_world, self.geoms_per_world, *lst,
+                    cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
+                   block_dim=TILE_LANES)
+        else:
+            launch(decide_and_project, self.n_tris,
+                   [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
+                    self.tris_per_world, self.geoms_per_world, *lst,
+                    int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
+                    cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
+        launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
+               [state.x, self.push, self.moved, self.disp], count=self.touched_count)
+        self._tally_touched(launch, p, self.touched_count)
+        if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
+            moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
+        if p + 1 < cfg.contact_passes:
+            lst = (self.pass_list, self.pass_mask, self._counter())
+            self.pass_slots.append(self._slot - 1)
+            launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
+                                             self.moved, self.disp, stamp, self.bound], list(lst),
+                   count=self.active_count)
         return lst, tuple(moved_slots)
 
-    def _record_features(self, launch, ops, state, p, skin, feat_count, stamp) -> int:
+    def _record_features(self, launch, ops, state, p, skin, feat_count, stamp) -> tuple:
         """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
-        as it is now, applied at once; returns the counter slot of the vertices it moved."""
+        as it is now, applied at once; returns the counter slot of the vertices it moved and that
+        counter."""
         m, o, cfg = self.model, self.objects, self.config
         if p:  # (pass 0 sees the skin its stage's list was made on)
             vol = self.volume(state, winding=False)
             ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
         slot = self._slot
-        feat_touched = self._feat_touched = self._counter()
+        feat_touched = self._counter()
         if self.feature_scan:  # CUDA batches: a thread per feature over its patch
             launch(feature_contact_scan, self.points.n_features,
                    [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
@@ -371,7 +366,7 @@ class Contact:
                    count=feat_count)
         launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
                [state.x, self.push, self.moved, self.disp], count=feat_touched)
-        return slot
+        return slot, feat_touched
 
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
@@ -404,18 +399,6 @@ class Contact:
         if self._points is None:
             self._points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing)
         return self._points
-
-    @property
-    def check_points(self) -> ObjectPoints:
-        """A denser set of object surface points that the contact never uses: edges every
-        Config.feature_spacing / CHECK_EDGE_SUBDIVIDE (each piece that holds a feature point at its
-        midpoint cut in 4: none of their points), the surface every CHECK_SURFACE_SPACING. The
-        independent check of the second measure (the feature push works on :attr:`points`' corners and edges, so a
-        measure on those same points would share the method's own samples)."""
-        if self._check_points is None:
-            self._check_points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing,
-                                              edge_subdivide=CHECK_EDGE_SUBDIVIDE, surface_spacing=CHECK_SURFACE_SPACING)
-        return self._check_points
 
     def volume(self, state, winding: bool = True) -> SkinVolume:
         """The closed skin of ``state`` as a mesh, with winding-number data or not (made on first use;
@@ -469,98 +452,7 @@ class Contact:
         count = (self.feat_count if count is None else count).numpy()
         return lambda: [op() for op in ops] if count[0] else None
 
-    def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
-                       order: int = 5, points: ObjectPoints | None = None):
-        """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
-        metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2) and, with
-        ``objects_side``, object surface points inside the closed skin (columns 3-5; ``points``, default
-        :attr:`points`). ``obj`` >= 0: that object only."""
-        m, o = self.model, self.objects
-        out = self.metrics if out is None else out
-        if not self.n_tris:
-            return
-        per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
-        v = self.world_views()
-        launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count, v["obj"],
-                obj, row, order, self.tris_per_world, per], [out])
-        pts = self.points if points is None else points
-        if objects_side and self.closed_skin and len(pts):
-            vol = self.volume(state)
-            ops += vol.ops()
-            launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, self._query_pose(launch),
-                                                    o.count, o.obj,
-                                                    obj, row, self.geoms_per_world, per], [out, pts.depth])
-
-    def world_views(self) -> dict:
-        """The objects' per-geom arrays as (W, k) views: world w's geoms in row w (one world:
-        (1, capacity))."""
-        if self._views is None:
-            o, w = self.objects, self.worlds
-            # the allocated length (Objects holds at least one slot, also for capacity 0)
-            self._views = {name: getattr(o, name).reshape((w, getattr(o, name).shape[0] // w))
-                           for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
-        return self._views
-
     # -- host side ---------------------------------------------------------------------------------
-    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
-                check: bool = False) -> np.ndarray:
-        """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
-        sum depth m, max depth m] of skin samples inside objects, then of object points inside the
-        skin (``check``: the denser :attr:`check_points` instead of the contact's own points). Runs
-        at once, outside any frame (reports, pictures, checks)."""
-        return reduce_worlds(self.measure_worlds(state, obj, order, objects_side, check))
-
-    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
-                       check: bool = False) -> np.ndarray:
-        """:meth:`measure` per world: (W, 6) float rows, world w's skin against world w's objects
-        (batched worlds, physhand_mj/batch.py; one world: (1, 6))."""
-        d = self.model.device
-        out = wp.zeros((self.worlds, 6), dtype=float, device=d)
-        ops: list = []
-
-        def launch(kernel, dim, inputs, outputs, **_):
-            ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
-
-        self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
-                            points=self.check_points if check else None)
-        for op in ops:
-            op()
-        return out.numpy().astype(float)
-
-    def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
-        """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
-        their depths (k,) m (distance to the closest skin point), for pictures and checks."""
-        pts = self.points
-        if not len(pts):
-            return np.zeros((0, 3)), np.zeros(0)
-        self.measure(state)  # fills pts.depth
-        depth = pts.depth.numpy()[: len(pts)].astype(float)
-        hit = np.flatnonzero(depth > 0)
-        pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
-        from physhand_mj.solver.model import quat_to_mat
-
-        rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
-        world = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]
-        return world.reshape(-1, 3), depth[hit]
-
-    def penetrating_samples(self, state, order: int = 5) -> tuple[np.ndarray, np.ndarray]:
-        """The skin samples on the order-``order`` lattice inside objects now: world points (k, 3) m
-        and their depths (k,) m (for pictures and checks)."""
-        m, o, d = self.model, self.objects, self.model.device
-        f = self.n_tris
-        if not f:
-            return np.zeros((0, 3)), np.zeros(0)
-        k = (order + 1) * (order + 2) // 2
-        pts = wp.zeros((f, k), dtype=wp.vec3, device=d)
-        phi = wp.zeros((f, k), dtype=float, device=d)
-        wp.launch(lattice_phi, f, inputs=[m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
-                                          o.count, self.tris_per_world, self.geoms_per_world, order],
-                  outputs=[pts, phi], device=d)
-        p, s = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
-        inside = s < 0
-        return p[inside].astype(float), -s[inside].astype(float)
-
     def run_stage(self, state) -> np.ndarray:
         """Run one contact stage now (broadphase + passes) on ``state.x``; returns (F, 4) decision
         points of the last pass (x*, phi(x*)) with phi = FAR for triangles the broadphase skipped.
@@ -623,23 +515,6 @@ class Contact:
         c = self._counters_host.numpy()
         return np.array([[c[a], c[t] + (c[f] if f >= 0 else 0)] for a, t, f in self._stage_slots],
                         dtype=int).reshape(-1, 2)
-
-    def read_metrics(self, synchronize: bool = True) -> np.ndarray:
-        """(substeps + 1, 6): per row [count, sum depth m, max depth m] of skin samples inside objects,
-        then of object points inside the skin; the last row is the frame's end. Rows of substeps are
-        zero unless Config.substep_metrics (and their object columns are always zero: the second
-        measure runs at the frame's end)."""
-        if synchronize:
-            self.copy_metrics()
-            wp.synchronize_device(self.metrics.device)
-        return reduce_worlds(self.read_metrics_worlds(synchronize=False)).copy()
-
-    def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
-        """:meth:`read_metrics` per world: (W, substeps + 1, 6) (batched worlds; one world: (1, ...))."""
-        if synchronize:
-            self.copy_metrics()
-            wp.synchronize_device(self.metrics.device)
-        return self._metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
 
     def stage_counts_worlds(self) -> np.ndarray:
         """(W, stages, 2) int: :meth:`stage_counts` per world (after the frame's sync; one world:

@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from physhand_mj.solver.gather import idle, scatter
+from physhand_mj.solver.gather import constraint_at, idle, scatter
 
 
 @wp.kernel
@@ -30,11 +30,9 @@ def solve_edges(
     """C(x1, x2) = |x1 - x2| - L  (Eq. 2);  grad_x1 C = n = (x1 - x2)/|x1 - x2| = -grad_x2 C,
     so A = w1 + w2 + alpha~ and dx1 = w1 n dlam, dx2 = -w2 n dlam (see solver/__init__.py)."""
     t = wp.tid()
-    j = start + t
-    if order.shape[0] > 0:
-        if t >= order_count[0]:
-            return
-        j = order[start + t]
+    j = constraint_at(t, start, order, order_count)
+    if j < 0:
+        return
     i1 = ids[j, 0]
     i2 = ids[j, 1]
     w1 = inv_mass[i1]

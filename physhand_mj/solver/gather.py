@@ -43,6 +43,17 @@ def scatter(delta: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.vec3), slot
 
 
 @wp.func
+def constraint_at(t: int, start: int, order: wp.array(dtype=int), order_count: wp.array(dtype=int)):
+    """Thread ``t``'s constraint: ``start + t``, or with a compacted list (regions.py: the awake
+    regions' constraints, ``order_count`` long) ``order[start + t]``, and -1 past its count."""
+    if order.shape[0] > 0:
+        if t >= order_count[0]:
+            return -1
+        return order[start + t]
+    return start + t
+
+
+@wp.func
 def idle(lam: wp.array(dtype=float), j: int, reset: int, slots: wp.array(dtype=wp.vec3), s: int, nc: int,
          corners: int):
     """Constraint ``j`` moves nothing this iteration (every vertex kinematic, or a degenerate

@@ -8,7 +8,7 @@ dihedral-angle gradient (Bridson et al. 2003). |theta| is the paper's arccos(n0 
 
 import warp as wp
 
-from physhand_mj.solver.gather import idle, scatter
+from physhand_mj.solver.gather import constraint_at, idle, scatter
 
 
 
@@ -96,11 +96,9 @@ def solve_dihedrals(
 ):
     """C_smo = theta(x_e0, x_e1, x_o0, x_o1) - phi (Eq. 6, signed angle as in the module doc)."""
     t = wp.tid()
-    j = start + t
-    if order.shape[0] > 0:
-        if t >= order_count[0]:
-            return
-        j = order[start + t]
+    j = constraint_at(t, start, order, order_count)
+    if j < 0:
+        return
     ie0 = ids[j, 0]
     ie1 = ids[j, 1]
     io0 = ids[j, 2]

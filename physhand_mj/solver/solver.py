@@ -26,56 +26,12 @@ import warp as wp
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
+from physhand_mj.solver.sleep import Sleeping, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
 from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
 
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
-
-
-SLEEP_TURN = math.radians(2.0)  # rad: the first bone's turn since the hand fell asleep that wakes it
-# m, the sleeping skin's box (Solver._asleep_and_alone) is grown by this: its bones may drift up to
-# Config.sleep_bone_motion (10 um at a 0.1 m lever) from one rigid motion before the hand wakes
-SLEEP_BOX_SLACK = 1.0e-3
-
-
-def _turn(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle (rad) between two orientations given as poses [p, q x y z w]."""
-    d = abs(float(np.dot(a[3:].astype(np.float64), b[3:].astype(np.float64))))
-    d /= max(float(np.linalg.norm(a[3:]) * np.linalg.norm(b[3:])), 1e-30)
-    return 2.0 * math.acos(min(d, 1.0))
-
-
-def frame_rigid(start: np.ndarray, end: np.ndarray, tol: float) -> bool:
-    """No bone moved relative to the others by more than ``tol`` (m) between two (B, 7) pose sets
-    (bones at rest: equal arrays, no numpy work)."""
-    return bool(np.array_equal(start, end) or bone_motion(start, end) <= tol)
-
-
-def bone_motion(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> float:
-    """How far (m) the bones move relative to the first one over a frame: for poses (B, 7) [p, q
-    x y z w] at its start and end, the largest of :func:`bone_motions`. 0 for a hand moving as one
-    rigid body."""
-    if start.shape[0] < 2:
-        return 0.0
-    return float(np.max(bone_motions(start, end, lever)))
-
-
-def bone_motions(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> np.ndarray:
-    """Per bone (B,), m: the distance between where its own motion and the first bone's motion take
-    its origin, plus the angle between their rotations times ``lever`` (m, a hand's size), for poses
-    (B, 7) [p, q x y z w] at the start and end of a motion (the first bone's own: 0)."""
-    if start.shape[0] < 2:
-        return np.zeros(start.shape[0])
-    p0, p1 = start[:, :3].astype(np.float64), end[:, :3].astype(np.float64)
-    r0, r1 = quat_to_mat(start[:, [6, 3, 4, 5]]), quat_to_mat(end[:, [6, 3, 4, 5]])  # (x y z w -> w x y z)
-    m = r1 @ np.swapaxes(r0, -1, -2)  # each bone's rotation over the frame
-    root = m[0] @ (p0 - p0[0]).T  # where the first bone's motion takes every origin (3, B)
-    dist = np.linalg.norm(root.T + p1[0] - p1, axis=1)
-    rel = m @ m[0].T  # rotation of each bone relative to the first's
-    axis = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], -1)
-    ang = np.arctan2(0.5 * np.linalg.norm(axis, axis=1), 0.5 * (np.trace(rel, axis1=1, axis2=2) - 1.0))
-    return dist + ang * lever
 
 
 class SolverError(RuntimeError):
@@ -87,7 +43,7 @@ def _xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
     return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
-class Solver:
+class Solver(Sleeping):
     """XPBD solver for one layered body. With ``objects`` (a :class:`~physhand_mj.contact.Objects`)
     and ``config.contact`` not NONE, each substep also runs the skin-object contact correction
     (Algorithm 1 line 6, placed by ``config.contact_placement``) and ``step`` reports penetration."""
@@ -275,115 +231,6 @@ class Solver:
                               f"{state.frames}; state kept at their last finite positions")
         return out
 
-    # -- sleeping (activity.py) -------------------------------------------------------------------
-    def _may_sleep(self, state: State) -> bool:
-        """Settled for Config.sleep_frames frames and no object near (this frame's test: the CPU's
-        host box test, or the frame broadphase run ahead on CUDA; no objects at all: nothing near)."""
-        cfg, act = self.config, self.activity
-        if cfg.sleep_speed <= 0 or state.still < cfg.sleep_frames:
-            return False
-        if self.contact is None:
-            return True
-        if act.gate_ahead:
-            return not act.open1
-        return act.enabled and act.objects_near == 0
-
-    def _asleep_and_alone(self, state: State, poses) -> bool:
-        """CUDA, a hand that slept last frame and may sleep on: is every object farther than
-        Config.contact_frame_margin from its skin? Decided on the host, without the frame broadphase
-        run ahead and its sync. Asleep, the bones move as one rigid body (within
-        Config.sleep_bone_motion of it since the hand fell asleep, else it wakes) and the skin rides
-        with them, so the sleeping skin's box in the first bone's frame (taken once when it fell
-        asleep, ``State.sleep_box``, grown by SLEEP_BOX_SLACK), placed at the frame's start and end
-        poses of that bone, bounds the skin all frame; the objects' bounding spheres are tested
-        against the world box around those two (activity.objects_near, the CPU's level-0 test).
-        False sends the frame down the usual path (broadphase ahead, then sleep or not). One world.
-        """
-        from physhand_mj.activity import objects_near
-
-        box = state.sleep_box
-        if box is None or self.contact is None or not self.activity.gate_ahead or not self._settled(state):
-            return False
-        objs = self.contact.objects._host["pose"]
-        key = (id(box), poses[0][0].tobytes(), poses[1][0].tobytes(), objs.tobytes())
-        if key == self._alone_key:  # this box, its bone and every object where the last test left them
-            self.activity.objects_near = 0
-            return True
-        corners = []
-        for pose in poses:
-            p, q = pose[0, :3].astype(np.float64), pose[0, [6, 3, 4, 5]].astype(np.float64)
-            corners.append(box @ quat_to_mat(q).T + p)
-        world = np.concatenate(corners)
-        near = objects_near(self.contact.objects, world.min(axis=0), world.max(axis=0),
-                            self.config.contact_frame_margin)
-        self.activity.objects_near = near
-        self._alone_key = key if near == 0 else None
-        return near == 0
-
-    def _take_sleep_box(self, state: State) -> None:
-        """CUDA, the first sleeping frame: the skin's 8 box corners in the first bone's frame at the
-        frame's end pose (see :meth:`_asleep_and_alone`); one copy of the skin to the host."""
-        m = self.model
-        if not (self.activity.gate_ahead and self.contact is not None and m.n_bodies
-                and int(getattr(m, "worlds", 1)) == 1):
-            return
-        x = state.x.numpy()[: m.n_skin].astype(np.float64)
-        pose = state.pose_host[0][0].astype(np.float64)  # the frame's end pose (step moved it up)
-        local = (x - pose[:3]) @ quat_to_mat(pose[[6, 3, 4, 5]])  # R^T (x - p), row-wise
-        lo, hi = local.min(axis=0) - SLEEP_BOX_SLACK, local.max(axis=0) + SLEEP_BOX_SLACK
-        pick = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
-        state.sleep_box = np.where(pick == 1, hi, lo)
-        self._alone_key = None  # a new box: test it afresh (an old key could name a freed box's id)
-
-    def _sleep_frame(self, state: State, key) -> dict:
-        """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
-        (CUDA: one captured graph)."""
-        ops = self._sleep_ops.get(key)
-        if ops is None:
-            m, d = self.model, self.device
-            ops = [state.guard.zero_]
-            if self.contact is not None:
-                self.contact.begin_frame(ops)
-                ops.append(self.contact.counters.zero_)  # (CUDA: also when the broadphase did not run ahead)
-            cmd = wp.launch(integrate.carry_asleep, m.n_vertices,
-                            inputs=[m.vertex_carrier, m.vertex_world, state.body_pose, float(self.config.frame_dt)],
-                            outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
-                            record_cmd=True)
-            ops.append(cmd.launch)
-            self._sleep_ops[key] = ops
-        ahead = self.activity.gate_ahead and state.sleep_box is None  # (CUDA: the broadphase ran ahead)
-        self._replay(ops, key + ("asleep",))
-        wp.copy(self._guard_host, state.guard)
-        if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
-            self.contact.copy_metrics()
-        wp.synchronize_device(self.device)
-        state.time += self.config.frame_dt
-        state.frames += 1
-        if state.sleep_box is None:
-            self._take_sleep_box(state)
-        ahead = len(self._pre.get(key, ())) * int(ahead)
-        near = self.activity.objects_near if self.contact is not None else 0
-        self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
-                                  features_listed=0, ops_run=len(ops) + ahead, contact_ops_run=ahead)
-        self._read_guard_worlds(self._guard_host.numpy())
-        out = {"nonfinite": int(self._guard_host.numpy()[0]), "inverted": 0}
-        if self.contact is not None:
-            if self.config.skin_tether > 0:
-                out["tethered"] = 0
-            self._contact_summary(out)
-        out.update(self.last_activity)
-        if self.regions is not None:  # (the regions' own state waits under the whole hand's sleep)
-            out.update(self.regions.report(whole_hand=True))
-        out["asleep"] = True
-        return out
-
-    def wake(self, state: State) -> None:
-        """Forget that ``state`` had settled (it sleeps again after Config.sleep_frames still frames)."""
-        state.still = 0
-        state.sleep_onset = state.sleep_box = None
-        if self.regions is not None:
-            self.regions.wake_all()
-
     def _contact_summary(self, out: dict) -> None:
         """The frame's penetration summary (its metrics row, read at the frame's sync) into ``out``."""
         from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
@@ -400,35 +247,6 @@ class Solver:
     def _read_guard_worlds(self, g: np.ndarray) -> None:
         """``guard_worlds`` (W, 4) of the frame just read back (one world: the frame's own counts)."""
         self.guard_worlds = g[4:].reshape(-1, 4).copy() if len(g) > 4 else g[None, :4].copy()
-
-    def _settled(self, state: State) -> bool:
-        return self.config.sleep_speed > 0 and state.still >= self.config.sleep_frames
-
-    def _bones_still(self, state: State) -> bool:
-        """The sleep test's bone conditions for this frame (poses on the host, before the upload):
-        no bone moves relative to the others by more than Config.sleep_bone_motion in the frame, and,
-        while asleep, since it fell asleep; nor has the first bone turned by more than SLEEP_TURN
-        (gravity turns in the hand) or changed its velocity by more than Config.sleep_speed. Falling
-        short of any resets the settle count (the hand must settle again)."""
-        cfg = self.config
-        p0, p1 = state.pose_host[0], state.pose_host[1]
-        if not frame_rigid(p0, p1, cfg.sleep_bone_motion):
-            state.still = 0
-            return False
-        if not len(p0):
-            return True
-        vel = (p1[0, :3].astype(np.float64) - p0[0, :3]) / cfg.frame_dt
-        if state.sleep_onset is None:  # falls asleep this frame (if nothing else keeps it awake)
-            state.sleep_onset = (p0.copy(), vel)
-            return True
-        onset, vel0 = state.sleep_onset
-        moved = not np.array_equal(onset, p1)  # bones where they fell asleep (a still hand): no turn, no drift
-        if np.linalg.norm(vel - vel0) > cfg.sleep_speed or (moved and (
-                bone_motion(onset, p1) > cfg.sleep_bone_motion or _turn(onset[0], p1[0]) > SLEEP_TURN)):
-            state.still = 0
-            state.sleep_onset = state.sleep_box = None
-            return False
-        return True
 
     def _replay(self, ops: list, gkey):
         """Run ``ops``: on CUDA with graphs as the graph captured under ``gkey`` (captured on first

@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from physhand_mj.solver.gather import idle, scatter
+from physhand_mj.solver.gather import constraint_at, idle, scatter
 
 
 
@@ -39,11 +39,9 @@ def solve_tets(
     Kinematic vertices have w = 0, so their update adds zero.
     An inverted tet has C < -6V, so the projection pushes it back through zero volume."""
     t = wp.tid()
-    j = start + t
-    if order.shape[0] > 0:
-        if t >= order_count[0]:
-            return
-        j = order[start + t]
+    j = constraint_at(t, start, order, order_count)
+    if j < 0:
+        return
     i1 = ids[j, 0]
     i2 = ids[j, 1]
     i3 = ids[j, 2]

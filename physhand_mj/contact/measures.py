@@ -1,0 +1,146 @@
+"""The contact's two penetration measures (DESIGN.md, Metrics), a mixin of
+:class:`~physhand_mj.contact.contact.Contact`: skin samples on an order-L lattice inside objects, and
+object surface points inside the closed skin (the contact's own feature points, or the denser
+:attr:`~ContactMeasures.check_points` it never uses), recorded into a frame or run at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.contact.inside import ObjectPoints, object_points_inside
+from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
+
+# the independent check's object points (Contact.check_points): each edge piece that holds a feature
+# point (Config.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
+# a feature point; surface rings of revolution shifted half a step off the cone's slant line), the
+# surface every CHECK_SURFACE_SPACING m (half the measure's 1 mm)
+CHECK_EDGE_SUBDIVIDE = 4  # check points: each feature point's piece of edge cut in 4 (even: none coincides)
+assert CHECK_EDGE_SUBDIVIDE % 2 == 0
+CHECK_SURFACE_SPACING = 5.0e-4
+
+
+class ContactMeasures:
+    """Both measures of a :class:`~physhand_mj.contact.contact.Contact` (which owns the buffers:
+    ``metrics``, ``points``, ``volume``, the objects and the world layout)."""
+
+    @property
+    def check_points(self) -> ObjectPoints:
+        """A denser set of object surface points that the contact never uses: edges every
+        Config.feature_spacing / CHECK_EDGE_SUBDIVIDE (each piece that holds a feature point at its
+        midpoint cut in 4: none of their points), the surface every CHECK_SURFACE_SPACING. The
+        independent check of the second measure (the feature push works on :attr:`points`' corners and edges, so a
+        measure on those same points would share the method's own samples)."""
+        if self._check_points is None:
+            self._check_points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing,
+                                              edge_subdivide=CHECK_EDGE_SUBDIVIDE, surface_spacing=CHECK_SURFACE_SPACING)
+        return self._check_points
+
+    def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
+                       order: int = 5, points: ObjectPoints | None = None):
+        """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
+        metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2) and, with
+        ``objects_side``, object surface points inside the closed skin (columns 3-5; ``points``, default
+        :attr:`points`). ``obj`` >= 0: that object only."""
+        m, o = self.model, self.objects
+        out = self.metrics if out is None else out
+        if not self.n_tris:
+            return
+        per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
+        v = self.world_views()
+        launch(penetration_samples, self.n_tris,
+               [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count, v["obj"],
+                obj, row, order, self.tris_per_world, per], [out])
+        pts = self.points if points is None else points
+        if objects_side and self.closed_skin and len(pts):
+            vol = self.volume(state)
+            ops += vol.ops()
+            launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, self._query_pose(launch),
+                                                    o.count, o.obj,
+                                                    obj, row, self.geoms_per_world, per], [out, pts.depth])
+
+    def world_views(self) -> dict:
+        """The objects' per-geom arrays as (W, k) views: world w's geoms in row w (one world:
+        (1, capacity))."""
+        if self._views is None:
+            o, w = self.objects, self.worlds
+            # the allocated length (Objects holds at least one slot, also for capacity 0)
+            self._views = {name: getattr(o, name).reshape((w, getattr(o, name).shape[0] // w))
+                           for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
+        return self._views
+
+    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+                check: bool = False) -> np.ndarray:
+        """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
+        sum depth m, max depth m] of skin samples inside objects, then of object points inside the
+        skin (``check``: the denser :attr:`check_points` instead of the contact's own points). Runs
+        at once, outside any frame (reports, pictures, checks)."""
+        return reduce_worlds(self.measure_worlds(state, obj, order, objects_side, check))
+
+    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+                       check: bool = False) -> np.ndarray:
+        """:meth:`measure` per world: (W, 6) float rows, world w's skin against world w's objects
+        (batched worlds, physhand_mj/batch.py; one world: (1, 6))."""
+        d = self.model.device
+        out = wp.zeros((self.worlds, 6), dtype=float, device=d)
+        ops: list = []
+
+        def launch(kernel, dim, inputs, outputs, **_):
+            ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
+
+        self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
+                            points=self.check_points if check else None)
+        for op in ops:
+            op()
+        return out.numpy().astype(float)
+
+    def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
+        their depths (k,) m (distance to the closest skin point), for pictures and checks."""
+        pts = self.points
+        if not len(pts):
+            return np.zeros((0, 3)), np.zeros(0)
+        self.measure(state)  # fills pts.depth
+        depth = pts.depth.numpy()[: len(pts)].astype(float)
+        hit = np.flatnonzero(depth > 0)
+        pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
+        from physhand_mj.solver.model import quat_to_mat
+
+        rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
+        world = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]
+        return world.reshape(-1, 3), depth[hit]
+
+    def penetrating_samples(self, state, order: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """The skin samples on the order-``order`` lattice inside objects now: world points (k, 3) m
+        and their depths (k,) m (for pictures and checks)."""
+        m, o, d = self.model, self.objects, self.model.device
+        f = self.n_tris
+        if not f:
+            return np.zeros((0, 3)), np.zeros(0)
+        k = (order + 1) * (order + 2) // 2
+        pts = wp.zeros((f, k), dtype=wp.vec3, device=d)
+        phi = wp.zeros((f, k), dtype=float, device=d)
+        wp.launch(lattice_phi, f, inputs=[m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
+                                          o.count, self.tris_per_world, self.geoms_per_world, order],
+                  outputs=[pts, phi], device=d)
+        p, s = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
+        inside = s < 0
+        return p[inside].astype(float), -s[inside].astype(float)
+
+    def read_metrics(self, synchronize: bool = True) -> np.ndarray:
+        """(substeps + 1, 6): per row [count, sum depth m, max depth m] of skin samples inside objects,
+        then of object points inside the skin; the last row is the frame's end. Rows of substeps are
+        zero unless Config.substep_metrics (and their object columns are always zero: the second
+        measure runs at the frame's end)."""
+        if synchronize:
+            self.copy_metrics()
+            wp.synchronize_device(self.metrics.device)
+        return reduce_worlds(self.read_metrics_worlds(synchronize=False)).copy()
+
+    def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
+        """:meth:`read_metrics` per world: (W, substeps + 1, 6) (batched worlds; one world: (1, ...))."""
+        if synchronize:
+            self.copy_metrics()
+            wp.synchronize_device(self.metrics.device)
+        return self._metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
