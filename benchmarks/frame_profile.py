@@ -9,7 +9,7 @@ per frame for the top 25), then graphs on with the skin BVH built by LBVH and by
 (``physhand_mj.contact.inside.BVH_CONSTRUCTOR``), then (without ``--quick``) with the object's side,
 side-aware exits, the tether or the gating switched off. One JSON line per run.
 
-    python benchmarks/frame_profile.py --device cuda [--frames 10] [--quick] [--config JSON]
+    python benchmarks/frame_profile.py --device cuda [--frames 10] [--warmup 3] [--quick] [--config JSON]
 
 ``--config`` sets Config fields for every run, for A/B comparisons, e.g. the BVH feature queries
 against the tiled ones: ``--config '{"tiled_features": false}'``.
@@ -29,15 +29,17 @@ import warp as wp
 
 import physhand_mj as ph
 import physhand_mj.contact.inside as inside
+import physhand_mj.contact.contact as contact_mod
+import physhand_mj.solver.solver as solver_mod
 
 
-def run(device: str, frames: int, graph: bool = True, profile: bool = False, **config) -> dict:
+def run(device: str, frames: int, graph: bool = True, profile: bool = False, warmup: int = 3, **config) -> dict:
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
     hand = ph.SoftHand(model, data, ph.Config(device=device, cuda_graph=graph, **config), settle_frames=2)
-    for _ in range(3):
+    for _ in range(warmup):
         mujoco.mj_step(model, data)
         hand.step()
     wp.synchronize()
@@ -50,7 +52,9 @@ def run(device: str, frames: int, graph: bool = True, profile: bool = False, **c
     wp.synchronize()
     ms = (time.perf_counter() - t) / frames * 1e3
     m = hand.metrics()
-    out = dict(config=config, skin_bvh=inside.BVH_CONSTRUCTOR, graph=graph, ms_frame=round(ms, 3),
+    out = dict(config=config, warmup=warmup, list_blocks_per_sm=solver_mod.LIST_BLOCKS_PER_SM,
+               tiled_blocks_per_sm=solver_mod.TILED_BLOCKS_PER_SM,
+               feature_lanes=contact_mod.FEATURE_LANES, skin_bvh=inside.BVH_CONSTRUCTOR, graph=graph, ms_frame=round(ms, 3),
                **{k: m.get(k) for k in ("ops_run", "contact_ops_run", "features_listed", "triangles_tested")})
     if profile:
         agg = defaultdict(lambda: [0, 0.0])
@@ -68,21 +72,35 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cuda", help="Warp device: cuda[:N] or cpu")
     ap.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per run (count)")
+    ap.add_argument("--warmup", type=int, default=3, help="untimed frames first (count; the hand closes on the "
+                    "glass over the first ~40 frames and holds it after)")
+    ap.add_argument("--list-blocks", type=int, default=None, help="blocks per SM of the list-walking CUDA "
+                    "launches (physhand_mj.solver.solver.LIST_BLOCKS_PER_SM; 0: uncapped)")
+    ap.add_argument("--tiled-blocks", type=int, default=None, help="blocks per SM of the tiled list-walking CUDA "
+                    "launches (physhand_mj.solver.solver.TILED_BLOCKS_PER_SM; 0: uncapped)")
+    ap.add_argument("--feature-lanes", type=int, default=None, help="threads per listed feature in the CUDA "
+                    "tiled feature kernels (physhand_mj.contact.contact.FEATURE_LANES; count)")
     ap.add_argument("--quick", action="store_true", help="the profile and the LBVH/SAH pair only")
     ap.add_argument("--config", default="{}", help="JSON object of Config fields set in every run "
                     "(e.g. '{\"tiled_features\": false}')")
     a = ap.parse_args()
+    if a.feature_lanes is not None:
+        contact_mod.FEATURE_LANES = a.feature_lanes
+    if a.tiled_blocks is not None:
+        solver_mod.TILED_BLOCKS_PER_SM = a.tiled_blocks
+    if a.list_blocks is not None:
+        solver_mod.LIST_BLOCKS_PER_SM = a.list_blocks
     base = json.loads(a.config)
     if not isinstance(base, dict):
         ap.error("--config takes a JSON object of Config fields")
-    run(a.device, a.frames, graph=False, profile=True, **base)
+    run(a.device, a.frames, graph=False, profile=True, warmup=a.warmup, **base)
     for bvh in ("lbvh", "sah"):
         inside.BVH_CONSTRUCTOR = bvh
-        run(a.device, a.frames, **base)
+        run(a.device, a.frames, warmup=a.warmup, **base)
     if not a.quick:
         for config in (dict(feature_contact=False), dict(feature_contact=False, side_aware=False),
                        dict(skin_tether=0.0), dict(skip_idle=False)):
-            run(a.device, a.frames, **{**base, **config})
+            run(a.device, a.frames, warmup=a.warmup, **{**base, **config})
 
 
 if __name__ == "__main__":

@@ -18,7 +18,8 @@ recorded into *gated blocks* that run only when the scene calls for them:
     level 2  the previous contact pass of a stage moved a vertex: passes 2..N. On the CPU the host
              reads that pass's two counters. On CUDA (graphs on, tiled feature queries: no refit
              inside a pass) each such pass is a conditional graph node, ``wp.capture_if`` on a flag
-             that :func:`any_counter` sets from those counters on the device.
+             that the previous pass's last launch (thread 0 of ``broadphase.keep_moved``) sets
+             from those counters on the device.
 
 With no object within the frame margin no contact kernel runs (CPU: not even the frame
 broadphase; CUDA: the frame broadphase and one sync only). Nothing inside a closed block could change the
@@ -69,15 +70,15 @@ class Activity:
         self.gates: list[_Gate] = []
 
     # -- recording -------------------------------------------------------------------------------
-    def gate(self, sub: list, level: int, slots=()) -> "_Gate":
+    def gate(self, sub: list, level: int, slots=(), flag=None) -> "_Gate":
         """An op running ``sub`` when the frame's contact has work at ``level`` (see the module doc;
-        level 2: a contact pass, run when the previous pass moved a vertex: counters at ``slots``)."""
+        level 2: a contact pass, run when the previous pass moved a vertex: counters at ``slots``,
+        on CUDA the device ``flag`` the previous pass's last launch sets from them)."""
         g = _Gate(self, sub, level, tuple(slots))
-        if level == 2 and self.conditional:  # the device decides: a flag from the counters, capture_if
-            c = self.solver.contact
-            g.cond = wp.zeros(1, dtype=wp.int32, device=self.device)
-            g.slot_ids = wp.array(np.asarray(slots, np.int32), dtype=int, device=self.device)
-            g.counters = c.counters
+        if level == 2 and self.conditional:  # the device decides: capture_if on the flag
+            if flag is None:
+                raise ValueError("a conditional contact pass needs the device flag its previous pass sets")
+            g.cond = flag
         self.gates.append(g)
         return g
 
@@ -119,16 +120,6 @@ class Activity:
         self.ahead_ops = len(ahead)
 
 
-@wp.kernel
-def any_counter(counters: wp.array(dtype=int), slots: wp.array(dtype=int), n: int, cond: wp.array(dtype=wp.int32)):
-    """cond[0] = 1 when any of the counters at ``slots`` (n of them) is not zero (a level-2 gate's
-    test on the device: did the previous contact pass move a vertex?)."""
-    total = int(0)
-    for k in range(n):
-        total += counters[slots[k]]
-    cond[0] = wp.where(total > 0, 1, 0)
-
-
 class _Gate:
     """A block of recorded ops running when its level is open: on the CPU decided on the host; on
     CUDA level 1 is decided on the host before the frame's graph (one graph per outcome), level 0
@@ -148,8 +139,6 @@ class _Gate:
         if not a.enabled:
             self.run_all()
         elif self.cond is not None:  # a contact pass, skipped on the device when the last one moved nothing
-            wp.launch(any_counter, 1, inputs=[self.counters, self.slot_ids, len(self.slots)], outputs=[self.cond],
-                      device=a.device)
             wp.capture_if(self.cond, on_true=self.run_all)
         elif a.gate_ahead or a.device.is_cuda:  # (level 2 always runs on CUDA without conditional nodes)
             if self.level != 1 or not a.gate_ahead or a.open1:

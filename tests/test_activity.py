@@ -176,7 +176,7 @@ def test_the_cuda_gating_path_changes_no_result(scene):
 
 def test_conditional_contact_passes_change_no_result(scene):
     """CUDA (graphs, tiled features) puts each contact pass after the first behind a conditional
-    graph node (wp.capture_if on a flag any_counter sets from the previous pass's counters): a pass
+    graph node (wp.capture_if on a flag keep_moved sets from the previous pass's counters): a pass
     after one that moved nothing is skipped on the device. That path, forced on the CPU (capture_if
     then reads the flag on the host), gives the always-on run's skin bit for bit and reports fewer
     ops while the box touches."""

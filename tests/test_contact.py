@@ -458,6 +458,66 @@ def test_tiled_feature_query_matches_the_bvh_query():
     assert np.allclose(h0, h1, rtol=1e-5) and np.abs(d0 - d1).max() < 1e-9, np.abs(d0 - d1).max()
 
 
+@pytest.mark.parametrize("kind", ["tiled", "scan"])
+def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
+    """CUDA's stage-feature kernels (stage_features_tiled: a block per feature, one hand;
+    stage_features_scan: a thread per feature, batches) list a stage's features and, on the same
+    skin, give its first pass's feature push in the same launch (one closest-point query per feature
+    instead of two): run on the CPU (a block is one thread) for the knife 1.5 mm deeper in the palm
+    than the contact left it, the push equals the pass kernel's (feature_contact_tiled / _scan) over
+    the list it made (the per-vertex mean and weights, the touched vertices), and the list holds
+    every point that pass pushes."""
+    from physhand_mj.cases import press_case, run_case, site_point
+    from physhand_mj.contact import features as F
+
+    asset = ph.load_asset()
+    r = run_case(press_case("knife", site="palm", depth=0.004, start=-0.004), ph.Config(device="cpu"), frames=2,
+                 asset=asset)
+    c, state, o = r["solver"].contact, r["state"], r["objects"]
+    m, cfg, d = c.model, c.config, "cpu"
+    _, n = site_point(asset, "palm")
+    o.set_poses((r["object_pos"] - 0.0015 * n)[None], r["object_quat"][None])
+    x0 = state.x.numpy().copy()
+    c.run_stage(state)  # the frame's triangle and feature lists (and the features' patches) for this pose
+    state.x.assign(x0)
+    k = int(c.feat_count.numpy()[0])
+    assert k > 100
+    nv = m.n_vertices
+
+    def outputs():
+        return (wp.zeros(nv, dtype=wp.vec3, device=d), wp.zeros(nv, dtype=float, device=d),
+                wp.zeros(nv, dtype=int, device=d), wp.zeros(1, dtype=int, device=d),
+                wp.full(nv, -1, dtype=int, device=d))
+
+    wind = c._winding_args()
+    fused, alone = outputs(), outputs()
+    stage, stage_count = wp.zeros(k, dtype=int, device=d), wp.zeros(1, dtype=int, device=d)
+    push = [o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x]
+    if kind == "tiled":
+        wp.launch(F.stage_features_tiled, (c.points.n_features, 1),
+                  [m.skin_faces, state.x, c.cand, c.cand_count, c.feat, c.feat_count, c.points.pts, c.points.geom,
+                   o.pose, cfg.contact_frame_margin, cfg.contact_margin, c.feature_eps, *wind, *push],
+                  [stage, stage_count, *fused], device=d, block_dim=1)
+        wp.launch(F.feature_contact_tiled, (c.points.n_features, 1),
+                  [m.skin_faces, c.cand, c.cand_count, stage, stage_count, c.points.pts, c.points.geom, o.pose, o.obj,
+                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
+                   state.x, *wind], list(alone), device=d, block_dim=1)
+    else:
+        wp.launch(F.stage_features_scan, c.points.n_features,
+                  [m.skin_faces, state.x, c.feat, c.feat_count, c.points.pts, c.points.geom, o.pose,
+                   cfg.contact_frame_margin, cfg.contact_margin, c.feature_eps, *wind[1:], *push],
+                  [stage, stage_count, *fused], device=d)
+        wp.launch(F.feature_contact_scan, c.points.n_features,
+                  [m.skin_faces, stage, stage_count, c.points.pts, c.points.geom, o.pose, o.obj,
+                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
+                   state.x, *wind[1:]], list(alone), device=d)
+    assert np.array_equal(state.x.numpy(), x0)  # neither moves the skin
+    (d0, h0, t0, n0, v0), (d1, h1, t1, n1, v1) = ([a.numpy() for a in out] for out in (fused, alone))
+    assert int(stage_count.numpy()[0]) > 20 and int(n0[0]) > 10  # points kept, vertices pushed
+    assert int(n0[0]) == int(n1[0]) and set(t0[: n0[0]]) == set(t1[: n1[0]])
+    assert np.array_equal(h0, h1) and np.array_equal(d0, d1) and np.array_equal(v0, v1)
+
+
 def test_tiled_features_hold_the_hard_case_on_the_cpu(monkeypatch):
     """The tiled feature path recorded into the solver's frame (forced on the CPU, where a block is
     one thread: CUDA's launches and arguments, no BVH refit per stage and pass) ends the knife

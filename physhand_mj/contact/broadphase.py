@@ -12,7 +12,7 @@ with ``Config.contact_margin`` (m: covers the motion within one contact stage). 
 of one stage, :func:`keep_moved` keeps only triangles a pass moved: a triangle none of whose
 vertices moved has the same decision point as before, which did not penetrate; nor does one whose
 lowest phi exceeds how far its vertices moved (1-Lipschitz again), within a stage
-(:func:`keep_moved`) and across the stages of a frame (:func:`first_pass_list`; objects do not move
+(:func:`keep_moved`) and across the stages of a frame (:func:`first_pass_keeps`; objects do not move
 within a frame). (A compacted list,
 not an early return in the query kernel: Warp's CPU threads copy every array argument, so a
 thread of the query kernel costs ~90 ns even when it returns at once.)
@@ -36,6 +36,34 @@ def world_geoms(t: int, tris_per_world: int, geoms_per_world: int, count: int):
     triangles and ``geoms_per_world`` geoms each, in blocks)."""
     g0 = (t // tris_per_world) * geoms_per_world
     return g0, wp.min(g0 + geoms_per_world, count)
+
+
+@wp.func
+def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
+               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int),
+               tris_per_world: int, geoms_per_world: int, margin: float):
+    """The bit mask of the geoms (of those in ``allowed``) that skin triangle ``t`` can reach within
+    ``margin`` (m); 0: none (:func:`find_active`)."""
+    m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
+    mask = int(0)
+    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
+    for g in range(g0, g1):
+        bit = int(1 << 30)
+        if g - g0 < 31:
+            bit = 1 << (g - g0)
+        if (allowed & bit) == 0:
+            continue
+        q = wp.transform_point(inv_pose[g], m)
+        if wp.length(q) - radius[g] - r <= margin:
+            ids = mesh[g]
+            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid rejects what it proves far, in one read
+                if grid_lower_bound(ids[1], q) - r > margin:
+                    continue
+                ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
+            if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:
+                mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
+    return mask
 
 
 @wp.kernel
@@ -78,24 +106,8 @@ def find_active(
             return
         t = src[k]
         allowed = src_mask[k]
-    m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
-    mask = int(0)
-    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
-    for g in range(g0, g1):
-        bit = int(1 << 30)
-        if g - g0 < 31:
-            bit = 1 << (g - g0)
-        if (allowed & bit) == 0:
-            continue
-        q = wp.transform_point(inv_pose[g], m)
-        if wp.length(q) - radius[g] - r <= margin:
-            ids = mesh[g]
-            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid rejects what it proves far, in one read
-                if grid_lower_bound(ids[1], q) - r > margin:
-                    continue
-                ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
-            if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:
-                mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
+    mask = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
+                      geoms_per_world, margin)
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
         active[slot] = t
@@ -112,15 +124,26 @@ def keep_moved(
     disp: wp.array(dtype=float),
     stamp: int,
     bound: wp.array(dtype=float),
+    counters: wp.array(dtype=int),
+    flag_slots: wp.array(dtype=int),
     out: wp.array(dtype=int),
     out_mask: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
+    flag: wp.array(dtype=wp.int32),
 ):
     """Next contact pass: the triangles of the stage's ``active`` list that the last pass moved
     (``moved[i] == stamp`` for a vertex, by ``disp[i]``) and that can now reach an object: a point
     of a triangle moves at most as far as its farthest vertex, so a lowest phi ``bound[t]`` above
-    that displacement m stays positive (the bound drops by m and the triangle is skipped)."""
+    that displacement m stays positive (the bound drops by m and the triangle is skipped).
+    Thread 0 also sets ``flag[0]`` to 1 when one of ``counters`` at ``flag_slots`` (the last pass's
+    touched vertices) is not zero, else 0: whether the next pass runs at all (activity.py level 2, a
+    conditional graph node on CUDA). Launch at least one thread."""
     k = wp.tid()
+    if k == 0:
+        total = int(0)
+        for j in range(flag_slots.shape[0]):
+            total += counters[flag_slots[j]]
+        flag[0] = wp.where(total > 0, 1, 0)
     if k >= active_count[0]:
         return
     t = active[k]
@@ -139,41 +162,71 @@ def keep_moved(
     out_mask[slot] = active_mask[k]
 
 
-@wp.kernel
-def first_pass_list(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
-    active_count: wp.array(dtype=int),
-    bound: wp.array(dtype=float),
-    bound_mask: wp.array(dtype=int),
-    eval_x: wp.array2d(dtype=wp.vec3),
-    out: wp.array(dtype=int),
-    out_mask: wp.array(dtype=int),
-    out_count: wp.array(dtype=int),
-):
-    """The stage's first-pass list: its active triangles, less those an earlier stage of this frame
-    found clear by ``bound[t]`` (m) that is still above how far the triangle's vertices moved since
-    (``eval_x``: their positions then) and that was taken over all the geoms now near it
-    (``bound_mask``); those keep a bound lowered by that distance, re-anchored."""
-    k = wp.tid()
-    if k >= active_count[0]:
-        return
-    t = active[k]
+@wp.func
+def first_pass_keeps(t: int, mask: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                     bound: wp.array(dtype=float), bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3)):
+    """Whether active triangle ``t`` (near the geoms of ``mask``) goes into its stage's first-pass
+    list: not when an earlier stage of this frame found it clear by ``bound[t]`` (m) that is still
+    above how far its vertices moved since (``eval_x``: their positions then) and that was taken
+    over all the geoms now near it (``bound_mask``); such a triangle keeps a bound lowered by that
+    distance, re-anchored."""
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
     m = wp.max(wp.length(a - eval_x[t, 0]), wp.max(wp.length(b - eval_x[t, 1]), wp.length(c - eval_x[t, 2])))
-    if bound[t] > m and (active_mask[k] & ~bound_mask[t]) == 0:  # the bound covers every geom now near
+    if bound[t] > m and (mask & ~bound_mask[t]) == 0:  # the bound covers every geom now near
         bound[t] = bound[t] - m
         eval_x[t, 0] = a
         eval_x[t, 1] = b
         eval_x[t, 2] = c
+        return False
+    return True
+
+
+@wp.kernel
+def stage_lists(
+    faces: wp.array2d(dtype=int),
+    x: wp.array(dtype=wp.vec3),
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
+    inv_pose: wp.array(dtype=wp.transform),
+    radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.vec2ul),
+    geom_count: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
+    margin: float,
+    src: wp.array(dtype=int),
+    src_mask: wp.array(dtype=int),
+    src_count: wp.array(dtype=int),
+    bound: wp.array(dtype=float),
+    bound_mask: wp.array(dtype=int),
+    eval_x: wp.array2d(dtype=wp.vec3),
+    active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    out: wp.array(dtype=int),
+    out_mask: wp.array(dtype=int),
+    out_count: wp.array(dtype=int),
+):
+    """A contact stage's two lists in one launch: :func:`find_active` over the frame's list ``src``
+    (the stage's active triangles, ``active``) and, of those, its first pass's (``out``,
+    :func:`first_pass_keeps`)."""
+    k = wp.tid()
+    if k >= src_count[0]:
         return
-    slot = wp.atomic_add(out_count, 0, 1)
-    out[slot] = t
-    out_mask[slot] = active_mask[k]
+    t = src[k]
+    mask = reach_mask(t, src_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
+                      geoms_per_world, margin)
+    if mask == 0:
+        return
+    slot = wp.atomic_add(active_count, 0, 1)
+    active[slot] = t
+    active_mask[slot] = mask
+    if first_pass_keeps(t, mask, faces, x, bound, bound_mask, eval_x):
+        slot = wp.atomic_add(out_count, 0, 1)
+        out[slot] = t
+        out_mask[slot] = mask
 
 
 @wp.kernel

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.broadphase import find_active, first_pass_list, keep_moved, tally_worlds
+from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
                                           near_features, stage_features, stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
@@ -19,6 +19,7 @@ from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
 from physhand_mj.types import Config, Model, Placement, Strategy
+from physhand_mj.solver.solver import list_launch_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -122,6 +123,8 @@ class Contact(ContactMeasures):
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
         self.feat_count = wp.zeros(1, dtype=int, device=d)
         self.feat_stage_float = wp.zeros(1, dtype=float, device=d)  # stands in for far_angle (feature_winding off)
+        self._slot_ids = {}  # counter slots as device arrays, per tuple of slots (Contact._slot_array)
+        self._first_push = None  # the stage's first-pass feature counter (CUDA: filled by stage_features_tiled)
         # m, the radius a feature's skin query tries first (features.closest_signed): a pass's
         # features lie within ~contact_margin of the skin; the frame margin is the fallback
         self.near_query = float(min(config.contact_frame_margin, max(4.0 * config.contact_margin, 1.0e-3)))
@@ -150,6 +153,9 @@ class Contact(ContactMeasures):
                                        pinned=wp.get_device(d).is_cuda)
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
         self.pass_slots = []  # per recorded pass: the slot of its triangle list's length
+        # per later pass of a frame: 1 when the pass before it moved a vertex (set by keep_moved, read by
+        # the pass's conditional graph node on CUDA, activity.py level 2; zeroed per frame)
+        self.pass_flags = wp.zeros(max(stages * config.contact_passes, 1), dtype=wp.int32, device=d)
         self._feat_host = wp.zeros(1, dtype=int, device="cpu", pinned=wp.get_device(d).is_cuda)
 
     # -- recording into the solver's frame --------------------------------------------------------
@@ -185,7 +191,7 @@ class Contact(ContactMeasures):
     def _record_frame_lists(self, launch, ops: list, state) -> None:
         """The per-frame resets and the frame's feature list (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
-        ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30)]  # objects moved
+        ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30), self.pass_flags.zero_]  # objects moved
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.feat is None:
@@ -241,36 +247,41 @@ class Contact(ContactMeasures):
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
         self.active_count = self._counter()
-        launch(find_active, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                          self.tris_per_world, self.geoms_per_world, cfg.contact_margin, 1, self.cand,
-                                          self.cand_mask, self.cand_count],
-               [self.active, self.active_mask, self.active_count], count=self.cand_count)
+        lst = (self.pass_list, self.pass_mask, self._counter())
+        self.pass_slots.append(self._slot - 1)
+        # the stage's active triangles (within contact_margin) of the frame's list, and of those its
+        # first pass's list, in one launch
+        launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                                          self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.cand,
+                                          self.cand_mask, self.cand_count, self.bound, self.bound_mask, self.eval_x],
+               [self.active, self.active_mask, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
         if self.world_stage is not None:  # the stage's active triangles per world
             launch(tally_worlds, self.n_tris, [self.active, self.active_count, self.tris_per_world, m.vertex_world,
                                                2 * stage], [self.world_stage], count=self.active_count)
-        lst = (self.pass_list, self.pass_mask, self._counter())
-        self.pass_slots.append(self._slot - 1)
-        launch(first_pass_list, self.n_tris, [m.skin_faces, state.x, self.active, self.active_mask, self.active_count,
-                                              self.bound, self.bound_mask, self.eval_x], list(lst),
-               count=self.active_count)
         if self.feat is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
             ops += self.volume(state, winding=False).sync_ops()
+            self._first_push = self.counters[self._slot + 1: self._slot + 2]  # (as the tiled path's, below)
             launch(stage_features_scan, self.points.n_features,
                    [m.skin_faces, self._query_x(state), self.feat, self.feat_count, self.points.pts, self.points.geom,
                     self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
-                    *self._winding_args()[1:]], [self.feat_stage, feat_count])
-        elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA)
+                    *self._winding_args()[1:], o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x],
+                   [self.feat_stage, feat_count, self.delta, self.hits, self.touched, self._first_push,
+                    self.vertex_obj])
+        elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
+            # with its first pass's feature push (into that pass's counter slot, taken by _record_features)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
             ops += self.volume(state, winding=False).sync_ops()
+            self._first_push = self.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
             launch(stage_features_tiled, (self.points.n_features, self.feature_lanes),
                    [m.skin_faces, self._query_x(state), self.cand, self.cand_count, self.feat, self.feat_count,
                     self.points.pts, self.points.geom, self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
-                    *self._winding_args()],
-                   [self.feat_stage, feat_count], block_dim=self.feature_lanes)
+                    *self._winding_args(), o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x],
+                   [self.feat_stage, feat_count, self.delta, self.hits, self.touched, self._first_push, self.vertex_obj],
+                   block_dim=self.feature_lanes)
         elif self.feat is not None:  # the stage's features (features.py)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             vol = self.volume(state, winding=False)
@@ -284,17 +295,19 @@ class Contact(ContactMeasures):
         else:
             skin = feat_count = None
         prev: tuple = ()  # counter slots of the vertices the previous pass moved
+        flag = None  # the device flag the previous pass's keep_moved set from them (activity.py level 2)
         for p in range(cfg.contact_passes):
             if p and gated is not None:
                 box: dict = {}
                 gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin, feat_count)),
-                      2, prev)
-                lst, prev = box["r"]
+                      2, prev, flag)
+                lst, prev, flag = box["r"]
             else:
-                lst, prev = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
+                lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
 
     def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
-        """One pass of a stage; returns the next pass's list and this pass's touched counter slots."""
+        """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
+        the device flag (1 when one of them is not zero) the next pass's conditional node reads."""
         m, o, cfg = self.model, self.objects, self.config
         stamp = self._slot  # unique within the frame (moved is zeroed per frame)
         moved_slots = [self._slot]
@@ -323,13 +336,26 @@ class Contact(ContactMeasures):
         self._tally_touched(launch, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
             moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
+        flag = None
         if p + 1 < cfg.contact_passes:
             lst = (self.pass_list, self.pass_mask, self._counter())
             self.pass_slots.append(self._slot - 1)
+            j = len(self.pass_slots) - 1  # (one flag per later pass of the frame, zeroed with the frame)
+            flag = self.pass_flags[j: j + 1]
             launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
-                                             self.moved, self.disp, stamp, self.bound], list(lst),
-                   count=self.active_count)
-        return lst, tuple(moved_slots)
+                                             self.moved, self.disp, stamp, self.bound, self.counters,
+                                             self._slot_array(moved_slots)],
+                   [*lst, flag],
+                   count=self.active_count, min_dim=1)
+        return lst, tuple(moved_slots), flag
+
+    def _slot_array(self, slots) -> wp.array:
+        """``slots`` (counter indices) as a device array, made once and held (recorded launches read it)."""
+        key = tuple(int(s) for s in slots)
+        a = self._slot_ids.get(key)
+        if a is None:
+            a = self._slot_ids[key] = wp.array(np.asarray(key, np.int32), dtype=int, device=self.model.device)
+        return a
 
     def _record_features(self, launch, ops, state, p, skin, feat_count, stamp) -> tuple:
         """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
@@ -341,7 +367,9 @@ class Contact(ContactMeasures):
             ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
         slot = self._slot
         feat_touched = self._counter()
-        if self.feature_scan:  # CUDA batches: a thread per feature over its patch
+        if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
+            assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
+        elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
             launch(feature_contact_scan, self.points.n_features,
                    [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
                     self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
@@ -459,10 +487,14 @@ class Contact(ContactMeasures):
         For tests and diagnostics: inside a frame the solver records the same launches."""
         ops: list = []
         d = self.model.device
+        blocks, tiled_blocks = list_launch_blocks(d), list_launch_blocks(d, tiled=True)
 
-        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None):
+        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
             if dim:
                 kw = {} if block_dim is None else dict(block_dim=block_dim)
+                cap = tiled_blocks if block_dim is not None else blocks if count is not None else 0
+                if cap:
+                    kw["max_blocks"] = cap
                 ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
 
         ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))

@@ -248,12 +248,25 @@ def stage_features_tiled(
     patch_start: wp.array(dtype=int),
     patch_len: wp.array(dtype=int),
     far_angle: wp.array(dtype=float),
+    geom_obj: wp.array(dtype=int),
+    offset: float,
+    max_step: float,
+    pose0: wp.array(dtype=wp.transform),
+    x0: wp.array(dtype=wp.vec3),
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+    vertex_obj: wp.array(dtype=int),
 ):
     """:func:`stage_features` with a block per listed feature (launch (n, FEATURE_LANES) with
     block_dim FEATURE_LANES on CUDA; (n, 1) on the CPU): the closest point by :func:`closest_tiled`
-    (the feature's patch, or the skin triangles ``tris``: the frame's broadphase list)."""
+    (the feature's patch, or the skin triangles ``tris``: the frame's broadphase list). The stage's
+    first pass sees the skin its list is made on, so the same closest point also gives that pass's
+    push (:func:`feature_contact_tiled`'s, into ``delta`` ... ``vertex_obj``) in this launch: a
+    point it pushes (inside, or closer than offset / 2 outside) is always kept (keep >= offset / 2)."""
     k, lane = wp.tid()
     if k >= cand_count[0]:
         return  # uniform over the block: k is the block's feature
@@ -266,6 +279,9 @@ def stage_features_tiled(
     c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
     if sign * wp.length(p - c) < keep:
         out[wp.atomic_add(out_count, 0, 1)] = i
+        f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
+                     touched_count, vertex_obj)
 
 
 @wp.kernel
@@ -338,10 +354,21 @@ def stage_features_scan(
     patch_start: wp.array(dtype=int),
     patch_len: wp.array(dtype=int),
     far_angle: wp.array(dtype=float),
+    geom_obj: wp.array(dtype=int),
+    offset: float,
+    max_step: float,
+    pose0: wp.array(dtype=wp.transform),
+    x0: wp.array(dtype=wp.vec3),
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+    vertex_obj: wp.array(dtype=int),
 ):
-    """:func:`stage_features_tiled` with a thread per listed feature (:func:`closest_scan`)."""
+    """:func:`stage_features_tiled` with a thread per listed feature (:func:`closest_scan`), with
+    the stage's first feature push likewise."""
     k = wp.tid()
     if k >= cand_count[0]:
         return
@@ -353,6 +380,9 @@ def stage_features_scan(
     c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
     if sign * wp.length(p - c) < keep:
         out[wp.atomic_add(out_count, 0, 1)] = i
+        f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
+                     touched_count, vertex_obj)
 
 
 @wp.kernel

@@ -31,6 +31,25 @@ from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
 from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
 
+# CUDA launches that walk a list whose length lives on the device (``count``; the tiled kernels' block
+# per entry) are sized for the longest list (every skin triangle, every object feature point) and
+# their threads past the list return at once; they run with at most this many blocks per SM, the
+# kernels' grid-stride loop (Warp's default) walking the rest. A single hand's lists hold a few
+# hundred to a few thousand entries of 10-20 thousand slots. Idle blocks are not free: on an H100 a
+# graph node of 20,960 idle 32-thread blocks takes 13.9 us, capped at 8 per SM 6.3 us, against 1.5 us
+# for 20,960 idle threads in 256-thread blocks (benchmarks/graph_node_cost.py, docs/activity.md).
+# 0: no cap.
+LIST_BLOCKS_PER_SM = 8
+TILED_BLOCKS_PER_SM = 8
+
+
+def list_launch_blocks(device, tiled: bool = False) -> int:
+    """``max_blocks`` for a list-walking launch on ``device`` (``tiled``: a block per entry); 0: as
+    many as the launch asks."""
+    d = wp.get_device(device)
+    per_sm = TILED_BLOCKS_PER_SM if tiled else LIST_BLOCKS_PER_SM
+    return per_sm * d.sm_count if d.is_cuda and per_sm > 0 else 0
+
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
@@ -276,22 +295,29 @@ class Solver(Sleeping):
         self.activity.reset_recording()
         if self.contact is not None:
             self.contact.begin_frame(ops)
+        list_blocks, tiled_blocks = list_launch_blocks(d), list_launch_blocks(d, tiled=True)
 
-        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None):
+        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
             """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
             the list the kernel walks) a CPU launch runs only that many threads (CPU memory is
-            read on the host for free; CUDA launches ``dim`` threads and the kernel returns early);
-            ``block_dim`` for tiled kernels (CUDA)."""
+            read on the host for free; CUDA launches at most ``list_launch_blocks`` blocks, whose
+            threads past the list return); ``block_dim`` for tiled kernels (CUDA: a block per list
+            entry, capped the same way); ``min_dim``: a CPU list launch runs at least that many
+            threads (a kernel whose thread 0 has work of its own however long the list)."""
             if not dim:
                 return
             kw = {} if block_dim is None else dict(block_dim=block_dim)
+            cap = tiled_blocks if block_dim is not None else list_blocks if count is not None else 0
+            if cap:
+                kw["max_blocks"] = cap
             cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
-            cur[0].append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count))
+            cur[0].append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count, min_dim))
 
-        def gated(record, level, slots=()):
+        def gated(record, level, slots=(), flag=None):
             """Record ``record(sub_ops)`` into a block that runs only when contact has work
             (activity.py: level 0 = an object may be near, 1 = the frame broadphase kept a triangle,
-            2 = one of the contact counters at ``slots`` is not zero)."""
+            2 = one of the contact counters at ``slots`` is not zero; ``flag``: a device flag
+            already set from them, for CUDA's conditional node)."""
             sub: list = []
             outer, cur[0] = cur[0], sub
             try:
@@ -299,7 +325,7 @@ class Solver(Sleeping):
             finally:
                 cur[0] = outer
             if sub:
-                outer.append(self.activity.gate(sub, level, slots))
+                outer.append(self.activity.gate(sub, level, slots, flag))
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
         fam = {
@@ -406,11 +432,11 @@ class Solver(Sleeping):
 class _ListLaunch:
     """A recorded CPU launch sized, when run, by the list length in ``count[0]``."""
 
-    def __init__(self, cmd, count):
-        self.cmd, self.count, self.dim = cmd, count.numpy(), -1
+    def __init__(self, cmd, count, min_dim: int = 0):
+        self.cmd, self.count, self.dim, self.min_dim = cmd, count.numpy(), -1, int(min_dim)
 
     def __call__(self):
-        n = int(self.count[0])
+        n = max(int(self.count[0]), self.min_dim)
         if n:
             if n != self.dim:
                 self.cmd.set_dim(n)
