@@ -53,7 +53,7 @@ def run(device: str, frames: int, graph: bool = True, profile: bool = False, war
     ms = (time.perf_counter() - t) / frames * 1e3
     m = hand.metrics()
     out = dict(config=config, warmup=warmup, list_blocks_per_sm=solver_mod.LIST_BLOCKS_PER_SM,
-               tiled_blocks_per_sm=solver_mod.TILED_BLOCKS_PER_SM,
+               tiled_blocks_per_sm=solver_mod.TILED_BLOCKS_PER_SM, wide_blocks_per_sm=solver_mod.WIDE_BLOCKS_PER_SM,
                feature_lanes=contact_mod.FEATURE_LANES, skin_bvh=inside.BVH_CONSTRUCTOR, graph=graph, ms_frame=round(ms, 3),
                **{k: m.get(k) for k in ("ops_run", "contact_ops_run", "features_listed", "triangles_tested")})
     if profile:
@@ -78,6 +78,8 @@ def main() -> None:
                     "launches (physhand_mj.solver.solver.LIST_BLOCKS_PER_SM; 0: uncapped)")
     ap.add_argument("--tiled-blocks", type=int, default=None, help="blocks per SM of the tiled list-walking CUDA "
                     "launches (physhand_mj.solver.solver.TILED_BLOCKS_PER_SM; 0: uncapped)")
+    ap.add_argument("--wide-blocks", type=int, default=None, help="blocks per SM of the tiled list-walking CUDA "
+                    "launches wider than a warp (the feature kernels; solver.WIDE_BLOCKS_PER_SM; 0: uncapped)")
     ap.add_argument("--feature-lanes", type=int, default=None, help="threads per listed feature in the CUDA "
                     "tiled feature kernels (physhand_mj.contact.contact.FEATURE_LANES; count)")
     ap.add_argument("--quick", action="store_true", help="the profile and the LBVH/SAH pair only")
@@ -86,6 +88,8 @@ def main() -> None:
     a = ap.parse_args()
     if a.feature_lanes is not None:
         contact_mod.FEATURE_LANES = a.feature_lanes
+    if a.wide_blocks is not None:
+        solver_mod.WIDE_BLOCKS_PER_SM = a.wide_blocks
     if a.tiled_blocks is not None:
         solver_mod.TILED_BLOCKS_PER_SM = a.tiled_blocks
     if a.list_blocks is not None:

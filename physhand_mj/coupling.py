@@ -100,6 +100,12 @@ class SoftHand:
         self.state = self.solver.make_state(root_pos, root_quat)
         self._timing = dict(sync=0.0, solver=0.0, writeback=0.0, frames=0)
         self._writer = None
+        self._tail_writer = False  # CUDA: the write-back's device half runs inside the solver's frame graph
+        if self.writeback:
+            self._writer = SkinWriter(self.model, self.skin_mesh_id, self.asset.skin_faces, self.state.x)
+            if not self._writer.device.is_cpu:
+                self.solver.set_frame_tail(self._writer.device_ops())
+                self._tail_writer = True
         self._last = {}
         rest_pos, rest_quat = self.state.pose_host[1][:, :3].astype(float), self.state.pose_host[1][:, 3:].astype(float)
         rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
@@ -169,10 +175,13 @@ class SoftHand:
         if self.object_geoms:
             g = self.object_geoms
             self.objects.set_poses(self.data.geom_xpos[g], _mat_to_quat(self.data.geom_xmat[g]))
+        if self._tail_writer:  # the skin geom's pose for the write-back at the end of the frame's graph
+            g = self.skin_geom
+            self._writer.set_frame(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
         t1 = time.perf_counter()
         out = self.solver.step(self.state)
         t2 = time.perf_counter()
-        self._write_back()
+        self._write_back(after_frame=True)
         t3 = time.perf_counter()
         tm = self._timing
         tm["sync"] += t1 - t0
@@ -182,15 +191,18 @@ class SoftHand:
         self._last = out
         return out
 
-    def _write_back(self) -> None:
+    def _write_back(self, after_frame: bool = False) -> None:
+        """The skin into MuJoCo's mesh; ``after_frame``: right after a ``step`` frame, whose graph
+        already ran the write-back's device half on CUDA (only the copies into MuJoCo are left)."""
         if not self.writeback:  # compiled-model path: the world positions only
             skin = self.state.x.numpy()[: self.asset.n_skin].astype(np.float64)
             if not np.all(np.isfinite(skin)):
                 raise ValueError("skin vertices hold non-finite values")
             self._skin = skin
             return
-        if self._writer is None:
-            self._writer = SkinWriter(self.model, self.skin_mesh_id, self.asset.skin_faces, self.state.x)
+        if after_frame and self._tail_writer:
+            self._skin = self._writer.finish()
+            return
         g = self.skin_geom
         self._skin = self._writer.write(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
 
@@ -251,8 +263,6 @@ class SoftHand:
         and ``object_in_skin_deepest_um`` (that object's surface points inside the skin). ``pressure_pa`` is force
         per vertex area, a heat map over the skin.
         """
-        import warp as wp
-
         n = self.asset.n_skin
         c = self.solver.contact
         if c is None:

@@ -4,7 +4,11 @@ MuJoCo stores a mesh in its own frame and places it with the geom pose, so each 
 back through the geom's pose; vertex normals are the area-weighted sums of the face normals
 (MuJoCo indexes normals per vertex when the mesh has one normal per vertex). On the CPU the kernels
 write straight into ``model.mesh_vert`` / ``mesh_normal`` (Warp arrays over MuJoCo's memory); on
-CUDA they write device buffers that come back through pinned host memory in one copy each.
+CUDA they write device buffers that come back through pinned host memory in one copy each. On
+CUDA the device half (the geom frame up, the three kernels, the copies down) is a list of ops
+(:meth:`SkinWriter.device_ops`) that SoftHand records at the end of the solver's frame graph
+(``Solver.set_frame_tail``): no launches of its own and no sync of its own each frame; the host
+half (:meth:`SkinWriter.finish`) then copies into MuJoCo's arrays after the frame's sync.
 """
 
 from __future__ import annotations
@@ -14,10 +18,13 @@ import warp as wp
 
 
 @wp.kernel
-def to_mesh_frame(x: wp.array(dtype=wp.vec3), origin: wp.vec3, rot: wp.mat33, local: wp.array(dtype=wp.vec3),
+def to_mesh_frame(x: wp.array(dtype=wp.vec3), frame: wp.array(dtype=float), local: wp.array(dtype=wp.vec3),
                   normal: wp.array(dtype=wp.vec3)):
-    """local_i = R^T (x_i - origin); clears the normal accumulator."""
+    """local_i = R^T (x_i - origin) for the geom frame [origin (3), R row by row (9)]; clears the
+    normal accumulator."""
     i = wp.tid()
+    origin = wp.vec3(frame[0], frame[1], frame[2])
+    rot = wp.mat33(frame[3], frame[4], frame[5], frame[6], frame[7], frame[8], frame[9], frame[10], frame[11])
     local[i] = wp.transpose(rot) * (x[i] - origin)
     normal[i] = wp.vec3(0.0)
 
@@ -60,6 +67,11 @@ class SkinWriter:
         self.x = x
         self.faces = wp.array(np.asarray(faces, np.int32), dtype=int, device=d)
         self.world = np.zeros((n, 3), np.float64)
+        self._ops = None  # device_ops, recorded on the first immediate write
+        # the geom frame [origin, R row by row]: the kernel reads it from the device (a recorded graph
+        # replays the same launch every frame); on CUDA uploaded from pinned memory inside the ops
+        self.frame_host = wp.zeros(12, dtype=float, device="cpu", pinned=not d.is_cpu)
+        self.frame = self.frame_host if d.is_cpu else wp.zeros(12, dtype=float, device=d)
         if d.is_cpu:  # alias MuJoCo's arrays: the kernels write the model directly
             self.local = wp.array(self.vert, dtype=wp.vec3, device="cpu", copy=False)
             self.normal = wp.array(self.norm, dtype=wp.vec3, device="cpu", copy=False)
@@ -71,32 +83,56 @@ class SkinWriter:
             self.normal_host = wp.zeros(n, dtype=wp.vec3, device="cpu", pinned=True)
             self.x_host = wp.zeros(n, dtype=wp.vec3, device="cpu", pinned=True)
 
-    def write(self, origin: np.ndarray, rot: np.ndarray) -> np.ndarray:
-        """Map the skin into the mesh frame of a geom at (origin (3,), rot (3, 3)); returns the world
-        positions (n, 3) float64 (m). Raises ValueError if they are not finite."""
+    def set_frame(self, origin: np.ndarray, rot: np.ndarray) -> None:
+        """The geom's pose the next write maps into: origin (3,) m, rotation (3, 3)."""
+        f = self.frame_host.numpy()
+        f[:3] = origin
+        f[3:] = np.asarray(rot).ravel()
+
+    def device_ops(self) -> list:
+        """The write's device work as ops (CUDA; SoftHand records them into the solver's frame graph):
+        the frame up, to the mesh frame, the normals, the three copies down (into pinned memory)."""
         d, n = self.device, self.n
+        ops = [] if d.is_cpu else [lambda: wp.copy(self.frame, self.frame_host)]
+        ops.append(wp.launch(to_mesh_frame, n, inputs=[self.x, self.frame], outputs=[self.local, self.normal],
+                             device=d, record_cmd=True).launch)
+        if self.with_normals:
+            ops.append(wp.launch(accumulate_normals, self.faces.shape[0], inputs=[self.faces, self.local],
+                                 outputs=[self.normal], device=d, record_cmd=True).launch)
+            ops.append(wp.launch(normalize, n, inputs=[self.normal], device=d, record_cmd=True).launch)
+        if not d.is_cpu:
+            ops.append(lambda: wp.copy(self.x_host, self.x, count=n))
+            ops.append(lambda: wp.copy(self.local_host, self.local))
+            if self.with_normals:
+                ops.append(lambda: wp.copy(self.normal_host, self.normal))
+        return ops
+
+    def finish(self) -> np.ndarray:
+        """CUDA, after the device ops ran and the device synchronised: MuJoCo's mesh from the pinned
+        copies (after the finite check); returns the world positions (n, 3) float64 (m)."""
+        self.world[:] = self.x_host.numpy()
+        _check_finite(self.world)
+        self.vert[:] = self.local_host.numpy()
+        if self.with_normals:
+            self.norm[:] = self.normal_host.numpy()
+        return self.world
+
+    def write(self, origin: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Map the skin into the mesh frame of a geom at (origin (3,), rot (3, 3)) now; returns the
+        world positions (n, 3) float64 (m). Raises ValueError if they are not finite."""
+        d, n = self.device, self.n
+        self.set_frame(origin, rot)
         if d.is_cpu:  # the kernels write MuJoCo's mesh directly: check before launching them
             self.world[:] = self.x.numpy()[:n]
             _check_finite(self.world)
-        else:
-            wp.copy(self.x_host, self.x, count=n)
-        wp.launch(to_mesh_frame, n, inputs=[self.x, wp.vec3(*origin), wp.mat33(*np.asarray(rot).ravel())],
-                  outputs=[self.local, self.normal], device=d)
-        if self.with_normals:
-            wp.launch(accumulate_normals, self.faces.shape[0], inputs=[self.faces, self.local], outputs=[self.normal],
-                      device=d)
-            wp.launch(normalize, n, inputs=[self.normal], device=d)
-        if not d.is_cpu:  # one sync for the three copies; MuJoCo's mesh is written after the check
-            wp.copy(self.local_host, self.local)
-            if self.with_normals:
-                wp.copy(self.normal_host, self.normal)
-            wp.synchronize_device(d)
-            self.world[:] = self.x_host.numpy()
-            _check_finite(self.world)
-            self.vert[:] = self.local_host.numpy()
-            if self.with_normals:
-                self.norm[:] = self.normal_host.numpy()
-        return self.world
+        if self._ops is None:
+            self._ops = self.device_ops()
+        for op in self._ops:
+            op()
+        if d.is_cpu:
+            return self.world
+        wp.synchronize_device(d)  # one sync for the three copies; MuJoCo's mesh is written after the check
+        return self.finish()
 
 
 def _check_finite(world: np.ndarray) -> None:

@@ -38,6 +38,29 @@ def test_written_back_mesh_equals_the_skin(glass_grasp):
     assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-5)
 
 
+@pytest.mark.skipif(not __import__("warp").is_cuda_available(), reason="no CUDA device")
+def test_the_write_back_inside_the_cuda_frame_graph_writes_the_frame_s_skin():
+    """On CUDA the write-back's device half runs at the end of the solver's frame graph
+    (Solver.set_frame_tail) with the skin geom's pose set before the frame: after each step
+    MuJoCo's mesh maps back onto the solver's skin of that frame, and equals an immediate write."""
+    model, data = _scene()
+    hand = SoftHand(model, data, ph.Config(device="cuda"), settle_frames=2)
+    assert hand._tail_writer and hand.solver._tail
+    gid = skin_geom_id(model)
+    mid = model.geom_dataid[gid]
+    adr, n = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
+    for f in range(12):
+        mujoco.mj_step(model, data)
+        hand.step()
+        x = hand.state.x.numpy()[:n].astype(float)
+        world = model.mesh_vert[adr: adr + n] @ data.geom_xmat[gid].reshape(3, 3).T + data.geom_xpos[gid]
+        assert np.abs(world - x).max() < 1e-6 and np.abs(hand.skin_vertices - x).max() < 1e-6, f
+    tail = model.mesh_vert[adr: adr + n].copy(), model.mesh_normal[model.mesh_normaladr[mid]:][:n].copy()
+    hand._write_back()  # the immediate path, same skin and pose
+    assert np.array_equal(tail[0], model.mesh_vert[adr: adr + n])
+    assert np.abs(tail[1] - model.mesh_normal[model.mesh_normaladr[mid]:][:n]).max() < 1e-6
+
+
 def test_skeleton_vertices_follow_their_bodies(glass_grasp):
     model, data, hand = glass_grasp
     asset = hand.asset

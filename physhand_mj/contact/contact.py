@@ -487,12 +487,12 @@ class Contact(ContactMeasures):
         For tests and diagnostics: inside a frame the solver records the same launches."""
         ops: list = []
         d = self.model.device
-        blocks, tiled_blocks = list_launch_blocks(d), list_launch_blocks(d, tiled=True)
+        blocks = list_launch_blocks(d)
 
         def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
             if dim:
                 kw = {} if block_dim is None else dict(block_dim=block_dim)
-                cap = tiled_blocks if block_dim is not None else blocks if count is not None else 0
+                cap = list_launch_blocks(d, block_dim) if block_dim is not None else blocks if count is not None else 0
                 if cap:
                     kw["max_blocks"] = cap
                 ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))

@@ -138,6 +138,7 @@ class Sleeping:
                             outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
                             record_cmd=True)
             ops.append(cmd.launch)
+            ops += self._tail  # (Solver.set_frame_tail)
             self._sleep_ops[key] = ops
         ahead = self.activity.gate_ahead and state.sleep_box is None  # (CUDA: the broadphase ran ahead)
         self._replay(ops, key + ("asleep",))

@@ -39,15 +39,18 @@ from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
 # graph node of 20,960 idle 32-thread blocks takes 13.9 us, capped at 8 per SM 6.3 us, against 1.5 us
 # for 20,960 idle threads in 256-thread blocks (benchmarks/graph_node_cost.py, docs/activity.md).
 # 0: no cap.
+# Tiled kernels (a block per entry) of one warp (the decision points' 32 lanes) and of wider blocks
+# (the feature kernels' 128 lanes) are capped apart.
 LIST_BLOCKS_PER_SM = 8
 TILED_BLOCKS_PER_SM = 8
+WIDE_BLOCKS_PER_SM = 8
 
 
-def list_launch_blocks(device, tiled: bool = False) -> int:
-    """``max_blocks`` for a list-walking launch on ``device`` (``tiled``: a block per entry); 0: as
-    many as the launch asks."""
+def list_launch_blocks(device, block_dim: int | None = None) -> int:
+    """``max_blocks`` for a list-walking launch on ``device`` (``block_dim``: a tiled launch, a
+    block of that many threads per entry); 0: as many as the launch asks."""
     d = wp.get_device(device)
-    per_sm = TILED_BLOCKS_PER_SM if tiled else LIST_BLOCKS_PER_SM
+    per_sm = LIST_BLOCKS_PER_SM if block_dim is None else TILED_BLOCKS_PER_SM if block_dim <= 32 else WIDE_BLOCKS_PER_SM
     return per_sm * d.sm_count if d.is_cuda and per_sm > 0 else 0
 
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
@@ -87,6 +90,7 @@ class Solver(Sleeping):
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
+        self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
         self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
@@ -295,7 +299,7 @@ class Solver(Sleeping):
         self.activity.reset_recording()
         if self.contact is not None:
             self.contact.begin_frame(ops)
-        list_blocks, tiled_blocks = list_launch_blocks(d), list_launch_blocks(d, tiled=True)
+        list_blocks = list_launch_blocks(d)
 
         def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
             """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
@@ -307,7 +311,7 @@ class Solver(Sleeping):
             if not dim:
                 return
             kw = {} if block_dim is None else dict(block_dim=block_dim)
-            cap = tiled_blocks if block_dim is not None else list_blocks if count is not None else 0
+            cap = list_launch_blocks(d, block_dim) if block_dim is not None else list_blocks if count is not None else 0
             if cap:
                 kw["max_blocks"] = cap
             cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
@@ -426,7 +430,19 @@ class Solver(Sleeping):
             gated(lambda sub: self.contact.record_metrics(launch, sub, state, cfg.substeps,
                                                           objects_side=cfg.object_metrics), 1)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x], [state.guard])
+        ops += self._tail
         return ops
+
+    def set_frame_tail(self, ops: list) -> None:
+        """Run ``ops`` (zero-argument callables: recorded launches, copies) at the end of every frame,
+        awake or asleep, inside the frame's CUDA graph, before the frame's one host sync: e.g.
+        SoftHand's skin write-back (writeback.py), which then needs no launches or sync of its own.
+        Frames recorded before are recorded again (kernels stay compiled)."""
+        self._tail = list(ops)
+        self._ops.clear()
+        self._sleep_ops.clear()
+        self._graphs.clear()
+        self._pre.clear()
 
 
 class _ListLaunch:
