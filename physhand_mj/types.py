@@ -193,6 +193,13 @@ class Config:
         squeezed, turned-over skin triangle as inside and push the skin for nothing. On the CPU it
         confirms the points the pseudo normal takes as inside; on CUDA the feature kernels scan the
         point's triangles (instead of the frame's whole list) and take every sign from it.
+      fused_stage: run each contact stage of a single hand with multires as one launch
+        (contact/stage.py): one block walks the stage's lists, feature pushes, decision points and
+        applies with block-level barriers between them, the passes a loop that stops after one that
+        moved nothing; the recorded stage's decisions (the CPU: bit for bit). Off by default: built for
+        the GPU's launch-bound frame, but its CUDA build is not verified yet (refused there with a
+        ValueError) and on the CPU it is no faster (docs/activity.md, "Left"). Batched worlds and the
+        other strategies keep the recorded stage.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).
@@ -257,6 +264,7 @@ class Config:
     tiled_features: bool | None = None
     feature_winding: bool = True
     feature_last: bool = True
+    fused_stage: bool = False
     skip_idle: bool = True
     region_sleep: bool = False
     sleep_speed: float = 3.0e-3
@@ -292,6 +300,8 @@ class Config:
             raise ValueError(f"Config.tiled_contact must be None (one hand: tiled), True or False, got {self.tiled_contact!r}")
         if not isinstance(self.region_sleep, (bool, np.bool_)):
             raise ValueError(f"Config.region_sleep must be True or False, got {self.region_sleep!r}")
+        if not isinstance(self.fused_stage, (bool, np.bool_)):
+            raise ValueError(f"Config.fused_stage must be True or False, got {self.fused_stage!r}")
         if not (self.tiled_features is None or isinstance(self.tiled_features, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_features must be None (blocks for one hand, a thread per feature for "
                              f"batches), True or False, got {self.tiled_features!r}")

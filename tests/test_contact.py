@@ -518,6 +518,48 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     assert np.array_equal(h0, h1) and np.array_equal(d0, d1) and np.array_equal(v0, v1)
 
 
+@pytest.mark.parametrize("kind, site", [("knife", "fingertip"), ("cone_tip", "palm")])
+def test_a_fused_stage_is_the_recorded_stage_bit_for_bit(monkeypatch, kind, site):
+    """Config.fused_stage (contact/stage.py: a stage's lists, feature pushes, decision points and
+    applies in one launch with barriers between them, the passes a loop) makes the recorded stage's
+    decisions: on the CPU (a block is one thread) the skin after 3 frames of a hard case starting
+    4 mm deep and every counter of the last frame (lists, touched vertices per pass, passes that ran)
+    equal the recorded stage's with the same feature kernels (CUDA's, forced), bit for bit."""
+    from physhand_mj.cases import press_case, run_case
+
+    init = Contact.__init__
+
+    def tiled_init(self, *args, **kw):
+        init(self, *args, **kw)
+        self.tiled_features = True
+
+    monkeypatch.setattr(Contact, "__init__", tiled_init)
+    asset = ph.load_asset()
+    out = {}
+    for fused in (False, True):
+        r = run_case(press_case(kind, site=site, depth=0.004, start=-0.004),
+                     ph.Config(device="cpu", fused_stage=fused), frames=3, asset=asset)
+        c = r["solver"].contact
+        assert c.fused == fused
+        out[fused] = r["skin"].copy(), c._counters_host.numpy().copy(), r["solver"].last_activity
+    (x0, c0, a0), (x1, c1, a1) = out[False], out[True]
+    assert c0[0] > 0 and c0[1] > 0 and a0["triangles_tested"] > 0  # the stage had work
+    assert np.array_equal(x0, x1) and np.array_equal(c0, c1)
+    assert a1["ops_run"] < a0["ops_run"]  # one launch a stage
+
+
+def test_a_fused_stage_is_refused_on_cuda_until_verified():
+    """Config.fused_stage is checked, and refused with the fix on CUDA (its build is not verified)."""
+    with pytest.raises(ValueError, match="fused_stage"):
+        ph.Config(fused_stage=1).validate()
+    if wp.is_cuda_available():
+        objects = Objects("cuda", 1)
+        objects.add(GeomType.SPHERE, [0.01], name="ball")
+        cfg = ph.Config(device="cuda", fused_stage=True)
+        with pytest.raises(ValueError, match="fused_stage"):
+            ph.Solver(ph.make_model(ph.load_asset(), cfg), cfg, objects=objects)
+
+
 def test_tiled_features_hold_the_hard_case_on_the_cpu(monkeypatch):
     """The tiled feature path recorded into the solver's frame (forced on the CPU, where a block is
     one thread: CUDA's launches and arguments, no BVH refit per stage and pass) ends the knife

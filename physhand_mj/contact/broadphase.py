@@ -114,6 +114,26 @@ def find_active(
         active_mask[slot] = mask
 
 
+@wp.func
+def keep_if_moved(t: int, mask: int, faces: wp.array2d(dtype=int), moved: wp.array(dtype=int),
+                  disp: wp.array(dtype=float), stamp: int, bound: wp.array(dtype=float), out: wp.array(dtype=int),
+                  out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
+    """:func:`keep_moved` for active triangle ``t`` (broadphase mask ``mask``)."""
+    m = float(0.0)
+    for j in range(3):
+        v = faces[t, j]
+        if moved[v] == stamp:
+            m = wp.max(m, disp[v])
+    if m == 0.0:
+        return
+    if bound[t] > m:
+        bound[t] = bound[t] - m
+        return
+    slot = wp.atomic_add(out_count, 0, 1)
+    out[slot] = t
+    out_mask[slot] = mask
+
+
 @wp.kernel
 def keep_moved(
     faces: wp.array2d(dtype=int),
@@ -146,20 +166,7 @@ def keep_moved(
         flag[0] = wp.where(total > 0, 1, 0)
     if k >= active_count[0]:
         return
-    t = active[k]
-    m = float(0.0)
-    for j in range(3):
-        v = faces[t, j]
-        if moved[v] == stamp:
-            m = wp.max(m, disp[v])
-    if m == 0.0:
-        return
-    if bound[t] > m:
-        bound[t] = bound[t] - m
-        return
-    slot = wp.atomic_add(out_count, 0, 1)
-    out[slot] = t
-    out_mask[slot] = active_mask[k]
+    keep_if_moved(active[k], active_mask[k], faces, moved, disp, stamp, bound, out, out_mask, out_count)
 
 
 @wp.func

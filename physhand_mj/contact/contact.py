@@ -18,6 +18,7 @@ from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
+from physhand_mj.contact.stage import STAGE_LANES, contact_stage
 from physhand_mj.types import Config, Model, Placement, Strategy
 from physhand_mj.solver.solver import list_launch_blocks
 
@@ -142,6 +143,12 @@ class Contact(ContactMeasures):
         self.tiled_features = bool(cuda and (tf is None or tf))
         self.feature_scan = bool(cuda and tf is None and w >= FEATURE_SCAN_WORLDS and config.feature_winding)
         self.feature_lanes = FEATURE_LANES if cuda else 1
+        # Config.fused_stage: a stage in one launch (contact/stage.py), one hand with multires
+        self.fused = bool(config.fused_stage and w == 1 and config.contact == Strategy.MULTIRES)
+        if self.fused and cuda:
+            raise ValueError("Config.fused_stage runs on the CPU only so far: its CUDA build is not verified yet "
+                             "(docs/activity.md, 'Left'); use fused_stage=False on a GPU")
+        self.stage_lanes = STAGE_LANES if cuda else 1
         self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
@@ -244,6 +251,9 @@ class Contact(ContactMeasures):
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
+        if self.fused:
+            self._record_fused(launch, state)
+            return
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
         self.active_count = self._counter()
@@ -304,6 +314,48 @@ class Contact(ContactMeasures):
                 lst, prev, flag = box["r"]
             else:
                 lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
+
+    def _record_fused(self, launch, state) -> None:
+        """One contact stage as one launch (contact/stage.py), its counters in the slots the recorded
+        stage's launches use."""
+        m, o, cfg = self.model, self.objects, self.config
+        feats = self.feat is not None
+        stage = len(self._stage_slots)
+        a = self._slot
+        self._stage_slots.append((a, a + 2, a + 3 if feats else -1))
+        self.active_count = self._counter()
+        self.pass_slots.append(self._slot)
+        self._counter()
+        slots = [a, a + 1]
+        for p in range(cfg.contact_passes):
+            eq9 = self._slot
+            self._counter()
+            feat = self._slot if feats else -1
+            if feats:
+                self._counter()
+            last = -1
+            if p + 1 == cfg.contact_passes and feats and cfg.feature_last:
+                last = self._slot
+                self._counter()
+            nxt = -1
+            if p + 1 < cfg.contact_passes:
+                nxt = self._slot
+                self.pass_slots.append(nxt)
+                self._counter()
+            slots += [eq9, feat, nxt, last]
+        pts = self.points
+        dummy = self.cand
+        wind = self._winding_args()
+        launch(contact_stage, self.stage_lanes,
+               [m.skin_faces, o.gtype, o.size, o.inv_pose, o.pose, o.radius, o.mesh, o.mesh_exact, o.count, o.obj,
+                self.cand, self.cand_mask, self.feat if feats else dummy, self.feat_count, pts.pts, pts.geom,
+                self._slot_array(slots), stage, cfg.contact_passes, cfg.contact_margin, cfg.contact_frame_margin,
+                cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware),
+                cfg.feature_offset, self.feature_eps, *wind],
+               [state.x, self.counters, self.active, self.active_mask, self.pass_list, self.pass_mask,
+                self.feat_stage if feats else dummy, self.feat_stage_counts, self.bound, self.bound_mask, self.eval_x,
+                self.decision, self.delta, self.hits, self.touched, self.vertex_obj, self.push, self.moved, self.disp],
+               block_dim=self.stage_lanes)
 
     def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and

@@ -244,8 +244,10 @@ def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.ve
     accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geom_obj[arg], delta, hits, touched, touched_count, vertex_obj)
 
 
-@wp.kernel
-def decide_and_project(
+@wp.func
+def decide_triangle(
+    t: int,
+    near: int,
     # Model:
     faces: wp.array2d(dtype=int),
     # Objects:
@@ -259,9 +261,6 @@ def decide_and_project(
     tris_per_world: int,
     geoms_per_world: int,
     # Contact in:
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
-    active_count: wp.array(dtype=int),
     strategy: int,
     samples: int,
     rounds: int,
@@ -281,22 +280,7 @@ def decide_and_project(
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
 ):
-    """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
-    (Config.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
-    corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
-    the vertices' first hits of the pass appended to ``touched``, and the object touched into
-    ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
-    point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
-    for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
-    geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
-    world's geoms [w k, (w + 1) k), w = t // ``tris_per_world``, k = ``geoms_per_world``
-    (broadphase.world_geoms), and its mask's bits are relative to w k; one world passes its
-    triangle count and the geom capacity (w = 0, all geoms: as before batching)."""
-    k = wp.tid()
-    if k >= active_count[0]:
-        return
-    t = active[k]
-    near = active_mask[k]
+    """:func:`decide_and_project` for skin triangle ``t`` whose broadphase mask is ``near``."""
     i0 = faces[t, 0]
     i1 = faces[t, 1]
     i2 = faces[t, 2]
@@ -417,6 +401,62 @@ def decide_and_project(
         nt = wp.normalize(wp.cross(b - a, c - a))
         project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
                 touched, touched_count, vertex_obj)
+
+
+@wp.kernel
+def decide_and_project(
+    # Model:
+    faces: wp.array2d(dtype=int),
+    # Objects:
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
+    inv_pose: wp.array(dtype=wp.transform),
+    radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.vec2ul),
+    geom_count: wp.array(dtype=int),
+    geom_obj: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
+    # Contact in:
+    active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    strategy: int,
+    samples: int,
+    rounds: int,
+    opt_queries: int,
+    offset: float,
+    side_aware: int,
+    # State in:
+    x: wp.array(dtype=wp.vec3),
+    # Contact out:
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    decision: wp.array(dtype=wp.vec4),
+    vertex_obj: wp.array(dtype=int),
+    bound: wp.array(dtype=float),
+    bound_mask: wp.array(dtype=int),
+    eval_x: wp.array2d(dtype=wp.vec3),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+):
+    """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
+    (Config.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
+    corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
+    the vertices' first hits of the pass appended to ``touched``, and the object touched into
+    ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
+    point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
+    for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
+    geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
+    world's geoms [w k, (w + 1) k), w = t // ``tris_per_world``, k = ``geoms_per_world``
+    (broadphase.world_geoms), and its mask's bits are relative to w k; one world passes its
+    triangle count and the geom capacity (w = 0, all geoms: as before batching)."""
+    k = wp.tid()
+    if k >= active_count[0]:
+        return
+    decide_triangle(active[k], active_mask[k], faces, gtype, size, inv_pose, radius, mesh, geom_count, geom_obj,
+                    tris_per_world, geoms_per_world, strategy, samples, rounds, opt_queries, offset, side_aware, x,
+                    delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count)
 
 
 TILE_LANES = 32  # lanes per triangle in the CUDA multires kernel (>= the lattice's sample count)
@@ -566,6 +606,24 @@ def decide_and_project_tiled(
                 touched, touched_count, vertex_obj)
 
 
+@wp.func
+def apply_vertex(i: int, stamp: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float),
+                 x: wp.array(dtype=wp.vec3), push: wp.array(dtype=float), moved: wp.array(dtype=int),
+                 disp: wp.array(dtype=float)):
+    """:func:`apply_contact` for touched vertex ``i``."""
+    dx = delta[i] * (1.0 / hits[i])
+    x[i] = x[i] + dx
+    step = wp.length(dx)
+    push[i] = push[i] + step
+    delta[i] = wp.vec3(0.0)
+    hits[i] = 0.0
+    if moved[i] == stamp:  # moved twice in this pass (the feature push, then Eq. 9): how far in all
+        disp[i] = disp[i] + step
+    else:
+        disp[i] = step
+    moved[i] = stamp
+
+
 @wp.kernel
 def apply_contact(
     touched: wp.array(dtype=int),
@@ -585,15 +643,4 @@ def apply_contact(
     k = wp.tid()
     if k >= touched_count[0]:
         return
-    i = touched[k]
-    dx = delta[i] * (1.0 / hits[i])
-    x[i] = x[i] + dx
-    step = wp.length(dx)
-    push[i] = push[i] + step
-    delta[i] = wp.vec3(0.0)
-    hits[i] = 0.0
-    if moved[i] == stamp:  # moved twice in this pass (the feature push, then Eq. 9): how far in all
-        disp[i] = disp[i] + step
-    else:
-        disp[i] = step
-    moved[i] = stamp
+    apply_vertex(touched[k], stamp, delta, hits, x, push, moved, disp)

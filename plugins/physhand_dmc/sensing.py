@@ -11,10 +11,11 @@ contact object, after every solver frame:
 - deformation (m): the largest distance of a region's skin vertex from where its bone would carry
   its rest position rigidly (pad / fingertip compression, plus the settled sag and joint bending).
 
-**No extra host sync.** :class:`SensedHand` launches the pooling kernels after the solver frame and
+**One host sync.** :class:`SensedHand` launches the pooling kernels after the solver frame and
 before SoftHand's write-back; on CUDA their small results go to pinned host buffers with
-asynchronous copies, which the write-back's own device sync completes, so reading them afterwards
-is a host read. On the CPU Warp kernels run synchronously and the outputs are host memory already.
+asynchronous copies and one device sync completes them (the write-back's device half runs inside
+the solver's frame graph since 2026-11-25 and has no sync of its own to share), so reading them
+afterwards is a host read. On the CPU Warp kernels run synchronously and the outputs are host memory already.
 The penetration figures come from the frame's own metrics row (``SoftHand.step``'s return), which
 the solver reads at its one sync.
 """
@@ -197,8 +198,9 @@ class SoftSensor:
 
 
 class SensedHand(SoftHand):
-    """SoftHand whose frames also run :class:`SoftSensor` (between the solver frame and the write-back,
-    whose device sync on CUDA also completes the sensor's copies)."""
+    """SoftHand whose frames also run :class:`SoftSensor` (between the solver frame and the write-back;
+    on CUDA a device sync after its launches completes its copies: the write-back's device half runs
+    inside the frame's graph, before them)."""
 
     sensor: SoftSensor | None = None
 
@@ -207,10 +209,12 @@ class SensedHand(SoftHand):
         self.sensor.launch(self)
         return self.sensor
 
-    def _write_back(self) -> None:
+    def _write_back(self, after_frame: bool = False) -> None:
         if self.sensor is not None:
             self.sensor.launch(self)
-        super()._write_back()
+            if after_frame and self._tail_writer:  # (CUDA: the frame's write-back ran in its graph, no sync
+                wp.synchronize_device(self.sensor.device)  # of its own is left to complete the copies)
+        super()._write_back(after_frame)
 
 
 def _conj(q):
