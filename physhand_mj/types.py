@@ -197,8 +197,8 @@ class Config:
         (contact/stage.py): one block walks the stage's lists, feature pushes, decision points and
         applies with block-level barriers between them, the passes a loop that stops after one that
         moved nothing; the recorded stage's decisions (the CPU: bit for bit). Off by default: built for
-        the GPU's launch-bound frame, but its CUDA build is not verified yet (refused there with a
-        ValueError) and on the CPU it is no faster (docs/activity.md, "Left"). Batched worlds and the
+        the GPU's launch-bound frame, but not yet run on a GPU (refused there with a ValueError; it
+        builds for sm_90) and on the CPU it is no faster (docs/activity.md, "Left"). Batched worlds and the
         other strategies keep the recorded stage.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the

@@ -146,8 +146,8 @@ class Contact(ContactMeasures):
         # Config.fused_stage: a stage in one launch (contact/stage.py), one hand with multires
         self.fused = bool(config.fused_stage and w == 1 and config.contact == Strategy.MULTIRES)
         if self.fused and cuda:
-            raise ValueError("Config.fused_stage runs on the CPU only so far: its CUDA build is not verified yet "
-                             "(docs/activity.md, 'Left'); use fused_stage=False on a GPU")
+            raise ValueError("Config.fused_stage runs on the CPU only so far: it builds for CUDA but has not been "
+                             "checked on a GPU yet (docs/activity.md, 'Left'); use fused_stage=False on a GPU")
         self.stage_lanes = STAGE_LANES if cuda else 1
         self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False

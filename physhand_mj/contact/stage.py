@@ -36,7 +36,11 @@ wp.set_module_options({"enable_backward": False})
 # triangles and geoms per world as one world passes them (broadphase.world_geoms: all geoms in use)
 ONE_WORLD = 1 << 30
 
-STAGE_LANES = 512  # threads of the block that runs a stage on CUDA (one on the CPU)
+# threads of the block that runs a stage on CUDA (one on the CPU). At most 256: the mesh distance
+# queries (decide_triangle on a mesh geom) walk Warp's BVH with a traversal stack in shared memory,
+# 132 bytes a thread, and a block may hold 48 KB of static shared memory (sm_90: 512 threads needed
+# 66 KB and ptxas refused the kernel; tests/test_cuda_build.py builds it without a GPU)
+STAGE_LANES = 256
 WARP = 32  # lanes per feature point on CUDA (a warp: shuffle reductions, no barrier)
 
 
