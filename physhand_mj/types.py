@@ -196,7 +196,8 @@ class Config:
       fused_stage: run each contact stage of a single hand with multires as one launch
         (contact/stage.py): one block walks the stage's lists, feature pushes, decision points and
         applies with block-level barriers between them, the passes a loop that stops after one that
-        moved nothing; the recorded stage's decisions (the CPU: bit for bit). Off by default: built for
+        moved nothing; the recorded stage's decisions with CUDA's feature kernels (on the CPU, with
+        those forced, bit for bit; the CPU's own BVH feature path differs). Off by default: built for
         the GPU's launch-bound frame, but not yet run on a GPU (refused there with a ValueError; it
         builds for sm_90) and on the CPU it is no faster (docs/activity.md, "Left"). Batched worlds and the
         other strategies keep the recorded stage.

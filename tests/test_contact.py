@@ -518,13 +518,15 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     assert np.array_equal(h0, h1) and np.array_equal(d0, d1) and np.array_equal(v0, v1)
 
 
-@pytest.mark.parametrize("kind, site", [("knife", "fingertip"), ("cone_tip", "palm")])
-def test_a_fused_stage_is_the_recorded_stage_bit_for_bit(monkeypatch, kind, site):
+@pytest.mark.parametrize("kind, site, extra", [("knife", "fingertip", {}), ("cone_tip", "palm", {}),
+                                               ("knife", "fingertip", {"feature_contact": False})])
+def test_a_fused_stage_is_the_recorded_stage_bit_for_bit(monkeypatch, kind, site, extra):
     """Config.fused_stage (contact/stage.py: a stage's lists, feature pushes, decision points and
     applies in one launch with barriers between them, the passes a loop) makes the recorded stage's
     decisions: on the CPU (a block is one thread) the skin after 3 frames of a hard case starting
     4 mm deep and every counter of the last frame (lists, touched vertices per pass, passes that ran)
-    equal the recorded stage's with the same feature kernels (CUDA's, forced), bit for bit."""
+    equal the recorded stage's with the same feature kernels (CUDA's, forced), bit for bit; also
+    without the object's features (no feature list: the stage's Eq. 9 alone)."""
     from physhand_mj.cases import press_case, run_case
 
     init = Contact.__init__
@@ -538,7 +540,7 @@ def test_a_fused_stage_is_the_recorded_stage_bit_for_bit(monkeypatch, kind, site
     out = {}
     for fused in (False, True):
         r = run_case(press_case(kind, site=site, depth=0.004, start=-0.004),
-                     ph.Config(device="cpu", fused_stage=fused), frames=3, asset=asset)
+                     ph.Config(device="cpu", fused_stage=fused, **extra), frames=3, asset=asset)
         c = r["solver"].contact
         assert c.fused == fused
         out[fused] = r["skin"].copy(), c._counters_host.numpy().copy(), r["solver"].last_activity

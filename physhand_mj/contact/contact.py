@@ -345,7 +345,8 @@ class Contact(ContactMeasures):
             slots += [eq9, feat, nxt, last]
         pts = self.points
         dummy = self.cand
-        wind = self._winding_args()
+        # (no features listed this recording: the patch arrays may not exist; the stand-ins are never read)
+        wind = self._winding_args() if feats else [0, dummy, dummy, dummy, dummy, self.feat_stage_float]
         launch(contact_stage, self.stage_lanes,
                [m.skin_faces, o.gtype, o.size, o.inv_pose, o.pose, o.radius, o.mesh, o.mesh_exact, o.count, o.obj,
                 self.cand, self.cand_mask, self.feat if feats else dummy, self.feat_count, pts.pts, pts.geom,
