@@ -264,6 +264,37 @@ class BatchedHands:
         self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
         self.last_worlds: list[dict] = []
 
+    # -- lifetime ----------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Release the batch's arrays now (its solver with the recorded frames and CUDA graphs, its
+        state and objects) instead of whenever the garbage collector gets to them: a process running
+        batch after batch needs the memory back before the next allocates (two W = 4096 batches ran an
+        H100 out of memory, docs/scale.md). The batch cannot step afterwards. Also ``with
+        BatchedHands(...) as hands:``."""
+        import gc
+
+        if self.solver is None:
+            return
+        s = self.solver
+        s._graphs.clear()
+        s._ops.clear()
+        s._sleep_ops.clear()
+        s._pre.clear()
+        s.last_graph = None
+        self.solver = self.state = self.objects = None
+        del s
+        gc.collect()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _alive(self) -> None:
+        if self.solver is None:
+            raise RuntimeError("this BatchedHands was closed (BatchedHands.close): make a new batch")
+
     def _model(self):
         """The W-world model: one world's arrays tiled (Jacobi: a copy, no per-world rebuild), or for
         the colored scheme (colours over the whole body) the model of the replicated asset."""
@@ -307,6 +338,7 @@ class BatchedHands:
         ``pos`` (W, B, 3) m / ``quat`` (W, B, 4) w x y z over ``frames`` frames without contact, as
         ``SoftHand(..., settle_contact=False)`` does for one hand (a grasp keyframe starts from the
         undeformed posed skin, its penetrations included)."""
+        self._alive()
         from physhand_mj.coupling import _nlerp
         from physhand_mj.solver import Solver
 
@@ -325,6 +357,7 @@ class BatchedHands:
     def set_object_poses(self, object_pos, object_quat) -> None:
         """Every world's object poses, ``object_pos`` (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z,
         each in its world's frame (``step`` takes them too)."""
+        self._alive()
         if self.objects is None:
             return
         if object_pos is None or object_quat is None:
@@ -348,6 +381,7 @@ class BatchedHands:
         solver's frame dict (counts summed over worlds, the batch's penetration summary) with
         ``worlds``: per world its guard counts and the frame's skin-sample penetration summary
         (:meth:`frame_worlds`)."""
+        self._alive()
         pos, quat = self._check_poses(pos, quat)
         self.set_object_poses(object_pos, object_quat)
         self.solver.set_body_poses(self.state, (pos + self.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
@@ -372,6 +406,7 @@ class BatchedHands:
         objects: ``penetration_*`` (skin samples on the order-``order`` lattice inside objects; the
         metric's is 5) and ``object_in_skin_*`` (object surface points inside the closed skin), as
         ``SoftHand.penetration`` gives them for one hand (counts, um)."""
+        self._alive()
         from physhand_mj.metrics import summarize
 
         c = self.solver.contact
@@ -382,6 +417,7 @@ class BatchedHands:
         """Per world: both penetration measures now (:meth:`penetration`), the last frame's guard
         counts (``nonfinite``, ``inverted``, ``tethered``) and ``finite`` (its skin holds finite
         positions now)."""
+        self._alive()
         x = self.state.x.numpy()
         ns = self.asset.n_skin
         guards = self.frame_worlds() if self.state.frames else [
@@ -394,11 +430,13 @@ class BatchedHands:
 
     def skin(self, world: int) -> np.ndarray:
         """(n_skin, 3) skin positions (m) of one world, in its frame."""
+        self._alive()
         ns = self.asset.n_skin
         return self.state.x.numpy()[world * ns:(world + 1) * ns] - self.offsets[world].astype(np.float32)
 
     def positions(self, world: int) -> np.ndarray:
         """(N, 3) all positions (m) of one world, in the asset's vertex order and the world's frame."""
+        self._alive()
         n, ns = self.asset.n_vertices, self.asset.n_skin
         x = self.state.x.numpy()
         rest = self.worlds * ns + world * (n - ns)

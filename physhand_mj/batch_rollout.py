@@ -283,6 +283,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         trimesh.Trimesh(skin, asset.skin_faces, process=False).export(skin_path)
         rows[r.index] = summary_row(r.scene, r.key, r.times, substeps, contact, starts[w], last[w],
                                     bool(np.all(np.isfinite(skin))), d, interrupted, r.out / "log.csv", skin_path)
+    hands.close()  # the batch's device memory back before the next batch allocates
     return interrupted
 
 

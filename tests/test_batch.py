@@ -399,3 +399,25 @@ def test_kernel_choices_follow_the_batch(setup):
     cfg = Config(device="cuda")
     one = Solver(make_model(asset, cfg), cfg, objects=objects)
     assert not one.model.gather_off and one.contact.tiled
+
+
+def test_a_closed_batch_frees_its_solver_and_says_so():
+    """BatchedHands.close (and ``with``) releases the solver (with its recorded frame), state and
+    objects at once (weak references to them die) and a closed batch refuses to step with the fix."""
+    import weakref
+
+    from physhand_mj.types import GeomType
+
+    asset = ph.load_asset()
+    spec = dict(gtype=GeomType.SPHERE, size=[0.02], name="ball")
+    with BatchedHands(asset, 2, Config(device="cpu"), objects=[spec]) as batch:
+        b = batch.n_bodies
+        rest = batch.state.pose_host[1].astype(float)  # the bones where they are: [p, q x y z w] per body
+        pos, quat = rest[:, :3].reshape(2, b, 3), rest[:, [6, 3, 4, 5]].reshape(2, b, 4)
+        far = (np.zeros((2, 1, 3)) + 1.0, np.tile([1.0, 0.0, 0.0, 0.0], (2, 1, 1)))  # the ball 1 m away
+        batch.step(pos, quat, *far)  # a recorded frame holds the arrays too
+        solver, state = weakref.ref(batch.solver), weakref.ref(batch.state)
+    assert solver() is None and state() is None and batch.objects is None
+    with pytest.raises(RuntimeError, match="closed"):
+        batch.step(pos, quat, *far)
+    batch.close()  # twice is fine
