@@ -17,7 +17,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 import physhand_mj as ph
 from physhand_mj.bench import device_name

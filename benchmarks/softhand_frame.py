@@ -14,7 +14,6 @@ import time
 from pathlib import Path
 
 import mujoco
-import numpy as np
 
 import physhand_mj as ph
 from physhand_mj.bench import device_name

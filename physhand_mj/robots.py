@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 PADS_ASSET = Path(__file__).parent / "assets" / "jaco_pads.npz"
 PAD_BODIES = ("b_finger_tip_1", "b_finger_tip_2", "b_finger_tip_3")

@@ -4,7 +4,6 @@ contact, the env's own model untouched, pictures with the deformed skin."""
 
 import warnings
 
-import mujoco
 import numpy as np
 import pytest
 

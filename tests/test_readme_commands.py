@@ -6,8 +6,6 @@ import shutil
 import subprocess
 import sys
 
-import pytest
-
 
 def test_physhand_demo_writes_picture(tmp_path):
     exe = shutil.which("physhand") or None

@@ -16,7 +16,6 @@ import trimesh
 
 from physhand_mj.asset import HandAsset, save_asset, validate_asset
 from physhand_mj.build.layered import BuildError, TetOptions, assemble
-from physhand_mj.types import Layer
 
 __all__ = ["BuildError", "TetOptions", "build_from_meshes", "build_myohand", "quality_figures"]
 log = logging.getLogger(__name__)
