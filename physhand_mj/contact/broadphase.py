@@ -79,16 +79,13 @@ def find_active(
     tris_per_world: int,
     geoms_per_world: int,
     margin: float,
-    use_src: int,
-    src: wp.array(dtype=int),
-    src_mask: wp.array(dtype=int),
-    src_count: wp.array(dtype=int),
     active: wp.array(dtype=int),
     active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
 ):
     """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms,
-    so decision points query only the geoms near their triangle. With ``use_src`` only the triangles (and geoms) of the list ``src`` are tested, else all.
+    so decision points query only the geoms near their triangle (the frame's list; a stage's comes
+    from that list by :func:`stage_lists`).
     World-indexed (batched worlds, physhand_mj/batch.py): triangle t belongs to world
     w = t // ``tris_per_world`` and tests only that world's geoms [w k, (w + 1) k), k =
     ``geoms_per_world``, so a world's broadphase work does not grow with the number of worlds; one
@@ -98,15 +95,8 @@ def find_active(
     only); one world's bits are its global geom indices, as before batching. A mesh's distance grid
     (objects.mesh_grid) rejects the triangles its lower bound proves far; the others are asked the
     exact distance, so the lists are those of the exact distance."""
-    k = wp.tid()
-    t = k
-    allowed = int(-1)
-    if use_src != 0:
-        if k >= src_count[0]:
-            return
-        t = src[k]
-        allowed = src_mask[k]
-    mask = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
+    t = wp.tid()
+    mask = reach_mask(t, -1, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
                       geoms_per_world, margin)
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
@@ -190,6 +180,30 @@ def first_pass_keeps(t: int, mask: int, faces: wp.array2d(dtype=int), x: wp.arra
     return True
 
 
+@wp.func
+def stage_list_entry(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                     gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+                     inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                     mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int), tris_per_world: int,
+                     geoms_per_world: int, margin: float, bound: wp.array(dtype=float),
+                     bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3), active: wp.array(dtype=int),
+                     active_mask: wp.array(dtype=int), active_count: wp.array(dtype=int), out: wp.array(dtype=int),
+                     out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
+    """Frame-list triangle ``t`` (near the geoms of ``allowed``) into its stage's active list when it
+    can reach a geom within ``margin``, and into the first pass's list when :func:`first_pass_keeps`."""
+    mask = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
+                      geoms_per_world, margin)
+    if mask == 0:
+        return
+    slot = wp.atomic_add(active_count, 0, 1)
+    active[slot] = t
+    active_mask[slot] = mask
+    if first_pass_keeps(t, mask, faces, x, bound, bound_mask, eval_x):
+        slot = wp.atomic_add(out_count, 0, 1)
+        out[slot] = t
+        out_mask[slot] = mask
+
+
 @wp.kernel
 def stage_lists(
     faces: wp.array2d(dtype=int),
@@ -222,18 +236,9 @@ def stage_lists(
     k = wp.tid()
     if k >= src_count[0]:
         return
-    t = src[k]
-    mask = reach_mask(t, src_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                      geoms_per_world, margin)
-    if mask == 0:
-        return
-    slot = wp.atomic_add(active_count, 0, 1)
-    active[slot] = t
-    active_mask[slot] = mask
-    if first_pass_keeps(t, mask, faces, x, bound, bound_mask, eval_x):
-        slot = wp.atomic_add(out_count, 0, 1)
-        out[slot] = t
-        out_mask[slot] = mask
+    stage_list_entry(src[k], src_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
+                     geoms_per_world, margin, bound, bound_mask, eval_x, active, active_mask, active_count, out,
+                     out_mask, out_count)
 
 
 @wp.kernel

@@ -17,10 +17,11 @@ from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
-from physhand_mj.contact.query import TILE_LANES, apply_contact, decide_and_project, decide_and_project_tiled
-from physhand_mj.contact.stage import STAGE_LANES, contact_stage
+from physhand_mj.contact.query import apply_contact, decide_and_project
+from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
+from physhand_mj.contact.stage import STAGE_LANES, record_stage
 from physhand_mj.types import Config, Model, Placement, Strategy
-from physhand_mj.solver.solver import list_launch_blocks
+from physhand_mj.solver.solver import launch_options
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -187,8 +188,7 @@ class Contact(ContactMeasures):
         self.pass_slots = []
         (launch_pre or launch)(find_active, self.n_tris,
                                [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin, 0, self.cand,
-                                self.cand_mask, self.cand_count],
+                                self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
                                [self.cand, self.cand_mask, self.cand_count])
         if gated is None:
             self._record_frame_lists(launch, ops, state)
@@ -252,7 +252,7 @@ class Contact(ContactMeasures):
         if not self.n_tris:
             return
         if self.fused:
-            self._record_fused(launch, state)
+            record_stage(self, launch, state)
             return
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
@@ -314,49 +314,6 @@ class Contact(ContactMeasures):
                 lst, prev, flag = box["r"]
             else:
                 lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
-
-    def _record_fused(self, launch, state) -> None:
-        """One contact stage as one launch (contact/stage.py), its counters in the slots the recorded
-        stage's launches use."""
-        m, o, cfg = self.model, self.objects, self.config
-        feats = self.feat is not None
-        stage = len(self._stage_slots)
-        a = self._slot
-        self._stage_slots.append((a, a + 2, a + 3 if feats else -1))
-        self.active_count = self._counter()
-        self.pass_slots.append(self._slot)
-        self._counter()
-        slots = [a, a + 1]
-        for p in range(cfg.contact_passes):
-            eq9 = self._slot
-            self._counter()
-            feat = self._slot if feats else -1
-            if feats:
-                self._counter()
-            last = -1
-            if p + 1 == cfg.contact_passes and feats and cfg.feature_last:
-                last = self._slot
-                self._counter()
-            nxt = -1
-            if p + 1 < cfg.contact_passes:
-                nxt = self._slot
-                self.pass_slots.append(nxt)
-                self._counter()
-            slots += [eq9, feat, nxt, last]
-        pts = self.points
-        dummy = self.cand
-        # (no features listed this recording: the patch arrays may not exist; the stand-ins are never read)
-        wind = self._winding_args() if feats else [0, dummy, dummy, dummy, dummy, self.feat_stage_float]
-        launch(contact_stage, self.stage_lanes,
-               [m.skin_faces, o.gtype, o.size, o.inv_pose, o.pose, o.radius, o.mesh, o.mesh_exact, o.count, o.obj,
-                self.cand, self.cand_mask, self.feat if feats else dummy, self.feat_count, pts.pts, pts.geom,
-                self._slot_array(slots), stage, cfg.contact_passes, cfg.contact_margin, cfg.contact_frame_margin,
-                cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware),
-                cfg.feature_offset, self.feature_eps, *wind],
-               [state.x, self.counters, self.active, self.active_mask, self.pass_list, self.pass_mask,
-                self.feat_stage if feats else dummy, self.feat_stage_counts, self.bound, self.bound_mask, self.eval_x,
-                self.decision, self.delta, self.hits, self.touched, self.vertex_obj, self.push, self.moved, self.disp],
-               block_dim=self.stage_lanes)
 
     def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
@@ -540,14 +497,10 @@ class Contact(ContactMeasures):
         For tests and diagnostics: inside a frame the solver records the same launches."""
         ops: list = []
         d = self.model.device
-        blocks = list_launch_blocks(d)
 
         def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
             if dim:
-                kw = {} if block_dim is None else dict(block_dim=block_dim)
-                cap = list_launch_blocks(d, block_dim) if block_dim is not None else blocks if count is not None else 0
-                if cap:
-                    kw["max_blocks"] = cap
+                kw = launch_options(d, count, block_dim)
                 ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
 
         ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))

@@ -10,7 +10,7 @@ threads, separated by block-level barriers instead of launches, and the passes a
 stops after a pass that moved nothing (the same rule as activity.py's level 2). Every phase calls
 the per-item functions of the recorded kernels, so the decisions are theirs:
 
-    stage lists         broadphase.reach_mask, first_pass_keeps (a thread per frame-list triangle)
+    stage lists         broadphase.stage_list_entry (a thread per frame-list triangle)
     feature list + push a warp per listed feature point: features.closest_warp, push_feature
     apply               query.apply_vertex (a thread per touched vertex)
     decision points     query.decide_triangle (a thread per listed triangle: the per-thread lattice)
@@ -19,14 +19,14 @@ the per-item functions of the recorded kernels, so the decisions are theirs:
 Counters go to the same slots of ``Contact.counters`` as the recorded stage's, so what ran is
 reported alike. On the CPU a block is one thread, which runs the phases in order: the recorded
 stage's results bit for bit where that stage runs CUDA's feature kernels (forced on the CPU in
-tests/test_contact.py); the CPU's default feature path walks the skin's BVH with the pseudo-normal
+tests/test_stage.py); the CPU's default feature path walks the skin's BVH with the pseudo-normal
 sign and differs (on a hard case starting 4 mm deep, up to ~3 mm at a vertex after 3 frames). One
 world only.
 """
 
 import warp as wp
 
-from physhand_mj.contact.broadphase import first_pass_keeps, keep_if_moved, reach_mask
+from physhand_mj.contact.broadphase import keep_if_moved, stage_list_entry
 from physhand_mj.contact.closest import FOUR_PI, NO_FACE, finish_closest, scan_closest
 from physhand_mj.contact.features import at_origin, push_feature
 from physhand_mj.contact.inside import object_point
@@ -243,19 +243,10 @@ def contact_stage(
     n_cand = counters[0]
     k = lane
     while k < n_cand:
-        t = cand[k]
-        allowed = cand_mask[k]
+        stage_list_entry(cand[k], cand_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count,
+                         ONE_WORLD, ONE_WORLD, margin, bound, bound_mask, eval_x, active, active_mask,
+                         counters[s_act: s_act + 1], pass_list, pass_mask, counters[s_lst: s_lst + 1])
         k += lanes
-        m = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, ONE_WORLD, ONE_WORLD,
-                       margin)
-        if m != 0:
-            j = wp.atomic_add(counters, s_act, 1)
-            active[j] = t
-            active_mask[j] = m
-            if first_pass_keeps(t, m, faces, x, bound, bound_mask, eval_x):
-                j = wp.atomic_add(counters, s_lst, 1)
-                pass_list[j] = t
-                pass_mask[j] = m
     n_feat = feat_count[0]
     block_sync(0)
     n_act = counters[s_act]
@@ -319,3 +310,49 @@ def contact_stage(
             k += lanes
         block_sync(0)
         lst = s_next
+
+
+def record_stage(contact, launch, state) -> None:
+    """Record one contact stage of ``contact`` (contact.Contact, ``fused``) as one launch of
+    :func:`contact_stage`, its counters in the slots the recorded stage's launches use
+    (Contact.record / _record_pass / _record_features take them in the same order)."""
+    m, o, cfg = contact.model, contact.objects, contact.config
+    feats = contact.feat is not None
+    stage = len(contact._stage_slots)
+    a = contact._slot
+    contact._stage_slots.append((a, a + 2, a + 3 if feats else -1))
+    contact.active_count = contact._counter()
+    contact.pass_slots.append(contact._slot)
+    contact._counter()
+    slots = [a, a + 1]
+    for p in range(cfg.contact_passes):
+        eq9 = contact._slot
+        contact._counter()
+        feat = contact._slot if feats else -1
+        if feats:
+            contact._counter()
+        last = -1
+        if p + 1 == cfg.contact_passes and feats and cfg.feature_last:
+            last = contact._slot
+            contact._counter()
+        nxt = -1
+        if p + 1 < cfg.contact_passes:
+            nxt = contact._slot
+            contact.pass_slots.append(nxt)
+            contact._counter()
+        slots += [eq9, feat, nxt, last]
+    pts = contact.points
+    dummy = contact.cand
+    # (no features listed this recording: the patch arrays may not exist; the stand-ins are never read)
+    wind = contact._winding_args() if feats else [0, dummy, dummy, dummy, dummy, contact.feat_stage_float]
+    launch(contact_stage, contact.stage_lanes,
+           [m.skin_faces, o.gtype, o.size, o.inv_pose, o.pose, o.radius, o.mesh, o.mesh_exact, o.count, o.obj,
+            contact.cand, contact.cand_mask, contact.feat if feats else dummy, contact.feat_count, pts.pts, pts.geom,
+            contact._slot_array(slots), stage, cfg.contact_passes, cfg.contact_margin, cfg.contact_frame_margin,
+            cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(contact.closed_skin and cfg.side_aware),
+            cfg.feature_offset, contact.feature_eps, *wind],
+           [state.x, contact.counters, contact.active, contact.active_mask, contact.pass_list, contact.pass_mask,
+            contact.feat_stage if feats else dummy, contact.feat_stage_counts, contact.bound, contact.bound_mask,
+            contact.eval_x, contact.decision, contact.delta, contact.hits, contact.touched, contact.vertex_obj,
+            contact.push, contact.moved, contact.disp],
+           block_dim=contact.stage_lanes)

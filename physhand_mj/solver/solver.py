@@ -53,6 +53,18 @@ def list_launch_blocks(device, block_dim: int | None = None) -> int:
     per_sm = LIST_BLOCKS_PER_SM if block_dim is None else TILED_BLOCKS_PER_SM if block_dim <= 32 else WIDE_BLOCKS_PER_SM
     return per_sm * d.sm_count if d.is_cuda and per_sm > 0 else 0
 
+
+def launch_options(device, count=None, block_dim: int | None = None) -> dict:
+    """``wp.launch`` keywords of a recorded launch: ``block_dim`` for a tiled kernel, and on CUDA
+    ``max_blocks`` (:func:`list_launch_blocks`) when it walks a device-side list (``count`` given, or
+    tiled: a block per entry)."""
+    kw = {} if block_dim is None else dict(block_dim=block_dim)
+    if count is not None or block_dim is not None:
+        cap = list_launch_blocks(device, block_dim)
+        if cap:
+            kw["max_blocks"] = cap
+    return kw
+
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
@@ -299,7 +311,6 @@ class Solver(Sleeping):
         self.activity.reset_recording()
         if self.contact is not None:
             self.contact.begin_frame(ops)
-        list_blocks = list_launch_blocks(d)
 
         def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
             """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
@@ -310,10 +321,7 @@ class Solver(Sleeping):
             threads (a kernel whose thread 0 has work of its own however long the list)."""
             if not dim:
                 return
-            kw = {} if block_dim is None else dict(block_dim=block_dim)
-            cap = list_launch_blocks(d, block_dim) if block_dim is not None else list_blocks if count is not None else 0
-            if cap:
-                kw["max_blocks"] = cap
+            kw = launch_options(d, count, block_dim)
             cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
             cur[0].append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count, min_dim))
 
