@@ -123,7 +123,10 @@ class Config:
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
         objects); contact_placement: :class:`Placement` of the correction in the substep;
         contact_passes: query + Eq. 9 projection rounds per placement (at most: a pass queries only
-        triangles the previous pass moved); contact_margin: the stage broadphase's margin (m; covers how
+        triangles the previous pass moved); contact_every: run the contact stage every this many
+        substeps (count; always in the frame's last substep, so the frame ends corrected; 1 = every
+        substep, Algorithm 1): fewer stages a frame, the skin between them follows the solver alone
+        (docs/activity.md measures what it costs in accuracy and saves in time); contact_margin: the stage broadphase's margin (m; covers how
         far one stage's corrections drag a triangle that did not penetrate itself);
         contact_frame_margin: the frame broadphase's margin (m; must cover how far skin and objects
         move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); contact_offset: how far
@@ -194,13 +197,16 @@ class Config:
         confirms the points the pseudo normal takes as inside; on CUDA the feature kernels scan the
         point's triangles (instead of the frame's whole list) and take every sign from it.
       fused_stage: run each contact stage of a single hand with multires as one launch
-        (contact/stage.py): one block walks the stage's lists, feature pushes, decision points and
-        applies with block-level barriers between them, the passes a loop that stops after one that
-        moved nothing; the recorded stage's decisions with CUDA's feature kernels (on the CPU, with
-        those forced, bit for bit; the CPU's own BVH feature path differs). Off by default: built for
-        the GPU's launch-bound frame, but not yet run on a GPU (refused there with a ValueError; it
-        builds for sm_90) and on the CPU it is no faster (docs/activity.md, "Left"). Batched worlds and the
-        other strategies keep the recorded stage.
+        (contact/stage.py): on CUDA a block per SM walks the stage's lists, feature pushes, decision
+        points and applies with grid barriers between them (on the CPU one thread), the passes a
+        loop that stops after one that moved nothing; the recorded stage's decisions with CUDA's
+        feature kernels (on the CPU, with those forced, bit for bit; the CPU's own BVH feature path
+        differs). Off by default: it is not faster. H100 (2026-11-25): the demo's held frame 4.15-4.18
+        against 4.03-4.36 ms, closing 6.3-6.4 against 5.8-5.9, the hard cases' held frames 14.7
+        against 4.4 ms (0 of 600 with residue); a pass costs the latency of its phases, not of its
+        launches (docs/activity.md). Needs the GPU's SMs to itself (a stage that could not run all
+        its blocks at once raises SolverError). Batched worlds and the other strategies keep the
+        recorded stage.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).
@@ -245,6 +251,7 @@ class Config:
     contact: Strategy = Strategy.MULTIRES
     contact_placement: Placement = Placement.AFTER
     contact_passes: int = 8
+    contact_every: int = 1
     contact_margin: float = 5.0e-4
     contact_frame_margin: float = 1.0e-2
     contact_offset: float = 4.0e-6
@@ -285,7 +292,7 @@ class Config:
                 raise ValueError(f"Config.{name} must be a finite number >= 0, got {v!r}")
 
         pos("frame_dt")
-        for name in ("substeps", "iterations", "contact_passes", "multires_rounds", "opt_queries"):
+        for name in ("substeps", "iterations", "contact_passes", "contact_every", "multires_rounds", "opt_queries"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"Config.{name} must be an integer >= 1, got {v!r}")

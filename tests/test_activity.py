@@ -231,6 +231,30 @@ def test_switching_an_effect_off_removes_exactly_its_launches(scene, effect, con
     assert more == less, f"{effect}: launches other than {kernels} changed"
 
 
+@pytest.mark.parametrize("every", [2, 3])
+def test_contact_every_runs_fewer_stages_and_nothing_else(scene, every):
+    """Config.contact_every = k records a contact stage every k-th substep counted back from the last
+    (ceil(substeps / k) stages, the last substep's always), the solver's own launches unchanged; a
+    sphere pressed 2 mm into the back of the hand still ends each frame clean by the skin measure."""
+    subs = Config().substeps
+    runs = {}
+    for k in (1, every):
+        solver, state, objects, top = _solver(scene, contact_every=k)
+        objects.set_pose(0, top + [0.0, 0.0, R - 0.002], (1.0, 0.0, 0.0, 0.0))
+        names = _recorded(solver, state, scene[2])
+        for _ in range(2):
+            out = _step(solver, state, scene[2])
+        runs[k] = names, solver, out
+    (base, s1, o1), (other, s2, o2) = runs[1], runs[every]
+    count = lambda names, k: sum(1 for n in names if n and n.endswith(k))
+    assert count(base, "stage_lists") == subs and len(s1.contact._stage_slots) == subs
+    assert count(other, "stage_lists") == -(-subs // every) == len(s2.contact._stage_slots)
+    own = lambda names: [n for n in names if n and not n.startswith("physhand_mj.contact")]
+    assert own(base) == own(other) and len(own(base)) > 3 * subs
+    assert o1["triangles_tested"] > 0 and o2["triangles_tested"] > 0
+    assert o1["penetration_count"] == 0 and o2["penetration_count"] == 0, (o1, o2)
+
+
 def test_substep_metrics_only_when_asked_and_change_nothing_else(scene):
     runs = []
     for sub in (False, True):

@@ -227,13 +227,16 @@ def test_no_check_point_is_a_feature_point(spacing):
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
+@pytest.mark.parametrize("fused", [False, True])
 @pytest.mark.parametrize("kind, site, start", [("knife", "fingertip", 0.002), ("mesh_cone", "palm", -0.004)])
-def test_hard_case_on_cuda(asset, kind, site, start):
+def test_hard_case_on_cuda(asset, kind, site, start, fused):
     """The default contact (features, side-aware exits, tether) captured in a CUDA graph ends these
     cases at zero by both measures, like the CPU (the skin's BVH refits inside the graph). CUDA's
     atomics sum in no fixed order, so runs differ: over the last frames before the end a point may
-    flicker (H100: the mesh cone, one point at 4.9 um in one of four frames), bounded at 10 um."""
-    r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device="cuda"), frames=14,
+    flicker (H100: the mesh cone, one point at 4.9 um in one of four frames), bounded at 10 um.
+    Also with each stage in one launch (Config.fused_stage)."""
+    r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device="cuda", fused_stage=fused),
+                 frames=14,
                  asset=asset)
     msg = {k: r[k][-HOLD:].tolist() for k in MEASURES}
     assert r["finite"] and np.all(r["dense_count"][-HOLD:] == 0), msg

@@ -21,7 +21,7 @@ from physhand_mj.contact.query import apply_contact, decide_and_project
 from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
 from physhand_mj.contact.stage import STAGE_LANES, record_stage
 from physhand_mj.types import Config, Model, Placement, Strategy
-from physhand_mj.solver.solver import launch_options
+from physhand_mj.solver.solver import SolverError, launch_options
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -146,10 +146,13 @@ class Contact(ContactMeasures):
         self.feature_lanes = FEATURE_LANES if cuda else 1
         # Config.fused_stage: a stage in one launch (contact/stage.py), one hand with multires
         self.fused = bool(config.fused_stage and w == 1 and config.contact == Strategy.MULTIRES)
-        if self.fused and cuda:
-            raise ValueError("Config.fused_stage runs on the CPU only so far: it builds for CUDA but has not been "
-                             "checked on a GPU yet (docs/activity.md, 'Left'); use fused_stage=False on a GPU")
         self.stage_lanes = STAGE_LANES if cuda else 1
+        # blocks of a fused stage: one per SM on CUDA (all resident at once: the stage's grid barriers
+        # need it), one thread on the CPU; the barrier's [arrived, generation, stuck] and the host's
+        # copy of stuck
+        self.stage_blocks = wp.get_device(d).sm_count if cuda else 1
+        self.stage_barrier = wp.zeros(4, dtype=int, device=d)
+        self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
@@ -521,12 +524,24 @@ class Contact(ContactMeasures):
         once per frame)."""
         wp.copy(self._metrics_host, self.metrics)
         wp.copy(self._counters_host, self.counters)
+        if self.fused:
+            wp.copy(self._stuck_host, self.stage_barrier[2:3])
         if self.world_stage is not None:
             wp.copy(self._world_stage_host, self.world_stage)
         if self.feat is not None:
             wp.copy(self._feat_host, self.feat_count)
             if self.config.feature_winding:
                 wp.copy(self._patch_used_host, self.patch_used)
+
+    def raise_if_stuck(self) -> None:
+        """After the frame's sync: raise when a fused stage's grid barrier gave up waiting for a block
+        (stage.grid_sync: its blocks were not resident at once, e.g. another kernel held SMs), since
+        that frame's contact did not run to the end."""
+        if self.fused and self._stuck_host.numpy()[0]:
+            self.stage_barrier.zero_()
+            raise SolverError("contact: a fused stage's blocks did not all run at once (Config.fused_stage needs the "
+                               "GPU's SMs to itself for a stage: no other kernel running beside it); this frame's "
+                               "contact stopped early; use fused_stage=False")
 
     def features_listed(self) -> int:
         """Object feature points in the last frame's list (after the frame's sync); warns once when

@@ -1,14 +1,14 @@
-"""A contact stage in one launch (``Config.fused_stage``): one block walks the whole stage.
+"""A contact stage in one launch (``Config.fused_stage``): the whole stage between grid barriers.
 
 The recorded stage (contact.py) is a chain of launches: the stage's triangle lists, its feature list
 with the first feature push, then per pass the feature push, its apply, the decision points (Eq. 9),
-their apply and the next pass's list, each later pass behind a conditional graph node on CUDA. For
-one hand each of those launches holds little work (tens to a few thousand list entries) and the
-chain is bound by launches and idle blocks: on an H100 a pass that runs costs ~50 us, of which the
-work is a small part (docs/activity.md). Here the same phases run in one block of ``STAGE_LANES``
-threads, separated by block-level barriers instead of launches, and the passes are a loop that
-stops after a pass that moved nothing (the same rule as activity.py's level 2). Every phase calls
-the per-item functions of the recorded kernels, so the decisions are theirs:
+their apply and the next pass's list, each later pass behind a conditional graph node on CUDA. Here
+the same phases run in one launch, separated by barriers instead of launches, and the passes are a
+loop that stops after a pass that moved nothing (the same rule as activity.py's level 2). On CUDA
+the launch is a block of ``STAGE_LANES`` threads per SM, all resident at once, and the barrier is
+:func:`grid_sync` (a block barrier, then an arrival counter and a generation word in global memory
+with fences on both sides); on the CPU a block is one thread and the barrier a no-op. Every phase
+calls the per-item functions of the recorded kernels, so the decisions are theirs:
 
     stage lists         broadphase.stage_list_entry (a thread per frame-list triangle)
     feature list + push a warp per listed feature point: features.closest_warp, push_feature
@@ -17,11 +17,15 @@ the per-item functions of the recorded kernels, so the decisions are theirs:
     next list           broadphase.keep_if_moved
 
 Counters go to the same slots of ``Contact.counters`` as the recorded stage's, so what ran is
-reported alike. On the CPU a block is one thread, which runs the phases in order: the recorded
-stage's results bit for bit where that stage runs CUDA's feature kernels (forced on the CPU in
-tests/test_stage.py); the CPU's default feature path walks the skin's BVH with the pseudo-normal
-sign and differs (on a hard case starting 4 mm deep, up to ~3 mm at a vertex after 3 frames). One
-world only.
+reported alike. On the CPU the skin and every counter equal the recorded stage's bit for bit where
+that stage runs CUDA's feature kernels (forced on the CPU in tests/test_stage.py); the CPU's default
+feature path walks the skin's BVH with the pseudo-normal sign and differs. One world only.
+
+Measured on an H100 (2026-11-25, docs/activity.md): correct (the hard cases' 600 held frames clean by
+both measures), not faster. One block for the whole stage (the first design) took 12.8 ms a demo
+frame against ~4 (eight warps on one SM wait on memory); a block per SM 4.15-4.18 against 4.03-4.36
+ms held and 3x slower on the hard cases (the decision points' per-thread lattice and BVH walks are
+the critical path there, where the recorded kernel gives each triangle a warp). Off by default.
 """
 
 import warp as wp
@@ -47,12 +51,44 @@ STAGE_LANES = 256
 WARP = 32  # lanes per feature point on CUDA (a warp: shuffle reductions, no barrier)
 
 
+# spins of a block's thread 0 at a grid barrier before it gives up and flags the launch (a block
+# that never arrives: the grid was not resident at once); ~1 s at the 64 ns sleep per spin
+BARRIER_SPINS = 1 << 24
+
+
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
 __syncthreads();
+if (gridDim.x > 1) {
+    if (threadIdx.x == 0) {
+        volatile int* gen = (volatile int*)(bar.data + 1);
+        int g = *gen;
+        __threadfence();
+        if (atomicAdd(bar.data, 1) == (int)gridDim.x - 1) {
+            atomicExch(bar.data, 0);
+            __threadfence();
+            atomicAdd(bar.data + 1, 1);
+        } else {
+            int spins = 0;
+            while (*gen == g) {
+                __nanosleep(64);
+                if (++spins > spins_max) { atomicExch(bar.data + 2, 1); break; }
+            }
+        }
+        __threadfence();
+    }
+    __syncthreads();
+}
 #endif
 """)
-def block_sync(unused: int): ...
+def grid_sync(bar: wp.array(dtype=int), spins_max: int): ...
+
+
+# grid_sync: a barrier over every thread of the launch: the block's threads, then (more than one
+# block) the blocks through ``bar`` = [arrived, generation, stuck], with fences on both sides (what a
+# block wrote before is seen by every block after). The blocks must all be resident at once (one per
+# SM: record_stage); a block whose thread 0 waits more than ``spins_max`` spins sets ``bar[2]`` and
+# goes on (Contact.raise_if_stuck raises after the frame). No-op on the CPU (one thread).
 
 
 @wp.func_native("""
@@ -210,6 +246,7 @@ def contact_stage(
     patch_start: wp.array(dtype=int),
     patch_len: wp.array(dtype=int),
     far_angle: wp.array(dtype=float),
+    total: int,
     # state and contact buffers (read and written)
     x: wp.array(dtype=wp.vec3),
     counters: wp.array(dtype=int),
@@ -230,13 +267,14 @@ def contact_stage(
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
     disp: wp.array(dtype=float),
+    bar: wp.array(dtype=int),
 ):
     """One contact stage (module docstring); launch one block: dim = block_dim = STAGE_LANES on
     CUDA, 1 on the CPU. ``slots``: the stage's counter slots [active list, first pass list, then per
     pass: Eq. 9's touched, the features' touched (-1: no features), the next pass's list (-1: last),
     the last push's touched (-1: none)]."""
     lane = wp.tid()
-    lanes = wp.block_dim()
+    lanes = total
     # the stage's active triangles (within contact_margin) of the frame's list, and its first pass's list
     s_act = slots[0]
     s_lst = slots[1]
@@ -248,7 +286,7 @@ def contact_stage(
                          counters[s_act: s_act + 1], pass_list, pass_mask, counters[s_lst: s_lst + 1])
         k += lanes
     n_feat = feat_count[0]
-    block_sync(0)
+    grid_sync(bar, BARRIER_SPINS)
     n_act = counters[s_act]
     # the stage's features (inside the skin or within contact_margin of it) and the first pass's push
     s_feat0 = slots[3]
@@ -257,7 +295,7 @@ def contact_stage(
                       cand, n_cand, pts, pts_geom, pose, geom_obj, frame_margin, feature_offset, margin, eps, x,
                       winding, feat_slot, pool, patch_start, patch_len, far_angle, delta, hits, touched,
                       counters[s_feat0: s_feat0 + 1], vertex_obj)
-    block_sync(0)
+    grid_sync(bar, BARRIER_SPINS)
     n_stage = feat_stage_counts[stage]
     lst = s_lst
     for p in range(passes):
@@ -273,9 +311,9 @@ def contact_stage(
                               n_cand, pts, pts_geom, pose, geom_obj, frame_margin, feature_offset, margin, eps, x,
                               winding, feat_slot, pool, patch_start, patch_len, far_angle, delta, hits, touched,
                               counters[s_feat: s_feat + 1], vertex_obj)
-                block_sync(0)
+                grid_sync(bar, BARRIER_SPINS)
             apply_phase(lane, lanes, touched, counters[s_feat], stamp, delta, hits, x, push, moved, disp)
-            block_sync(0)
+            grid_sync(bar, BARRIER_SPINS)
         # the decision points of the pass's list and Eq. 9 (a thread per triangle)
         n_lst = counters[lst]
         k = lane
@@ -285,17 +323,17 @@ def contact_stage(
                             hits,
                             decision, vertex_obj, bound, bound_mask, eval_x, touched, counters[s_eq9: s_eq9 + 1])
             k += lanes
-        block_sync(0)
+        grid_sync(bar, BARRIER_SPINS)
         apply_phase(lane, lanes, touched, counters[s_eq9], stamp, delta, hits, x, push, moved, disp)
-        block_sync(0)
+        grid_sync(bar, BARRIER_SPINS)
         if s_last >= 0:  # the last feature push (Config.feature_last)
             feature_phase(lane, lanes, feat_stage, n_stage, 0, margin, feat_stage, feat_stage_counts, faces, cand,
                           n_cand, pts, pts_geom, pose, geom_obj, frame_margin, feature_offset, margin, eps, x,
                           winding, feat_slot, pool, patch_start, patch_len, far_angle, delta, hits, touched,
                           counters[s_last: s_last + 1], vertex_obj)
-            block_sync(0)
+            grid_sync(bar, BARRIER_SPINS)
             apply_phase(lane, lanes, touched, counters[s_last], stamp, delta, hits, x, push, moved, disp)
-            block_sync(0)
+            grid_sync(bar, BARRIER_SPINS)
         if s_next < 0:
             break
         moved_any = counters[s_eq9]
@@ -308,7 +346,7 @@ def contact_stage(
             keep_if_moved(active[k], active_mask[k], faces, moved, disp, stamp, bound, pass_list, pass_mask,
                           counters[s_next: s_next + 1])
             k += lanes
-        block_sync(0)
+        grid_sync(bar, BARRIER_SPINS)
         lst = s_next
 
 
@@ -345,14 +383,15 @@ def record_stage(contact, launch, state) -> None:
     dummy = contact.cand
     # (no features listed this recording: the patch arrays may not exist; the stand-ins are never read)
     wind = contact._winding_args() if feats else [0, dummy, dummy, dummy, dummy, contact.feat_stage_float]
-    launch(contact_stage, contact.stage_lanes,
+    total = contact.stage_blocks * contact.stage_lanes
+    launch(contact_stage, total,
            [m.skin_faces, o.gtype, o.size, o.inv_pose, o.pose, o.radius, o.mesh, o.mesh_exact, o.count, o.obj,
             contact.cand, contact.cand_mask, contact.feat if feats else dummy, contact.feat_count, pts.pts, pts.geom,
             contact._slot_array(slots), stage, cfg.contact_passes, cfg.contact_margin, cfg.contact_frame_margin,
             cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(contact.closed_skin and cfg.side_aware),
-            cfg.feature_offset, contact.feature_eps, *wind],
+            cfg.feature_offset, contact.feature_eps, *wind, total],
            [state.x, contact.counters, contact.active, contact.active_mask, contact.pass_list, contact.pass_mask,
             contact.feat_stage if feats else dummy, contact.feat_stage_counts, contact.bound, contact.bound_mask,
             contact.eval_x, contact.decision, contact.delta, contact.hits, contact.touched, contact.vertex_obj,
-            contact.push, contact.moved, contact.disp],
+            contact.push, contact.moved, contact.disp, contact.stage_barrier],
            block_dim=contact.stage_lanes)

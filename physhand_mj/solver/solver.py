@@ -245,6 +245,7 @@ class Solver(Sleeping):
         if self.contact is not None and self.config.skin_tether > 0:
             out["tethered"] = int(g[2])
         if self.contact is not None:
+            self.contact.raise_if_stuck()
             self._contact_summary(out)
             self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
@@ -394,7 +395,9 @@ class Solver(Sleeping):
             if s == cfg.substeps:
                 break
             contact = self.contact
-            if contact is not None and contact.wants("before"):
+            # Config.contact_every: the contact stages of this substep (the last substep always has them)
+            staged = (cfg.substeps - 1 - s) % cfg.contact_every == 0
+            if contact is not None and staged and contact.wants("before"):
                 gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             for it in range(cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
@@ -415,11 +418,11 @@ class Solver(Sleeping):
                                    count=order[1] if order else None)
                     if jacobi:
                         pending = row
-            if contact is not None and (contact.wants("after") or cfg.substep_metrics):
+            if contact is not None and ((staged and contact.wants("after")) or cfg.substep_metrics):
                 if pending >= 0:  # the substep's positions must be final before contact / metrics
                     apply(pending)
                     pending = -1
-                if contact.wants("after"):
+                if staged and contact.wants("after"):
                     gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
                 if pending >= 0:
