@@ -112,3 +112,26 @@ def test_grasp_glass_still_closes_on_the_glass():
     assert len(touching) >= 3, f"{len(touching)} proxy contacts with the glass after 50 frames"
     assert data.qpos[mcp3] - q0[mcp3] > 0.5 and data.qpos[mcp3] < target, (
         f"mcp3 flexion {q0[mcp3]:.3f} -> {data.qpos[mcp3]:.3f} rad (target {target:.3f})")
+
+
+def test_grasp_glass_keeps_the_bones_out_of_the_glass():
+    """The demo's closing targets stop each digit at the glass (physhand_mj.build.scenes.GRASP_CLOSE):
+    over 80 frames from `approach` no collision proxy goes deeper than 3 mm into the glass while the
+    hand closes nor 1.2 mm while it holds (frames 40 on), and no bone mesh (its convex hull, which
+    overstates a curved phalanx) deeper than 2.5 / 1.0 mm. The targets before 2026-11-25 (past the
+    glass) drove the thumb's bone 10.5 mm in, where no skin could stay outside."""
+    model, data = _compile("grasp_glass")
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    glass = model.geom("glass").id
+    ft = np.zeros(6)
+    proxies = [g for g in range(model.ngeom) if model.geom(g).name.endswith("_proxy")]
+    bones = [g for g in range(model.ngeom) if model.geom(g).name.endswith("_bone")]
+    depth = np.zeros((80, 2))
+    for f in range(80):
+        mujoco.mj_step(model, data)
+        for col, geoms in enumerate((proxies, bones)):
+            depth[f, col] = -min(mujoco.mj_geomDistance(model, data, g, glass, 0.05, ft) for g in geoms)
+    touching = sum(1 for g in proxies if mujoco.mj_geomDistance(model, data, g, glass, 0.05, ft) < 2.0e-4)
+    assert touching >= 4, touching  # the digits still reach the glass
+    assert depth[:, 0].max() < 3.0e-3 and depth[40:, 0].max() < 1.2e-3, depth[:, 0].max(axis=0)
+    assert depth[:, 1].max() < 2.5e-3 and depth[40:, 1].max() < 1.0e-3, (depth[:, 1].max(), depth[40:, 1].max())

@@ -83,7 +83,7 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
     skin triangles within contact_frame_margin of a feature point, summed on the skin as it is now,
     plus the rest's from the frame's start) against the full generalised winding number (every skin
     triangle's solid angle, numpy): the same side for every listed feature point at the end of each
-    frame of the demo's approach (the farthest the skin has moved since the far part was taken),
+    frame of the demo's approach with its old closing targets (the farthest the skin has moved since the far part was taken),
     where Warp's pseudo normals take outside points in front of turned-over skin triangles as inside
     (they do here: the case is the one docs/contact.md measures). Both the CPU's sum (winding_sign)
     and the block-per-feature kernels' (closest_tiled: CUDA's, FEATURE_LANES lanes there)."""
@@ -92,6 +92,11 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    # the demo's closing targets before 2026-11-25, past the glass (0.75 of the way to the power
+    # grasp from the open hand): the fingers squeeze the skin against the glass and turn skin
+    # triangles over (the demo's targets now stop at the glass: build.scenes.GRASP_CLOSE)
+    hand_only = mujoco.MjModel.from_xml_path(str(ph.scene_path("hand_only")))
+    data.ctrl[:] = 0.75 * hand_only.key("power").ctrl + 0.25 * hand_only.key("open").ctrl
     mujoco.mj_forward(model, data)
     hand = ph.SoftHand(model, data, ph.Config(device=device))
     c, state = hand.solver.contact, hand.state

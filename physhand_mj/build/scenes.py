@@ -105,6 +105,14 @@ def _scene_xml(model: str, comment: str, include: str, bodies: str, keys: list[s
 
 
 GLASS = dict(radius=0.035, half_height=0.06)  # m: a drinking glass (solid cylinder for contact)
+# the demo's closing targets per digit: ctrl = a * (hand_only's power key) + (1 - a) * (the start
+# pose), a per digit. Each a is the largest on a 0.025 grid (0.15 to 0.65) for which MuJoCo alone
+# (80 frames from `approach`) closes that digit onto the glass (its nearest proxy within ~0.1 mm at
+# the end) while keeping its collision proxies and bone hulls within ~1 mm of the glass's surface
+# (mj_geomDistance) while closing; the little finger touches already at 0.15. Past the glass
+# (0.75 for every digit until 2026-11-25) the position actuators drove the thumb's bone 10.5 mm into
+# the glass, where no skin can stay outside it (docs/coupling.md, benchmarks/demo_residue.py).
+GRASP_CLOSE = {"thumb": 0.225, "index": 0.6, "middle": 0.59, "ring": 0.54, "little": 0.15}
 
 
 def _thumb_clear_of_glass(hand_only_xml: Path, qpos, mount, quat, radius: float, half_height: float,
@@ -164,6 +172,16 @@ def palm_mount(asset, palm_world) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(palm_world, float) - rot @ palm, quat
 
 
+def _digit(joint: str) -> str | None:
+    """The digit a MyoHand joint moves ("thumb", "index", ..., "little"), None for the wrist."""
+    if joint in THUMB:
+        return "thumb"
+    for k, name in FINGERS.items():
+        if joint.startswith((f"mcp{k}_", f"pm{k}_", f"md{k}_")):
+            return name
+    return None
+
+
 def write_grasp_glass_scene(scene_xml: Path, asset, hand_only_xml: Path) -> None:
     """``mjcf/scenes/grasp_glass.xml``: the hand, palm facing +y and fingers along +x, beside a glass
     standing on the floor; keyframes ``approach`` (open hand, closing targets in ctrl: step MuJoCo
@@ -179,9 +197,14 @@ def write_grasp_glass_scene(scene_xml: Path, asset, hand_only_xml: Path) -> None
     model = mujoco.MjModel.from_xml_path(str(hand_only_xml))
     power = model.key("power")
     open_ = model.key("open")
-    grasp_ctrl = 0.75 * power.ctrl + 0.25 * open_.ctrl  # targets short of the fist: the glass stops the fingers
     start = _thumb_clear_of_glass(hand_only_xml, open_.qpos, mount, quat, r, hh)
     hold = start[[model.jnt_qposadr[model.actuator_trnid[a, 0]] for a in range(model.nu)]]
+    # targets short of the fist, per digit just past where the glass stops it (GRASP_CLOSE)
+    grasp_ctrl = 0.75 * power.ctrl + 0.25 * open_.ctrl  # (the wrist's: unchanged)
+    for a in range(model.nu):
+        digit = _digit(model.joint(model.actuator_trnid[a, 0]).name)
+        if digit is not None:
+            grasp_ctrl[a] = GRASP_CLOSE[digit] * power.ctrl[a] + (1.0 - GRASP_CLOSE[digit]) * hold[a]
 
     def fmt(a):
         return " ".join(f"{v:.6g}" for v in np.ravel(a))
