@@ -429,10 +429,19 @@ class BatchedHands:
         return out
 
     def skin(self, world: int) -> np.ndarray:
-        """(n_skin, 3) skin positions (m) of one world, in its frame."""
+        """(n_skin, 3) skin positions (m) of one world, in its frame (copies that world's part only)."""
         self._alive()
         ns = self.asset.n_skin
-        return self.state.x.numpy()[world * ns:(world + 1) * ns] - self.offsets[world].astype(np.float32)
+        return self.state.x[world * ns:(world + 1) * ns].numpy() - self.offsets[world].astype(np.float32)
+
+    def skins(self) -> np.ndarray:
+        """(W, n_skin, 3) every world's skin positions (m), each in its frame, in one copy from the
+        device (a batched rollout's end: skin(w) per world copied the whole state W times, 89 ms a
+        world at W = 1024 on an H100, 91 of the batch's 147 s)."""
+        self._alive()
+        ns = self.asset.n_skin
+        x = self.state.x[: self.worlds * ns].numpy().reshape(self.worlds, ns, 3)
+        return x - self.offsets[:, None, :].astype(np.float32)
 
     def positions(self, world: int) -> np.ndarray:
         """(N, 3) all positions (m) of one world, in the asset's vertex order and the world's frame."""

@@ -8,7 +8,9 @@ The runs of a list whose scenes hold the same objects (the same geoms: types, si
 same time step) share a batch; the others go to batches of their own. A batch is one
 :class:`~physhand_mj.batch.BatchedHands`: each run keeps its own MjModel / MjData, stepped with
 ``mujoco.mj_step`` one world after another, and its bone and object poses go into the batch, whose
-one solver frame advances every world. Each run then writes what the serial
+one solver frame advances every world (stepping MuJoCo world by world costs 28-87 us a world-frame
+on an H100 host, a few percent of a batch: benchmarks/mujoco_side.py, docs/scale.md). Each run then
+writes what the serial
 :func:`~physhand_mj.rollout.rollout` writes (``log.csv``, ``skin_final.ply``, its summary row, its
 JSON line), from per-world measures: every world is measured against its own objects.
 
@@ -34,19 +36,39 @@ from physhand_mj.rollout import (LOG_COLUMNS, check_counts, failed_row, frame_ro
                                  rollout_config, run_names, start_row, summary_row, write_summary)
 
 
+def scene_key(scene) -> tuple | None:
+    """A scene file's identity for sharing its compiled model: resolved path and modification time
+    (None if it does not exist: the run fails on loading)."""
+    path = Path(scene)
+    try:
+        return str(path.resolve()), path.stat().st_mtime_ns
+    except OSError:
+        return None
+
+
 class _Run:
     """One run of a batch: its scene, its MuJoCo model and data, its log."""
 
-    def __init__(self, index: int, scene, key, out: Path, asset):
+    def __init__(self, index: int, scene, key, out: Path, asset, models: dict | None = None):
+        """``models``: scene key (:func:`scene_key`) -> (MjModel, bones, geoms) of the scenes loaded
+        before: runs of one scene file share its compiled model (each has its own MjData); compiling
+        it once per run took ~20 ms a run (W = 1024: most of a batch's set-up)."""
         from physhand_mj.coupling import check_skin_mesh, geom_spec, select_object_geoms
         from physhand_mj.hand_mjcf import body_ids, skin_geom_id
 
         self.index, self.scene, self.out = index, scene, out
-        self.model, self.data, self.key = load_rollout_scene(scene, key)
-        skin = skin_geom_id(self.model, "")
-        check_skin_mesh(self.model, skin, asset)
-        self.bones = body_ids(self.model, [str(b) for b in asset.body_names])
-        self.geoms = select_object_geoms(self.model, self.bones, skin)
+        k = scene_key(scene) if models is not None else None
+        if k is not None and k in models:  # (models hold only scenes that loaded)
+            model, self.bones, self.geoms = models[k]
+            self.model, self.data, self.key = load_rollout_scene(scene, key, model)
+        else:
+            self.model, self.data, self.key = load_rollout_scene(scene, key)
+            skin = skin_geom_id(self.model, "")
+            check_skin_mesh(self.model, skin, asset)
+            self.bones = body_ids(self.model, [str(b) for b in asset.body_names])
+            self.geoms = select_object_geoms(self.model, self.bones, skin)
+            if k is not None:
+                models[k] = (self.model, self.bones, self.geoms)
         self.specs = [geom_spec(self.model, self.data, g) for g in self.geoms]
         self.times: list[float] = []
         self.error: str | None = None
@@ -150,9 +172,10 @@ def _grouped(targets, worlds: int, asset, out: Path, names):
     :class:`_Run` s with the same objects (a batch, as soon as it is full; the unfilled ones at the
     end), or ``(index, error)`` for a run whose scene could not be loaded."""
     open_batches: dict[tuple, list[_Run]] = {}
+    models: dict = {}  # one compiled model per scene file
     for i, ((scene, key), name) in enumerate(zip(targets, names)):
         try:
-            run = _Run(i, scene, key, out / name, asset)
+            run = _Run(i, scene, key, out / name, asset, models)
         except (FileNotFoundError, ValueError, RuntimeError) as e:
             yield i, e
             continue
@@ -275,10 +298,11 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
             if r.file is not None:
                 r.file.close()
     d = str(hands.solver.device)
+    skins = hands.skins()  # (one copy from the device for the batch)
     for w, r in enumerate(runs):
         if rows[r.index] is not None:  # failed: no skin, as the serial run
             continue
-        skin = hands.skin(w).astype(np.float64)
+        skin = skins[w].astype(np.float64)
         skin_path = r.out / "skin_final.ply"
         trimesh.Trimesh(skin, asset.skin_faces, process=False).export(skin_path)
         rows[r.index] = summary_row(r.scene, r.key, r.times, substeps, contact, starts[w], last[w],

@@ -37,19 +37,21 @@ LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_ma
 ACTIVITY = LOG_COLUMNS[-4:]  # what ran in the frame (physhand_mj/activity.py), on its last row
 
 
-def load_scene(scene, keyframe: str | None = None):
+def load_scene(scene, keyframe: str | None = None, model=None):
     """(model, data, keyframe name or None) with the keyframe applied and kinematics run. Raises
-    FileNotFoundError / ValueError with one line that says what to fix."""
+    FileNotFoundError / ValueError with one line that says what to fix. ``model``: the scene's
+    MjModel compiled before (batched rollouts share one per scene file); a new MjData either way."""
     import mujoco
 
     path = Path(scene)
     if not path.is_file():
         raise FileNotFoundError(f"scene file not found: {path}")
-    try:
-        model = mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as e:
-        first = " ".join(str(e).split())[:300]
-        raise ValueError(f"malformed MJCF {path}: {first}") from None
+    if model is None:
+        try:
+            model = mujoco.MjModel.from_xml_path(str(path))
+        except ValueError as e:
+            first = " ".join(str(e).split())[:300]
+            raise ValueError(f"malformed MJCF {path}: {first}") from None
     data = mujoco.MjData(model)
     names = [model.key(k).name for k in range(model.nkey)]
     if keyframe is not None:
@@ -131,11 +133,11 @@ def check_counts(steps: int, substeps: int) -> None:
         raise ValueError(f"--steps and --substeps must be at least 1, got {steps} and {substeps}")
 
 
-def load_rollout_scene(scene, keyframe: str | None = None):
+def load_rollout_scene(scene, keyframe: str | None = None, model=None):
     """:func:`load_scene`, and a SolverError when the keyframe holds non-finite qpos or ctrl."""
     from physhand_mj.solver import SolverError
 
-    model, data, key = load_scene(scene, keyframe)
+    model, data, key = load_scene(scene, keyframe, model)
     if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.ctrl))):
         raise SolverError(f"keyframe '{key}' of {Path(scene).name} holds non-finite qpos or ctrl")
     return model, data, key

@@ -191,6 +191,8 @@ def test_batched_worlds_with_their_own_objects(setup):
         np.testing.assert_array_equal(batch.positions(w), st.x.numpy())
     moved = np.abs(batch.skin(1) - rest[: asset.n_skin]).max()
     assert moved > 1e-3 > np.abs(batch.skin(0) - rest[: asset.n_skin]).max() * 10  # world 1 pressed, world 0 not
+    skins = batch.skins()  # every world's skin in one copy, each in its own frame (worlds here sit 1 m apart)
+    assert skins.shape == (2, asset.n_skin, 3) and all(np.array_equal(skins[w], batch.skin(w)) for w in range(2))
 
 
 @pytest.mark.parametrize("tiled", [False, True, "scan"], ids=["bvh", "tiled", "scan"])
