@@ -151,8 +151,11 @@ class Contact(ContactMeasures):
         # need it), one thread on the CPU; the barrier's [arrived, generation, stuck] and the host's
         # copy of stuck
         self.stage_blocks = wp.get_device(d).sm_count if cuda else 1
-        self.stage_barrier = wp.zeros(4, dtype=int, device=d)
-        self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
+        self.stage_barrier = self._stuck = self._stuck_host = None
+        if self.fused:
+            self.stage_barrier = wp.zeros(4, dtype=int, device=d)
+            self._stuck = self.stage_barrier[2:3]  # (the view copied every frame, made once)
+            self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
@@ -525,7 +528,7 @@ class Contact(ContactMeasures):
         wp.copy(self._metrics_host, self.metrics)
         wp.copy(self._counters_host, self.counters)
         if self.fused:
-            wp.copy(self._stuck_host, self.stage_barrier[2:3])
+            wp.copy(self._stuck_host, self._stuck)
         if self.world_stage is not None:
             wp.copy(self._world_stage_host, self.world_stage)
         if self.feat is not None:
