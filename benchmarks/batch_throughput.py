@@ -58,6 +58,9 @@ def plot(out: Path) -> Path:
         hz = [r["hand_frames_per_s"] for r in d["rows"]]
         dev = "H100" if "H100" in d["device"] else ("CPU" if d["device"].startswith("cpu") else d["device"])
         variant = ", ".join(f"{k}={v}" for k, v in (d.get("config") or {}).items())
+        tag = f.stem.removeprefix("batch_throughput_").split("_", 1)[1:]  # the file's --tag (after cuda/cpu)
+        tag = tag[0].removeprefix("objects").strip("_") if tag else ""
+        variant = ", ".join(v for v in (variant, tag) if v)
         ax.plot(w, hz, "o-" if d["contact"] else "s--",
                 label=f"{dev}, {'a sphere pressing each hand' if d['contact'] else 'no contact'}"
                       + (f" ({variant})" if variant else ""))

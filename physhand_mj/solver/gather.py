@@ -66,6 +66,48 @@ def idle(lam: wp.array(dtype=float), j: int, reset: int, slots: wp.array(dtype=w
             slots[s + k * nc] = wp.vec3(0.0)
 
 
+# lanes per vertex of a group's apply on CUDA (integrate.apply_jacobi; JACOBI_GROUPS' order: edges,
+# tets, dihedrals): lane l sums entries l, l + L, ... of the vertex's row, then the L partial sums
+# are added by shuffles. More loads in flight than a thread walking ~8-14 scattered slots alone
+# (H100, 256 worlds, one launch, benchmarks/gather_layouts.py: the edge group 0.28 -> 0.23 ms with 2
+# lanes, the tet group 0.77 -> 0.41 ms with 4). The CPU keeps one lane: there a vertex sums in the
+# atomics' order (bit for bit); on CUDA the sum's order is fixed too (runs repeat bit for bit).
+GATHER_LANES = (2, 4, 1)
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+if (lanes > 1) {
+    // the L lanes of a vertex: neighbours in one warp, all present (the launch is L x the vertices)
+    int first = (threadIdx.x & 31) & ~(lanes - 1);
+    unsigned m = ((1u << lanes) - 1u) << first;
+    for (int o = lanes / 2; o > 0; o >>= 1) {
+        v.c[0] += __shfl_xor_sync(m, v.c[0], o, lanes);
+        v.c[1] += __shfl_xor_sync(m, v.c[1], o, lanes);
+        v.c[2] += __shfl_xor_sync(m, v.c[2], o, lanes);
+    }
+}
+#endif
+return v;
+""")
+def lanes_sum(v: wp.vec3, lanes: int) -> wp.vec3: ...
+
+
+# lanes_sum: the sum of ``v`` over the ``lanes`` (a power of two, at most 32) neighbouring lanes of
+# a vertex, in every one of them (a shuffle tree); the CPU runs one lane (``lanes`` 1): ``v``.
+
+
+@wp.func
+def gathered_lanes(off: wp.array(dtype=int), slot_ids: wp.array(dtype=int), slots: wp.array(dtype=wp.vec3), i: int,
+                   lane: int, lanes: int):
+    """:func:`gathered`'s sum by ``lanes`` lanes (lane ``lane`` takes every ``lanes``-th entry of
+    vertex ``i``'s row); every lane returns the whole sum. One lane: the row in order."""
+    d = wp.vec3(0.0)
+    for k in range(off[i] + lane, off[i + 1], lanes):
+        d = d + slots[slot_ids[k]]
+    return lanes_sum(d, lanes)
+
+
 @wp.func
 def gathered(delta: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids: wp.array(dtype=int),
              slots: wp.array(dtype=wp.vec3), i: int):

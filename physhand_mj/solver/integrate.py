@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from physhand_mj.solver.gather import gathered
+from physhand_mj.solver.gather import gathered, gathered_lanes
 from physhand_mj.solver.tet import six_volume
 
 
@@ -186,16 +186,24 @@ def apply_jacobi(
     gather_off: wp.array(dtype=int),
     gather_slot: wp.array(dtype=int),
     slots: wp.array(dtype=wp.vec3),
+    lanes: int,
 ):
     """Jacobi step: x_i += omega / n_i * sum of the corrections of vertex i's n_i constraints of
     one group of families (groups run one after another: solver.model.JACOBI_GROUPS): ``delta[i]``
-    plus, when the solver gathers, vertex i's slots."""
-    i = wp.tid()
-    n = vertex_count[group, i]
-    if n > 0.0:
-        x[i] = x[i] + gathered(delta, gather_off, gather_slot, slots, i) * (relaxation / n)
-    if gather_off.shape[0] == 0:  # (the gather leaves delta alone: zero)
+    plus, when the solver gathers, vertex i's slots, summed by ``lanes`` neighbouring threads
+    (gather.GATHER_LANES; the launch is ``lanes`` x the vertices; 1 on the atomic path)."""
+    t = wp.tid()
+    i = t // lanes
+    if gather_off.shape[0] == 0:  # the atomic path (one lane); the gather leaves delta alone: zero
+        n = vertex_count[group, i]
+        if n > 0.0:
+            x[i] = x[i] + delta[i] * (relaxation / n)
         delta[i] = wp.vec3(0.0)
+    else:
+        d = gathered_lanes(gather_off, gather_slot, slots, i, t % lanes, lanes)
+        n = vertex_count[group, i]
+        if t % lanes == 0 and n > 0.0:
+            x[i] = x[i] + d * (relaxation / n)
 
 
 @wp.kernel

@@ -25,6 +25,7 @@ import warp as wp
 
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
+from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
@@ -358,7 +359,9 @@ class Solver(Sleeping):
             return [m.gather_off[group], m.gather_slot[group], state.corr]
 
         def apply(group):
-            launch(integrate.apply_jacobi, n, [m.vertex_count, group, cfg.relaxation], [state.x, state.delta] + lists(group))
+            lanes = GATHER_LANES[group] if gather and wp.get_device(d).is_cuda else 1
+            launch(integrate.apply_jacobi, n * lanes, [m.vertex_count, group, cfg.relaxation],
+                   [state.x, state.delta] + lists(group) + [lanes])
         launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
                [state.body_sub, state.guard])
         if self.contact is not None:
