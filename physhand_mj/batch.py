@@ -82,22 +82,30 @@ def replicate_asset(asset, worlds: int):
     )
 
 
+def _tile_checks(a: dict, worlds) -> int:
+    """Whether one world's model arrays ``a`` tile into ``worlds`` worlds (ValueError naming the
+    fix); returns W."""
+    _check_worlds(worlds)
+    if any(len(r) > 1 for r in a["colors"].values()):
+        raise ValueError("tile_model_arrays tiles Jacobi arrays only: the colored scheme's colours span "
+                         "the whole body (build its batch from replicate_asset)")
+    W = int(worlds)
+    n = int(a["n_vertices"])
+    per_world = max([n + 1] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
+    if W * per_world >= 2**31:  # vertex, constraint and slot indices are int32 on the device
+        raise ValueError(f"{W} worlds exceed the device's int32 indices ({W} x {per_world} >= 2^31): "
+                         f"use at most {(2**31 - 1) // per_world} worlds per batch")
+    return W
+
+
 def tile_model_arrays(a: dict, worlds: int) -> dict:
     """One world's host model arrays (``solver.model.model_arrays``) tiled into ``worlds`` worlds laid
     out as :func:`replicate_asset` lays them out (all skins first, world by world, then each world's
     other vertices; bodies ``name#w``), every constraint family world by world. Each world's arrays
     are the single hand's, so a world's model is the serial model exactly (its nearest-vertex
     choices and rest angles included), and the cost is a copy: no per-world rebuild."""
-    _check_worlds(worlds)
-    if any(len(r) > 1 for r in a["colors"].values()):
-        raise ValueError("tile_model_arrays tiles Jacobi arrays only: the colored scheme's colours span "
-                         "the whole body (build its batch from replicate_asset)")
-    W = int(worlds)
+    W = _tile_checks(a, worlds)
     n, ns, nb = int(a["n_vertices"]), int(a["n_skin"]), len(a["body_names"])
-    per_world = max([n + 1] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
-    if W * per_world >= 2**31:  # vertex, constraint and slot indices are int32 on the device
-        raise ValueError(f"{W} worlds exceed the device's int32 indices ({W} x {per_world} >= 2^31): "
-                         f"use at most {(2**31 - 1) // per_world} worlds per batch")
     w = np.arange(W)
 
     def per_vertex(v):  # (n, ...) -> (W n, ...): skins first, then the rest, world by world
@@ -253,13 +261,15 @@ class BatchedHands:
         world = vertex_world(self.solver.model.n_vertices, self.solver.model.n_skin, self.worlds)
         if each:
             self._place(pos, quat, world)
-        # shift each world to its place: positions (x, x_prev, x_safe) and the bones' host poses
-        shift = self.offsets[world].astype(np.float32)
-        import warp as wp
+        # shift each world to its place: positions (x, x_prev, x_safe) and the bones' host poses (the
+        # offsets are zero: every world is solved at the origin; kept for a layout that spreads them)
+        if np.any(self.offsets):
+            import warp as wp
 
-        for name in ("x", "x_prev", "x_safe"):
-            arr = getattr(self.state, name)
-            arr.assign(wp.array(arr.numpy() + shift, dtype=wp.vec3, device="cpu"))
+            shift = self.offsets[world].astype(np.float32)
+            for name in ("x", "x_prev", "x_safe"):
+                arr = getattr(self.state, name)
+                arr.assign(wp.array(arr.numpy() + shift, dtype=wp.vec3, device="cpu"))
         self.body_shift = np.repeat(self.offsets, self.n_bodies, axis=0)
         self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
         self.last_worlds: list[dict] = []
@@ -298,13 +308,17 @@ class BatchedHands:
     def _model(self):
         """The W-world model: one world's arrays tiled (Jacobi: a copy, no per-world rebuild), or for
         the colored scheme (colours over the whole body) the model of the replicated asset."""
-        from physhand_mj.solver.model import make_model, model_arrays, upload_model
+        from physhand_mj.solver.model import make_model, model_arrays
         from physhand_mj.types import Scheme
 
         cfg = self.config.validate()
         if cfg.scheme != Scheme.JACOBI:
             return make_model(self.replicated, cfg)
-        return upload_model(tile_model_arrays(model_arrays(self.asset, cfg, batch=self.worlds > 1), self.worlds), cfg)
+        from physhand_mj.batch_tile import tile_model
+
+        # one world's arrays, tiled by kernels on the device (the same arrays as tile_model_arrays +
+        # upload_model, without the W-wide host copies: batch_tile.py)
+        return tile_model(model_arrays(self.asset, cfg, batch=self.worlds > 1), self.worlds, cfg)
 
     @property
     def replicated(self):

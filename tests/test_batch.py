@@ -3,6 +3,7 @@ world; the replicated asset keeps every world's skin first and its constraints i
 
 import numpy as np
 import pytest
+import warp as wp
 
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands, replicate_asset
@@ -105,6 +106,39 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
         inside = np.ones(len(flat) - 1, bool)  # pairs of neighbours within one vertex's list
         inside[off_t[1:-1][(off_t[1:-1] > 0) & (off_t[1:-1] < len(flat))] - 1] = False
         assert np.all(np.diff(flat)[inside] > 0)
+
+
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda"] if wp.is_cuda_available() else []))
+@pytest.mark.parametrize("gather", [False, True], ids=["atomics", "gather"])
+def test_model_tiled_on_the_device_equals_the_host_tiling(setup, gather, device):
+    """batch_tile.tile_model (one world uploaded, W copies written by kernels; what BatchedHands
+    uses) gives the Model of upload_model(tile_model_arrays(...)) field by field, every array equal
+    in dtype, shape and value."""
+    import dataclasses
+
+    from physhand_mj.batch import tile_model_arrays
+    from physhand_mj.batch_tile import tile_model
+    from physhand_mj.solver.model import model_arrays, upload_model
+
+    cfg = Config(device=device, jacobi_gather=gather).validate()
+    a = model_arrays(setup[0], cfg, batch=True)
+    ref, got = upload_model(tile_model_arrays(a, 3), cfg), tile_model(a, 3, cfg)
+    assert bool(got.gather_off) == gather
+    for f in dataclasses.fields(ref):
+        x, y = getattr(ref, f.name), getattr(got, f.name)
+        if isinstance(x, wp.array):
+            assert (x.dtype, x.shape) == (y.dtype, y.shape), f.name
+            np.testing.assert_array_equal(x.numpy(), y.numpy(), err_msg=f.name)
+        elif isinstance(x, list):
+            assert len(x) == len(y), f.name
+            for u, v in zip(x, y):
+                np.testing.assert_array_equal(u.numpy(), v.numpy(), err_msg=f.name)
+        elif isinstance(x, np.ndarray):
+            np.testing.assert_array_equal(x, y, err_msg=f.name)
+        else:
+            assert x == y, f.name
+    with pytest.raises(ValueError, match="int32"):  # the host tiling's checks
+        tile_model(a, 2**31 // a["n_vertices"] + 1, cfg)
 
 
 @pytest.mark.parametrize("gather", [False, True], ids=["atomics", "gather"])
@@ -272,6 +306,12 @@ def test_metrics_and_guards_per_world(setup):
     assert pen[0]["penetration_count"] == 0 and pen[0]["object_in_skin_count"] == 0, pen
     assert pen[1]["penetration_count"] > 0 and 1500 < pen[1]["penetration_max_um"] <= 2100, pen
     assert pen[1]["object_in_skin_count"] > 0, pen
+    # the object side tests a point only within its own world's skin box (inside.object_points_inside):
+    # one box per world, each its world's queried skin's bounds
+    vol = batch.solver.contact.volume(batch.state)
+    box, pts = vol.box.numpy().reshape(2, 2, 3), vol.points.numpy().reshape(2, -1, 3)
+    np.testing.assert_array_equal(box[:, 0], pts.min(axis=1))
+    np.testing.assert_array_equal(box[:, 1], pts.max(axis=1))
     both = batch.solver.contact.measure(batch.state)  # the batch's row: the worlds' sum / maximum
     assert int(both[0]) == pen[1]["penetration_count"] and abs(both[2] * 1e6 - pen[1]["penetration_max_um"]) < 1e-3
     x = batch.state.x.numpy()

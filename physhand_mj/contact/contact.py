@@ -118,7 +118,9 @@ class Contact(ContactMeasures):
         self._check_points = None  # the denser check set (check_points), built on first use
         self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
-        f = model.skin_faces.numpy()
+        # (batched worlds: world 0's faces, which name world 0's skin vertices; every world is a copy,
+        # and the tolerance below is then the serial hand's to the bit)
+        f = model.skin_faces[: self.tris_per_world].numpy() if n_tris else np.zeros((0, 3), np.int32)
         e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1).astype(np.int64)
         key = e[:, 0] * (int(e.max(initial=0)) + 1) + e[:, 1]  # one integer per edge: a 1-D unique (fast for W worlds)
         self.closed_skin = bool(len(f)) and bool(np.all(np.unique(key, return_counts=True)[1] == 2))
@@ -160,7 +162,7 @@ class Contact(ContactMeasures):
         self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
         # mesh_query_point_sign_normal), here of the rest skin's
-        rest = model.rest_x.numpy()[f] if len(f) else np.zeros((0, 3, 3))
+        rest = model.rest_x[: int(f.max()) + 1].numpy()[f] if len(f) else np.zeros((0, 3, 3))
         edges = np.linalg.norm(rest - np.roll(rest, -1, axis=1), axis=2)
         self.feature_eps = float(1.0e-3 * edges.mean()) if len(f) else 0.0
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
@@ -451,7 +453,7 @@ class Contact(ContactMeasures):
         v = self._volumes.get(key)
         if v is None:
             v = self._volumes[key] = SkinVolume(state.x, self.model.n_skin, self.model.skin_faces, winding,
-                                                shift=self.query_shift)
+                                                shift=self.query_shift, worlds=self.worlds)
         return v
 
     def set_query_offsets(self, offsets) -> None:

@@ -33,7 +33,7 @@ class SkinVolume:
     it carries Warp's fast-winding-number data (a refit then costs ~15 x more: 1.3 vs 0.09 ms for
     10k triangles on a CPU), without it (the contact stage's) only the BVH."""
 
-    def __init__(self, x, n_skin: int, faces, winding: bool = True, shift=None):
+    def __init__(self, x, n_skin: int, faces, winding: bool = True, shift=None, worlds: int = 1):
         f = faces.numpy() if hasattr(faces, "numpy") else np.asarray(faces)
         # ``shift`` (n_skin,) vec3: the mesh holds x + shift (batched worlds at one origin queried
         # apart, Contact.set_query_offsets); :meth:`sync` copies it in before every refit
@@ -44,14 +44,20 @@ class SkinVolume:
         self.mesh = wp.Mesh(points=self.points, indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32,
                                                                   device=x.device),
                             support_winding_number=winding, bvh_constructor=BVH_CONSTRUCTOR)
-        self.box = wp.zeros(2, dtype=wp.vec3, device=x.device)  # the skin's bounding box (lower, upper), m
+        # the skin's bounding box (lower, upper), m; batched worlds (skins world by world): one per
+        # world, world w's at [2 w, 2 w + 1] (a box over every world's skin, 1 m apart, culls nothing)
+        self.worlds = max(int(worlds), 1)
+        self.box = wp.zeros(2 * self.worlds, dtype=wp.vec3, device=x.device)
 
     def ops(self) -> list:
         """Refit the BVH (and winding-number data) to the current positions, and their bounding
         box, as operations for a solver frame (run them in order; :meth:`refit` runs them now)."""
         d = self.box.device
-        return [*self.sync_ops(), self.mesh.refit, lambda: wp.launch(reset_box, 1, inputs=[self.box], device=d),
-                lambda: wp.launch(skin_box, self.points.shape[0], inputs=[self.points], outputs=[self.box], device=d)]
+        per = max(self.points.shape[0] // self.worlds, 1)  # skin vertices per world
+        return [*self.sync_ops(), self.mesh.refit,
+                lambda: wp.launch(reset_box, self.worlds, inputs=[self.box], device=d),
+                lambda: wp.launch(skin_box, self.points.shape[0], inputs=[self.points, per], outputs=[self.box],
+                                  device=d)]
 
     def sync_ops(self) -> list:
         """Ops copying the positions (plus their shift) into the mesh's points (none unshifted)."""
@@ -87,17 +93,20 @@ def shift_poses(pose: wp.array(dtype=wp.transform), offset: wp.array(dtype=wp.ve
 
 @wp.kernel
 def reset_box(box: wp.array(dtype=wp.vec3)):
-    box[0] = wp.vec3(1.0e6)
-    box[1] = wp.vec3(-1.0e6)
+    w = wp.tid()
+    box[2 * w] = wp.vec3(1.0e6)
+    box[2 * w + 1] = wp.vec3(-1.0e6)
 
 
 @wp.kernel
-def skin_box(x: wp.array(dtype=wp.vec3), box: wp.array(dtype=wp.vec3)):
-    """Bounding box of the points x: box[0] = lower, box[1] = upper (reset_box first)."""
+def skin_box(x: wp.array(dtype=wp.vec3), per_world: int, box: wp.array(dtype=wp.vec3)):
+    """Bounding box of the points x per world (``per_world`` points each, world by world):
+    box[2 w] = lower, box[2 w + 1] = upper (reset_box first)."""
     i = wp.tid()
     p = x[i]
-    wp.atomic_min(box, 0, p)
-    wp.atomic_max(box, 1, p)
+    w = i // per_world
+    wp.atomic_min(box, 2 * w, p)
+    wp.atomic_max(box, 2 * w + 1, p)
 
 
 @wp.func
@@ -137,16 +146,18 @@ def object_points_inside(
     """Object surface points (geom-local ``pts`` of geom ``pts_geom``) inside the skin: adds into
     out[row, 3:6] [count, sum of depths m, max depth m]; depth[i] (m, 0 outside) per point.
     ``obj_filter`` >= 0 keeps only that object's points. Batched worlds (physhand_mj/batch.py): the
-    point of geom g belongs to world w = g // ``geoms_per_world`` and adds into row
-    w ``rows_per_world`` + ``row`` (one world: the geom capacity, w = 0)."""
+    point of geom g belongs to world w = g // ``geoms_per_world``, is tested only where it lies in
+    world w's skin box (``box[2 w]``, ``box[2 w + 1]``: outside it no point is inside the closed skin)
+    and adds into row w ``rows_per_world`` + ``row`` (one world: the geom capacity, w = 0)."""
     i = wp.tid()
     g = pts_geom[i]
+    w = g // geoms_per_world  # the point's world (its geom's): tested against that world's skin box
     d = float(0.0)
     if g < geom_count[0] and (obj_filter < 0 or geom_obj[g] == obj_filter):
-        d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[0], box[1])
+        d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[2 * w], box[2 * w + 1])
     depth[i] = d
     if d > 0.0:
-        o = (g // geoms_per_world) * rows_per_world + row
+        o = w * rows_per_world + row
         wp.atomic_add(out, o, 3, 1.0)
         wp.atomic_add(out, o, 4, d)
         wp.atomic_max(out, o, 5, d)
