@@ -5,7 +5,8 @@ Each movable vertex sums the correction slots its constraints wrote (~7-15 per g
 scattered over the family's corner-major slot blocks). Variants, all on the tiled model of a batch
 of ``--worlds`` hands (batch.tile_model_arrays), the slots filled with random corrections:
 
-- ``thread``: the shipped kernel, a thread per vertex walking its CSR row;
+- ``thread``: the kernel as it was, a thread per vertex walking its CSR row (``apply_jacobi`` with
+  one lane; the solver now runs ``lanes<L>``'s scheme: gather.GATHER_LANES);
 - ``lanes<L>``: L neighbouring lanes per vertex, lane l summing entries l, l + L, ... of the row,
   then a shuffle reduction (more loads in flight, the row's slot ids read together);
 - ``morton``: a thread per vertex, vertices taken in Morton order of their rest positions (a
@@ -27,21 +28,9 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from physhand_mj.solver.gather import lanes_sum
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-unsigned m = __activemask();
-for (int o = lanes / 2; o > 0; o >>= 1) {
-    v.c[0] += __shfl_xor_sync(m, v.c[0], o, lanes);
-    v.c[1] += __shfl_xor_sync(m, v.c[1], o, lanes);
-    v.c[2] += __shfl_xor_sync(m, v.c[2], o, lanes);
-}
-#endif
-return v;
-""")
-def lanes_sum(v: wp.vec3, lanes: int) -> wp.vec3: ...
 
 
 @wp.kernel
@@ -122,8 +111,8 @@ def main() -> None:
         n_slots = int(m["gather_slot"][group].max()) + 1
         slots = wp.array(rng.normal(size=(n_slots, 3)).astype(np.float32) * 1e-3, dtype=wp.vec3, device=d)
         variants = {
-            "thread": lambda x: wp.launch(integrate.apply_jacobi, n, inputs=[counts, group, 1.0],
-                                          outputs=[x, empty, off, ids, slots], device=d),
+            "thread": lambda x: wp.launch(integrate.apply_jacobi, n, inputs=[counts, group, 1.0, x, empty, off, ids,
+                                                                             slots, 1], device=d),
             "morton": lambda x: wp.launch(gather_perm, n, inputs=[perm, counts, group, 1.0],
                                           outputs=[x, off, ids, slots], device=d),
         }

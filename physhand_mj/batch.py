@@ -91,7 +91,10 @@ def _tile_checks(a: dict, worlds) -> int:
                          "the whole body (build its batch from replicate_asset)")
     W = int(worlds)
     n = int(a["n_vertices"])
-    per_world = max([n + 1] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
+    from physhand_mj.solver.gather import GATHER_LANES
+
+    # (the Jacobi apply launches max(GATHER_LANES) threads a vertex)
+    per_world = max([max(GATHER_LANES) * (n + 1)] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
     if W * per_world >= 2**31:  # vertex, constraint and slot indices are int32 on the device
         raise ValueError(f"{W} worlds exceed the device's int32 indices ({W} x {per_world} >= 2^31): "
                          f"use at most {(2**31 - 1) // per_world} worlds per batch")

@@ -32,7 +32,8 @@ def tiled_vertex(j: int, n: int, ns: int, worlds: int):
     if j < worlds * ns:
         return j // ns, j % ns
     r = j - worlds * ns
-    return r // (n - ns), ns + r % (n - ns)
+    per = wp.max(n - ns, 1)  # (an asset of skin only: j = W n, the CSR end, lands here)
+    return r // per, ns + r % per
 
 
 @wp.func

@@ -73,6 +73,7 @@ def idle(lam: wp.array(dtype=float), j: int, reset: int, slots: wp.array(dtype=w
 # lanes, the tet group 0.77 -> 0.41 ms with 4). The CPU keeps one lane: there a vertex sums in the
 # atomics' order (bit for bit); on CUDA the sum's order is fixed too (runs repeat bit for bit).
 GATHER_LANES = (2, 4, 1)
+assert all(k in (1, 2, 4, 8, 16, 32) for k in GATHER_LANES)  # lanes_sum: a power of two within a warp
 
 
 @wp.func_native("""
