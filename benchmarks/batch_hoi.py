@@ -7,7 +7,9 @@ without contact, the objects placed), then the bones held at the keyframe (Table
 the contact resolves the grasp's 2.5-3.8 mm initial penetration: ``--frames`` 5 ms frames timed
 after 2 warm-up frames (compilation, recording and graph capture excluded), one host sync per
 frame; the MuJoCo step is not part of it (the poses are the keyframe's). At the end, per world: skin
-samples inside the object (order 5) and object points inside the skin; the worst world is reported.
+samples inside the object (order 5) and object points inside the skin, and the two measures the
+contact does not share (skin samples on the denser order-9 lattice, the object's check points
+inside the skin); the worst world is reported.
 
     python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
                                    [--config '{"feature_winding": false}'] [--profile]
@@ -88,6 +90,11 @@ def main() -> None:
                            object_in_skin_count_max=max(r["object_in_skin_count"] for r in pen),
                            object_in_skin_max_um=round(max(r["object_in_skin_max_um"] for r in pen), 2),
                            finite=bool(np.isfinite(hands.state.x.numpy()).all()))
+                if hands.solver.contact is not None:  # measures the contact does not use: the order-9 lattice,
+                    # and the denser object check points inside the closed skin (worst world)
+                    dense = hands.solver.contact.measure_worlds(hands.state, order=9, check=True)
+                    row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2),
+                               check_count_max=int(dense[:, 3].max()), check_max_um=round(float(dense[:, 5].max()) * 1e6, 2))
                 if a.profile and hands.solver.device.is_cuda:
                     from batch_throughput import kernel_split
 

@@ -5,17 +5,19 @@ Each movable vertex sums the correction slots its constraints wrote (~7-15 per g
 scattered over the family's corner-major slot blocks). Variants, all on the tiled model of a batch
 of ``--worlds`` hands (batch.tile_model_arrays), the slots filled with random corrections:
 
-- ``thread``: the kernel as it was, a thread per vertex walking its CSR row (``apply_jacobi`` with
-  one lane; the solver now runs ``lanes<L>``'s scheme: gather.GATHER_LANES);
-- ``lanes<L>``: L neighbouring lanes per vertex, lane l summing entries l, l + L, ... of the row,
-  then a shuffle reduction (more loads in flight, the row's slot ids read together);
+- ``thread``: a thread per vertex walking its CSR row (``apply_jacobi`` with one lane: the kernel
+  as it was);
+- ``lanes<L>``: ``apply_jacobi`` with L neighbouring lanes per vertex, lane l summing entries l,
+  l + L, ... of the row, then a shuffle reduction (more loads in flight, the row's slot ids read
+  together; the solver's scheme since 2026-11-25: gather.GATHER_LANES);
 - ``morton``: a thread per vertex, vertices taken in Morton order of their rest positions (a
   warp's rows then name neighbouring constraints); ``morton_lanes<L>`` both;
 
     python benchmarks/gather_layouts.py [--device cuda] [--worlds 256] [--launches 50]
 
 Prints (and writes docs/benchmarks/gather_layouts_<device>.json) ms per launch for the edge and tet
-groups, and each variant's largest difference from the shipped sum.
+groups, and each variant's largest difference from the one-thread sum. For CUDA: the CPU has no
+shuffles (its solver runs one lane), so there the lane variants apply only lane 0's share.
 """
 
 from __future__ import annotations
@@ -28,55 +30,21 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from physhand_mj.solver.gather import lanes_sum
+from physhand_mj.solver.gather import gathered_lanes
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @wp.kernel
-def gather_lanes(lanes: int, vertex_count: wp.array2d(dtype=float), group: int, relaxation: float,
-                 x: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids: wp.array(dtype=int),
-                 slots: wp.array(dtype=wp.vec3)):
-    t = wp.tid()
-    i = t // lanes
-    lane = t % lanes
-    d = wp.vec3(0.0)
-    for k in range(off[i] + lane, off[i + 1], lanes):
-        d = d + slots[slot_ids[k]]
-    d = lanes_sum(d, lanes)
-    if lane == 0:
-        n = vertex_count[group, i]
-        if n > 0.0:
-            x[i] = x[i] + d * (relaxation / n)
-
-
-@wp.kernel
-def gather_perm_lanes(lanes: int, perm: wp.array(dtype=int), vertex_count: wp.array2d(dtype=float), group: int,
-                      relaxation: float, x: wp.array(dtype=wp.vec3), off: wp.array(dtype=int),
-                      slot_ids: wp.array(dtype=int), slots: wp.array(dtype=wp.vec3)):
+def gather_perm(lanes: int, perm: wp.array(dtype=int), vertex_count: wp.array2d(dtype=float), group: int,
+                relaxation: float, x: wp.array(dtype=wp.vec3), off: wp.array(dtype=int),
+                slot_ids: wp.array(dtype=int), slots: wp.array(dtype=wp.vec3)):
+    """integrate.apply_jacobi's gather with the vertices taken in the order ``perm``."""
     t = wp.tid()
     i = perm[t // lanes]
-    lane = t % lanes
-    d = wp.vec3(0.0)
-    for k in range(off[i] + lane, off[i + 1], lanes):
-        d = d + slots[slot_ids[k]]
-    d = lanes_sum(d, lanes)
-    if lane == 0:
-        n = vertex_count[group, i]
-        if n > 0.0:
-            x[i] = x[i] + d * (relaxation / n)
-
-
-@wp.kernel
-def gather_perm(perm: wp.array(dtype=int), vertex_count: wp.array2d(dtype=float), group: int, relaxation: float,
-                x: wp.array(dtype=wp.vec3), off: wp.array(dtype=int), slot_ids: wp.array(dtype=int),
-                slots: wp.array(dtype=wp.vec3)):
-    i = perm[wp.tid()]
+    d = gathered_lanes(off, slot_ids, slots, i, t % lanes, lanes)
     n = vertex_count[group, i]
-    if n > 0.0:
-        d = wp.vec3(0.0)
-        for k in range(off[i], off[i + 1]):
-            d = d + slots[slot_ids[k]]
+    if t % lanes == 0 and n > 0.0:
         x[i] = x[i] + d * (relaxation / n)
 
 
@@ -110,18 +78,17 @@ def main() -> None:
         ids = wp.array(m["gather_slot"][group], dtype=int, device=d)
         n_slots = int(m["gather_slot"][group].max()) + 1
         slots = wp.array(rng.normal(size=(n_slots, 3)).astype(np.float32) * 1e-3, dtype=wp.vec3, device=d)
-        variants = {
-            "thread": lambda x: wp.launch(integrate.apply_jacobi, n, inputs=[counts, group, 1.0, x, empty, off, ids,
-                                                                             slots, 1], device=d),
-            "morton": lambda x: wp.launch(gather_perm, n, inputs=[perm, counts, group, 1.0],
-                                          outputs=[x, off, ids, slots], device=d),
-        }
+        def shipped(x, lanes):  # integrate.apply_jacobi (lanes 1: the kernel as it was)
+            wp.launch(integrate.apply_jacobi, n * lanes, inputs=[counts, group, 1.0, x, empty, off, ids, slots, lanes],
+                      device=d)
+
+        def morton(x, lanes):
+            wp.launch(gather_perm, n * lanes, inputs=[lanes, perm, counts, group, 1.0, x, off, ids, slots], device=d)
+
+        variants = {"thread": lambda x: shipped(x, 1), "morton": lambda x: morton(x, 1)}
         for lanes in (2, 4, 8):
-            variants[f"lanes{lanes}"] = (lambda x, lanes=lanes: wp.launch(
-                gather_lanes, n * lanes, inputs=[lanes, counts, group, 1.0], outputs=[x, off, ids, slots], device=d))
-            variants[f"morton_lanes{lanes}"] = (lambda x, lanes=lanes: wp.launch(
-                gather_perm_lanes, n * lanes, inputs=[lanes, perm, counts, group, 1.0], outputs=[x, off, ids, slots],
-                device=d))
+            variants[f"lanes{lanes}"] = lambda x, lanes=lanes: shipped(x, lanes)
+            variants[f"morton_lanes{lanes}"] = lambda x, lanes=lanes: morton(x, lanes)
         ref = None
         for key, run in variants.items():
             x = wp.array(x0, dtype=wp.vec3, device=d)

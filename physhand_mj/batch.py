@@ -101,6 +101,24 @@ def _tile_checks(a: dict, worlds) -> int:
     return W
 
 
+def slot_shifts(a: dict, group, slots, worlds: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """One world's gather slot ids ``slots`` of Jacobi group ``group`` (solver/gather.py) in the
+    W-world layout: world 0's slot of each entry and how far one world moves it (one world's slot
+    base + l C + j, corner l of row j of C rows, is W base + l W C + w C + j in world w), and the
+    families' W-world slot bases."""
+    W = int(worlds)
+    slots = np.asarray(slots, np.int64)
+    first, step, bases = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64), {}
+    for name in group:
+        base, rows, size = a["slot_base"][name], len(a[f"{name}_ids"]), np.asarray(a[f"{name}_ids"]).size
+        f = (slots >= base) & (slots < base + size)
+        r = slots[f] - base
+        first[f] = W * base + (r // max(rows, 1)) * W * rows + r % max(rows, 1)
+        step[f] = rows
+        bases[name] = W * base
+    return first, step, bases
+
+
 def tile_model_arrays(a: dict, worlds: int) -> dict:
     """One world's host model arrays (``solver.model.model_arrays``) tiled into ``worlds`` worlds laid
     out as :func:`replicate_asset` lays them out (all skins first, world by world, then each world's
@@ -171,15 +189,9 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
 
     for group, off, slots in zip(JACOBI_GROUPS, a["gather_off"], a["gather_slot"]):  # solver/gather.py
         # one world's slot base + l C + j (corner l of row j, C rows) is W base + l W C + w C + j in world w
-        off, slots = np.asarray(off, np.int64), np.asarray(slots, np.int64)
-        first, step = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64)
-        for name in group:
-            base, rows = a["slot_base"][name], len(a[f"{name}_ids"])
-            f = (slots >= base) & (slots < base + sizes[name])
-            r = slots[f] - base
-            first[f] = W * base + (r // max(rows, 1)) * W * rows + r % max(rows, 1)
-            step[f] = rows
-            out["slot_base"][name] = W * base
+        off = np.asarray(off, np.int64)
+        first, step, bases = slot_shifts(a, group, slots, W)
+        out["slot_base"].update(bases)
         parts = [first[off[lo]:off[hi]] + k * step[off[lo]:off[hi]] for lo, hi in ((0, ns), (ns, n)) for k in range(W)]
         out["gather_slot"].append(np.concatenate(parts).astype(np.int32))
         cnt = per_vertex(np.diff(off))

@@ -142,7 +142,7 @@ def tile_model(a: dict, worlds: int, cfg):
     (:func:`~physhand_mj.solver.model.model_arrays`), tiled on ``cfg.device``: the Model of
     ``upload_model(tile_model_arrays(a, worlds), cfg)``, array for array, without the W-wide host
     arrays. Same checks (the colored scheme, int32 indices)."""
-    from physhand_mj.batch import _tile_checks
+    from physhand_mj.batch import _tile_checks, slot_shifts
     from physhand_mj.solver.model import FAMILIES, JACOBI_GROUPS, upload_model
     from physhand_mj.types import Model
 
@@ -175,16 +175,9 @@ def tile_model(a: dict, worlds: int, cfg):
     sizes = {name: np.asarray(a[f"{name}_ids"]).size for name in FAMILIES}
     gather_off, gather_slot, slot_base = [], [], {}
     for group, slots_h, off_d in zip(JACOBI_GROUPS, a["gather_slot"], one.gather_off):
-        # per one-world entry: world 0's slot and how far one world moves it (batch.tile_model_arrays)
-        slots_h = np.asarray(slots_h, np.int64)
-        first, step = np.zeros(len(slots_h), np.int64), np.zeros(len(slots_h), np.int64)
-        for name in group:
-            base, nrows = a["slot_base"][name], len(a[f"{name}_ids"])
-            f = (slots_h >= base) & (slots_h < base + sizes[name])
-            r = slots_h[f] - base
-            first[f] = W * base + (r // max(nrows, 1)) * W * nrows + r % max(nrows, 1)
-            step[f] = nrows
-            slot_base[name] = W * base
+        # per one-world entry: world 0's slot and how far one world moves it
+        first, step, bases = slot_shifts(a, group, slots_h, W)
+        slot_base.update(bases)
         first_d = wp.array(first.astype(np.int32), dtype=int, device=dev)
         step_d = wp.array(step.astype(np.int32), dtype=int, device=dev)
         gather_off.append(launch(tile_gather_off, W * n + 1, [off_d, n, ns, W],

@@ -177,6 +177,17 @@ def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
     return gtype[g], inv_pose[g], size[g], mesh[g]
 
 
+@wp.func
+def phi_at(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.vec2ul,
+           gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
+           radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), base: int, n_geoms: int, near: int):
+    """phi (m) at world point p: the one geom near the triangle (``single``, its data from
+    :func:`geom_data`) or, with ``single`` < 0, the lowest over its world's geoms in ``near``."""
+    if single < 0:
+        return world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+    return geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
+
+
 SIDE_COS = wp.constant(0.6)  # cos of the angle beyond which Eq. 9 would push the skin out through the object
 SIDE_DEPTH = wp.constant(5.0e-4)  # m: shallower decision points take Eq. 9 (a box's edges tilt the gradient)
 SIDE_FRAC = wp.constant(0.1)  # ... or shallower than this fraction of a thinner geom's half-thickness (side_floor)
@@ -299,9 +310,7 @@ def decide_triangle(
     best_p = a
     if strategy != MULTIRES:
         mc, rc = triangle_bound(a, b, c)
-        dc = geom_sdf(s_type, wp.transform_point(s_inv, mc), s_size, s_mesh)
-        if single < 0:
-            dc = world_phi(mc, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+        dc = phi_at(mc, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
         if dc > rc:  # no point of the triangle is inside an object
             decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
             bound[t] = dc - rc
@@ -319,9 +328,7 @@ def decide_triangle(
                 p = (b + c) * 0.5
             elif q == 5:
                 p = (c + a) * 0.5
-            d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
-            if single < 0:
-                d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+            d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
             if d < best:
                 best = d
                 best_p = p
@@ -370,16 +377,14 @@ def decide_triangle(
                     u = float(i) * inv
                     v = float(j) * inv
                     p = ta * (1.0 - u - v) + tb * u + tc * v
-                    d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
-                    if single < 0:
-                        d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                    d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
+                               n_geoms, near)
                     n += 1
                     d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if n < samples:  # spend a leftover query on the centroid
                 p = (ta + tb + tc) * (1.0 / 3.0)
-                d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
-                if single < 0:
-                    d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
+                           n_geoms, near)
                 d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if d0 < best:
                 best = d0

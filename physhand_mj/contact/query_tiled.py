@@ -10,8 +10,8 @@ bound and projection are the per-thread kernel's.
 import warp as wp
 
 from physhand_mj.contact.broadphase import world_geoms
-from physhand_mj.contact.query import geom_data, lattice_order, only_geom, project, world_phi
-from physhand_mj.contact.sdf import FAR, geom_sdf
+from physhand_mj.contact.query import geom_data, lattice_order, only_geom, phi_at, project
+from physhand_mj.contact.sdf import FAR
 
 TILE_LANES = 32  # lanes per triangle in the CUDA multires kernel (>= the lattice's sample count)
 
@@ -27,16 +27,6 @@ def lattice_uv(idx: int, order: int):
         i += 1
     inv = 1.0 / float(order)
     return float(i) * inv, float(rem) * inv
-
-
-@wp.func
-def tile_phi(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.vec2ul,
-             gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-             radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), base: int, n_geoms: int, near: int):
-    d = geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
-    if single < 0:
-        d = world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-    return d
 
 
 @wp.kernel
@@ -105,10 +95,10 @@ def decide_and_project_tiled(
         d = float(FAR)
         if lane < n_lat:
             u, v = lattice_uv(lane, order)
-            d = tile_phi(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
+            d = phi_at(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
                          gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
         elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
-            d = tile_phi((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
+            d = phi_at((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
                          gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
         # the three lowest samples (indices j0, j1, j2), ascending
         j0 = wp.tile_argmin(wp.tile(d))[0]
