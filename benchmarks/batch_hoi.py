@@ -49,7 +49,7 @@ def main() -> None:
     p.add_argument("--worlds", default="1,2,4", help="comma-separated world counts")
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per world count")
     p.add_argument("--config", default="{}", help="Config fields as JSON")
-    p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 12)")
+    p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 24)")
     a = p.parse_args()
     extra = json.loads(a.config)
     wp.init()

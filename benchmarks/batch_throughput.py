@@ -101,7 +101,7 @@ def kernel_split(hands, poses, ball, frames: int) -> dict:
     finally:
         solver.config.cuda_graph = saved
         solver._graphs.clear()
-    top = sorted(agg.items(), key=lambda kv: -kv[1])[:12]
+    top = sorted(agg.items(), key=lambda kv: -kv[1])[:24]
     return {k: round(v / frames, 3) for k, v in top} | {"all": round(sum(agg.values()) / frames, 3)}
 
 
@@ -126,7 +126,7 @@ def main() -> None:
     p.add_argument("--config", default="{}", help="Config fields as JSON, e.g. '{\"jacobi_gather\": true}'")
     p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
     p.add_argument("--profile", action="store_true",
-                   help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 12")
+                   help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 24")
     a = p.parse_args()
     extra = json.loads(a.config)
     wp.init()
