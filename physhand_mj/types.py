@@ -119,12 +119,6 @@ class Config:
         costs about the same (0.45 against 0.42 ms) and the CPU's 10-20 % more, with the atomic
         result bit for bit. None (default): batches of 2 or more worlds on CUDA gather
         (BatchedHands), every other solver adds atomically; True / False: always / never.
-      jacobi_by_vertex: with the gather, solve the edge and tet groups by vertex: the threads of
-        vertex i project each constraint of its gather row themselves and sum their corners'
-        corrections (solver/gather.py), so no slot is written or read; each constraint is
-        projected once per corner (2 or 4 times) from the same positions, so the result is the
-        gather's. Needs ``iterations`` 1 (every projection then starts from lambda 0) and no
-        region sleeping. None / False (default): off (slower, docs/scale.md).
       nonfinite: :class:`NonFinite` policy.
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
         objects); contact_placement: :class:`Placement` of the correction in the substep;
@@ -254,7 +248,6 @@ class Config:
     scheme: Scheme = Scheme.JACOBI
     relaxation: float = 1.0
     jacobi_gather: bool | None = None
-    jacobi_by_vertex: bool | None = None
     nonfinite: NonFinite = NonFinite.RECOVER
     contact: Strategy = Strategy.MULTIRES
     contact_placement: Placement = Placement.AFTER
@@ -323,9 +316,6 @@ class Config:
                              f"batches), True or False, got {self.tiled_features!r}")
         if not (self.jacobi_gather is None or isinstance(self.jacobi_gather, (bool, np.bool_))):
             raise ValueError(f"Config.jacobi_gather must be None (on CUDA), True or False, got {self.jacobi_gather!r}")
-        if not (self.jacobi_by_vertex is None or isinstance(self.jacobi_by_vertex, (bool, np.bool_))):
-            raise ValueError(f"Config.jacobi_by_vertex must be None (wherever the solver gathers), True or False, "
-                             f"got {self.jacobi_by_vertex!r}")
         if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):
             raise ValueError(f"Config.multires_samples must be an integer >= 3, got {self.multires_samples!r}")
         nonneg("contact_margin")

@@ -274,34 +274,6 @@ def test_jacobi_gather_repeats_and_matches_the_atomics(hand, device):
         ph.Config(jacobi_gather="yes").validate()
 
 
-@pytest.mark.parametrize("device", DEVICES)
-def test_jacobi_by_vertex_is_the_gather(hand, device):
-    """Config.jacobi_by_vertex: each vertex projects its own edges and tets (no slots) and sums its
-    corners' corrections in the gather's order: the gather's positions and lambdas bit for bit on
-    the CPU, within float rounding on CUDA (the compiler may fuse the two kernels' arithmetic
-    differently); it needs iterations 1."""
-    asset, model, _, _ = hand
-    q_open, q_pinch = model.key("open").qpos.copy(), model.key("pinch").qpos.copy()
-    close = lambda f: q_open + min(1, (f + 1) / 6) * (q_pinch - q_open)  # noqa: E731
-    out = {}
-    for by_vertex in (False, True):
-        solver, state, x0, log = _run_hand(hand, 8, close, device=device, jacobi_gather=True,
-                                           jacobi_by_vertex=by_vertex, sleep_speed=0.0)
-        assert solver.by_vertex == by_vertex and all(g["nonfinite"] == 0 for g in log)
-        out[by_vertex] = [state.x.numpy(), state.lam_edge.numpy(), state.lam_tet.numpy()]
-    assert np.abs(out[True][0] - x0).max() > 1e-3  # the hand closed: not a comparison of two resting hands
-    assert np.abs(out[True][2]).max() > 0 and np.abs(out[True][1]).max() > 0  # the lambdas were stored
-    for a, b in zip(out[False], out[True]):
-        if device == "cpu":
-            assert np.array_equal(a, b)
-        else:
-            assert np.abs(a - b).max() <= 1e-5 * max(np.abs(a).max(), 1.0)
-    with pytest.raises(ValueError, match="jacobi_by_vertex"):
-        _run_hand(hand, 1, close, device=device, jacobi_gather=True, jacobi_by_vertex=True, iterations=2)
-    with pytest.raises(ValueError, match="jacobi_by_vertex"):
-        ph.Config(jacobi_by_vertex=1).validate()
-
-
 # -- guards and errors ----------------------------------------------------------------------------
 
 def test_nan_vertex_is_recovered_and_counted():

@@ -66,22 +66,6 @@ def idle(lam: wp.array(dtype=float), j: int, reset: int, slots: wp.array(dtype=w
             slots[s + k * nc] = wp.vec3(0.0)
 
 
-@wp.func
-def first_movable(inv_mass: wp.array(dtype=float), i1: int, i2: int, i3: int, i4: int):
-    """The first corner (0-3) of a constraint on vertices i1..i4 that is not kinematic (inv mass >
-    0; a constraint of 2 vertices passes i2 again), 4 if none: the corner whose thread stores the
-    constraint's lambda in a solve by vertex (every movable vertex has a row in the gather lists)."""
-    if inv_mass[i1] > 0.0:
-        return 0
-    if inv_mass[i2] > 0.0:
-        return 1
-    if inv_mass[i3] > 0.0:
-        return 2
-    if inv_mass[i4] > 0.0:
-        return 3
-    return 4
-
-
 # lanes per vertex of a group's apply on CUDA (integrate.apply_jacobi; JACOBI_GROUPS' order: edges,
 # tets, dihedrals): lane l sums entries l, l + L, ... of the vertex's row, then the L partial sums
 # are added by shuffles. More loads in flight than a thread walking ~8-14 scattered slots alone

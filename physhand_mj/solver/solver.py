@@ -24,16 +24,13 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.solver import integrate
-from physhand_mj.solver.edge import solve_edges, solve_edges_gathered
+from physhand_mj.solver.edge import solve_edges
 from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
-from physhand_mj.solver.tet import solve_tets, solve_tets_gathered
+from physhand_mj.solver.tet import solve_tets
 from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
-
-# the families a solve by vertex covers (Config.jacobi_by_vertex): its kernel per family
-BY_VERTEX = {"edge": solve_edges_gathered, "tet": solve_tets_gathered}
 
 # CUDA launches that walk a list whose length lives on the device (``count``; the tiled kernels' block
 # per entry) are sized for the longest list (every skin triangle, every object feature point) and
@@ -126,14 +123,6 @@ class Solver(Sleeping):
             from physhand_mj.regions import RegionSleep
 
             self.regions = RegionSleep(self)
-        # Config.jacobi_by_vertex (solver/gather.py): the edge and tet groups projected by vertex
-        cfg = self.config
-        can = bool(model.gather_off) and cfg.scheme == Scheme.JACOBI and cfg.iterations == 1 and self.regions is None
-        if cfg.jacobi_by_vertex and not can:
-            raise ValueError("Config.jacobi_by_vertex needs the Jacobi gather (Config.jacobi_gather), the Jacobi scheme, "
-                             "iterations 1 and no region sleeping (Config.region_sleep)")
-        self.by_vertex = can and bool(cfg.jacobi_by_vertex)
-        assert all(model.slot_base.get(name, 0) == 0 for name in BY_VERTEX)  # (one family per group)
 
     # -- state -------------------------------------------------------------------------------
     def make_state(self, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0)) -> State:
@@ -363,19 +352,14 @@ class Solver(Sleeping):
         no_int = wp.empty(0, dtype=int, device=d)
         no_vec = wp.empty(0, dtype=wp.vec3, device=d)
 
-        # Config.jacobi_by_vertex: the groups whose vertices project their own constraints (their
-        # corrections then come in ``delta``, added by the atomic path's apply)
-        vertex_groups = {row for row, group in enumerate(JACOBI_GROUPS)
-                         if self.by_vertex and all(name in BY_VERTEX for name in group)}
-
         def lists(group):
             """The gather lists and slots the apply of Jacobi group ``group`` reads (empty: atomics)."""
-            if not gather or group < 0 or group in vertex_groups:
+            if not gather or group < 0:
                 return [no_int, no_int, no_vec]
             return [m.gather_off[group], m.gather_slot[group], state.corr]
 
         def apply(group):
-            lanes = GATHER_LANES[group] if gather and wp.get_device(d).is_cuda and group not in vertex_groups else 1
+            lanes = GATHER_LANES[group] if gather and wp.get_device(d).is_cuda else 1
             launch(integrate.apply_jacobi, n * lanes, [m.vertex_count, group, cfg.relaxation],
                    [state.x, state.delta] + lists(group) + [lanes])
         launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
@@ -428,12 +412,6 @@ class Solver(Sleeping):
                         pending = -1
                     for name in names:
                         kernel, ids, rest, alpha = fam[name]
-                        if row in vertex_groups:  # (one family, slot base 0, one colour: Jacobi)
-                            lanes = GATHER_LANES[row] if d.is_cuda else 1
-                            launch(BY_VERTEX[name], n * lanes, [inv_mass, ids, rest, alpha, self._inv_h2, int(it == 0),
-                                                                state.x, lams[name], m.gather_off[row],
-                                                                m.gather_slot[row], lanes], [state.delta])
-                            continue
                         order = rs.order.get(name) if rs is not None else None  # (regions.py: awake constraints)
                         for start, end in m.colors[name]:
                             launch(kernel, end - start, [inv_mass, ids, rest, alpha, self._inv_h2, start, int(it == 0)],
