@@ -422,13 +422,17 @@ class BatchedHands:
         """Per world, the last frame's ``nonfinite`` / ``inverted`` / ``tethered`` guard counts and its
         skin samples inside objects at the frame's end (``penetration_count`` / ``_max_um`` /
         ``_avg_um``, the solver's frame metric): what ``Solver.step`` reports for one hand."""
-        from physhand_mj.metrics import summarize
-
         g = self.solver.guard_worlds
         c = self.solver.contact
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
-        return [dict(nonfinite=int(g[w, 0]), inverted=int(g[w, 1]), tethered=int(g[w, 2]), **summarize(rows[w]))
-                for w in range(self.worlds)]
+        # metrics.summarize of every row at once (a thousand worlds: ~2 ms of host time a frame as a loop)
+        rows = rows.astype(np.float64)
+        count = np.rint(rows[:, 0]).astype(np.int64)
+        avg = np.divide(rows[:, 1], count, out=np.zeros(len(count)), where=count > 0) * 1e6
+        cols = (g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), count.tolist(), (rows[:, 2] * 1e6).tolist(),
+                avg.tolist())
+        keys = ("nonfinite", "inverted", "tethered", "penetration_count", "penetration_max_um", "penetration_avg_um")
+        return [dict(zip(keys, v)) for v in zip(*cols)]
 
     def penetration(self, order: int = 5) -> list[dict]:
         """Both penetration measures of every world's skin as it is now, each world against its own

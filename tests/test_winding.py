@@ -10,8 +10,8 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.contact.closest import FOUR_PI, solid_angle
 from physhand_mj.contact.features import FEATURE_LANES
-from physhand_mj.contact.inside import object_point
-from physhand_mj.contact.winding import closest_tiled, winding_sign
+from physhand_mj.contact.inside import INSIDE_RANGE, inside_depth, object_point
+from physhand_mj.contact.winding import closest_tiled, frame_winding, winding_sign
 
 
 @wp.kernel
@@ -184,3 +184,52 @@ def _object_points_world(c, idx):
     pose = c.objects._host["pose"][pts.geom_host[idx]].astype(float)
     rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
     return np.einsum("kij,kj->ki", rot, pts.pts_host[idx].astype(float)) + pose[:, :3], pts.geom_host[idx]
+
+
+@wp.kernel
+def _inside_two_ways(skin: wp.uint64, p: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3, margin: float,
+                     out: wp.array2d(dtype=float)):
+    """inside_depth and frame_winding (one closest-point search, one winding number) beside Warp's
+    sign queries that each ran both (the code they replaced)."""
+    i = wp.tid()
+    out[i, 0] = inside_depth(skin, p[i], lo, hi)
+    q = wp.mesh_query_point_sign_winding_number(skin, p[i], INSIDE_RANGE)
+    if q.result and q.sign < 0.0:
+        out[i, 1] = wp.length(p[i] - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+    out[i, 2] = frame_winding(skin, p[i], margin)
+    w0 = float(-1.0)
+    r = wp.mesh_query_point_sign_winding_number(skin, p[i], margin, 2.0, -0.5)
+    if not r.result:
+        w0 = 0.0
+    elif r.sign < 0.0:
+        w0 = 0.0
+        r = wp.mesh_query_point_sign_winding_number(skin, p[i], margin, 2.0, 0.5)
+        if r.sign < 0.0:
+            w0 = 1.0
+    out[i, 3] = w0
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="no CUDA device"))])
+def test_inside_depth_and_frame_winding_equal_warps_sign_queries(asset, device):
+    """The object-side measure's inside test and the feature patches' w_0 search for the closest
+    skin point only where it matters; their answers equal Warp's sign queries bit for bit at 6,000
+    points within 3 cm of the rest hand's skin, wound outward (w 0 or 1) and inward (w -1 inside)."""
+    x = np.asarray(asset.positions[: asset.n_skin], np.float32)
+    rng = np.random.default_rng(3)
+    pts = (x[rng.integers(0, len(x), 6000)] + rng.normal(0.0, 0.01, (6000, 3))).astype(np.float32)
+    lo, hi = wp.vec3(*(x.min(0) - 1e-3)), wp.vec3(*(x.max(0) + 1e-3))
+    seen = {}
+    for wound, faces in (("out", asset.skin_faces), ("in", np.asarray(asset.skin_faces)[:, ::-1])):
+        mesh = wp.Mesh(points=wp.array(x, dtype=wp.vec3, device=device),
+                       indices=wp.array(np.ascontiguousarray(faces, np.int32).ravel(), dtype=int, device=device),
+                       support_winding_number=True)
+        out = wp.zeros((len(pts), 4), dtype=float, device=device)
+        wp.launch(_inside_two_ways, len(pts), [mesh.id, wp.array(pts, dtype=wp.vec3, device=device), lo, hi, 0.01],
+                  [out], device=device)
+        o = out.numpy()
+        assert np.array_equal(o[:, 0], o[:, 1]) and np.array_equal(o[:, 2], o[:, 3])
+        seen[wound] = (int((o[:, 0] > 0).sum()), set(np.unique(o[:, 2]).tolist()))
+    # both cases were met: points inside the skin (with depths), and w_0 of 1 / 0 outward, -1 / 0 inward
+    assert seen["out"][0] > 500 and seen["out"][1] == {0.0, 1.0}
+    assert seen["in"][0] == 0 and seen["in"][1] == {-1.0, 0.0}

@@ -24,7 +24,7 @@ import warp as wp
 
 from physhand_mj.contact.closest import (FOUR_PI, closest_on_triangle, closest_signed_tiled, finish_closest,
                                          scan_closest, solid_angle)
-from physhand_mj.contact.inside import object_point
+from physhand_mj.contact.inside import object_point, winding_number
 
 
 @wp.func
@@ -46,6 +46,27 @@ def within(p: wp.vec3, t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=w
     c = x[faces[t, 2]]
     bc = closest_on_triangle(a, b, c, p)
     return wp.length(bc[0] * a + bc[1] * b + (1.0 - bc[0] - bc[1]) * c - p) <= radius
+
+
+@wp.func
+def frame_winding(skin_w: wp.uint64, p: wp.vec3, margin: float):
+    """w_0 at ``p``: Warp's fast winding number of the skin ``skin_w`` rounded to -1, 0 or 1; 0 with
+    no skin within ``margin`` (m).
+
+    w_0 is an integer off the surface, and not only 0 or 1: a squeezed skin folds inside out (w = -1
+    at points past the fold, measured on the demo); rounded as Warp's sign queries would at the
+    thresholds -1/2 and 1/2 (``wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, -0.5)``
+    then ``0.5``; w_0 = 2 where the skin overlaps itself counts as 1: the point stays inside unless the
+    skin moves across it twice), with one closest-point search and one winding number instead of
+    two of each (tests/test_winding.py: equal to the two queries)."""
+    if not wp.mesh_query_point_no_sign(skin_w, p, margin).result:
+        return 0.0  # (a listed feature has skin within margin)
+    wn = winding_number(skin_w, p, 2.0)
+    if not (wn > -0.5):  # (the queries' test: sign -1 where w > threshold)
+        return -1.0
+    if wn > 0.5:
+        return 1.0
+    return 0.0
 
 
 @wp.kernel
@@ -98,19 +119,7 @@ def feature_patches(
         if within(p, t, faces, x, radius) and n < size:  # (the same triangles as counted)
             pool[start + n] = t
             n += 1
-    # w_0 is an integer off the surface, and not only 0 or 1: a squeezed skin folds inside out
-    # (w = -1 at points past the fold, measured on the demo); Warp's query gives only its side of a
-    # threshold, so ask at -1/2 and 1/2 (w_0 = 2 where the skin overlaps itself counts as 1: the
-    # point stays inside unless the skin moves across it twice)
-    w0 = float(-1.0)
-    r = wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, -0.5)
-    if not r.result:
-        w0 = 0.0  # no skin within margin (a listed feature has)
-    elif r.sign < 0.0:
-        w0 = 0.0
-        r = wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, 0.5)
-        if r.sign < 0.0:
-            w0 = 1.0
+    w0 = frame_winding(skin_w, p, margin)
     patch_start[k] = start
     patch_len[k] = n
     far_angle[k] = FOUR_PI * w0 - patch_angle(p, faces, x, pool, start, n)

@@ -73,11 +73,6 @@ class SolverError(RuntimeError):
     """The solver met a state it cannot continue from (non-finite input or state under RAISE)."""
 
 
-def _xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
-    q = np.asarray(quat_wxyz, dtype=np.float64)
-    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
-
-
 class Solver(Sleeping):
     """XPBD solver for one layered body. With ``objects`` (a :class:`~physhand_mj.contact.Objects`)
     and ``config.contact`` not NONE, each substep also runs the skin-object contact correction
@@ -170,7 +165,10 @@ class Solver(Sleeping):
         norm = np.linalg.norm(quat, axis=1, keepdims=True)
         if np.any(norm < 1e-9):
             raise SolverError("a bone quaternion has zero length")
-        state.pose_host[1] = np.concatenate([pos, _xyzw(quat / norm)], axis=1)
+        end = state.pose_host[1]  # [p, q x y z w], written in place (batches: W x the bones, every frame)
+        end[:, :3] = pos
+        np.divide(quat[:, 1:], norm, out=end[:, 3:6], casting="unsafe")
+        np.divide(quat[:, :1], norm, out=end[:, 6:], casting="unsafe")
         state.pose_fresh = True
 
     # -- the frame -------------------------------------------------------------------------------
