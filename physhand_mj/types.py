@@ -162,6 +162,10 @@ class Config:
         object_metrics: evaluate the second penetration measure (object surface points inside the
         closed skin, contact/inside.py) at the end of every frame; otherwise ``SoftHand.metrics`` /
         ``penetration`` evaluate it when called (it costs about as much as a CPU frame);
+        reuse_outside: that measure asks again only the object points whose answer could have
+          changed: a point found outside the skin at distance d stays outside until its world's skin
+          (its farthest-moving vertex) and its object together have moved d since (the skin would
+          have to cross it); False asks every point every time (the same answers, tests/test_winding.py);
         mesh_grid: node spacing (m) of each mesh object's distance grid (contact/objects.mesh_grid),
           which answers the broadphase's and the metrics' queries it proves farther than 1 mm
           outside the mesh (a lower bound of the distance) without the BVH walk; the broadphase
@@ -266,6 +270,7 @@ class Config:
     side_aware: bool = True
     skin_tether: float = 0.025
     object_metrics: bool = False
+    reuse_outside: bool = True
     mesh_grid: float = 2.0e-3
     device: str | None = None
     cuda_graph: bool = True
@@ -314,6 +319,8 @@ class Config:
         if not (self.tiled_features is None or isinstance(self.tiled_features, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_features must be None (blocks for one hand, a thread per feature for "
                              f"batches), True or False, got {self.tiled_features!r}")
+        if not isinstance(self.reuse_outside, (bool, np.bool_)):
+            raise ValueError(f"Config.reuse_outside must be True or False, got {self.reuse_outside!r}")
         if not (self.jacobi_gather is None or isinstance(self.jacobi_gather, (bool, np.bool_))):
             raise ValueError(f"Config.jacobi_gather must be None (on CUDA), True or False, got {self.jacobi_gather!r}")
         if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):

@@ -279,6 +279,29 @@ def test_the_object_side_sees_what_the_skin_side_misses(asset):
     assert r["obj_count"][-1] > 10 and r["obj_max_um"][-1] > 300, (r["obj_count"][-1], r["obj_max_um"][-1])
 
 
+@pytest.mark.parametrize("kind, site, start, extra", [
+    ("knife", "palm", -0.004, dict(feature_contact=False, side_aware=False)),  # an edge left inside the skin
+    ("bone", "palm", -0.02, dict(feature_contact=False)),  # the lead 20 mm deep: no penetration-free skin
+])
+def test_reused_outside_answers_equal_asking_every_point(asset, kind, site, start, extra):
+    """Config.reuse_outside: the object-side measure asks again only points the skin and their object
+    could have reached since; frame by frame, while the object presses in and the skin moves, its
+    counts and depths (the contact's points and the denser check points) equal asking every point."""
+    case = press_case(kind, site=site, depth=0.004 if kind == "knife" else 0.02, start=start)
+    runs = {reuse: run_case(case, ph.Config(device="cpu", reuse_outside=reuse, **extra), frames=6, asset=asset)
+            for reuse in (False, True)}
+    for k in ("obj_count", "obj_max_um", "check_count", "check_max_um"):
+        assert np.array_equal(runs[False][k], runs[True][k]), (k, runs[False][k], runs[True][k])
+    assert runs[True]["obj_count"].max() > 10  # points were inside: not a comparison of empty answers
+    # the slack is what decides: the skin and the object have not moved since the last frame's measure,
+    # so it answers the same; told every point is a metre clear, it asks none and sees none inside
+    contact, state = runs[True]["solver"].contact, runs[True]["state"]
+    assert contact.measure(state)[3] == runs[True]["obj_count"][-1]
+    for memory in contact._reuse_memory.values():
+        memory.slack.fill_(1.0)
+    assert contact.measure(state)[3] == 0
+
+
 def test_vertex_baseline_is_reported_beside_multires(asset):
     r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=0.002),
                  ph.Config(device="cpu", contact=Strategy.VERTEX, feature_contact=False, side_aware=False), frames=14,

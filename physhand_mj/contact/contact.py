@@ -116,6 +116,7 @@ class Contact(ContactMeasures):
                                       pinned=wp.get_device(d).is_cuda)
         self._points = None  # ObjectPoints, built at the first recording (objects are final then)
         self._check_points = None  # the denser check set (check_points), built on first use
+        self._reuse_memory = {}  # Config.reuse_outside's per (points, skin volume) memory (measures.py)
         self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         # (batched worlds: world 0's faces, which name world 0's skin vertices; every world is a copy,

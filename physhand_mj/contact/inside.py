@@ -179,6 +179,131 @@ def object_points_inside(
         wp.atomic_max(out, o, 5, d)
 
 
+@wp.kernel
+def reset_patches(motion: wp.array(dtype=float), lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3)):
+    k = wp.tid()
+    motion[k] = 0.0
+    lower[k] = wp.vec3(1.0e6)
+    upper[k] = wp.vec3(-1.0e6)
+
+
+@wp.func
+def skin_patch(i: int, per_world: int, skin_body: wp.array(dtype=int), bodies: int):
+    """Skin vertex i's patch: its world's patch of its bone (Model.skin_body; ``bodies`` per world,
+    at least 1: a skin without bones is one patch a world)."""
+    b = skin_body[i]
+    local = int(0)
+    if b >= 0:
+        local = b % bodies
+    return (i // per_world) * bodies + local
+
+
+@wp.kernel
+def skin_patches(x: wp.array(dtype=wp.vec3), prev: wp.array(dtype=wp.vec3), per_world: int,
+                 skin_body: wp.array(dtype=int), bodies: int, motion: wp.array(dtype=float),
+                 lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3)):
+    """Per patch of the skin (a world's skin vertices of one bone, :func:`skin_patch`): the farthest
+    any of its vertices moved since ``prev`` (m) and their bounding box now (reset_patches first);
+    then prev = x."""
+    i = wp.tid()
+    k = skin_patch(i, per_world, skin_body, bodies)
+    p = x[i]
+    wp.atomic_max(motion, k, wp.length(p - prev[i]))
+    wp.atomic_min(lower, k, p)
+    wp.atomic_max(upper, k, p)
+    prev[i] = p
+
+
+@wp.kernel
+def keep_poses(pose: wp.array(dtype=wp.transform), prev: wp.array(dtype=wp.transform)):
+    g = wp.tid()
+    prev[g] = pose[g]
+
+
+@wp.func
+def box_distance(p: wp.vec3, lower: wp.vec3, upper: wp.vec3):
+    """Distance (m) from p to the box [lower, upper] (0 inside it)."""
+    return wp.length(wp.vec3(wp.max(wp.max(lower[0] - p[0], p[0] - upper[0]), 0.0),
+                             wp.max(wp.max(lower[1] - p[1], p[1] - upper[1]), 0.0),
+                             wp.max(wp.max(lower[2] - p[2], p[2] - upper[2]), 0.0)))
+
+
+@wp.kernel
+def object_points_inside_reuse(
+    skin: wp.uint64,
+    box: wp.array(dtype=wp.vec3),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    prev_pose: wp.array(dtype=wp.transform),
+    geom_radius: wp.array(dtype=float),
+    motion: wp.array(dtype=float),
+    patch_lower: wp.array(dtype=wp.vec3),
+    patch_upper: wp.array(dtype=wp.vec3),
+    bodies: int,
+    geom_count: wp.array(dtype=int),
+    geom_obj: wp.array(dtype=int),
+    obj_filter: int,
+    row: int,
+    geoms_per_world: int,
+    rows_per_world: int,
+    out: wp.array2d(dtype=float),
+    depth: wp.array(dtype=float),
+    slack: wp.array(dtype=float),
+):
+    """:func:`object_points_inside`, asking again only the points whose answer could have changed
+    (``Config.reuse_outside``). ``slack[i]`` (m) is a lower bound of point i's distance to the skin
+    (0: ask it). Since it was taken, each skin patch P of the point's world (skin_patches: its
+    vertices moved at most ``motion[P]``, and a triangle's points at most as far as its farthest
+    vertex) stayed at least max(slack, its box's distance now) - motion[P] from the point, all along
+    the way, and the point moved at most |dt| + 2 sin(theta / 2) ``geom_radius`` with its geom (pose
+    against ``prev_pose``). While the smallest of these stays positive the skin has not crossed the
+    point, so it is still outside, and that bound is its new slack. A point asked again gets its
+    distance to the skin (Warp's closest-point search), or to its world's skin box where it lies
+    outside that box, or 0 inside the skin."""
+    i = wp.tid()
+    g = pts_geom[i]
+    if g >= geom_count[0]:
+        depth[i] = 0.0
+        return
+    w = g // geoms_per_world
+    t0 = prev_pose[g]
+    t1 = pose[g]
+    dq = wp.mul(wp.quat_inverse(wp.transform_get_rotation(t0)), wp.transform_get_rotation(t1))
+    p = wp.transform_point(t1, pts[i])
+    # how far the point can have come (m), with float rounding at the query's coordinates (worlds are
+    # queried up to tens of metres out: ~4 ulp there, and 1 um)
+    own = (wp.length(wp.transform_get_translation(t1) - wp.transform_get_translation(t0))
+           + 2.0 * wp.length(wp.vec3(dq[0], dq[1], dq[2])) * geom_radius[g] + 1.0e-6 + 5.0e-7 * wp.length(p))
+    s0 = slack[i]
+    s = float(0.0)
+    if s0 > 0.0:
+        s = float(1.0e6)
+        for k in range(w * bodies, (w + 1) * bodies):
+            s = wp.min(s, wp.max(s0, box_distance(p, patch_lower[k], patch_upper[k])) - motion[k])
+        s = s - own
+    d = float(0.0)
+    if (obj_filter < 0 or geom_obj[g] == obj_filter) and not (s > 0.0):
+        lo = box[2 * w]
+        hi = box[2 * w + 1]
+        s = box_distance(p, lo, hi)
+        if s <= 0.0:  # in the skin's box: the winding number, the distance to the skin
+            q = wp.mesh_query_point_no_sign(skin, p, INSIDE_RANGE)
+            s = 0.0  # (no skin within INSIDE_RANGE: outside by the measure's definition; asked again)
+            if q.result:
+                s = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+                if winding_number(skin, p, 2.0) > 0.5:  # inside: its depth, and asked every time
+                    d = s
+                    s = 0.0
+    slack[i] = s
+    depth[i] = d
+    if d > 0.0:
+        o = w * rows_per_world + row
+        wp.atomic_add(out, o, 3, 1.0)
+        wp.atomic_add(out, o, 4, d)
+        wp.atomic_max(out, o, 5, d)
+
+
 class ObjectPoints:
     """Surface points of every geom of ``objects`` (geom-local), built once on the host.
 
@@ -215,6 +340,11 @@ class ObjectPoints:
         self.n_features = len(feat)
         self.feature = wp.array(np.resize(feat, max(len(feat), 1)), dtype=int, device=d)
         self.depth = wp.zeros(n, dtype=float, device=d)
+        # per geom: the farthest of its points from its origin (m; how far a turn can carry them)
+        rad = np.zeros(max(self.n_geoms, 1))
+        if len(pts):
+            np.maximum.at(rad, self.geom_host, np.linalg.norm(pts, axis=1))
+        self.geom_radius = wp.array(rad, dtype=float, device=d)
 
     def __len__(self) -> int:
         return len(self.pts_host)

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.inside import ObjectPoints, object_points_inside
+from physhand_mj.contact.inside import (ObjectPoints, keep_poses, object_points_inside, object_points_inside_reuse,
+                                        reset_patches, skin_patches)
 from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 
 # the independent check's object points (Contact.check_points): each edge piece that holds a feature
@@ -56,9 +57,30 @@ class ContactMeasures:
         if objects_side and self.closed_skin and len(pts):
             vol = self.volume(state)
             ops += vol.ops()
-            launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, self._query_pose(launch),
-                                                    o.count, o.obj,
-                                                    obj, row, self.geoms_per_world, per], [out, pts.depth])
+            qpose = self._query_pose(launch)
+            if not self.config.reuse_outside:
+                launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
+                                                        obj, row, self.geoms_per_world, per], [out, pts.depth])
+                return
+            r = self._reuse(pts, vol, qpose)  # (Config.reuse_outside: ask only what could have changed)
+            bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
+            launch(reset_patches, r.motion.shape[0], [], [r.motion, r.lower, r.upper])
+            launch(skin_patches, vol.points.shape[0], [vol.points, r.prev_x, vol.points.shape[0] // self.worlds,
+                                                       m.skin_body, bodies], [r.motion, r.lower, r.upper])
+            launch(object_points_inside_reuse, len(pts),
+                   [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion, r.lower,
+                    r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per], [out, pts.depth, r.slack])
+            launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
+
+    def _reuse(self, pts: ObjectPoints, vol, pose) -> "_Reuse":
+        """The object-side measure's memory for ``pts`` against the skin volume ``vol`` (made on first
+        use: every point is asked the first time)."""
+        key = (id(pts), id(vol))
+        if key not in self._reuse_memory:
+            bodies = max(int(self.model.n_bodies) // self.worlds, 1)
+            self._reuse_memory[key] = _Reuse(len(pts), vol.points.shape[0], pose.shape[0], self.worlds * bodies,
+                                             self.model.device)
+        return self._reuse_memory[key]
 
     def world_views(self) -> dict:
         """The objects' per-geom arrays as (W, k) views: world w's geoms in row w (one world:
@@ -144,3 +166,17 @@ class ContactMeasures:
             self.copy_metrics()
             wp.synchronize_device(self.metrics.device)
         return self._metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
+
+
+class _Reuse:
+    """Config.reuse_outside's memory for one set of object points against one skin volume: each
+    point's slack (m, 0: ask it), the skin points and the geom poses when last measured, and per skin
+    patch (a world's skin of one bone) its motion since and its box (inside.object_points_inside_reuse)."""
+
+    def __init__(self, n_points: int, n_skin: int, n_geoms: int, patches: int, device):
+        self.slack = wp.zeros(max(n_points, 1), dtype=float, device=device)
+        self.prev_x = wp.zeros(n_skin, dtype=wp.vec3, device=device)
+        self.prev_pose = wp.zeros(max(n_geoms, 1), dtype=wp.transform, device=device)
+        self.motion = wp.zeros(patches, dtype=float, device=device)
+        self.lower = wp.zeros(patches, dtype=wp.vec3, device=device)
+        self.upper = wp.zeros(patches, dtype=wp.vec3, device=device)
