@@ -325,6 +325,44 @@ def test_metrics_and_guards_per_world(setup):
     assert m[0]["finite"] and m[1]["finite"] and m[1]["nonfinite"] == w1["nonfinite"] and m[0]["nonfinite"] == 0
 
 
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="no CUDA device"))])
+def test_reused_outside_answers_per_world(setup, device):
+    """Config.reuse_outside in a batch: each world's skin patches and objects bound its own points.
+    Frame by frame the hands close towards a pinch (their skins move, the balls held away), then
+    the measure runs with world 1's ball (r 12 mm) put 1 mm further into its skin each frame and
+    world 0's coming closer without touching: both worlds' object-side counts and depths equal
+    asking every point, world 1's growing from zero, and most points were not asked again."""
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    q_open, q_pinch = model.key("open").qpos.copy(), model.key("pinch").qpos.copy()
+    batch = BatchedHands(asset, 2, Config(device=device), *mount,
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.012, 0.0, 0.0), name="ball")])
+    c = batch.solver.contact
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+    away = np.stack([top + [0.0, 0.0, 0.2]] * 2)[:, None]
+    counts = []
+    for f in range(5):
+        pos, quat = bone_poses_at(model, data, q_open + (f + 1) / 8 * (q_pinch - q_open), ids)
+        batch.step(np.stack([pos] * 2), np.stack([quat] * 2), away, ident)
+        batch.set_object_poses(np.stack([top + [0.0, 0.0, 0.03 - 0.002 * f],
+                                         top + [0.0, 0.0, 0.012 - 0.001 * f]])[:, None], ident)
+        kept = c.measure_worlds(batch.state)
+        c.config.reuse_outside = False
+        every = c.measure_worlds(batch.state)
+        c.config.reuse_outside = True
+        # counts and maxima exactly; the depth sums within float rounding (CUDA's atomics add in any order)
+        np.testing.assert_array_equal(kept[:, [0, 2, 3, 5]], every[:, [0, 2, 3, 5]])
+        np.testing.assert_allclose(kept[:, [1, 4]], every[:, [1, 4]], rtol=1e-6)
+        counts.append(every[:, 3])
+    counts = np.array(counts)
+    assert counts[0, 1] == 0 and counts[-1, 1] > 20 and not counts[:, 0].any(), counts
+    assert any(int((m.slack.numpy() > 0).sum()) > 1000 for m in c._reuse_memory.values())
+
+
 def test_broadphase_tests_only_the_triangles_own_world(setup):
     """Worlds on top of each other (every world is solved at the origin): world 0's sphere pressing the hand activates
     world 0's triangles only; world 1's triangles test world 1's sphere (far away) alone."""
