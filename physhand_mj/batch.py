@@ -425,14 +425,10 @@ class BatchedHands:
         g = self.solver.guard_worlds
         c = self.solver.contact
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
-        # metrics.summarize of every row at once (a thousand worlds: ~2 ms of host time a frame as a loop)
-        rows = rows.astype(np.float64)
-        count = np.rint(rows[:, 0]).astype(np.int64)
-        avg = np.divide(rows[:, 1], count, out=np.zeros(len(count)), where=count > 0) * 1e6
-        cols = (g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), count.tolist(), (rows[:, 2] * 1e6).tolist(),
-                avg.tolist())
-        keys = ("nonfinite", "inverted", "tethered", "penetration_count", "penetration_max_um", "penetration_avg_um")
-        return [dict(zip(keys, v)) for v in zip(*cols)]
+        from physhand_mj.metrics import summarize_rows
+
+        return [dict(nonfinite=a, inverted=b, tethered=c, **m)
+                for a, b, c, m in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
 
     def penetration(self, order: int = 5) -> list[dict]:
         """Both penetration measures of every world's skin as it is now, each world against its own
@@ -440,11 +436,11 @@ class BatchedHands:
         metric's is 5) and ``object_in_skin_*`` (object surface points inside the closed skin), as
         ``SoftHand.penetration`` gives them for one hand (counts, um)."""
         self._alive()
-        from physhand_mj.metrics import summarize
+        from physhand_mj.metrics import summarize_rows
 
         c = self.solver.contact
         rows = c.measure_worlds(self.state, order=order) if c is not None else np.zeros((self.worlds, 6))
-        return [summarize(r) for r in rows]
+        return summarize_rows(rows)
 
     def metrics(self, order: int = 5) -> list[dict]:
         """Per world: both penetration measures now (:meth:`penetration`), the last frame's guard

@@ -115,6 +115,21 @@ def summarize(row: np.ndarray) -> dict:
     return out
 
 
+def summarize_rows(rows: np.ndarray) -> list[dict]:
+    """:func:`summarize` of every row of ``rows`` (W, 3 or 6) at once, the same values and types (a
+    thousand batched worlds: a loop of summarize costs ~2 ms of host time a frame)."""
+    rows = np.asarray(rows, dtype=np.float64)
+    cols, keys = [], []
+    for prefix, k in (("penetration", 0), ("object_in_skin", 3)):
+        if k + 2 >= rows.shape[1]:
+            break
+        count = np.rint(rows[:, k]).astype(np.int64)
+        avg = np.divide(rows[:, k + 1], count, out=np.zeros(len(count)), where=count > 0) * 1e6
+        cols += [count.tolist(), (rows[:, k + 2] * 1e6).tolist(), avg.tolist()]
+        keys += [f"{prefix}_count", f"{prefix}_max_um", f"{prefix}_avg_um"]
+    return [dict(zip(keys, v)) for v in zip(*cols)] if cols else [{} for _ in range(len(rows))]
+
+
 @wp.kernel
 def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
                 size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),

@@ -501,3 +501,20 @@ def test_a_closed_batch_frees_its_solver_and_says_so():
     with pytest.raises(RuntimeError, match="closed"):
         batch.step(pos, quat, *far)
     batch.close()  # twice is fine
+
+
+def test_summarize_rows_is_summarize_row_by_row():
+    """metrics.summarize_rows (the batch's per-world reports, all rows at once) gives what
+    metrics.summarize gives row by row: the same keys, values and types, for 3- and 6-column rows,
+    with zero counts and counts on the float32 halves (rounded to even, as round() does)."""
+    from physhand_mj.metrics import summarize, summarize_rows
+
+    rng = np.random.default_rng(1)
+    for cols in (3, 6):
+        rows = (rng.random((300, cols)) * 1e-3).astype(np.float32)
+        rows[:, 0] = rng.integers(0, 4, 300)
+        rows[:, cols - 3] = rng.integers(0, 3, 300)
+        rows[:3, 0] = [0.5, 1.5, 2.5]
+        one, each = summarize_rows(rows), [summarize(r) for r in rows]
+        assert one == each
+        assert all(type(a[k]) is type(b[k]) for a, b in zip(one, each) for k in a)
