@@ -13,6 +13,7 @@ inside the skin); the worst world is reported.
 
     python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
                                    [--config '{"feature_winding": false}'] [--profile]
+    python benchmarks/batch_hoi.py --plot [JSON]   (docs/images/batch_hoi_1024.png from a run's JSON)
 
 Writes docs/benchmarks/batch_hoi_<device>.json (rows: scene, worlds, ms per frame, hand-frames/s,
 setup s, the worst world's measures).
@@ -34,7 +35,44 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def plot(src: Path, out: Path) -> Path:
+    """Bars of hand-frames per second per HOI grasp from one batch_hoi JSON (one world count), the
+    10,000 target drawn, each bar labelled with its worst world's four measures (inside counts)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = json.loads(src.read_text())
+    rows = sorted(d["rows"], key=lambda r: -r["hand_frames_per_s"])
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    hz = [r["hand_frames_per_s"] for r in rows]
+    ax.bar([r["scene"] for r in rows], hz, color=["tab:green" if h >= 10_000 else "tab:orange" for h in hz])
+    for i, r in enumerate(rows):
+        inside = [r.get(k) for k in ("penetration_count_max", "order9_count_max", "object_in_skin_count_max",
+                                     "check_count_max")]
+        ax.text(i, r["hand_frames_per_s"] * 1.01, f"{int(r['hand_frames_per_s'] + 0.5):,}", ha="center", fontsize=8)
+        ax.text(i, 300, "inside:\n" + " / ".join("-" if v is None else str(v) for v in inside), ha="center",
+                fontsize=6.5, color="white")
+    ax.axhline(10_000, color="0.3", lw=0.8, ls=":")
+    ax.text(len(rows) - 0.5, 10_000 * 1.02, "target (H100)", fontsize=7, color="0.3", ha="right")
+    dev = "H100" if "H100" in d["device"] else d["device"]
+    w = rows[0]["worlds"] if rows else 0
+    ax.set(ylabel="hand-frames per second (5 ms frames)",
+           title=f"HOI grasps, {w} worlds in one batch ({dev}); inside counts: order 5 / order 9 / object / check points")
+    ax.title.set_fontsize(8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=130)
+    plt.close(fig)
+    return out
+
+
 def main() -> None:
+    if "--plot" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --plot [JSON]
+        args = [a for a in sys.argv[1:] if a != "--plot"]
+        src = Path(args[0]) if args else ROOT / "docs" / "benchmarks" / "batch_hoi_cuda_1024.json"
+        print(plot(src, ROOT / "docs" / "images" / "batch_hoi_1024.png").relative_to(ROOT))
+        return
     import warp as wp
 
     import physhand_mj as ph
