@@ -427,8 +427,8 @@ class BatchedHands:
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
         from physhand_mj.metrics import summarize_rows
 
-        return [dict(nonfinite=a, inverted=b, tethered=c, **m)
-                for a, b, c, m in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
+        return [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
+                for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
 
     def penetration(self, order: int = 5) -> list[dict]:
         """Both penetration measures of every world's skin as it is now, each world against its own

@@ -165,7 +165,8 @@ class Config:
         reuse_outside: that measure asks again only the object points whose answer could have
           changed: a point found outside the skin at distance d stays outside until its world's skin
           (its farthest-moving vertex) and its object together have moved d since (the skin would
-          have to cross it); False asks every point every time (the same answers, tests/test_winding.py);
+          have to cross it); False asks every point every time (the same answers:
+          tests/test_hard_contact.py, tests/test_batch.py, tests/test_winding.py);
         mesh_grid: node spacing (m) of each mesh object's distance grid (contact/objects.mesh_grid),
           which answers the broadphase's and the metrics' queries it proves farther than 1 mm
           outside the mesh (a lower bound of the distance) without the BVH walk; the broadphase

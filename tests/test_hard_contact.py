@@ -302,6 +302,74 @@ def test_reused_outside_answers_equal_asking_every_point(asset, kind, site, star
     assert contact.measure(state)[3] == 0
 
 
+def test_reuse_bound_sees_a_hinged_face_and_a_turning_object():
+    """The reuse bound at kernel level, where a per-vertex patch bound failed (review, 2026-11-25): a
+    closed tetrahedron whose apex a is on bone 1 and whose other corners are on bone 0; an object
+    point 0.1 mm outside face abc near its hinge bc. (1) a swings 20 degrees about the hinge (1.7 mm)
+    and face abc covers the point: the point must be asked again and found inside, as asking every
+    point finds it. (2) back outside, the skin still, the object turns 3 degrees about an origin
+    2 cm to the side, carrying the point 1 mm down into the tetrahedron: again asked and found."""
+    from physhand_mj.contact.inside import (keep_points, keep_poses, object_points_inside,
+                                            object_points_inside_reuse, reset_patches, skin_patches)
+
+    d, mm = "cpu", 1e-3
+    rest = np.array([[0, -5, 0], [-5, 0, 0], [5, 0, 0], [0, -2, -3]], np.float32) * mm
+    faces = []
+    for f in ([0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]):  # wound outward
+        p, q, r = rest[f]
+        faces.append(f if np.dot(np.cross(q - p, r - p), p - rest.mean(0)) > 0 else f[::-1])
+    faces = np.array(faces, np.int32)
+    x = wp.array(rest, dtype=wp.vec3, device=d)
+    mesh = wp.Mesh(points=x, indices=wp.array(faces.ravel(), dtype=int, device=d), support_winding_number=True)
+    face_arr = wp.array(faces, dtype=int, device=d)
+    bone = wp.array(np.array([1, 0, 0, 0], np.int32), dtype=int, device=d)
+    box = wp.zeros(2, dtype=wp.vec3, device=d)
+    origin = np.array([0.0, 19.0, 0.1]) * mm  # the geom's origin: the point 2 cm from it along -y
+    local = np.array([[0.0, -20.0, 0.0]], np.float32) * mm
+    pts, geom = wp.array(local, dtype=wp.vec3, device=d), wp.array([0], dtype=int, device=d)
+    pose = wp.array([wp.transform(wp.vec3(*origin), wp.quat_identity())], dtype=wp.transform, device=d)
+    prev_pose = wp.zeros(1, dtype=wp.transform, device=d)
+    radius = wp.array([0.02], dtype=float, device=d)
+    motion, lower, upper = (wp.zeros(2, dtype=float, device=d), wp.zeros(2, dtype=wp.vec3, device=d),
+                            wp.zeros(2, dtype=wp.vec3, device=d))
+    prev_x, slack = wp.zeros(4, dtype=wp.vec3, device=d), wp.zeros(1, dtype=float, device=d)
+    count, gobj = wp.array([1], dtype=int, device=d), wp.array([0], dtype=int, device=d)
+
+    def measure():
+        xs = x.numpy()
+        box.assign(np.array([xs.min(0), xs.max(0)], np.float32))
+        mesh.refit()
+        kept, every = wp.zeros((1, 6), dtype=float, device=d), wp.zeros((1, 6), dtype=float, device=d)
+        depth = wp.zeros(1, dtype=float, device=d)
+        wp.launch(reset_patches, 2, inputs=[], outputs=[motion, lower, upper], device=d)
+        wp.launch(skin_patches, 4, inputs=[x, prev_x, face_arr, 4, bone, 2], outputs=[motion, lower, upper], device=d)
+        wp.launch(keep_points, 4, inputs=[x], outputs=[prev_x], device=d)
+        wp.launch(object_points_inside_reuse, 1, inputs=[mesh.id, box, pts, geom, pose, prev_pose, radius, motion, lower,
+                                                         upper, 2, count, gobj, -1, 0, 1, 1],
+                  outputs=[kept, depth, slack], device=d)
+        wp.launch(keep_poses, 1, inputs=[pose], outputs=[prev_pose], device=d)
+        wp.launch(object_points_inside, 1, inputs=[mesh.id, box, pts, geom, pose, count, gobj, -1, 0, 1, 1],
+                  outputs=[every, wp.zeros(1, dtype=float, device=d)], device=d)
+        return kept.numpy()[0, 3:], every.numpy()[0, 3:]
+
+    kept, every = measure()
+    assert every[0] == 0 and kept[0] == 0 and slack.numpy()[0] > 0  # outside, its slack kept
+    swung = rest.copy()
+    psi = np.radians(20)
+    swung[0] = np.array([0, -5 * np.cos(psi), 5 * np.sin(psi)]) * mm  # a turns about the hinge bc
+    x.assign(swung)
+    kept, every = measure()
+    assert every[0] == 1 and np.array_equal(kept, every), (kept, every)
+    x.assign(rest)
+    kept, every = measure()
+    assert every[0] == 0 and np.array_equal(kept, every)
+    measure()  # the skin still since: the point keeps its slack
+    theta = np.radians(3)  # the object turns about its x axis: the point swings 1.05 mm down
+    pose.assign([wp.transform(wp.vec3(*origin), wp.quat_from_axis_angle(wp.vec3(1.0, 0.0, 0.0), float(theta)))])
+    kept, every = measure()
+    assert every[0] == 1 and np.array_equal(kept, every), (kept, every)
+
+
 def test_vertex_baseline_is_reported_beside_multires(asset):
     r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=0.002),
                  ph.Config(device="cpu", contact=Strategy.VERTEX, feature_contact=False, side_aware=False), frames=14,

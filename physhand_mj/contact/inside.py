@@ -143,6 +143,15 @@ def inside_depth(skin: wp.uint64, p: wp.vec3, lower: wp.vec3, upper: wp.vec3):
     return 0.0
 
 
+@wp.func
+def add_inside(out: wp.array2d(dtype=float), o: int, d: float):
+    """One object point inside the skin at depth ``d`` (m) into row ``o``'s columns 3-5: count, sum
+    of depths, deepest."""
+    wp.atomic_add(out, o, 3, 1.0)
+    wp.atomic_add(out, o, 4, d)
+    wp.atomic_max(out, o, 5, d)
+
+
 @wp.kernel
 def object_points_inside(
     skin: wp.uint64,
@@ -173,10 +182,7 @@ def object_points_inside(
         d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[2 * w], box[2 * w + 1])
     depth[i] = d
     if d > 0.0:
-        o = w * rows_per_world + row
-        wp.atomic_add(out, o, 3, 1.0)
-        wp.atomic_add(out, o, 4, d)
-        wp.atomic_max(out, o, 5, d)
+        add_inside(out, w * rows_per_world + row, d)
 
 
 @wp.kernel
@@ -189,8 +195,8 @@ def reset_patches(motion: wp.array(dtype=float), lower: wp.array(dtype=wp.vec3),
 
 @wp.func
 def skin_patch(i: int, per_world: int, skin_body: wp.array(dtype=int), bodies: int):
-    """Skin vertex i's patch: its world's patch of its bone (Model.skin_body; ``bodies`` per world,
-    at least 1: a skin without bones is one patch a world)."""
+    """Skin vertex i's bone patch: its world's patch of its bone (Model.skin_body; ``bodies`` per
+    world, at least 1: a skin without bones is one patch a world)."""
     b = skin_body[i]
     local = int(0)
     if b >= 0:
@@ -199,19 +205,31 @@ def skin_patch(i: int, per_world: int, skin_body: wp.array(dtype=int), bodies: i
 
 
 @wp.kernel
-def skin_patches(x: wp.array(dtype=wp.vec3), prev: wp.array(dtype=wp.vec3), per_world: int,
-                 skin_body: wp.array(dtype=int), bodies: int, motion: wp.array(dtype=float),
+def skin_patches(x: wp.array(dtype=wp.vec3), prev: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int),
+                 per_world: int, skin_body: wp.array(dtype=int), bodies: int, motion: wp.array(dtype=float),
                  lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3)):
-    """Per patch of the skin (a world's skin vertices of one bone, :func:`skin_patch`): the farthest
-    any of its vertices moved since ``prev`` (m) and their bounding box now (reset_patches first);
-    then prev = x."""
+    """Per patch of the skin: the skin triangles whose first corner is on one bone of one world
+    (:func:`skin_patch`), every triangle in exactly one patch. Each patch's motion since ``prev``
+    (m: the farthest any corner of its triangles moved; a triangle's points move no farther) and the
+    bounding box of its triangles' corners now (reset_patches first; keep_points after)."""
+    t = wp.tid()
+    i0 = faces[t, 0]
+    i1 = faces[t, 1]
+    i2 = faces[t, 2]
+    k = skin_patch(i0, per_world, skin_body, bodies)
+    a = x[i0]
+    b = x[i1]
+    c = x[i2]
+    m = wp.max(wp.max(wp.length(a - prev[i0]), wp.length(b - prev[i1])), wp.length(c - prev[i2]))
+    wp.atomic_max(motion, k, m)
+    wp.atomic_min(lower, k, wp.min(wp.min(a, b), c))
+    wp.atomic_max(upper, k, wp.max(wp.max(a, b), c))
+
+
+@wp.kernel
+def keep_points(x: wp.array(dtype=wp.vec3), prev: wp.array(dtype=wp.vec3)):
     i = wp.tid()
-    k = skin_patch(i, per_world, skin_body, bodies)
-    p = x[i]
-    wp.atomic_max(motion, k, wp.length(p - prev[i]))
-    wp.atomic_min(lower, k, p)
-    wp.atomic_max(upper, k, p)
-    prev[i] = p
+    prev[i] = x[i]
 
 
 @wp.kernel
@@ -253,9 +271,10 @@ def object_points_inside_reuse(
 ):
     """:func:`object_points_inside`, asking again only the points whose answer could have changed
     (``Config.reuse_outside``). ``slack[i]`` (m) is a lower bound of point i's distance to the skin
-    (0: ask it). Since it was taken, each skin patch P of the point's world (skin_patches: its
-    vertices moved at most ``motion[P]``, and a triangle's points at most as far as its farthest
-    vertex) stayed at least max(slack, its box's distance now) - motion[P] from the point, all along
+    (0: ask it). Since it was taken, each skin patch P of the point's world (skin_patches: every
+    skin triangle belongs to one patch, whose box holds its corners now, and its points moved no
+    farther than its corners, at most ``motion[P]``) stayed at least max(slack, its box's distance
+    now) - motion[P] from the point, all along
     the way, and the point moved at most |dt| + 2 sin(theta / 2) ``geom_radius`` with its geom (pose
     against ``prev_pose``). While the smallest of these stays positive the skin has not crossed the
     point, so it is still outside, and that bound is its new slack. A point asked again gets its
@@ -272,9 +291,9 @@ def object_points_inside_reuse(
     dq = wp.mul(wp.quat_inverse(wp.transform_get_rotation(t0)), wp.transform_get_rotation(t1))
     p = wp.transform_point(t1, pts[i])
     # how far the point can have come (m), with float rounding at the query's coordinates (worlds are
-    # queried up to tens of metres out: ~4 ulp there, and 1 um)
+    # queried up to tens of metres out: ~16 ulp there, and 1 um)
     own = (wp.length(wp.transform_get_translation(t1) - wp.transform_get_translation(t0))
-           + 2.0 * wp.length(wp.vec3(dq[0], dq[1], dq[2])) * geom_radius[g] + 1.0e-6 + 5.0e-7 * wp.length(p))
+           + 2.0 * wp.length(wp.vec3(dq[0], dq[1], dq[2])) * geom_radius[g] + 1.0e-6 + 2.0e-6 * wp.length(p))
     s0 = slack[i]
     s = float(0.0)
     if s0 > 0.0:
@@ -298,10 +317,7 @@ def object_points_inside_reuse(
     slack[i] = s
     depth[i] = d
     if d > 0.0:
-        o = w * rows_per_world + row
-        wp.atomic_add(out, o, 3, 1.0)
-        wp.atomic_add(out, o, 4, d)
-        wp.atomic_max(out, o, 5, d)
+        add_inside(out, w * rows_per_world + row, d)
 
 
 class ObjectPoints:

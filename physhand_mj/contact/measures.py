@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.inside import (ObjectPoints, keep_poses, object_points_inside, object_points_inside_reuse,
-                                        reset_patches, skin_patches)
+from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, object_points_inside,
+                                        object_points_inside_reuse, reset_patches, skin_patches)
 from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 
 # the independent check's object points (Contact.check_points): each edge piece that holds a feature
@@ -65,8 +65,10 @@ class ContactMeasures:
             r = self._reuse(pts, vol, qpose)  # (Config.reuse_outside: ask only what could have changed)
             bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
             launch(reset_patches, r.motion.shape[0], [], [r.motion, r.lower, r.upper])
-            launch(skin_patches, vol.points.shape[0], [vol.points, r.prev_x, vol.points.shape[0] // self.worlds,
-                                                       m.skin_body, bodies], [r.motion, r.lower, r.upper])
+            launch(skin_patches, m.skin_faces.shape[0], [vol.points, r.prev_x, m.skin_faces,
+                                                         vol.points.shape[0] // self.worlds, m.skin_body, bodies],
+                   [r.motion, r.lower, r.upper])
+            launch(keep_points, vol.points.shape[0], [vol.points], [r.prev_x])
             launch(object_points_inside_reuse, len(pts),
                    [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion, r.lower,
                     r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per], [out, pts.depth, r.slack])
@@ -171,7 +173,8 @@ class ContactMeasures:
 class _Reuse:
     """Config.reuse_outside's memory for one set of object points against one skin volume: each
     point's slack (m, 0: ask it), the skin points and the geom poses when last measured, and per skin
-    patch (a world's skin of one bone) its motion since and its box (inside.object_points_inside_reuse)."""
+    patch (a world's skin triangles whose first corner is on one bone) its motion since and its box
+    (inside.object_points_inside_reuse)."""
 
     def __init__(self, n_points: int, n_skin: int, n_geoms: int, patches: int, device):
         self.slack = wp.zeros(max(n_points, 1), dtype=float, device=device)
