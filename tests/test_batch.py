@@ -503,10 +503,24 @@ def test_a_closed_batch_frees_its_solver_and_says_so():
     batch.close()  # twice is fine
 
 
+def _summarize_reference(row) -> dict:
+    """A metrics row summarized one value at a time in Python (what metrics.summarize did before it
+    became summarize_rows of one row): the reference for the column-wise version."""
+    out = {}
+    for prefix, k in (("penetration", 0), ("object_in_skin", 3)):
+        if k + 2 >= len(row):
+            break
+        count = int(round(float(row[k])))
+        out.update({f"{prefix}_count": count, f"{prefix}_max_um": float(row[k + 2]) * 1e6,
+                    f"{prefix}_avg_um": float(row[k + 1]) / count * 1e6 if count else 0.0})
+    return out
+
+
 def test_summarize_rows_is_summarize_row_by_row():
-    """metrics.summarize_rows (the batch's per-world reports, all rows at once) gives what
-    metrics.summarize gives row by row: the same keys, values and types, for 3- and 6-column rows,
-    with zero counts and counts on the float32 halves (rounded to even, as round() does)."""
+    """metrics.summarize_rows (the batch's per-world reports, all rows at once) and metrics.summarize
+    (one row) give what a row summarized one Python value at a time gives: the same keys, values and
+    types, for 3- and 6-column rows, with zero counts and counts on the float32 halves (rounded to
+    even, as round() does)."""
     from physhand_mj.metrics import summarize, summarize_rows
 
     rng = np.random.default_rng(1)
@@ -515,6 +529,7 @@ def test_summarize_rows_is_summarize_row_by_row():
         rows[:, 0] = rng.integers(0, 4, 300)
         rows[:, cols - 3] = rng.integers(0, 3, 300)
         rows[:3, 0] = [0.5, 1.5, 2.5]
-        one, each = summarize_rows(rows), [summarize(r) for r in rows]
+        one, each = summarize_rows(rows), [_summarize_reference(r) for r in rows]
         assert one == each
         assert all(type(a[k]) is type(b[k]) for a, b in zip(one, each) for k in a)
+        assert [summarize(r) for r in rows] == each
