@@ -85,6 +85,19 @@ class NonFinite(enum.IntEnum):
     RAISE = 1  # raise SolverError after the frame (state left at the last finite positions)
 
 
+def _enum_field(cls, value, name: str):
+    """``value`` as a member of ``cls``: the member, its int value or its name (any case); a clear
+    ValueError naming the Config field and its choices otherwise."""
+    if isinstance(value, str) and value.upper() in cls.__members__:
+        return cls[value.upper()]
+    try:
+        return cls(value)
+    except (ValueError, TypeError):
+        choices = ", ".join(f"{m.name} ({m.value})" for m in cls)
+        raise ValueError(f"Config.{name}={value!r} is not a {cls.__name__}; use one of {choices}, "
+                         f"as physhand_mj.{cls.__name__}.<NAME>, its number or its name") from None
+
+
 @dataclass
 class Config:
     """Solver options. Every quantity is SI; compliance ``alpha = 1/k`` for an energy
@@ -362,10 +375,10 @@ class Config:
                           f"substeps {self.substeps}) are longer than {MAX_STABLE_SUBSTEP * 1e3:g} ms: the flesh sags "
                           f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
                           f">= {need} (or leave Config.max_substep at its default, which does)", RuntimeWarning, stacklevel=2)
-        self.contact = Strategy(self.contact)
-        self.contact_placement = Placement(self.contact_placement)
-        self.scheme = Scheme(self.scheme)
-        self.nonfinite = NonFinite(self.nonfinite)
+        self.contact = _enum_field(Strategy, self.contact, "contact")
+        self.contact_placement = _enum_field(Placement, self.contact_placement, "contact_placement")
+        self.scheme = _enum_field(Scheme, self.scheme, "scheme")
+        self.nonfinite = _enum_field(NonFinite, self.nonfinite, "nonfinite")
         return self
 
     @property

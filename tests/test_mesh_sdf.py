@@ -14,7 +14,9 @@ import trimesh
 import warp as wp
 
 from physhand_mj.contact import Objects
-from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad
+from physhand_mj.contact.broadphase import triangle_bound
+from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad, mesh_near_faces,
+                                     sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -392,3 +394,94 @@ def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():
         np.testing.assert_array_equal(skins[0], skins[1])
     with pytest.raises(ValueError, match="mesh_grid"):
         ph.Config(mesh_grid=-1e-3).validate()
+
+
+@wp.kernel
+def _near_lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), order: int,
+                  exact: wp.array2d(dtype=float), near: wp.array2d(dtype=float), n_near: wp.array(dtype=int)):
+    """Every point of an order-``order`` lattice on triangle t: the BVH query (geom_sdf, no grid) and
+    the query over the triangle's near faces (sdf.mesh_near_faces / sdf_mesh_near, as query.py's
+    decision points ask); n_near[t]: how many faces (-1: too many, the BVH then)."""
+    t = wp.tid()
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    m, r = triangle_bound(a, b, c)
+    ids, n = mesh_near_faces(mesh, m, r, size[0])
+    n_near[t] = n
+    k = int(0)
+    for i in range(order + 1):
+        for j in range(order + 1 - i):
+            u = float(i) / float(order)
+            v = float(j) / float(order)
+            p = a * (1.0 - u - v) + b * u + c * v
+            exact[t, k] = geom_sdf(int(GeomType.MESH), p, size, wp.vec2ul(mesh, wp.uint64(0)))
+            if n >= 0:
+                near[t, k] = sdf_mesh_near(p, size, mesh, ids, n)
+            k += 1
+
+
+def small_triangles(mesh, n, seed, spread=1.2e-3, depth=(-2e-3, 4e-3)):
+    """``n`` random triangles of ~``spread`` (m) about points ``depth`` (m) off ``mesh``'s surface
+    (negative: inside), and n / 4 more about its sharp edges and tips, both sides, where it has any."""
+    rng = np.random.default_rng(seed)
+    pts, fi = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    centres = pts + mesh.face_normals[fi] * rng.uniform(*depth, (n, 1))
+    if (mesh.face_adjacency_angles > np.radians(1.0)).any():  # (a smooth mesh has none)
+        centres = np.concatenate([centres, near_features(mesh, n_edge=n // 8, n_vertex=n // 8, seed=seed)])
+    return (centres[:, None, :] + rng.normal(size=(len(centres), 3, 3)) * spread).astype(np.float32)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("shape", ["bowl", "wedge30_knife", "cone30_tip", "star", "hull40"])
+def test_near_faces_answer_every_sample_as_the_bvh_does(shape, device):
+    """The decision points' mesh query (sdf.mesh_near_faces, then sdf_mesh_near per lattice sample):
+    the faces within d(m) + 2 r of a triangle's centroid hold every sample's closest face, and Warp's
+    own leaf test over them returns the BVH query's phi (bit for bit but at exact ties), inside and outside, at knife
+    edges, cone tips, a star's notches and the HOI bowl; a dense mesh overflows the capacity and
+    falls back to the BVH."""
+    from physhand_mj.contact.sdf import MESH_NEAR_CAP
+    from physhand_mj import scene_path
+
+    if shape == "bowl":
+        mesh = trimesh.load(scene_path("hoi_bowl").parent / "assets" / "bowl.stl")
+    elif shape == "star":
+        mesh = star_prism()[0]
+    else:
+        mesh = CONVEX[shape]()
+    objs = Objects(device, 1)
+    objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="m", mesh_range=1.0)
+    size = objs._host["size"][0]
+    assert int(size[1]) == MESH_SIGN_PSEUDO
+    tri = small_triangles(mesh, 800, seed=3)
+    order = 5
+    k = (order + 1) * (order + 2) // 2
+    exact = wp.zeros((len(tri), k), dtype=float, device=device)
+    near = wp.full((len(tri), k), np.nan, dtype=float, device=device)
+    n_near = wp.zeros(len(tri), dtype=int, device=device)
+    wp.launch(_near_lattice, len(tri), [wp.vec3(*size), wp.uint64(int(objs._host["mesh"][0][0])),
+                                        wp.array(tri.reshape(-1, 3), dtype=wp.vec3, device=device), order],
+              [exact, near, n_near], device=device)
+    n = n_near.numpy()
+    used = n >= 0
+    assert used.mean() > 0.6, f"only {used.mean():.0%} of the triangles found their near faces"  # (the cone: 79 %)
+    assert n[used].max() <= MESH_NEAR_CAP and n[used].min() >= 1
+    e, q = exact.numpy()[used], near.numpy()[used]
+    assert (e < 0).sum() > 500 and (e > 0).sum() > 500  # inside and outside
+    # equal but where two faces tie for the closest point to the last bit (the BVH and the near faces
+    # meet them in another order and the other face's closest point rounds differently) or, on CUDA,
+    # where the two codes' multiply-adds contract differently: then within a few nanometres
+    off = q != e
+    assert off.mean() < 1e-3, f"{off.sum()} of {off.size} samples differ"
+    assert np.abs(q - e).max() <= 1e-8 and np.all(np.sign(q[np.abs(e) > 1e-8]) == np.sign(e[np.abs(e) > 1e-8]))
+    # a dense sphere: more faces near a triangle than the capacity -> the BVH per sample (n = -1)
+    dense = trimesh.creation.icosphere(subdivisions=6, radius=0.03)
+    objs = Objects(device, 1)
+    objs.add(GeomType.MESH, None, vertices=dense.vertices, faces=dense.faces, name="d", mesh_range=1.0)
+    tri = small_triangles(dense, 40, seed=4, spread=4e-3, depth=(0.0, 1e-3))
+    n_near = wp.zeros(len(tri), dtype=int, device=device)
+    wp.launch(_near_lattice, len(tri), [wp.vec3(*objs._host["size"][0]), wp.uint64(int(objs._host["mesh"][0][0])),
+                                        wp.array(tri.reshape(-1, 3), dtype=wp.vec3, device=device), order],
+              [wp.zeros((len(tri), k), dtype=float, device=device), wp.zeros((len(tri), k), dtype=float, device=device),
+               n_near], device=device)
+    assert (n_near.numpy() == -1).mean() > 0.9

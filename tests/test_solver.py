@@ -317,10 +317,21 @@ def test_bad_bone_poses_are_rejected(hand):
 
 
 @pytest.mark.parametrize("field,value", [("substeps", 0), ("frame_dt", -1.0), ("gravity", (0, 0)),
-                                         ("volume_compliance", float("nan")), ("relaxation", 2.5)])
+                                         ("volume_compliance", float("nan")), ("relaxation", 2.5),
+                                         ("contact", "nne"), ("contact", 7), ("scheme", "gauss")])
 def test_config_errors_name_the_option(field, value):
     with pytest.raises(ValueError, match=f"Config.{field}"):
         ph.Config(**{field: value}).validate()
+
+
+def test_config_enums_take_members_numbers_and_names():
+    """Config's enum fields take the member, its number or its name in any case (JSON configs on the
+    command line: --config '{"contact": "none"}'); a wrong one lists the choices."""
+    for value in (ph.Strategy.NONE, 0, "none", "NONE"):
+        assert ph.Config(contact=value).validate().contact is ph.Strategy.NONE
+    assert ph.Config(contact="multires").validate().contact is ph.Strategy.MULTIRES
+    with pytest.raises(ValueError, match="NONE \\(0\\), VERTEX \\(1\\), OPT \\(2\\), MULTIRES \\(3\\)"):
+        ph.Config(contact="sdf").validate()
 
 
 def test_residual_falls_with_iterations(hand):

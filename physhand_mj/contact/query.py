@@ -32,7 +32,8 @@ Strategies (``Strategy``):
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
-from physhand_mj.contact.sdf import BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_grad
+from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_grad,
+                                     mesh_near_faces, mesh_near_ids, sdf_mesh_near)
 from physhand_mj.types import Strategy
 
 VERTEX = wp.constant(int(Strategy.VERTEX))
@@ -363,6 +364,16 @@ def decide_triangle(
         tb = b
         tc = c
         certified = float(-FAR)
+        # one mesh near (pseudo-normal sign, exact ids): its faces near the triangle, found once, answer
+        # every sample of both rounds (sdf.mesh_near_faces; n_near = -1: the BVH per sample)
+        near_ids = mesh_near_ids()
+        n_near = int(-1)
+        if s_type == MESH and s_size[1] < 0.5 and s_mesh[1] == wp.uint64(0):
+            la = wp.transform_point(s_inv, a)
+            lb = wp.transform_point(s_inv, b)
+            lc = wp.transform_point(s_inv, c)
+            lm, lr = triangle_bound(la, lb, lc)
+            near_ids, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
         for r in range(rounds):
             # the three lowest samples of this round, ascending
             d0 = float(FAR)
@@ -377,14 +388,22 @@ def decide_triangle(
                     u = float(i) * inv
                     v = float(j) * inv
                     p = ta * (1.0 - u - v) + tb * u + tc * v
-                    d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
-                               n_geoms, near)
+                    d = float(FAR)
+                    if n_near >= 0:
+                        d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, n_near)
+                    else:
+                        d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh,
+                                   base, n_geoms, near)
                     n += 1
                     d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if n < samples:  # spend a leftover query on the centroid
                 p = (ta + tb + tc) * (1.0 / 3.0)
-                d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
-                           n_geoms, near)
+                d = float(FAR)
+                if n_near >= 0:
+                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, n_near)
+                else:
+                    d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
+                               n_geoms, near)
                 d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
             if d0 < best:
                 best = d0
