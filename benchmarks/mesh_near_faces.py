@@ -7,7 +7,9 @@ two rounds: 42 samples), once with Warp's BVH query per sample (``geom_sdf``, no
 the triangle's near faces. Reports ms per launch of N triangles each way (median of ``--repeats``
 interleaved launches, compilation excluded), the share of triangles whose near faces fit the
 capacity (sdf.MESH_NEAR_CAP; the rest take the BVH), the median / 90th percentile / largest count of
-near faces, and whether every sample's phi equals the BVH query's (bit for bit on the CPU).
+near faces, whether every sample's phi equals the BVH query's (bit for bit but at exact ties), and
+whether ``Objects.add`` marks the mesh for the contact's decision points to take the near faces
+(objects.near_faces_pay; unmarked meshes keep the BVH walk per sample).
 
     python benchmarks/mesh_near_faces.py [--device cpu|cuda] [--triangles 20000] [--repeats 5]
                                          [--out docs/benchmarks/mesh_near_faces_<device>.json]
@@ -28,7 +30,7 @@ import physhand_mj as ph
 from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import MESH_NEAR_CAP, geom_sdf, mesh_near_faces, mesh_near_ids, sdf_mesh_near
+from physhand_mj.contact.sdf import MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, geom_sdf, mesh_near_faces, mesh_near_ids, sdf_mesh_near
 from physhand_mj.types import GeomType
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,7 +91,9 @@ def run_mesh(name: str, mesh: trimesh.Trimesh, device: str, n: int, repeats: int
     faces = out[1][1].numpy()
     used = faces >= 0
     bvh, near = out[0][0].numpy(), out[1][0].numpy()
+    marked = int(objs._host["size"][0][1]) == MESH_SIGN_PSEUDO_NEAR  # does the contact take the near faces?
     return dict(mesh=name, faces=int(len(mesh.faces)), triangles=n, samples_per_triangle=2 * SAMPLES,
+                contact_uses_near_faces=marked,
                 bvh_ms=round(float(np.median(ms[0])), 3), near_faces_ms=round(float(np.median(ms[1])), 3),
                 speedup=round(float(np.median(ms[0]) / np.median(ms[1])), 2),
                 near_share=round(float(used.mean()), 4),

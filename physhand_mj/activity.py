@@ -133,6 +133,8 @@ class _Gate:
                 op.top = False
 
     cond = None  # level 2 under Activity.conditional: the device flag capture_if reads
+    moved_enough = None  # level 2 with Config.contact_pass_tol: did the last pass move enough? (the CPU's
+    # gate asks it; on CUDA keep_moved sets the conditional node's flag alike and this counts the ops run)
 
     def __call__(self):
         a = self.activity
@@ -144,7 +146,8 @@ class _Gate:
             if self.level != 1 or not a.gate_ahead or a.open1:
                 self.run_all()
         elif a.near[0] and (self.level == 0 or a._cand[0]) and (
-                self.level < 2 or any(a._counters[s] for s in self.slots)):
+                self.level < 2 or (any(a._counters[s] for s in self.slots)
+                                   and (self.moved_enough is None or self.moved_enough()))):
             self.run_all()
 
     def run_all(self):
@@ -164,7 +167,8 @@ class _Gate:
             return open1
         a = self.activity
         gating = a.enabled and (self.cond is not None or not (a.device.is_cuda or a.gate_ahead))
-        return open1 and (not gating or any(counters[s] for s in self.slots))
+        return open1 and (not gating or (any(counters[s] for s in self.slots) and (
+            self.moved_enough is None or self.moved_enough())))
 
 
 def objects_near(objects, lo: np.ndarray, hi: np.ndarray, margin: float) -> int:

@@ -140,7 +140,12 @@ class Config:
         substeps (count; always in the frame's last substep, so the frame ends corrected; 1 = every
         substep, Algorithm 1): fewer stages a frame, the skin between them follows the solver alone
         (docs/activity.md: every=2 saves a quarter of the H100 demo frame and leaves residue in 13
-        of the hard cases' 600 held frames, none at 1); contact_margin: the stage broadphase's margin (m; covers how
+        of the hard cases' 600 held frames, none at 1); contact_pass_tol: in every contact stage but
+        the frame's last, a pass runs only when the pass before it moved some vertex by more than
+        this (m; 0: by anything, every stage runs until a pass moves nothing); the frame's last stage
+        always runs to the end, so what a frame ends with is cleared as before; passes that only
+        confirm a stage's last small moves are skipped where the next substep's stage re-tests the
+        skin anyway (benchmarks/pass_moves.py, docs/activity.md; fused_stage ignores it); contact_margin: the stage broadphase's margin (m; covers how
         far one stage's corrections drag a triangle that did not penetrate itself);
         contact_frame_margin: the frame broadphase's margin (m; must cover how far skin and objects
         move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); contact_offset: how far
@@ -271,6 +276,7 @@ class Config:
     contact_placement: Placement = Placement.AFTER
     contact_passes: int = 8
     contact_every: int = 1
+    contact_pass_tol: float = 0.0
     contact_margin: float = 5.0e-4
     contact_frame_margin: float = 1.0e-2
     contact_offset: float = 4.0e-6
@@ -340,6 +346,7 @@ class Config:
         if not (isinstance(self.multires_samples, (int, np.integer)) and self.multires_samples >= 3):
             raise ValueError(f"Config.multires_samples must be an integer >= 3, got {self.multires_samples!r}")
         nonneg("contact_margin")
+        nonneg("contact_pass_tol")
         nonneg("skin_tether")
         nonneg("contact_frame_margin")
         nonneg("contact_offset")

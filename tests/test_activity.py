@@ -198,6 +198,40 @@ def test_conditional_contact_passes_change_no_result(scene):
     assert 0 < o1[-1]["contact_ops_run"] < o2[-1]["contact_ops_run"]
 
 
+
+def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
+    """Config.contact_pass_tol: in every stage but the frame's last, a pass runs only when the pass
+    before it moved some vertex by more than the tolerance. With 1 m no stage but the last runs more
+    than its first pass (their later passes' lists stay empty), the last stage still runs until a
+    pass moves nothing, so every frame of a box pressing into the hand ends with no skin sample in
+    it, in fewer ops than the default; CUDA's device flag (keep_moved, conditional passes forced
+    on the CPU) skips the same passes as the CPU's host test, bit for bit."""
+    runs = []
+    for tol, cond in ((0.0, False), (1.0, False), (1.0, True)):
+        solver, state, objects, top = _solver(scene, GeomType.BOX, (0.015, 0.015, 0.015), contact_pass_tol=tol)
+        solver.activity.gate_ahead = cond
+        solver.activity.conditional = cond
+        outs, later = [], []
+        for k in range(12):
+            objects.set_pose(0, top + [0.0, 0.0, 0.015 + 0.03 - 0.0035 * k], (1.0, 0.0, 0.0, 0.0))
+            outs.append(_step(solver, state, scene[2]))
+            c = solver.contact
+            lists = c._counters_host.numpy()[np.asarray(c.pass_slots)].reshape(len(c._stage_slots), -1)
+            later.append(lists[:, 1:].sum(axis=1))  # per stage: triangles its later passes tested
+        runs.append((state.x.numpy().copy(), outs, np.array(later)))
+    (x0, o0, l0), (x1, o1, l1), (x2, o2, l2) = runs
+    pressed = [k for k in range(12) if o0[k]["triangles_tested"] > 0]
+    assert len(pressed) >= 4 and l0[pressed][:, :-1].sum() > 0  # the default re-tests in every stage
+    assert l1[:, :-1].sum() == 0 and l1[:, -1].sum() > 0  # tol: only the last stage re-tests
+    assert all(o["penetration_count"] == 0 for o in o0 + o1), [o["penetration_count"] for o in o1]
+    assert sum(o1[k]["contact_ops_run"] for k in pressed) < sum(o0[k]["contact_ops_run"] for k in pressed)
+    assert np.array_equal(x1, x2), float(np.abs(x1 - x2).max())
+    keys = ("penetration_count", "triangles_tested", "triangles_stage")  # (ops: each path counts its own)
+    assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]
+    assert np.array_equal(l1, l2)
+    with pytest.raises(ValueError, match="contact_pass_tol"):
+        Config(contact_pass_tol=-1e-4).validate()
+
 def _recorded(solver, state, poses):
     _step(solver, state, poses)
     ops = solver._ops[(id(state), id(solver.contact))]

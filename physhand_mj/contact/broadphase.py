@@ -136,6 +136,9 @@ def keep_moved(
     bound: wp.array(dtype=float),
     counters: wp.array(dtype=int),
     flag_slots: wp.array(dtype=int),
+    pass_move: wp.array(dtype=float),
+    stage_tol: wp.array(dtype=float),
+    stage: int,
     out: wp.array(dtype=int),
     out_mask: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
@@ -147,14 +150,21 @@ def keep_moved(
     that displacement m stays positive (the bound drops by m and the triangle is skipped).
     Thread 0 also sets ``flag[0]`` to 1 when one of ``counters`` at ``flag_slots`` (the last pass's
     touched vertices) is not zero, else 0: whether the next pass runs at all (activity.py level 2, a
-    conditional graph node on CUDA). Launch at least one thread."""
+    conditional graph node on CUDA); with Config.contact_pass_tol (``pass_move`` not empty) also
+    only when the last pass's largest move pass_move[stamp] exceeds its stage's ``stage_tol``
+    (0 in the frame's last stage), and a pass that will not run gets an empty list. Launch at least
+    one thread."""
     k = wp.tid()
+    go = True
+    if pass_move.shape[0] > 0:
+        tol = stage_tol[stage]
+        go = tol <= 0.0 or pass_move[stamp] > tol
     if k == 0:
         total = int(0)
         for j in range(flag_slots.shape[0]):
             total += counters[flag_slots[j]]
-        flag[0] = wp.where(total > 0, 1, 0)
-    if k >= active_count[0]:
+        flag[0] = wp.where(go and total > 0, 1, 0)
+    if k >= active_count[0] or not go:
         return
     keep_if_moved(active[k], active_mask[k], faces, moved, disp, stamp, bound, out, out_mask, out_count)
 

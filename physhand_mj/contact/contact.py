@@ -173,6 +173,16 @@ class Contact(ContactMeasures):
         # per later pass of a frame: 1 when the pass before it moved a vertex (set by keep_moved, read by
         # the pass's conditional graph node on CUDA, activity.py level 2; zeroed per frame)
         self.pass_flags = wp.zeros(max(stages * config.contact_passes, 1), dtype=wp.int32, device=d)
+        # Config.contact_pass_tol: per pass (by its stamp, a counter slot) its largest vertex move, m
+        # (zeroed per frame), and per stage the tolerance its passes stop at (0 in the frame's last
+        # stage: set by finish_recording); both empty when the tolerance is 0 (no work, no flag change)
+        tol = config.contact_pass_tol > 0
+        self.pass_move = wp.zeros(self.counters.shape[0] if tol else 0, dtype=float, device=d)
+        self.stage_tol = wp.zeros(max(stages, 1) if tol else 0, dtype=float, device=d)
+        self._stage_tol_host = np.zeros(self.stage_tol.shape[0], np.float32)
+        cuda = wp.get_device(d).is_cuda
+        self._pass_move_host = (wp.zeros(self.pass_move.shape[0], dtype=float, device="cpu", pinned=True) if cuda
+                                else self.pass_move)
         self._feat_host = wp.zeros(1, dtype=int, device="cpu", pinned=wp.get_device(d).is_cuda)
 
     # -- recording into the solver's frame --------------------------------------------------------
@@ -318,8 +328,10 @@ class Contact(ContactMeasures):
         for p in range(cfg.contact_passes):
             if p and gated is not None:
                 box: dict = {}
-                gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin, feat_count)),
-                      2, prev, flag)
+                gate = gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin,
+                                                                             feat_count)), 2, prev, flag)
+                if gate is not None and len(self.pass_move):  # (Config.contact_pass_tol: the CPU's host test)
+                    gate.moved_enough = self._moved_enough(prev[0], stage)
                 lst, prev, flag = box["r"]
             else:
                 lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
@@ -351,7 +363,7 @@ class Contact(ContactMeasures):
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
                     cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
         launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
-               [state.x, self.push, self.moved, self.disp], count=self.touched_count)
+               [state.x, self.push, self.moved, self.disp, self.pass_move], count=self.touched_count)
         self._tally_touched(launch, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
             moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
@@ -363,10 +375,28 @@ class Contact(ContactMeasures):
             flag = self.pass_flags[j: j + 1]
             launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
                                              self.moved, self.disp, stamp, self.bound, self.counters,
-                                             self._slot_array(moved_slots)],
+                                             self._slot_array(moved_slots), self.pass_move, self.stage_tol,
+                                             len(self._stage_slots) - 1],
                    [*lst, flag],
                    count=self.active_count, min_dim=1)
         return lst, tuple(moved_slots), flag
+
+    def _moved_enough(self, stamp: int, stage: int):
+        """Config.contact_pass_tol's host test of a pass (the CPU's level-2 gate; CUDA's keep_moved
+        sets the device flag the same way): did the pass ``stamp`` move some vertex by more than its
+        stage's tolerance?"""
+        move = self._pass_move_host.numpy()  # (the CPU: a view; CUDA: the frame's copy, for reports)
+        return lambda: self._stage_tol_host[stage] <= 0.0 or move[stamp] > self._stage_tol_host[stage]
+
+    def finish_recording(self) -> None:
+        """After a frame (or a stage) is recorded: Config.contact_pass_tol for every stage but the
+        last recorded one, which runs its passes to the end."""
+        n = len(self._stage_slots)
+        if len(self.stage_tol) and n:  # (a host write: recorded frames and graphs read the array)
+            tol = np.full(self.stage_tol.shape[0], self.config.contact_pass_tol, np.float32)
+            tol[n - 1:] = 0.0
+            self.stage_tol.assign(tol)
+            self._stage_tol_host = tol
 
     def _slot_array(self, slots) -> wp.array:
         """``slots`` (counter indices) as a device array, made once and held (recorded launches read it)."""
@@ -412,7 +442,7 @@ class Contact(ContactMeasures):
                    [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                    count=feat_count)
         launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
-               [state.x, self.push, self.moved, self.disp], count=feat_touched)
+               [state.x, self.push, self.moved, self.disp, self.pass_move], count=feat_touched)
         return slot, feat_touched
 
     def _winding_args(self) -> list:
@@ -437,6 +467,8 @@ class Contact(ContactMeasures):
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]
+        if len(self.pass_move):  # (Config.contact_pass_tol)
+            ops.append(self.pass_move.zero_)
         if self.world_stage is not None:
             ops.append(self.world_stage.zero_)
 
@@ -516,12 +548,14 @@ class Contact(ContactMeasures):
         kept = (self._slot, self._stage_slots, self.active_count, self.touched_count, self.pass_slots)
         self.record_frame(launch, ops, state)
         self.record(launch, ops, state)
+        self.finish_recording()  # (one stage: the last, run to the end)
         stage_active = self.active_count
         (self._slot, self._stage_slots, self.active_count, self.touched_count,
          self.pass_slots) = kept  # the solver frame's
         for op in ops:
             op()
         wp.synchronize_device(d)
+        self.finish_recording()  # (the solver frame's stages again)
         self.stage_active_count = int(stage_active.numpy()[0])
         return self.decision.numpy()[: self.n_tris].copy()
 
@@ -530,6 +564,8 @@ class Contact(ContactMeasures):
         once per frame)."""
         wp.copy(self._metrics_host, self.metrics)
         wp.copy(self._counters_host, self.counters)
+        if len(self.pass_move) and self._pass_move_host is not self.pass_move:  # (CUDA: the ops report's)
+            wp.copy(self._pass_move_host, self.pass_move)
         if self.fused:
             wp.copy(self._stuck_host, self._stuck)
         if self.world_stage is not None:

@@ -364,11 +364,12 @@ def decide_triangle(
         tb = b
         tc = c
         certified = float(-FAR)
-        # one mesh near (pseudo-normal sign, exact ids): its faces near the triangle, found once, answer
-        # every sample of both rounds (sdf.mesh_near_faces; n_near = -1: the BVH per sample)
+        # one mesh near (pseudo-normal sign, few faces near a skin triangle: Objects.add marks it; exact
+        # ids): its faces near the triangle, found once, answer every sample of both rounds
+        # (sdf.mesh_near_faces; n_near = -1: the BVH per sample)
         near_ids = mesh_near_ids()
         n_near = int(-1)
-        if s_type == MESH and s_size[1] < 0.5 and s_mesh[1] == wp.uint64(0):
+        if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf.MESH_SIGN_PSEUDO_NEAR
             la = wp.transform_point(s_inv, a)
             lb = wp.transform_point(s_inv, b)
             lc = wp.transform_point(s_inv, c)
@@ -512,12 +513,17 @@ def apply_contact(
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
     disp: wp.array(dtype=float),
+    pass_move: wp.array(dtype=float),
 ):
     """For each touched vertex i: x_i += (depth-weighted mean of its Eq. 9 corrections); push_i
     accumulates |correction| over the frame (the contact report's force estimate); moved_i = stamp
     (this pass's number) and disp_i = |correction| (summed if this pass already moved i), for the
-    next pass's list; the accumulators are cleared."""
+    next pass's list; the accumulators are cleared. ``pass_move`` (Config.contact_pass_tol > 0; else
+    empty): pass_move[stamp] = the pass's largest disp_i."""
     k = wp.tid()
     if k >= touched_count[0]:
         return
-    apply_vertex(touched[k], stamp, delta, hits, x, push, moved, disp)
+    i = touched[k]
+    apply_vertex(i, stamp, delta, hits, x, push, moved, disp)
+    if pass_move.shape[0] > 0:
+        wp.atomic_max(pass_move, stamp, disp[i])

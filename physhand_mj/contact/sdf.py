@@ -10,7 +10,9 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
   zero set, exact for a sphere, otherwise off by a factor between min(r)/max(r) and 1 away from
   the surface; gradient by central differences;
 - mesh: ``size[0]`` is the query range (m; beyond it phi = FAR), ``size[1]`` the sign method
-  (:data:`MESH_SIGN_PSEUDO` or :data:`MESH_SIGN_WINDING`, chosen by ``Objects.add``). The distance
+  (:data:`MESH_SIGN_PSEUDO`, :data:`MESH_SIGN_PSEUDO_NEAR` or :data:`MESH_SIGN_WINDING`, chosen by
+  ``Objects.add``; the first two sign alike, the second marks a mesh whose faces are few near a
+  skin triangle, whose decision points then search them: :func:`mesh_near_faces`). The distance
   is exact (a BVH closest-point query). The sign of a closed, consistently wound mesh is the
   angle-weighted pseudo normal (Baerentzen and Aanaes 2005) of the closest point's own feature
   (face, edge or vertex: the faces sharing it, found by index), which is exact at edges and tips
@@ -47,6 +49,7 @@ FAR = wp.constant(1.0e6)  # phi reported where a mesh query finds nothing within
 FD_STEP = wp.constant(1.0e-5)  # central-difference step for numerical gradients (m)
 MESH_SIGN_PSEUDO = wp.constant(0)  # size[1] of a mesh geom: sign by the closest feature's pseudo normal
 MESH_SIGN_WINDING = wp.constant(1)  # ... by the generalised winding number (open / overlapping meshes)
+MESH_SIGN_PSEUDO_NEAR = wp.constant(2)  # ... by the pseudo normal, and few faces near a skin triangle (mesh_near_faces)
 WINDING_ACCURACY = wp.constant(2.0)  # Barill et al.'s beta: far clusters by their dipole expansion
 BARY_EPS = wp.constant(1.0e-5)  # barycentric coordinate below which the closest point is on an edge
 GRID_BAND = wp.constant(1.0e-3)  # m: a mesh grid answers only points provably farther than this outside
@@ -248,7 +251,7 @@ def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, ids: wp.vec2ul):
     path never uses the grid): exact distance to the closest point c, signed by the method in
     ``size[1]`` (:func:`mesh_signed`)."""
     mesh = ids[0]
-    if size[1] > 0.5:
+    if size[1] > 0.5 and size[1] < 1.5:  # MESH_SIGN_WINDING
         hit = wp.mesh_query_point_sign_winding_number(mesh, p, size[0], WINDING_ACCURACY, 0.5)
         if not hit.result:
             return FAR, wp.vec3(0.0, 0.0, 1.0)
@@ -267,7 +270,9 @@ def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, ids: wp.vec2ul):
 # order: then the other face's closest point, within float rounding, a few nm). More faces than
 # MESH_NEAR_CAP: the BVH walk per sample, as before (16 chosen on benchmarks/mesh_near_faces.py: the
 # HOI bowl, 1,408 faces, keeps 96 % of its triangles under it; a 20k-face sphere none, at ~8 % extra
-# cost for the search that overflows).
+# cost for the search that overflows). Only meshes marked MESH_SIGN_PSEUDO_NEAR take it: Objects.add
+# marks a closed mesh when most skin-sized triangles about its surface find at most
+# objects.NEAR_FACES_MEDIAN faces near (objects.near_faces_pay).
 MESH_NEAR_CAP = 16
 mesh_near_ids = wp.types.vector(length=MESH_NEAR_CAP, dtype=wp.int32)
 

@@ -212,6 +212,8 @@ class Solver(Sleeping):
         if first:  # record every launch of a frame once: replaying skips Python argument packing
             ops = self._ops[key] = self._record_frame(state, key)
             self.activity.finish_recording(ops, self._pre.get(key, []))
+            if self.contact is not None:
+                self.contact.finish_recording()
         act = self.activity
         if not first and rigid and self._asleep_and_alone(state, frame_poses):
             return self._sleep_frame(state, key)  # (CUDA: no broadphase ahead, no extra sync)
@@ -338,6 +340,8 @@ class Solver(Sleeping):
                 cur[0] = outer
             if sub:
                 outer.append(self.activity.gate(sub, level, slots, flag))
+                return outer[-1]
+            return None
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
         fam = {
