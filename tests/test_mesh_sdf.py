@@ -490,3 +490,35 @@ def test_near_faces_answer_every_sample_as_the_bvh_does(shape, device):
                n_near], device=device)
     assert (n_near.numpy() == -1).mean() > 0.9
     assert int(objs._host["size"][0][1]) == MESH_SIGN_PSEUDO  # and Objects.add leaves it to the BVH walk
+
+
+def test_a_contact_run_is_the_same_with_and_without_the_near_faces(monkeypatch):
+    """The decision points' near-face search changes only the cost: the knife wedge pressed into the
+    fingertip and the coarse 20-face mesh starting 4 mm deep in the palm, both marked by Objects.add,
+    end with the same skin bit for bit as with the marking switched off (the BVH walk per sample);
+    the 24-section cone mesh, whose tip fans too many faces, is left unmarked."""
+    import physhand_mj as ph
+    import physhand_mj.contact.objects as objects_mod
+    from physhand_mj.cases import press_case, run_case
+
+    asset = ph.load_asset()
+    cases = (("knife", "fingertip", 0.002), ("coarse", "palm", -0.004))
+    for kind, site, start in cases:
+        case = press_case(kind, site=site, depth=0.004, start=start)
+        objs = Objects("cpu", 1)
+        objs.add(GeomType.MESH, None, vertices=case.vertices, faces=case.faces, name=kind)
+        assert int(objs._host["size"][0][1]) == MESH_SIGN_PSEUDO_NEAR, kind
+    cone = press_case("mesh_cone")
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.MESH, None, vertices=cone.vertices, faces=cone.faces, name="cone")
+    assert int(objs._host["size"][0][1]) == MESH_SIGN_PSEUDO
+    skins = {}
+    for marked in (True, False):
+        if not marked:
+            monkeypatch.setattr(objects_mod, "near_faces_pay", lambda mesh, seed=0: False)
+        for kind, site, start in cases:
+            r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device="cpu"), frames=6,
+                         asset=asset)
+            skins[kind, marked] = r["skin"]
+    for kind, _, _ in cases:
+        np.testing.assert_array_equal(skins[kind, True], skins[kind, False])
