@@ -14,8 +14,8 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, WINDING_ACCURACY,
-                                     mesh_near_faces, sdf_mesh_grad)
+from physhand_mj.contact.sdf import (GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING,
+                                     WINDING_ACCURACY, mesh_near_faces, sdf_mesh_grad)
 from physhand_mj.types import GeomType
 
 # mujoco.mjtGeom values of the geoms the skin can collide with (height fields and SDF plugins are not)
@@ -263,7 +263,6 @@ def near_faces_pay(mesh: wp.Mesh, seed: int = 0) -> bool:
 
 
 MESH_GRID = 2.0e-3  # m: default node spacing of a mesh's distance grid (mesh_grid; 0 = none)
-GRID_PAD = 1.5e-2  # m: the grid covers the mesh's box grown by this (the frame margin, 1 cm, and more)
 GRID_MAX_NODES = 1_000_000  # larger meshes get a coarser spacing (the grid's memory and build time)
 
 
@@ -282,7 +281,8 @@ def _grid_values(mesh: wp.uint64, size: wp.vec3, origin: wp.vec3, h: float, ny: 
 def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
     """The exact signed distance (m) of ``mesh`` (sign method ``sign``) at the nodes of a regular grid
     over its box grown by GRID_PAD, as a ``wp.Volume`` (node (i, j, k) at the box corner + spacing x
-    (i, j, k); background -1 off the grid), or None for ``spacing`` <= 0 and for meshes signed by the
+    (i, j, k); background sdf.GRID_OFF off the grid, which sdf.grid_lower_bound reads as "farther than
+    GRID_PAD from the mesh's box"), or None for ``spacing`` <= 0 and for meshes signed by the
     winding number (open or overlapping: their inside is not bounded by faces alone). The spacing grows past
     ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.geom_sdf (values only) uses it
     only to answer points provably farther than sdf.GRID_BAND outside the mesh (a lower bound of the
@@ -304,7 +304,7 @@ def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
     wp.launch(_grid_values, out.shape[0], inputs=[mesh.id, size, wp.vec3(*lo), h, int(n[1]), int(n[2])],
               outputs=[out], device=d)
     values = out.numpy().reshape(n)
-    return wp.Volume.load_from_numpy(values, min_world=tuple(float(c) for c in lo), voxel_size=h, bg_value=-1.0,
+    return wp.Volume.load_from_numpy(values, min_world=tuple(float(c) for c in lo), voxel_size=h, bg_value=GRID_OFF,
                                      device=d)
 
 

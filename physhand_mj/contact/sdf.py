@@ -53,6 +53,8 @@ MESH_SIGN_PSEUDO_NEAR = wp.constant(2)  # ... by the pseudo normal, and few face
 WINDING_ACCURACY = wp.constant(2.0)  # Barill et al.'s beta: far clusters by their dipole expansion
 BARY_EPS = wp.constant(1.0e-5)  # barycentric coordinate below which the closest point is on an edge
 GRID_BAND = wp.constant(1.0e-3)  # m: a mesh grid answers only points provably farther than this outside
+GRID_PAD = wp.constant(1.5e-2)  # m: a mesh grid covers the mesh's box grown by this (the frame margin, 1 cm, and more)
+GRID_OFF = wp.constant(-1.0e30)  # a mesh grid's background: what a lookup off its nodes returns
 
 
 @wp.func
@@ -60,12 +62,16 @@ def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
     """A lower bound (m) of p's distance outside the mesh from the mesh's grid: the nearest node's
     exact distance minus p's distance to that node (a distance function is 1-Lipschitz, and a node
     outside with distance d has no surface within d). -1 where that node is inside or on the
-    surface, or p is off the grid (its background value)."""
+    surface. Off the grid (the nearest node index outside it: the lookup returns the background
+    GRID_OFF) p lies more than GRID_PAD outside the mesh's box, so GRID_PAD bounds its distance (the
+    skin's far side around a large object, which would otherwise walk the BVH from afar)."""
     uvw = wp.volume_world_to_index(grid, p)
     i = int(wp.floor(uvw[0] + 0.5))
     j = int(wp.floor(uvw[1] + 0.5))
     k = int(wp.floor(uvw[2] + 0.5))
     dc = wp.volume_lookup_f(grid, i, j, k)
+    if dc < 0.5 * GRID_OFF:
+        return GRID_PAD
     if dc <= 0.0:
         return -1.0
     c = wp.volume_index_to_world(grid, wp.vec3(float(i), float(j), float(k)))
