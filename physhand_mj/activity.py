@@ -69,6 +69,13 @@ class Activity:
     def reset_recording(self) -> None:
         self.gates: list[_Gate] = []
 
+    @property
+    def passes_gated(self) -> bool:
+        """Whether a contact pass can be skipped whole (level 2): on the CPU's host test or CUDA's
+        conditional nodes; not with gating off (``skip_idle=False``) or CUDA without conditional nodes,
+        where every pass runs (Config.contact_pass_tol is then not applied: Contact.finish_recording)."""
+        return bool(self.enabled and (self.conditional or not (self.device.is_cuda or self.gate_ahead)))
+
     # -- recording -------------------------------------------------------------------------------
     def gate(self, sub: list, level: int, slots=(), flag=None) -> "_Gate":
         """An op running ``sub`` when the frame's contact has work at ``level`` (see the module doc;

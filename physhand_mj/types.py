@@ -145,7 +145,9 @@ class Config:
         this (m; 0: by anything, every stage runs until a pass moves nothing); the frame's last stage
         always runs to the end, so what a frame ends with is cleared as before; passes that only
         confirm a stage's last small moves are skipped where the next substep's stage re-tests the
-        skin anyway (benchmarks/pass_moves.py, docs/activity.md; fused_stage ignores it); contact_margin: the stage broadphase's margin (m; covers how
+        skin anyway (benchmarks/pass_moves.py, docs/activity.md); applied only where a pass can be
+        skipped whole (the CPU's gate, CUDA's conditional nodes: not with skip_idle=False, CUDA
+        without conditional nodes, or fused_stage); contact_margin: the stage broadphase's margin (m; covers how
         far one stage's corrections drag a triangle that did not penetrate itself);
         contact_frame_margin: the frame broadphase's margin (m; must cover how far skin and objects
         move toward each other in one frame: 1 cm at 5 ms frames is 2 m/s); contact_offset: how far

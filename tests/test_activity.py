@@ -205,10 +205,14 @@ def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
     than its first pass (their later passes' lists stay empty), the last stage still runs until a
     pass moves nothing, so every frame of a box pressing into the hand ends with no skin sample in
     it, in fewer ops than the default; CUDA's device flag (keep_moved, conditional passes forced
-    on the CPU) skips the same passes as the CPU's host test, bit for bit."""
+    on the CPU) skips the same passes as the CPU's host test, bit for bit, at 1 m and at 0.5 mm (where
+    the pass moves decide: some later passes run, fewer than the default's). Where passes are not
+    gated (``skip_idle=False``) the option is not applied: the default's skin bit for bit."""
     runs = []
-    for tol, cond in ((0.0, False), (1.0, False), (1.0, True)):
-        solver, state, objects, top = _solver(scene, GeomType.BOX, (0.015, 0.015, 0.015), contact_pass_tol=tol)
+    for tol, cond, idle in ((0.0, False, True), (1.0, False, True), (1.0, True, True), (5e-4, False, True),
+                            (5e-4, True, True), (1.0, False, False), (0.0, False, False)):
+        solver, state, objects, top = _solver(scene, GeomType.BOX, (0.015, 0.015, 0.015), contact_pass_tol=tol,
+                                              skip_idle=idle)
         solver.activity.gate_ahead = cond
         solver.activity.conditional = cond
         outs, later = [], []
@@ -219,7 +223,7 @@ def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
             lists = c._counters_host.numpy()[np.asarray(c.pass_slots)].reshape(len(c._stage_slots), -1)
             later.append(lists[:, 1:].sum(axis=1))  # per stage: triangles its later passes tested
         runs.append((state.x.numpy().copy(), outs, np.array(later)))
-    (x0, o0, l0), (x1, o1, l1), (x2, o2, l2) = runs
+    (x0, o0, l0), (x1, o1, l1), (x2, o2, l2), (x3, o3, l3), (x4, o4, l4), (x5, o5, l5), (x6, o6, l6) = runs
     pressed = [k for k in range(12) if o0[k]["triangles_tested"] > 0]
     assert len(pressed) >= 4 and l0[pressed][:, :-1].sum() > 0  # the default re-tests in every stage
     assert l1[:, :-1].sum() == 0 and l1[:, -1].sum() > 0  # tol: only the last stage re-tests
@@ -229,6 +233,10 @@ def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
     keys = ("penetration_count", "triangles_tested", "triangles_stage")  # (ops: each path counts its own)
     assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]
     assert np.array_equal(l1, l2)
+    assert 0 < l3[:, :-1].sum() < l0[:, :-1].sum()  # 0.5 mm: the moves decide
+    assert np.array_equal(x3, x4) and np.array_equal(l3, l4), float(np.abs(x3 - x4).max())
+    assert all(o["penetration_count"] == 0 for o in o3)
+    assert np.array_equal(x5, x6), float(np.abs(x5 - x6).max())  # ungated: not applied
     with pytest.raises(ValueError, match="contact_pass_tol"):
         Config(contact_pass_tol=-1e-4).validate()
 

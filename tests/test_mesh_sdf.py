@@ -475,8 +475,8 @@ def test_near_faces_answer_every_sample_as_the_bvh_does(shape, device):
     assert n[used].max() <= MESH_NEAR_CAP and n[used].min() >= 1
     e, q = exact.numpy()[used], near.numpy()[used]
     assert (e < 0).sum() > 500 and (e > 0).sum() > 500  # inside and outside
-    # equal but where two faces tie for the closest point to the last bit (the BVH and the near faces
-    # meet them in another order and the other face's closest point rounds differently) or, on CUDA,
+    # equal but where two faces are equally close in exact arithmetic (across a shared edge: the BVH's
+    # order or float box pruning may keep the other one, whose closest point rounds differently) or, on CUDA,
     # where the two codes' multiply-adds contract differently: then within a few nanometres
     off = q != e
     assert off.mean() < 1e-3, f"{off.sum()} of {off.size} samples differ"

@@ -180,6 +180,7 @@ class Contact(ContactMeasures):
         self.pass_move = wp.zeros(self.counters.shape[0] if tol else 0, dtype=float, device=d)
         self.stage_tol = wp.zeros(max(stages, 1) if tol else 0, dtype=float, device=d)
         self._stage_tol_host = np.zeros(self.stage_tol.shape[0], np.float32)
+        self._passes_gated = False  # (finish_recording: as the solver's frame last said)
         cuda = wp.get_device(d).is_cuda
         self._pass_move_host = (wp.zeros(self.pass_move.shape[0], dtype=float, device="cpu", pinned=True) if cuda
                                 else self.pass_move)
@@ -388,12 +389,19 @@ class Contact(ContactMeasures):
         move = self._pass_move_host.numpy()  # (the CPU: a view; CUDA: the frame's copy, for reports)
         return lambda: self._stage_tol_host[stage] <= 0.0 or move[stamp] > self._stage_tol_host[stage]
 
-    def finish_recording(self) -> None:
+    def finish_recording(self, passes_gated: bool | None = None) -> None:
         """After a frame (or a stage) is recorded: Config.contact_pass_tol for every stage but the
-        last recorded one, which runs its passes to the end."""
+        last recorded one, which runs its passes to the end; none where a pass cannot be skipped whole
+        (``passes_gated`` False: Activity.passes_gated; a pass's feature push runs outside its list,
+        so an emptied list alone would apply half a pass; None: as the solver's frame last said)."""
+        if passes_gated is None:
+            passes_gated = self._passes_gated
+        else:
+            self._passes_gated = bool(passes_gated)
         n = len(self._stage_slots)
         if len(self.stage_tol) and n:  # (a host write: recorded frames and graphs read the array)
-            tol = np.full(self.stage_tol.shape[0], self.config.contact_pass_tol, np.float32)
+            tol = np.full(self.stage_tol.shape[0], self.config.contact_pass_tol if passes_gated else 0.0,
+                          np.float32)
             tol[n - 1:] = 0.0
             self.stage_tol.assign(tol)
             self._stage_tol_host = tol
@@ -548,14 +556,16 @@ class Contact(ContactMeasures):
         kept = (self._slot, self._stage_slots, self.active_count, self.touched_count, self.pass_slots)
         self.record_frame(launch, ops, state)
         self.record(launch, ops, state)
-        self.finish_recording()  # (one stage: the last, run to the end)
+        gated = self._passes_gated
+        self.finish_recording(False)  # (one stage, ungated: the last, run to the end)
+        self._passes_gated = gated
         stage_active = self.active_count
         (self._slot, self._stage_slots, self.active_count, self.touched_count,
          self.pass_slots) = kept  # the solver frame's
         for op in ops:
             op()
         wp.synchronize_device(d)
-        self.finish_recording()  # (the solver frame's stages again)
+        self.finish_recording(None)  # (the solver frame's stages again)
         self.stage_active_count = int(stage_active.numpy()[0])
         return self.decision.numpy()[: self.n_tris].copy()
 

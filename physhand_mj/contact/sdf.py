@@ -272,8 +272,10 @@ def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, ids: wp.vec2ul):
 # the triangle (within r of its centroid m) has its closest face within d(m) + 2 r of m (d(p) <=
 # d(m) + |p - m|, and that face's closest point lies within d(p) of p), so the lattice's closest
 # points are searched among those faces alone, by Warp's own leaf test, instead of a BVH walk per
-# sample: the same face, barycentrics and phi (two faces tied to the last bit may be met in the other
-# order: then the other face's closest point, within float rounding, a few nm). More faces than
+# sample: the same face, barycentrics and phi, but where two faces are equally close in exact
+# arithmetic (points across a shared edge): there either code may keep the other one (the BVH's
+# order, or its float box distances pruning a face a few ulps closer), whose closest point rounds a
+# few nm apart. More faces than
 # MESH_NEAR_CAP: the BVH walk per sample, as before (16 chosen on benchmarks/mesh_near_faces.py: the
 # HOI bowl, 1,408 faces, keeps 96 % of its triangles under it; a 20k-face sphere none, at ~8 % extra
 # cost for the search that overflows). Only meshes marked MESH_SIGN_PSEUDO_NEAR take it: Objects.add

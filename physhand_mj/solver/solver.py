@@ -213,7 +213,7 @@ class Solver(Sleeping):
             ops = self._ops[key] = self._record_frame(state, key)
             self.activity.finish_recording(ops, self._pre.get(key, []))
             if self.contact is not None:
-                self.contact.finish_recording()
+                self.contact.finish_recording(self.activity.passes_gated)
         act = self.activity
         if not first and rigid and self._asleep_and_alone(state, frame_poses):
             return self._sleep_frame(state, key)  # (CUDA: no broadphase ahead, no extra sync)
