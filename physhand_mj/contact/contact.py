@@ -2,7 +2,8 @@
 
 :class:`Contact` owns the preallocated contact buffers of one solver and records its launches into
 the solver's frame (so a CUDA graph captures them); the penetration metrics are its
-:class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py).
+:class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py), the frame's host-side
+reports its :class:`~physhand_mj.contact.reports.ContactReports` (contact/reports.py).
 """
 
 from __future__ import annotations
@@ -18,10 +19,11 @@ from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
+from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
 from physhand_mj.contact.stage import STAGE_LANES, record_stage
 from physhand_mj.types import Config, Model, Placement, Strategy
-from physhand_mj.solver.solver import SolverError, launch_options
+from physhand_mj.solver.solver import launch_options
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -48,7 +50,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact(ContactMeasures):
+class Contact(ContactMeasures, ContactReports):
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -568,63 +570,3 @@ class Contact(ContactMeasures):
         self.finish_recording(None)  # (the solver frame's stages again)
         self.stage_active_count = int(stage_active.numpy()[0])
         return self.decision.numpy()[: self.n_tris].copy()
-
-    def copy_metrics(self) -> None:
-        """Start the device-to-host copy of the metrics and list lengths (the caller synchronises
-        once per frame)."""
-        wp.copy(self._metrics_host, self.metrics)
-        wp.copy(self._counters_host, self.counters)
-        if len(self.pass_move) and self._pass_move_host is not self.pass_move:  # (CUDA: the ops report's)
-            wp.copy(self._pass_move_host, self.pass_move)
-        if self.fused:
-            wp.copy(self._stuck_host, self._stuck)
-        if self.world_stage is not None:
-            wp.copy(self._world_stage_host, self.world_stage)
-        if self.feat is not None:
-            wp.copy(self._feat_host, self.feat_count)
-            if self.config.feature_winding:
-                wp.copy(self._patch_used_host, self.patch_used)
-
-    def raise_if_stuck(self) -> None:
-        """After the frame's sync: raise when a fused stage's grid barrier gave up waiting for a block
-        (stage.grid_sync: its blocks were not resident at once, e.g. another kernel held SMs), since
-        that frame's contact did not run to the end."""
-        if self.fused and self._stuck_host.numpy()[0]:
-            self.stage_barrier.zero_()
-            raise SolverError("contact: a fused stage's blocks did not all run at once (Config.fused_stage needs the "
-                               "GPU's SMs to itself for a stage: no other kernel running beside it); this frame's "
-                               "contact stopped early; use fused_stage=False")
-
-    def features_listed(self) -> int:
-        """Object feature points in the last frame's list (after the frame's sync); warns once when
-        their patches (the local winding number's, winding.py) overflowed the pool: those points
-        kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches)."""
-        if self.feat is None:
-            return 0
-        if self.config.feature_winding and not self._patch_warned:
-            used = int(self._patch_used_host.numpy()[0])
-            if used > self.patch_pool.shape[0]:
-                import warnings
-
-                self._patch_warned = True
-                warnings.warn(f"contact: the feature points' patches needed {used} entries, the pool holds "
-                              f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
-                              f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
-                              f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
-        return int(self._feat_host.numpy()[0])
-
-    def stage_counts(self) -> np.ndarray:
-        """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
-        triangles and the skin vertices its first pass corrected (in contact at the stage's start; Eq. 9's
-        and the feature push's, a vertex both moved counted twice)."""
-        c = self._counters_host.numpy()
-        return np.array([[c[a], c[t] + (c[f] if f >= 0 else 0)] for a, t, f in self._stage_slots],
-                        dtype=int).reshape(-1, 2)
-
-    def stage_counts_worlds(self) -> np.ndarray:
-        """(W, stages, 2) int: :meth:`stage_counts` per world (after the frame's sync; one world:
-        the frame's own, (1, stages, 2))."""
-        if self.world_stage is None:
-            return self.stage_counts()[None]
-        n = len(self._stage_slots)
-        return self._world_stage_host.numpy().reshape(self.worlds, -1, 2)[:, :n].copy()

@@ -1,0 +1,76 @@
+"""The contact's host-side reports of a frame, a mixin of :class:`~physhand_mj.contact.contact.Contact`:
+the device-to-host copies the frame's one sync waits for, and what they say (the stages' list
+lengths, the listed feature points, a fused stage that stopped early). The buffers are Contact's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.solver.solver import SolverError
+
+
+class ContactReports:
+    """Per-frame reports of a :class:`~physhand_mj.contact.contact.Contact` (which owns the buffers:
+    ``metrics``, ``counters``, their host copies, the world and stage layout)."""
+
+    def copy_metrics(self) -> None:
+        """Start the device-to-host copy of the metrics and list lengths (the caller synchronises
+        once per frame)."""
+        wp.copy(self._metrics_host, self.metrics)
+        wp.copy(self._counters_host, self.counters)
+        if len(self.pass_move) and self._pass_move_host is not self.pass_move:  # (CUDA: the ops report's)
+            wp.copy(self._pass_move_host, self.pass_move)
+        if self.fused:
+            wp.copy(self._stuck_host, self._stuck)
+        if self.world_stage is not None:
+            wp.copy(self._world_stage_host, self.world_stage)
+        if self.feat is not None:
+            wp.copy(self._feat_host, self.feat_count)
+            if self.config.feature_winding:
+                wp.copy(self._patch_used_host, self.patch_used)
+
+    def raise_if_stuck(self) -> None:
+        """After the frame's sync: raise when a fused stage's grid barrier gave up waiting for a block
+        (stage.grid_sync: its blocks were not resident at once, e.g. another kernel held SMs), since
+        that frame's contact did not run to the end."""
+        if self.fused and self._stuck_host.numpy()[0]:
+            self.stage_barrier.zero_()
+            raise SolverError("contact: a fused stage's blocks did not all run at once (Config.fused_stage needs the "
+                               "GPU's SMs to itself for a stage: no other kernel running beside it); this frame's "
+                               "contact stopped early; use fused_stage=False")
+
+    def features_listed(self) -> int:
+        """Object feature points in the last frame's list (after the frame's sync); warns once when
+        their patches (the local winding number's, winding.py) overflowed the pool: those points
+        kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches)."""
+        if self.feat is None:
+            return 0
+        if self.config.feature_winding and not self._patch_warned:
+            used = int(self._patch_used_host.numpy()[0])
+            if used > self.patch_pool.shape[0]:
+                import warnings
+
+                self._patch_warned = True
+                warnings.warn(f"contact: the feature points' patches needed {used} entries, the pool holds "
+                              f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
+                              f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
+                              f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
+        return int(self._feat_host.numpy()[0])
+
+    def stage_counts(self) -> np.ndarray:
+        """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
+        triangles and the skin vertices its first pass corrected (in contact at the stage's start; Eq. 9's
+        and the feature push's, a vertex both moved counted twice)."""
+        c = self._counters_host.numpy()
+        return np.array([[c[a], c[t] + (c[f] if f >= 0 else 0)] for a, t, f in self._stage_slots],
+                        dtype=int).reshape(-1, 2)
+
+    def stage_counts_worlds(self) -> np.ndarray:
+        """(W, stages, 2) int: :meth:`stage_counts` per world (after the frame's sync; one world:
+        the frame's own, (1, stages, 2))."""
+        if self.world_stage is None:
+            return self.stage_counts()[None]
+        n = len(self._stage_slots)
+        return self._world_stage_host.numpy().reshape(self.worlds, -1, 2)[:, :n].copy()
