@@ -127,8 +127,14 @@ def main() -> None:
     p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
     p.add_argument("--profile", action="store_true",
                    help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 24")
+    p.add_argument("--fused-block", type=int, default=0,
+                   help="with Config.fused_substep: threads per world's block (solver/fused.py BLOCK_DIM)")
     a = p.parse_args()
     extra = json.loads(a.config)
+    if a.fused_block:
+        from physhand_mj.solver import fused
+
+        fused.BLOCK_DIM = a.fused_block
     wp.init()
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
@@ -182,6 +188,7 @@ def main() -> None:
     tag = a.device.split(":")[0] + ("_objects" if a.objects else "") + (f"_{a.tag}" if a.tag else "")
     out = ROOT / "docs" / "benchmarks" / f"batch_throughput_{tag}.json"
     out.write_text(json.dumps(dict(device=dev, frames=a.frames, contact=bool(a.objects), config=extra,
+                                   fused_block=a.fused_block or None,
                                    command="python benchmarks/batch_throughput.py " + " ".join(sys.argv[1:]),
                                    rows=rows), indent=1))
     print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))

@@ -5,6 +5,21 @@ import warp as wp
 from physhand_mj.solver.gather import constraint_at, idle, scatter
 
 
+@wp.func
+def edge_correction(x1: wp.vec3, x2: wp.vec3, w1: float, w2: float, rest: float, at: float, lam_j: float):
+    """Eq. 2's XPBD step for one edge: (moves, dlam, dx1, dx2); ``at`` = alpha / h^2, ``lam_j`` its
+    lambda so far. moves = 0 for a degenerate edge or two kinematic vertices (nothing moves)."""
+    d = x1 - x2
+    length = wp.length(d)
+    a = w1 + w2 + at
+    z = wp.vec3(0.0)
+    if length < 1.0e-12 or a <= 1.0e-20 or (w1 == 0.0 and w2 == 0.0):  # (both kinematic: nothing moves)
+        return 0, 0.0, z, z
+    dlam = -(length - rest + at * lam_j) / a
+    n = d * (dlam / length)
+    return 1, dlam, n * w1, -(n * w2)
+
+
 @wp.kernel
 def solve_edges(
     # Model:
@@ -37,18 +52,14 @@ def solve_edges(
     i2 = ids[j, 1]
     w1 = inv_mass[i1]
     w2 = inv_mass[i2]
-    d = x[i1] - x[i2]
-    length = wp.length(d)
     at = alpha[j] * inv_h2
-    a = w1 + w2 + at
     s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
     nc = ids.shape[0]
-    if length < 1.0e-12 or a <= 1.0e-20 or (w1 == 0.0 and w2 == 0.0):  # (both kinematic: nothing moves)
+    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
+    moves, dlam, d1, d2 = edge_correction(x[i1], x[i2], w1, w2, rest[j], at, lam_j)
+    if moves == 0:
         idle(lam, j, reset, slots, s, nc, 2)
         return
-    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
-    dlam = -(length - rest[j] + at * lam_j) / a
     lam[j] = lam_j + dlam
-    n = d * (dlam / length)
-    scatter(delta, slots, s, i1, n * w1)
-    scatter(delta, slots, s + nc, i2, -(n * w2))
+    scatter(delta, slots, s, i1, d1)
+    scatter(delta, slots, s + nc, i2, d2)

@@ -141,7 +141,8 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
 
     # Jacobi without atomics (solver/gather.py): per group, each movable vertex's correction slots
     gather_off, gather_slot, slot_base = [], [], {}
-    gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else (batch and device.is_cuda)
+    # (Config.fused_substep sums in shared memory: no slots)
+    gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else (batch and device.is_cuda and not cfg.fused_substep)
     if cfg.scheme == Scheme.JACOBI and gather:
         # tets in space-filling-curve order of their rest centroids (per world): neighbouring threads
         # then read neighbouring vertices and a vertex's slots lie close together (H100, 256 worlds:

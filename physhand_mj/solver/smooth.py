@@ -72,6 +72,26 @@ def dihedral_angle_gradients(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3)
     return theta, g0, g1, a * elen, b * elen
 
 
+@wp.func
+def dihedral_correction(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3, w0: float, w1: float, w2: float,
+                        w3: float, rest: float, at: float, lam_j: float):
+    """Eq. 6's XPBD step for one pair of skin triangles: (moves, dlam, dx_e0, dx_e1, dx_o0, dx_o1);
+    ``at`` = alpha / h^2. moves = 0 where the gradient vanishes."""
+    theta, g0, g1, g2, g3 = dihedral_angle_gradients(e0, e1, o0, o1)
+    c = theta - rest
+    # keep C in (-pi, pi]: the signed angle wraps at +-pi
+    if c > wp.pi:
+        c = c - 2.0 * wp.pi
+    if c < -wp.pi:
+        c = c + 2.0 * wp.pi
+    a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
+    z = wp.vec3(0.0)
+    if a <= 1.0e-20:
+        return 0, 0.0, z, z, z, z
+    dlam = -(c + at * lam_j) / a
+    return 1, dlam, g0 * (w0 * dlam), g1 * (w1 * dlam), g2 * (w2 * dlam), g3 * (w3 * dlam)
+
+
 @wp.kernel
 def solve_dihedrals(
     # Model:
@@ -112,26 +132,14 @@ def solve_dihedrals(
     if w0 == 0.0 and w1 == 0.0 and w2 == 0.0 and w3 == 0.0:  # every vertex kinematic: nothing moves
         idle(lam, j, reset, slots, s, nc, 4)
         return
-    e0 = x[ie0]
-    e1 = x[ie1]
-    o0 = x[io0]
-    o1 = x[io1]
-    theta, g0, g1, g2, g3 = dihedral_angle_gradients(e0, e1, o0, o1)
-    c = theta - rest[j]
-    # keep C in (-pi, pi]: the signed angle wraps at +-pi
-    if c > wp.pi:
-        c = c - 2.0 * wp.pi
-    if c < -wp.pi:
-        c = c + 2.0 * wp.pi
     at = alpha * inv_h2
-    a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
-    if a <= 1.0e-20:
+    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
+    moves, dlam, d0, d1, d2, d3 = dihedral_correction(x[ie0], x[ie1], x[io0], x[io1], w0, w1, w2, w3, rest[j], at, lam_j)
+    if moves == 0:
         idle(lam, j, reset, slots, s, nc, 4)
         return
-    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
-    dlam = -(c + at * lam_j) / a
     lam[j] = lam_j + dlam
-    scatter(delta, slots, s + 0 * nc, ie0, g0 * (w0 * dlam))
-    scatter(delta, slots, s + 1 * nc, ie1, g1 * (w1 * dlam))
-    scatter(delta, slots, s + 2 * nc, io0, g2 * (w2 * dlam))
-    scatter(delta, slots, s + 3 * nc, io1, g3 * (w3 * dlam))
+    scatter(delta, slots, s + 0 * nc, ie0, d0)
+    scatter(delta, slots, s + 1 * nc, ie1, d1)
+    scatter(delta, slots, s + 2 * nc, io0, d2)
+    scatter(delta, slots, s + 3 * nc, io1, d3)

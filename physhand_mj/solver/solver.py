@@ -25,6 +25,7 @@ import warp as wp
 
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
+from physhand_mj.solver import fused as fused_launch
 from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
@@ -112,6 +113,13 @@ class Solver(Sleeping):
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
+        self._fused = None  # Config.fused_substep: the constraint groups in one shared-memory launch
+        if self.config.fused_substep:
+            self._fused = fused_launch.FusedSubstep(model, self.device)
+            if self.device.is_cuda and self._fused.shared_bytes() > self.device.max_shared_memory_per_block:
+                raise ValueError(f"Config.fused_substep: a world needs {self._fused.shared_bytes()} bytes of shared "
+                                 f"memory, {self.device} allows {self.device.max_shared_memory_per_block} a block; "
+                                 "set fused_substep=False")
         # per-region sleeping (physhand_mj/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
@@ -404,7 +412,12 @@ class Solver(Sleeping):
             staged = (cfg.substeps - 1 - s) % cfg.contact_every == 0
             if contact is not None and staged and contact.wants("before"):
                 gated(lambda sub: contact.record(launch, sub, state, gated), 1)
-            for it in range(cfg.iterations):
+            if self._fused is not None:  # the three groups, each averaged, in one launch (solver/fused.py)
+                fz = self._fused
+                cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=fz.inputs(self._inv_h2, cfg.relaxation, state.x),
+                                      block_dim=fused_launch.BLOCK_DIM, device=d, record_cmd=True)
+                cur[0].append(cmd.launch)
+            for it in range(0 if self._fused is not None else cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
                     names = [name for name in group if m.colors[name]]
                     if not names:

@@ -12,6 +12,29 @@ def six_volume(x1: wp.vec3, x2: wp.vec3, x3: wp.vec3, x4: wp.vec3):
     return wp.dot(wp.cross(x2 - x1, x3 - x1), x4 - x1)
 
 
+@wp.func
+def tet_correction(x1: wp.vec3, x2: wp.vec3, x3: wp.vec3, x4: wp.vec3, w1: float, w2: float, w3: float,
+                   w4: float, rest6v: float, at: float, lam_j: float):
+    """Eq. 3's XPBD step for one tet: (moves, dlam, dx1, dx2, dx3, dx4); ``at`` = alpha / h^2.
+    moves = 0 where every vertex is kinematic or the gradient vanishes."""
+    z = wp.vec3(0.0)
+    if w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0:  # every vertex kinematic: nothing moves
+        return 0, 0.0, z, z, z, z
+    x21 = x2 - x1
+    x31 = x3 - x1
+    x41 = x4 - x1
+    g2 = wp.cross(x31, x41)
+    g3 = wp.cross(x41, x21)
+    g4 = wp.cross(x21, x31)
+    g1 = -(g2 + g3 + g4)
+    a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
+         + w4 * wp.length_sq(g4) + at)
+    if a <= 1.0e-20:
+        return 0, 0.0, z, z, z, z
+    dlam = -(wp.dot(g4, x41) - rest6v + at * lam_j) / a
+    return 1, dlam, g1 * (w1 * dlam), g2 * (w2 * dlam), g3 * (w3 * dlam), g4 * (w4 * dlam)
+
+
 @wp.kernel
 def solve_tets(
     # Model:
@@ -52,27 +75,21 @@ def solve_tets(
     w4 = inv_mass[i4]
     s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
     nc = ids.shape[0]
-    if w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0:  # every vertex kinematic: nothing moves
-        idle(lam, j, reset, slots, s, nc, 4)
-        return
-    x1 = x[i1]
-    x21 = x[i2] - x1
-    x31 = x[i3] - x1
-    x41 = x[i4] - x1
-    g2 = wp.cross(x31, x41)
-    g3 = wp.cross(x41, x21)
-    g4 = wp.cross(x21, x31)
-    g1 = -(g2 + g3 + g4)
     at = alpha[j] * inv_h2
-    a = (w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3)
-         + w4 * wp.length_sq(g4) + at)
-    if a <= 1.0e-20:
+    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
+    moves = int(0)
+    dlam = float(0.0)
+    d1 = wp.vec3(0.0)
+    d2 = wp.vec3(0.0)
+    d3 = wp.vec3(0.0)
+    d4 = wp.vec3(0.0)
+    if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):  # (kinematic tets read no positions)
+        moves, dlam, d1, d2, d3, d4 = tet_correction(x[i1], x[i2], x[i3], x[i4], w1, w2, w3, w4, rest6v[j], at, lam_j)
+    if moves == 0:
         idle(lam, j, reset, slots, s, nc, 4)
         return
-    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
-    dlam = -(wp.dot(g4, x41) - rest6v[j] + at * lam_j) / a
     lam[j] = lam_j + dlam
-    scatter(delta, slots, s + 0 * nc, i1, g1 * (w1 * dlam))
-    scatter(delta, slots, s + 1 * nc, i2, g2 * (w2 * dlam))
-    scatter(delta, slots, s + 2 * nc, i3, g3 * (w3 * dlam))
-    scatter(delta, slots, s + 3 * nc, i4, g4 * (w4 * dlam))
+    scatter(delta, slots, s + 0 * nc, i1, d1)
+    scatter(delta, slots, s + 1 * nc, i2, d2)
+    scatter(delta, slots, s + 2 * nc, i3, d3)
+    scatter(delta, slots, s + 3 * nc, i4, d4)

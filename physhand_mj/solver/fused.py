@@ -1,0 +1,253 @@
+"""A substep's three Jacobi groups in one launch, a block per world in shared memory (``Config.fused_substep``).
+
+The default Jacobi substep is five launches over the whole batch (edges, apply, tets, apply,
+dihedrals; the last apply rides in ``advance``), and on the GPU each writes every constraint's
+corrections to global memory (atomics, or the gather's slots) for the apply to read back: about
+4 MB written and read per hand and substep, which bounds a batch's frame (docs/scale.md). Here one
+block holds one world: it copies the world's positions into shared memory, and for each group
+(edges Eq. 2 with the attachments Eq. 4-5, tets Eq. 3, dihedrals Eq. 6) its threads walk the
+group's constraints, add the corrections into a shared accumulator of the soft vertices, then
+average them into the shared positions (x_i += omega / n_i sum, as ``integrate.apply_jacobi``);
+last it writes the soft vertices back. Global memory sees one read of the world's positions and one
+write of its soft ones per substep; the constraints' rest data is one world's, shared by every
+block (L2-resident).
+
+Same math as the family kernels (``edge_correction``, ``tet_correction``, ``dihedral_correction``
+are theirs), the same Jacobi groups in the same order, lambda reset each substep (Algorithm 1 line
+4; one iteration, so lambda is not kept). The sum's order differs: shared-memory atomics on CUDA
+(not bitwise repeatable, as the atomic path); on the CPU Warp runs one lane per block, in
+constraint order, which is the atomic path's order.
+
+Shared memory per block: 12 bytes per vertex and per soft vertex (the embedded hand: 10,480 and
+6,811, 204 KB; an H100 block may hold 227 KB). ``fits`` says whether a body fits a device.
+Requires: the Jacobi scheme, one iteration per substep, no per-region sleeping, soft vertices first
+in each world (the asset's layout: skin, flesh, skeleton).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.batch_tile import shifted_id
+from physhand_mj.solver.edge import edge_correction
+from physhand_mj.solver.smooth import dihedral_correction
+from physhand_mj.solver.tet import tet_correction
+
+BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per block)
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+__syncthreads();
+#endif
+""")
+def block_sync(): ...
+
+
+# block_sync: a barrier over the block's threads on CUDA (a no-op on the CPU: one lane per block);
+# between a shared-memory phase's writes and the next phase's reads of other threads' entries.
+
+
+_KERNELS: dict = {}
+
+
+def substep_kernel(n: int, n_soft: int, block_dim: int):
+    """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
+    launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
+    time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
+    size and block)."""
+    key = (int(n), int(n_soft), int(block_dim))
+    if key in _KERNELS:
+        return _KERNELS[key]
+    N = key[0]
+    NS = key[1]
+
+    @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
+    def solve_substep_shared(
+        # Model (one world's, one-world vertex ids):
+        inv_mass: wp.array(dtype=float),
+        vertex_count: wp.array2d(dtype=float),
+        edge_ids: wp.array2d(dtype=int),
+        edge_rest: wp.array(dtype=float),
+        edge_alpha: wp.array(dtype=float),
+        tet_ids: wp.array2d(dtype=int),
+        tet_rest6v: wp.array(dtype=float),
+        tet_alpha: wp.array(dtype=float),
+        dih_ids: wp.array2d(dtype=int),
+        dih_rest: wp.array(dtype=float),
+        dih_alpha: float,
+        # Solver in:
+        inv_h2: float,
+        relaxation: float,
+        ns: int,
+        worlds: int,
+        # State in/out (every world):
+        x: wp.array(dtype=wp.vec3),
+    ):
+        w, lane = wp.tid()
+        bd = wp.block_dim()
+        xs = wp.tile_zeros(shape=N, dtype=wp.vec3, storage="shared")
+        ds = wp.tile_zeros(shape=NS, dtype=wp.vec3, storage="shared")
+        for k in range((N + bd - 1) // bd):
+            l = k * bd + lane
+            if l < N:
+                xs[l] = x[shifted_id(l, w, N, ns, worlds)]
+        block_sync()
+
+        # group 0: edges and attachments (Eq. 2, 4-5)
+        ne = edge_ids.shape[0]
+        for k in range((ne + bd - 1) // bd):
+            j = k * bd + lane
+            i1 = int(0)
+            i2 = int(0)
+            moves = int(0)
+            d1 = wp.vec3(0.0)
+            d2 = wp.vec3(0.0)
+            if j < ne:
+                i1 = edge_ids[j, 0]
+                i2 = edge_ids[j, 1]
+                moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
+                                                      edge_alpha[j] * inv_h2, 0.0)
+            wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
+            wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
+        for k in range((NS + bd - 1) // bd):  # the group's apply (integrate.apply_jacobi)
+            l = k * bd + lane
+            if l < NS:
+                c = vertex_count[0, l]
+                if c > 0.0:
+                    xs[l] = xs[l] + ds[l] * (relaxation / c)
+                ds[l] = wp.vec3(0.0)
+        block_sync()
+
+        # group 1: tets (Eq. 3)
+        nt = tet_ids.shape[0]
+        for k in range((nt + bd - 1) // bd):
+            j = k * bd + lane
+            i1 = int(0)
+            i2 = int(0)
+            i3 = int(0)
+            i4 = int(0)
+            moves = int(0)
+            d1 = wp.vec3(0.0)
+            d2 = wp.vec3(0.0)
+            d3 = wp.vec3(0.0)
+            d4 = wp.vec3(0.0)
+            if j < nt:
+                i1 = tet_ids[j, 0]
+                i2 = tet_ids[j, 1]
+                i3 = tet_ids[j, 2]
+                i4 = tet_ids[j, 3]
+                moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1],
+                                                             inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
+                                                             tet_alpha[j] * inv_h2, 0.0)
+            wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
+            wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
+            wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
+            wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < NS)
+        for k in range((NS + bd - 1) // bd):
+            l = k * bd + lane
+            if l < NS:
+                c = vertex_count[1, l]
+                if c > 0.0:
+                    xs[l] = xs[l] + ds[l] * (relaxation / c)
+                ds[l] = wp.vec3(0.0)
+        block_sync()
+
+        # group 2: skin smoothness (Eq. 6)
+        nd = dih_ids.shape[0]
+        for k in range((nd + bd - 1) // bd):
+            j = k * bd + lane
+            i1 = int(0)
+            i2 = int(0)
+            i3 = int(0)
+            i4 = int(0)
+            moves = int(0)
+            d1 = wp.vec3(0.0)
+            d2 = wp.vec3(0.0)
+            d3 = wp.vec3(0.0)
+            d4 = wp.vec3(0.0)
+            if j < nd:
+                i1 = dih_ids[j, 0]
+                i2 = dih_ids[j, 1]
+                i3 = dih_ids[j, 2]
+                i4 = dih_ids[j, 3]
+                w1 = inv_mass[i1]
+                w2 = inv_mass[i2]
+                w3 = inv_mass[i3]
+                w4 = inv_mass[i4]
+                if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
+                    moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
+                                                                      w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
+            wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
+            wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
+            wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
+            wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < NS)
+        for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
+            l = k * bd + lane
+            if l < NS:
+                c = vertex_count[2, l]
+                p = xs[l]
+                if c > 0.0:
+                    p = p + ds[l] * (relaxation / c)
+                x[shifted_id(l, w, N, ns, worlds)] = p
+
+    _KERNELS[key] = solve_substep_shared
+    return solve_substep_shared
+
+
+class FusedSubstep:
+    """One world's constraint arrays (one-world vertex ids) for :func:`substep_kernel`, taken from
+    a (possibly W-world) :class:`~physhand_mj.types.Model` whose families are stored world by world
+    (batch_tile.py's layout: rows [0, C) are world 0's)."""
+
+    def __init__(self, m, device):
+        W = int(m.worlds)
+        n = m.n_vertices // W
+        ns = m.n_skin // W
+        inv = m.inv_mass.numpy()
+        # one world's vertices in one-world order (skins first: world 0's skin is [0, ns), its other
+        # vertices start at W ns)
+        local = np.concatenate([np.arange(ns), W * ns + np.arange(n - ns)])
+        inv1 = inv[local]
+        soft = np.flatnonzero(inv1 > 0.0)
+        n_soft = int(soft.max()) + 1 if soft.size else 0
+        if soft.size != n_soft:
+            raise ValueError("Config.fused_substep needs each world's movable vertices first (skin, flesh, then "
+                             "the skeleton); this body interleaves them")
+
+        def to_local(ids):
+            ids = np.asarray(ids)
+            return np.where(ids < W * ns, ids, ids - W * ns + ns).astype(np.int32)
+
+        def first(arr, cols=None):
+            a = arr.numpy()
+            c = a.shape[0] // W
+            return a[:c]
+
+        self.n, self.ns, self.n_soft, self.worlds = n, ns, n_soft, W
+        dev = device
+        self.inv_mass = wp.array(inv1.astype(np.float32), dtype=float, device=dev)
+        self.vertex_count = wp.array(m.vertex_count.numpy()[:, local].astype(np.float32), dtype=float, device=dev)
+        self.edge_ids = wp.array(to_local(first(m.edge_ids)).reshape(-1, 2), dtype=int, device=dev)
+        self.edge_rest = wp.array(first(m.edge_rest), dtype=float, device=dev)
+        self.edge_alpha = wp.array(first(m.edge_alpha), dtype=float, device=dev)
+        self.tet_ids = wp.array(to_local(first(m.tet_ids)).reshape(-1, 4), dtype=int, device=dev)
+        self.tet_rest6v = wp.array(first(m.tet_rest6v), dtype=float, device=dev)
+        self.tet_alpha = wp.array(first(m.tet_alpha), dtype=float, device=dev)
+        self.dih_ids = wp.array(to_local(first(m.dih_ids)).reshape(-1, 4), dtype=int, device=dev)
+        self.dih_rest = wp.array(first(m.dih_rest), dtype=float, device=dev)
+        self.dih_alpha = float(m.dih_alpha)
+
+    @property
+    def kernel(self):
+        """The kernel for this body and the current ``BLOCK_DIM``."""
+        return substep_kernel(self.n, self.n_soft, BLOCK_DIM)
+
+    def shared_bytes(self) -> int:
+        return 12 * (self.n + self.n_soft)
+
+    def inputs(self, inv_h2: float, relaxation: float, x) -> list:
+        return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
+                self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha, float(inv_h2),
+                float(relaxation), self.ns, self.worlds, x]
