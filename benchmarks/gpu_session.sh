@@ -15,8 +15,10 @@
 #   peers    Newton VBD/XPBD and MuJoCo Warp flex (compiled side by side first), batch throughput,
 #            and the kernel cache of all three packages back as $OUT/warp_cache.tar.xz
 #   accuracy physhand bench accuracy (20 frames as on the CPU, 1 repeat)
+#   fused    Config.fused_substep (solver/fused.py): its CUDA tests, its block size at W = 1024, then
+#            default and fused side by side for W = 1 .. 4096 without contact and 1 .. 1024 with a sphere
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers or accuracy}
+phase=${1:?phase: tests, frames, peers, accuracy or fused}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -64,6 +66,20 @@ case $phase in
   accuracy)
     step accuracy 530 python3 -m physhand_mj.cli bench accuracy --device cuda --frames 20 --repeats 1 \
       --out "$OUT"
+    ;;
+  fused)
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+    step pytest_fused 240 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
+    for b in 256 512 1024; do
+      step "fused_block$b" 60 python3 benchmarks/batch_throughput.py --device cuda --worlds 1024 --frames 10 \
+        --config '{"fused_substep": true}' --fused-block $b --tag "fused_block$b"
+    done
+    step batch_default 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10
+    step batch_fused 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10 \
+      --config '{"fused_substep": true}' --tag fused
+    step objects_default 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024 --frames 10 --objects
+    step objects_fused 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024 --frames 10 \
+      --objects --config '{"fused_substep": true}' --tag fused
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

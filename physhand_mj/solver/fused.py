@@ -26,6 +26,8 @@ in each world (the asset's layout: skin, flesh, skeleton).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -37,19 +39,34 @@ from physhand_mj.solver.tet import tet_correction
 BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per block)
 
 
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-__syncthreads();
-#endif
-""")
-def block_sync(): ...
-
-
-# block_sync: a barrier over the block's threads on CUDA (a no-op on the CPU: one lane per block);
-# between a shared-memory phase's writes and the next phase's reads of other threads' entries.
+# Every write to a shared tile goes through wp.tile_scatter_add, which every thread of the block calls
+# (has_value False where it has nothing to add) and which ends in a barrier: Warp's element
+# assignment (``tile[i] = v``) also ends in a barrier, which threads skipping it in a branch would
+# never reach. Adding into a zeroed tile, or adding a vertex's own correction, rounds as the plain
+# store and update of the family kernels do (x + 0 = x; x + d (omega / n) as integrate.apply_jacobi).
 
 
 _KERNELS: dict = {}
+
+
+@wp.func
+def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float), group: int, relaxation: float,
+                lane: int, bd: int):
+    """A group's Jacobi average in shared memory (integrate.apply_jacobi: x_i += omega / n_i sum),
+    then its accumulator zeroed for the next group; every thread of the block calls it."""
+    for k in range((ns + bd - 1) // bd):
+        l = k * bd + lane
+        dx = wp.vec3(0.0)
+        back = wp.vec3(0.0)
+        moved = False
+        if l < ns:
+            c = vertex_count[group, l]
+            back = -ds[l]
+            if c > 0.0:
+                dx = ds[l] * (relaxation / c)
+                moved = True
+        wp.tile_scatter_add(xs, l, dx, moved, False)
+        wp.tile_scatter_add(ds, l, back, l < ns, False)
 
 
 def substep_kernel(n: int, n_soft: int, block_dim: int):
@@ -89,11 +106,12 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
         bd = wp.block_dim()
         xs = wp.tile_zeros(shape=N, dtype=wp.vec3, storage="shared")
         ds = wp.tile_zeros(shape=NS, dtype=wp.vec3, storage="shared")
-        for k in range((N + bd - 1) // bd):
+        for k in range((N + bd - 1) // bd):  # the world's positions into the zeroed tile
             l = k * bd + lane
+            p = wp.vec3(0.0)
             if l < N:
-                xs[l] = x[shifted_id(l, w, N, ns, worlds)]
-        block_sync()
+                p = x[shifted_id(l, w, N, ns, worlds)]
+            wp.tile_scatter_add(xs, l, p, l < N, False)
 
         # group 0: edges and attachments (Eq. 2, 4-5)
         ne = edge_ids.shape[0]
@@ -111,14 +129,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
                                                       edge_alpha[j] * inv_h2, 0.0)
             wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
             wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
-        for k in range((NS + bd - 1) // bd):  # the group's apply (integrate.apply_jacobi)
-            l = k * bd + lane
-            if l < NS:
-                c = vertex_count[0, l]
-                if c > 0.0:
-                    xs[l] = xs[l] + ds[l] * (relaxation / c)
-                ds[l] = wp.vec3(0.0)
-        block_sync()
+        apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
 
         # group 1: tets (Eq. 3)
         nt = tet_ids.shape[0]
@@ -145,14 +156,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
             wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
             wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
             wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < NS)
-        for k in range((NS + bd - 1) // bd):
-            l = k * bd + lane
-            if l < NS:
-                c = vertex_count[1, l]
-                if c > 0.0:
-                    xs[l] = xs[l] + ds[l] * (relaxation / c)
-                ds[l] = wp.vec3(0.0)
-        block_sync()
+        apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
 
         # group 2: skin smoothness (Eq. 6)
         nd = dih_ids.shape[0]
