@@ -49,8 +49,9 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device):
     """Two worlds (one held open, one bending its index finger): the fused substep's positions are
     the default solver's, and it records fewer launches."""
     asset, mount, open_, bent = setup
-    ref, ref_out = _run(asset, mount, open_, bent, Config(device=device))
+    ref, ref_out = _run(asset, mount, open_, bent, Config(device=device, fused_substep=False))
     fz, fz_out = _run(asset, mount, open_, bent, Config(device=device, fused_substep=True))
+    assert fz.solver._fused is not None and ref.solver._fused is None
     assert fz_out["ops_run"] < ref_out["ops_run"] - 3 * Config().substeps, (fz_out["ops_run"], ref_out["ops_run"])
     for w in range(2):
         diff = np.abs(fz.positions(w) - ref.positions(w)).max()
@@ -58,6 +59,12 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device):
             assert diff == 0.0, f"world {w}: {diff} m from the five-launch substep"
         else:
             assert diff <= CUDA_TOL, f"world {w}: {diff} m from the five-launch substep (tolerance {CUDA_TOL})"
+    for name in ("lam_edge", "lam_tet", "lam_dih"):  # the multipliers of the last substep (diagnostics read them)
+        a, b = getattr(fz.state, name).numpy(), getattr(ref.state, name).numpy()
+        if device == "cpu":
+            assert np.array_equal(a, b), name
+        else:
+            assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max(), name
     moved = np.abs(fz.positions(1) - fz.positions(0)).max()
     assert moved > 1e-3, moved  # the worlds differ: each block solved its own world
 
@@ -68,9 +75,10 @@ def test_fused_substep_with_contact_and_one_hand(setup):
     default solver, bit for bit on the CPU, and nothing inside the sphere at the end."""
     asset, mount, open_, bent = setup
     skins = []
-    for fused in (False, True):
+    for fused in (False, None):  # None: the CPU's default, fused
         cfg = Config(device="cpu", fused_substep=fused)
         solver = Solver(make_model(asset, cfg), cfg)
+        assert (solver._fused is None) == (fused is False)
         state = solver.make_state(*mount)
         for _ in range(3):
             solver.set_body_poses(state, *open_)
@@ -101,6 +109,19 @@ def test_fused_substep_refuses_what_it_cannot_run(bad):
     kw.update(bad)
     with pytest.raises(ValueError, match="fused_substep"):
         Config(device="cpu", **kw).validate()
+
+
+@pytest.mark.parametrize("kw", [dict(iterations=2), dict(scheme=Scheme.COLORED), dict(jacobi_gather=True),
+                                dict(region_sleep=True)])
+def test_default_falls_back_where_the_fused_substep_cannot_run(setup, kw):
+    """``fused_substep=None`` (the default) fuses on the CPU only where it can: otherwise the
+    five-launch substep, with no error."""
+    asset = setup[0]
+    cfg = Config(device="cpu", **kw)
+    solver = Solver(make_model(asset, cfg), cfg)
+    assert solver._fused is None
+    default = Config(device="cpu")
+    assert Solver(make_model(asset, default), default)._fused is not None
 
 
 def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path):

@@ -99,8 +99,11 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
         relaxation: float,
         ns: int,
         worlds: int,
-        # State in/out (every world):
+        # State in/out (every world; lambda rows world by world, w C + j):
         x: wp.array(dtype=wp.vec3),
+        lam_edge: wp.array(dtype=float),
+        lam_tet: wp.array(dtype=float),
+        lam_dih: wp.array(dtype=float),
     ):
         w, lane = wp.tid()
         bd = wp.block_dim()
@@ -127,6 +130,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
                 i2 = edge_ids[j, 1]
                 moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
                                                       edge_alpha[j] * inv_h2, 0.0)
+                lam_edge[w * ne + j] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
             wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
             wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
         apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
@@ -152,6 +156,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
                 moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1],
                                                              inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
                                                              tet_alpha[j] * inv_h2, 0.0)
+                lam_tet[w * nt + j] = dlam
             wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
             wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
             wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
@@ -180,9 +185,11 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
                 w2 = inv_mass[i2]
                 w3 = inv_mass[i3]
                 w4 = inv_mass[i4]
+                dlam = float(0.0)
                 if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
                     moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
                                                                       w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
+                lam_dih[w * nd + j] = dlam
             wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
             wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
             wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
@@ -251,7 +258,32 @@ class FusedSubstep:
     def shared_bytes(self) -> int:
         return 12 * (self.n + self.n_soft)
 
-    def inputs(self, inv_h2: float, relaxation: float, x) -> list:
+    def inputs(self, inv_h2: float, relaxation: float, state) -> list:
         return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
                 self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha, float(inv_h2),
-                float(relaxation), self.ns, self.worlds, x]
+                float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih]
+
+
+def choose(model, config, device) -> FusedSubstep | None:
+    """The solver's fused substep per ``Config.fused_substep``: True builds it (ValueError naming the
+    option where it cannot run: the Config's own checks, a body whose movable vertices do not come
+    first, a world larger than a block's shared memory); None builds it on the CPU where it can run
+    (the Jacobi scheme, one iteration, no region sleep, no ``jacobi_gather=True``); False: None."""
+    from physhand_mj.types import Scheme
+
+    want = config.fused_substep
+    if want is False:
+        return None
+    if want is None:
+        if (device.is_cuda or config.scheme != Scheme.JACOBI or config.iterations != 1 or config.region_sleep
+                or config.jacobi_gather):
+            return None
+        try:
+            return FusedSubstep(model, device)
+        except ValueError:
+            return None
+    fz = FusedSubstep(model, device)
+    if device.is_cuda and fz.shared_bytes() > device.max_shared_memory_per_block:
+        raise ValueError(f"Config.fused_substep: a world needs {fz.shared_bytes()} bytes of shared memory, {device} "
+                         f"allows {device.max_shared_memory_per_block} a block; set fused_substep=False")
+    return fz

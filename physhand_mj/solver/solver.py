@@ -113,13 +113,7 @@ class Solver(Sleeping):
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
-        self._fused = None  # Config.fused_substep: the constraint groups in one shared-memory launch
-        if self.config.fused_substep:
-            self._fused = fused_launch.FusedSubstep(model, self.device)
-            if self.device.is_cuda and self._fused.shared_bytes() > self.device.max_shared_memory_per_block:
-                raise ValueError(f"Config.fused_substep: a world needs {self._fused.shared_bytes()} bytes of shared "
-                                 f"memory, {self.device} allows {self.device.max_shared_memory_per_block} a block; "
-                                 "set fused_substep=False")
+        self._fused = fused_launch.choose(model, self.config, self.device)  # Config.fused_substep
         # per-region sleeping (physhand_mj/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
@@ -414,7 +408,7 @@ class Solver(Sleeping):
                 gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             if self._fused is not None:  # the three groups, each averaged, in one launch (solver/fused.py)
                 fz = self._fused
-                cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=fz.inputs(self._inv_h2, cfg.relaxation, state.x),
+                cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=fz.inputs(self._inv_h2, cfg.relaxation, state),
                                       block_dim=fused_launch.BLOCK_DIM, device=d, record_cmd=True)
                 cur[0].append(cmd.launch)
             for it in range(0 if self._fused is not None else cfg.iterations):
