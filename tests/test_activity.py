@@ -257,8 +257,11 @@ def _without(names, drop):
     ("substep metrics", dict(substep_metrics=True), ("penetration_samples",)),
 ])
 def test_switching_an_effect_off_removes_exactly_its_launches(scene, effect, config, kernels):
-    base_s, base_st, *_ = _solver(scene)
-    other_s, other_st, *_ = _solver(scene, **config)
+    # the smoothness's own launches are the five-launch substep's (Config.fused_substep=False); the
+    # fused substep (the CPU's default) has one launch either way and walks no dihedral (below)
+    extra = dict(fused_substep=False) if effect == "smoothness" else {}
+    base_s, base_st, *_ = _solver(scene, **extra)
+    other_s, other_st, *_ = _solver(scene, **config, **extra)
     base, other = _recorded(base_s, base_st, scene[2]), _recorded(other_s, other_st, scene[2])
     more, less = (other, base) if effect == "substep metrics" else (base, other)
     assert len(more) > len(less), effect
@@ -271,6 +274,11 @@ def test_switching_an_effect_off_removes_exactly_its_launches(scene, effect, con
         more = _without(more, k)
         less = _without(less, k)
     assert more == less, f"{effect}: launches other than {kernels} changed"
+    if effect == "smoothness":  # fused: the same launches, and no dihedral left to walk
+        on, off = _solver(scene), _solver(scene, **config)
+        assert on[0]._fused is not None and off[0]._fused is not None
+        assert on[0]._fused.dih_ids.shape[0] > 0 == off[0]._fused.dih_ids.shape[0]
+        assert _recorded(on[0], on[1], scene[2]) == _recorded(off[0], off[1], scene[2])
 
 
 @pytest.mark.parametrize("every", [2, 3])

@@ -11,7 +11,9 @@
         v <- (x - x^i) / h                                     advance: finish   (lines 14-15) + guard
 
 ``advance`` finishes one substep and predicts the next in the same per-vertex launch, so a Jacobi
-substep is 6 launches: advance, edges, apply, tets, apply, dihedrals.
+substep is 6 launches: advance, edges, apply, tets, apply, dihedrals; with ``Config.fused_substep``
+(the CPU's default) 2: advance, and the three groups in one launch per world in shared memory
+(solver/fused.py).
 
 On CUDA the whole frame is one CUDA graph (captured on the second frame, after compilation).
 """
