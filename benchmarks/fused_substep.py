@@ -1,0 +1,96 @@
+"""The fused substep (Config.fused_substep, physhand_mj/solver/fused.py) against the five-launch substep,
+interleaved frame by frame in one process so that a shared host's drift hits both alike.
+
+W worlds of the embedded hand (BatchedHands; W = 1 is one hand), open pose, each world's index
+finger bending at its own rate (as benchmarks/batch_throughput.py), no contact; ``--frames`` frames
+each way after 2 warm-up frames (compilation, recording and graph capture excluded), alternating
+five-launch / fused frame by frame; the median ms per frame each way, and how far the two runs'
+positions end apart (0 on the CPU, where the fused substep adds in the atomic path's order).
+On CUDA the five-launch side is the batch's default (gathers from W = 2).
+
+    python benchmarks/fused_substep.py [--device cpu|cuda] [--worlds 1,4] [--frames 20] [--block 1024]
+
+Writes docs/benchmarks/fused_substep_<device>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    import warp as wp
+
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.bench import device_name
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.solver import fused
+    from physhand_mj.types import Config
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
+    p.add_argument("--worlds", default="1,4", help="comma-separated world counts")
+    p.add_argument("--frames", type=int, default=20, help="timed 5 ms frames each way per world count")
+    p.add_argument("--block", type=int, default=fused.BLOCK_DIM, help="threads per world's block on CUDA")
+    a = p.parse_args()
+    fused.BLOCK_DIM = a.block
+    wp.init()
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    mount = mount_pose(model, data)
+    q0 = model.key("open").qpos.copy()
+    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
+    rows = []
+    for w in [int(s) for s in a.worlds.split(",")]:
+        def poses(f):  # world k bends its index finger at rate 1 + k % 7
+            ps = []
+            for r in range(min(w, 7)):
+                q = q0.copy()
+                q[adr] += 0.3 * np.sin(0.05 * f * (1 + r))
+                ps.append(bone_poses_at(model, data, q, ids))
+            pick = np.arange(w) % 7
+            return np.stack([x[0] for x in ps])[pick], np.stack([x[1] for x in ps])[pick]
+
+        runs = {name: BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, fused_substep=flag), *mount)
+                for name, flag in (("five_launch", False), ("fused", True))}
+        inputs = [poses(f) for f in range(2 + a.frames)]  # (bone poses from MuJoCo: not timed)
+        times = {name: [] for name in runs}
+        for f, (pos, quat) in enumerate(inputs):
+            for name, hands in runs.items():
+                t = time.perf_counter()
+                out = hands.step(pos, quat)
+                if f >= 2:
+                    times[name].append((time.perf_counter() - t) * 1e3)
+                assert out["nonfinite"] == 0
+        apart = max(float(np.abs(runs["fused"].positions(k) - runs["five_launch"].positions(k)).max())
+                    for k in range(w))
+        med = {name: float(np.median(t)) for name, t in times.items()}
+        rows.append(dict(worlds=w, five_launch_ms=round(med["five_launch"], 3), fused_ms=round(med["fused"], 3),
+                         speedup=round(med["five_launch"] / med["fused"], 3),
+                         fused_hand_frames_per_s=round(w / med["fused"] * 1e3, 1),
+                         positions_apart_m=apart,
+                         ops_per_frame=dict(five_launch=runs["five_launch"].solver.last_activity.get("ops_run"),
+                                            fused=runs["fused"].solver.last_activity.get("ops_run"))))
+        print(json.dumps(rows[-1]), flush=True)
+        for hands in runs.values():
+            hands.close()
+    dev = device_name(a.device if a.device != "cuda" else "cuda:0")
+    out = ROOT / "docs" / "benchmarks" / f"fused_substep_{a.device.split(':')[0]}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, block_dim=a.block if "cuda" in a.device else None,
+                                   command="python benchmarks/fused_substep.py " + " ".join(sys.argv[1:]),
+                                   rows=rows), indent=1))
+    print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))
+
+
+if __name__ == "__main__":
+    main()
