@@ -254,12 +254,13 @@ class Config:
       fused_substep: a substep's three Jacobi groups (edges, tets, dihedrals, each averaged) in one
         launch with a block per world holding the world's positions and corrections in shared
         memory (physhand_mj/solver/fused.py) instead of five launches through global memory. Same
-        math and groups; on the CPU the result is the atomic path's bit for bit and the solver frame
-        1.2-1.7 x faster (one hand to 4 worlds); on CUDA the corrections' sum order differs
+        math and groups; on the CPU the result is the atomic path's bit for bit (Warp's CPU runs a
+        block as one lane, unless ``wp.config.enable_cpu_blocks``) and the solver frame 1.1-1.2 x
+        faster (one hand to 4 worlds); on CUDA the corrections' sum order differs
         (shared-memory atomics) and the speed is not measured yet. Needs the Jacobi scheme, one
         iteration, no region sleep, each world's movable vertices first, and 12 bytes of shared
-        memory per vertex and per soft vertex in a block (the embedded hand: 204 KB; H100/H200: 227
-        KB). None (default): on the CPU where those hold and ``jacobi_gather`` is not True; True:
+        memory per vertex and per soft vertex in a block, plus 4 per thread on CUDA (the embedded
+        hand: 207,504 B; an H100/H200 block: 227 KB; Warp's CPU arena: 256 KB). None (default): on the CPU where those hold and ``jacobi_gather`` is not True; True:
         always (ValueError where it cannot run); False: never.
     """
 
@@ -350,9 +351,6 @@ class Config:
         if not (self.fused_substep is None or isinstance(self.fused_substep, (bool, np.bool_))):
             raise ValueError(f"Config.fused_substep must be None (the CPU's default), True or False, got "
                              f"{self.fused_substep!r}")
-        if self.fused_substep and (self.scheme != Scheme.JACOBI or self.iterations != 1 or self.region_sleep):
-            raise ValueError("Config.fused_substep needs scheme=JACOBI, iterations=1 and region_sleep=False, got "
-                             f"scheme={self.scheme!r}, iterations={self.iterations}, region_sleep={self.region_sleep}")
         if not isinstance(self.fused_stage, (bool, np.bool_)):
             raise ValueError(f"Config.fused_stage must be True or False, got {self.fused_stage!r}")
         if not (self.tiled_features is None or isinstance(self.tiled_features, (bool, np.bool_))):
@@ -405,6 +403,9 @@ class Config:
         self.contact_placement = _enum_field(Placement, self.contact_placement, "contact_placement")
         self.scheme = _enum_field(Scheme, self.scheme, "scheme")
         self.nonfinite = _enum_field(NonFinite, self.nonfinite, "nonfinite")
+        if self.fused_substep and (self.scheme != Scheme.JACOBI or self.iterations != 1 or self.region_sleep):
+            raise ValueError("Config.fused_substep needs scheme=JACOBI, iterations=1 and region_sleep=False, got "
+                             f"scheme={self.scheme.name}, iterations={self.iterations}, region_sleep={self.region_sleep}")
         return self
 
     @property

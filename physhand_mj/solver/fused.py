@@ -14,12 +14,16 @@ block (L2-resident).
 
 Same math as the family kernels (``edge_correction``, ``tet_correction``, ``dihedral_correction``
 are theirs), the same Jacobi groups in the same order, lambda reset each substep (Algorithm 1 line
-4; one iteration, so lambda is not kept). The sum's order differs: shared-memory atomics on CUDA
+4; one iteration) and written back as the family kernels write it (0 + dlam). The sum's order differs: shared-memory atomics on CUDA
 (not bitwise repeatable, as the atomic path); on the CPU Warp runs one lane per block, in
 constraint order, which is the atomic path's order.
 
-Shared memory per block: 12 bytes per vertex and per soft vertex (the embedded hand: 10,480 and
-6,811, 204 KB; an H100 block may hold 227 KB). ``fits`` says whether a body fits a device.
+Shared memory per block: 12 bytes per vertex and per soft vertex, each tile 16-byte aligned, and on
+CUDA 4 bytes per thread for Warp's tile allocator (the embedded hand: 10,480 and 6,811 vertices,
+207,504 + 4,096 bytes; an H100 or H200 block may hold 227 KB). Warp's CPU runs a tiled kernel's
+block as one lane over a fixed 256 KiB arena (a larger request aborts the process), so
+:func:`choose` checks the size for the device before building the kernel: a body of more than about
+21,800 vertices plus movable vertices per world does not fit the CPU, about 19,000 a Hopper block.
 Requires: the Jacobi scheme, one iteration per substep, no per-region sleeping, soft vertices first
 in each world (the asset's layout: skin, flesh, skeleton).
 """
@@ -37,6 +41,8 @@ from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
 
 BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per block)
+CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
+TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
 
 # Every write to a shared tile goes through wp.tile_scatter_add, which every thread of the block calls
@@ -47,6 +53,17 @@ BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per
 
 
 _KERNELS: dict = {}
+
+
+@wp.func
+def add_corners(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3,
+                d4: wp.vec3, moves: int):
+    """A 4-vertex constraint's corrections into the shared accumulator (movable vertices only);
+    every thread of the block calls it (``moves`` 0: nothing to add)."""
+    wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < ns)
+    wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < ns)
+    wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < ns)
+    wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < ns)
 
 
 @wp.func
@@ -157,10 +174,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
                                                              inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
                                                              tet_alpha[j] * inv_h2, 0.0)
                 lam_tet[w * nt + j] = dlam
-            wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
-            wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
-            wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
-            wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < NS)
+            add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
 
         # group 2: skin smoothness (Eq. 6)
@@ -190,10 +204,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
                     moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
                                                                       w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
                 lam_dih[w * nd + j] = dlam
-            wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
-            wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
-            wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < NS)
-            wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < NS)
+            add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
             l = k * bd + lane
             if l < NS:
@@ -255,8 +266,16 @@ class FusedSubstep:
         """The kernel for this body and the current ``BLOCK_DIM``."""
         return substep_kernel(self.n, self.n_soft, BLOCK_DIM)
 
-    def shared_bytes(self) -> int:
-        return 12 * (self.n + self.n_soft)
+    def shared_bytes(self, device=None) -> int:
+        """Shared memory one world's block takes (bytes): its two tiles, and on a CUDA ``device``
+        Warp's allocator slot per thread."""
+        tiles = sum(-(-12 * k // TILE_ALIGN) * TILE_ALIGN for k in (self.n, self.n_soft))
+        return tiles + (4 * BLOCK_DIM if device is not None and device.is_cuda else 0)
+
+    def fits(self, device) -> tuple[bool, int]:
+        """(whether a world's block fits ``device``, the bytes it may hold a block)."""
+        limit = device.max_shared_memory_per_block if device.is_cuda else CPU_ARENA
+        return self.shared_bytes(device) <= limit, limit
 
     def inputs(self, inv_h2: float, relaxation: float, state) -> list:
         return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
@@ -276,14 +295,16 @@ def choose(model, config, device) -> FusedSubstep | None:
         return None
     if want is None:
         if (device.is_cuda or config.scheme != Scheme.JACOBI or config.iterations != 1 or config.region_sleep
-                or config.jacobi_gather):
-            return None
+                or config.jacobi_gather or wp.config.enable_cpu_blocks):
+            return None  # (CPU blocks of many lanes: correct, but neither bit for bit nor faster)
         try:
-            return FusedSubstep(model, device)
+            fz = FusedSubstep(model, device)
         except ValueError:
             return None
+        return fz if fz.fits(device)[0] else None
     fz = FusedSubstep(model, device)
-    if device.is_cuda and fz.shared_bytes() > device.max_shared_memory_per_block:
-        raise ValueError(f"Config.fused_substep: a world needs {fz.shared_bytes()} bytes of shared memory, {device} "
-                         f"allows {device.max_shared_memory_per_block} a block; set fused_substep=False")
+    ok, limit = fz.fits(device)
+    if not ok:
+        raise ValueError(f"Config.fused_substep: a world needs {fz.shared_bytes(device)} bytes of shared memory, "
+                         f"{device} allows {limit} a block; set fused_substep=False (or None)")
     return fz
