@@ -169,3 +169,25 @@ def test_a_body_too_large_for_a_block_falls_back_or_is_refused(setup, monkeypatc
         Solver(make_model(asset, cfg), cfg)
     cfg = Config(device="cpu", scheme="jacobi", fused_substep=True)  # (a scheme given by name)
     assert cfg.validate().scheme == Scheme.JACOBI
+
+
+def test_fused_substep_with_blocks_of_many_lanes_on_the_cpu(setup, monkeypatch):
+    """A GPU block's lanes on the CPU: with ``wp.config.enable_cpu_blocks`` Warp runs a tiled
+    kernel's block as 64 lanes (fibers) meeting at its barriers, so each lane's share of the loops
+    and the phases between barriers run here as on a GPU (the one-lane CPU default cannot see a
+    lane-indexing error: one that gave the load loop's lanes the same entries passed the one-lane
+    test and failed this one). The positions are the five-launch substep's within float rounding of
+    the sum's order. Not caught here: a barrier inside a branch (Warp's element assignment to a
+    shared tile, this path's first bug), which the CPU's fibers tolerate."""
+    from physhand_mj.solver import fused
+
+    asset, mount, open_, bent = setup
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    monkeypatch.setattr(fused, "BLOCK_DIM", 64)  # (its own kernel: the 1,024-thread one stays one lane)
+    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
+    fz, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
+    for w in range(2):
+        diff = np.abs(fz.positions(w) - ref.positions(w)).max()
+        assert diff <= 1e-6, f"world {w}: {diff} m from the five-launch substep with 64-lane blocks"
+    lam, lam_ref = fz.state.lam_tet.numpy(), ref.state.lam_tet.numpy()
+    assert np.abs(lam - lam_ref).max() <= 1e-4 * np.abs(lam_ref).max()
