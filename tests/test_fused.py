@@ -182,6 +182,8 @@ def test_fused_substep_with_blocks_of_many_lanes_on_the_cpu(setup, monkeypatch):
     from physhand_mj.solver import fused
 
     asset, mount, open_, bent = setup
+    if not hasattr(wp.config, "enable_cpu_blocks"):
+        pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     monkeypatch.setattr(fused, "BLOCK_DIM", 64)  # (its own kernel: the 1,024-thread one stays one lane)
     ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)

@@ -295,7 +295,7 @@ def choose(model, config, device) -> FusedSubstep | None:
         return None
     if want is None:
         if (device.is_cuda or config.scheme != Scheme.JACOBI or config.iterations != 1 or config.region_sleep
-                or config.jacobi_gather or wp.config.enable_cpu_blocks):
+                or config.jacobi_gather or getattr(wp.config, "enable_cpu_blocks", False)):
             return None  # (CPU blocks of many lanes: correct, but neither bit for bit nor faster)
         try:
             fz = FusedSubstep(model, device)
