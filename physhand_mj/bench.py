@@ -111,7 +111,7 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
         command="bench solver", ms_per_frame=round(float(ms.mean()), 4), ms_per_frame_median=round(float(np.median(ms)), 4),
         ms_per_frame_min=round(float(ms.min()), 4), graph_ms_per_frame=device_ms, frames=frames, frame_dt_s=cfg.frame_dt,
         substeps=cfg.substeps, iterations=cfg.iterations, scheme=cfg.scheme.name.lower(),
-        vertices=m.n_vertices, skin_vertices=m.n_skin, tets=int(m.tet_ids.shape[0]),
+        fused_substep=solver.fused_substep, vertices=m.n_vertices, skin_vertices=m.n_skin, tets=int(m.tet_ids.shape[0]),
         edges=int((~m.edge_is_att).sum()), attachments=int(m.edge_is_att.sum()), dihedrals=int(m.dih_ids.shape[0]),
         device=str(solver.device), device_name=device_name(str(solver.device)),
         cuda_graph=solver._capturable(), setup_s=round(setup_s, 3), warmup_s=round(warmup_s, 3),

@@ -305,6 +305,12 @@ class Solver(Sleeping):
         wp.capture_launch(graph)
         return graph
 
+    @property
+    def fused_substep(self) -> bool:
+        """Whether a substep's constraint groups run as one launch per world (``Config.fused_substep``
+        resolved for this body and device: solver/fused.py)."""
+        return self._fused is not None
+
     def _capturable(self) -> bool:
         return self.device.is_cuda and self.config.cuda_graph
 
