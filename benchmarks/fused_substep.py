@@ -9,8 +9,10 @@ positions end apart (0 on the CPU, where the fused substep adds in the atomic pa
 On CUDA the five-launch side is the batch's default (gathers from W = 2).
 
     python benchmarks/fused_substep.py [--device cpu|cuda] [--worlds 1,4] [--frames 20] [--block 1024]
+                                       [--sum scatter|gather]
 
-Writes docs/benchmarks/fused_substep_<device>.json.
+``--sum``: how the fused kernel sums a group's corrections per vertex (solver/fused.py SUM).
+Writes docs/benchmarks/fused_substep_<device>[_gather].json.
 """
 
 from __future__ import annotations
@@ -41,8 +43,10 @@ def main() -> None:
     p.add_argument("--worlds", default="1,4", help="comma-separated world counts")
     p.add_argument("--frames", type=int, default=20, help="timed 5 ms frames each way per world count")
     p.add_argument("--block", type=int, default=fused.BLOCK_DIM, help="threads per world's block on CUDA")
+    p.add_argument("--sum", default=fused.SUM, choices=("scatter", "gather"), help="solver/fused.py SUM")
     a = p.parse_args()
     fused.BLOCK_DIM = a.block
+    fused.SUM = a.sum
     wp.init()
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
@@ -85,8 +89,8 @@ def main() -> None:
         for hands in runs.values():
             hands.close()
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
-    out = ROOT / "docs" / "benchmarks" / f"fused_substep_{a.device.split(':')[0]}.json"
-    out.write_text(json.dumps(dict(device=dev, frames=a.frames, block_dim=a.block if "cuda" in a.device else None,
+    out = ROOT / "docs" / "benchmarks" / f"fused_substep_{a.device.split(':')[0]}{'_gather' if a.sum == 'gather' else ''}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=a.frames, block_dim=a.block if "cuda" in a.device else None, sum=a.sum,
                                    command="python benchmarks/fused_substep.py " + " ".join(sys.argv[1:]),
                                    rows=rows), indent=1))
     print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))

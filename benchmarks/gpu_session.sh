@@ -71,6 +71,7 @@ case $phase in
     step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
     step pytest_fused 240 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
     step fused_substep 120 python3 benchmarks/fused_substep.py --device cuda --worlds 1,64,256,1024 --frames 10
+    step fused_gather 120 python3 benchmarks/fused_substep.py --device cuda --worlds 1,64,256,1024 --frames 10 --sum gather
     for b in 256 512 1024; do
       step "fused_block$b" 60 python3 benchmarks/batch_throughput.py --device cuda --worlds 1024 --frames 10 \
         --config '{"fused_substep": true}' --fused-block $b --tag "fused_block$b"

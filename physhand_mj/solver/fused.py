@@ -41,6 +41,12 @@ from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
 
 BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per block)
+# How a group's corrections are summed per vertex: "scatter" (each constraint once, its corners
+# added into the shared accumulator with shared-memory atomics: the CPU's default) or "gather"
+# (each movable vertex recomputes its constraints in constraint order: no atomics, repeatable bit
+# for bit on CUDA, ~3 x the constraint arithmetic). Which is faster on a GPU is not measured yet:
+# benchmarks/fused_substep.py --sum picks it.
+SUM = "scatter"
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
@@ -50,6 +56,112 @@ TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 # assignment (``tile[i] = v``) also ends in a barrier, which threads skipping it in a branch would
 # never reach. Adding into a zeroed tile, or adding a vertex's own correction, rounds as the plain
 # store and update of the family kernels do (x + 0 = x; x + d (omega / n) as integrate.apply_jacobi).
+
+
+# -- the same groups summed by vertex (SUM = "gather"): each movable vertex recomputes the constraints
+# that touch it, in constraint order, and adds its own corner's correction (solver/gather.py's order:
+# on the CPU the atomic path's sum bit for bit; on CUDA a fixed order, so runs repeat bit for bit),
+# with no atomics and one barrier per vertex pass; the price is recomputing each constraint once per
+# movable corner (a tet up to 4 times). ``ent`` codes an entry as (j K + corner) 2 + writer, writer
+# 1 on the constraint's first movable corner, which also stores its lambda.
+
+
+@wp.func
+def edges_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),
+                    rest: wp.array(dtype=float), alpha: wp.array(dtype=float), inv_mass: wp.array(dtype=float),
+                    xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
+    d = wp.vec3(0.0)
+    nc = ids.shape[0]
+    for e in range(off[l], off[l + 1]):
+        code = ent[e]
+        jc = code // 2
+        j = jc // 2
+        i1 = ids[j, 0]
+        i2 = ids[j, 1]
+        moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], rest[j], alpha[j] * inv_h2,
+                                              0.0)
+        if code % 2 == 1:
+            lam[w * nc + j] = dlam
+        if moves != 0:
+            d = d + wp.where(jc % 2 == 0, d1, d2)
+    return d
+
+
+@wp.func
+def tets_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),
+                   rest6v: wp.array(dtype=float), alpha: wp.array(dtype=float), inv_mass: wp.array(dtype=float),
+                   xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
+    d = wp.vec3(0.0)
+    nc = ids.shape[0]
+    for e in range(off[l], off[l + 1]):
+        code = ent[e]
+        jc = code // 2
+        j = jc // 4
+        c = jc % 4
+        i1 = ids[j, 0]
+        i2 = ids[j, 1]
+        i3 = ids[j, 2]
+        i4 = ids[j, 3]
+        moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1], inv_mass[i2],
+                                                     inv_mass[i3], inv_mass[i4], rest6v[j], alpha[j] * inv_h2, 0.0)
+        if code % 2 == 1:
+            lam[w * nc + j] = dlam
+        if moves != 0:
+            d = d + corner_of(c, d1, d2, d3, d4)
+    return d
+
+
+@wp.func
+def dihedrals_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int),
+                        ids: wp.array2d(dtype=int), rest: wp.array(dtype=float), alpha: float,
+                        inv_mass: wp.array(dtype=float), xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
+    d = wp.vec3(0.0)
+    nc = ids.shape[0]
+    for e in range(off[l], off[l + 1]):
+        code = ent[e]
+        jc = code // 2
+        j = jc // 4
+        c = jc % 4
+        i1 = ids[j, 0]
+        i2 = ids[j, 1]
+        i3 = ids[j, 2]
+        i4 = ids[j, 3]
+        moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1], inv_mass[i2],
+                                                          inv_mass[i3], inv_mass[i4], rest[j], alpha * inv_h2, 0.0)
+        if code % 2 == 1:
+            lam[w * nc + j] = dlam
+        if moves != 0:
+            d = d + corner_of(c, d1, d2, d3, d4)
+    return d
+
+
+@wp.func
+def corner_of(c: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3, d4: wp.vec3):
+    if c == 0:
+        return d1
+    if c == 1:
+        return d2
+    if c == 2:
+        return d3
+    return d4
+
+
+def vertex_entries(ids: np.ndarray, n_soft: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR of one family (C, K) one-world ids over the movable vertices [0, n_soft): (off (n_soft + 1,),
+    ent) with each vertex's entries in constraint order, coded (j K + corner) 2 + writer."""
+    ids = np.asarray(ids).reshape(len(ids), -1)
+    c, k = ids.shape
+    movable = ids < n_soft
+    first = np.argmax(movable, axis=1)  # each constraint's first movable corner (its lambda's writer)
+    code = (np.arange(c)[:, None] * k + np.arange(k)[None, :]) * 2 + (np.arange(k)[None, :] == first[:, None])
+    vert, code = ids[movable], code[movable]
+    order = np.lexsort((code, vert))
+    off = np.zeros(n_soft + 1, np.int64)
+    np.cumsum(np.bincount(vert, minlength=n_soft), out=off[1:])
+    if off[-1] >= 2**31 or code.size and code.max() >= 2**31:
+        raise ValueError("fused substep: a family too large for int32 entry codes")
+    return off.astype(np.int32), code[order].astype(np.int32)
+
 
 
 _KERNELS: dict = {}
@@ -86,16 +198,17 @@ def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float)
         wp.tile_scatter_add(ds, l, back, l < ns, False)
 
 
-def substep_kernel(n: int, n_soft: int, block_dim: int):
+def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
     """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
     launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
     time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
     size and block)."""
-    key = (int(n), int(n_soft), int(block_dim))
+    key = (int(n), int(n_soft), int(block_dim), bool(gather))
     if key in _KERNELS:
         return _KERNELS[key]
     N = key[0]
     NS = key[1]
+    GATHER = key[3]
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
     def solve_substep_shared(
@@ -111,6 +224,13 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
         dih_ids: wp.array2d(dtype=int),
         dih_rest: wp.array(dtype=float),
         dih_alpha: float,
+        # Model (SUM "gather": per group, the movable vertices' entries, vertex_entries; else empty):
+        edge_off: wp.array(dtype=int),
+        edge_ent: wp.array(dtype=int),
+        tet_off: wp.array(dtype=int),
+        tet_ent: wp.array(dtype=int),
+        dih_off: wp.array(dtype=int),
+        dih_ent: wp.array(dtype=int),
         # Solver in:
         inv_h2: float,
         relaxation: float,
@@ -135,76 +255,103 @@ def substep_kernel(n: int, n_soft: int, block_dim: int):
 
         # group 0: edges and attachments (Eq. 2, 4-5)
         ne = edge_ids.shape[0]
-        for k in range((ne + bd - 1) // bd):
-            j = k * bd + lane
-            i1 = int(0)
-            i2 = int(0)
-            moves = int(0)
-            d1 = wp.vec3(0.0)
-            d2 = wp.vec3(0.0)
-            if j < ne:
-                i1 = edge_ids[j, 0]
-                i2 = edge_ids[j, 1]
-                moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
-                                                      edge_alpha[j] * inv_h2, 0.0)
-                lam_edge[w * ne + j] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
-            wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
-            wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
+        if wp.static(GATHER):
+            for k in range((NS + bd - 1) // bd):
+                l = k * bd + lane
+                d = wp.vec3(0.0)
+                if l < NS:
+                    d = edges_of_vertex(l, w, edge_off, edge_ent, edge_ids, edge_rest, edge_alpha, inv_mass, xs,
+                                        inv_h2, lam_edge)
+                wp.tile_scatter_add(ds, l, d, l < NS, False)
+        else:
+            for k in range((ne + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(0)
+                i2 = int(0)
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                if j < ne:
+                    i1 = edge_ids[j, 0]
+                    i2 = edge_ids[j, 1]
+                    moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
+                                                          edge_alpha[j] * inv_h2, 0.0)
+                    lam_edge[w * ne + j] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
+                wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
+                wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
         apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
 
         # group 1: tets (Eq. 3)
         nt = tet_ids.shape[0]
-        for k in range((nt + bd - 1) // bd):
-            j = k * bd + lane
-            i1 = int(0)
-            i2 = int(0)
-            i3 = int(0)
-            i4 = int(0)
-            moves = int(0)
-            d1 = wp.vec3(0.0)
-            d2 = wp.vec3(0.0)
-            d3 = wp.vec3(0.0)
-            d4 = wp.vec3(0.0)
-            if j < nt:
-                i1 = tet_ids[j, 0]
-                i2 = tet_ids[j, 1]
-                i3 = tet_ids[j, 2]
-                i4 = tet_ids[j, 3]
-                moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1],
-                                                             inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
-                                                             tet_alpha[j] * inv_h2, 0.0)
-                lam_tet[w * nt + j] = dlam
-            add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+        if wp.static(GATHER):
+            for k in range((NS + bd - 1) // bd):
+                l = k * bd + lane
+                d = wp.vec3(0.0)
+                if l < NS:
+                    d = tets_of_vertex(l, w, tet_off, tet_ent, tet_ids, tet_rest6v, tet_alpha, inv_mass, xs, inv_h2,
+                                       lam_tet)
+                wp.tile_scatter_add(ds, l, d, l < NS, False)
+        else:
+            for k in range((nt + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(0)
+                i2 = int(0)
+                i3 = int(0)
+                i4 = int(0)
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                d3 = wp.vec3(0.0)
+                d4 = wp.vec3(0.0)
+                if j < nt:
+                    i1 = tet_ids[j, 0]
+                    i2 = tet_ids[j, 1]
+                    i3 = tet_ids[j, 2]
+                    i4 = tet_ids[j, 3]
+                    moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1],
+                                                                 inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
+                                                                 tet_alpha[j] * inv_h2, 0.0)
+                    lam_tet[w * nt + j] = dlam
+                add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
 
         # group 2: skin smoothness (Eq. 6)
         nd = dih_ids.shape[0]
-        for k in range((nd + bd - 1) // bd):
-            j = k * bd + lane
-            i1 = int(0)
-            i2 = int(0)
-            i3 = int(0)
-            i4 = int(0)
-            moves = int(0)
-            d1 = wp.vec3(0.0)
-            d2 = wp.vec3(0.0)
-            d3 = wp.vec3(0.0)
-            d4 = wp.vec3(0.0)
-            if j < nd:
-                i1 = dih_ids[j, 0]
-                i2 = dih_ids[j, 1]
-                i3 = dih_ids[j, 2]
-                i4 = dih_ids[j, 3]
-                w1 = inv_mass[i1]
-                w2 = inv_mass[i2]
-                w3 = inv_mass[i3]
-                w4 = inv_mass[i4]
-                dlam = float(0.0)
-                if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
-                    moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
-                                                                      w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
-                lam_dih[w * nd + j] = dlam
-            add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+        if wp.static(GATHER):
+            for k in range((NS + bd - 1) // bd):
+                l = k * bd + lane
+                d = wp.vec3(0.0)
+                if l < NS:
+                    d = dihedrals_of_vertex(l, w, dih_off, dih_ent, dih_ids, dih_rest, dih_alpha, inv_mass, xs, inv_h2,
+                                            lam_dih)
+                wp.tile_scatter_add(ds, l, d, l < NS, False)
+        else:
+            for k in range((nd + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(0)
+                i2 = int(0)
+                i3 = int(0)
+                i4 = int(0)
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                d3 = wp.vec3(0.0)
+                d4 = wp.vec3(0.0)
+                if j < nd:
+                    i1 = dih_ids[j, 0]
+                    i2 = dih_ids[j, 1]
+                    i3 = dih_ids[j, 2]
+                    i4 = dih_ids[j, 3]
+                    w1 = inv_mass[i1]
+                    w2 = inv_mass[i2]
+                    w3 = inv_mass[i3]
+                    w4 = inv_mass[i4]
+                    dlam = float(0.0)
+                    if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
+                        moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
+                                                                          w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
+                    lam_dih[w * nd + j] = dlam
+                add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
             l = k * bd + lane
             if l < NS:
@@ -260,11 +407,27 @@ class FusedSubstep:
         self.dih_ids = wp.array(to_local(first(m.dih_ids)).reshape(-1, 4), dtype=int, device=dev)
         self.dih_rest = wp.array(first(m.dih_rest), dtype=float, device=dev)
         self.dih_alpha = float(m.dih_alpha)
+        self._ent = None  # (SUM "gather": built on first use)
+        self._none = wp.empty(0, dtype=int, device=dev)
+        self.device = dev
 
     @property
     def kernel(self):
-        """The kernel for this body and the current ``BLOCK_DIM``."""
-        return substep_kernel(self.n, self.n_soft, BLOCK_DIM)
+        """The kernel for this body and the current ``BLOCK_DIM`` and ``SUM``."""
+        if SUM not in ("scatter", "gather"):
+            raise ValueError(f"physhand_mj.solver.fused.SUM must be 'scatter' or 'gather', got {SUM!r}")
+        return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather")
+
+    def _entries(self, device):
+        """Per group, the movable vertices' entries (vertex_entries) on ``device``, built on first use."""
+        if self._ent is None:
+            groups = [(self.edge_ids, 2), (self.tet_ids, 4), (self.dih_ids, 4)]
+            self._ent = []
+            for ids, k in groups:
+                host = ids.numpy().reshape(-1, k) if ids.shape[0] else np.zeros((0, k), np.int32)
+                off, ent = vertex_entries(host, self.n_soft)
+                self._ent += [wp.array(off, dtype=int, device=device), wp.array(ent, dtype=int, device=device)]
+        return self._ent
 
     def shared_bytes(self, device=None) -> int:
         """Shared memory one world's block takes (bytes): its two tiles, and on a CUDA ``device``
@@ -279,7 +442,8 @@ class FusedSubstep:
 
     def inputs(self, inv_h2: float, relaxation: float, state) -> list:
         return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
-                self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha, float(inv_h2),
+                self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha,
+                *(self._entries(self.device) if SUM == "gather" else [self._none] * 6), float(inv_h2),
                 float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih]
 
 
