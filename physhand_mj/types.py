@@ -260,8 +260,10 @@ class Config:
         (shared-memory atomics) and the speed is not measured yet. Needs the Jacobi scheme, one
         iteration, no region sleep, each world's movable vertices first, and 12 bytes of shared
         memory per vertex and per soft vertex in a block, plus 4 per thread on CUDA (the embedded
-        hand: 207,504 B; an H100/H200 block: 227 KB; Warp's CPU arena: 256 KB). None (default): on the CPU where those hold and ``jacobi_gather`` is not True; True:
-        always (ValueError where it cannot run); False: never.
+        hand: 207,504 B; an H100/H200 block: 227 KB; Warp's CPU arena: 256 KB). None (default):
+        on the CPU where those hold and ``jacobi_gather`` is not True; True: always (ValueError
+        where it cannot run); False: never. How a group's corrections are summed per vertex:
+        ``physhand_mj.solver.fused.SUM`` ("scatter" or "gather", docs/solver.md).
     """
 
     frame_dt: float = 0.005

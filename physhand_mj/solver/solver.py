@@ -25,9 +25,9 @@ import math
 import numpy as np
 import warp as wp
 
+from physhand_mj.solver import fused as fused_launch
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
-from physhand_mj.solver import fused as fused_launch
 from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
