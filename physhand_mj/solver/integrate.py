@@ -40,6 +40,41 @@ def begin_frame(
     body_sub[k, b] = wp.transform(p, q)
 
 
+@wp.func
+def finish_substep(i: int, world: int, xi: wp.vec3, vi: wp.vec3, w: float, h: float, x_prev: wp.array(dtype=wp.vec3),
+                   guard: wp.array(dtype=int)):
+    """Vertex ``i``'s end of a substep (Algorithm 1, lines 14-15): v = (x - x^i) / h, or back to
+    x^i at rest where x is not finite (counted in guard[0]). Returns (x, v)."""
+    if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
+        count_guard(guard, 0, world)
+        return x_prev[i], wp.vec3(0.0)
+    if w > 0.0:
+        return xi, (xi - x_prev[i]) * (1.0 / h)
+    return xi, vi
+
+
+@wp.func
+def start_substep(i: int, world: int, xi: wp.vec3, vi: wp.vec3, w: float, start: int, h: float, damp: float,
+                  gravity: wp.vec3, vertex_body: wp.array(dtype=int), body_local: wp.array(dtype=wp.vec3),
+                  body_sub: wp.array2d(dtype=wp.transform), x_prev: wp.array(dtype=wp.vec3),
+                  x_safe: wp.array(dtype=wp.vec3), guard: wp.array(dtype=int)):
+    """Vertex ``i``'s start of substep ``start`` (line 3): x^i <- x, then its bone's pose for a
+    skeleton vertex, else the prediction x + h (v + h g) damped; a non-finite x set from outside
+    restarts from x_safe (counted in guard[0]). Returns (x, v)."""
+    if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
+        xi = x_safe[i]
+        vi = wp.vec3(0.0)
+        count_guard(guard, 0, world)
+    x_prev[i] = xi
+    b = vertex_body[i]
+    if b >= 0:
+        xi = wp.transform_point(body_sub[start, b], body_local[i])
+    elif w > 0.0:
+        vi = (vi + gravity * h) * damp
+        xi = xi + vi * h
+    return xi, vi
+
+
 @wp.kernel
 def advance(
     # Model:
@@ -103,24 +138,10 @@ def advance(
                 xi = xi + gathered(delta, gather_off, gather_slot, slots, i) * (relaxation / n)
             if gather_off.shape[0] == 0:  # (the gather leaves delta alone: zero)
                 delta[i] = wp.vec3(0.0)
-        if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
-            xi = x_prev[i]
-            vi = wp.vec3(0.0)
-            count_guard(guard, 0, vertex_world[i])
-        elif w > 0.0:
-            vi = (xi - x_prev[i]) * (1.0 / h)
+        xi, vi = finish_substep(i, vertex_world[i], xi, vi, w, h, x_prev, guard)
     if start >= 0:
-        if not (wp.isfinite(xi[0]) and wp.isfinite(xi[1]) and wp.isfinite(xi[2])):
-            xi = x_safe[i]
-            vi = wp.vec3(0.0)
-            count_guard(guard, 0, vertex_world[i])
-        x_prev[i] = xi
-        b = vertex_body[i]
-        if b >= 0:
-            xi = wp.transform_point(body_sub[start, b], body_local[i])
-        elif w > 0.0:
-            vi = (vi + gravity * h) * damp
-            xi = xi + vi * h
+        xi, vi = start_substep(i, vertex_world[i], xi, vi, w, start, h, damp, gravity, vertex_body, body_local,
+                               body_sub, x_prev, x_safe, guard)
     else:
         x_safe[i] = xi
         if speed_limit > 0.0 and w > 0.0:
