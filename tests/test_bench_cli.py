@@ -17,9 +17,9 @@ def test_bench_solver_prints_the_contract_fields(capsys):
     assert out["substeps"] == 10 and out["frame_dt_s"] == 0.005
     assert out["vertices"] == 10480 and out["ms_per_frame"] > 0
     assert out["nonfinite"] == 0 and out["inverted"] == 0
-    # the CPU fuses a substep's constraint groups into one launch (Config.fused_substep's default):
-    # per substep advance + the fused launch, then the frame's bracketing launches
-    assert out["fused_substep"] is True and out["ops_run"] <= 2 * out["substeps"] + 3, out
+    # the CPU fuses a substep's start and constraint groups into one launch (Config.fused_substep's
+    # default): one a substep, then the frame's bone poses, last substep's end and inverted-tet count
+    assert out["fused_substep"] is True and out["ops_run"] == out["substeps"] + 3, out
 
 
 def test_bench_solver_errors_are_one_line(capsys):

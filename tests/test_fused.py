@@ -76,9 +76,11 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device, sum_, monke
     assert moved > 1e-3, moved  # the worlds differ: each block solved its own world
 
 
-def test_fused_substep_with_contact_and_one_hand(setup):
+@pytest.mark.parametrize("placement", ["after", "both"])
+def test_fused_substep_with_contact_and_one_hand(setup, placement):
     """One hand held open, and a batch whose world 1 has a sphere pressed 2 mm into the back of
-    its hand (the contact stages run between the fused launches): the same positions as the
+    its hand (the contact stages run between the fused launches; with a stage before the
+    constraints the substep's start stays a launch of its own): the same positions as the
     default solver, bit for bit on the CPU, and nothing inside the sphere at the end."""
     asset, mount, open_, bent = setup
     skins = []
@@ -95,7 +97,7 @@ def test_fused_substep_with_contact_and_one_hand(setup):
     ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
     runs = []
     for fused in (False, True):
-        batch = BatchedHands(asset, 2, Config(device="cpu", fused_substep=fused), *mount,
+        batch = BatchedHands(asset, 2, Config(device="cpu", fused_substep=fused, contact_placement=placement), *mount,
                              objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
         skin = batch.skin(0)
         top = skin[np.argmax(skin[:, 2])].astype(float)
@@ -106,6 +108,8 @@ def test_fused_substep_with_contact_and_one_hand(setup):
         runs.append(batch)
     for w in range(2):
         assert np.array_equal(runs[0].positions(w), runs[1].positions(w))
+    for name in ("v", "x_prev", "x_safe", "guard"):  # (the substep's start, folded into the launch or not)
+        assert np.array_equal(getattr(runs[0].state, name).numpy(), getattr(runs[1].state, name).numpy()), name
     assert np.abs(runs[1].skin(1) - runs[1].skin(0)).max() > 1e-3  # world 1 was pressed
 
 

@@ -12,6 +12,10 @@ last it writes the soft vertices back. Global memory sees one read of the world'
 write of its soft ones per substep; the constraints' rest data is one world's, shared by every
 block (L2-resident).
 
+Where no contact stage comes between a substep's start and its constraints, the launch also makes
+the start while it loads the positions (``start`` >= 0: integrate.advance's ``finish_substep`` of
+the previous substep and ``start_substep``, per vertex of the world), so a substep is one launch.
+
 Same math as the family kernels (``edge_correction``, ``tet_correction``, ``dihedral_correction``
 are theirs), the same Jacobi groups in the same order, lambda reset each substep (Algorithm 1 line
 4; one iteration) and written back as the family kernels write it (0 + dlam). The sum's order differs: shared-memory atomics on CUDA
@@ -37,6 +41,7 @@ import warp as wp
 
 from physhand_mj.batch_tile import shifted_id
 from physhand_mj.solver.edge import edge_correction
+from physhand_mj.solver.integrate import finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
 
@@ -241,6 +246,20 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
         lam_edge: wp.array(dtype=float),
         lam_tet: wp.array(dtype=float),
         lam_dih: wp.array(dtype=float),
+        # The substep's start (integrate.advance's, folded in when ``start`` >= 0: the previous
+        # substep's end where ``finish``, then the prediction; every world's arrays):
+        start: int,
+        finish: int,
+        h: float,
+        damp: float,
+        gravity: wp.vec3,
+        vertex_body: wp.array(dtype=int),
+        body_local: wp.array(dtype=wp.vec3),
+        body_sub: wp.array2d(dtype=wp.transform),
+        v: wp.array(dtype=wp.vec3),
+        x_prev: wp.array(dtype=wp.vec3),
+        x_safe: wp.array(dtype=wp.vec3),
+        guard: wp.array(dtype=int),
     ):
         w, lane = wp.tid()
         bd = wp.block_dim()
@@ -250,7 +269,17 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
             l = k * bd + lane
             p = wp.vec3(0.0)
             if l < N:
-                p = x[shifted_id(l, w, N, ns, worlds)]
+                g = shifted_id(l, w, N, ns, worlds)
+                p = x[g]
+                if start >= 0:  # the substep's start, as integrate.advance makes it
+                    vi = v[g]
+                    if finish != 0:
+                        p, vi = finish_substep(g, w, p, vi, inv_mass[l], h, x_prev, guard)
+                    p, vi = start_substep(g, w, p, vi, inv_mass[l], start, h, damp, gravity, vertex_body,
+                                          body_local, body_sub, x_prev, x_safe, guard)
+                    v[g] = vi
+                    if l >= NS:
+                        x[g] = p  # (a skeleton vertex: the constraints leave it where its bone puts it)
             wp.tile_scatter_add(xs, l, p, l < N, False)
 
         # group 0: edges and attachments (Eq. 2, 4-5)
@@ -409,6 +438,8 @@ class FusedSubstep:
         self.dih_alpha = float(m.dih_alpha)
         self._ent = None  # (SUM "gather": built on first use)
         self._none = wp.empty(0, dtype=int, device=dev)
+        self._vec = wp.empty(0, dtype=wp.vec3, device=dev)
+        self._sub = wp.empty((0, 0), dtype=wp.transform, device=dev)
         self.device = dev
 
     @property
@@ -440,11 +471,21 @@ class FusedSubstep:
         limit = device.max_shared_memory_per_block if device.is_cuda else CPU_ARENA
         return self.shared_bytes(device) <= limit, limit
 
-    def inputs(self, inv_h2: float, relaxation: float, state) -> list:
+    def inputs(self, inv_h2: float, relaxation: float, state, start: int = -1, finish: int = 0, h: float = 0.0,
+               damp: float = 1.0, gravity=None, model=None) -> list:
+        """The launch's inputs; ``start`` >= 0 folds integrate.advance's start of substep ``start``
+        (and with ``finish`` the previous substep's end) into the launch (``model``: the solver's,
+        for the bones of every world's vertices)."""
+        if start >= 0:
+            kin = [model.vertex_body, model.body_local, state.body_sub]
+        else:
+            kin = [self._none, self._vec, self._sub]
         return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
                 self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha,
                 *(self._entries(self.device) if SUM == "gather" else [self._none] * 6), float(inv_h2),
-                float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih]
+                float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
+                int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
+                *kin, state.v, state.x_prev, state.x_safe, state.guard]
 
 
 def choose(model, config, device) -> FusedSubstep | None:

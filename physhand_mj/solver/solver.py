@@ -12,8 +12,8 @@
 
 ``advance`` finishes one substep and predicts the next in the same per-vertex launch, so a Jacobi
 substep is 6 launches: advance, edges, apply, tets, apply, dihedrals; with ``Config.fused_substep``
-(the CPU's default) 2: advance, and the three groups in one launch per world in shared memory
-(solver/fused.py).
+(the CPU's default) 1: the substep's start and its three groups in one launch per world in shared
+memory (solver/fused.py; advance stays a launch of its own where a contact stage comes between).
 
 On CUDA the whole frame is one CUDA graph (captured on the second frame, after compilation).
 """
@@ -399,25 +399,31 @@ class Solver(Sleeping):
         if rs is not None:
             rs.record_start(launch)
         for s in range(cfg.substeps + 1):
-            # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
-            launch(integrate.advance, n, [inv_mass, vertex_body, body_local, m.vertex_count, self._gravity,
-                                          self._h, self._damp, int(s > 0), pending, cfg.relaxation,
-                                          s if s < cfg.substeps else -1, state.body_sub, float(cfg.sleep_speed),
-                                          m.vertex_carrier, m.vertex_world],
-                   [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard] + lists(pending)
-                   + region_args)
+            contact = self.contact
+            # Config.contact_every: the contact stages of this substep (the last substep always has them)
+            staged = s < cfg.substeps and (cfg.substeps - 1 - s) % cfg.contact_every == 0
+            before = contact is not None and staged and contact.wants("before")
+            # the fused substep also makes the substep's start, unless a contact stage comes between
+            fold = self._fused is not None and s < cfg.substeps and not before
+            if not fold:
+                # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
+                launch(integrate.advance, n, [inv_mass, vertex_body, body_local, m.vertex_count, self._gravity,
+                                              self._h, self._damp, int(s > 0), pending, cfg.relaxation,
+                                              s if s < cfg.substeps else -1, state.body_sub, float(cfg.sleep_speed),
+                                              m.vertex_carrier, m.vertex_world],
+                       [state.x_safe, state.x, state.v, state.x_prev, state.delta, state.guard] + lists(pending)
+                       + region_args)
             pending = -1
             if s == cfg.substeps:
                 break
-            contact = self.contact
-            # Config.contact_every: the contact stages of this substep (the last substep always has them)
-            staged = (cfg.substeps - 1 - s) % cfg.contact_every == 0
-            if contact is not None and staged and contact.wants("before"):
+            if before:
                 gated(lambda sub: contact.record(launch, sub, state, gated), 1)
             if self._fused is not None:  # the three groups, each averaged, in one launch (solver/fused.py)
                 fz = self._fused
-                cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=fz.inputs(self._inv_h2, cfg.relaxation, state),
-                                      block_dim=fused_launch.BLOCK_DIM, device=d, record_cmd=True)
+                inputs = fz.inputs(self._inv_h2, cfg.relaxation, state, start=s if fold else -1, finish=int(s > 0),
+                                   h=self._h, damp=self._damp, gravity=self._gravity, model=m)
+                cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs, block_dim=fused_launch.BLOCK_DIM,
+                                      device=d, record_cmd=True)
                 cur[0].append(cmd.launch)
             for it in range(0 if self._fused is not None else cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
