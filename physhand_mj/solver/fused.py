@@ -41,6 +41,7 @@ import warp as wp
 
 from physhand_mj.batch_tile import shifted_id
 from physhand_mj.solver.edge import edge_correction
+from physhand_mj.solver.fused_gather import dihedrals_of_vertex, edges_of_vertex, tets_of_vertex, vertex_entries
 from physhand_mj.solver.integrate import finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
@@ -61,112 +62,6 @@ TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 # assignment (``tile[i] = v``) also ends in a barrier, which threads skipping it in a branch would
 # never reach. Adding into a zeroed tile, or adding a vertex's own correction, rounds as the plain
 # store and update of the family kernels do (x + 0 = x; x + d (omega / n) as integrate.apply_jacobi).
-
-
-# -- the same groups summed by vertex (SUM = "gather"): each movable vertex recomputes the constraints
-# that touch it, in constraint order, and adds its own corner's correction (solver/gather.py's order:
-# on the CPU the atomic path's sum bit for bit; on CUDA a fixed order, so runs repeat bit for bit),
-# with no atomics and one barrier per vertex pass; the price is recomputing each constraint once per
-# movable corner (a tet up to 4 times). ``ent`` codes an entry as (j K + corner) 2 + writer, writer
-# 1 on the constraint's first movable corner, which also stores its lambda.
-
-
-@wp.func
-def edges_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),
-                    rest: wp.array(dtype=float), alpha: wp.array(dtype=float), inv_mass: wp.array(dtype=float),
-                    xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
-    d = wp.vec3(0.0)
-    nc = ids.shape[0]
-    for e in range(off[l], off[l + 1]):
-        code = ent[e]
-        jc = code // 2
-        j = jc // 2
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-        moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], rest[j], alpha[j] * inv_h2,
-                                              0.0)
-        if code % 2 == 1:
-            lam[w * nc + j] = dlam
-        if moves != 0:
-            d = d + wp.where(jc % 2 == 0, d1, d2)
-    return d
-
-
-@wp.func
-def tets_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),
-                   rest6v: wp.array(dtype=float), alpha: wp.array(dtype=float), inv_mass: wp.array(dtype=float),
-                   xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
-    d = wp.vec3(0.0)
-    nc = ids.shape[0]
-    for e in range(off[l], off[l + 1]):
-        code = ent[e]
-        jc = code // 2
-        j = jc // 4
-        c = jc % 4
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-        i3 = ids[j, 2]
-        i4 = ids[j, 3]
-        moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1], inv_mass[i2],
-                                                     inv_mass[i3], inv_mass[i4], rest6v[j], alpha[j] * inv_h2, 0.0)
-        if code % 2 == 1:
-            lam[w * nc + j] = dlam
-        if moves != 0:
-            d = d + corner_of(c, d1, d2, d3, d4)
-    return d
-
-
-@wp.func
-def dihedrals_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int),
-                        ids: wp.array2d(dtype=int), rest: wp.array(dtype=float), alpha: float,
-                        inv_mass: wp.array(dtype=float), xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
-    d = wp.vec3(0.0)
-    nc = ids.shape[0]
-    for e in range(off[l], off[l + 1]):
-        code = ent[e]
-        jc = code // 2
-        j = jc // 4
-        c = jc % 4
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-        i3 = ids[j, 2]
-        i4 = ids[j, 3]
-        moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1], inv_mass[i2],
-                                                          inv_mass[i3], inv_mass[i4], rest[j], alpha * inv_h2, 0.0)
-        if code % 2 == 1:
-            lam[w * nc + j] = dlam
-        if moves != 0:
-            d = d + corner_of(c, d1, d2, d3, d4)
-    return d
-
-
-@wp.func
-def corner_of(c: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3, d4: wp.vec3):
-    if c == 0:
-        return d1
-    if c == 1:
-        return d2
-    if c == 2:
-        return d3
-    return d4
-
-
-def vertex_entries(ids: np.ndarray, n_soft: int) -> tuple[np.ndarray, np.ndarray]:
-    """CSR of one family (C, K) one-world ids over the movable vertices [0, n_soft): (off (n_soft + 1,),
-    ent) with each vertex's entries in constraint order, coded (j K + corner) 2 + writer."""
-    ids = np.asarray(ids).reshape(len(ids), -1)
-    c, k = ids.shape
-    movable = ids < n_soft
-    first = np.argmax(movable, axis=1)  # each constraint's first movable corner (its lambda's writer)
-    code = (np.arange(c)[:, None] * k + np.arange(k)[None, :]) * 2 + (np.arange(k)[None, :] == first[:, None])
-    vert, code = ids[movable], code[movable]
-    order = np.lexsort((code, vert))
-    off = np.zeros(n_soft + 1, np.int64)
-    np.cumsum(np.bincount(vert, minlength=n_soft), out=off[1:])
-    if off[-1] >= 2**31 or code.size and code.max() >= 2**31:
-        raise ValueError("fused substep: a family too large for int32 entry codes")
-    return off.astype(np.int32), code[order].astype(np.int32)
-
 
 
 _KERNELS: dict = {}
