@@ -16,6 +16,10 @@ Where no contact stage comes between a substep's start and its constraints, the 
 the start while it loads the positions (``start`` >= 0: integrate.advance's ``finish_substep`` of
 the previous substep and ``start_substep``, per vertex of the world), so a substep is one launch.
 
+A group's corrections are summed per vertex with shared-memory atomics (``SUM = "scatter"``, the
+default) or by each vertex recomputing its constraints in a fixed order (``SUM = "gather"``:
+solver/fused_gather.py).
+
 Same math as the family kernels (``edge_correction``, ``tet_correction``, ``dihedral_correction``
 are theirs), the same Jacobi groups in the same order, lambda reset each substep (Algorithm 1 line
 4; one iteration) and written back as the family kernels write it (0 + dlam). The sum's order differs: shared-memory atomics on CUDA
