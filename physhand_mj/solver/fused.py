@@ -302,11 +302,13 @@ class FusedSubstep:
         W = int(m.worlds)
         n = m.n_vertices // W
         ns = m.n_skin // W
-        inv = m.inv_mass.numpy()
-        # one world's vertices in one-world order (skins first: world 0's skin is [0, ns), its other
-        # vertices start at W ns)
-        local = np.concatenate([np.arange(ns), W * ns + np.arange(n - ns)])
-        inv1 = inv[local]
+
+        def world0(arr):
+            """World 0's entries of a per-vertex array in one-world order (skins first: world 0's
+            skin is [0, ns), its other vertices start at W ns); only those leave the device."""
+            return np.concatenate([arr[:ns].numpy(), arr[W * ns: W * ns + n - ns].numpy()])
+
+        inv1 = world0(m.inv_mass)
         soft = np.flatnonzero(inv1 > 0.0)
         n_soft = int(soft.max()) + 1 if soft.size else 0
         if soft.size != n_soft:
@@ -317,15 +319,15 @@ class FusedSubstep:
             ids = np.asarray(ids)
             return np.where(ids < W * ns, ids, ids - W * ns + ns).astype(np.int32)
 
-        def first(arr, cols=None):
-            a = arr.numpy()
-            c = a.shape[0] // W
-            return a[:c]
+        def first(arr):
+            """World 0's rows of a family's array (rows world by world); only those leave the device."""
+            return arr[: arr.shape[0] // W].numpy()
 
         self.n, self.ns, self.n_soft, self.worlds = n, ns, n_soft, W
         dev = device
         self.inv_mass = wp.array(inv1.astype(np.float32), dtype=float, device=dev)
-        self.vertex_count = wp.array(m.vertex_count.numpy()[:, local].astype(np.float32), dtype=float, device=dev)
+        counts = np.stack([world0(m.vertex_count[g]) for g in range(m.vertex_count.shape[0])])
+        self.vertex_count = wp.array(counts.astype(np.float32), dtype=float, device=dev)
         self.edge_ids = wp.array(to_local(first(m.edge_ids)).reshape(-1, 2), dtype=int, device=dev)
         self.edge_rest = wp.array(first(m.edge_rest), dtype=float, device=dev)
         self.edge_alpha = wp.array(first(m.edge_alpha), dtype=float, device=dev)
