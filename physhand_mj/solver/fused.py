@@ -303,10 +303,14 @@ class FusedSubstep:
         n = m.n_vertices // W
         ns = m.n_skin // W
 
+        def rows(arr, a, b):
+            """arr[a:b] on the host (Warp slices no empty range)."""
+            return arr[a:b].numpy() if b > a else np.zeros((0, *arr.shape[1:]), dtype=wp.dtype_to_numpy(arr.dtype))
+
         def world0(arr):
             """World 0's entries of a per-vertex array in one-world order (skins first: world 0's
             skin is [0, ns), its other vertices start at W ns); only those leave the device."""
-            return np.concatenate([arr[:ns].numpy(), arr[W * ns: W * ns + n - ns].numpy()])
+            return np.concatenate([rows(arr, 0, ns), rows(arr, W * ns, W * ns + n - ns)])
 
         inv1 = world0(m.inv_mass)
         soft = np.flatnonzero(inv1 > 0.0)
@@ -321,7 +325,7 @@ class FusedSubstep:
 
         def first(arr):
             """World 0's rows of a family's array (rows world by world); only those leave the device."""
-            return arr[: arr.shape[0] // W].numpy()
+            return rows(arr, 0, arr.shape[0] // W)
 
         self.n, self.ns, self.n_soft, self.worlds = n, ns, n_soft, W
         dev = device
