@@ -77,6 +77,27 @@ def plot(out: Path) -> Path:
     return out
 
 
+def bending_poses(model, data, ids, worlds: int):
+    """``poses(f)``: the bone poses (positions, quaternions) of frame ``f`` for ``worlds`` worlds of the
+    hand_only scene, open, world k bending its index finger at rate 1 + k % 7 (7 distinct poses a
+    frame; MuJoCo's kinematics on the host)."""
+    from physhand_mj.hand_mjcf import bone_poses_at
+
+    q0 = model.key("open").qpos.copy()
+    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
+
+    def poses(f):
+        ps = []
+        for r in range(min(worlds, 7)):
+            q = q0.copy()
+            q[adr] += 0.3 * np.sin(0.05 * f * (1 + r))
+            ps.append(bone_poses_at(model, data, q, ids))
+        pick = np.arange(worlds) % 7
+        return np.stack([x[0] for x in ps])[pick], np.stack([x[1] for x in ps])[pick]
+
+    return poses
+
+
 def kernel_split(hands, poses, ball, frames: int) -> dict:
     """GPU ms per frame of every kernel (memsets and copies as they come), graphs off: ``frames``
     frames after one to record the ungraphed frame, timed by the driver (``wp.timing_begin``)."""
@@ -114,7 +135,7 @@ def main() -> None:
     import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.bench import device_name
-    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.hand_mjcf import body_ids, mount_pose, open_hand_scene
     from physhand_mj.types import Config
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -140,8 +161,6 @@ def main() -> None:
     _, model, data = open_hand_scene("hand_only", "open")
     ids = body_ids(model, asset.body_names)
     mount = mount_pose(model, data)
-    q0 = model.key("open").qpos.copy()
-    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
     rows = []
     from physhand_mj.types import GeomType
 
@@ -156,14 +175,7 @@ def main() -> None:
             top = skin[np.argmax(skin[:, 2])].astype(float)
             ball = (np.tile(top + [0.0, 0.0, 0.02 - 0.002], (w, 1))[:, None], np.tile([1.0, 0.0, 0.0, 0.0], (w, 1))[:, None])
 
-        def poses(f):  # world k bends its index finger at rate 1 + k % 7: 7 distinct poses a frame
-            ps = []
-            for r in range(min(w, 7)):
-                q = q0.copy()
-                q[adr] += 0.3 * np.sin(0.05 * f * (1 + r))
-                ps.append(bone_poses_at(model, data, q, ids))
-            pick = np.arange(w) % 7
-            return np.stack([x[0] for x in ps])[pick], np.stack([x[1] for x in ps])[pick]
+        poses = bending_poses(model, data, ids, w)
 
         for f in range(2):
             out = hands.step(*poses(f), *ball)

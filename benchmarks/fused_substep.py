@@ -34,9 +34,12 @@ def main() -> None:
     import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.bench import device_name
-    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.hand_mjcf import body_ids, mount_pose, open_hand_scene
     from physhand_mj.solver import fused
     from physhand_mj.types import Config
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from batch_throughput import bending_poses
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
@@ -52,18 +55,9 @@ def main() -> None:
     _, model, data = open_hand_scene("hand_only", "open")
     ids = body_ids(model, asset.body_names)
     mount = mount_pose(model, data)
-    q0 = model.key("open").qpos.copy()
-    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
     rows = []
     for w in [int(s) for s in a.worlds.split(",")]:
-        def poses(f):  # world k bends its index finger at rate 1 + k % 7
-            ps = []
-            for r in range(min(w, 7)):
-                q = q0.copy()
-                q[adr] += 0.3 * np.sin(0.05 * f * (1 + r))
-                ps.append(bone_poses_at(model, data, q, ids))
-            pick = np.arange(w) % 7
-            return np.stack([x[0] for x in ps])[pick], np.stack([x[1] for x in ps])[pick]
+        poses = bending_poses(model, data, ids, w)
 
         runs = {name: BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, fused_substep=flag), *mount)
                 for name, flag in (("five_launch", False), ("fused", True))}

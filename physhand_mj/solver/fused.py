@@ -354,15 +354,15 @@ class FusedSubstep:
             raise ValueError(f"physhand_mj.solver.fused.SUM must be 'scatter' or 'gather', got {SUM!r}")
         return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather")
 
-    def _entries(self, device):
-        """Per group, the movable vertices' entries (vertex_entries) on ``device``, built on first use."""
+    def _entries(self):
+        """Per group, the movable vertices' entries (vertex_entries) on the device, built on first use."""
         if self._ent is None:
             groups = [(self.edge_ids, 2), (self.tet_ids, 4), (self.dih_ids, 4)]
             self._ent = []
             for ids, k in groups:
                 host = ids.numpy().reshape(-1, k) if ids.shape[0] else np.zeros((0, k), np.int32)
                 off, ent = vertex_entries(host, self.n_soft)
-                self._ent += [wp.array(off, dtype=int, device=device), wp.array(ent, dtype=int, device=device)]
+                self._ent += [wp.array(off, dtype=int, device=self.device), wp.array(ent, dtype=int, device=self.device)]
         return self._ent
 
     def shared_bytes(self, device=None) -> int:
@@ -387,7 +387,7 @@ class FusedSubstep:
             kin = [self._none, self._vec, self._sub]
         return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
                 self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha,
-                *(self._entries(self.device) if SUM == "gather" else [self._none] * 6), float(inv_h2),
+                *(self._entries() if SUM == "gather" else [self._none] * 6), float(inv_h2),
                 float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]
