@@ -18,7 +18,7 @@
 #   fused    Config.fused_substep (solver/fused.py): its CUDA tests, its block size at W = 1024, then
 #            default and fused side by side for W = 1 .. 4096 without contact and 1 .. 1024 with a sphere
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy or fused}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a or fused_b}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -83,6 +83,23 @@ case $phase in
     step objects_fused 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024 --frames 10 \
       --objects --config '{"fused_substep": true}' --tag fused
     ;;
+  fused_a)  # the fused phase split to fit one device call each (a fresh machine compiles first)
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+    step pytest_fused 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
+    step fused_substep 120 python3 benchmarks/fused_substep.py --device cuda --worlds 1,64,1024,4096 --frames 10
+    step fused_gather 60 python3 benchmarks/fused_substep.py --device cuda --worlds 1024 --frames 10 --sum gather
+    step batch_fused 70 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10 \
+      --config '{"fused_substep": true}' --tag fused
+    step objects_fused 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 64,1024 --frames 10 \
+      --objects --config '{"fused_substep": true}' --tag fused
+    step objects_default 100 python3 benchmarks/batch_throughput.py --device cuda --worlds 64,1024 --frames 10 --objects
+    ;;
+  fused_b)
+    for b in 256 512; do
+      step "fused_block$b" 60 python3 benchmarks/fused_substep.py --device cuda --worlds 1024 --frames 10 --block $b
+    done
+    step batch_default 100 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10
+    ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac
 # flat into $OUT: nested folders under $OUT did not come back (2026-11-23: "left out (depth)"), and each
@@ -90,3 +107,6 @@ esac
 find docs -newer "$stamp" -type f \( -name '*.json' -o -name '*.csv' -o -name '*.png' -o -name '*.md' \) \
   -exec cp {} "$OUT/" \;
 rm -f "$stamp"
+# at most 8 files come back from a device call: everything else in one archive
+(cd "$OUT" && tar -czf "/tmp/results_$phase.tgz" --exclude='warp_cache.tar.xz' . \
+  && find . -type f ! -name 'warp_cache.tar.xz' -delete && mv "/tmp/results_$phase.tgz" .)

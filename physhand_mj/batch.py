@@ -237,6 +237,13 @@ class BatchedHands:
             raise ValueError(f"BatchedHands needs Config.nonfinite=NonFinite.RECOVER (got {NonFinite(self.config.nonfinite).name}): "
                              "a world that turns non-finite is reset and reported alone (step()['worlds']); "
                              "raising would stop every world for one")
+        import warp as wp
+
+        from physhand_mj.solver import fused
+
+        if fused.cuda_auto(self.config, asset, self.worlds, wp.get_device(self.config.device)):
+            # Config.fused_substep=None on CUDA: a block per world in shared memory from 1.5 worlds per SM
+            self.config = dataclasses.replace(self.config, fused_substep=True)
         if spacing is None:  # the object side's queries apart by 1 m (the solve stays at the origin)
             spacing = 1.0
         if objects and self.worlds > 1 and not (np.isfinite(spacing) and spacing >= 0.3):

@@ -258,12 +258,15 @@ class Config:
         block as one lane, unless ``wp.config.enable_cpu_blocks``) and the solver frame ~1.2 x
         faster (one hand to 4 worlds; it also makes the substep's start where no contact stage
         comes before the constraints); on CUDA the corrections' sum order differs
-        (shared-memory atomics) and the speed is not measured yet. Needs the Jacobi scheme, one
-        iteration, no region sleep, each world's movable vertices first, and 12 bytes of shared
-        memory per vertex and per soft vertex in a block, plus 4 per thread on CUDA (the embedded
-        hand: 207,504 B; an H100/H200 block: 227 KB; Warp's CPU arena: 256 KB). None (default):
-        on the CPU where those hold and ``jacobi_gather`` is not True; True: always (ValueError
-        where it cannot run); False: never. How a group's corrections are summed per vertex:
+        (shared-memory atomics) and a block holds one world, so it pays for large batches only
+        (H100: 1.53 x the gathers' solver frame at 1,024 worlds, 0.94 x at 64, 0.12 x for one
+        hand). Needs the Jacobi scheme, one iteration, no region sleep, each world's movable
+        vertices first, and 12 bytes of shared memory per vertex and per soft vertex in a block,
+        plus 4 per thread on CUDA (the embedded hand: 207,504 B; an H100/H200 block: 227 KB;
+        Warp's CPU arena: 256 KB). None (default): on the CPU where those hold and
+        ``jacobi_gather`` is not True; on CUDA for a BatchedHands of at least 1.5 worlds per SM
+        (H100: 198; solver/fused.py ``cuda_auto``); True: always (ValueError where it cannot
+        run); False: never. How a group's corrections are summed per vertex:
         ``physhand_mj.solver.fused.SUM`` ("scatter" or "gather", docs/solver.md).
     """
 

@@ -61,45 +61,63 @@ CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MA
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
 
-# Every write to a shared tile goes through wp.tile_scatter_add, which every thread of the block calls
-# (has_value False where it has nothing to add) and which ends in a barrier: Warp's element
-# assignment (``tile[i] = v``) also ends in a barrier, which threads skipping it in a branch would
-# never reach. Adding into a zeroed tile, or adding a vertex's own correction, rounds as the plain
-# store and update of the family kernels do (x + 0 = x; x + d (omega / n) as integrate.apply_jacobi).
+# Shared tiles are written through the two native helpers below, which add to one element and leave
+# out Warp's barrier: every Warp builtin that writes a tile element (``tile[i] = v``, ``tile[i] += v``,
+# ``wp.tile_scatter_add``) ends in ``__syncthreads``, and one barrier per constraint corner kept a
+# block's warps in lockstep (measured on an H100, W = 64: a world's substep 0.63 ms on one SM, 10 x
+# its arithmetic). A group's adds need no order among themselves (they are atomic where two threads
+# may meet), so the block synchronises only where one phase reads what another wrote: after the load,
+# after each group's corrections and after each average (``block_sync``). Adding into a zeroed tile,
+# or adding a vertex's own correction, rounds as the plain store and update of the family kernels
+# do (x + 0 = x; x + d (omega / n) as integrate.apply_jacobi).
 
 
 _KERNELS: dict = {}
 
 
+@wp.func_native("""if (has) { wp::atomic_add(&t.data.ptr[i], v); }""")
+def shared_add(t: Any, i: int, v: wp.vec3, has: bool):
+    """``t[i] += v`` where ``has``, atomic (threads may add to one element), no barrier."""
+    ...
+
+
+@wp.func_native("""if (has) { t.data.ptr[i] = v; }""")
+def shared_set(t: Any, i: int, v: wp.vec3, has: bool):
+    """``t[i] = v`` where ``has`` (an element only this thread touches in this phase), no barrier."""
+    ...
+
+
+@wp.func_native("""WP_TILE_SYNC();""")
+def block_sync():
+    """The block's barrier (every thread of the block calls it)."""
+    ...
+
+
 @wp.func
 def add_corners(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3,
                 d4: wp.vec3, moves: int):
-    """A 4-vertex constraint's corrections into the shared accumulator (movable vertices only);
-    every thread of the block calls it (``moves`` 0: nothing to add)."""
-    wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < ns)
-    wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < ns)
-    wp.tile_scatter_add(ds, i3, d3, moves != 0 and i3 < ns)
-    wp.tile_scatter_add(ds, i4, d4, moves != 0 and i4 < ns)
+    """A 4-vertex constraint's corrections into the shared accumulator (movable vertices only)."""
+    shared_add(ds, i1, d1, moves != 0 and i1 < ns)
+    shared_add(ds, i2, d2, moves != 0 and i2 < ns)
+    shared_add(ds, i3, d3, moves != 0 and i3 < ns)
+    shared_add(ds, i4, d4, moves != 0 and i4 < ns)
 
 
 @wp.func
 def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float), group: int, relaxation: float,
                 lane: int, bd: int):
     """A group's Jacobi average in shared memory (integrate.apply_jacobi: x_i += omega / n_i sum),
-    then its accumulator zeroed for the next group; every thread of the block calls it."""
+    its accumulator zeroed for the next group; every thread of the block calls it (a barrier before,
+    for the group's corrections, and after, for the positions)."""
+    block_sync()
     for k in range((ns + bd - 1) // bd):
         l = k * bd + lane
-        dx = wp.vec3(0.0)
-        back = wp.vec3(0.0)
-        moved = False
         if l < ns:
             c = vertex_count[group, l]
-            back = -ds[l]
             if c > 0.0:
-                dx = ds[l] * (relaxation / c)
-                moved = True
-        wp.tile_scatter_add(xs, l, dx, moved, False)
-        wp.tile_scatter_add(ds, l, back, l < ns, False)
+                shared_set(xs, l, xs[l] + ds[l] * (relaxation / c), True)
+            shared_set(ds, l, wp.vec3(0.0), True)
+    block_sync()
 
 
 def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
@@ -179,7 +197,8 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                     v[g] = vi
                     if l >= NS:
                         x[g] = p  # (a skeleton vertex: the constraints leave it where its bone puts it)
-            wp.tile_scatter_add(xs, l, p, l < N, False)
+                shared_set(xs, l, p, True)
+        block_sync()
 
         # group 0: edges and attachments (Eq. 2, 4-5)
         ne = edge_ids.shape[0]
@@ -190,7 +209,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                 if l < NS:
                     d = edges_of_vertex(l, w, edge_off, edge_ent, edge_ids, edge_rest, edge_alpha, inv_mass, xs,
                                         inv_h2, lam_edge)
-                wp.tile_scatter_add(ds, l, d, l < NS, False)
+                shared_set(ds, l, d, l < NS)
         else:
             for k in range((ne + bd - 1) // bd):
                 j = k * bd + lane
@@ -205,8 +224,8 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                     moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
                                                           edge_alpha[j] * inv_h2, 0.0)
                     lam_edge[w * ne + j] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
-                wp.tile_scatter_add(ds, i1, d1, moves != 0 and i1 < NS)
-                wp.tile_scatter_add(ds, i2, d2, moves != 0 and i2 < NS)
+                shared_add(ds, i1, d1, moves != 0 and i1 < NS)
+                shared_add(ds, i2, d2, moves != 0 and i2 < NS)
         apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
 
         # group 1: tets (Eq. 3)
@@ -218,7 +237,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                 if l < NS:
                     d = tets_of_vertex(l, w, tet_off, tet_ent, tet_ids, tet_rest6v, tet_alpha, inv_mass, xs, inv_h2,
                                        lam_tet)
-                wp.tile_scatter_add(ds, l, d, l < NS, False)
+                shared_set(ds, l, d, l < NS)
         else:
             for k in range((nt + bd - 1) // bd):
                 j = k * bd + lane
@@ -252,7 +271,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                 if l < NS:
                     d = dihedrals_of_vertex(l, w, dih_off, dih_ent, dih_ids, dih_rest, dih_alpha, inv_mass, xs, inv_h2,
                                             lam_dih)
-                wp.tile_scatter_add(ds, l, d, l < NS, False)
+                shared_set(ds, l, d, l < NS)
         else:
             for k in range((nd + bd - 1) // bd):
                 j = k * bd + lane
@@ -280,6 +299,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                                                                           w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
                     lam_dih[w * nd + j] = dlam
                 add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+        block_sync()
         for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
             l = k * bd + lane
             if l < NS:
@@ -393,20 +413,57 @@ class FusedSubstep:
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]
 
 
+# CUDA: Config.fused_substep=None picks the fused substep for a batch of at least this many worlds
+# per SM. A block holds one world and an SM one block (207 KB of shared memory), so a batch runs in
+# ceil(W / SMs) waves of ~5.8 ms a frame each (H100, W = 1024: 45.0 ms a frame against the
+# gathers' 68.9 ms); below one wave per SM the gathers' five launches are faster (W = 64: 5.06 ms
+# against 5.38, one world 0.55 against 4.55). From 1.5 waves the fused batch wins whatever the
+# remainder (benchmarks/fused_substep.py; docs/scale.md).
+CUDA_AUTO_WAVES = 1.5
+
+
+def config_allows(config) -> bool:
+    """Whether ``config`` lets the fused substep run (the Jacobi scheme, one iteration, no region
+    sleep, ``jacobi_gather`` not True; Warp's many-lane CPU blocks not switched on)."""
+    from physhand_mj.types import Scheme
+
+    return (config.scheme == Scheme.JACOBI and config.iterations == 1 and not config.region_sleep
+            and not config.jacobi_gather and not getattr(wp.config, "enable_cpu_blocks", False))
+
+
+def asset_shared_bytes(asset, device, block_dim: int | None = None) -> int:
+    """Shared memory one world of ``asset`` would take in a block (as :meth:`FusedSubstep.shared_bytes`,
+    from the asset: movable vertices are those before the last non-skeleton one)."""
+    from physhand_mj.types import Layer
+
+    movable = np.flatnonzero(np.asarray(asset.layer) != Layer.SKELETON)
+    n, n_soft = int(len(asset.layer)), int(movable.max()) + 1 if movable.size else 0
+    tiles = sum(-(-12 * k // TILE_ALIGN) * TILE_ALIGN for k in (n, n_soft))
+    return tiles + (4 * (block_dim or BLOCK_DIM) if device.is_cuda else 0)
+
+
+def cuda_auto(config, asset, worlds: int, device) -> bool:
+    """Whether ``Config.fused_substep=None`` takes the fused substep for a batch of ``worlds``
+    worlds of ``asset`` on ``device``: CUDA, at least ``CUDA_AUTO_WAVES`` worlds per SM, a config
+    that allows it and a world that fits a block's shared memory."""
+    return (bool(device.is_cuda) and config.fused_substep is None and worlds >= CUDA_AUTO_WAVES * device.sm_count
+            and config_allows(config) and asset_shared_bytes(asset, device) <= device.max_shared_memory_per_block)
+
+
 def choose(model, config, device) -> FusedSubstep | None:
     """The solver's fused substep per ``Config.fused_substep``: True builds it (ValueError naming the
     option where it cannot run: the Config's own checks, a body whose movable vertices do not come
     first, a world larger than a block's shared memory); None builds it on the CPU where it can run
-    (the Jacobi scheme, one iteration, no region sleep, no ``jacobi_gather=True``); False: None."""
-    from physhand_mj.types import Scheme
-
+    (:func:`config_allows`, a world that fits; on CUDA a batch resolves None itself: :func:`cuda_auto`);
+    False: None."""
     want = config.fused_substep
     if want is False:
         return None
     if want is None:
-        if (device.is_cuda or config.scheme != Scheme.JACOBI or config.iterations != 1 or config.region_sleep
-                or config.jacobi_gather or getattr(wp.config, "enable_cpu_blocks", False)):
-            return None  # (CPU blocks of many lanes: correct, but neither bit for bit nor faster)
+        # (CUDA: a large batch asks for it with True, BatchedHands per cuda_auto; CPU blocks of many
+        # lanes: correct, but neither bit for bit nor faster)
+        if device.is_cuda or not config_allows(config):
+            return None
         try:
             fz = FusedSubstep(model, device)
         except ValueError:
