@@ -131,7 +131,10 @@ class Config:
         and batches run faster there (H100: ~10,900 against ~6,900 hand-frames/s); one hand's frame
         costs about the same (0.45 against 0.42 ms) and the CPU's 10-20 % more, with the atomic
         result bit for bit. None (default): batches of 2 or more worlds on CUDA gather
-        (BatchedHands), every other solver adds atomically; True / False: always / never.
+        (BatchedHands) unless they take the fused substep (``fused_substep``: from 1.5 worlds per
+        SM, whose shared-memory atomics do not repeat bit for bit: ``jacobi_gather=True`` or
+        ``fused_substep=False`` keeps such a batch repeatable), every other solver adds
+        atomically; True / False: always / never.
       nonfinite: :class:`NonFinite` policy.
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
         objects); contact_placement: :class:`Placement` of the correction in the substep;
@@ -355,7 +358,7 @@ class Config:
         if not isinstance(self.region_sleep, (bool, np.bool_)):
             raise ValueError(f"Config.region_sleep must be True or False, got {self.region_sleep!r}")
         if not (self.fused_substep is None or isinstance(self.fused_substep, (bool, np.bool_))):
-            raise ValueError(f"Config.fused_substep must be None (the CPU's default), True or False, got "
+            raise ValueError(f"Config.fused_substep must be None (the CPU's and large CUDA batches' default), True or False, got "
                              f"{self.fused_substep!r}")
         if not isinstance(self.fused_stage, (bool, np.bool_)):
             raise ValueError(f"Config.fused_stage must be True or False, got {self.fused_stage!r}")

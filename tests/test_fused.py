@@ -15,9 +15,9 @@ from physhand_mj.solver import Solver, make_model
 from physhand_mj.types import Config, Layer, Scheme
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
-# CUDA: the shared-memory atomics add a vertex's corrections in another order than the gather's
-# fixed one; after 8 frames of a bending finger the two runs differ by float rounding grown over
-# 80 substeps (two atomic CUDA runs differ by ~0.4 um after a closing: docs/solver.md)
+# CUDA: the shared-memory atomics (and the five-launch reference's global ones) add a vertex's
+# corrections in no fixed order; after 8 frames of a bending finger the two runs differ by float
+# rounding grown over 80 substeps (two atomic CUDA runs differ by ~0.4 um after a closing: docs/solver.md)
 CUDA_TOL = 5.0e-6  # m
 
 
@@ -161,16 +161,23 @@ def test_cuda_batches_take_the_fused_substep_from_one_and_a_half_worlds_per_sm(s
     for kw in (dict(jacobi_gather=True), dict(iterations=2), dict(scheme=Scheme.COLORED), dict(region_sleep=True),
                dict(fused_substep=False)):
         assert not fused.cuda_auto(Config(**kw), asset, 4096, h100), kw
+    assert fused.cuda_auto(Config(scheme="jacobi"), asset, 4096, h100)  # (a scheme given by name)
     small = _H100()
     small.max_shared_memory_per_block = 100_000  # (a card whose block cannot hold a world)
     assert not fused.cuda_auto(cfg, asset, 4096, small)
     assert not fused.cuda_auto(cfg, asset, 4096, wp.get_device("cpu"))
+    fused_sum = fused.SUM
+    try:  # (only the measured kernel: the by-vertex sum ran slower than the gathers)
+        fused.SUM = "gather"
+        assert not fused.cuda_auto(cfg, asset, 4096, h100)
+    finally:
+        fused.SUM = fused_sum
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="needs CUDA")
 def test_a_large_cuda_batch_runs_the_fused_substep_by_default(setup):
     """A BatchedHands of 1.5 worlds per SM on the GPU resolves ``fused_substep=None`` to the fused
-    substep (no per-vertex gather slots built), and one world less per SM keeps the gathers."""
+    substep (no per-vertex gather slots built), and a small batch (2 worlds) keeps the gathers."""
     import math
 
     asset, mount = setup[0], setup[1]

@@ -54,8 +54,8 @@ BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per
 # How a group's corrections are summed per vertex: "scatter" (each constraint once, its corners
 # added into the shared accumulator with shared-memory atomics: the CPU's default) or "gather"
 # (each movable vertex recomputes its constraints in constraint order: no atomics, repeatable bit
-# for bit on CUDA, ~3 x the constraint arithmetic). Which is faster on a GPU is not measured yet:
-# benchmarks/fused_substep.py --sum picks it.
+# for bit on CUDA, ~3 x the constraint arithmetic: 0.52 x the gathers' frame on an H100 at W = 1024,
+# where "scatter" is 1.53 x; benchmarks/fused_substep.py --sum).
 SUM = "scatter"
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
@@ -77,7 +77,8 @@ _KERNELS: dict = {}
 
 @wp.func_native("""if (has) { wp::atomic_add(&t.data.ptr[i], v); }""")
 def shared_add(t: Any, i: int, v: wp.vec3, has: bool):
-    """``t[i] += v`` where ``has``, atomic (threads may add to one element), no barrier."""
+    """``t[i] += v`` where ``has``, atomic (threads may add to one element), no barrier. For this
+    module's 1-D shared tiles of vec3 only (``ptr[i]`` is element i there; no bounds check)."""
     ...
 
 
@@ -417,18 +418,23 @@ class FusedSubstep:
 # per SM. A block holds one world and an SM one block (207 KB of shared memory), so a batch runs in
 # ceil(W / SMs) waves of ~5.8 ms a frame each (H100, W = 1024: 45.0 ms a frame against the
 # gathers' 68.9 ms); below one wave per SM the gathers' five launches are faster (W = 64: 5.06 ms
-# against 5.38, one world 0.55 against 4.55). From 1.5 waves the fused batch wins whatever the
-# remainder (benchmarks/fused_substep.py; docs/scale.md).
+# against 5.38, one world 0.55 against 4.55). From 1.5 worlds per SM a batch fills at least two
+# waves of which the last is at least half full; measured wins at W = 256, 1024 and 4096, while the
+# worst case by the wave count (W = 2 SMs + 1, three waves) is estimated ~5-8 % ahead and was not
+# measured (benchmarks/fused_substep.py; docs/scale.md).
 CUDA_AUTO_WAVES = 1.5
 
 
 def config_allows(config) -> bool:
     """Whether ``config`` lets the fused substep run (the Jacobi scheme, one iteration, no region
-    sleep, ``jacobi_gather`` not True; Warp's many-lane CPU blocks not switched on)."""
-    from physhand_mj.types import Scheme
+    sleep, ``jacobi_gather`` not True); a scheme given by name counts as its enum."""
+    from physhand_mj.types import Scheme, _enum_field
 
-    return (config.scheme == Scheme.JACOBI and config.iterations == 1 and not config.region_sleep
-            and not config.jacobi_gather and not getattr(wp.config, "enable_cpu_blocks", False))
+    try:
+        scheme = _enum_field(Scheme, config.scheme, "scheme")
+    except ValueError:
+        return False  # (validate() names it)
+    return scheme == Scheme.JACOBI and config.iterations == 1 and not config.region_sleep and not config.jacobi_gather
 
 
 def asset_shared_bytes(asset, device, block_dim: int | None = None) -> int:
@@ -445,9 +451,11 @@ def asset_shared_bytes(asset, device, block_dim: int | None = None) -> int:
 def cuda_auto(config, asset, worlds: int, device) -> bool:
     """Whether ``Config.fused_substep=None`` takes the fused substep for a batch of ``worlds``
     worlds of ``asset`` on ``device``: CUDA, at least ``CUDA_AUTO_WAVES`` worlds per SM, a config
-    that allows it and a world that fits a block's shared memory."""
+    that allows it, a world that fits a block's shared memory, and the measured kernel (``SUM``
+    "scatter" at ``BLOCK_DIM`` 1024: the gather sum and smaller blocks were slower than the gathers)."""
     return (bool(device.is_cuda) and config.fused_substep is None and worlds >= CUDA_AUTO_WAVES * device.sm_count
-            and config_allows(config) and asset_shared_bytes(asset, device) <= device.max_shared_memory_per_block)
+            and SUM == "scatter" and BLOCK_DIM == 1024 and config_allows(config)
+            and asset_shared_bytes(asset, device) <= device.max_shared_memory_per_block)
 
 
 def choose(model, config, device) -> FusedSubstep | None:
@@ -462,7 +470,7 @@ def choose(model, config, device) -> FusedSubstep | None:
     if want is None:
         # (CUDA: a large batch asks for it with True, BatchedHands per cuda_auto; CPU blocks of many
         # lanes: correct, but neither bit for bit nor faster)
-        if device.is_cuda or not config_allows(config):
+        if device.is_cuda or not config_allows(config) or getattr(wp.config, "enable_cpu_blocks", False):
             return None
         try:
             fz = FusedSubstep(model, device)
