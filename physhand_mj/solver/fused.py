@@ -419,9 +419,8 @@ class FusedSubstep:
 # ceil(W / SMs) waves of ~5.8 ms a frame each (H100, W = 1024: 45.0 ms a frame against the
 # gathers' 68.9 ms); below one wave per SM the gathers' five launches are faster (W = 64: 5.06 ms
 # against 5.38, one world 0.55 against 4.55). From 1.5 worlds per SM a batch fills at least two
-# waves of which the last is at least half full; measured wins at W = 256, 1024 and 4096, while the
-# worst case by the wave count (W = 2 SMs + 1, three waves) is estimated ~5-8 % ahead and was not
-# measured (benchmarks/fused_substep.py; docs/scale.md).
+# waves of which the last is at least half full (H100: W = 133 0.91 x the gathers, 198 1.27 x, 265 =
+# 2 SMs + 1, the worst remainder above, 1.13 x; benchmarks/fused_substep.py; docs/scale.md).
 CUDA_AUTO_WAVES = 1.5
 
 
