@@ -18,9 +18,10 @@
 #   fused    Config.fused_substep (solver/fused.py): its CUDA tests, its block size at W = 1024, then
 #            default and fused side by side for W = 1 .. 4096 without contact and 1 .. 1024 with a sphere
 #            (too long for one call on a fresh machine: fused_a then fused_b, run 2026-11-26)
+#   order    fused.ORDER "asset" against "strided" (the next lever for the fused kernel, not yet run)
 #   hoi_a/b  the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), in two calls
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, hoi_a or hoi_b}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a or hoi_b}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -101,6 +102,12 @@ case $phase in
       step "fused_block$b" 60 python3 benchmarks/fused_substep.py --device cuda --worlds 1024 --frames 10 --block $b
     done
     step batch_default 100 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10
+    ;;
+  order)  # solver/fused.py ORDER: the constraints in the asset's order against strided (fewer shared-atomic conflicts)
+    step pytest_order 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
+    for o in asset strided; do
+      step "order_$o" 100 python3 benchmarks/fused_substep.py --device cuda --worlds 256,1024,4096 --frames 10 --order $o
+    done
     ;;
   hoi_a)  # issue 15's curves with Config() as shipped (fused from 1.5 worlds per SM): 3 grasps, W = 1 .. 4096
     step hoi_a 560 python3 benchmarks/batch_hoi.py --device cuda --scenes toothpaste,glass1,glass2 \

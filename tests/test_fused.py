@@ -191,14 +191,15 @@ def test_a_large_cuda_batch_runs_the_fused_substep_by_default(setup):
     small.close()
 
 
-@pytest.mark.parametrize("sum_", ["scatter", "gather"])
-def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_, monkeypatch):
+@pytest.mark.parametrize("sum_, order", [("scatter", "asset"), ("gather", "asset"), ("scatter", "strided")])
+def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_, order, monkeypatch):
     """The CUDA kernel is built ahead of time here (Warp's NVRTC; no GPU needed) for sm_90, and the
     embedded hand's world fits one H100/H200 block: its dynamic shared memory (positions and soft
     corrections) within the 227 KB a block may hold, less 4 KB for the scatter's scratch."""
     from physhand_mj.solver import fused
 
     monkeypatch.setattr(fused, "SUM", sum_)
+    monkeypatch.setattr(fused, "ORDER", order)
     asset = setup[0]
     cfg = Config(device="cpu", fused_substep=True)
     fz = fused.FusedSubstep(make_model(asset, cfg), "cpu")
@@ -263,3 +264,41 @@ def test_fused_substep_with_blocks_of_many_lanes_on_the_cpu(setup, monkeypatch, 
         assert diff <= tol, f"world {w}: {diff} m from the five-launch substep with 64-lane blocks"
     lam, lam_ref = fz.state.lam_tet.numpy(), ref.state.lam_tet.numpy()
     assert np.abs(lam - lam_ref).max() <= (0.0 if sum_ == "gather" else 1e-4 * np.abs(lam_ref).max())
+
+
+def test_strided_rows_spread_a_warp_over_the_family():
+    """ORDER "strided"'s permutation: every constraint exactly once, and the 32 rows a warp walks
+    together ~C / 32 apart."""
+    from physhand_mj.solver.fused import FusedSubstep
+
+    for count in (0, 1, 31, 32, 33, 1000, 47378):
+        rows = FusedSubstep.strided_rows(count)
+        assert np.array_equal(np.sort(rows), np.arange(count)), count
+    rows = FusedSubstep.strided_rows(1000)
+    assert np.all(np.diff(rows[:32]) == 32)  # (ceil(1000 / 32) = 32 apart)
+
+
+@pytest.mark.parametrize("lanes", [1, 64])
+def test_fused_substep_in_strided_order(setup, monkeypatch, lanes):
+    """ORDER "strided" (the families permuted so that a warp's lanes take far-apart constraints):
+    the five-launch substep's positions within float rounding of the sum's order, and each
+    multiplier written to its asset row (a wrong row map would scramble them), with one lane and
+    with Warp's 64-lane CPU blocks."""
+    from physhand_mj.solver import fused
+
+    asset, mount, open_, bent = setup
+    if lanes > 1:
+        if not hasattr(wp.config, "enable_cpu_blocks"):
+            pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+        monkeypatch.setattr(fused, "BLOCK_DIM", 64)
+    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
+    monkeypatch.setattr(fused, "ORDER", "strided")
+    fz, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
+    assert fz.solver._fused._strided is not None  # (the permuted families ran)
+    for w in range(2):
+        diff = np.abs(fz.positions(w) - ref.positions(w)).max()
+        assert diff <= 1e-6, f"world {w}: {diff} m from the five-launch substep"
+    for name in ("lam_edge", "lam_tet", "lam_dih"):  # (as the CUDA comparison: 1e-3 of the largest)
+        a, b = getattr(fz.state, name).numpy(), getattr(ref.state, name).numpy()
+        assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max(), name

@@ -57,6 +57,14 @@ BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per
 # for bit on CUDA, ~3 x the constraint arithmetic: 0.52 x the gathers' frame on an H100 at W = 1024,
 # where "scatter" is 1.53 x; benchmarks/fused_substep.py --sum).
 SUM = "scatter"
+# The order a block walks a family's constraints in with SUM "scatter": "asset" (the asset's order;
+# the CPU's, bit for bit the five-launch substep) or "strided" (the family stored permuted so that
+# the 32 lanes of a warp take constraints ~C / 32 apart: in the asset's order a warp's 32 edges add
+# their first corner into ~9 distinct vertices (9.2 lanes on one shared address on average, tets
+# 1.4-2.1, dihedrals 1.1-1.6), strided ~1.0-1.1, so its shared-memory atomics do not serialise;
+# the sum's order changes, so the CPU result differs from the five-launch one by rounding).
+# Not yet measured on a GPU: benchmarks/fused_substep.py --order.
+ORDER = "asset"
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
@@ -121,17 +129,19 @@ def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float)
     block_sync()
 
 
-def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
+def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False):
     """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
     launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
     time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
-    size and block)."""
-    key = (int(n), int(n_soft), int(block_dim), bool(gather))
+    size and block); ``strided``: the families come permuted (``ORDER``) with each row's asset index
+    for its multiplier."""
+    key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather)
     if key in _KERNELS:
         return _KERNELS[key]
     N = key[0]
     NS = key[1]
     GATHER = key[3]
+    STRIDED = key[4]
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
     def solve_substep_shared(
@@ -154,6 +164,10 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
         tet_ent: wp.array(dtype=int),
         dih_off: wp.array(dtype=int),
         dih_ent: wp.array(dtype=int),
+        # Model (ORDER "strided": each permuted row's index in the asset's order; else empty):
+        edge_row: wp.array(dtype=int),
+        tet_row: wp.array(dtype=int),
+        dih_row: wp.array(dtype=int),
         # Solver in:
         inv_h2: float,
         relaxation: float,
@@ -224,7 +238,10 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                     i2 = edge_ids[j, 1]
                     moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
                                                           edge_alpha[j] * inv_h2, 0.0)
-                    lam_edge[w * ne + j] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
+                    r = j
+                    if wp.static(STRIDED):
+                        r = edge_row[j]
+                    lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
                 shared_add(ds, i1, d1, moves != 0 and i1 < NS)
                 shared_add(ds, i2, d2, moves != 0 and i2 < NS)
         apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
@@ -259,7 +276,10 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                     moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1],
                                                                  inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
                                                                  tet_alpha[j] * inv_h2, 0.0)
-                    lam_tet[w * nt + j] = dlam
+                    r = j
+                    if wp.static(STRIDED):
+                        r = tet_row[j]
+                    lam_tet[w * nt + r] = dlam
                 add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
 
@@ -298,7 +318,10 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False):
                     if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
                         moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
                                                                           w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
-                    lam_dih[w * nd + j] = dlam
+                    r = j
+                    if wp.static(STRIDED):
+                        r = dih_row[j]
+                    lam_dih[w * nd + r] = dlam
                 add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         block_sync()
         for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
@@ -363,6 +386,7 @@ class FusedSubstep:
         self.dih_rest = wp.array(first(m.dih_rest), dtype=float, device=dev)
         self.dih_alpha = float(m.dih_alpha)
         self._ent = None  # (SUM "gather": built on first use)
+        self._strided = None  # (ORDER "strided": the permuted families, built on first use)
         self._none = wp.empty(0, dtype=int, device=dev)
         self._vec = wp.empty(0, dtype=wp.vec3, device=dev)
         self._sub = wp.empty((0, 0), dtype=wp.transform, device=dev)
@@ -370,10 +394,45 @@ class FusedSubstep:
 
     @property
     def kernel(self):
-        """The kernel for this body and the current ``BLOCK_DIM`` and ``SUM``."""
+        """The kernel for this body and the current ``BLOCK_DIM``, ``SUM`` and ``ORDER``."""
         if SUM not in ("scatter", "gather"):
             raise ValueError(f"physhand_mj.solver.fused.SUM must be 'scatter' or 'gather', got {SUM!r}")
-        return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather")
+        if ORDER not in ("asset", "strided"):
+            raise ValueError(f"physhand_mj.solver.fused.ORDER must be 'asset' or 'strided', got {ORDER!r}")
+        return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided())
+
+    @staticmethod
+    def _use_strided() -> bool:
+        return ORDER == "strided" and SUM == "scatter"
+
+    @staticmethod
+    def strided_rows(count: int, lanes: int = 32) -> np.ndarray:
+        """The asset row each permuted row holds: row p takes (p % lanes) * ceil(count / lanes) +
+        p // lanes, so the ``lanes`` lanes of a warp walking rows p .. p + lanes - 1 take constraints
+        ceil(count / lanes) apart (a permutation of range(count))."""
+        per = -(-count // lanes)
+        p = np.arange(per * lanes)
+        rows = (p % lanes) * per + p // lanes
+        return rows[rows < count].astype(np.int32)
+
+    def _families(self) -> tuple:
+        """The three families' arrays as the kernel takes them (asset order, or permuted by
+        :meth:`strided_rows` with each row's asset index last)."""
+        fam = [self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids, self.tet_rest6v, self.tet_alpha,
+               self.dih_ids, self.dih_rest]
+        if not self._use_strided():
+            return fam, [self._none] * 3
+        if self._strided is None:
+            out, rows = [], []
+            for k in range(0, len(fam), 3):
+                group = fam[k: k + 3]
+                r = self.strided_rows(group[0].shape[0])
+                rows.append(wp.array(r, dtype=int, device=self.device))
+                for arr in group:
+                    host = arr.numpy()
+                    out.append(wp.array(host[r] if len(r) else host, dtype=arr.dtype, device=self.device))
+            self._strided = (out, rows)
+        return self._strided
 
     def _entries(self):
         """Per group, the movable vertices' entries (vertex_entries) on the device, built on first use."""
@@ -406,9 +465,9 @@ class FusedSubstep:
             kin = [model.vertex_body, model.body_local, state.body_sub]
         else:
             kin = [self._none, self._vec, self._sub]
-        return [self.inv_mass, self.vertex_count, self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids,
-                self.tet_rest6v, self.tet_alpha, self.dih_ids, self.dih_rest, self.dih_alpha,
-                *(self._entries() if SUM == "gather" else [self._none] * 6), float(inv_h2),
+        fam, rows = self._families()
+        return [self.inv_mass, self.vertex_count, *fam, self.dih_alpha,
+                *(self._entries() if SUM == "gather" else [self._none] * 6), *rows, float(inv_h2),
                 float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]
