@@ -430,7 +430,7 @@ class FusedSubstep:
                 rows.append(wp.array(r, dtype=int, device=self.device))
                 for arr in group:
                     host = arr.numpy()
-                    out.append(wp.array(host[r] if len(r) else host, dtype=arr.dtype, device=self.device))
+                    out.append(wp.array(host[r], dtype=arr.dtype, device=self.device))
             self._strided = (out, rows)
         return self._strided
 
@@ -446,10 +446,8 @@ class FusedSubstep:
         return self._ent
 
     def shared_bytes(self, device=None) -> int:
-        """Shared memory one world's block takes (bytes): its two tiles, and on a CUDA ``device``
-        Warp's allocator slot per thread."""
-        tiles = sum(-(-12 * k // TILE_ALIGN) * TILE_ALIGN for k in (self.n, self.n_soft))
-        return tiles + (4 * BLOCK_DIM if device is not None and device.is_cuda else 0)
+        """Shared memory one world's block takes (bytes): :func:`block_bytes`."""
+        return block_bytes(self.n, self.n_soft, device is not None and device.is_cuda)
 
     def fits(self, device) -> tuple[bool, int]:
         """(whether a world's block fits ``device``, the bytes it may hold a block)."""
@@ -495,15 +493,21 @@ def config_allows(config) -> bool:
     return scheme == Scheme.JACOBI and config.iterations == 1 and not config.region_sleep and not config.jacobi_gather
 
 
-def asset_shared_bytes(asset, device, block_dim: int | None = None) -> int:
-    """Shared memory one world of ``asset`` would take in a block (as :meth:`FusedSubstep.shared_bytes`,
-    from the asset: movable vertices are those before the last non-skeleton one)."""
+def block_bytes(n: int, n_soft: int, cuda: bool) -> int:
+    """Shared memory one world's block takes (bytes): its two tiles (12 bytes per vertex and per
+    movable vertex, each tile ``TILE_ALIGN``-aligned), and on CUDA Warp's allocator slot per thread."""
+    tiles = sum(-(-12 * k // TILE_ALIGN) * TILE_ALIGN for k in (n, n_soft))
+    return tiles + (4 * BLOCK_DIM if cuda else 0)
+
+
+def asset_shared_bytes(asset, device) -> int:
+    """:func:`block_bytes` of one world of ``asset`` (movable vertices: those up to the last
+    non-skeleton one), before any model is built."""
     from physhand_mj.types import Layer
 
     movable = np.flatnonzero(np.asarray(asset.layer) != Layer.SKELETON)
-    n, n_soft = int(len(asset.layer)), int(movable.max()) + 1 if movable.size else 0
-    tiles = sum(-(-12 * k // TILE_ALIGN) * TILE_ALIGN for k in (n, n_soft))
-    return tiles + (4 * (block_dim or BLOCK_DIM) if device.is_cuda else 0)
+    n_soft = int(movable.max()) + 1 if movable.size else 0
+    return block_bytes(len(asset.layer), n_soft, device.is_cuda)
 
 
 def cuda_auto(config, asset, worlds: int, device) -> bool:
