@@ -14,6 +14,7 @@ inside the skin); the worst world is reported.
     python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
                                    [--config '{"feature_winding": false}'] [--profile]
     python benchmarks/batch_hoi.py --plot [JSON]   (docs/images/batch_hoi_1024.png from a run's JSON)
+    python benchmarks/batch_hoi.py --curves [JSON] (docs/images/batch_hoi_curves.png: hand-frames/s against W)
 
 Writes docs/benchmarks/batch_hoi_<device>.json (rows: scene, worlds, ms per frame, hand-frames/s,
 setup s, the worst world's measures).
@@ -67,7 +68,46 @@ def plot(src: Path, out: Path) -> Path:
     return out
 
 
+def plot_curves(src: Path, out: Path) -> Path:
+    """Hand-frames per second against W, one line per HOI grasp, from one batch_hoi JSON of several
+    world counts (issue 15's curves); the 10,000 target drawn; a row with any world inside by any of
+    the four measures is marked with a red ring."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = json.loads(src.read_text())
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    scenes = list(dict.fromkeys(r["scene"] for r in d["rows"]))
+    for scene in scenes:
+        rows = sorted((r for r in d["rows"] if r["scene"] == scene), key=lambda r: r["worlds"])
+        w, hz = [r["worlds"] for r in rows], [r["hand_frames_per_s"] for r in rows]
+        (line,) = ax.plot(w, hz, "o-", ms=3.5, label=scene)
+        for r in rows:
+            if any(r.get(k) for k in ("penetration_count_max", "order9_count_max", "object_in_skin_count_max",
+                                       "check_count_max")):
+                ax.plot(r["worlds"], r["hand_frames_per_s"], "o", ms=10, mfc="none", mec="tab:red")
+    ax.axhline(10_000, color="0.3", lw=0.8, ls=":")
+    ax.text(1, 10_000 * 1.06, "target (H100): 10,000", fontsize=7, color="0.3")
+    ax.set(xscale="log", yscale="log", xlabel="worlds W in one batch", ylabel="hand-frames per second (5 ms frames)")
+    ax.set_xticks([1, 16, 64, 256, 1024, 4096], ["1", "16", "64", "256", "1,024", "4,096"])
+    dev = "H100" if "H100" in d["device"] else d["device"]
+    ax.set_title(f"HOI grasps, multires contact, Config() as shipped ({dev}); red ring: a world inside", fontsize=8)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(out, dpi=130)
+    plt.close(fig)
+    return out
+
+
 def main() -> None:
+    if "--curves" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --curves [JSON]
+        args = [a for a in sys.argv[1:] if a != "--curves"]
+        src = Path(args[0]) if args else ROOT / "docs" / "benchmarks" / "batch_hoi_cuda_default.json"
+        print(plot_curves(src, ROOT / "docs" / "images" / "batch_hoi_curves.png").relative_to(ROOT))
+        return
     if "--plot" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --plot [JSON]
         args = [a for a in sys.argv[1:] if a != "--plot"]
         src = Path(args[0]) if args else ROOT / "docs" / "benchmarks" / "batch_hoi_cuda_1024.json"

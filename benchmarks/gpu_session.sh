@@ -20,8 +20,10 @@
 #            (too long for one call on a fresh machine: fused_a then fused_b, run 2026-11-26)
 #   order    fused.ORDER "asset" against "strided" (the next lever for the fused kernel, not yet run)
 #   hoi_a/b  the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), in two calls
+#            (too long for two calls on a fresh machine: 2026-11-26 took four, scene by scene)
+#   ray      benchmarks/ray_scaling.py on 1 and 2 GPUs (a 2-GPU machine; Ray's wheel carried too)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a or hoi_b}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b or ray}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -116,6 +118,14 @@ case $phase in
   hoi_b)
     step hoi_b 560 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,phone,box \
       --worlds 1,16,64,256,1024,4096 --frames 10
+    ;;
+  ray)  # issue 15: Ray over the GPUs of a 2-GPU machine (carry ray's wheel; see docs/scale.md)
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+    step ray_warm 300 python3 benchmarks/ray_scaling.py --gpus 1 --runs 2 --batch 2 --steps 2
+    step ray_256 200 python3 benchmarks/ray_scaling.py --gpus 1,2 --runs 256 --batch 32 --steps 36 \
+      --out docs/benchmarks/ray_scaling_h100x2_256.json
+    step ray_512 250 python3 benchmarks/ray_scaling.py --gpus 1,2 --runs 512 --batch 32 --steps 36 \
+      --out docs/benchmarks/ray_scaling_h100x2_512.json
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

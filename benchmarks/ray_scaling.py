@@ -61,10 +61,21 @@ def main():
         base = rows[0]["wall_s"]
         for r in rows:
             r["speedup_vs_first"] = round(base / r["wall_s"], 3)
-    doc = dict(scene=a.scene, keyframe=a.keyframe, rows=rows)
+    doc = dict(device=_gpus() if a.device.startswith("cuda") else "cpu", command="python " + " ".join(sys.argv),
+               scene=a.scene, keyframe=a.keyframe, rows=rows)
     print(json.dumps(doc))
     if a.out:
         Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def _gpus() -> str:
+    """The machine's GPUs and driver, from nvidia-smi (empty when it is missing)."""
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"],
+                             capture_output=True, text=True, timeout=20).stdout.strip().splitlines()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return f"{len(out)} x {out[0]}" if out else ""
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from physhand_mj.rollout import SUMMARY_COLUMNS, failed_row, run_names, write_summary
 
+NOSET_CUDA = "RAY_EXPERIMENTAL_NOSET_CUDA_VISIBLE_DEVICES"  # Ray's switch: GPU tasks keep the node's visible GPUs
 CANCEL_GRACE_S = 30.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries
 
 
@@ -104,8 +105,12 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         client = address is not None and str(address).startswith("ray://")
         # a worker on the driver's node writes in place; elsewhere (and under Ray Client) it ships its files
         driver_node = None if client else ray.get_runtime_context().get_node_id()
+        # GPU tasks: Ray leaves CUDA_VISIBLE_DEVICES alone and each task picks the GPU it was given
+        # (task_device), so a worker process serves task after task, Warp's kernels loaded once,
+        # without a reused worker running on the GPU a previous task was given (ray#29624)
+        gpu_env = dict(runtime_env={"env_vars": {NOSET_CUDA: "1"}}) if gpus_per_worker else {}
         task = ray.remote(_run_one if batch is None else _run_group).options(
-            num_cpus=1, num_gpus=gpus_per_worker, max_retries=max_retries, retry_exceptions=True)
+            num_cpus=1, num_gpus=gpus_per_worker, max_retries=max_retries, retry_exceptions=True, **gpu_env)
         kwargs = dict(rollout_kwargs, device=device)
         window = num_workers or max(len(groups), 1)
 
@@ -181,6 +186,33 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     return [r for r in rows if r is not None]
 
 
+def task_device(device, gpu_ids, visible: str | None):
+    """The Warp device of a Ray task given GPUs ``gpu_ids`` (``ray.get_gpu_ids()``) in a process
+    that sees the GPUs ``visible`` (its ``CUDA_VISIBLE_DEVICES``; ``None``: all of them): an
+    unnumbered ``"cuda"`` becomes ``"cuda:K"``, K that GPU's ordinal in this process; any other
+    device (``"cpu"``, ``"cuda:1"``), or a task without GPUs, stays as it is."""
+    if str(device) != "cuda" or not gpu_ids:
+        return device
+    gid = str(gpu_ids[0]).strip()
+    ids = [v.strip() for v in visible.split(",")] if visible and visible.strip() else None
+    if ids is None:
+        if not gid.isdigit():
+            raise ValueError(f"Ray gave this task GPU {gid!r}, which is no CUDA ordinal; set CUDA_VISIBLE_DEVICES")
+        return f"cuda:{gid}"
+    if gid not in ids:
+        raise ValueError(f"Ray gave this task GPU {gid!r}, which this worker does not see "
+                         f"(CUDA_VISIBLE_DEVICES={visible!r})")
+    return f"cuda:{ids.index(gid)}"
+
+
+def _on_my_gpu(kwargs: dict) -> dict:
+    """``kwargs`` with the device of the GPU Ray gave this task (see :func:`task_device`)."""
+    import ray
+
+    dev = task_device(kwargs.get("device"), ray.get_gpu_ids(), os.environ.get("CUDA_VISIBLE_DEVICES"))
+    return dict(kwargs, device=dev) if dev != kwargs.get("device") else kwargs
+
+
 def _run_one(scene: str, keyframe, run_dir: str, driver_node, cwd: str, kwargs: dict):
     """The Ray task: one rollout; returns (summary row, {file name: bytes}), the files only when
     this worker is not on the driver's node (then the run goes to a temporary folder here)."""
@@ -189,6 +221,7 @@ def _run_one(scene: str, keyframe, run_dir: str, driver_node, cwd: str, kwargs: 
     from physhand_mj.rollout import rollout
     from physhand_mj.solver import SolverError
 
+    kwargs = _on_my_gpu(kwargs)
     path = Path(scene) if Path(scene).is_absolute() else Path(cwd) / scene  # the driver's working directory
     here = driver_node is not None and ray.get_runtime_context().get_node_id() == driver_node
     tmp = None if here else tempfile.mkdtemp(prefix="physhand_rollout_")
@@ -215,6 +248,7 @@ def _run_group(targets: list, run_dirs: list, driver_node, cwd: str, worlds: int
     from physhand_mj.batch_rollout import rollout_batched
     from physhand_mj.rollout import run_names
 
+    kwargs = _on_my_gpu(kwargs)
     paths = [(str(Path(s) if Path(s).is_absolute() else Path(cwd) / s), key) for s, key in targets]
     here = driver_node is not None and ray.get_runtime_context().get_node_id() == driver_node
     tmp = Path(tempfile.mkdtemp(prefix="physhand_batch_"))

@@ -233,3 +233,30 @@ def test_inside_depth_and_frame_winding_equal_warps_sign_queries(asset, device):
     # both cases were met: points inside the skin (with depths), and w_0 of 1 / 0 outward, -1 / 0 inward
     assert seen["out"][0] > 500 and seen["out"][1] == {0.0, 1.0}
     assert seen["in"][0] == 0 and seen["in"][1] == {-1.0, 0.0}
+
+
+def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monkeypatch):
+    """The pool's bound (PATCH_POOL_MAX): the features whose patches do not fit get patch_len -1 (they
+    keep the pseudo-normal sign, one hand), the others keep theirs, the frame stays finite, and the
+    overflow is reported once as a warning that names the bound and what to change."""
+    import mujoco
+
+    from physhand_mj.contact import contact as contact_mod
+
+    monkeypatch.setattr(contact_mod, "PATCH_POOL_MAX", 512)
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    with pytest.warns(RuntimeWarning, match="PATCH_POOL_MAX"):  # (from the hand's first frames on)
+        hand = ph.SoftHand(model, data, ph.Config(device="cpu"))
+        c = hand.solver.contact
+        for _ in range(8):
+            mujoco.mj_step(model, data)
+            hand.step()
+            c.features_listed()
+    assert c.patch_pool.shape[0] == 512
+    n = int(c.feat_count.numpy()[0])
+    lens = c.patch_len.numpy()[:n]
+    assert n > 0 and np.any(lens == -1) and np.any(lens > 0)
+    assert lens[lens > 0].sum() <= 512
+    assert np.all(np.isfinite(hand.state.x.numpy()))

@@ -28,10 +28,12 @@ from physhand_mj.solver.solver import launch_options
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
 # within 1 cm, at most ~270, and ~184 of its ~1,760 (features every 0.25 mm) are listed per frame); a
-# patch that does not fit keeps the pseudo-normal sign
+# patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches).
+# 2^30 int32 entries (4 GiB) at most: the HOI box grasp at W = 4096 needs 442 M (an H100, 2026-11-26;
+# with the 2^28 it had then, points of some worlds went unpushed, up to 0.49 mm inside)
 PATCH_POOL_PER_FEATURE = 128
 PATCH_POOL_MIN = 1 << 15
-PATCH_POOL_MAX = 1 << 28
+PATCH_POOL_MAX = 1 << 30
 
 # batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.tiled_features
 # None): the HOI box grasp on an H100 (benchmarks/batch_hoi.py), hand-frames/s with a block per feature

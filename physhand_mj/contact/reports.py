@@ -49,11 +49,12 @@ class ContactReports:
             return 0
         if self.config.feature_winding and not self._patch_warned:
             used = int(self._patch_used_host.numpy()[0])
-            if used > self.patch_pool.shape[0]:
+            if used > self.patch_pool.shape[0] or used < 0:  # (< 0: the int32 counter wrapped past 2^31)
                 import warnings
 
                 self._patch_warned = True
-                warnings.warn(f"contact: the feature points' patches needed {used} entries, the pool holds "
+                need = f"{used}" if used >= 0 else "over 2^31"
+                warnings.warn(f"contact: the feature points' patches needed {need} entries, the pool holds "
                               f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
                               f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
                               f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)

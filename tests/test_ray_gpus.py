@@ -1,0 +1,71 @@
+"""Ray GPU tasks (physhand_mj/distributed.py): each task runs on the GPU Ray gave it, also in a worker
+process that earlier ran a task on another GPU (Ray keeps CUDA_VISIBLE_DEVICES as the node has it
+and the task picks its ordinal: task_device). A local Ray that declares 2 GPUs on this CPU machine
+runs GPU tasks with device="cpu", the resource path without a CUDA device."""
+
+import logging
+import os
+
+import pytest
+
+from physhand_mj.distributed import NOSET_CUDA, task_device
+
+ray = pytest.importorskip("ray")
+
+
+@pytest.mark.parametrize("ids,visible,want", [
+    ([0], None, "cuda:0"), ([1], None, "cuda:1"), ([1], "", "cuda:1"),
+    (["3"], "2,3", "cuda:1"), (["2"], "2, 3", "cuda:0"),
+    (["GPU-b"], "GPU-a,GPU-b", "cuda:1"),
+])
+def test_task_device_is_the_ordinal_of_the_gpu_ray_gave(ids, visible, want):
+    assert task_device("cuda", ids, visible) == want
+
+
+def test_task_device_keeps_explicit_devices_and_cpu_tasks():
+    assert task_device("cuda:1", [0], "0,1") == "cuda:1"  # the user's explicit choice
+    assert task_device("cpu", [0], None) == "cpu"
+    assert task_device("cuda", [], None) == "cuda"  # no GPU from Ray (gpus_per_worker=0)
+    assert task_device(None, [0], None) is None
+
+
+def test_task_device_says_what_to_fix_for_a_gpu_it_cannot_see():
+    with pytest.raises(ValueError, match="does not see"):
+        task_device("cuda", ["5"], "0,1")
+    with pytest.raises(ValueError, match="CUDA_VISIBLE_DEVICES"):
+        task_device("cuda", ["GPU-x"], None)
+
+
+@pytest.fixture(scope="module")
+def two_gpu_ray():
+    ray.init(num_cpus=2, num_gpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    yield
+    ray.shutdown()
+
+
+def test_gpu_tasks_keep_the_nodes_visible_gpus_and_get_distinct_ones(two_gpu_ray):
+    @ray.remote
+    def probe():
+        import time
+
+        time.sleep(0.5)  # both tasks at once: each holds its own GPU
+        return os.environ.get("CUDA_VISIBLE_DEVICES"), [str(i) for i in ray.get_gpu_ids()]
+
+    opts = dict(num_cpus=1, num_gpus=1, runtime_env={"env_vars": {NOSET_CUDA: "1"}})
+    before = os.environ.get("CUDA_VISIBLE_DEVICES")
+    got = ray.get([probe.options(**opts).remote() for _ in range(2)])
+    assert [g[0] for g in got] == [before, before]  # Ray did not narrow it per task
+    assert sorted(g[1][0] for g in got) == ["0", "1"]
+    plain = ray.get([probe.options(num_cpus=1, num_gpus=1).remote() for _ in range(2)])
+    assert sorted(g[0] for g in plain) == ["0", "1"]  # without the switch Ray narrows it (the contrast)
+
+
+def test_rollout_ray_runs_gpu_tasks_with_the_switch(two_gpu_ray, tmp_path):
+    import physhand_mj as ph
+    from physhand_mj.distributed import rollout_ray
+
+    apple = ph.scene_path("hoi_apple")
+    rows = rollout_ray([(apple, "grasp"), (apple, "grasp")], tmp_path, gpus_per_worker=1, device="cpu",
+                       steps=2, batch=1, progress=False)
+    assert len(rows) == 2 and all(r["finite"] and not r.get("error") for r in rows)
+    assert (tmp_path / "summary.csv").is_file()
