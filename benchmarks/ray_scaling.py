@@ -71,11 +71,12 @@ def main():
 def _gpus() -> str:
     """The machine's GPUs and driver, from nvidia-smi (empty when it is missing)."""
     try:
-        out = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"],
-                             capture_output=True, text=True, timeout=20).stdout.strip().splitlines()
+        p = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"],
+                           capture_output=True, text=True, timeout=20)
     except (OSError, subprocess.SubprocessError):
         return ""
-    return f"{len(out)} x {out[0]}" if out else ""
+    out = p.stdout.strip().splitlines()
+    return f"{len(out)} x {out[0]}" if p.returncode == 0 and out else ""
 
 
 if __name__ == "__main__":

@@ -102,6 +102,9 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
             raise ValueError(f"gpus_per_worker={gpus_per_worker} but the Ray cluster has no GPUs")
         if device is None:
             device = "cuda" if gpus_per_worker else "cpu"
+        if gpus_per_worker and str(device).startswith("cuda") and str(device) not in ("cuda", "cuda:0"):
+            raise ValueError(f"device={device!r}: each Ray GPU task runs on the GPU Ray gives it; use "
+                             f"device='cuda' (--device cuda), or gpus_per_worker=0 for CPU tasks")
         client = address is not None and str(address).startswith("ray://")
         # a worker on the driver's node writes in place; elsewhere (and under Ray Client) it ships its files
         driver_node = None if client else ray.get_runtime_context().get_node_id()
@@ -188,10 +191,12 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
 
 def task_device(device, gpu_ids, visible: str | None):
     """The Warp device of a Ray task given GPUs ``gpu_ids`` (``ray.get_gpu_ids()``) in a process
-    that sees the GPUs ``visible`` (its ``CUDA_VISIBLE_DEVICES``; ``None``: all of them): an
-    unnumbered ``"cuda"`` becomes ``"cuda:K"``, K that GPU's ordinal in this process; any other
-    device (``"cpu"``, ``"cuda:1"``), or a task without GPUs, stays as it is."""
-    if str(device) != "cuda" or not gpu_ids:
+    that sees the GPUs ``visible`` (its ``CUDA_VISIBLE_DEVICES``; ``None``: all of them): ``"cuda"``
+    (and ``"cuda:0"``, the first of the task's GPUs, as it was while Ray narrowed
+    ``CUDA_VISIBLE_DEVICES`` to them) becomes ``"cuda:K"``, K that GPU's ordinal in this process; any
+    other device (``"cpu"``), or a task without GPUs, stays as it is (``rollout_ray`` refuses
+    ``"cuda:N"``, N > 0, for GPU tasks)."""
+    if str(device) not in ("cuda", "cuda:0") or not gpu_ids:
         return device
     gid = str(gpu_ids[0]).strip()
     ids = [v.strip() for v in visible.split(",")] if visible and visible.strip() else None
@@ -210,7 +215,12 @@ def _on_my_gpu(kwargs: dict) -> dict:
     import ray
 
     dev = task_device(kwargs.get("device"), ray.get_gpu_ids(), os.environ.get("CUDA_VISIBLE_DEVICES"))
-    return dict(kwargs, device=dev) if dev != kwargs.get("device") else kwargs
+    if dev == kwargs.get("device"):
+        return kwargs
+    import warp as wp
+
+    wp.set_device(dev)  # also what Warp's host-side CUDA work (pinned buffers) runs on
+    return dict(kwargs, device=dev)
 
 
 def _run_one(scene: str, keyframe, run_dir: str, driver_node, cwd: str, kwargs: dict):
@@ -221,12 +231,12 @@ def _run_one(scene: str, keyframe, run_dir: str, driver_node, cwd: str, kwargs: 
     from physhand_mj.rollout import rollout
     from physhand_mj.solver import SolverError
 
-    kwargs = _on_my_gpu(kwargs)
     path = Path(scene) if Path(scene).is_absolute() else Path(cwd) / scene  # the driver's working directory
     here = driver_node is not None and ray.get_runtime_context().get_node_id() == driver_node
     tmp = None if here else tempfile.mkdtemp(prefix="physhand_rollout_")
     try:
         try:
+            kwargs = _on_my_gpu(kwargs)
             res = rollout(path, keyframe, out=run_dir if here else tmp, progress=False, **kwargs)
         except (FileNotFoundError, ValueError, SolverError) as e:  # bad input: a rerun fails the same way
             return failed_row(scene, keyframe, e), {}

@@ -109,7 +109,7 @@ def feature_patches(
         if within(p, t, faces, x, radius):
             n += 1
     start = wp.atomic_add(pool_count, 0, n)
-    if start < 0 or start + n > pool.shape[0]:  # (a counter past 2^31 wraps negative)
+    if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
         patch_len[k] = -1
         return
     size = n
@@ -233,7 +233,7 @@ def feature_patches_tiled(
     if lane == 0:
         mine = wp.atomic_add(pool_count, 0, n)
     start = wp.tile_max(wp.tile(mine))[0]
-    if start < 0 or start + n > pool.shape[0]:  # (a counter past 2^31 wraps negative)
+    if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
         if lane == 0:
             slot[i] = k
             patch_len[k] = -1
