@@ -16,8 +16,9 @@ inside the skin); the worst world is reported.
     python benchmarks/batch_hoi.py --plot [JSON]   (docs/images/batch_hoi_1024.png from a run's JSON)
     python benchmarks/batch_hoi.py --curves [JSON] (docs/images/batch_hoi_curves.png: hand-frames/s against W)
 
-Writes docs/benchmarks/batch_hoi_<device>.json (rows: scene, worlds, ms per frame, hand-frames/s,
-setup s, the worst world's measures).
+Writes docs/benchmarks/batch_hoi_<device>.json (or --out) after every row, ``complete`` true at the
+end (rows: scene, worlds, ms per frame, hand-frames/s, setup s, the worst world's measures, and the
+RuntimeWarnings the row's batch gave, e.g. a full patch pool).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import json
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -128,9 +130,19 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per world count")
     p.add_argument("--config", default="{}", help="Config fields as JSON")
     p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 24)")
+    p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/batch_hoi_<device>.json)")
     a = p.parse_args()
     extra = json.loads(a.config)
     wp.init()
+    dev = device_name(a.device if a.device != "cuda" else "cuda:0")
+    out_path = Path(a.out) if a.out else ROOT / "docs" / "benchmarks" / f"batch_hoi_{a.device.split(':')[0]}.json"
+
+    def save(rows, complete: bool):  # after every row: a run cut by a time limit keeps the rows it made
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        out_path.write_text(json.dumps(dict(device=dev, frames=a.frames, config=extra, complete=complete,
+                                            command="python benchmarks/batch_hoi.py " + " ".join(sys.argv[1:]),
+                                            rows=rows), indent=1))
+
     asset = ph.load_asset()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -145,6 +157,9 @@ def main() -> None:
             for w in [int(s) for s in a.worlds.split(",")]:
                 # the rollout's Config (rollout_config) without its per-substep metrics (a log's, not timed here)
                 cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device=a.device, **extra)
+                caught = warnings.catch_warnings(record=True)
+                said = caught.__enter__()
+                warnings.simplefilter("always")
                 t0 = time.perf_counter()
                 hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)),
                                      objects=run.specs, spacing=1.0)
@@ -177,16 +192,18 @@ def main() -> None:
                     from batch_throughput import kernel_split
 
                     row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames)
+                caught.__exit__(None, None, None)
+                for m in said:
+                    warnings.warn_explicit(m.message, m.category, m.filename, m.lineno)  # still on stderr
+                # what the run warned about (a full patch pool: points not pushed) goes with its row
+                row["warnings"] = sorted({str(m.message)[:300] for m in said if issubclass(m.category, RuntimeWarning)})
                 rows.append(row)
                 print(json.dumps(row), flush=True)
+                save(rows, complete=False)
                 del hands, out, pen
                 gc.collect()  # the batch's arrays go before the next one's (W = 4096: ~7 GB each)
-    dev = device_name(a.device if a.device != "cuda" else "cuda:0")
-    out = ROOT / "docs" / "benchmarks" / f"batch_hoi_{a.device.split(':')[0]}.json"
-    out.write_text(json.dumps(dict(device=dev, frames=a.frames, config=extra,
-                                   command="python benchmarks/batch_hoi.py " + " ".join(sys.argv[1:]), rows=rows),
-                              indent=1))
-    print(json.dumps(dict(device=dev, out=str(out.relative_to(ROOT)))))
+    save(rows, complete=True)
+    print(json.dumps(dict(device=dev, out=str(out_path))))
 
 
 if __name__ == "__main__":

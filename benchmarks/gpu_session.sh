@@ -19,11 +19,11 @@
 #            default and fused side by side for W = 1 .. 4096 without contact and 1 .. 1024 with a sphere
 #            (too long for one call on a fresh machine: fused_a then fused_b, run 2026-11-26)
 #   order    fused.ORDER "asset" against "strided" (the next lever for the fused kernel, not yet run)
-#   hoi_a/b  the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), in two calls
-#            (too long for two calls on a fresh machine: 2026-11-26 took four, scene by scene)
+#   hoi_a/b/c the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), two grasps a
+#            call (2026-11-26: three grasps did not fit one call on a fresh machine)
 #   ray      benchmarks/ray_scaling.py on 1 and 2 GPUs (a 2-GPU machine; Ray's wheel carried too)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b or ray}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c or ray}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -111,13 +111,16 @@ case $phase in
       step "order_$o" 100 python3 benchmarks/fused_substep.py --device cuda --worlds 256,1024,4096 --frames 10 --order $o
     done
     ;;
-  hoi_a)  # issue 15's curves with Config() as shipped (fused from 1.5 worlds per SM): 3 grasps, W = 1 .. 4096
-    step hoi_a 560 python3 benchmarks/batch_hoi.py --device cuda --scenes toothpaste,glass1,glass2 \
-      --worlds 1,16,64,256,1024,4096 --frames 10
-    ;;
-  hoi_b)
-    step hoi_b 560 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,phone,box \
-      --worlds 1,16,64,256,1024,4096 --frames 10
+  hoi_a|hoi_b|hoi_c)  # issue 15's curves with Config() as shipped, W = 1 .. 4096, two grasps a call; each
+    # writes its JSON after every row (a step cut by its limit keeps its rows). The first call on a
+    # fresh machine compiles (~150 s), so its first step has the longer limit.
+    case $phase in hoi_a) pair="toothpaste glass1" ;; hoi_b) pair="glass2 apple" ;; hoi_c) pair="box phone" ;; esac
+    limit=330
+    for s in $pair; do
+      step "hoi_$s" $limit python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" \
+        --worlds 1,16,64,256,1024,4096 --frames 10 --out "docs/benchmarks/batch_hoi_cuda_$s.json"
+      limit=240
+    done
     ;;
   ray)  # issue 15: Ray over the GPUs of a 2-GPU machine (carry ray's wheel; see docs/scale.md)
     step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
