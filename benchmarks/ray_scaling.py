@@ -8,8 +8,12 @@ Per GPU count k: ``physhand rollout LIST --ray --batch W --device cuda`` as a us
 fresh process that sees the first k GPUs (CUDA_VISIBLE_DEVICES), on a local Ray (one batch task per
 GPU at a time); LIST holds ``--runs`` copies of the scene's keyframe. Wall time from the command's
 start to its end (Ray start, worker start, kernel loading from Warp's cache, every batch's setup,
-settling and frames, the logs and PLYs written), hand-frames = runs x steps. Outputs go to a
-temporary folder; the summary's rows are checked (all finite, none failed). One JSON document.
+settling and frames, the logs and PLYs written), hand-frames = runs x steps. Also split from the
+times the rows arrive (one burst per finished batch): ``first_rows_s`` (the start, up to the first
+batches' rows) and ``steady_hand_frames_per_s`` (the rest of the list over the rest of the time),
+so the speed-up of the GPUs' steady part shows apart from a start that does not shrink with GPUs.
+Outputs go to a temporary folder; the summary's rows are checked (all finite, none failed). One
+JSON document.
 """
 
 from __future__ import annotations
@@ -47,14 +51,22 @@ def main():
             env = dict(os.environ, CUDA_VISIBLE_DEVICES=",".join(str(i) for i in range(k)))
             cmd = [sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), "--ray", "--batch", str(a.batch),
                    "--steps", str(a.steps), "--device", a.device, "--out", str(out)]
+            err = Path(tmp) / f"stderr{k}.txt"
             t = time.perf_counter()
-            p = subprocess.run(cmd, env=env, capture_output=True, text=True)
+            arrived = []  # seconds from the start at which each run's JSON line came (one burst per batch)
+            with open(err, "w") as ferr:
+                p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=ferr, text=True)
+                for line in p.stdout:
+                    if line.startswith("{"):
+                        arrived.append(time.perf_counter() - t)
+                p.wait()
             wall = time.perf_counter() - t
             summary = list(csv.DictReader(open(out / "summary.csv"))) if (out / "summary.csv").exists() else []
             ok = [r for r in summary if not r.get("error") and r.get("finite") == "True"]
             row = dict(gpus=k, runs=a.runs, batch=a.batch, steps=a.steps, wall_s=round(wall, 2),
                        hand_frames_per_s=round(a.runs * a.steps / wall, 1), rows=len(summary), finite_ok=len(ok),
-                       exit=p.returncode, stderr_tail=p.stderr[-600:] if p.returncode else "")
+                       exit=p.returncode, stderr_tail=err.read_text()[-600:] if p.returncode else "")
+            row.update(split_start(arrived, a.steps, wall))
             rows.append(row)
             print(json.dumps(row), flush=True)
     if len(rows) > 1:
@@ -66,6 +78,20 @@ def main():
     print(json.dumps(doc))
     if a.out:
         Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def split_start(arrived: list, steps: int, wall: float, burst_s: float = 0.5) -> dict:
+    """The command's start against its steady part from the times (s) its rows arrived: the first
+    burst of rows (within ``burst_s`` of the first: the first batches, one per GPU, finishing) ends
+    the start (Python, Ray and its workers, kernel loading, the first batches' set-up and frames);
+    the hand-frames after it over the time after it is the steady rate the GPUs sustain."""
+    if not arrived:
+        return dict(first_rows_s=None, steady_hand_frames_per_s=None)
+    t0 = arrived[0]
+    first = sum(1 for x in arrived if x - t0 <= burst_s)
+    rest, span = len(arrived) - first, arrived[-1] - t0
+    return dict(first_rows_s=round(t0, 2), first_burst_rows=first, tail_s=round(wall - arrived[-1], 2),
+                steady_hand_frames_per_s=round(rest * steps / span, 1) if rest and span > 0 else None)
 
 
 def _gpus() -> str:
