@@ -260,3 +260,30 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
     assert n > 0 and np.any(lens == -1) and np.any(lens > 0)
     assert lens[lens > 0].sum() <= 512
     assert np.all(np.isfinite(hand.state.x.numpy()))
+
+
+def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
+    """The pool's bound against the case that overflowed it on an H100 (the HOI box grasp at W = 4,096:
+    442,139,565 entries, ~107,944 a world, against 2^28): one world's need on the CPU (the same scene
+    and keyframe; a world's patches do not depend on the others), times 4,096, fits both the bound and
+    the pool a batch of 4,096 such worlds allocates (128 entries per feature point up to the bound)."""
+    import mujoco
+
+    from physhand_mj.contact import contact as contact_mod
+
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hoi_box")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("grasp").id)
+    hand = ph.SoftHand(model, data, ph.Config(device="cpu"))
+    c = hand.solver.contact
+    need = 0
+    for _ in range(3):
+        hand.step()
+        c.features_listed()
+        need = max(need, int(c._patch_used_host.numpy()[0]))
+    assert 50_000 < need <= c.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them
+    worlds = 4096
+    pool = min(max(c.points.n_features * worlds * contact_mod.PATCH_POOL_PER_FEATURE, contact_mod.PATCH_POOL_MIN),
+               contact_mod.PATCH_POOL_MAX)
+    assert need * worlds <= pool, (need * worlds, pool)
+    assert need * worlds < 2**31  # the int32 counter does not wrap
