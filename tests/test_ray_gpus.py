@@ -1,7 +1,9 @@
-"""Ray GPU tasks (physhand_mj/distributed.py): each task runs on the GPU Ray gave it, also in a worker
-process that earlier ran a task on another GPU (Ray keeps CUDA_VISIBLE_DEVICES as the node has it
-and the task picks its ordinal: task_device). A local Ray that declares 2 GPUs on this CPU machine
-runs GPU tasks with device="cpu", the resource path without a CUDA device."""
+"""Ray GPU tasks (physhand_mj/distributed.py) pick the GPU Ray gave them themselves, so that a reused
+worker process, whose Warp keeps the GPUs it saw first, cannot run on a GPU an earlier task was given:
+Ray keeps CUDA_VISIBLE_DEVICES as the node has it (the switch) and the task maps its GPU to an
+ordinal (task_device). The mapping is tested directly; the switch on a local Ray that declares 2
+GPUs on this CPU machine (GPU tasks with device="cpu": the resource path without a CUDA device).
+A reused worker on a real second GPU needs a 2-GPU machine (benchmarks/ray_scaling.py ran there)."""
 
 import logging
 import os
