@@ -157,42 +157,40 @@ def main() -> None:
             for w in [int(s) for s in a.worlds.split(",")]:
                 # the rollout's Config (rollout_config) without its per-substep metrics (a log's, not timed here)
                 cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device=a.device, **extra)
-                caught = warnings.catch_warnings(record=True)
-                said = caught.__enter__()
-                warnings.simplefilter("always")
-                t0 = time.perf_counter()
-                hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)),
-                                     objects=run.specs, spacing=1.0)
-                setup_s = time.perf_counter() - t0
-                pos, quat = np.tile(bone_pos, (w, 1, 1)), np.tile(bone_quat, (w, 1, 1))
-                hands.settle(pos, quat)
-                op, oq = np.tile(obj_pos, (w, 1, 1)), np.tile(obj_quat, (w, 1, 1))
-                hands.set_object_poses(op, oq)
-                for _ in range(2):
-                    hands.step(pos, quat, op, oq)
-                t = time.perf_counter()
-                for _ in range(a.frames):
-                    out = hands.step(pos, quat, op, oq)
-                ms = (time.perf_counter() - t) / a.frames * 1e3
-                pen = hands.penetration()
-                row = dict(scene=scene, worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
-                           setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
-                           triangles_tested=out.get("triangles_tested"),
-                           penetration_count_max=max(r["penetration_count"] for r in pen),
-                           penetration_max_um=round(max(r["penetration_max_um"] for r in pen), 2),
-                           object_in_skin_count_max=max(r["object_in_skin_count"] for r in pen),
-                           object_in_skin_max_um=round(max(r["object_in_skin_max_um"] for r in pen), 2),
-                           finite=bool(np.isfinite(hands.state.x.numpy()).all()))
-                if hands.solver.contact is not None:  # measures the contact does not use: the order-9 lattice,
-                    # and the denser object check points inside the closed skin (worst world)
-                    dense = hands.solver.contact.measure_worlds(hands.state, order=9, check=True)
-                    row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2),
-                               check_count_max=int(dense[:, 3].max()), check_max_um=round(float(dense[:, 5].max()) * 1e6, 2))
-                if a.profile and hands.solver.device.is_cuda:
-                    from batch_throughput import kernel_split
+                with warnings.catch_warnings(record=True) as said:  # the row keeps what its batch warned about
+                    warnings.simplefilter("always")
+                    t0 = time.perf_counter()
+                    hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)),
+                                         objects=run.specs, spacing=1.0)
+                    setup_s = time.perf_counter() - t0
+                    pos, quat = np.tile(bone_pos, (w, 1, 1)), np.tile(bone_quat, (w, 1, 1))
+                    hands.settle(pos, quat)
+                    op, oq = np.tile(obj_pos, (w, 1, 1)), np.tile(obj_quat, (w, 1, 1))
+                    hands.set_object_poses(op, oq)
+                    for _ in range(2):
+                        hands.step(pos, quat, op, oq)
+                    t = time.perf_counter()
+                    for _ in range(a.frames):
+                        out = hands.step(pos, quat, op, oq)
+                    ms = (time.perf_counter() - t) / a.frames * 1e3
+                    pen = hands.penetration()
+                    row = dict(scene=scene, worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
+                               setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
+                               triangles_tested=out.get("triangles_tested"),
+                               penetration_count_max=max(r["penetration_count"] for r in pen),
+                               penetration_max_um=round(max(r["penetration_max_um"] for r in pen), 2),
+                               object_in_skin_count_max=max(r["object_in_skin_count"] for r in pen),
+                               object_in_skin_max_um=round(max(r["object_in_skin_max_um"] for r in pen), 2),
+                               finite=bool(np.isfinite(hands.state.x.numpy()).all()))
+                    if hands.solver.contact is not None:  # measures the contact does not use: the order-9 lattice,
+                        # and the denser object check points inside the closed skin (worst world)
+                        dense = hands.solver.contact.measure_worlds(hands.state, order=9, check=True)
+                        row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2),
+                                   check_count_max=int(dense[:, 3].max()), check_max_um=round(float(dense[:, 5].max()) * 1e6, 2))
+                    if a.profile and hands.solver.device.is_cuda:
+                        from batch_throughput import kernel_split
 
-                    row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames)
-                caught.__exit__(None, None, None)
+                        row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames)
                 for m in said:
                     warnings.warn_explicit(m.message, m.category, m.filename, m.lineno)  # still on stderr
                 # what the run warned about (a full patch pool: points not pushed) goes with its row
