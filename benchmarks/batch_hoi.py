@@ -73,7 +73,7 @@ def plot(src: Path, out: Path) -> Path:
 def plot_curves(src: Path, out: Path) -> Path:
     """Hand-frames per second against W, one line per HOI grasp, from one batch_hoi JSON of several
     world counts (issue 15's curves); the 10,000 target drawn; a row with any world inside by any of
-    the four measures is marked with a red ring."""
+    the four measures is marked with a red ring; rows marked ``superseded`` (re-run since) are left out."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -83,7 +83,8 @@ def plot_curves(src: Path, out: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     scenes = list(dict.fromkeys(r["scene"] for r in d["rows"]))
     for scene in scenes:
-        rows = sorted((r for r in d["rows"] if r["scene"] == scene), key=lambda r: r["worlds"])
+        rows = sorted((r for r in d["rows"] if r["scene"] == scene and not r.get("superseded")),
+                      key=lambda r: r["worlds"])
         w, hz = [r["worlds"] for r in rows], [r["hand_frames_per_s"] for r in rows]
         (line,) = ax.plot(w, hz, "o-", ms=3.5, label=scene)
         for r in rows:
