@@ -2,7 +2,8 @@
 GPUs (issue 15: the 2 GPUs of an H200 pair at >= 1.8 x one GPU).
 
     python benchmarks/ray_scaling.py [--gpus 1,2] [--runs 256] [--batch 16] [--steps 36]
-                                     [--scene mjcf/scenes/hoi_apple.xml] [--keyframe grasp] [--out FILE]
+                                     [--scene mjcf/scenes/hoi_apple.xml] [--keyframe grasp] [--cluster]
+                                     [--out FILE]
 
 Per GPU count k: ``physhand rollout LIST --ray --batch W --device cuda`` as a user runs it, in a
 fresh process that sees the first k GPUs (CUDA_VISIBLE_DEVICES), on a local Ray (one batch task per
@@ -11,8 +12,15 @@ start to its end (Ray start, worker start, kernel loading from Warp's cache, eve
 settling and frames, the logs and PLYs written), hand-frames = runs x steps. Also split from the
 times the rows arrive (one burst per finished batch): ``first_rows_s`` (the start, up to the first
 batches' rows) and ``steady_hand_frames_per_s`` (the rest of the list over the rest of the time),
-so the speed-up of the GPUs' steady part shows apart from a start that does not shrink with GPUs.
-Outputs go to a temporary folder; the summary's rows are checked (all finite, none failed). One
+so the speed-up of the GPUs' steady part shows apart from a start that does not shrink with GPUs;
+and from the times each batch task reports in its rows (``task_start``, ``task_ready`` after its set-up
+and settling, ``task_end``, ``task_pid``): when the first task started, the median batch's set-up and
+frames, and how far apart the workers' last batches ended (the tail one GPU waits for the other).
+With ``--cluster`` the command runs on a Ray cluster that is already up (``--ray auto``), as on a
+cluster that serves many jobs: before each GPU count this script starts one (``ray start --head
+--num-gpus k``, the first k GPUs visible to it) and stops it after, outside the timing; the command's
+time then holds no Ray start (about 2.6 s on the CPU) and no shutdown (2.1 s: Ray's processes asked
+to exit and waited for), the workers' start stays in. Outputs go to a temporary folder; the summary's rows are checked (all finite, none failed). One
 JSON document.
 """
 
@@ -40,6 +48,8 @@ def main():
     ap.add_argument("--scene", default=str(ROOT / "mjcf" / "scenes" / "hoi_apple.xml"))
     ap.add_argument("--keyframe", default="grasp")
     ap.add_argument("--device", default="cuda", help="Warp device of the rollouts (cpu: a local check, Ray's CPU workers)")
+    ap.add_argument("--cluster", action="store_true",
+                    help="run on a Ray cluster started before the timing (ray start --head), not a local ray.init")
     ap.add_argument("--out", default=None, help="JSON path (default: stdout only)")
     a = ap.parse_args()
     rows = []
@@ -51,22 +61,36 @@ def main():
             env = dict(os.environ, CUDA_VISIBLE_DEVICES=",".join(str(i) for i in range(k)))
             cmd = [sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), "--ray", "--batch", str(a.batch),
                    "--steps", str(a.steps), "--device", a.device, "--out", str(out)]
+            if a.cluster:
+                cmd[cmd.index("--ray") + 1:cmd.index("--ray") + 1] = ["auto"]
+                gpus = k if a.device.startswith("cuda") else 0
+                subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "stop"], capture_output=True)  # a leftover one
+                subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "start", "--head", f"--num-gpus={gpus}",
+                                "--include-dashboard=false", "--disable-usage-stats"], env=env, check=True,
+                               capture_output=True)
             err = Path(tmp) / f"stderr{k}.txt"
-            t = time.perf_counter()
+            t, t_unix = time.perf_counter(), time.time()
             arrived = []  # seconds from the start at which each run's JSON line came (one burst per batch)
+            tasks = {}  # (pid, task_start) -> (task_start, task_ready, task_end), unix s
             with open(err, "w") as ferr:
                 p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=ferr, text=True)
                 for line in p.stdout:
                     if line.startswith("{"):
                         arrived.append(time.perf_counter() - t)
+                        r = json.loads(line)
+                        if r.get("task_start") is not None:
+                            tasks[(r["task_pid"], r["task_start"])] = (r["task_start"], r["task_ready"], r["task_end"])
                 p.wait()
             wall = time.perf_counter() - t
+            if a.cluster:
+                subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "stop"], capture_output=True)
             summary = list(csv.DictReader(open(out / "summary.csv"))) if (out / "summary.csv").exists() else []
             ok = [r for r in summary if not r.get("error") and r.get("finite") == "True"]
             row = dict(gpus=k, runs=a.runs, batch=a.batch, steps=a.steps, wall_s=round(wall, 2),
                        hand_frames_per_s=round(a.runs * a.steps / wall, 1), rows=len(summary), finite_ok=len(ok),
                        exit=p.returncode, stderr_tail=err.read_text()[-600:] if p.returncode else "")
             row.update(split_start(arrived, a.steps, wall))
+            row.update(split_tasks(tasks, t_unix, wall))
             rows.append(row)
             print(json.dumps(row), flush=True)
     if len(rows) > 1:
@@ -74,6 +98,7 @@ def main():
         for r in rows:
             r["speedup_vs_first"] = round(base / r["wall_s"], 3)
     doc = dict(device=_gpus() if a.device.startswith("cuda") else "cpu", command="python " + " ".join(sys.argv),
+               ray="a cluster started before each timing (--ray auto)" if a.cluster else "a local ray.init per command",
                scene=a.scene, keyframe=a.keyframe, rows=rows)
     print(json.dumps(doc))
     if a.out:
@@ -92,6 +117,28 @@ def split_start(arrived: list, steps: int, wall: float, burst_s: float = 0.5) ->
     rest, span = len(arrived) - first, arrived[-1] - t0
     return dict(first_rows_s=round(t0, 2), first_burst_rows=first, tail_s=round(wall - arrived[-1], 2),
                 steady_hand_frames_per_s=round(rest * steps / span, 1) if rest and span > 0 else None)
+
+
+def split_tasks(tasks: dict, t0: float, wall: float) -> dict:
+    """From the batch tasks' own times ((pid, start) -> (start, ready, end), unix s; ``t0`` the
+    command's start): the first task's start (Python, Ray, the workers, the driver's grouping), the
+    median set-up (scenes, BatchedHands, settling) and frames (frames, measures, logs, PLYs) of a
+    batch, the spread of the workers' last ends (the tail) and the time after the last task ended."""
+    import statistics
+
+    if not tasks:
+        return {}
+    v = list(tasks.values())
+    last = {}
+    for (pid, _), (_, _, end) in tasks.items():
+        last[pid] = max(last.get(pid, 0.0), end)
+    ready = [r - s for s, r, _ in v if r is not None]
+    frames = [e - r for _, r, e in v if r is not None]
+    return dict(tasks=len(v), workers=len(last), first_task_start_s=round(min(s for s, _, _ in v) - t0, 2),
+                batch_setup_s_median=round(statistics.median(ready), 2) if ready else None,
+                batch_frames_s_median=round(statistics.median(frames), 2) if frames else None,
+                last_end_spread_s=round(max(last.values()) - min(last.values()), 2),
+                after_last_task_s=round(t0 + wall - max(e for _, _, e in v), 2))
 
 
 def _gpus() -> str:

@@ -120,8 +120,7 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     before its first frame (as ``rollout``'s ``on_start`` per run)."""
     import physhand_mj as ph
 
-    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
-        raise ValueError(f"--batch must be an integer >= 1 (worlds per batch), got {worlds!r}")
+    check_worlds(worlds)
     check_counts(steps, substeps)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -187,6 +186,12 @@ def _grouped(targets, worlds: int, asset, out: Path, names):
     yield from list(open_batches.values())
 
 
+def check_worlds(worlds) -> None:
+    """--batch: an integer >= 1 (worlds per batch; ValueError with one line)."""
+    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
+        raise ValueError(f"--batch must be an integer >= 1 (worlds per batch), got {worlds!r}")
+
+
 def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dict[int, Exception]]:
     """How :func:`rollout_batched` groups ``targets`` into batches: ``(groups, failed)``, ``groups``
     the indices into ``targets`` of each batch (up to ``worlds`` runs whose scenes hold the same
@@ -194,8 +199,7 @@ def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dic
     loaded (they belong to no batch). Loads every scene (on this machine)."""
     import physhand_mj as ph
 
-    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
-        raise ValueError(f"--batch must be an integer >= 1 (worlds per batch), got {worlds!r}")
+    check_worlds(worlds)
     targets = list(targets)
     groups, failed = [], {}
     for item in _grouped(targets, worlds, asset or ph.load_asset(), Path("."), run_names(targets)):

@@ -24,6 +24,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from physhand_mj.rollout import SUMMARY_COLUMNS, failed_row, run_names, write_summary
@@ -73,11 +74,11 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     targets = [(scene, key) for scene, key in targets]
     groups, failed = [[i] for i in range(len(targets))], {}
     if batch is not None:
-        from physhand_mj.batch_rollout import batch_groups
+        from physhand_mj.batch_rollout import check_worlds
         from physhand_mj.rollout import check_counts
 
+        check_worlds(batch)
         check_counts(rollout_kwargs.get("steps", 36), rollout_kwargs.get("substeps", 10))
-        groups, failed = batch_groups(targets, batch)
     out_user = Path(out)
     out_abs = out_user.resolve()
     out_abs.mkdir(parents=True, exist_ok=True)
@@ -91,8 +92,6 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         local = {} if address is not None else dict(include_dashboard=False)
         ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR, **local)
     rows: list[dict | None] = [None] * len(targets)
-    for i, e in failed.items():
-        rows[i] = failed_row(*targets[i], e)
     try:
         gpus = float(ray.cluster_resources().get("GPU", 0))
         device = rollout_kwargs.pop("device", None)
@@ -115,6 +114,17 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         task = ray.remote(_run_one if batch is None else _run_group).options(
             num_cpus=1, num_gpus=gpus_per_worker, max_retries=max_retries, retry_exceptions=True, **gpu_env)
         kwargs = dict(rollout_kwargs, device=device)
+        # the workers start (process, imports, the GPU's context) while this process groups the list
+        slots = int(gpus // gpus_per_worker) if gpus_per_worker else int(ray.cluster_resources().get("CPU", 1))
+        warm = ray.remote(_warm).options(num_cpus=1, num_gpus=gpus_per_worker, max_retries=0, **gpu_env)
+        # not waited on: the list's tasks queue behind them
+        warming = [warm.remote(kwargs) for _ in range(min(slots, num_workers or slots, len(targets)))]  # noqa: F841
+        if batch is not None:
+            from physhand_mj.batch_rollout import batch_groups
+
+            groups, failed = batch_groups(targets, batch)
+            for i, e in failed.items():
+                rows[i] = failed_row(*targets[i], e)
         window = num_workers or max(len(groups), 1)
 
         def submit(g):
@@ -223,6 +233,26 @@ def _on_my_gpu(kwargs: dict) -> dict:
     return dict(kwargs, device=dev)
 
 
+def _warm(kwargs: dict) -> int:
+    """The warm-up task: the worker's imports, Warp and its device (the GPU's context), the asset;
+    a worker serves the list's tasks after it. Returns its process id."""
+    import warp as wp
+
+    import physhand_mj as ph
+    import physhand_mj.batch_rollout  # noqa: F401  (the batch path's imports)
+
+    try:
+        kwargs = _on_my_gpu(kwargs)
+        dev = kwargs.get("device")
+        wp.init()
+        with wp.ScopedDevice(dev):
+            wp.zeros(1)  # the device's context
+        ph.load_asset()
+    except Exception:  # the real tasks report it (a bad device, a GPU it does not see)
+        pass
+    return os.getpid()
+
+
 def _run_one(scene: str, keyframe, run_dir: str, driver_node, cwd: str, kwargs: dict):
     """The Ray task: one rollout; returns (summary row, {file name: bytes}), the files only when
     this worker is not on the driver's node (then the run goes to a temporary folder here)."""
@@ -258,12 +288,26 @@ def _run_group(targets: list, run_dirs: list, driver_node, cwd: str, worlds: int
     from physhand_mj.batch_rollout import rollout_batched
     from physhand_mj.rollout import run_names
 
+    start = time.time()
     kwargs = _on_my_gpu(kwargs)
     paths = [(str(Path(s) if Path(s).is_absolute() else Path(cwd) / s), key) for s, key in targets]
     here = driver_node is not None and ray.get_runtime_context().get_node_id() == driver_node
     tmp = Path(tempfile.mkdtemp(prefix="physhand_batch_"))
+    ready, user_on_start = [], kwargs.pop("on_start", None)
+
+    def on_start(*args):  # the batch set up and settled: its first frame is next
+        ready.append(time.time())
+        if user_on_start is not None:
+            user_on_start(*args)
+
     try:
-        got = iter(rollout_batched(paths, tmp, worlds=worlds, progress=False, **kwargs))
+        got = rollout_batched(paths, tmp, worlds=worlds, progress=False, on_start=on_start, **kwargs)
+        # when this task ran (unix s) and where: benchmarks/ray_scaling.py splits the command's time with it
+        task = dict(task_pid=os.getpid(), task_device=str(kwargs.get("device")), task_start=round(start, 3),
+                    task_ready=round(ready[0], 3) if ready else None, task_end=round(time.time(), 3))
+        for r in got:
+            r.update(task)
+        got = iter(got)
         row = next(got, None)
         rows, files = [], []
         for (scene, key), path, name, run_dir in zip(targets, paths, run_names(paths), run_dirs):
