@@ -192,19 +192,27 @@ def check_worlds(worlds) -> None:
         raise ValueError(f"--batch must be an integer >= 1 (worlds per batch), got {worlds!r}")
 
 
-def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dict[int, Exception]]:
-    """How :func:`rollout_batched` groups ``targets`` into batches: ``(groups, failed)``, ``groups``
-    the indices into ``targets`` of each batch (up to ``worlds`` runs whose scenes hold the same
-    objects), in the order they run; ``failed``: index -> error of the runs whose scene could not be
-    loaded (they belong to no batch). Loads every scene (on this machine)."""
+def iter_batch_groups(targets, worlds: int, asset=None):
+    """How :func:`rollout_batched` groups ``targets`` into batches, as it goes: yields the indices
+    into ``targets`` of each batch (a list of up to ``worlds`` runs whose scenes hold the same
+    objects) as soon as it is full (the unfilled ones at the end), in the order they run, or
+    ``(index, error)`` for a run whose scene could not be loaded (it belongs to no batch). Loads
+    every scene (on this machine), one at a time as the list is walked."""
     import physhand_mj as ph
 
     check_worlds(worlds)
     targets = list(targets)
-    groups, failed = [], {}
     for item in _grouped(targets, worlds, asset or ph.load_asset(), Path("."), run_names(targets)):
+        yield [r.index for r in item] if isinstance(item, list) else item
+
+
+def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dict[int, Exception]]:
+    """:func:`iter_batch_groups` at once: ``(groups, failed)``, ``groups`` the batches' indices in
+    the order they run; ``failed``: index -> error of the runs whose scene could not be loaded."""
+    groups, failed = [], {}
+    for item in iter_batch_groups(targets, worlds, asset):
         if isinstance(item, list):
-            groups.append([r.index for r in item])
+            groups.append(item)
         else:
             failed[item[0]] = item[1]
     return groups, failed

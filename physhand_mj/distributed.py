@@ -58,7 +58,8 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     ``batch``: W, worlds per task: each task runs one batch of up to W runs with the same objects
     through :func:`~physhand_mj.batch_rollout.rollout_batched` (``rollout_kwargs``: its options,
     steps, substeps, contact, device, config, spacing); the driver loads every scene once to group
-    them (a scene it cannot load is a failed row at once). ``num_workers`` then counts batches at
+    them and submits each batch as soon as it is full, while it loads the rest (a scene it cannot
+    load is a failed row at once). ``num_workers`` then counts batches at
     once; retries, Ctrl-C and the summary work per batch as they do per run.
     """
     try:
@@ -72,7 +73,6 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     if max_retries < 0:
         raise ValueError(f"max_retries must be >= 0, got {max_retries}")
     targets = [(scene, key) for scene, key in targets]
-    groups, failed = [[i] for i in range(len(targets))], {}
     if batch is not None:
         from physhand_mj.batch_rollout import check_worlds
         from physhand_mj.rollout import check_counts
@@ -119,13 +119,14 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         warm = ray.remote(_warm).options(num_cpus=1, num_gpus=gpus_per_worker, max_retries=0, **gpu_env)
         # not waited on: the list's tasks queue behind them
         warming = [warm.remote(kwargs) for _ in range(min(slots, num_workers or slots, len(targets)))]  # noqa: F841
-        if batch is not None:
-            from physhand_mj.batch_rollout import batch_groups
+        if batch is None:
+            source = iter([i] for i in range(len(targets)))
+        else:  # batches go out as they fill, while this process loads the rest of the list to group it
+            from physhand_mj.batch_rollout import iter_batch_groups
 
-            groups, failed = batch_groups(targets, batch)
-            for i, e in failed.items():
-                rows[i] = failed_row(*targets[i], e)
-        window = num_workers or max(len(groups), 1)
+            source = iter_batch_groups(targets, batch)
+        groups: list[list[int]] = []  # the jobs submitted so far: indices into targets (a run, or a batch)
+        window = num_workers or len(targets) + 1
 
         def submit(g):
             run_dirs = [str(out_abs / names[i]) for i in groups[g]]
@@ -144,26 +145,38 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
                                  [out_abs / names[i] for i in job], max_retries)
             return dict(zip(job, got))
 
-        if failed:
-            _write_tables(rows, out_abs)
-            if emit:
-                for i in sorted(failed):
-                    emit(rows[i])
         if progress:
             print(f"rollout_ray: {len(targets)} runs"
-                  + (f" in {len(groups)} batches of up to {batch}" if batch is not None else "")
+                  + (f" in batches of up to {batch}" if batch is not None else "")
                   + f" on Ray ({int(ray.cluster_resources().get('CPU', 0))} CPUs, {gpus:g} GPUs), "
                   f"device {device}, {gpus_per_worker:g} GPU per task"
                   + (f", {num_workers} at once" if num_workers else ""), file=sys.stderr, flush=True)
         pending: dict = {}  # ObjectRef -> index into groups (a run, or a batch of runs)
-        submitted = 0
         bar = tqdm(total=len(targets), desc="rollouts (ray)", unit="run", file=sys.stderr, disable=not progress)
-        bar.update(len(failed))
+        more = True  # the source has jobs left
+
+        def fill():
+            nonlocal more
+            while more and len(pending) < window:
+                job = next(source, None)
+                if job is None:
+                    more = False
+                elif isinstance(job, tuple):  # (index, error): a scene the driver could not load
+                    i, e = job
+                    rows[i] = failed_row(*targets[i], e)
+                    _write_tables(rows, out_abs)
+                    bar.update(1)
+                    if emit:
+                        emit(rows[i])
+                else:
+                    groups.append(job)
+                    pending[submit(len(groups) - 1)] = len(groups) - 1
+
         try:
-            while submitted < len(groups) or pending:
-                while submitted < len(groups) and len(pending) < window:
-                    pending[submit(submitted)] = submitted
-                    submitted += 1
+            while True:
+                fill()
+                if not pending:
+                    break
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
                     got = collect(ref, pending[ref])

@@ -131,3 +131,17 @@ def test_a_finished_batch_is_freed_before_the_next(tmp_path):
                     device="cpu", progress=False,
                     on_start=lambda hands, models, datas: seen.append(weakref.ref(hands)))
     assert len(seen) == 2 and seen[0]() is None and seen[1]() is None
+
+
+def test_batches_are_grouped_as_the_list_is_walked(tmp_path):
+    """iter_batch_groups yields a full batch before it loads the rest of the list (Ray submits it
+    then): the third entry's scene does not exist until after the first batch came, and it loads."""
+    from physhand_mj.batch_rollout import iter_batch_groups
+
+    late = tmp_path / "late.xml"
+    groups = iter_batch_groups([(APPLE, "grasp"), (apple_b(tmp_path), None), (late, None), (BOX, "nokey")], 2)
+    assert next(groups) == [0, 1]
+    late.write_text(apple_b(tmp_path).read_text())
+    rest = list(groups)
+    assert rest[0][0] == 3 and "nokey" in str(rest[0][1]), rest  # the box's unknown keyframe: a failed entry
+    assert rest[1:] == [[2]], rest

@@ -247,3 +247,21 @@ def test_a_batch_task_on_another_node_ships_its_files(local_ray, tmp_path):
     assert not (tmp_path / "unused").exists() and rows[0]["steps"] == 1 and rows[0]["scene"] == str(APPLE), rows
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
     assert rows[0]["log"] == str(tmp_path / "run" / "log.csv") and len(read_csv(rows[0]["log"])) == 1 + 10
+
+
+def test_batches_with_a_missing_scene_on_ray_and_the_tasks_times(local_ray, tmp_path):
+    """--ray --batch 2 on [apple, missing, apple_b]: the driver fails the missing scene's run as it
+    walks the list (row and emit) and the two apple runs still make one batch; each batch row says
+    when its task started, had set up, and ended (benchmarks/ray_scaling.py splits the start with them)."""
+    targets = [(APPLE, "grasp"), (tmp_path / "missing.xml", None), (apple_b(tmp_path), None)]
+    emitted = []
+    t0 = time.time()
+    rows = rollout_ray(targets, tmp_path / "ray", batch=2, steps=1, device="cpu", progress=False,
+                       emit=emitted.append)
+    assert "error" in rows[1] and "missing.xml" in rows[1]["error"] and not rows[1]["finite"], rows[1]
+    assert all("error" not in rows[i] and rows[i]["steps"] == 1 for i in (0, 2)), rows
+    assert len(emitted) == 3 and emitted[0] is rows[1]  # the failed run first: it needs no task
+    a, b = rows[0], rows[2]
+    assert (a["task_pid"], a["task_start"], a["task_end"]) == (b["task_pid"], b["task_start"], b["task_end"])
+    assert t0 < a["task_start"] < a["task_ready"] < a["task_end"] < time.time(), a
+    assert len(read_csv(tmp_path / "ray" / "summary.csv")) == 3
