@@ -21,7 +21,8 @@
 #   order    fused.ORDER "asset" against "strided" (the next lever for the fused kernel, not yet run)
 #   hoi_a/b/c the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), two grasps a
 #            call (2026-11-26: three grasps did not fit one call on a fresh machine)
-#   ray      benchmarks/ray_scaling.py on 1 and 2 GPUs (a 2-GPU machine; Ray's wheel carried too)
+#   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
+#            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
 phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c or ray}
 OUT=${OUT:-/tmp/out}
@@ -127,8 +128,9 @@ case $phase in
     step ray_warm 300 python3 benchmarks/ray_scaling.py --gpus 1 --runs 2 --batch 2 --steps 2
     step ray_256 200 python3 benchmarks/ray_scaling.py --gpus 1,2 --runs 256 --batch 32 --steps 36 \
       --out docs/benchmarks/ray_scaling_h100x2_256.json
-    step ray_512 250 python3 benchmarks/ray_scaling.py --gpus 1,2 --runs 512 --batch 32 --steps 36 \
-      --out docs/benchmarks/ray_scaling_h100x2_512.json
+    step ray_split 60 python3 benchmarks/ray_start_split.py --device cuda --runs 2048
+    step ray_4096 420 python3 benchmarks/ray_scaling.py --cluster --gpus 1,2 --runs 4096 --batch 64 --steps 36 \
+      --out docs/benchmarks/ray_scaling_h100x2_4096_cluster.json
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac
