@@ -30,6 +30,7 @@ import argparse
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -49,7 +50,8 @@ def main():
     ap.add_argument("--keyframe", default="grasp")
     ap.add_argument("--device", default="cuda", help="Warp device of the rollouts (cpu: a local check, Ray's CPU workers)")
     ap.add_argument("--cluster", action="store_true",
-                    help="run on a Ray cluster started before the timing (ray start --head), not a local ray.init")
+                    help="run on a Ray cluster started before the timing (ray start --head), not a local ray.init; "
+                         "`ray stop` after each timing stops every Ray of this user on the machine")
     ap.add_argument("--out", default=None, help="JSON path (default: stdout only)")
     a = ap.parse_args()
     rows = []
@@ -59,38 +61,24 @@ def main():
         for k in [int(g) for g in a.gpus.split(",")]:
             out = Path(tmp) / f"out{k}"
             env = dict(os.environ, CUDA_VISIBLE_DEVICES=",".join(str(i) for i in range(k)))
+            env.pop("RAY_ADDRESS", None)  # --ray auto: the cluster started here, not one named by the caller
             cmd = [sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), "--ray", "--batch", str(a.batch),
                    "--steps", str(a.steps), "--device", a.device, "--out", str(out)]
             if a.cluster:
                 cmd[cmd.index("--ray") + 1:cmd.index("--ray") + 1] = ["auto"]
-                gpus = k if a.device.startswith("cuda") else 0
-                subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "stop"], capture_output=True)  # a leftover one
-                subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "start", "--head", f"--num-gpus={gpus}",
-                                "--include-dashboard=false", "--disable-usage-stats"], env=env, check=True,
-                               capture_output=True)
-            err = Path(tmp) / f"stderr{k}.txt"
-            t, t_unix = time.perf_counter(), time.time()
-            arrived = []  # seconds from the start at which each run's JSON line came (one burst per batch)
-            tasks = {}  # (pid, task_start) -> (task_start, task_ready, task_end), unix s
-            with open(err, "w") as ferr:
-                p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=ferr, text=True)
-                for line in p.stdout:
-                    if line.startswith("{"):
-                        arrived.append(time.perf_counter() - t)
-                        r = json.loads(line)
-                        if r.get("task_start") is not None:
-                            tasks[(r["task_pid"], r["task_start"])] = (r["task_start"], r["task_ready"], r["task_end"])
-                p.wait()
-            wall = time.perf_counter() - t
-            if a.cluster:
-                subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "stop"], capture_output=True)
+                start_cluster(k if a.device.startswith("cuda") else 0, env)
+            try:
+                wall, arrived, tasks, rc, err = time_command(cmd, env, Path(tmp) / f"stderr{k}.txt")
+            finally:
+                if a.cluster:
+                    subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "stop"], capture_output=True)
             summary = list(csv.DictReader(open(out / "summary.csv"))) if (out / "summary.csv").exists() else []
             ok = [r for r in summary if not r.get("error") and r.get("finite") == "True"]
             row = dict(gpus=k, runs=a.runs, batch=a.batch, steps=a.steps, wall_s=round(wall, 2),
                        hand_frames_per_s=round(a.runs * a.steps / wall, 1), rows=len(summary), finite_ok=len(ok),
-                       exit=p.returncode, stderr_tail=err.read_text()[-600:] if p.returncode else "")
+                       exit=rc, stderr_tail=err[-600:] if rc else "")
             row.update(split_start(arrived, a.steps, wall))
-            row.update(split_tasks(tasks, t_unix, wall))
+            row.update(split_tasks(tasks, wall))
             rows.append(row)
             print(json.dumps(row), flush=True)
     if len(rows) > 1:
@@ -119,26 +107,72 @@ def split_start(arrived: list, steps: int, wall: float, burst_s: float = 0.5) ->
                 steady_hand_frames_per_s=round(rest * steps / span, 1) if rest and span > 0 else None)
 
 
-def split_tasks(tasks: dict, t0: float, wall: float) -> dict:
-    """From the batch tasks' own times ((pid, start) -> (start, ready, end), unix s; ``t0`` the
-    command's start): the first task's start (Python, Ray, the workers, the driver's grouping), the
+def split_tasks(tasks: dict, wall: float) -> dict:
+    """From the batch tasks' own times ((pid, start) -> (start, ready, end, device, the command's
+    start), unix s): the first task's start (Python, Ray, the workers, the driver's grouping), the
     median set-up (scenes, BatchedHands, settling) and frames (frames, measures, logs, PLYs) of a
-    batch, the spread of the workers' last ends (the tail) and the time after the last task ended."""
+    batch, the spread of the GPUs' (CPU: the worker processes') last ends, the tail one waits for
+    the other, and the time after the last task ended."""
     import statistics
 
     if not tasks:
         return {}
     v = list(tasks.values())
+    t0 = v[0][4]
     last = {}
-    for (pid, _), (_, _, end) in tasks.items():
-        last[pid] = max(last.get(pid, 0.0), end)
-    ready = [r - s for s, r, _ in v if r is not None]
-    frames = [e - r for _, r, e in v if r is not None]
-    return dict(tasks=len(v), workers=len(last), first_task_start_s=round(min(s for s, _, _ in v) - t0, 2),
+    for (pid, _), (_, _, end, dev, _) in tasks.items():
+        key = dev if dev and str(dev).startswith("cuda") else pid  # a worker process may serve several GPUs
+        last[key] = max(last.get(key, 0.0), end)
+    ready = [r - s for s, r, *_ in v if r is not None]
+    frames = [e - r for _, r, e, *_ in v if r is not None]
+    return dict(tasks=len(v), workers=len(last), first_task_start_s=round(min(x[0] for x in v) - t0, 2),
                 batch_setup_s_median=round(statistics.median(ready), 2) if ready else None,
                 batch_frames_s_median=round(statistics.median(frames), 2) if frames else None,
                 last_end_spread_s=round(max(last.values()) - min(last.values()), 2),
-                after_last_task_s=round(t0 + wall - max(e for _, _, e in v), 2))
+                after_last_task_s=round(t0 + wall - max(x[2] for x in v), 2))
+
+
+def start_cluster(gpus: int, env: dict) -> None:
+    """``ray start --head`` with ``gpus`` GPUs in ``env``; its output when it fails. A SIGTERM (a
+    time limit) from here on raises, so the caller's ``finally`` stops the cluster."""
+    signal.signal(signal.SIGTERM, _terminated)
+    p = subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "start", "--head", f"--num-gpus={gpus}",
+                        "--include-dashboard=false", "--disable-usage-stats"], env=env, capture_output=True, text=True)
+    if p.returncode:
+        raise RuntimeError(f"ray start --head failed ({p.returncode}); is a Ray already running here (ray stop)?\n"
+                           f"{p.stdout[-1500:]}{p.stderr[-1500:]}")
+
+
+def _terminated(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def time_command(cmd: list, env: dict, err_path: Path):
+    """Run ``cmd``; returns (wall s, the seconds from its start at which each JSON line came, the
+    batch tasks' times {(pid, start): (start, ready, end, device, the command's start)} (unix s) from
+    those lines, its exit code, its stderr)."""
+    t, t_unix = time.perf_counter(), time.time()
+    arrived, tasks = [], {}
+    with open(err_path, "w") as ferr:
+        p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=ferr, text=True)
+        try:
+            for line in p.stdout:
+                if not line.startswith("{"):
+                    continue
+                arrived.append(time.perf_counter() - t)
+                try:
+                    r = json.loads(line)
+                except json.JSONDecodeError:
+                    continue
+                if r.get("task_start") is not None:
+                    tasks[(r["task_pid"], r["task_start"])] = (r["task_start"], r["task_ready"], r["task_end"],
+                                                               r.get("task_device"), t_unix)
+            p.wait()
+        finally:
+            if p.poll() is None:
+                p.terminate()
+                p.wait()
+    return time.perf_counter() - t, arrived, tasks, p.returncode, err_path.read_text()
 
 
 def _gpus() -> str:

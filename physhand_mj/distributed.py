@@ -73,12 +73,15 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     if max_retries < 0:
         raise ValueError(f"max_retries must be >= 0, got {max_retries}")
     targets = [(scene, key) for scene, key in targets]
+    asset = None
     if batch is not None:
+        import physhand_mj as ph
         from physhand_mj.batch_rollout import check_worlds
         from physhand_mj.rollout import check_counts
 
         check_worlds(batch)
         check_counts(rollout_kwargs.get("steps", 36), rollout_kwargs.get("substeps", 10))
+        asset = ph.load_asset()  # (its errors before Ray starts; the driver groups the list with it)
     out_user = Path(out)
     out_abs = out_user.resolve()
     out_abs.mkdir(parents=True, exist_ok=True)
@@ -89,8 +92,10 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         import logging
 
         # workers' own output (Warp's banner, ...) stays in Ray's session logs: stdout keeps one JSON line a run
+        # None: a new local Ray (not a cluster this machine runs, which Ray would join by default: --ray auto)
         local = {} if address is not None else dict(include_dashboard=False)
-        ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR, **local)
+        ray.init(address=address if address is not None else "local", log_to_driver=False,
+                 logging_level=logging.ERROR, **local)
     rows: list[dict | None] = [None] * len(targets)
     try:
         gpus = float(ray.cluster_resources().get("GPU", 0))
@@ -114,17 +119,19 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
         task = ray.remote(_run_one if batch is None else _run_group).options(
             num_cpus=1, num_gpus=gpus_per_worker, max_retries=max_retries, retry_exceptions=True, **gpu_env)
         kwargs = dict(rollout_kwargs, device=device)
-        # the workers start (process, imports, the GPU's context) while this process groups the list
-        slots = int(gpus // gpus_per_worker) if gpus_per_worker else int(ray.cluster_resources().get("CPU", 1))
-        warm = ray.remote(_warm).options(num_cpus=1, num_gpus=gpus_per_worker, max_retries=0, **gpu_env)
-        # not waited on: the list's tasks queue behind them
-        warming = [warm.remote(kwargs) for _ in range(min(slots, num_workers or slots, len(targets)))]  # noqa: F841
+        warming = []  # warm-up tasks: not waited on (the list's tasks queue behind them); cancelled at the end
         if batch is None:
             source = iter([i] for i in range(len(targets)))
         else:  # batches go out as they fill, while this process loads the rest of the list to group it
             from physhand_mj.batch_rollout import iter_batch_groups
 
-            source = iter_batch_groups(targets, batch)
+            source = iter_batch_groups(targets, batch, asset)
+            # meanwhile the workers start (process, imports, Warp and the GPU's context): one per slot,
+            # at most one per batch of the list
+            slots = int(gpus // gpus_per_worker) if gpus_per_worker else int(ray.cluster_resources().get("CPU", 1))
+            n = min(slots, num_workers or slots, -(-len(targets) // batch))
+            warm = ray.remote(_warm).options(num_cpus=1, num_gpus=gpus_per_worker, max_retries=0, **gpu_env)
+            warming = [warm.remote(kwargs) for _ in range(n)]
         groups: list[list[int]] = []  # the jobs submitted so far: indices into targets (a run, or a batch)
         window = num_workers or len(targets) + 1
 
@@ -153,24 +160,40 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
                   + (f", {num_workers} at once" if num_workers else ""), file=sys.stderr, flush=True)
         pending: dict = {}  # ObjectRef -> index into groups (a run, or a batch of runs)
         bar = tqdm(total=len(targets), desc="rollouts (ray)", unit="run", file=sys.stderr, disable=not progress)
-        more = True  # the source has jobs left
+        more, ahead = True, None  # the source has jobs left; the next one, grouped while tasks run
+
+        def next_job():
+            """The next run or batch of the list; the runs whose scene the driver could not load on the
+            way get their failed rows."""
+            failed = []
+            try:
+                while True:
+                    job = next(source, None)
+                    if not isinstance(job, tuple):
+                        return job
+                    i, e = job  # (index, error)
+                    rows[i] = failed_row(*targets[i], e)
+                    failed.append(i)
+            finally:
+                if failed:
+                    _write_tables(rows, out_abs)
+                    bar.update(len(failed))
+                    if emit:
+                        for i in failed:
+                            emit(rows[i])
 
         def fill():
-            nonlocal more
+            nonlocal more, ahead
             while more and len(pending) < window:
-                job = next(source, None)
+                job, ahead = (ahead if ahead is not None else next_job()), None
                 if job is None:
                     more = False
-                elif isinstance(job, tuple):  # (index, error): a scene the driver could not load
-                    i, e = job
-                    rows[i] = failed_row(*targets[i], e)
-                    _write_tables(rows, out_abs)
-                    bar.update(1)
-                    if emit:
-                        emit(rows[i])
                 else:
                     groups.append(job)
                     pending[submit(len(groups) - 1)] = len(groups) - 1
+            if more and ahead is None and batch is not None:  # a full window: group the next batch now
+                ahead = next_job()
+                more = ahead is not None
 
         try:
             while True:
@@ -204,8 +227,17 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
             if progress:
                 print(f"rollout_ray: interrupted; {sum(not r.get('interrupted') for r in rows)} of {len(rows)} runs "
                       f"finished, table {out_user / 'summary.csv'}", file=sys.stderr, flush=True)
+        except BaseException:  # an unexpected error here (say, while grouping): no task runs on without us
+            for ref in pending:
+                ray.cancel(ref)
+            _write_tables([r for r in rows if r is not None], out_abs)
+            raise
         finally:
             bar.close()
+            if warming:  # one still starting (a GPU that hangs) gives its slot back
+                _, running = ray.wait(warming, num_returns=len(warming), timeout=0)
+                for ref in running:
+                    ray.cancel(ref, force=True)
     finally:
         if started:
             ray.shutdown()
@@ -247,8 +279,9 @@ def _on_my_gpu(kwargs: dict) -> dict:
 
 
 def _warm(kwargs: dict) -> int:
-    """The warm-up task: the worker's imports, Warp and its device (the GPU's context), the asset;
-    a worker serves the list's tasks after it. Returns its process id."""
+    """The warm-up task: the worker's imports, Warp and its device (the GPU's context), the asset's
+    files read once (into the page cache); a worker serves the list's tasks after it. Returns its
+    process id."""
     import warp as wp
 
     import physhand_mj as ph

@@ -265,3 +265,37 @@ def test_batches_with_a_missing_scene_on_ray_and_the_tasks_times(local_ray, tmp_
     assert (a["task_pid"], a["task_start"], a["task_end"]) == (b["task_pid"], b["task_start"], b["task_end"])
     assert t0 < a["task_start"] < a["task_ready"] < a["task_end"] < time.time(), a
     assert len(read_csv(tmp_path / "ray" / "summary.csv")) == 3
+
+
+def test_batches_go_out_while_the_list_is_grouped(local_ray, tmp_path):
+    """--ray --batch 2 --workers 1: the driver groups one batch ahead of the running one, not the
+    whole list first. The fifth run's scene is written by the first batch's on_start (in its
+    worker), so it loads only if the driver reaches it after that batch ran."""
+    late = tmp_path / "late.xml"
+    text = apple_b(tmp_path).read_text()
+
+    def write_late(*_):
+        late.write_text(text)
+
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None)] * 2 + [(late, None)]
+    rows = rollout_ray(targets, tmp_path / "ray", batch=2, num_workers=1, steps=1, device="cpu", progress=False,
+                       on_start=write_late)
+    assert [r.get("error") for r in rows] == [None] * 5, rows
+    assert rows[4]["scene"] == str(late) and rows[4]["steps"] == 1
+
+
+def test_an_error_while_grouping_writes_the_table_and_raises(local_ray, tmp_path, monkeypatch):
+    """An unexpected exception while the driver groups the list (after a batch went out) is raised
+    to the caller, with the summary of what had finished written and the running batch cancelled."""
+    import physhand_mj.batch_rollout as br
+
+    def groups(targets, worlds, asset=None):
+        yield [0, 1]
+        raise KeyError("a broken scene list")
+
+    monkeypatch.setattr(br, "iter_batch_groups", groups)
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None), (BOX, "grasp")]
+    with pytest.raises(KeyError, match="broken scene list"):
+        rollout_ray(targets, tmp_path / "ray", batch=2, steps=1, device="cpu", progress=False)
+    assert (tmp_path / "ray" / "summary.csv").exists()
+    assert ray.is_initialized()  # the caller's Ray is left as it was
