@@ -32,8 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from physhand_mj.rollout import (LOG_COLUMNS, check_counts, failed_row, frame_rows, load_rollout_scene,
-                                 rollout_config, run_names, start_row, summary_row, write_summary)
+from physhand_mj.rollout import (LOG_COLUMNS, check_counts, check_measure_every, failed_row, frame_rows,
+                                 load_rollout_scene, measured, rollout_config, run_names, start_row, summary_row,
+                                 write_summary)
 
 
 def scene_key(scene) -> tuple | None:
@@ -106,7 +107,7 @@ class _Run:
 
 def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int = 10, contact: str = "multires",
                     device: str | None = None, config: dict | None = None, emit=None, progress: bool = True,
-                    spacing: float | None = None, on_start=None) -> list[dict]:
+                    spacing: float | None = None, on_start=None, measure_every: int = 1) -> list[dict]:
     """Run each (scene, keyframe) of ``targets`` into ``out/<scene>[-<keyframe>]/``, up to ``worlds``
     runs with the same objects at once in one :class:`~physhand_mj.batch.BatchedHands`; writes
     ``out/summary.csv`` after every batch and returns the rows in the order of ``targets`` (failed
@@ -117,11 +118,13 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     world is reset and reported alone). ``steps`` / ``substeps`` / ``contact`` / ``device`` / ``config`` as
     for :func:`~physhand_mj.rollout.rollout`; ``spacing``: m between worlds (BatchedHands' default: 1 m
     when they hold objects); ``on_start(hands, models, datas)`` runs once per batch after it settled,
-    before its first frame (as ``rollout``'s ``on_start`` per run)."""
+    before its first frame (as ``rollout``'s ``on_start`` per run); ``measure_every`` as for ``rollout``
+    (the object-side measure every k-th frame, 0: the last only)."""
     import physhand_mj as ph
 
     check_worlds(worlds)
     check_counts(steps, substeps)
+    check_measure_every(measure_every)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     targets = list(targets)
@@ -129,7 +132,7 @@ def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int
     rows: list[dict | None] = [None] * len(targets)
     asset = ph.load_asset()
     kw = dict(steps=steps, substeps=substeps, contact=contact, device=device, config=config, progress=progress,
-              spacing=spacing, on_start=on_start)
+              spacing=spacing, on_start=on_start, measure_every=measure_every)
 
     def finish(runs):
         if not runs:
@@ -219,7 +222,7 @@ def batch_groups(targets, worlds: int, asset=None) -> tuple[list[list[int]], dic
 
 
 def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, substeps, contact, device, config,
-               progress, spacing, on_start=None) -> bool:
+               progress, spacing, on_start=None, measure_every: int = 1) -> bool:
     """One batch to its end; fills ``rows``; returns True after Ctrl-C."""
     import mujoco
     import trimesh
@@ -260,6 +263,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     first = runs[0].index + 1
     bar = tqdm(total=steps, desc=f"batch of {W} (runs {first}-{runs[-1].index + 1} of {total})", unit="frame",
                file=sys.stderr, disable=not progress, leave=False)
+    done = 0  # frames the batch ran to their end
     frame_pos = [p for p in poses]
     frame_obj = [r.object_poses() for r in runs]
     try:
@@ -285,7 +289,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
             else:
                 res = hands.step(pos, quat)
             dt = (time.perf_counter() - t) / W  # the cost of one hand-frame
-            both = hands.penetration()  # the frame's end, both measures (not timed)
+            both = hands.penetration() if measured(step, steps, measure_every) else None  # (not timed)
             subrows = c.read_metrics_worlds(synchronize=False) if c is not None else None
             counts = c.stage_counts_worlds() if c is not None else None
             for w, r in enumerate(runs):
@@ -293,15 +297,17 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                     continue
                 world = dict(res, **res["worlds"][w])  # the batch frame's activity, this world's measures
                 r.log.writerows(frame_rows(step, r.data, cfg, None if subrows is None else subrows[w][:-1],
-                                           None if counts is None else counts[w], dt, both[w], world))
+                                           None if counts is None else counts[w], dt, both and both[w], world))
                 r.file.flush()
                 r.times.append(dt)
-                last[w] = dict(world, **{key: v for key, v in both[w].items() if key.startswith("object_in_skin")})
+                last[w] = dict(world, **{key: v for key, v in (both[w] if both else last[w]).items()
+                                         if key.startswith("object_in_skin")})
                 if world["nonfinite"]:
                     _fail(r, SolverError(f"{world['nonfinite']} skin/flesh positions turned non-finite in frame "
                                          f"{step}"), rows)
                     alive[w] = False
             bar.update(1)
+            done = step
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -309,6 +315,9 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         for r in runs:
             if r.file is not None:
                 r.file.close()
+    if done and not measured(done, steps, measure_every):  # stopped on a frame not measured
+        for w, m in enumerate(hands.penetration()):
+            last[w].update({key: v for key, v in m.items() if key.startswith("object_in_skin")})
     d = str(hands.solver.device)
     skins = hands.skins()  # (one copy from the device for the batch)
     for w, r in enumerate(runs):

@@ -191,10 +191,12 @@ def _view(args) -> dict:
 
 
 def _rollout(args):
-    from physhand_mj.rollout import batch_targets, rollout, rollout_batch
+    from physhand_mj.rollout import batch_targets, check_measure_every, rollout, rollout_batch
 
-    kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device)
+    kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device,
+              measure_every=args.measure_every)
     src = Path(args.scene)
+    check_measure_every(args.measure_every)
     if args.workers is not None and args.ray is None:
         raise ValueError("--workers needs --ray (the serial batch runs one rollout at a time)")
     if args.batch is not None and args.batch < 1:
@@ -262,6 +264,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="decision-point strategy (default multires)")
     p.add_argument("--device", default=None, help="Warp device: cpu or cuda[:N] (default: Warp's, CUDA if present)")
     p.add_argument("--out", type=Path, default=Path("rollout_out"), help="output directory (default rollout_out)")
+    p.add_argument("--measure-every", type=int, default=1, metavar="K",
+                   help="the object-side measure (object points inside the skin, the log's object_in_skin cells) "
+                        "every K-th frame (count, default 1: every frame; 0: the last frame only); the last frame "
+                        "is always measured, so the summary is the same")
     p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                    help="run the batch's rollouts as Ray tasks: alone, on a local Ray; or on the cluster at ADDRESS "
                         "(auto, ray://HOST:10001); needs the ray extra (docs/scale.md)")

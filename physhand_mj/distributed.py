@@ -27,7 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from physhand_mj.rollout import SUMMARY_COLUMNS, failed_row, run_names, write_summary
+from physhand_mj.rollout import SUMMARY_COLUMNS, check_measure_every, failed_row, run_names, write_summary
 
 NOSET_CUDA = "RAY_EXPERIMENTAL_NOSET_CUDA_VISIBLE_DEVICES"  # Ray's switch: GPU tasks keep the node's visible GPUs
 CANCEL_GRACE_S = 30.0  # after Ctrl-C: how long the driver waits for the cancelled runs' partial summaries
@@ -73,6 +73,7 @@ def rollout_ray(targets, out, *, address: str | None = None, num_workers: int | 
     if max_retries < 0:
         raise ValueError(f"max_retries must be >= 0, got {max_retries}")
     targets = [(scene, key) for scene, key in targets]
+    check_measure_every(rollout_kwargs.get("measure_every", 1))
     asset = None
     if batch is not None:
         import physhand_mj as ph

@@ -67,11 +67,14 @@ def load_scene(scene, keyframe: str | None = None, model=None):
 
 def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: int = 10, contact: str = "multires",
             device: str | None = None, out=None, progress: bool = True, hand_kwargs: dict | None = None,
-            on_start=None, on_end=None, config: dict | None = None) -> dict:
+            on_start=None, on_end=None, config: dict | None = None, measure_every: int = 1) -> dict:
     """Run one rollout (see the module docstring); returns the summary dict. Ctrl-C ends it early
     with ``interrupted: true`` and everything logged so far. ``on_start(hand, model, data)`` runs on
     the settled, undeformed hand before the first frame, ``on_end(...)`` after the last (pictures).
-    ``config``: further :class:`~physhand_mj.Config` fields (SI units), e.g. ``{"contact_passes": 4}``."""
+    ``config``: further :class:`~physhand_mj.Config` fields (SI units), e.g. ``{"contact_passes": 4}``.
+    ``measure_every``: the object-side measure (object points inside the skin) every k-th frame
+    (count; 0: the last frame only; its log cells are empty on the frames between); the last
+    frame run is always measured, so the summary is the same."""
     import mujoco
     import trimesh
     from tqdm import tqdm
@@ -80,6 +83,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     from physhand_mj.solver import SolverError
 
     check_counts(steps, substeps)
+    check_measure_every(measure_every)
     model, data, key = load_rollout_scene(scene, keyframe)
     cfg = rollout_config(model, substeps, contact, device, config)
     hand = ph.SoftHand(model, data, cfg, settle_contact=False, **(hand_kwargs or {}))
@@ -104,14 +108,14 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 t = time.perf_counter()
                 res = hand.step()
                 dt = time.perf_counter() - t
-                both = hand.penetration()  # the frame's end, both measures (not timed)
+                both = hand.penetration() if measured(step, steps, measure_every) else None  # (not timed)
                 rows = getattr(hand.solver, "substep_metrics", None)
                 counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
                 # a frame's rows go out together: an interrupted log holds whole frames
                 log.writerows(frame_rows(step, data, cfg, rows, counts, dt, both, res))
                 f.flush()
                 times.append(dt)
-                last = dict(res, **{k: v for k, v in both.items() if k.startswith("object_in_skin")})
+                last = dict(res, **{k: v for k, v in (both or last).items() if k.startswith("object_in_skin")})
                 bar.update(1)
                 if res["nonfinite"]:
                     raise SolverError(f"{res['nonfinite']} skin/flesh positions turned non-finite in frame {step}")
@@ -119,12 +123,25 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
             interrupted = True
         finally:
             bar.close()
+    if times and not measured(len(times), steps, measure_every):  # stopped on a frame not measured
+        last.update({k: v for k, v in hand.penetration().items() if k.startswith("object_in_skin")})
     trimesh.Trimesh(hand.skin_vertices, hand.asset.skin_faces, process=False).export(skin_path)
     if on_end is not None:
         on_end(hand, model, data)
     m = hand.metrics()
     return summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
                        interrupted, log_path, skin_path)
+
+
+def check_measure_every(k) -> None:
+    """--measure-every: an integer >= 0 (frames; 0: the last frame only)."""
+    if not (isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k >= 0):
+        raise ValueError(f"--measure-every must be an integer >= 0 (frames; 0: the last only), got {k!r}")
+
+
+def measured(step: int, steps: int, every: int) -> bool:
+    """Whether frame ``step`` (1-based) of ``steps`` gets the object-side measure (--measure-every)."""
+    return step == steps or (every > 0 and step % every == 0)
 
 
 def check_counts(steps: int, substeps: int) -> None:
@@ -164,7 +181,8 @@ def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: d
     """A frame's log rows, one per substep: ``rows`` (substeps, >= 3) the substeps' metrics rows
     (count, sum depth m, max depth m; None: no contact), ``counts`` (stages, 2) the contact stages'
     [active triangles, corrected vertices] (None: no contact), ``dt`` the frame's wall time (s),
-    ``both`` the frame end's two measures (summarized) and ``res`` what the frame ran."""
+    ``both`` the frame end's two measures (summarized; None: not measured, its cells empty) and
+    ``res`` what the frame ran."""
     lines = []
     for s in range(cfg.substeps):
         cnt, total, deepest = rows[s][:3] if rows is not None else (0.0, 0.0, 0.0)
@@ -172,8 +190,8 @@ def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: d
         act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
         lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
                       _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
-                      *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]),
-                         *(res.get(k, "") for k in ACTIVITY)) if s + 1 == cfg.substeps else ("",) * 6)])
+                      *(((both["object_in_skin_count"], _um(both["object_in_skin_max_um"])) if both else ("", ""))
+                        + tuple(res.get(k, "") for k in ACTIVITY) if s + 1 == cfg.substeps else ("",) * 6)])
     return lines
 
 

@@ -145,3 +145,28 @@ def test_batches_are_grouped_as_the_list_is_walked(tmp_path):
     rest = list(groups)
     assert rest[0][0] == 3 and "nokey" in str(rest[0][1]), rest  # the box's unknown keyframe: a failed entry
     assert rest[1:] == [[2]], rest
+
+
+def test_measure_every_in_a_batch(runs):
+    """rollout_batched(measure_every=0): the object-side measure after the last frame only; every
+    world's log equals the every-frame batch's but for the wall times and the earlier frames' object
+    cells (empty), and the rows are the same."""
+    tmp = runs["tmp"]
+    targets = [(APPLE, "grasp"), (tmp / "missing.xml", None), (BOX, "grasp"), (tmp / "apple_b.xml", None)]
+    last_only = rollout_batched(targets, tmp / "last_only", worlds=2, steps=STEPS, device="cpu", progress=False,
+                                measure_every=0)
+    cols = [c for c in SUMMARY_COLUMNS if c not in TIMED | {"log", "skin"}]
+    assert [{c: r.get(c) for c in cols} for r in last_only] == [{c: r.get(c) for c in cols} for r in runs["batched"]]
+    obj = {"object_in_skin_count", "object_in_skin_max_um"}
+    for run in ("hoi_apple-grasp", "hoi_box-grasp", "apple_b"):
+        a = read_csv(tmp / "batched" / run / "log.csv")
+        b = read_csv(tmp / "last_only" / run / "log.csv")
+        assert len(a) == len(b) == 1 + STEPS * 10
+        for ra, rb in zip(a, b):
+            for col in LOG_COLUMNS:
+                if col in TIMED:
+                    continue
+                if col in obj and rb["substep"] == "10" and int(rb["step"]) < STEPS:
+                    assert rb[col] == "" and ra[col] != "", (run, rb["step"], col)
+                else:
+                    assert ra[col] == rb[col], (run, rb["step"], rb["substep"], col)

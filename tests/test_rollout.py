@@ -48,21 +48,50 @@ def test_log_is_complete_and_matches_the_summary(apple_runs):
     assert skin.vertices.shape == (ph.load_asset().n_skin, 3)
 
 
+def test_measure_every_leaves_only_the_object_cells_between_empty(apple_runs, tmp_path):
+    """--measure-every 4 over 6 frames: the object-side measure runs after frames 4 and 6 only; the
+    log equals the every-frame run's cell for cell but for the wall times and the object cells of
+    frames 1-3 and 5 (empty), and the summary is the same (the measure does not touch the hand)."""
+    every = apple_runs["multires"]
+    some = rollout(APPLE, "grasp", steps=6, contact="multires", device="cpu", out=tmp_path / "k4", progress=False,
+                   measure_every=4)
+    timed = {"ms_per_frame", "log", "skin"}
+    assert {k: v for k, v in some.items() if k not in timed} == {k: v for k, v in every.items() if k not in timed}
+    a, b = read_csv(every["log"]), read_csv(some["log"])
+    obj = {"object_in_skin_count", "object_in_skin_max_um"}
+    assert len(a) == len(b) == 1 + 6 * 10
+    for ra, rb in zip(a, b):
+        last = rb["substep"] == "10"
+        for col in LOG_COLUMNS:
+            if col == "ms_frame":
+                continue
+            if col in obj and last and rb["step"] in ("1", "2", "3", "5"):
+                assert rb[col] == "" and ra[col] != "", (rb["step"], col)
+            else:
+                assert ra[col] == rb[col], (rb["step"], rb["substep"], col)
+    assert b[-1]["object_in_skin_count"] == str(every["object_in_skin_count"])
+    with pytest.raises(ValueError, match="measure-every"):
+        rollout(APPLE, "grasp", steps=1, device="cpu", out=tmp_path / "bad", progress=False, measure_every=1.5)
+
+
 def _cli(*args, **kw):
     return subprocess.run([sys.executable, "-m", "physhand_mj.cli", "rollout", *map(str, args)], capture_output=True,
                           text=True, **kw)
 
 
-@pytest.mark.parametrize("case", ["missing", "malformed", "keyframe", "nohand", "nonfinite"])
+@pytest.mark.parametrize("case", ["missing", "malformed", "keyframe", "nohand", "nonfinite", "measure_every"])
 def test_cli_bad_inputs_give_one_clear_line(case, tmp_path):
     scene = tmp_path / "scene.xml"
     want = {"missing": "scene file not found", "malformed": "malformed MJCF", "keyframe": "unknown keyframe 'nope'",
-            "nohand": "has no geom 'physhand_skin'", "nonfinite": "non-finite"}[case]
+            "nohand": "has no geom 'physhand_skin'", "nonfinite": "non-finite",
+            "measure_every": "--measure-every must be an integer >= 0"}[case]
     args = [scene]
     if case == "malformed":
         scene.write_text("<mujoco><worldbody><geom type='sphere' size='0.1'></worldbody></mujoco>")
     elif case == "keyframe":
         args = [APPLE, "--keyframe", "nope"]
+    elif case == "measure_every":
+        args = [APPLE, "--measure-every", "-1"]
     elif case == "nohand":
         scene.write_text("<mujoco><worldbody><geom type='sphere' size='0.1'/></worldbody></mujoco>")
     elif case == "nonfinite":
