@@ -1,7 +1,7 @@
 """Where a batched rollout's wall time goes: ``rollout_batched`` over W copies of one scene, profiled.
 
     python benchmarks/batch_rollout_wall.py [--device cuda] [--worlds 256,1024] [--steps 36] [--scene hoi_apple]
-                                            [--config '{"reuse_outside": false}']
+                                            [--config '{"reuse_outside": false}'] [--measure-every K]
 
 One batch of W worlds (W copies of the scene's ``grasp`` keyframe), whole: loading the runs, the
 batch's set-up and settling, the frames (MuJoCo, the solver, both penetration measures for the
@@ -48,6 +48,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=36, help="5 ms frames per run (count)")
     ap.add_argument("--scene", default="hoi_apple", help="shipped scene with a grasp keyframe")
     ap.add_argument("--config", default="{}", help="Config fields as JSON, e.g. '{\"reuse_outside\": false}'")
+    ap.add_argument("--measure-every", type=int, default=1,
+                    help="the object-side measure every K-th frame (count; 0: the last frame only)")
     a = ap.parse_args()
     scene = ph.scene_path(a.scene)
     for w in (int(x) for x in a.worlds.split(",")):
@@ -56,7 +58,7 @@ def main() -> None:
             t = time.perf_counter()
             prof.enable()
             rows = rollout_batched([(scene, "grasp")] * w, tmp, worlds=w, steps=a.steps, device=a.device,
-                                   config=json.loads(a.config), progress=False)
+                                   config=json.loads(a.config), progress=False, measure_every=a.measure_every)
             prof.disable()
             wall = time.perf_counter() - t
         stats = pstats.Stats(prof).stats  # (file, line, name) -> (cc, nc, tt, ct, callers)
@@ -64,6 +66,7 @@ def main() -> None:
         for part, (suffix, name) in PARTS.items():
             parts[part] = round(sum(v[3] for k, v in stats.items() if k[2] == name and k[0].endswith(suffix)), 2)
         print(json.dumps(dict(device=device_name(a.device), scene=a.scene, worlds=w, steps=a.steps, config=a.config,
+                              measure_every=a.measure_every,
                               wall_s=round(wall, 2), failed=sum(1 for r in rows if r.get("error")),
                               seconds=parts)), flush=True)
 
