@@ -105,10 +105,15 @@ def test_cli_bad_inputs_give_one_clear_line(case, tmp_path):
     assert len(line) == 1 and want in line[0], r.stderr
 
 
-def test_interrupted_rollout_keeps_its_log(tmp_path):
+@pytest.mark.parametrize("every", [1, 0])
+def test_interrupted_rollout_keeps_its_log(tmp_path, every):
+    """Ctrl-C after 3 frames: exit 130, the log's whole frames, the skin, the summary. With
+    --measure-every 0 no frame was measured in the log, and the summary still has the object side,
+    measured once after the last frame run."""
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "physhand_mj.cli", "rollout", str(APPLE), "--steps", "500",
-                             "--device", "cpu", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             "--device", "cpu", "--out", str(out), "--measure-every", str(every)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
                             # a test run in a background job inherits SIGINT ignored, and Python then
                             # installs no KeyboardInterrupt handler: start the child with the default
@@ -128,6 +133,9 @@ def test_interrupted_rollout_keeps_its_log(tmp_path):
     rows = read_csv(log)
     assert len(rows) == 1 + summary["steps"] * 10
     assert (out / "skin_final.ply").exists()
+    cells = [r["object_in_skin_count"] for r in rows[1:] if r["substep"] == "10"]
+    assert all(c == "" for c in cells) if every == 0 else all(c != "" for c in cells), cells
+    assert isinstance(summary["object_in_skin_count"], int) and summary["object_in_skin_max_um"] >= 0
 
 
 def test_batch_runs_a_list_into_one_table(tmp_path):
