@@ -34,7 +34,7 @@ import numpy as np
 
 from physhand_mj.rollout import (LOG_COLUMNS, check_counts, check_measure_every, failed_row, frame_rows,
                                  load_rollout_scene, measured, rollout_config, run_names, start_row, summary_row,
-                                 write_summary)
+                                 write_summary, carry_object_side)
 
 
 def scene_key(scene) -> tuple | None:
@@ -263,7 +263,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     first = runs[0].index + 1
     bar = tqdm(total=steps, desc=f"batch of {W} (runs {first}-{runs[-1].index + 1} of {total})", unit="frame",
                file=sys.stderr, disable=not progress, leave=False)
-    done = 0  # frames the batch ran to their end
+    obj_frame = [0] * W  # per world: the frame the object-side values in last come from
     frame_pos = [p for p in poses]
     frame_obj = [r.object_poses() for r in runs]
     try:
@@ -300,14 +300,12 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                                            None if counts is None else counts[w], dt, both and both[w], world))
                 r.file.flush()
                 r.times.append(dt)
-                last[w] = dict(world, **{key: v for key, v in (both[w] if both else last[w]).items()
-                                         if key.startswith("object_in_skin")})
+                last[w], obj_frame[w] = carry_object_side(world, both and both[w], last[w], step, obj_frame[w])
                 if world["nonfinite"]:
                     _fail(r, SolverError(f"{world['nonfinite']} skin/flesh positions turned non-finite in frame "
                                          f"{step}"), rows)
                     alive[w] = False
             bar.update(1)
-            done = step
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -315,9 +313,6 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         for r in runs:
             if r.file is not None:
                 r.file.close()
-    if done and not measured(done, steps, measure_every):  # stopped on a frame not measured
-        for w, m in enumerate(hands.penetration()):
-            last[w].update({key: v for key, v in m.items() if key.startswith("object_in_skin")})
     d = str(hands.solver.device)
     skins = hands.skins()  # (one copy from the device for the batch)
     for w, r in enumerate(runs):
@@ -327,7 +322,8 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         skin_path = r.out / "skin_final.ply"
         trimesh.Trimesh(skin, asset.skin_faces, process=False).export(skin_path)
         rows[r.index] = summary_row(r.scene, r.key, r.times, substeps, contact, starts[w], last[w],
-                                    bool(np.all(np.isfinite(skin))), d, interrupted, r.out / "log.csv", skin_path)
+                                    bool(np.all(np.isfinite(skin))), d, interrupted, r.out / "log.csv", skin_path,
+                                    object_frame=obj_frame[w])
     hands.close()  # the batch's device memory back before the next batch allocates
     return interrupted
 

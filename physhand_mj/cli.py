@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--measure-every", type=int, default=1, metavar="K",
                    help="the object-side measure (object points inside the skin, the log's object_in_skin cells) "
                         "every K-th frame (count, default 1: every frame; 0: the last frame only); the last frame "
-                        "is always measured, so the summary is the same")
+                        "is always measured, so a run that ends has the same summary")
     p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                    help="run the batch's rollouts as Ray tasks: alone, on a local Ray; or on the cluster at ADDRESS "
                         "(auto, ray://HOST:10001); needs the ray extra (docs/scale.md)")

@@ -74,7 +74,10 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     ``config``: further :class:`~physhand_mj.Config` fields (SI units), e.g. ``{"contact_passes": 4}``.
     ``measure_every``: the object-side measure (object points inside the skin) every k-th frame
     (count; 0: the last frame only; its log cells are empty on the frames between); the last
-    frame run is always measured, so the summary is the same."""
+    frame is always measured, so the summary of a run that ends is the same. The summary's
+    ``object_in_skin_frame`` says which frame its object-side values come from (0: the settled
+    start): the last frame, or for a run stopped early the last frame measured before it stopped
+    (nothing is measured after a Ctrl-C, which may land inside a frame)."""
     import mujoco
     import trimesh
     from tqdm import tqdm
@@ -96,6 +99,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     times: list[float] = []
     interrupted = False
     last = dict(start)
+    obj_frame = 0  # the frame the object-side values in last come from
     with open(log_path, "w", newline="") as f:
         log = csv.writer(f)
         log.writerow(LOG_COLUMNS)
@@ -115,7 +119,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 log.writerows(frame_rows(step, data, cfg, rows, counts, dt, both, res))
                 f.flush()
                 times.append(dt)
-                last = dict(res, **{k: v for k, v in (both or last).items() if k.startswith("object_in_skin")})
+                last, obj_frame = carry_object_side(res, both, last, step, obj_frame)
                 bar.update(1)
                 if res["nonfinite"]:
                     raise SolverError(f"{res['nonfinite']} skin/flesh positions turned non-finite in frame {step}")
@@ -123,14 +127,24 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
             interrupted = True
         finally:
             bar.close()
-    if times and not measured(len(times), steps, measure_every):  # stopped on a frame not measured
-        last.update({k: v for k, v in hand.penetration().items() if k.startswith("object_in_skin")})
     trimesh.Trimesh(hand.skin_vertices, hand.asset.skin_faces, process=False).export(skin_path)
     if on_end is not None:
         on_end(hand, model, data)
     m = hand.metrics()
     return summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
-                       interrupted, log_path, skin_path)
+                       interrupted, log_path, skin_path, object_frame=obj_frame)
+
+
+def carry_object_side(res: dict, both: dict | None, last: dict, step: int, frame: int) -> tuple[dict, int]:
+    """The rollout's running ``last`` after frame ``step``: what the frame ran (``res``) with the
+    object side of its measure ``both`` (None: not measured this frame; then the frame's own
+    metrics row where ``res`` has one, Config.object_metrics, else the last measured values), and
+    the frame those object-side values come from."""
+    if both is not None:
+        return dict(res, **{k: v for k, v in both.items() if k.startswith("object_in_skin")}), step
+    if "object_in_skin_count" in res:
+        return dict(res), step
+    return dict(res, **{k: v for k, v in last.items() if k.startswith("object_in_skin")}), frame
 
 
 def check_measure_every(k) -> None:
@@ -196,9 +210,10 @@ def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: d
 
 
 def summary_row(scene, key, times, substeps: int, contact: str, start: dict, last: dict, finite: bool, device: str,
-                interrupted: bool, log_path, skin_path) -> dict:
+                interrupted: bool, log_path, skin_path, object_frame: int | None = None) -> dict:
     """A rollout's summary: ``times`` the frames' wall times (s; the first, which compiles, is not
-    counted), ``start`` / ``last`` the measures before the first and after the last frame."""
+    counted), ``start`` / ``last`` the measures before the first and after the last frame;
+    ``object_frame``: the frame ``last``'s object-side values come from (default: the last)."""
     from physhand_mj.bench import device_name
 
     timed = times[1:] if len(times) > 1 else times
@@ -210,6 +225,7 @@ def summary_row(scene, key, times, substeps: int, contact: str, start: dict, las
                 object_in_skin_count=int(last.get("object_in_skin_count", 0)),
                 object_in_skin_max_um=_um(last.get("object_in_skin_max_um", 0.0)),
                 object_in_skin_avg_um=_um(last.get("object_in_skin_avg_um", 0.0)),
+                object_in_skin_frame=len(times) if object_frame is None else int(object_frame),
                 initial_penetration_count=start["penetration_count"],
                 initial_penetration_max_um=_um(start["penetration_max_um"]),
                 initial_object_in_skin_count=start["object_in_skin_count"],
@@ -300,6 +316,8 @@ def rollout_batch(targets, out, *, emit=None, **kwargs) -> list[dict]:
     (one row per run; failed runs carry their error). ``emit(summary)`` is called after each run.
     Ctrl-C stops the batch after the current run's partial log. On a Ray cluster:
     :func:`physhand_mj.distributed.rollout_ray`."""
+    check_counts(kwargs.get("steps", 36), kwargs.get("substeps", 10))  # (once, not as a failed row per run)
+    check_measure_every(kwargs.get("measure_every", 1))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     targets = list(targets)

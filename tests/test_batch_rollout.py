@@ -157,6 +157,7 @@ def test_measure_every_in_a_batch(runs):
                                 measure_every=0)
     cols = [c for c in SUMMARY_COLUMNS if c not in TIMED | {"log", "skin"}]
     assert [{c: r.get(c) for c in cols} for r in last_only] == [{c: r.get(c) for c in cols} for r in runs["batched"]]
+    assert [r.get("object_in_skin_frame") for r in last_only] == [STEPS, None, STEPS, STEPS]
     obj = {"object_in_skin_count", "object_in_skin_max_um"}
     for run in ("hoi_apple-grasp", "hoi_box-grasp", "apple_b"):
         a = read_csv(tmp / "batched" / run / "log.csv")
@@ -170,3 +171,32 @@ def test_measure_every_in_a_batch(runs):
                     assert rb[col] == "" and ra[col] != "", (run, rb["step"], col)
                 else:
                     assert ra[col] == rb[col], (run, rb["step"], rb["substep"], col)
+
+
+def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, monkeypatch):
+    """A batch stopped by Ctrl-C during frame 3 (raised from the batch's step) with measure_every=2:
+    each world's summary has 2 steps and the object-side values of frame 2 (the vertex strategy:
+    they change frame by frame), as the every-frame batch logged them; ``object_in_skin_frame`` 2."""
+    from physhand_mj.batch import BatchedHands
+
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None)]
+    every = rollout_batched(targets, tmp_path / "every", worlds=2, steps=3, contact="vertex", device="cpu",
+                            progress=False)
+    calls = []
+    step = BatchedHands.step
+
+    def stop_in_frame_3(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return step(self, *a, **k)
+
+    monkeypatch.setattr(BatchedHands, "step", stop_in_frame_3)
+    stopped = rollout_batched(targets, tmp_path / "stopped", worlds=2, steps=3, contact="vertex", device="cpu",
+                              progress=False, measure_every=2)
+    for r, e, run in zip(stopped, every, ("hoi_apple-grasp", "apple_b")):
+        assert r["interrupted"] and r["steps"] == 2 and r["object_in_skin_frame"] == 2, r
+        row = next(x for x in read_csv(tmp_path / "every" / run / "log.csv") if x["step"] == "2" and x["substep"] == "10")
+        assert (r["object_in_skin_count"], r["object_in_skin_max_um"]) == (
+            int(row["object_in_skin_count"]), float(row["object_in_skin_max_um"])), (r, row)
+    assert e["object_in_skin_frame"] == 3

@@ -49,17 +49,20 @@ def test_log_is_complete_and_matches_the_summary(apple_runs):
 
 
 def test_measure_every_leaves_only_the_object_cells_between_empty(apple_runs, tmp_path):
-    """--measure-every 4 over 6 frames: the object-side measure runs after frames 4 and 6 only; the
-    log equals the every-frame run's cell for cell but for the wall times and the object cells of
-    frames 1-3 and 5 (empty), and the summary is the same (the measure does not touch the hand)."""
-    every = apple_runs["multires"]
-    some = rollout(APPLE, "grasp", steps=6, contact="multires", device="cpu", out=tmp_path / "k4", progress=False,
+    """--measure-every 4 over 6 frames (the vertex strategy: its object-side values change frame by
+    frame): the object-side measure runs after frames 4 and 6 only; the log equals the every-frame
+    run's cell for cell but for the wall times and the object cells of frames 1-3 and 5 (empty), and
+    the summary is the same (the measure does not touch the hand)."""
+    every = apple_runs["vertex"]
+    some = rollout(APPLE, "grasp", steps=6, contact="vertex", device="cpu", out=tmp_path / "k4", progress=False,
                    measure_every=4)
     timed = {"ms_per_frame", "log", "skin"}
     assert {k: v for k, v in some.items() if k not in timed} == {k: v for k, v in every.items() if k not in timed}
+    assert some["object_in_skin_frame"] == 6
     a, b = read_csv(every["log"]), read_csv(some["log"])
     obj = {"object_in_skin_count", "object_in_skin_max_um"}
     assert len(a) == len(b) == 1 + 6 * 10
+    assert len({r["object_in_skin_count"] for r in a[1:] if r["substep"] == "10"}) > 2  # the values do change
     for ra, rb in zip(a, b):
         last = rb["substep"] == "10"
         for col in LOG_COLUMNS:
@@ -69,9 +72,33 @@ def test_measure_every_leaves_only_the_object_cells_between_empty(apple_runs, tm
                 assert rb[col] == "" and ra[col] != "", (rb["step"], col)
             else:
                 assert ra[col] == rb[col], (rb["step"], rb["substep"], col)
-    assert b[-1]["object_in_skin_count"] == str(every["object_in_skin_count"])
     with pytest.raises(ValueError, match="measure-every"):
         rollout(APPLE, "grasp", steps=1, device="cpu", out=tmp_path / "bad", progress=False, measure_every=1.5)
+
+
+@pytest.mark.parametrize("every, frame", [(2, 2), (0, 0)])
+def test_a_stopped_run_reports_the_frame_its_object_side_comes_from(apple_runs, tmp_path, monkeypatch, every, frame):
+    """Ctrl-C during frame 3 (raised from the hand's step) with --measure-every 2 or 0: nothing is
+    measured after the stop (it may land inside a frame); the summary's object-side values are those
+    of the last frame measured before it (frame 2, or the settled start), as the every-frame run's
+    log has them, and ``object_in_skin_frame`` says which."""
+    calls = []
+    step = ph.SoftHand.step
+
+    def stop_in_frame_3(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return step(self, *a, **k)
+
+    monkeypatch.setattr(ph.SoftHand, "step", stop_in_frame_3)
+    res = rollout(APPLE, "grasp", steps=6, contact="vertex", device="cpu", out=tmp_path / "r", progress=False,
+                  measure_every=every)
+    assert res["interrupted"] and res["steps"] == 2 and res["object_in_skin_frame"] == frame, res
+    ref = read_csv(apple_runs["vertex"]["log"])
+    row = ref[0] if frame == 0 else next(r for r in ref if r["step"] == str(frame) and r["substep"] == "10")
+    assert (res["object_in_skin_count"], res["object_in_skin_max_um"]) == (
+        int(row["object_in_skin_count"]), float(row["object_in_skin_max_um"])), (res, row)
 
 
 def _cli(*args, **kw):
@@ -108,8 +135,8 @@ def test_cli_bad_inputs_give_one_clear_line(case, tmp_path):
 @pytest.mark.parametrize("every", [1, 0])
 def test_interrupted_rollout_keeps_its_log(tmp_path, every):
     """Ctrl-C after 3 frames: exit 130, the log's whole frames, the skin, the summary. With
-    --measure-every 0 no frame was measured in the log, and the summary still has the object side,
-    measured once after the last frame run."""
+    --measure-every 0 no frame was measured in the log, and the summary's object side is the settled
+    start's (``object_in_skin_frame`` 0); every frame measured: the last logged frame's."""
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "physhand_mj.cli", "rollout", str(APPLE), "--steps", "500",
                              "--device", "cpu", "--out", str(out), "--measure-every", str(every)],
@@ -135,7 +162,12 @@ def test_interrupted_rollout_keeps_its_log(tmp_path, every):
     assert (out / "skin_final.ply").exists()
     cells = [r["object_in_skin_count"] for r in rows[1:] if r["substep"] == "10"]
     assert all(c == "" for c in cells) if every == 0 else all(c != "" for c in cells), cells
-    assert isinstance(summary["object_in_skin_count"], int) and summary["object_in_skin_max_um"] >= 0
+    if every == 0:  # nothing measured after the settled start
+        assert summary["object_in_skin_frame"] == 0
+        assert summary["object_in_skin_count"] == summary["initial_object_in_skin_count"]
+    else:
+        assert summary["object_in_skin_frame"] == summary["steps"]
+        assert str(summary["object_in_skin_count"]) == cells[-1]
 
 
 def test_batch_runs_a_list_into_one_table(tmp_path):
