@@ -21,10 +21,11 @@
 #   order    fused.ORDER "asset" against "strided" (the next lever for the fused kernel, not yet run)
 #   hoi_a/b/c the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), two grasps a
 #            call (2026-11-26: three grasps did not fit one call on a fresh machine)
+#   rollout_wall  batch_rollout_wall.py at W = 1024 with --measure-every 1 and 0 (not yet run)
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c or ray}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall or ray}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -131,6 +132,12 @@ case $phase in
     step ray_split 60 python3 benchmarks/ray_start_split.py --device cuda --runs 2048
     step ray_4096 420 python3 benchmarks/ray_scaling.py --cluster --gpus 1,2 --runs 4096 --batch 64 --steps 36 \
       --out docs/benchmarks/ray_scaling_h100x2_4096_cluster.json
+    ;;
+  rollout_wall)  # a batched rollout's wall time with the object-side measure every frame and at the end only
+    for k in 1 0; do
+      step "rollout_wall_k$k" 240 python3 benchmarks/batch_rollout_wall.py --device cuda --worlds 1024 --steps 36 \
+        --measure-every $k
+    done
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac
