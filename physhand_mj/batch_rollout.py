@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from physhand_mj.rollout import (LOG_COLUMNS, check_counts, check_measure_every, failed_row, frame_rows,
-                                 load_rollout_scene, measured, rollout_config, run_names, start_row, summary_row,
-                                 write_summary, carry_object_side)
+from physhand_mj.rollout import (LOG_COLUMNS, carry_object_side, check_counts, check_measure_every, failed_row,
+                                 frame_rows, load_rollout_scene, measured, rollout_config, run_names, start_row,
+                                 summary_row, write_summary)
 
 
 def scene_key(scene) -> tuple | None:
