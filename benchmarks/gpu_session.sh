@@ -22,10 +22,14 @@
 #   hoi_a/b/c the HOI grasps with Config() as shipped, W = 1 .. 4096 (issue 15's curves), two grasps a
 #            call (2026-11-26: three grasps did not fit one call on a fresh machine)
 #   rollout_wall  batch_rollout_wall.py at W = 1024 with --measure-every 1 and 0 (not yet run)
+#   variants the fused kernel's accumulation variants (benchmarks/fused_variants.py: fixed-point sum, row
+#            masses, multipliers in the last substep) at W = 1024 and 4096, and whether its float adds to
+#            shared memory are compare-and-swap loops (the SASS)
+#   profile  Nsight Compute on one fused launch of the first and last variant (W = 264), stall reasons
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall or ray}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3 or variants4}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -138,6 +142,62 @@ case $phase in
       step "rollout_wall_k$k" 240 python3 benchmarks/batch_rollout_wall.py --device cuda --worlds 1024 --steps 36 \
         --measure-every $k
     done
+    ;;
+  variants)  # the fused kernel's accumulation (issue 15's 50,000 hand-frames/s without contact)
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+    step var_1024 300 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --out docs/benchmarks/fused_variants_cuda_1024.json
+    step var_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants base,row,fixed_row --out docs/benchmarks/fused_variants_cuda_4096.json
+    step sass 60 bash -c 'for f in ~/.cache/warp/*/wp_substep_kernel*solve_substep_shared*/*.cubin; do
+        echo "== $f"; cuobjdump -sass "$f" | grep -o "ATOMS[A-Z0-9.]*\|RED[A-Z0-9.]*\|BAR[A-Z0-9.]*" | sort | uniq -c
+      done'
+    ;;
+  profile)  # Nsight Compute on one fused launch each way: where a block's warps stall
+    for v in base fixed_row; do
+      step "ncu_$v" 200 ncu --set full --import-source yes -k regex:solve_substep_shared -s 12 -c 1 -f \
+        -o "$OUT/prof_$v" python3 benchmarks/fused_variants.py --device cuda --worlds 264 --frames 1 --variants $v \
+        --out /tmp/prof_$v.json
+      step "ncu_${v}_details" 60 ncu -i "$OUT/prof_$v.ncu-rep" --page details --print-details all
+      step "ncu_${v}_raw" 60 ncu -i "$OUT/prof_$v.ncu-rep" --page raw --csv
+      step "ncu_${v}_sass" 60 ncu -i "$OUT/prof_$v.ncu-rep" --page source --csv --print-source sass
+    done
+    step pytest_fused 240 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
+    ;;
+  variants2)  # the fixed-point sum as shipped (ACCUM "auto"), its CUDA tests, and PREFETCH against it
+    step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
+    step var2_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,fixed_row,prefetch --out docs/benchmarks/fused_variants_cuda_prefetch_1024.json
+    step var2_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants fixed_row,prefetch --out docs/benchmarks/fused_variants_cuda_prefetch_4096.json
+    step var2_512 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --block 512 \
+      --variants fixed_row,prefetch --out docs/benchmarks/fused_variants_cuda_block512_4096.json
+    step ncu_prefetch 200 ncu --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
+      --section SchedulerStats -k regex:solve_substep_shared -s 12 -c 1 python3 benchmarks/fused_variants.py \
+      --device cuda --worlds 264 --frames 1 --variants prefetch --out /tmp/prof_pf.json
+    ;;
+  variants3)  # the fixed-point add's clamp without branches: the variants again, and the kernel's SASS profile
+    step var3_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,fixed_row,prefetch --out docs/benchmarks/fused_variants_cuda_clamp_1024.json
+    step var3_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants fixed_row,prefetch --out docs/benchmarks/fused_variants_cuda_clamp_4096.json
+    step var3_512 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --block 512 \
+      --variants prefetch --out docs/benchmarks/fused_variants_cuda_clamp_block512_4096.json
+    step ncu_clamp 200 ncu --set full -k regex:solve_substep_shared -s 12 -c 1 -f -o "$OUT/prof_clamp" \
+      python3 benchmarks/fused_variants.py --device cuda --worlds 264 --frames 1 --variants fixed_row --out /tmp/p.json
+    step ncu_clamp_sass 60 ncu -i "$OUT/prof_clamp.ncu-rep" --page source --csv --print-source sass
+    step ncu_clamp_details 60 ncu -i "$OUT/prof_clamp.ncu-rep" --page details --print-details all
+    ;;
+  variants4)  # the rest data loaded at the top of each iteration (PIN_LOADS), against fixed_row
+    step var4_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,fixed_row,pinned --out docs/benchmarks/fused_variants_cuda_pinned_1024.json
+    step var4_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants fixed_row,pinned --out docs/benchmarks/fused_variants_cuda_pinned_4096.json
+    step ncu_pinned 200 ncu --set full -k regex:solve_substep_shared -s 12 -c 1 -f -o "$OUT/prof_pinned" \
+      python3 benchmarks/fused_variants.py --device cuda --worlds 264 --frames 1 --variants pinned --out /tmp/p.json
+    step ncu_pinned_sass 60 ncu -i "$OUT/prof_pinned.ncu-rep" --page source --csv --print-source sass
+    step ncu_pinned_details 60 ncu -i "$OUT/prof_pinned.ncu-rep" --page details --print-details all
+    step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

@@ -73,10 +73,11 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device, sum_, monke
             assert np.array_equal(a, b), name
         else:
             assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max(), name
-    if device != "cpu" and sum_ == "gather":  # (CUDA's five-launch reference adds in the atomics' order)
+    if device != "cpu":  # (CUDA's five-launch reference adds in the atomics' order; the gather and the
+        # fixed-point scatter, ACCUM "auto" on CUDA, add in no order that shows)
         again, _ = _run(asset, mount, open_, bent, Config(device=device, fused_substep=True))
         for w in range(2):
-            assert np.array_equal(again.positions(w), fz.positions(w)), f"world {w}: the gather did not repeat"
+            assert np.array_equal(again.positions(w), fz.positions(w)), f"world {w}: the {sum_} did not repeat"
     moved = np.abs(fz.positions(1) - fz.positions(0)).max()
     assert moved > 1e-3, moved  # the worlds differ: each block solved its own world
 
@@ -191,8 +192,13 @@ def test_a_large_cuda_batch_runs_the_fused_substep_by_default(setup):
     small.close()
 
 
-@pytest.mark.parametrize("sum_, order", [("scatter", "asset"), ("gather", "asset"), ("scatter", "strided")])
-def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_, order, monkeypatch):
+@pytest.mark.parametrize("sum_, order, accum, prefetch", [("scatter", "asset", "float", False),
+                                                        ("gather", "asset", "float", False),
+                                                        ("scatter", "strided", "float", False),
+                                                        ("scatter", "asset", "fixed", False),
+                                                        ("scatter", "asset", "fixed", True)])
+def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_, order, accum, prefetch,
+                                                           monkeypatch):
     """The CUDA kernel is built ahead of time here (Warp's NVRTC; no GPU needed) for sm_90, and the
     embedded hand's world fits one H100/H200 block: its dynamic shared memory (positions and soft
     corrections) within the 227 KB a block may hold, less 4 KB for the scatter's scratch."""
@@ -200,9 +206,12 @@ def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_
 
     monkeypatch.setattr(fused, "SUM", sum_)
     monkeypatch.setattr(fused, "ORDER", order)
+    monkeypatch.setattr(fused, "ACCUM", accum)  # (the CPU's "auto" is float)
+    monkeypatch.setattr(fused, "PREFETCH", prefetch)
     asset = setup[0]
     cfg = Config(device="cpu", fused_substep=True)
     fz = fused.FusedSubstep(make_model(asset, cfg), "cpu")
+    assert fz.fixed == (accum == "fixed" and sum_ == "scatter") and fz.prefetch == prefetch
     assert fz.n == asset.n_vertices and fz.n_soft == int((np.asarray(asset.layer) != Layer.SKELETON).sum())
     kernel = fz.kernel
     kernel.module.options["block_dim"] = fused.BLOCK_DIM
@@ -302,3 +311,57 @@ def test_fused_substep_in_strided_order(setup, monkeypatch, lanes):
     for name in ("lam_edge", "lam_tet", "lam_dih"):  # (as the CUDA comparison: 1e-3 of the largest)
         a, b = getattr(fz.state, name).numpy(), getattr(ref.state, name).numpy()
         assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max(), name
+
+
+@pytest.mark.parametrize("lanes", [1, 64])
+def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes):
+    """ACCUM "fixed" (CUDA's default): each correction rounded to 2^-28 m and added as int32, so a
+    world's sum is exact and its bits do not depend on the order the lanes add in: one lane and 64
+    lanes (Warp's CPU blocks), each with and without PREFETCH and with the masses per vertex or per
+    constraint, give the same positions and multipliers bit for bit; and they stay within 2 um of the
+    float sum (the five-launch substep's bits on the CPU) after 4 frames of a bending finger."""
+    from physhand_mj.solver import fused
+
+    asset, mount, open_, bent = setup
+    if lanes > 1 and not hasattr(wp.config, "enable_cpu_blocks"):
+        pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
+    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
+    monkeypatch.setattr(fused, "ACCUM", "fixed")
+
+    def run(mass, prefetch, k):
+        monkeypatch.setattr(fused, "MASS", mass)
+        monkeypatch.setattr(fused, "PREFETCH", prefetch)
+        if hasattr(wp.config, "enable_cpu_blocks"):
+            monkeypatch.setattr(wp.config, "enable_cpu_blocks", k > 1)
+        monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else 1024)
+        batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
+        fz = batch.solver._fused
+        assert fz.fixed and fz.row_mass == (mass == "row") and fz.prefetch == prefetch
+        return batch
+
+    one = run("row", False, 1)
+    combos = [("vertex", False), ("row", True)] + ([("row", False)] if lanes > 1 else [])
+    for mass, prefetch in combos:
+        batch = run(mass, prefetch, lanes)
+        for w in range(2):
+            assert np.array_equal(batch.positions(w), one.positions(w)), (mass, prefetch, lanes, w)
+        for name in ("lam_edge", "lam_tet", "lam_dih"):
+            assert np.array_equal(getattr(batch.state, name).numpy(), getattr(one.state, name).numpy()), name
+    for w in range(2):
+        diff = np.abs(one.positions(w) - ref.positions(w)).max()
+        assert 0.0 < diff <= 2e-6, f"world {w}: {diff} m from the float sum"
+
+
+def test_fixed_point_bound_keeps_every_vertex_sum_in_int32(setup):
+    """FusedSubstep's clamp: a vertex's group sum is at most (its constraints in the group) x
+    fx_bound x 2^FIXED_BITS, under int32's 2^31 for the vertex with the most constraints; the bound
+    still passes any physical correction (10 cm in one substep)."""
+    from physhand_mj.solver import fused
+
+    cfg = Config(device="cpu", fused_substep=True)
+    fz = fused.FusedSubstep(make_model(setup[0], cfg), "cpu")
+    most = float(fz.vertex_count.numpy().max())
+    assert most >= 4
+    assert most * fz.fx_bound * fz.fx_scale < 2.0 ** 31
+    assert fz.fx_bound > 0.1
+    assert fz.fx_scale == 2.0 ** fused.FIXED_BITS

@@ -65,6 +65,29 @@ SUM = "scatter"
 # the sum's order changes, so the CPU result differs from the five-launch one by rounding).
 # Not yet measured on a GPU: benchmarks/fused_substep.py --order.
 ORDER = "asset"
+# How a group's corrections are added into the shared accumulator with SUM "scatter": "float" (float
+# atomics: on NVIDIA GPUs a shared-memory float add is a compare-and-swap loop, ATOMS.CAST.SPIN in
+# the H100's SASS, that retries while lanes of a warp meet on one address), "fixed" (each correction
+# rounded to a multiple of 2^-FIXED_BITS m and added as int32, a native shared-memory atomic; the
+# sum is exact, so a world's result is the same bits in any order: repeatable on CUDA, and the same
+# with one lane or many) or "auto" (fixed on CUDA, where it took the solver's batch frame 1.65-1.70 x
+# faster, float on the CPU, where it is slower and float keeps the five-launch substep's bits).
+# Each correction component is clamped to +-fx_bound m first (FusedSubstep: 0.99 * 2^31 steps over
+# the most corrections any vertex takes in a group), so no vertex's sum can overflow.
+ACCUM = "auto"
+FIXED_BITS = 28  # the fixed-point sum's step: 2^-28 m = 3.7 nm (float32's step at 0.03-0.06 m)
+# Where a constraint's inverse masses come from: "vertex" (inv_mass[i] per corner, a load that waits
+# for the constraint's ids) or "row" (stored per constraint, loaded beside its ids).
+MASS = "row"
+# Whether a block's threads load their next constraint's ids, masses and rest data while they solve
+# the current one (ACCUM "fixed" and MASS "row" only): a load from L2 no longer waits in each step.
+PREFETCH = False
+# Whether the constraints' rest data is loaded with load_here (where the code asks for it) instead of
+# where the compiler moves it (SUM "scatter" without PREFETCH).
+PIN_LOADS = True
+# Whether every substep writes the constraints' multipliers (True) or only a frame's last one (False:
+# lambda is reset each substep, so the others' are overwritten unread; diagnostics read the last).
+LAM_EVERY_SUBSTEP = False
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
@@ -93,6 +116,49 @@ def shared_add(t: Any, i: int, v: wp.vec3, has: bool):
 @wp.func_native("""if (has) { t.data.ptr[i] = v; }""")
 def shared_set(t: Any, i: int, v: wp.vec3, has: bool):
     """``t[i] = v`` where ``has`` (an element only this thread touches in this phase), no barrier."""
+    ...
+
+
+@wp.func_native("""if (has) {
+    int* p = (int*)&t.data.ptr[i];
+    wp::atomic_add(p, (int)rintf(wp::clamp(v[0], -bound, bound) * scale));
+    wp::atomic_add(p + 1, (int)rintf(wp::clamp(v[1], -bound, bound) * scale));
+    wp::atomic_add(p + 2, (int)rintf(wp::clamp(v[2], -bound, bound) * scale));
+}""")
+def shared_add_fixed(t: Any, i: int, v: wp.vec3, has: bool, scale: float, bound: float):
+    """``t[i] += round(v scale)`` where ``has``, atomic int32 adds into a vec3i tile, no barrier; each
+    component first clamped to +-``bound`` m (so no vertex's sum can overflow: FusedSubstep.fx_bound).
+    The clamp is Warp's (fminf/fmaxf on CUDA: two instructions, no branch; a ternary clamp compiled
+    to branches, 13 instructions a component). A NaN component adds -bound; it only comes from a NaN
+    position, which stays NaN, so the world is still reported non-finite."""
+    ...
+
+
+@wp.func_native("""if (has) { t.data.ptr[i] = v; }""")
+def shared_set_int(t: Any, i: int, v: wp.vec3i, has: bool):
+    """``t[i] = v`` for a vec3i tile where ``has``, no barrier."""
+    ...
+
+
+@wp.func
+def fixed_to_float(d: wp.vec3i, step: float):
+    return wp.vec3(float(d[0]) * step, float(d[1]) * step, float(d[2]) * step)
+
+
+@wp.func_native("""#if defined(__CUDA_ARCH__)
+float r;
+asm volatile("ld.global.nc.f32 %0, [%1];" : "=f"(r) : "l"(wp::address(arr, j)));
+return r;
+#else
+return *wp::address(arr, j);
+#endif
+""")
+def load_here(arr: wp.array(dtype=float), j: int) -> float:
+    """``arr[j]`` (read-only data), loaded where the call stands. On CUDA the compiler otherwise sinks
+    a load that only the non-degenerate branch of a constraint uses (the rest length) into that
+    branch, after the positions' loads and the square root, and the warp waits there for L2 (the
+    H100's SASS: ~5 % of the fused kernel's stall samples on one instruction); a volatile load stays
+    at the top of the iteration, beside the ids' loads, and arrives with them."""
     ...
 
 
@@ -129,19 +195,74 @@ def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float)
     block_sync()
 
 
-def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False):
+@wp.func
+def apply_group_fixed(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float), group: int,
+                      relaxation: float, lane: int, bd: int, step: float):
+    """apply_group for ACCUM "fixed" (a vec3i accumulator in steps of ``step`` m)."""
+    block_sync()
+    for k in range((ns + bd - 1) // bd):
+        l = k * bd + lane
+        if l < ns:
+            c = vertex_count[group, l]
+            if c > 0.0:
+                shared_set(xs, l, xs[l] + fixed_to_float(ds[l], step) * (relaxation / c), True)
+            shared_set_int(ds, l, wp.vec3i(0), True)
+    block_sync()
+
+
+@wp.func
+def add2(ds: Any, ns: int, i1: int, i2: int, d1: wp.vec3, d2: wp.vec3, moves: int):
+    """A 2-vertex constraint's corrections into the shared accumulator (movable vertices only)."""
+    shared_add(ds, i1, d1, moves != 0 and i1 < ns)
+    shared_add(ds, i2, d2, moves != 0 and i2 < ns)
+
+
+@wp.func
+def add_corners(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3,
+                d4: wp.vec3, moves: int):
+    """A 4-vertex constraint's corrections into the shared accumulator (movable vertices only)."""
+    add2(ds, ns, i1, i2, d1, d2, moves)
+    add2(ds, ns, i3, i4, d3, d4, moves)
+
+
+@wp.func
+def add2_fixed(ds: Any, ns: int, i1: int, i2: int, d1: wp.vec3, d2: wp.vec3, moves: int, scale: float,
+               bound: float):
+    """add2 into ACCUM "fixed"'s vec3i accumulator."""
+    shared_add_fixed(ds, i1, d1, moves != 0 and i1 < ns, scale, bound)
+    shared_add_fixed(ds, i2, d2, moves != 0 and i2 < ns, scale, bound)
+
+
+@wp.func
+def add_corners_fixed(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3,
+                      d3: wp.vec3, d4: wp.vec3, moves: int, scale: float, bound: float):
+    """add_corners into ACCUM "fixed"'s vec3i accumulator."""
+    add2_fixed(ds, ns, i1, i2, d1, d2, moves, scale, bound)
+    add2_fixed(ds, ns, i3, i4, d3, d4, moves, scale, bound)
+
+
+def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False,
+                   fixed: bool = False, row_mass: bool = False, prefetch: bool = False, pin: bool = False):
     """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
     launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
     time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
     size and block); ``strided``: the families come permuted (``ORDER``) with each row's asset index
-    for its multiplier."""
-    key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather)
+    for its multiplier; ``fixed``: ACCUM "fixed"; ``row_mass``: MASS "row" (both SUM "scatter" only)."""
+    key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather,
+           bool(fixed) and not gather, bool(row_mass) and not gather,
+           bool(prefetch) and bool(fixed) and bool(row_mass) and not gather, bool(pin) and not gather)
     if key in _KERNELS:
         return _KERNELS[key]
     N = key[0]
     NS = key[1]
     GATHER = key[3]
     STRIDED = key[4]
+    FIXED = key[5]
+    ROWM = key[6]
+    PF = key[7]  # (PREFETCH: the next constraint's data loaded while this one is solved)
+    PLAIN = not GATHER and not PF
+    PIN = key[8]  # (PIN_LOADS: the rest data loaded at the top of each constraint's iteration)
+    ACC = wp.vec3i if FIXED else wp.vec3
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
     def solve_substep_shared(
@@ -151,11 +272,14 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         edge_ids: wp.array2d(dtype=int),
         edge_rest: wp.array(dtype=float),
         edge_alpha: wp.array(dtype=float),
+        edge_w: wp.array2d(dtype=float),
         tet_ids: wp.array2d(dtype=int),
         tet_rest6v: wp.array(dtype=float),
         tet_alpha: wp.array(dtype=float),
+        tet_w: wp.array2d(dtype=float),
         dih_ids: wp.array2d(dtype=int),
         dih_rest: wp.array(dtype=float),
+        dih_w: wp.array2d(dtype=float),
         dih_alpha: float,
         # Model (SUM "gather": per group, the movable vertices' entries, vertex_entries; else empty):
         edge_off: wp.array(dtype=int),
@@ -173,6 +297,10 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         relaxation: float,
         ns: int,
         worlds: int,
+        keep_lam: int,
+        fx_scale: float,
+        fx_step: float,
+        fx_bound: float,
         # State in/out (every world; lambda rows world by world, w C + j):
         x: wp.array(dtype=wp.vec3),
         lam_edge: wp.array(dtype=float),
@@ -196,7 +324,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         w, lane = wp.tid()
         bd = wp.block_dim()
         xs = wp.tile_zeros(shape=N, dtype=wp.vec3, storage="shared")
-        ds = wp.tile_zeros(shape=NS, dtype=wp.vec3, storage="shared")
+        ds = wp.tile_zeros(shape=NS, dtype=ACC, storage="shared")
         for k in range((N + bd - 1) // bd):  # the world's positions into the zeroed tile
             l = k * bd + lane
             p = wp.vec3(0.0)
@@ -225,7 +353,48 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     d = edges_of_vertex(l, w, edge_off, edge_ent, edge_ids, edge_rest, edge_alpha, inv_mass, xs,
                                         inv_h2, lam_edge)
                 shared_set(ds, l, d, l < NS)
-        else:
+        if wp.static(PF):
+            n1 = int(0)
+            n2 = int(0)
+            nw1 = float(0.0)
+            nw2 = float(0.0)
+            nr = float(0.0)
+            na = float(0.0)
+            if lane < ne:
+                n1 = edge_ids[lane, 0]
+                n2 = edge_ids[lane, 1]
+                nw1 = edge_w[lane, 0]
+                nw2 = edge_w[lane, 1]
+                nr = edge_rest[lane]
+                na = edge_alpha[lane]
+            for k in range((ne + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(n1)
+                i2 = int(n2)
+                w1 = float(nw1)
+                w2 = float(nw2)
+                rest = float(nr)
+                at = float(na) * inv_h2
+                jn = j + bd
+                if jn < ne:
+                    n1 = edge_ids[jn, 0]
+                    n2 = edge_ids[jn, 1]
+                    nw1 = edge_w[jn, 0]
+                    nw2 = edge_w[jn, 1]
+                    nr = edge_rest[jn]
+                    na = edge_alpha[jn]
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                if j < ne:
+                    moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, at, 0.0)
+                    if keep_lam != 0:
+                        r = j
+                        if wp.static(STRIDED):
+                            r = edge_row[j]
+                        lam_edge[w * ne + r] = dlam
+                add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bound)
+        if wp.static(PLAIN):
             for k in range((ne + bd - 1) // bd):
                 j = k * bd + lane
                 i1 = int(0)
@@ -236,15 +405,34 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                 if j < ne:
                     i1 = edge_ids[j, 0]
                     i2 = edge_ids[j, 1]
-                    moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], edge_rest[j],
-                                                          edge_alpha[j] * inv_h2, 0.0)
-                    r = j
-                    if wp.static(STRIDED):
-                        r = edge_row[j]
-                    lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
-                shared_add(ds, i1, d1, moves != 0 and i1 < NS)
-                shared_add(ds, i2, d2, moves != 0 and i2 < NS)
-        apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
+                    rest = float(0.0)
+                    if wp.static(PIN):
+                        rest = load_here(edge_rest, j)
+                    else:
+                        rest = edge_rest[j]
+                    w1 = float(0.0)
+                    w2 = float(0.0)
+                    if wp.static(ROWM):
+                        w1 = edge_w[j, 0]
+                        w2 = edge_w[j, 1]
+                    else:
+                        w1 = inv_mass[i1]
+                        w2 = inv_mass[i2]
+                    moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, edge_alpha[j] * inv_h2,
+                                                          0.0)
+                    if keep_lam != 0:
+                        r = j
+                        if wp.static(STRIDED):
+                            r = edge_row[j]
+                        lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
+                if wp.static(FIXED):
+                    add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bound)
+                else:
+                    add2(ds, NS, i1, i2, d1, d2, moves)
+        if wp.static(FIXED):
+            apply_group_fixed(xs, ds, NS, vertex_count, 0, relaxation, lane, bd, fx_step)
+        else:
+            apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
 
         # group 1: tets (Eq. 3)
         nt = tet_ids.shape[0]
@@ -256,7 +444,67 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     d = tets_of_vertex(l, w, tet_off, tet_ent, tet_ids, tet_rest6v, tet_alpha, inv_mass, xs, inv_h2,
                                        lam_tet)
                 shared_set(ds, l, d, l < NS)
-        else:
+        if wp.static(PF):
+            n1 = int(0)
+            n2 = int(0)
+            n3 = int(0)
+            n4 = int(0)
+            nw1 = float(0.0)
+            nw2 = float(0.0)
+            nw3 = float(0.0)
+            nw4 = float(0.0)
+            nr = float(0.0)
+            na = float(0.0)
+            if lane < nt:
+                n1 = tet_ids[lane, 0]
+                n2 = tet_ids[lane, 1]
+                n3 = tet_ids[lane, 2]
+                n4 = tet_ids[lane, 3]
+                nw1 = tet_w[lane, 0]
+                nw2 = tet_w[lane, 1]
+                nw3 = tet_w[lane, 2]
+                nw4 = tet_w[lane, 3]
+                nr = tet_rest6v[lane]
+                na = tet_alpha[lane]
+            for k in range((nt + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(n1)
+                i2 = int(n2)
+                i3 = int(n3)
+                i4 = int(n4)
+                w1 = float(nw1)
+                w2 = float(nw2)
+                w3 = float(nw3)
+                w4 = float(nw4)
+                rest = float(nr)
+                at = float(na) * inv_h2
+                jn = j + bd
+                if jn < nt:
+                    n1 = tet_ids[jn, 0]
+                    n2 = tet_ids[jn, 1]
+                    n3 = tet_ids[jn, 2]
+                    n4 = tet_ids[jn, 3]
+                    nw1 = tet_w[jn, 0]
+                    nw2 = tet_w[jn, 1]
+                    nw3 = tet_w[jn, 2]
+                    nw4 = tet_w[jn, 3]
+                    nr = tet_rest6v[jn]
+                    na = tet_alpha[jn]
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                d3 = wp.vec3(0.0)
+                d4 = wp.vec3(0.0)
+                if j < nt:
+                    moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4, rest,
+                                                                 at, 0.0)
+                    if keep_lam != 0:
+                        r = j
+                        if wp.static(STRIDED):
+                            r = tet_row[j]
+                        lam_tet[w * nt + r] = dlam
+                add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+        if wp.static(PLAIN):
             for k in range((nt + bd - 1) // bd):
                 j = k * bd + lane
                 i1 = int(0)
@@ -273,15 +521,40 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     i2 = tet_ids[j, 1]
                     i3 = tet_ids[j, 2]
                     i4 = tet_ids[j, 3]
-                    moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1],
-                                                                 inv_mass[i2], inv_mass[i3], inv_mass[i4], tet_rest6v[j],
-                                                                 tet_alpha[j] * inv_h2, 0.0)
-                    r = j
-                    if wp.static(STRIDED):
-                        r = tet_row[j]
-                    lam_tet[w * nt + r] = dlam
-                add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
-        apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
+                    rest = float(0.0)
+                    if wp.static(PIN):
+                        rest = load_here(tet_rest6v, j)
+                    else:
+                        rest = tet_rest6v[j]
+                    w1 = float(0.0)
+                    w2 = float(0.0)
+                    w3 = float(0.0)
+                    w4 = float(0.0)
+                    if wp.static(ROWM):
+                        w1 = tet_w[j, 0]
+                        w2 = tet_w[j, 1]
+                        w3 = tet_w[j, 2]
+                        w4 = tet_w[j, 3]
+                    else:
+                        w1 = inv_mass[i1]
+                        w2 = inv_mass[i2]
+                        w3 = inv_mass[i3]
+                        w4 = inv_mass[i4]
+                    moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4,
+                                                                 rest, tet_alpha[j] * inv_h2, 0.0)
+                    if keep_lam != 0:
+                        r = j
+                        if wp.static(STRIDED):
+                            r = tet_row[j]
+                        lam_tet[w * nt + r] = dlam
+                if wp.static(FIXED):
+                    add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                else:
+                    add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+        if wp.static(FIXED):
+            apply_group_fixed(xs, ds, NS, vertex_count, 1, relaxation, lane, bd, fx_step)
+        else:
+            apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
 
         # group 2: skin smoothness (Eq. 6)
         nd = dih_ids.shape[0]
@@ -293,7 +566,65 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     d = dihedrals_of_vertex(l, w, dih_off, dih_ent, dih_ids, dih_rest, dih_alpha, inv_mass, xs, inv_h2,
                                             lam_dih)
                 shared_set(ds, l, d, l < NS)
-        else:
+        if wp.static(PF):
+            n1 = int(0)
+            n2 = int(0)
+            n3 = int(0)
+            n4 = int(0)
+            nw1 = float(0.0)
+            nw2 = float(0.0)
+            nw3 = float(0.0)
+            nw4 = float(0.0)
+            nr = float(0.0)
+            if lane < nd:
+                n1 = dih_ids[lane, 0]
+                n2 = dih_ids[lane, 1]
+                n3 = dih_ids[lane, 2]
+                n4 = dih_ids[lane, 3]
+                nw1 = dih_w[lane, 0]
+                nw2 = dih_w[lane, 1]
+                nw3 = dih_w[lane, 2]
+                nw4 = dih_w[lane, 3]
+                nr = dih_rest[lane]
+            for k in range((nd + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(n1)
+                i2 = int(n2)
+                i3 = int(n3)
+                i4 = int(n4)
+                w1 = float(nw1)
+                w2 = float(nw2)
+                w3 = float(nw3)
+                w4 = float(nw4)
+                rest = float(nr)
+                jn = j + bd
+                if jn < nd:
+                    n1 = dih_ids[jn, 0]
+                    n2 = dih_ids[jn, 1]
+                    n3 = dih_ids[jn, 2]
+                    n4 = dih_ids[jn, 3]
+                    nw1 = dih_w[jn, 0]
+                    nw2 = dih_w[jn, 1]
+                    nw3 = dih_w[jn, 2]
+                    nw4 = dih_w[jn, 3]
+                    nr = dih_rest[jn]
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                d3 = wp.vec3(0.0)
+                d4 = wp.vec3(0.0)
+                if j < nd:
+                    dlam = float(0.0)
+                    if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
+                        moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
+                                                                          w4, rest, dih_alpha * inv_h2, 0.0)
+                    if keep_lam != 0:
+                        r = j
+                        if wp.static(STRIDED):
+                            r = dih_row[j]
+                        lam_dih[w * nd + r] = dlam
+                add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+        if wp.static(PLAIN):
             for k in range((nd + bd - 1) // bd):
                 j = k * bd + lane
                 i1 = int(0)
@@ -310,19 +641,38 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     i2 = dih_ids[j, 1]
                     i3 = dih_ids[j, 2]
                     i4 = dih_ids[j, 3]
-                    w1 = inv_mass[i1]
-                    w2 = inv_mass[i2]
-                    w3 = inv_mass[i3]
-                    w4 = inv_mass[i4]
+                    rest = float(0.0)
+                    if wp.static(PIN):
+                        rest = load_here(dih_rest, j)
+                    else:
+                        rest = dih_rest[j]
+                    w1 = float(0.0)
+                    w2 = float(0.0)
+                    w3 = float(0.0)
+                    w4 = float(0.0)
+                    if wp.static(ROWM):
+                        w1 = dih_w[j, 0]
+                        w2 = dih_w[j, 1]
+                        w3 = dih_w[j, 2]
+                        w4 = dih_w[j, 3]
+                    else:
+                        w1 = inv_mass[i1]
+                        w2 = inv_mass[i2]
+                        w3 = inv_mass[i3]
+                        w4 = inv_mass[i4]
                     dlam = float(0.0)
                     if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
                         moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
-                                                                          w4, dih_rest[j], dih_alpha * inv_h2, 0.0)
-                    r = j
-                    if wp.static(STRIDED):
-                        r = dih_row[j]
-                    lam_dih[w * nd + r] = dlam
-                add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+                                                                          w4, rest, dih_alpha * inv_h2, 0.0)
+                    if keep_lam != 0:
+                        r = j
+                        if wp.static(STRIDED):
+                            r = dih_row[j]
+                        lam_dih[w * nd + r] = dlam
+                if wp.static(FIXED):
+                    add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                else:
+                    add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
         block_sync()
         for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
             l = k * bd + lane
@@ -330,7 +680,12 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                 c = vertex_count[2, l]
                 p = xs[l]
                 if c > 0.0:
-                    p = p + ds[l] * (relaxation / c)
+                    dsum = wp.vec3(0.0)
+                    if wp.static(FIXED):
+                        dsum = fixed_to_float(ds[l], fx_step)
+                    else:
+                        dsum = ds[l]
+                    p = p + dsum * (relaxation / c)
                 x[shifted_id(l, w, N, ns, worlds)] = p
 
     _KERNELS[key] = solve_substep_shared
@@ -385,6 +740,28 @@ class FusedSubstep:
         self.dih_ids = wp.array(to_local(first(m.dih_ids)).reshape(-1, 4), dtype=int, device=dev)
         self.dih_rest = wp.array(first(m.dih_rest), dtype=float, device=dev)
         self.dih_alpha = float(m.dih_alpha)
+        # ACCUM and MASS as they were when this body was built (a benchmark builds one of each)
+        if ACCUM not in ("float", "fixed", "auto"):
+            raise ValueError(f"physhand_mj.solver.fused.ACCUM must be 'float', 'fixed' or 'auto', got {ACCUM!r}")
+        if MASS not in ("vertex", "row"):
+            raise ValueError(f"physhand_mj.solver.fused.MASS must be 'vertex' or 'row', got {MASS!r}")
+        self.fixed = ACCUM == "fixed" or (ACCUM == "auto" and wp.get_device(dev).is_cuda)
+        self.row_mass = MASS == "row"
+        self.lam_every = bool(LAM_EVERY_SUBSTEP)
+        self.prefetch = bool(PREFETCH) and self.fixed and self.row_mass
+        self.pin = bool(PIN_LOADS)
+        self.fx_scale = float(2.0 ** FIXED_BITS)
+        # no vertex's sum overflows int32: at most max n_i corrections, each clamped to the bound
+        most = max(float(counts.max()) if counts.size else 1.0, 1.0)
+        self.fx_bound = float(0.99 * 2.0 ** 31 / self.fx_scale / most)
+        empty2 = wp.empty((0, 0), dtype=float, device=dev)
+        if self.row_mass:
+            def masses(ids):
+                host = ids.numpy()
+                return wp.array(inv1[host].astype(np.float32), dtype=float, device=dev) if host.size else empty2
+            self.edge_w, self.tet_w, self.dih_w = (masses(a) for a in (self.edge_ids, self.tet_ids, self.dih_ids))
+        else:
+            self.edge_w = self.tet_w = self.dih_w = empty2
         self._ent = None  # (SUM "gather": built on first use)
         self._strided = None  # (ORDER "strided": the permuted families, built on first use)
         self._none = wp.empty(0, dtype=int, device=dev)
@@ -399,7 +776,8 @@ class FusedSubstep:
             raise ValueError(f"physhand_mj.solver.fused.SUM must be 'scatter' or 'gather', got {SUM!r}")
         if ORDER not in ("asset", "strided"):
             raise ValueError(f"physhand_mj.solver.fused.ORDER must be 'asset' or 'strided', got {ORDER!r}")
-        return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided())
+        return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided(), self.fixed,
+                              self.row_mass, self.prefetch, self.pin)
 
     @staticmethod
     def _use_strided() -> bool:
@@ -418,19 +796,18 @@ class FusedSubstep:
     def _families(self) -> tuple:
         """The three families' arrays as the kernel takes them (asset order, or permuted by
         :meth:`strided_rows` with each row's asset index last)."""
-        fam = [self.edge_ids, self.edge_rest, self.edge_alpha, self.tet_ids, self.tet_rest6v, self.tet_alpha,
-               self.dih_ids, self.dih_rest]
+        groups = [[self.edge_ids, self.edge_rest, self.edge_alpha, self.edge_w],
+                  [self.tet_ids, self.tet_rest6v, self.tet_alpha, self.tet_w], [self.dih_ids, self.dih_rest, self.dih_w]]
         if not self._use_strided():
-            return fam, [self._none] * 3
+            return [a for g in groups for a in g], [self._none] * 3
         if self._strided is None:
             out, rows = [], []
-            for k in range(0, len(fam), 3):
-                group = fam[k: k + 3]
+            for group in groups:
                 r = self.strided_rows(group[0].shape[0])
                 rows.append(wp.array(r, dtype=int, device=self.device))
                 for arr in group:
                     host = arr.numpy()
-                    out.append(wp.array(host[r], dtype=arr.dtype, device=self.device))
+                    out.append(wp.array(host[r], dtype=arr.dtype, device=self.device) if host.size else arr)
             self._strided = (out, rows)
         return self._strided
 
@@ -455,10 +832,11 @@ class FusedSubstep:
         return self.shared_bytes(device) <= limit, limit
 
     def inputs(self, inv_h2: float, relaxation: float, state, start: int = -1, finish: int = 0, h: float = 0.0,
-               damp: float = 1.0, gravity=None, model=None) -> list:
+               damp: float = 1.0, gravity=None, model=None, keep_lam: bool = True) -> list:
         """The launch's inputs; ``start`` >= 0 folds integrate.advance's start of substep ``start``
         (and with ``finish`` the previous substep's end) into the launch (``model``: the solver's,
-        for the bones of every world's vertices)."""
+        for the bones of every world's vertices); ``keep_lam``: write the multipliers (a frame's last
+        substep; the others' are overwritten unread)."""
         if start >= 0:
             kin = [model.vertex_body, model.body_local, state.body_sub]
         else:
@@ -466,7 +844,8 @@ class FusedSubstep:
         fam, rows = self._families()
         return [self.inv_mass, self.vertex_count, *fam, self.dih_alpha,
                 *(self._entries() if SUM == "gather" else [self._none] * 6), *rows, float(inv_h2),
-                float(relaxation), self.ns, self.worlds, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
+                float(relaxation), self.ns, self.worlds, int(bool(keep_lam) or self.lam_every), self.fx_scale, 1.0 / self.fx_scale,
+                self.fx_bound, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]
 

@@ -421,7 +421,8 @@ class Solver(Sleeping):
             if self._fused is not None:  # the three groups, each averaged, in one launch (solver/fused.py)
                 fz = self._fused
                 inputs = fz.inputs(self._inv_h2, cfg.relaxation, state, start=s if fold else -1, finish=int(s > 0),
-                                   h=self._h, damp=self._damp, gravity=self._gravity, model=m)
+                                   h=self._h, damp=self._damp, gravity=self._gravity, model=m,
+                                   keep_lam=s == cfg.substeps - 1)
                 cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs, block_dim=fused_launch.BLOCK_DIM,
                                       device=d, record_cmd=True)
                 cur[0].append(cmd.launch)
