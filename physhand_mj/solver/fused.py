@@ -169,16 +169,6 @@ def block_sync():
 
 
 @wp.func
-def add_corners(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3,
-                d4: wp.vec3, moves: int):
-    """A 4-vertex constraint's corrections into the shared accumulator (movable vertices only)."""
-    shared_add(ds, i1, d1, moves != 0 and i1 < ns)
-    shared_add(ds, i2, d2, moves != 0 and i2 < ns)
-    shared_add(ds, i3, d3, moves != 0 and i3 < ns)
-    shared_add(ds, i4, d4, moves != 0 and i4 < ns)
-
-
-@wp.func
 def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float), group: int, relaxation: float,
                 lane: int, bd: int):
     """A group's Jacobi average in shared memory (integrate.apply_jacobi: x_i += omega / n_i sum),
