@@ -1,5 +1,5 @@
 """The fused substep's accumulation variants against each other, interleaved frame by frame in one
-process (solver/fused.py: ACCUM, MASS, LAM_EVERY_SUBSTEP).
+process (solver/fused.py: ACCUM, MASS, LAM_EVERY_SUBSTEP, PIN_LOADS, VEC_LOADS, FRAME_LAUNCH).
 
 W worlds of the embedded hand (BatchedHands with ``fused_substep=True``), open pose, each world's
 index finger bending at its own rate (benchmarks/batch_throughput.py), no contact; ``--frames`` frames
@@ -11,16 +11,18 @@ each way after 2 warm-up frames (compilation, recording and graph capture exclud
 - ``row``: that, and the inverse masses stored per constraint;
 - ``fixed``: ``lam`` with the fixed-point int32 sum (ACCUM "fixed");
 - ``fixed_row``: both;
-- ``prefetch``: ``fixed_row``, each thread loading its next constraint while it solves one (PREFETCH);
-- ``pinned``: ``fixed_row`` with the rest data loaded at the top of each iteration (PIN_LOADS; the
-  default as shipped is ``pinned``).
+- ``pinned``: ``fixed_row`` with the rest data loaded at the top of each iteration (PIN_LOADS);
+- ``vec``: ``pinned`` with each constraint's ids and masses in one vector load (VEC_LOADS);
+- ``frame``: ``vec`` with a frame's substeps in one launch, the positions kept in shared memory
+  (FRAME_LAUNCH; the default as shipped).
 
 Per world count: the median ms per frame each way, hand-frames/s, and how far each variant's
 positions end from ``base``'s (every world; CUDA's float atomics alone differ by ~0.4 um between two
-runs: docs/solver.md).
+runs: docs/solver.md). Tried and measured, not in the tree (docs/scale.md): each thread loading its
+next constraint while it solves one, and the substep's start two vertices a thread at a time.
 
     python benchmarks/fused_variants.py [--device cpu|cuda] [--worlds 1024] [--frames 10]
-                                        [--variants base,lam,row,fixed,fixed_row,prefetch,pinned]
+                                        [--variants base,lam,row,fixed,fixed_row,pinned,vec,frame]
                                         [--block 1024] [--out PATH]
 """
 
@@ -36,10 +38,15 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-VARIANTS = dict(base=("float", "vertex", True, False, False), lam=("float", "vertex", False, False, False),
-                row=("float", "row", False, False, False), fixed=("fixed", "vertex", False, False, False),
-                fixed_row=("fixed", "row", False, False, False), prefetch=("fixed", "row", False, True, False),
-                pinned=("fixed", "row", False, False, True))
+# (ACCUM, MASS, LAM_EVERY_SUBSTEP, PIN_LOADS, VEC_LOADS, FRAME_LAUNCH) of solver/fused.py
+VARIANTS = dict(base=("float", "vertex", True, False, False, False),
+                lam=("float", "vertex", False, False, False, False),
+                row=("float", "row", False, False, False, False),
+                fixed=("fixed", "vertex", False, False, False, False),
+                fixed_row=("fixed", "row", False, False, False, False),
+                pinned=("fixed", "row", False, True, False, False),
+                vec=("fixed", "row", False, True, True, False),
+                frame=("fixed", "row", False, True, True, True))
 
 
 def main() -> None:
@@ -59,7 +66,7 @@ def main() -> None:
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
     p.add_argument("--worlds", default="4", help="comma-separated world counts")
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames each way per world count")
-    p.add_argument("--variants", default="base,lam,row,fixed,fixed_row,prefetch,pinned", help=f"comma-separated, of {list(VARIANTS)}")
+    p.add_argument("--variants", default="base,lam,row,fixed,fixed_row,pinned,vec,frame", help=f"comma-separated, of {list(VARIANTS)}")
     p.add_argument("--block", type=int, default=None, help="threads per world's block on CUDA (solver/fused.py BLOCK_DIM)")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/fused_variants_<device>.json)")
     a = p.parse_args()
@@ -75,18 +82,18 @@ def main() -> None:
     ids = body_ids(model, asset.body_names)
     mount = mount_pose(model, data)
     rows = []
-    saved = (fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PREFETCH, fused.PIN_LOADS)
+    saved = (fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PIN_LOADS, fused.VEC_LOADS, fused.FRAME_LAUNCH)
     for w in [int(s) for s in a.worlds.split(",")]:
         poses = bending_poses(model, data, ids, w)
         inputs = [poses(f) for f in range(2 + a.frames)]  # (bone poses from MuJoCo: not timed)
         runs = {}
         for name in names:
-            fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PREFETCH, fused.PIN_LOADS = VARIANTS[name]
+            fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PIN_LOADS, fused.VEC_LOADS, fused.FRAME_LAUNCH = VARIANTS[name]
             try:
                 runs[name] = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, fused_substep=True), *mount)
                 runs[name].step(*inputs[0])  # (its kernel built and its frame recorded with these switches)
             finally:
-                fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PREFETCH, fused.PIN_LOADS = saved
+                fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PIN_LOADS, fused.VEC_LOADS, fused.FRAME_LAUNCH = saved
         times = {name: [] for name in runs}
         for f, (pos, quat) in enumerate(inputs[1:], start=1):
             for name, hands in runs.items():

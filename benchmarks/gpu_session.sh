@@ -29,7 +29,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3 or variants4}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6 or variants7}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -198,6 +198,39 @@ case $phase in
     step ncu_pinned_sass 60 ncu -i "$OUT/prof_pinned.ncu-rep" --page source --csv --print-source sass
     step ncu_pinned_details 60 ncu -i "$OUT/prof_pinned.ncu-rep" --page details --print-details all
     step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
+    ;;
+  variants5)  # a constraint's ids and masses in one vector load each (VEC_LOADS), against pinned
+    step var5_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,pinned,vec --out docs/benchmarks/fused_variants_cuda_vec_1024.json
+    step var5_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants pinned,vec --out docs/benchmarks/fused_variants_cuda_vec_4096.json
+    step ncu_vec 200 ncu --set full -k regex:solve_substep_shared -s 12 -c 1 -f -o "$OUT/prof_vec" \
+      python3 benchmarks/fused_variants.py --device cuda --worlds 264 --frames 1 --variants vec --out /tmp/p.json
+    step ncu_vec_sass 60 ncu -i "$OUT/prof_vec.ncu-rep" --page source --csv --print-source sass
+    step ncu_vec_details 60 ncu -i "$OUT/prof_vec.ncu-rep" --page details --print-details all
+    ;;
+  variants6)  # the substep's start two vertices a thread at a time (UNROLL_START), against vec; CUDA tests
+    step var6_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,vec,unrolled --out docs/benchmarks/fused_variants_cuda_unrolled_1024.json
+    step var6_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants vec,unrolled --out docs/benchmarks/fused_variants_cuda_unrolled_4096.json
+    step ncu_unrolled 200 ncu --set full -k regex:solve_substep_shared -s 12 -c 1 -f -o "$OUT/prof_unrolled" \
+      python3 benchmarks/fused_variants.py --device cuda --worlds 264 --frames 1 --variants unrolled --out /tmp/p.json
+    step ncu_unrolled_sass 60 ncu -i "$OUT/prof_unrolled.ncu-rep" --page source --csv --print-source sass
+    step ncu_unrolled_details 60 ncu -i "$OUT/prof_unrolled.ncu-rep" --page details --print-details all
+    step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py tests/test_solver.py
+    ;;
+  variants7)  # a frame's substeps in one launch (FRAME_LAUNCH), against vec; CUDA tests; the shipped default
+    step var7_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,vec,frame --out docs/benchmarks/fused_variants_cuda_frame_1024.json
+    step var7_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants vec,frame --out docs/benchmarks/fused_variants_cuda_frame_4096.json
+    step ncu_frame 200 ncu --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
+      --section SchedulerStats --section MemoryWorkloadAnalysis -k regex:solve_substep_shared -s 2 -c 1 \
+      python3 benchmarks/fused_variants.py --device cuda --worlds 264 --frames 1 --variants frame --out /tmp/p.json
+    step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py tests/test_solver.py
+    step batch_default 200 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10 \
+      --tag shipped
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

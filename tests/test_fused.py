@@ -67,6 +67,10 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device, sum_, monke
             assert diff == 0.0, f"world {w}: {diff} m from the five-launch substep"
         else:
             assert diff <= CUDA_TOL, f"world {w}: {diff} m from the five-launch substep (tolerance {CUDA_TOL})"
+    if device == "cpu":  # (no objects: the fused run takes a frame's substeps in one launch, FRAME_LAUNCH)
+        assert fz.solver._fused.frame_launch and fz_out["ops_run"] < ref_out["ops_run"] - 5 * Config().substeps
+        for name in ("v", "x_prev", "x_safe", "guard"):  # (each substep's start, made inside that launch)
+            assert np.array_equal(getattr(fz.state, name).numpy(), getattr(ref.state, name).numpy()), name
     for name in ("lam_edge", "lam_tet", "lam_dih"):  # the multipliers of the last substep (diagnostics read them)
         a, b = getattr(fz.state, name).numpy(), getattr(ref.state, name).numpy()
         if device == "cpu":
@@ -192,13 +196,11 @@ def test_a_large_cuda_batch_runs_the_fused_substep_by_default(setup):
     small.close()
 
 
-@pytest.mark.parametrize("sum_, order, accum, prefetch", [("scatter", "asset", "float", False),
-                                                        ("gather", "asset", "float", False),
-                                                        ("scatter", "strided", "float", False),
-                                                        ("scatter", "asset", "fixed", False),
-                                                        ("scatter", "asset", "fixed", True)])
-def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_, order, accum, prefetch,
-                                                           monkeypatch):
+@pytest.mark.parametrize("sum_, order, accum, mass", [("scatter", "asset", "float", "vertex"),
+                                                    ("gather", "asset", "float", "row"),
+                                                    ("scatter", "strided", "float", "row"),
+                                                    ("scatter", "asset", "fixed", "row")])
+def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_, order, accum, mass, monkeypatch):
     """The CUDA kernel is built ahead of time here (Warp's NVRTC; no GPU needed) for sm_90, and the
     embedded hand's world fits one H100/H200 block: its dynamic shared memory (positions and soft
     corrections) within the 227 KB a block may hold, less 4 KB for the scatter's scratch."""
@@ -207,11 +209,11 @@ def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_
     monkeypatch.setattr(fused, "SUM", sum_)
     monkeypatch.setattr(fused, "ORDER", order)
     monkeypatch.setattr(fused, "ACCUM", accum)  # (the CPU's "auto" is float)
-    monkeypatch.setattr(fused, "PREFETCH", prefetch)
+    monkeypatch.setattr(fused, "MASS", mass)
     asset = setup[0]
     cfg = Config(device="cpu", fused_substep=True)
     fz = fused.FusedSubstep(make_model(asset, cfg), "cpu")
-    assert fz.fixed == (accum == "fixed" and sum_ == "scatter") and fz.prefetch == prefetch
+    assert fz.fixed == (accum == "fixed" and sum_ == "scatter") and fz.row_mass == (mass == "row")
     assert fz.n == asset.n_vertices and fz.n_soft == int((np.asarray(asset.layer) != Layer.SKELETON).sum())
     kernel = fz.kernel
     kernel.module.options["block_dim"] = fused.BLOCK_DIM
@@ -317,9 +319,10 @@ def test_fused_substep_in_strided_order(setup, monkeypatch, lanes):
 def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes):
     """ACCUM "fixed" (CUDA's default): each correction rounded to 2^-28 m and added as int32, so a
     world's sum is exact and its bits do not depend on the order the lanes add in: one lane and 64
-    lanes (Warp's CPU blocks), each with and without PREFETCH and with the masses per vertex or per
-    constraint, give the same positions and multipliers bit for bit; and they stay within 2 um of the
-    float sum (the five-launch substep's bits on the CPU) after 4 frames of a bending finger."""
+    lanes (Warp's CPU blocks), with the masses per vertex or per constraint, the rest data and the
+    ids loaded either way, and a frame's substeps in one launch or one each, give the same positions
+    and multipliers bit for bit; and they stay within 2 um of the float sum (the five-launch
+    substep's bits on the CPU) after 4 frames of a bending finger."""
     from physhand_mj.solver import fused
 
     asset, mount, open_, bent = setup
@@ -328,24 +331,27 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
     ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
     monkeypatch.setattr(fused, "ACCUM", "fixed")
 
-    def run(mass, prefetch, k):
+    def run(mass, loads, frame, k):
         monkeypatch.setattr(fused, "MASS", mass)
-        monkeypatch.setattr(fused, "PREFETCH", prefetch)
+        monkeypatch.setattr(fused, "PIN_LOADS", loads)
+        monkeypatch.setattr(fused, "VEC_LOADS", loads)
+        monkeypatch.setattr(fused, "FRAME_LAUNCH", frame)
         if hasattr(wp.config, "enable_cpu_blocks"):
             monkeypatch.setattr(wp.config, "enable_cpu_blocks", k > 1)
         monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else 1024)
         batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
         fz = batch.solver._fused
-        assert fz.fixed and fz.row_mass == (mass == "row") and fz.prefetch == prefetch
+        assert fz.fixed and fz.row_mass == (mass == "row") and fz.frame_launch == frame
+        assert fz.vec == (loads and mass == "row") and fz.pin == loads
         return batch
 
-    one = run("row", False, 1)
-    combos = [("vertex", False), ("row", True)] + ([("row", False)] if lanes > 1 else [])
-    for mass, prefetch in combos:
-        batch = run(mass, prefetch, lanes)
+    one = run("row", True, True, 1)
+    combos = [("vertex", False, False), ("row", False, True)] + ([("row", True, True)] if lanes > 1 else [])
+    for mass, loads, frame in combos:
+        batch = run(mass, loads, frame, lanes)
         for w in range(2):
-            assert np.array_equal(batch.positions(w), one.positions(w)), (mass, prefetch, lanes, w)
-        for name in ("lam_edge", "lam_tet", "lam_dih"):
+            assert np.array_equal(batch.positions(w), one.positions(w)), (mass, loads, frame, lanes, w)
+        for name in ("lam_edge", "lam_tet", "lam_dih", "v", "x_prev"):
             assert np.array_equal(getattr(batch.state, name).numpy(), getattr(one.state, name).numpy()), name
     for w in range(2):
         diff = np.abs(one.positions(w) - ref.positions(w)).max()

@@ -79,12 +79,15 @@ FIXED_BITS = 28  # the fixed-point sum's step: 2^-28 m = 3.7 nm (float32's step 
 # Where a constraint's inverse masses come from: "vertex" (inv_mass[i] per corner, a load that waits
 # for the constraint's ids) or "row" (stored per constraint, loaded beside its ids).
 MASS = "row"
-# Whether a block's threads load their next constraint's ids, masses and rest data while they solve
-# the current one (ACCUM "fixed" and MASS "row" only): a load from L2 no longer waits in each step.
-PREFETCH = False
 # Whether the constraints' rest data is loaded with load_here (where the code asks for it) instead of
-# where the compiler moves it (SUM "scatter" without PREFETCH).
+# where the compiler moves it (SUM "scatter").
 PIN_LOADS = True
+# Whether a constraint's ids and inverse masses come in one vector load each (MASS "row" only; the
+# families' arrays are contiguous and aligned, FusedSubstep checks).
+VEC_LOADS = True
+# Whether a frame with no contact stage runs all its substeps in one launch, the positions kept in
+# shared memory from one substep to the next (Solver.step; a contact stage needs them in global memory).
+FRAME_LAUNCH = True
 # Whether every substep writes the constraints' multipliers (True) or only a frame's last one (False:
 # lambda is reset each substep, so the others' are overwritten unread; diagnostics read the last).
 LAM_EVERY_SUBSTEP = False
@@ -162,6 +165,59 @@ def load_here(arr: wp.array(dtype=float), j: int) -> float:
     ...
 
 
+@wp.func_native("""#if defined(__CUDA_ARCH__)
+const int4 q = __ldg(reinterpret_cast<const int4*>(wp::address(arr, j, 0)));
+return wp::vec_t<4, int>(q.x, q.y, q.z, q.w);
+#else
+const int* p = wp::address(arr, j, 0);
+return wp::vec_t<4, int>(p[0], p[1], p[2], p[3]);
+#endif
+""")
+def row4i(arr: wp.array2d(dtype=int), j: int) -> wp.vec4i:
+    """Row ``j`` of a contiguous (n, 4) int32 array, 16-byte aligned: one 128-bit load on CUDA (Warp's
+    vectors are 4-byte aligned, so ``arr[j, k]`` is four loads and four address computations)."""
+    ...
+
+
+@wp.func_native("""#if defined(__CUDA_ARCH__)
+const float4 q = __ldg(reinterpret_cast<const float4*>(wp::address(arr, j, 0)));
+return wp::vec_t<4, float>(q.x, q.y, q.z, q.w);
+#else
+const float* p = wp::address(arr, j, 0);
+return wp::vec_t<4, float>(p[0], p[1], p[2], p[3]);
+#endif
+""")
+def row4f(arr: wp.array2d(dtype=float), j: int) -> wp.vec4:
+    """Row ``j`` of a contiguous (n, 4) float32 array, 16-byte aligned (:func:`row4i`)."""
+    ...
+
+
+@wp.func_native("""#if defined(__CUDA_ARCH__)
+const int2 q = __ldg(reinterpret_cast<const int2*>(wp::address(arr, j, 0)));
+return wp::vec_t<2, int>(q.x, q.y);
+#else
+const int* p = wp::address(arr, j, 0);
+return wp::vec_t<2, int>(p[0], p[1]);
+#endif
+""")
+def row2i(arr: wp.array2d(dtype=int), j: int) -> wp.vec2i:
+    """Row ``j`` of a contiguous (n, 2) int32 array, 8-byte aligned (:func:`row4i`)."""
+    ...
+
+
+@wp.func_native("""#if defined(__CUDA_ARCH__)
+const float2 q = __ldg(reinterpret_cast<const float2*>(wp::address(arr, j, 0)));
+return wp::vec_t<2, float>(q.x, q.y);
+#else
+const float* p = wp::address(arr, j, 0);
+return wp::vec_t<2, float>(p[0], p[1]);
+#endif
+""")
+def row2f(arr: wp.array2d(dtype=float), j: int) -> wp.vec2:
+    """Row ``j`` of a contiguous (n, 2) float32 array, 8-byte aligned (:func:`row4i`)."""
+    ...
+
+
 @wp.func_native("""WP_TILE_SYNC();""")
 def block_sync():
     """The block's barrier (every thread of the block calls it)."""
@@ -232,15 +288,15 @@ def add_corners_fixed(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: 
 
 
 def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False,
-                   fixed: bool = False, row_mass: bool = False, prefetch: bool = False, pin: bool = False):
+                   fixed: bool = False, row_mass: bool = False, pin: bool = False, vec: bool = False):
     """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
     launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
     time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
     size and block); ``strided``: the families come permuted (``ORDER``) with each row's asset index
     for its multiplier; ``fixed``: ACCUM "fixed"; ``row_mass``: MASS "row" (both SUM "scatter" only)."""
     key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather,
-           bool(fixed) and not gather, bool(row_mass) and not gather,
-           bool(prefetch) and bool(fixed) and bool(row_mass) and not gather, bool(pin) and not gather)
+           bool(fixed) and not gather, bool(row_mass) and not gather, bool(pin) and not gather,
+           bool(vec) and bool(row_mass) and not gather)
     if key in _KERNELS:
         return _KERNELS[key]
     N = key[0]
@@ -249,9 +305,9 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
     STRIDED = key[4]
     FIXED = key[5]
     ROWM = key[6]
-    PF = key[7]  # (PREFETCH: the next constraint's data loaded while this one is solved)
-    PLAIN = not GATHER and not PF
-    PIN = key[8]  # (PIN_LOADS: the rest data loaded at the top of each constraint's iteration)
+    PLAIN = not GATHER
+    PIN = key[7]  # (PIN_LOADS: the rest data loaded at the top of each constraint's iteration)
+    VEC = key[8]  # (VEC_LOADS: a constraint's ids and masses in one vector load each)
     ACC = wp.vec3i if FIXED else wp.vec3
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
@@ -288,6 +344,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         ns: int,
         worlds: int,
         keep_lam: int,
+        count: int,
         fx_scale: float,
         fx_step: float,
         fx_bound: float,
@@ -315,368 +372,256 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         bd = wp.block_dim()
         xs = wp.tile_zeros(shape=N, dtype=wp.vec3, storage="shared")
         ds = wp.tile_zeros(shape=NS, dtype=ACC, storage="shared")
-        for k in range((N + bd - 1) // bd):  # the world's positions into the zeroed tile
-            l = k * bd + lane
-            p = wp.vec3(0.0)
-            if l < N:
-                g = shifted_id(l, w, N, ns, worlds)
-                p = x[g]
-                if start >= 0:  # the substep's start, as integrate.advance makes it
-                    vi = v[g]
-                    if finish != 0:
-                        p, vi = finish_substep(g, w, p, vi, inv_mass[l], h, x_prev, guard)
-                    p, vi = start_substep(g, w, p, vi, inv_mass[l], start, h, damp, gravity, vertex_body,
-                                          body_local, body_sub, x_prev, x_safe, guard)
-                    v[g] = vi
-                    if l >= NS:
-                        x[g] = p  # (a skeleton vertex: the constraints leave it where its bone puts it)
-                shared_set(xs, l, p, True)
-        block_sync()
-
-        # group 0: edges and attachments (Eq. 2, 4-5)
-        ne = edge_ids.shape[0]
-        if wp.static(GATHER):
-            for k in range((NS + bd - 1) // bd):
+        for sub in range(count):  # count substeps in this launch (a frame without contact stages: all)
+            for k in range((N + bd - 1) // bd):  # the world's positions into the zeroed tile
                 l = k * bd + lane
-                d = wp.vec3(0.0)
-                if l < NS:
-                    d = edges_of_vertex(l, w, edge_off, edge_ent, edge_ids, edge_rest, edge_alpha, inv_mass, xs,
-                                        inv_h2, lam_edge)
-                shared_set(ds, l, d, l < NS)
-        if wp.static(PF):
-            n1 = int(0)
-            n2 = int(0)
-            nw1 = float(0.0)
-            nw2 = float(0.0)
-            nr = float(0.0)
-            na = float(0.0)
-            if lane < ne:
-                n1 = edge_ids[lane, 0]
-                n2 = edge_ids[lane, 1]
-                nw1 = edge_w[lane, 0]
-                nw2 = edge_w[lane, 1]
-                nr = edge_rest[lane]
-                na = edge_alpha[lane]
-            for k in range((ne + bd - 1) // bd):
-                j = k * bd + lane
-                i1 = int(n1)
-                i2 = int(n2)
-                w1 = float(nw1)
-                w2 = float(nw2)
-                rest = float(nr)
-                at = float(na) * inv_h2
-                jn = j + bd
-                if jn < ne:
-                    n1 = edge_ids[jn, 0]
-                    n2 = edge_ids[jn, 1]
-                    nw1 = edge_w[jn, 0]
-                    nw2 = edge_w[jn, 1]
-                    nr = edge_rest[jn]
-                    na = edge_alpha[jn]
-                moves = int(0)
-                d1 = wp.vec3(0.0)
-                d2 = wp.vec3(0.0)
-                if j < ne:
-                    moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, at, 0.0)
-                    if keep_lam != 0:
-                        r = j
-                        if wp.static(STRIDED):
-                            r = edge_row[j]
-                        lam_edge[w * ne + r] = dlam
-                add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bound)
-        if wp.static(PLAIN):
-            for k in range((ne + bd - 1) // bd):
-                j = k * bd + lane
-                i1 = int(0)
-                i2 = int(0)
-                moves = int(0)
-                d1 = wp.vec3(0.0)
-                d2 = wp.vec3(0.0)
-                if j < ne:
-                    i1 = edge_ids[j, 0]
-                    i2 = edge_ids[j, 1]
-                    rest = float(0.0)
-                    if wp.static(PIN):
-                        rest = load_here(edge_rest, j)
+                p = wp.vec3(0.0)
+                if l < N:
+                    g = shifted_id(l, w, N, ns, worlds)
+                    if sub == 0:
+                        p = x[g]
                     else:
-                        rest = edge_rest[j]
-                    w1 = float(0.0)
-                    w2 = float(0.0)
-                    if wp.static(ROWM):
-                        w1 = edge_w[j, 0]
-                        w2 = edge_w[j, 1]
-                    else:
-                        w1 = inv_mass[i1]
-                        w2 = inv_mass[i2]
-                    moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, edge_alpha[j] * inv_h2,
-                                                          0.0)
-                    if keep_lam != 0:
-                        r = j
-                        if wp.static(STRIDED):
-                            r = edge_row[j]
-                        lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
-                if wp.static(FIXED):
-                    add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bound)
-                else:
-                    add2(ds, NS, i1, i2, d1, d2, moves)
-        if wp.static(FIXED):
-            apply_group_fixed(xs, ds, NS, vertex_count, 0, relaxation, lane, bd, fx_step)
-        else:
-            apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
+                        p = xs[l]  # (the previous substep's end, kept in shared memory)
+                    if start >= 0:  # the substep's start, as integrate.advance makes it
+                        vi = v[g]
+                        if finish != 0 or sub > 0:
+                            p, vi = finish_substep(g, w, p, vi, inv_mass[l], h, x_prev, guard)
+                        p, vi = start_substep(g, w, p, vi, inv_mass[l], start + sub, h, damp, gravity, vertex_body,
+                                              body_local, body_sub, x_prev, x_safe, guard)
+                        v[g] = vi
+                        if l >= NS:
+                            x[g] = p  # (a skeleton vertex: the constraints leave it where its bone puts it)
+                shared_set(xs, l, p, l < N)
+            block_sync()
 
-        # group 1: tets (Eq. 3)
-        nt = tet_ids.shape[0]
-        if wp.static(GATHER):
-            for k in range((NS + bd - 1) // bd):
-                l = k * bd + lane
-                d = wp.vec3(0.0)
-                if l < NS:
-                    d = tets_of_vertex(l, w, tet_off, tet_ent, tet_ids, tet_rest6v, tet_alpha, inv_mass, xs, inv_h2,
-                                       lam_tet)
-                shared_set(ds, l, d, l < NS)
-        if wp.static(PF):
-            n1 = int(0)
-            n2 = int(0)
-            n3 = int(0)
-            n4 = int(0)
-            nw1 = float(0.0)
-            nw2 = float(0.0)
-            nw3 = float(0.0)
-            nw4 = float(0.0)
-            nr = float(0.0)
-            na = float(0.0)
-            if lane < nt:
-                n1 = tet_ids[lane, 0]
-                n2 = tet_ids[lane, 1]
-                n3 = tet_ids[lane, 2]
-                n4 = tet_ids[lane, 3]
-                nw1 = tet_w[lane, 0]
-                nw2 = tet_w[lane, 1]
-                nw3 = tet_w[lane, 2]
-                nw4 = tet_w[lane, 3]
-                nr = tet_rest6v[lane]
-                na = tet_alpha[lane]
-            for k in range((nt + bd - 1) // bd):
-                j = k * bd + lane
-                i1 = int(n1)
-                i2 = int(n2)
-                i3 = int(n3)
-                i4 = int(n4)
-                w1 = float(nw1)
-                w2 = float(nw2)
-                w3 = float(nw3)
-                w4 = float(nw4)
-                rest = float(nr)
-                at = float(na) * inv_h2
-                jn = j + bd
-                if jn < nt:
-                    n1 = tet_ids[jn, 0]
-                    n2 = tet_ids[jn, 1]
-                    n3 = tet_ids[jn, 2]
-                    n4 = tet_ids[jn, 3]
-                    nw1 = tet_w[jn, 0]
-                    nw2 = tet_w[jn, 1]
-                    nw3 = tet_w[jn, 2]
-                    nw4 = tet_w[jn, 3]
-                    nr = tet_rest6v[jn]
-                    na = tet_alpha[jn]
-                moves = int(0)
-                d1 = wp.vec3(0.0)
-                d2 = wp.vec3(0.0)
-                d3 = wp.vec3(0.0)
-                d4 = wp.vec3(0.0)
-                if j < nt:
-                    moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4, rest,
-                                                                 at, 0.0)
-                    if keep_lam != 0:
-                        r = j
-                        if wp.static(STRIDED):
-                            r = tet_row[j]
-                        lam_tet[w * nt + r] = dlam
-                add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
-        if wp.static(PLAIN):
-            for k in range((nt + bd - 1) // bd):
-                j = k * bd + lane
-                i1 = int(0)
-                i2 = int(0)
-                i3 = int(0)
-                i4 = int(0)
-                moves = int(0)
-                d1 = wp.vec3(0.0)
-                d2 = wp.vec3(0.0)
-                d3 = wp.vec3(0.0)
-                d4 = wp.vec3(0.0)
-                if j < nt:
-                    i1 = tet_ids[j, 0]
-                    i2 = tet_ids[j, 1]
-                    i3 = tet_ids[j, 2]
-                    i4 = tet_ids[j, 3]
-                    rest = float(0.0)
-                    if wp.static(PIN):
-                        rest = load_here(tet_rest6v, j)
-                    else:
-                        rest = tet_rest6v[j]
-                    w1 = float(0.0)
-                    w2 = float(0.0)
-                    w3 = float(0.0)
-                    w4 = float(0.0)
-                    if wp.static(ROWM):
-                        w1 = tet_w[j, 0]
-                        w2 = tet_w[j, 1]
-                        w3 = tet_w[j, 2]
-                        w4 = tet_w[j, 3]
-                    else:
-                        w1 = inv_mass[i1]
-                        w2 = inv_mass[i2]
-                        w3 = inv_mass[i3]
-                        w4 = inv_mass[i4]
-                    moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4,
-                                                                 rest, tet_alpha[j] * inv_h2, 0.0)
-                    if keep_lam != 0:
-                        r = j
-                        if wp.static(STRIDED):
-                            r = tet_row[j]
-                        lam_tet[w * nt + r] = dlam
-                if wp.static(FIXED):
-                    add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
-                else:
-                    add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
-        if wp.static(FIXED):
-            apply_group_fixed(xs, ds, NS, vertex_count, 1, relaxation, lane, bd, fx_step)
-        else:
-            apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
-
-        # group 2: skin smoothness (Eq. 6)
-        nd = dih_ids.shape[0]
-        if wp.static(GATHER):
-            for k in range((NS + bd - 1) // bd):
-                l = k * bd + lane
-                d = wp.vec3(0.0)
-                if l < NS:
-                    d = dihedrals_of_vertex(l, w, dih_off, dih_ent, dih_ids, dih_rest, dih_alpha, inv_mass, xs, inv_h2,
-                                            lam_dih)
-                shared_set(ds, l, d, l < NS)
-        if wp.static(PF):
-            n1 = int(0)
-            n2 = int(0)
-            n3 = int(0)
-            n4 = int(0)
-            nw1 = float(0.0)
-            nw2 = float(0.0)
-            nw3 = float(0.0)
-            nw4 = float(0.0)
-            nr = float(0.0)
-            if lane < nd:
-                n1 = dih_ids[lane, 0]
-                n2 = dih_ids[lane, 1]
-                n3 = dih_ids[lane, 2]
-                n4 = dih_ids[lane, 3]
-                nw1 = dih_w[lane, 0]
-                nw2 = dih_w[lane, 1]
-                nw3 = dih_w[lane, 2]
-                nw4 = dih_w[lane, 3]
-                nr = dih_rest[lane]
-            for k in range((nd + bd - 1) // bd):
-                j = k * bd + lane
-                i1 = int(n1)
-                i2 = int(n2)
-                i3 = int(n3)
-                i4 = int(n4)
-                w1 = float(nw1)
-                w2 = float(nw2)
-                w3 = float(nw3)
-                w4 = float(nw4)
-                rest = float(nr)
-                jn = j + bd
-                if jn < nd:
-                    n1 = dih_ids[jn, 0]
-                    n2 = dih_ids[jn, 1]
-                    n3 = dih_ids[jn, 2]
-                    n4 = dih_ids[jn, 3]
-                    nw1 = dih_w[jn, 0]
-                    nw2 = dih_w[jn, 1]
-                    nw3 = dih_w[jn, 2]
-                    nw4 = dih_w[jn, 3]
-                    nr = dih_rest[jn]
-                moves = int(0)
-                d1 = wp.vec3(0.0)
-                d2 = wp.vec3(0.0)
-                d3 = wp.vec3(0.0)
-                d4 = wp.vec3(0.0)
-                if j < nd:
-                    dlam = float(0.0)
-                    if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
-                        moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
-                                                                          w4, rest, dih_alpha * inv_h2, 0.0)
-                    if keep_lam != 0:
-                        r = j
-                        if wp.static(STRIDED):
-                            r = dih_row[j]
-                        lam_dih[w * nd + r] = dlam
-                add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
-        if wp.static(PLAIN):
-            for k in range((nd + bd - 1) // bd):
-                j = k * bd + lane
-                i1 = int(0)
-                i2 = int(0)
-                i3 = int(0)
-                i4 = int(0)
-                moves = int(0)
-                d1 = wp.vec3(0.0)
-                d2 = wp.vec3(0.0)
-                d3 = wp.vec3(0.0)
-                d4 = wp.vec3(0.0)
-                if j < nd:
-                    i1 = dih_ids[j, 0]
-                    i2 = dih_ids[j, 1]
-                    i3 = dih_ids[j, 2]
-                    i4 = dih_ids[j, 3]
-                    rest = float(0.0)
-                    if wp.static(PIN):
-                        rest = load_here(dih_rest, j)
-                    else:
-                        rest = dih_rest[j]
-                    w1 = float(0.0)
-                    w2 = float(0.0)
-                    w3 = float(0.0)
-                    w4 = float(0.0)
-                    if wp.static(ROWM):
-                        w1 = dih_w[j, 0]
-                        w2 = dih_w[j, 1]
-                        w3 = dih_w[j, 2]
-                        w4 = dih_w[j, 3]
-                    else:
-                        w1 = inv_mass[i1]
-                        w2 = inv_mass[i2]
-                        w3 = inv_mass[i3]
-                        w4 = inv_mass[i4]
-                    dlam = float(0.0)
-                    if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
-                        moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
-                                                                          w4, rest, dih_alpha * inv_h2, 0.0)
-                    if keep_lam != 0:
-                        r = j
-                        if wp.static(STRIDED):
-                            r = dih_row[j]
-                        lam_dih[w * nd + r] = dlam
-                if wp.static(FIXED):
-                    add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
-                else:
-                    add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
-        block_sync()
-        for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
-            l = k * bd + lane
-            if l < NS:
-                c = vertex_count[2, l]
-                p = xs[l]
-                if c > 0.0:
-                    dsum = wp.vec3(0.0)
+            # group 0: edges and attachments (Eq. 2, 4-5)
+            ne = edge_ids.shape[0]
+            if wp.static(GATHER):
+                for k in range((NS + bd - 1) // bd):
+                    l = k * bd + lane
+                    d = wp.vec3(0.0)
+                    if l < NS:
+                        d = edges_of_vertex(l, w, edge_off, edge_ent, edge_ids, edge_rest, edge_alpha, inv_mass, xs,
+                                            inv_h2, lam_edge)
+                    shared_set(ds, l, d, l < NS)
+            if wp.static(PLAIN):
+                for k in range((ne + bd - 1) // bd):
+                    j = k * bd + lane
+                    i1 = int(0)
+                    i2 = int(0)
+                    moves = int(0)
+                    d1 = wp.vec3(0.0)
+                    d2 = wp.vec3(0.0)
+                    if j < ne:
+                        if wp.static(VEC):
+                            e = row2i(edge_ids, j)
+                            i1 = e[0]
+                            i2 = e[1]
+                        else:
+                            i1 = edge_ids[j, 0]
+                            i2 = edge_ids[j, 1]
+                        rest = float(0.0)
+                        if wp.static(PIN):
+                            rest = load_here(edge_rest, j)
+                        else:
+                            rest = edge_rest[j]
+                        w1 = float(0.0)
+                        w2 = float(0.0)
+                        if wp.static(VEC):
+                            ew = row2f(edge_w, j)
+                            w1 = ew[0]
+                            w2 = ew[1]
+                        elif wp.static(ROWM):
+                            w1 = edge_w[j, 0]
+                            w2 = edge_w[j, 1]
+                        else:
+                            w1 = inv_mass[i1]
+                            w2 = inv_mass[i2]
+                        moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, edge_alpha[j] * inv_h2,
+                                                              0.0)
+                        if keep_lam != 0 and sub == count - 1:
+                            r = j
+                            if wp.static(STRIDED):
+                                r = edge_row[j]
+                            lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
                     if wp.static(FIXED):
-                        dsum = fixed_to_float(ds[l], fx_step)
+                        add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bound)
                     else:
-                        dsum = ds[l]
-                    p = p + dsum * (relaxation / c)
-                x[shifted_id(l, w, N, ns, worlds)] = p
+                        add2(ds, NS, i1, i2, d1, d2, moves)
+            if wp.static(FIXED):
+                apply_group_fixed(xs, ds, NS, vertex_count, 0, relaxation, lane, bd, fx_step)
+            else:
+                apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
+
+            # group 1: tets (Eq. 3)
+            nt = tet_ids.shape[0]
+            if wp.static(GATHER):
+                for k in range((NS + bd - 1) // bd):
+                    l = k * bd + lane
+                    d = wp.vec3(0.0)
+                    if l < NS:
+                        d = tets_of_vertex(l, w, tet_off, tet_ent, tet_ids, tet_rest6v, tet_alpha, inv_mass, xs, inv_h2,
+                                           lam_tet)
+                    shared_set(ds, l, d, l < NS)
+            if wp.static(PLAIN):
+                for k in range((nt + bd - 1) // bd):
+                    j = k * bd + lane
+                    i1 = int(0)
+                    i2 = int(0)
+                    i3 = int(0)
+                    i4 = int(0)
+                    moves = int(0)
+                    d1 = wp.vec3(0.0)
+                    d2 = wp.vec3(0.0)
+                    d3 = wp.vec3(0.0)
+                    d4 = wp.vec3(0.0)
+                    if j < nt:
+                        if wp.static(VEC):
+                            q = row4i(tet_ids, j)
+                            i1 = q[0]
+                            i2 = q[1]
+                            i3 = q[2]
+                            i4 = q[3]
+                        else:
+                            i1 = tet_ids[j, 0]
+                            i2 = tet_ids[j, 1]
+                            i3 = tet_ids[j, 2]
+                            i4 = tet_ids[j, 3]
+                        rest = float(0.0)
+                        if wp.static(PIN):
+                            rest = load_here(tet_rest6v, j)
+                        else:
+                            rest = tet_rest6v[j]
+                        w1 = float(0.0)
+                        w2 = float(0.0)
+                        w3 = float(0.0)
+                        w4 = float(0.0)
+                        if wp.static(VEC):
+                            qw = row4f(tet_w, j)
+                            w1 = qw[0]
+                            w2 = qw[1]
+                            w3 = qw[2]
+                            w4 = qw[3]
+                        elif wp.static(ROWM):
+                            w1 = tet_w[j, 0]
+                            w2 = tet_w[j, 1]
+                            w3 = tet_w[j, 2]
+                            w4 = tet_w[j, 3]
+                        else:
+                            w1 = inv_mass[i1]
+                            w2 = inv_mass[i2]
+                            w3 = inv_mass[i3]
+                            w4 = inv_mass[i4]
+                        moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4,
+                                                                     rest, tet_alpha[j] * inv_h2, 0.0)
+                        if keep_lam != 0 and sub == count - 1:
+                            r = j
+                            if wp.static(STRIDED):
+                                r = tet_row[j]
+                            lam_tet[w * nt + r] = dlam
+                    if wp.static(FIXED):
+                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                    else:
+                        add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+            if wp.static(FIXED):
+                apply_group_fixed(xs, ds, NS, vertex_count, 1, relaxation, lane, bd, fx_step)
+            else:
+                apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
+
+            # group 2: skin smoothness (Eq. 6)
+            nd = dih_ids.shape[0]
+            if wp.static(GATHER):
+                for k in range((NS + bd - 1) // bd):
+                    l = k * bd + lane
+                    d = wp.vec3(0.0)
+                    if l < NS:
+                        d = dihedrals_of_vertex(l, w, dih_off, dih_ent, dih_ids, dih_rest, dih_alpha, inv_mass, xs, inv_h2,
+                                                lam_dih)
+                    shared_set(ds, l, d, l < NS)
+            if wp.static(PLAIN):
+                for k in range((nd + bd - 1) // bd):
+                    j = k * bd + lane
+                    i1 = int(0)
+                    i2 = int(0)
+                    i3 = int(0)
+                    i4 = int(0)
+                    moves = int(0)
+                    d1 = wp.vec3(0.0)
+                    d2 = wp.vec3(0.0)
+                    d3 = wp.vec3(0.0)
+                    d4 = wp.vec3(0.0)
+                    if j < nd:
+                        if wp.static(VEC):
+                            q = row4i(dih_ids, j)
+                            i1 = q[0]
+                            i2 = q[1]
+                            i3 = q[2]
+                            i4 = q[3]
+                        else:
+                            i1 = dih_ids[j, 0]
+                            i2 = dih_ids[j, 1]
+                            i3 = dih_ids[j, 2]
+                            i4 = dih_ids[j, 3]
+                        rest = float(0.0)
+                        if wp.static(PIN):
+                            rest = load_here(dih_rest, j)
+                        else:
+                            rest = dih_rest[j]
+                        w1 = float(0.0)
+                        w2 = float(0.0)
+                        w3 = float(0.0)
+                        w4 = float(0.0)
+                        if wp.static(VEC):
+                            qw = row4f(dih_w, j)
+                            w1 = qw[0]
+                            w2 = qw[1]
+                            w3 = qw[2]
+                            w4 = qw[3]
+                        elif wp.static(ROWM):
+                            w1 = dih_w[j, 0]
+                            w2 = dih_w[j, 1]
+                            w3 = dih_w[j, 2]
+                            w4 = dih_w[j, 3]
+                        else:
+                            w1 = inv_mass[i1]
+                            w2 = inv_mass[i2]
+                            w3 = inv_mass[i3]
+                            w4 = inv_mass[i4]
+                        dlam = float(0.0)
+                        if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
+                            moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
+                                                                              w4, rest, dih_alpha * inv_h2, 0.0)
+                        if keep_lam != 0 and sub == count - 1:
+                            r = j
+                            if wp.static(STRIDED):
+                                r = dih_row[j]
+                            lam_dih[w * nd + r] = dlam
+                    if wp.static(FIXED):
+                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                    else:
+                        add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+            block_sync()
+            for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
+                l = k * bd + lane
+                if l < NS:
+                    c = vertex_count[2, l]
+                    p = xs[l]
+                    if c > 0.0:
+                        dsum = wp.vec3(0.0)
+                        if wp.static(FIXED):
+                            dsum = fixed_to_float(ds[l], fx_step)
+                        else:
+                            dsum = ds[l]
+                        p = p + dsum * (relaxation / c)
+                    if sub == count - 1:
+                        x[shifted_id(l, w, N, ns, worlds)] = p
+                    else:  # (the next substep starts from shared memory, its accumulator zeroed)
+                        shared_set(xs, l, p, True)
+                        if wp.static(FIXED):
+                            shared_set_int(ds, l, wp.vec3i(0), True)
+                        else:
+                            shared_set(ds, l, wp.vec3(0.0), True)
+            block_sync()
 
     _KERNELS[key] = solve_substep_shared
     return solve_substep_shared
@@ -738,8 +683,9 @@ class FusedSubstep:
         self.fixed = ACCUM == "fixed" or (ACCUM == "auto" and wp.get_device(dev).is_cuda)
         self.row_mass = MASS == "row"
         self.lam_every = bool(LAM_EVERY_SUBSTEP)
-        self.prefetch = bool(PREFETCH) and self.fixed and self.row_mass
         self.pin = bool(PIN_LOADS)
+        self.vec = bool(VEC_LOADS) and self.row_mass
+        self.frame_launch = bool(FRAME_LAUNCH)
         self.fx_scale = float(2.0 ** FIXED_BITS)
         # no vertex's sum overflows int32: at most max n_i corrections, each clamped to the bound
         most = max(float(counts.max()) if counts.size else 1.0, 1.0)
@@ -767,7 +713,15 @@ class FusedSubstep:
         if ORDER not in ("asset", "strided"):
             raise ValueError(f"physhand_mj.solver.fused.ORDER must be 'asset' or 'strided', got {ORDER!r}")
         return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided(), self.fixed,
-                              self.row_mass, self.prefetch, self.pin)
+                              self.row_mass, self.pin, self._vec_ok())
+
+    def _vec_ok(self) -> bool:
+        """VEC_LOADS where the arrays the kernel reads rows of are contiguous and 16-byte aligned."""
+        if not self.vec:
+            return False
+        fam, _ = self._families()
+        rows2d = [a for a in fam if len(a.shape) == 2 and a.shape[0] > 0]
+        return all(a.is_contiguous and a.ptr % 16 == 0 for a in rows2d)
 
     @staticmethod
     def _use_strided() -> bool:
@@ -822,11 +776,14 @@ class FusedSubstep:
         return self.shared_bytes(device) <= limit, limit
 
     def inputs(self, inv_h2: float, relaxation: float, state, start: int = -1, finish: int = 0, h: float = 0.0,
-               damp: float = 1.0, gravity=None, model=None, keep_lam: bool = True) -> list:
+               damp: float = 1.0, gravity=None, model=None, keep_lam: bool = True, count: int = 1) -> list:
         """The launch's inputs; ``start`` >= 0 folds integrate.advance's start of substep ``start``
         (and with ``finish`` the previous substep's end) into the launch (``model``: the solver's,
         for the bones of every world's vertices); ``keep_lam``: write the multipliers (a frame's last
-        substep; the others' are overwritten unread)."""
+        substep; the others' are overwritten unread); ``count``: substeps in the launch (from ``start``
+        on, each but the first finishing the one before: ``start`` >= 0 where ``count`` > 1)."""
+        if count > 1 and start < 0:
+            raise ValueError("FusedSubstep.inputs: several substeps in one launch need start >= 0")
         if start >= 0:
             kin = [model.vertex_body, model.body_local, state.body_sub]
         else:
@@ -834,7 +791,7 @@ class FusedSubstep:
         fam, rows = self._families()
         return [self.inv_mass, self.vertex_count, *fam, self.dih_alpha,
                 *(self._entries() if SUM == "gather" else [self._none] * 6), *rows, float(inv_h2),
-                float(relaxation), self.ns, self.worlds, int(bool(keep_lam) or self.lam_every), self.fx_scale, 1.0 / self.fx_scale,
+                float(relaxation), self.ns, self.worlds, int(bool(keep_lam) or self.lam_every), int(count), self.fx_scale, 1.0 / self.fx_scale,
                 self.fx_bound, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]

@@ -418,11 +418,13 @@ class Solver(Sleeping):
                 break
             if before:
                 gated(lambda sub: contact.record(launch, sub, state, gated), 1)
-            if self._fused is not None:  # the three groups, each averaged, in one launch (solver/fused.py)
+            # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
+            whole = self._fused is not None and self._fused.frame_launch and self.contact is None
+            if self._fused is not None and (s == 0 or not whole):  # the three groups, each averaged, in one launch
                 fz = self._fused
                 inputs = fz.inputs(self._inv_h2, cfg.relaxation, state, start=s if fold else -1, finish=int(s > 0),
                                    h=self._h, damp=self._damp, gravity=self._gravity, model=m,
-                                   keep_lam=s == cfg.substeps - 1)
+                                   keep_lam=whole or s == cfg.substeps - 1, count=cfg.substeps if whole else 1)
                 cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs, block_dim=fused_launch.BLOCK_DIM,
                                       device=d, record_cmd=True)
                 cur[0].append(cmd.launch)
