@@ -29,7 +29,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6 or variants7}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests or final_bench}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -231,6 +231,27 @@ case $phase in
     step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py tests/test_solver.py
     step batch_default 200 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 --frames 10 \
       --tag shipped
+    ;;
+  final_tests)  # the CUDA tests touched by the fused kernel's changes (batches with and without contact)
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step pytest_cuda 540 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py tests/test_batch.py \
+      tests/test_solver.py::test_cpu_and_cuda_agree tests/test_hard_contact.py::test_hard_case_on_cuda \
+      tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel
+    ;;
+  final_bench)  # the shipped fused kernel against the old one, solver only and with contact
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step fin_1024 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024 --frames 10 \
+      --variants base,fixed_row,vec,frame --out docs/benchmarks/fused_variants_cuda_final_1024.json
+    step fin_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants base,vec,frame --out docs/benchmarks/fused_variants_cuda_final_4096.json
+    step batch_shipped 200 python3 benchmarks/batch_throughput.py --device cuda --worlds 1,64,256,1024,4096 \
+      --frames 10 --tag shipped
+    for s in toothpaste box; do
+      step "hoi_$s" 200 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 1024,4096 --frames 10 \
+        --out "docs/benchmarks/batch_hoi_cuda_${s}_fixed.json"
+    done
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

@@ -22,9 +22,11 @@ solver/fused_gather.py).
 
 Same math as the family kernels (``edge_correction``, ``tet_correction``, ``dihedral_correction``
 are theirs), the same Jacobi groups in the same order, lambda reset each substep (Algorithm 1 line
-4; one iteration) and written back as the family kernels write it (0 + dlam). The sum's order differs: shared-memory atomics on CUDA
-(not bitwise repeatable, as the atomic path); on the CPU Warp runs one lane per block, in
-constraint order, which is the atomic path's order.
+4; one iteration) and written back as the family kernels write it (0 + dlam), in a frame's last
+substep. The sum: on the CPU Warp runs one lane per block, in constraint order, the atomic path's
+order and float sum (bit for bit the five-launch substep); on CUDA a fixed-point int32 sum (ACCUM),
+exact, so a batch repeats bit for bit (a float add to shared memory is a compare-and-swap loop on
+NVIDIA GPUs). docs/solver.md has each measured step (benchmarks/fused_variants.py).
 
 Shared memory per block: 12 bytes per vertex and per soft vertex, each tile 16-byte aligned, and on
 CUDA 4 bytes per thread for Warp's tile allocator (the embedded hand: 10,480 and 6,811 vertices,
