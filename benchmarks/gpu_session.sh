@@ -29,7 +29,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests or final_bench}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks or final2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -252,6 +252,23 @@ case $phase in
       step "hoi_$s" 200 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 1024,4096 --frames 10 \
         --out "docs/benchmarks/batch_hoi_cuda_${s}_fixed.json"
     done
+    ;;
+  blocks)  # threads a world's block: 1,024 (64 registers a thread, spills) against 896 and 768
+    for b in 1024 896 768; do
+      step "block_$b" 120 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --block $b \
+        --variants base,vec,frame --out "docs/benchmarks/fused_variants_cuda_block${b}_4096.json"
+    done
+    ;;
+  final2)  # the shipped block (640 threads): its CUDA tests, the solver-only batch and two HOI grasps
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step fin2_4096 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024,4096 --frames 6 \
+      --variants base,frame --out docs/benchmarks/fused_variants_cuda_shipped.json
+    for s in toothpaste box; do
+      step "hoi_$s" 200 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
+        --out "docs/benchmarks/batch_hoi_cuda_${s}_block640.json"
+    done
+    step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

@@ -18,8 +18,9 @@ def test_bench_solver_prints_the_contract_fields(capsys):
     assert out["vertices"] == 10480 and out["ms_per_frame"] > 0
     assert out["nonfinite"] == 0 and out["inverted"] == 0
     # the CPU fuses a substep's start and constraint groups into one launch (Config.fused_substep's
-    # default): one a substep, then the frame's bone poses, last substep's end and inverted-tet count
-    assert out["fused_substep"] is True and out["ops_run"] == out["substeps"] + 3, out
+    # default), and with no contact stage a frame's substeps into one (fused.FRAME_LAUNCH): that
+    # launch, then the frame's bone poses, the last substep's end and the inverted-tet count
+    assert out["fused_substep"] is True and out["ops_run"] == 4, out
 
 
 def test_bench_solver_errors_are_one_line(capsys):

@@ -330,6 +330,7 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
         pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
     ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
     monkeypatch.setattr(fused, "ACCUM", "fixed")
+    block = fused.BLOCK_DIM  # (the one-lane run's kernel: the default block's)
 
     def run(mass, loads, frame, k):
         monkeypatch.setattr(fused, "MASS", mass)
@@ -338,7 +339,7 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
         monkeypatch.setattr(fused, "FRAME_LAUNCH", frame)
         if hasattr(wp.config, "enable_cpu_blocks"):
             monkeypatch.setattr(wp.config, "enable_cpu_blocks", k > 1)
-        monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else 1024)
+        monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else block)
         batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
         fz = batch.solver._fused
         assert fz.fixed and fz.row_mass == (mass == "row") and fz.frame_launch == frame

@@ -52,7 +52,13 @@ from physhand_mj.solver.integrate import finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
 
-BLOCK_DIM = 1024  # threads per world's block on CUDA (the CPU runs one lane per block)
+# Threads per world's block on CUDA (the CPU runs one lane per block). 640 since 2026-11-27: with the
+# fixed-point sum the kernel needs more than the 64 registers a thread that 1,024 threads leave (it
+# spilled); W = 4,096 on one H100, hand-frames/s: 384 threads 29,820, 512 36,271, 576 37,919, 640
+# 39,898-40,557, 704 39,818, 768 38,188, 896 33,437, 1,024 27,037 (benchmarks/fused_variants.py --block;
+# docs/benchmarks/fused_variants_cuda_block*_4096.json). The float-sum kernel had been fastest at 1,024.
+BLOCK_DIM = 640
+CUDA_BLOCK = 640  # the block Config.fused_substep=None takes on CUDA (cuda_auto)
 # How a group's corrections are summed per vertex: "scatter" (each constraint once, its corners
 # added into the shared accumulator with shared-memory atomics: the CPU's default) or "gather"
 # (each movable vertex recomputes its constraints in constraint order: no atomics, repeatable bit
@@ -842,9 +848,9 @@ def cuda_auto(config, asset, worlds: int, device) -> bool:
     """Whether ``Config.fused_substep=None`` takes the fused substep for a batch of ``worlds``
     worlds of ``asset`` on ``device``: CUDA, at least ``CUDA_AUTO_WAVES`` worlds per SM, a config
     that allows it, a world that fits a block's shared memory, and the measured kernel (``SUM``
-    "scatter" at ``BLOCK_DIM`` 1024: the gather sum and smaller blocks were slower than the gathers)."""
+    "scatter" at ``BLOCK_DIM`` ``CUDA_BLOCK``: the gather sum was slower than the gathers)."""
     return (bool(device.is_cuda) and config.fused_substep is None and worlds >= CUDA_AUTO_WAVES * device.sm_count
-            and SUM == "scatter" and BLOCK_DIM == 1024 and config_allows(config)
+            and SUM == "scatter" and BLOCK_DIM == CUDA_BLOCK and config_allows(config)
             and asset_shared_bytes(asset, device) <= device.max_shared_memory_per_block)
 
 
