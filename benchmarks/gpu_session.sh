@@ -26,6 +26,9 @@
 #            masses, multipliers in the last substep) at W = 1024 and 4096, and whether its float adds to
 #            shared memory are compare-and-swap loops (the SASS)
 #   profile  Nsight Compute on one fused launch of the first and last variant (W = 264), stall reasons
+#   variants2..7, blocks  each step of the fixed-point kernel against the one before (2026-11-27; docs/solver.md)
+#   final_tests   the CUDA tests the fused kernel touches (test_fused, test_batch, CPU/CUDA solver, a hard case)
+#   final_bench, final2   the shipped kernel against the old one, solver only and two HOI grasps at W = 4,096
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail

@@ -118,7 +118,8 @@ def test_fused_substep_with_contact_and_one_hand(setup, placement):
         runs.append(batch)
     for w in range(2):
         assert np.array_equal(runs[0].positions(w), runs[1].positions(w))
-    for name in ("v", "x_prev", "x_safe", "guard"):  # (the substep's start, folded into the launch or not)
+    for name in ("v", "x_prev", "x_safe", "guard", "lam_edge", "lam_tet", "lam_dih"):  # (the substep's start, folded
+        # into the launch or not; the multipliers, written in the last substep's launch)
         assert np.array_equal(getattr(runs[0].state, name).numpy(), getattr(runs[1].state, name).numpy()), name
     assert np.abs(runs[1].skin(1) - runs[1].skin(0)).max() > 1e-3  # world 1 was pressed
 
@@ -343,7 +344,7 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
         batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
         fz = batch.solver._fused
         assert fz.fixed and fz.row_mass == (mass == "row") and fz.frame_launch == frame
-        assert fz.vec == (loads and mass == "row") and fz.pin == loads
+        assert fz._vec_ok() == (loads and mass == "row") and fz.pin == loads  # (what the kernel got)
         return batch
 
     one = run("row", True, True, 1)
@@ -360,15 +361,52 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
 
 
 def test_fixed_point_bound_keeps_every_vertex_sum_in_int32(setup):
-    """FusedSubstep's clamp: a vertex's group sum is at most (its constraints in the group) x
-    fx_bound x 2^FIXED_BITS, under int32's 2^31 for the vertex with the most constraints; the bound
-    still passes any physical correction (10 cm in one substep)."""
+    """FusedSubstep's clamp: in each group a movable vertex receives at most vertex_count[g] of it
+    corrections (counted here from the group's ids, corner by corner), each at most fx_bounds[g] x
+    2^FIXED_BITS steps, so its sum stays under int32's 2^31; the bounds still pass any physical
+    correction (10 cm in one substep)."""
     from physhand_mj.solver import fused
 
     cfg = Config(device="cpu", fused_substep=True)
     fz = fused.FusedSubstep(make_model(setup[0], cfg), "cpu")
-    most = float(fz.vertex_count.numpy().max())
-    assert most >= 4
-    assert most * fz.fx_bound * fz.fx_scale < 2.0 ** 31
-    assert fz.fx_bound > 0.1
+    counts = fz.vertex_count.numpy()
+    for g, ids in enumerate((fz.edge_ids, fz.tet_ids, fz.dih_ids)):
+        corners = ids.numpy().ravel()
+        adds = np.bincount(corners[corners < fz.n_soft], minlength=fz.n_soft)[: fz.n_soft]
+        assert np.all(adds <= counts[g, : fz.n_soft]), g  # (the premise of the bound)
+        assert counts[g].max() * fz.fx_bounds[g] * fz.fx_scale < 2.0 ** 31, g
+        assert fz.fx_bounds[g] > 0.1, g
     assert fz.fx_scale == 2.0 ** fused.FIXED_BITS
+
+
+def test_fixed_point_add_rounds_clamps_and_drops_nan():
+    """shared_add_fixed on its own (a one-lane CPU block): a correction adds round(v 2^28) per
+    component, one past the bound adds the bound, and a NaN component adds nothing (a clamped NaN
+    would push the constraint's finite corners by the bound)."""
+    from physhand_mj.solver import fused
+
+    @wp.kernel(enable_backward=False)
+    def probe(vals: wp.array(dtype=wp.vec3), slot: wp.array(dtype=int), out: wp.array(dtype=wp.vec3i), scale: float,
+              bound: float):
+        _ = wp.tid()
+        t = wp.tile_zeros(shape=3, dtype=wp.vec3i, storage="shared")
+        for k in range(vals.shape[0]):
+            fused.shared_add_fixed(t, slot[k], vals[k], True, scale, bound)
+        fused.block_sync()
+        for k in range(3):
+            out[k] = t[k]
+
+    nan = float("nan")
+    vals = np.array([[1e-6, -1e-6, 0.0], [2e-6, 0.0, 0.0], [1.0, -1.0, 0.05], [nan, 1e-3, nan]], np.float32)
+    slot = np.array([0, 0, 1, 2], np.int32)
+    out = wp.zeros(3, dtype=wp.vec3i, device="cpu")
+    scale, bound = 2.0 ** 28, 0.1
+    wp.launch_tiled(probe, dim=[1], inputs=[wp.array(vals, dtype=wp.vec3, device="cpu"),
+                                            wp.array(slot, dtype=int, device="cpu"), out, scale, bound],
+                    block_dim=1, device="cpu")
+    got = out.numpy()
+    step = np.float32(scale)
+    assert got[0].tolist() == [round(1e-6 * step) + round(2e-6 * step), -round(1e-6 * step), 0]
+    assert got[1].tolist() == [round(np.float32(bound) * step), -round(np.float32(bound) * step),
+                               round(np.float32(0.05) * step)]
+    assert got[2].tolist() == [0, round(np.float32(1e-3) * step), 0]

@@ -80,8 +80,8 @@ ORDER = "asset"
 # sum is exact, so a world's result is the same bits in any order: repeatable on CUDA, and the same
 # with one lane or many) or "auto" (fixed on CUDA, where it took the solver's batch frame 1.65-1.70 x
 # faster, float on the CPU, where it is slower and float keeps the five-launch substep's bits).
-# Each correction component is clamped to +-fx_bound m first (FusedSubstep: 0.99 * 2^31 steps over
-# the most corrections any vertex takes in a group), so no vertex's sum can overflow.
+# Each correction component is clamped to +-fx_bounds[g] m first (FusedSubstep: 0.99 * 2^31 steps
+# over the most corrections any vertex takes in group g), so no vertex's sum can overflow.
 ACCUM = "auto"
 FIXED_BITS = 28  # the fixed-point sum's step: 2^-28 m = 3.7 nm (float32's step at 0.03-0.06 m)
 # Where a constraint's inverse masses come from: "vertex" (inv_mass[i] per corner, a load that waits
@@ -132,16 +132,19 @@ def shared_set(t: Any, i: int, v: wp.vec3, has: bool):
 
 @wp.func_native("""if (has) {
     int* p = (int*)&t.data.ptr[i];
-    wp::atomic_add(p, (int)rintf(wp::clamp(v[0], -bound, bound) * scale));
-    wp::atomic_add(p + 1, (int)rintf(wp::clamp(v[1], -bound, bound) * scale));
-    wp::atomic_add(p + 2, (int)rintf(wp::clamp(v[2], -bound, bound) * scale));
-}""")
+    const float x = wp::clamp(v[0], -bound, bound), y = wp::clamp(v[1], -bound, bound), z = wp::clamp(v[2], -bound, bound);
+    wp::atomic_add(p, v[0] == v[0] ? (int)rintf(x * scale) : 0);
+    wp::atomic_add(p + 1, v[1] == v[1] ? (int)rintf(y * scale) : 0);
+    wp::atomic_add(p + 2, v[2] == v[2] ? (int)rintf(z * scale) : 0);
+}
+""")
 def shared_add_fixed(t: Any, i: int, v: wp.vec3, has: bool, scale: float, bound: float):
     """``t[i] += round(v scale)`` where ``has``, atomic int32 adds into a vec3i tile, no barrier; each
-    component first clamped to +-``bound`` m (so no vertex's sum can overflow: FusedSubstep.fx_bound).
+    component first clamped to +-``bound`` m (so no vertex's sum can overflow: FusedSubstep.fx_bounds).
     The clamp is Warp's (fminf/fmaxf on CUDA: two instructions, no branch; a ternary clamp compiled
-    to branches, 13 instructions a component). A NaN component adds -bound; it only comes from a NaN
-    position, which stays NaN, so the world is still reported non-finite."""
+    to branches, 13 instructions a component). A NaN component adds 0, as a NaN correction must not
+    push the constraint's finite corners (the clamp alone would make it -bound); the NaN position it
+    came from stays NaN for the guard."""
     ...
 
 
@@ -355,7 +358,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         count: int,
         fx_scale: float,
         fx_step: float,
-        fx_bound: float,
+        fx_bounds: wp.vec3,
         # State in/out (every world; lambda rows world by world, w C + j):
         x: wp.array(dtype=wp.vec3),
         lam_edge: wp.array(dtype=float),
@@ -453,7 +456,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                                 r = edge_row[j]
                             lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
                     if wp.static(FIXED):
-                        add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bound)
+                        add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bounds[0])
                     else:
                         add2(ds, NS, i1, i2, d1, d2, moves)
             if wp.static(FIXED):
@@ -528,7 +531,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                                 r = tet_row[j]
                             lam_tet[w * nt + r] = dlam
                     if wp.static(FIXED):
-                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bounds[1])
                     else:
                         add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
             if wp.static(FIXED):
@@ -605,7 +608,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                                 r = dih_row[j]
                             lam_dih[w * nd + r] = dlam
                     if wp.static(FIXED):
-                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bounds[2])
                     else:
                         add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
             block_sync()
@@ -688,16 +691,17 @@ class FusedSubstep:
             raise ValueError(f"physhand_mj.solver.fused.ACCUM must be 'float', 'fixed' or 'auto', got {ACCUM!r}")
         if MASS not in ("vertex", "row"):
             raise ValueError(f"physhand_mj.solver.fused.MASS must be 'vertex' or 'row', got {MASS!r}")
-        self.fixed = ACCUM == "fixed" or (ACCUM == "auto" and wp.get_device(dev).is_cuda)
+        self.fixed = (ACCUM == "fixed" or (ACCUM == "auto" and wp.get_device(dev).is_cuda)) and SUM == "scatter"
         self.row_mass = MASS == "row"
         self.lam_every = bool(LAM_EVERY_SUBSTEP)
         self.pin = bool(PIN_LOADS)
         self.vec = bool(VEC_LOADS) and self.row_mass
         self.frame_launch = bool(FRAME_LAUNCH)
         self.fx_scale = float(2.0 ** FIXED_BITS)
-        # no vertex's sum overflows int32: at most max n_i corrections, each clamped to the bound
-        most = max(float(counts.max()) if counts.size else 1.0, 1.0)
-        self.fx_bound = float(0.99 * 2.0 ** 31 / self.fx_scale / most)
+        # no vertex's sum overflows int32: in group g it takes at most max_i n_i(g) corrections (the
+        # group's vertex_count, a count of every id in it), each clamped to the group's bound
+        most = [max(float(counts[g].max()) if counts.shape[1] else 1.0, 1.0) for g in range(3)]
+        self.fx_bounds = tuple(float(0.99 * 2.0 ** 31 / self.fx_scale / k) for k in most)
         empty2 = wp.empty((0, 0), dtype=float, device=dev)
         if self.row_mass:
             def masses(ids):
@@ -800,7 +804,7 @@ class FusedSubstep:
         return [self.inv_mass, self.vertex_count, *fam, self.dih_alpha,
                 *(self._entries() if SUM == "gather" else [self._none] * 6), *rows, float(inv_h2),
                 float(relaxation), self.ns, self.worlds, int(bool(keep_lam) or self.lam_every), int(count), self.fx_scale, 1.0 / self.fx_scale,
-                self.fx_bound, state.x, state.lam_edge, state.lam_tet, state.lam_dih,
+                wp.vec3(*self.fx_bounds), state.x, state.lam_edge, state.lam_tet, state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]
 
