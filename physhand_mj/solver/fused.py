@@ -30,7 +30,7 @@ NVIDIA GPUs). docs/solver.md has each measured step (benchmarks/fused_variants.p
 
 Shared memory per block: 12 bytes per vertex and per soft vertex, each tile 16-byte aligned, and on
 CUDA 4 bytes per thread for Warp's tile allocator (the embedded hand: 10,480 and 6,811 vertices,
-207,504 + 4,096 bytes; an H100 or H200 block may hold 227 KB). Warp's CPU runs a tiled kernel's
+207,504 + 2,560 bytes at 640 threads; an H100 or H200 block may hold 227 KB). Warp's CPU runs a tiled kernel's
 block as one lane over a fixed 256 KiB arena (a larger request aborts the process), so
 :func:`choose` checks the size for the device before building the kernel: a body of more than about
 21,800 vertices plus movable vertices per world does not fit the CPU, about 19,000 a Hopper block.
