@@ -161,7 +161,8 @@ def fixed_to_float(d: wp.vec3i, step: float):
 
 @wp.func_native("""#if defined(__CUDA_ARCH__)
 float r;
-asm volatile("ld.global.nc.f32 %0, [%1];" : "=f"(r) : "l"(wp::address(arr, j)));
+asm volatile("{ .reg .u64 g; cvta.to.global.u64 g, %1; ld.global.nc.f32 %0, [g]; }" : "=f"(r)
+             : "l"(wp::address(arr, j)));
 return r;
 #else
 return *wp::address(arr, j);
