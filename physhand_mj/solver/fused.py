@@ -71,7 +71,8 @@ SUM = "scatter"
 # their first corner into ~9 distinct vertices (9.2 lanes on one shared address on average, tets
 # 1.4-2.1, dihedrals 1.1-1.6), strided ~1.0-1.1, so its shared-memory atomics do not serialise;
 # the sum's order changes, so the CPU result differs from the five-launch one by rounding).
-# Not yet measured on a GPU: benchmarks/fused_substep.py --order.
+# Measured on an H100 with the float sum (2026-11-26, benchmarks/fused_substep.py --order): 0.90-0.96 x
+# the asset's order, which stays.
 ORDER = "asset"
 # How a group's corrections are added into the shared accumulator with SUM "scatter": "float" (float
 # atomics: on NVIDIA GPUs a shared-memory float add is a compare-and-swap loop, ATOMS.CAST.SPIN in
@@ -96,8 +97,9 @@ VEC_LOADS = True
 # Whether a frame with no contact stage runs all its substeps in one launch, the positions kept in
 # shared memory from one substep to the next (Solver.step; a contact stage needs them in global memory).
 FRAME_LAUNCH = True
-# Whether every substep writes the constraints' multipliers (True) or only a frame's last one (False:
-# lambda is reset each substep, so the others' are overwritten unread; diagnostics read the last).
+# Whether every substep's launch writes the constraints' multipliers (True; a frame launch, in its last
+# substep) or only a frame's last substep (False: lambda is reset each substep, so the others' are
+# overwritten unread; diagnostics read the last). True is benchmarks/fused_variants.py's old kernel.
 LAM_EVERY_SUBSTEP = False
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
