@@ -66,8 +66,10 @@ def main() -> None:
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
     p.add_argument("--worlds", default="4", help="comma-separated world counts")
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames each way per world count")
-    p.add_argument("--variants", default="base,lam,row,fixed,fixed_row,pinned,vec,frame", help=f"comma-separated, of {list(VARIANTS)}")
-    p.add_argument("--block", type=int, default=None, help="threads per world's block on CUDA (solver/fused.py BLOCK_DIM)")
+    p.add_argument("--variants", default="base,lam,row,fixed,fixed_row,pinned,vec,frame",
+                   help=f"comma-separated, of {list(VARIANTS)}")
+    p.add_argument("--block", type=int, default=None,
+                   help="threads per world's block on CUDA, every variant (solver/fused.py BLOCK_DIM)")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/fused_variants_<device>.json)")
     a = p.parse_args()
     names = [s for s in a.variants.split(",") if s]
@@ -82,18 +84,21 @@ def main() -> None:
     ids = body_ids(model, asset.body_names)
     mount = mount_pose(model, data)
     rows = []
-    saved = (fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PIN_LOADS, fused.VEC_LOADS, fused.FRAME_LAUNCH)
+    switches = ("ACCUM", "MASS", "LAM_EVERY_SUBSTEP", "PIN_LOADS", "VEC_LOADS", "FRAME_LAUNCH")
+    saved = tuple(getattr(fused, k) for k in switches)
     for w in [int(s) for s in a.worlds.split(",")]:
         poses = bending_poses(model, data, ids, w)
         inputs = [poses(f) for f in range(2 + a.frames)]  # (bone poses from MuJoCo: not timed)
         runs = {}
         for name in names:
-            fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PIN_LOADS, fused.VEC_LOADS, fused.FRAME_LAUNCH = VARIANTS[name]
+            for k, v in zip(switches, VARIANTS[name]):
+                setattr(fused, k, v)
             try:
                 runs[name] = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, fused_substep=True), *mount)
                 runs[name].step(*inputs[0])  # (its kernel built and its frame recorded with these switches)
             finally:
-                fused.ACCUM, fused.MASS, fused.LAM_EVERY_SUBSTEP, fused.PIN_LOADS, fused.VEC_LOADS, fused.FRAME_LAUNCH = saved
+                for k, v in zip(switches, saved):
+                    setattr(fused, k, v)
         times = {name: [] for name in runs}
         for f, (pos, quat) in enumerate(inputs[1:], start=1):
             for name, hands in runs.items():

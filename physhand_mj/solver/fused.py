@@ -807,7 +807,8 @@ class FusedSubstep:
         return [self.inv_mass, self.vertex_count, *fam, self.dih_alpha,
                 *(self._entries() if SUM == "gather" else [self._none] * 6), *rows, float(inv_h2),
                 float(relaxation), self.ns, self.worlds, int(bool(keep_lam) or self.lam_every), int(count),
-                self.fx_scale, 1.0 / self.fx_scale, wp.vec3(*self.fx_bounds), state.x, state.lam_edge, state.lam_tet, state.lam_dih,
+                self.fx_scale, 1.0 / self.fx_scale, wp.vec3(*self.fx_bounds), state.x, state.lam_edge, state.lam_tet,
+                state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard]
 
