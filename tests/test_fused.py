@@ -384,7 +384,7 @@ def test_fixed_point_add_rounds_clamps_and_drops_nan():
     """shared_add_fixed on its own (a one-lane CPU block): a correction adds round(v 2^28) per
     component, one past the bound adds the bound, and a NaN component adds nothing (a clamped NaN
     would push the constraint's finite corners by the bound)."""
-    from physhand_mj.solver import fused
+    from physhand_mj.solver import fused_tile
 
     @wp.kernel(enable_backward=False)
     def probe(vals: wp.array(dtype=wp.vec3), slot: wp.array(dtype=int), out: wp.array(dtype=wp.vec3i), scale: float,
@@ -392,8 +392,8 @@ def test_fixed_point_add_rounds_clamps_and_drops_nan():
         _ = wp.tid()
         t = wp.tile_zeros(shape=3, dtype=wp.vec3i, storage="shared")
         for k in range(vals.shape[0]):
-            fused.shared_add_fixed(t, slot[k], vals[k], True, scale, bound)
-        fused.block_sync()
+            fused_tile.shared_add_fixed(t, slot[k], vals[k], True, scale, bound)
+        fused_tile.block_sync()
         for k in range(3):
             out[k] = t[k]
 

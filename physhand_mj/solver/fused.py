@@ -40,14 +40,15 @@ in each world (the asset's layout: skin, flesh, skeleton).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import warp as wp
 
 from physhand_mj.batch_tile import shifted_id
 from physhand_mj.solver.edge import edge_correction
 from physhand_mj.solver.fused_gather import dihedrals_of_vertex, edges_of_vertex, tets_of_vertex, vertex_entries
+from physhand_mj.solver.fused_tile import (add2, add2_fixed, add_corners, add_corners_fixed, apply_group,
+                                           apply_group_fixed, block_sync, corners2, corners4, fixed_to_float,
+                                           keep_multiplier, shared_set, shared_set_int)
 from physhand_mj.solver.integrate import finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
@@ -105,200 +106,7 @@ CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MA
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
 
-# Shared tiles are written through the two native helpers below, which add to one element and leave
-# out Warp's barrier: every Warp builtin that writes a tile element (``tile[i] = v``, ``tile[i] += v``,
-# ``wp.tile_scatter_add``) ends in ``__syncthreads``, and one barrier per constraint corner kept a
-# block's warps in lockstep (measured on an H100, W = 64: a world's substep 0.63 ms on one SM, 10 x
-# its arithmetic). A group's adds need no order among themselves (they are atomic where two threads
-# may meet), so the block synchronises only where one phase reads what another wrote: after the load,
-# after each group's corrections and after each average (``block_sync``). Adding into a zeroed tile,
-# or adding a vertex's own correction, rounds as the plain store and update of the family kernels
-# do (x + 0 = x; x + d (omega / n) as integrate.apply_jacobi).
-
-
 _KERNELS: dict = {}
-
-
-@wp.func_native("""if (has) { wp::atomic_add(&t.data.ptr[i], v); }""")
-def shared_add(t: Any, i: int, v: wp.vec3, has: bool):
-    """``t[i] += v`` where ``has``, atomic (threads may add to one element), no barrier. For this
-    module's 1-D shared tiles of vec3 only (``ptr[i]`` is element i there; no bounds check)."""
-    ...
-
-
-@wp.func_native("""if (has) { t.data.ptr[i] = v; }""")
-def shared_set(t: Any, i: int, v: wp.vec3, has: bool):
-    """``t[i] = v`` where ``has`` (an element only this thread touches in this phase), no barrier."""
-    ...
-
-
-@wp.func_native("""if (has) {
-    int* p = (int*)&t.data.ptr[i];
-    const float x = wp::clamp(v[0], -bound, bound), y = wp::clamp(v[1], -bound, bound), z = wp::clamp(v[2], -bound, bound);
-    wp::atomic_add(p, v[0] == v[0] ? (int)rintf(x * scale) : 0);
-    wp::atomic_add(p + 1, v[1] == v[1] ? (int)rintf(y * scale) : 0);
-    wp::atomic_add(p + 2, v[2] == v[2] ? (int)rintf(z * scale) : 0);
-}
-""")
-def shared_add_fixed(t: Any, i: int, v: wp.vec3, has: bool, scale: float, bound: float):
-    """``t[i] += round(v scale)`` where ``has``, atomic int32 adds into a vec3i tile, no barrier; each
-    component first clamped to +-``bound`` m (so no vertex's sum can overflow: FusedSubstep.fx_bounds).
-    The clamp is Warp's (fminf/fmaxf on CUDA: two instructions, no branch; a ternary clamp compiled
-    to branches, 13 instructions a component). A NaN component adds 0, as a NaN correction must not
-    push the constraint's finite corners (the clamp alone would make it -bound); the NaN position it
-    came from stays NaN for the guard."""
-    ...
-
-
-@wp.func_native("""if (has) { t.data.ptr[i] = v; }""")
-def shared_set_int(t: Any, i: int, v: wp.vec3i, has: bool):
-    """``t[i] = v`` for a vec3i tile where ``has``, no barrier."""
-    ...
-
-
-@wp.func
-def fixed_to_float(d: wp.vec3i, step: float):
-    return wp.vec3(float(d[0]) * step, float(d[1]) * step, float(d[2]) * step)
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-float r;
-asm volatile("{ .reg .u64 g; cvta.to.global.u64 g, %1; ld.global.nc.f32 %0, [g]; }" : "=f"(r)
-             : "l"(wp::address(arr, j)));
-return r;
-#else
-return *wp::address(arr, j);
-#endif
-""")
-def load_here(arr: wp.array(dtype=float), j: int) -> float:
-    """``arr[j]`` (read-only data), loaded where the call stands. On CUDA the compiler otherwise sinks
-    a load that only the non-degenerate branch of a constraint uses (the rest length) into that
-    branch, after the positions' loads and the square root, and the warp waits there for L2 (the
-    H100's SASS: ~5 % of the fused kernel's stall samples on one instruction); a volatile load stays
-    at the top of the iteration, beside the ids' loads, and arrives with them."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const int4 q = __ldg(reinterpret_cast<const int4*>(wp::address(arr, j, 0)));
-return wp::vec_t<4, int>(q.x, q.y, q.z, q.w);
-#else
-const int* p = wp::address(arr, j, 0);
-return wp::vec_t<4, int>(p[0], p[1], p[2], p[3]);
-#endif
-""")
-def row4i(arr: wp.array2d(dtype=int), j: int) -> wp.vec4i:
-    """Row ``j`` of a contiguous (n, 4) int32 array, 16-byte aligned: one 128-bit load on CUDA (Warp's
-    vectors are 4-byte aligned, so ``arr[j, k]`` is four loads and four address computations)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const float4 q = __ldg(reinterpret_cast<const float4*>(wp::address(arr, j, 0)));
-return wp::vec_t<4, float>(q.x, q.y, q.z, q.w);
-#else
-const float* p = wp::address(arr, j, 0);
-return wp::vec_t<4, float>(p[0], p[1], p[2], p[3]);
-#endif
-""")
-def row4f(arr: wp.array2d(dtype=float), j: int) -> wp.vec4:
-    """Row ``j`` of a contiguous (n, 4) float32 array, 16-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const int2 q = __ldg(reinterpret_cast<const int2*>(wp::address(arr, j, 0)));
-return wp::vec_t<2, int>(q.x, q.y);
-#else
-const int* p = wp::address(arr, j, 0);
-return wp::vec_t<2, int>(p[0], p[1]);
-#endif
-""")
-def row2i(arr: wp.array2d(dtype=int), j: int) -> wp.vec2i:
-    """Row ``j`` of a contiguous (n, 2) int32 array, 8-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const float2 q = __ldg(reinterpret_cast<const float2*>(wp::address(arr, j, 0)));
-return wp::vec_t<2, float>(q.x, q.y);
-#else
-const float* p = wp::address(arr, j, 0);
-return wp::vec_t<2, float>(p[0], p[1]);
-#endif
-""")
-def row2f(arr: wp.array2d(dtype=float), j: int) -> wp.vec2:
-    """Row ``j`` of a contiguous (n, 2) float32 array, 8-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""WP_TILE_SYNC();""")
-def block_sync():
-    """The block's barrier (every thread of the block calls it)."""
-    ...
-
-
-@wp.func
-def apply_group(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float), group: int, relaxation: float,
-                lane: int, bd: int):
-    """A group's Jacobi average in shared memory (integrate.apply_jacobi: x_i += omega / n_i sum),
-    its accumulator zeroed for the next group; every thread of the block calls it (a barrier before,
-    for the group's corrections, and after, for the positions)."""
-    block_sync()
-    for k in range((ns + bd - 1) // bd):
-        l = k * bd + lane
-        if l < ns:
-            c = vertex_count[group, l]
-            if c > 0.0:
-                shared_set(xs, l, xs[l] + ds[l] * (relaxation / c), True)
-            shared_set(ds, l, wp.vec3(0.0), True)
-    block_sync()
-
-
-@wp.func
-def apply_group_fixed(xs: Any, ds: Any, ns: int, vertex_count: wp.array2d(dtype=float), group: int,
-                      relaxation: float, lane: int, bd: int, step: float):
-    """apply_group for ACCUM "fixed" (a vec3i accumulator in steps of ``step`` m)."""
-    block_sync()
-    for k in range((ns + bd - 1) // bd):
-        l = k * bd + lane
-        if l < ns:
-            c = vertex_count[group, l]
-            if c > 0.0:
-                shared_set(xs, l, xs[l] + fixed_to_float(ds[l], step) * (relaxation / c), True)
-            shared_set_int(ds, l, wp.vec3i(0), True)
-    block_sync()
-
-
-@wp.func
-def add2(ds: Any, ns: int, i1: int, i2: int, d1: wp.vec3, d2: wp.vec3, moves: int):
-    """A 2-vertex constraint's corrections into the shared accumulator (movable vertices only)."""
-    shared_add(ds, i1, d1, moves != 0 and i1 < ns)
-    shared_add(ds, i2, d2, moves != 0 and i2 < ns)
-
-
-@wp.func
-def add_corners(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3,
-                d4: wp.vec3, moves: int):
-    """A 4-vertex constraint's corrections into the shared accumulator (movable vertices only)."""
-    add2(ds, ns, i1, i2, d1, d2, moves)
-    add2(ds, ns, i3, i4, d3, d4, moves)
-
-
-@wp.func
-def add2_fixed(ds: Any, ns: int, i1: int, i2: int, d1: wp.vec3, d2: wp.vec3, moves: int, scale: float,
-               bound: float):
-    """add2 into ACCUM "fixed"'s vec3i accumulator."""
-    shared_add_fixed(ds, i1, d1, moves != 0 and i1 < ns, scale, bound)
-    shared_add_fixed(ds, i2, d2, moves != 0 and i2 < ns, scale, bound)
-
-
-@wp.func
-def add_corners_fixed(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: wp.vec3, d2: wp.vec3,
-                      d3: wp.vec3, d4: wp.vec3, moves: int, scale: float, bound: float):
-    """add_corners into ACCUM "fixed"'s vec3i accumulator."""
-    add2_fixed(ds, ns, i1, i2, d1, d2, moves, scale, bound)
-    add2_fixed(ds, ns, i3, i4, d3, d4, moves, scale, bound)
 
 
 def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False,
@@ -320,8 +128,11 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
     FIXED = key[5]
     ROWM = key[6]
     PLAIN = not GATHER
-    PIN = key[7]  # (PIN_LOADS: the rest data loaded at the top of each constraint's iteration)
-    VEC = key[8]  # (VEC_LOADS: a constraint's ids and masses in one vector load each)
+    # (as ints for corners2 / corners4 / keep_multiplier: constants of this kernel, folded once inlined)
+    ROWM_I = int(ROWM)
+    PIN_I = int(key[7])  # (PIN_LOADS: the rest data loaded at the top of each constraint's iteration)
+    VEC_I = int(key[8])  # (VEC_LOADS: a constraint's ids and masses in one vector load each)
+    STRIDED_I = int(STRIDED)
     ACC = wp.vec3i if FIXED else wp.vec3
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
@@ -407,6 +218,9 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                             x[g] = p  # (a skeleton vertex: the constraints leave it where its bone puts it)
                 shared_set(xs, l, p, l < N)
             block_sync()
+            keep = int(0)  # (the multipliers: a frame's last substep only)
+            if keep_lam != 0 and sub == count - 1:
+                keep = 1
 
             # group 0: edges and attachments (Eq. 2, 4-5)
             ne = edge_ids.shape[0]
@@ -427,37 +241,11 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     d1 = wp.vec3(0.0)
                     d2 = wp.vec3(0.0)
                     if j < ne:
-                        if wp.static(VEC):
-                            e = row2i(edge_ids, j)
-                            i1 = e[0]
-                            i2 = e[1]
-                        else:
-                            i1 = edge_ids[j, 0]
-                            i2 = edge_ids[j, 1]
-                        rest = float(0.0)
-                        if wp.static(PIN):
-                            rest = load_here(edge_rest, j)
-                        else:
-                            rest = edge_rest[j]
-                        w1 = float(0.0)
-                        w2 = float(0.0)
-                        if wp.static(VEC):
-                            ew = row2f(edge_w, j)
-                            w1 = ew[0]
-                            w2 = ew[1]
-                        elif wp.static(ROWM):
-                            w1 = edge_w[j, 0]
-                            w2 = edge_w[j, 1]
-                        else:
-                            w1 = inv_mass[i1]
-                            w2 = inv_mass[i2]
+                        i1, i2, w1, w2, rest = corners2(edge_ids, edge_w, inv_mass, edge_rest, j, VEC_I, PIN_I, ROWM_I)
                         moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, edge_alpha[j] * inv_h2,
                                                               0.0)
-                        if keep_lam != 0 and sub == count - 1:
-                            r = j
-                            if wp.static(STRIDED):
-                                r = edge_row[j]
-                            lam_edge[w * ne + r] = dlam  # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
+                        # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
+                        keep_multiplier(lam_edge, edge_row, w * ne, j, dlam, keep, STRIDED_I)
                     if wp.static(FIXED):
                         add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bounds[0])
                     else:
@@ -490,49 +278,11 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     d3 = wp.vec3(0.0)
                     d4 = wp.vec3(0.0)
                     if j < nt:
-                        if wp.static(VEC):
-                            q = row4i(tet_ids, j)
-                            i1 = q[0]
-                            i2 = q[1]
-                            i3 = q[2]
-                            i4 = q[3]
-                        else:
-                            i1 = tet_ids[j, 0]
-                            i2 = tet_ids[j, 1]
-                            i3 = tet_ids[j, 2]
-                            i4 = tet_ids[j, 3]
-                        rest = float(0.0)
-                        if wp.static(PIN):
-                            rest = load_here(tet_rest6v, j)
-                        else:
-                            rest = tet_rest6v[j]
-                        w1 = float(0.0)
-                        w2 = float(0.0)
-                        w3 = float(0.0)
-                        w4 = float(0.0)
-                        if wp.static(VEC):
-                            qw = row4f(tet_w, j)
-                            w1 = qw[0]
-                            w2 = qw[1]
-                            w3 = qw[2]
-                            w4 = qw[3]
-                        elif wp.static(ROWM):
-                            w1 = tet_w[j, 0]
-                            w2 = tet_w[j, 1]
-                            w3 = tet_w[j, 2]
-                            w4 = tet_w[j, 3]
-                        else:
-                            w1 = inv_mass[i1]
-                            w2 = inv_mass[i2]
-                            w3 = inv_mass[i3]
-                            w4 = inv_mass[i4]
+                        i1, i2, i3, i4, w1, w2, w3, w4, rest = corners4(tet_ids, tet_w, inv_mass, tet_rest6v, j, VEC_I,
+                                                                        PIN_I, ROWM_I)
                         moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4,
                                                                      rest, tet_alpha[j] * inv_h2, 0.0)
-                        if keep_lam != 0 and sub == count - 1:
-                            r = j
-                            if wp.static(STRIDED):
-                                r = tet_row[j]
-                            lam_tet[w * nt + r] = dlam
+                        keep_multiplier(lam_tet, tet_row, w * nt, j, dlam, keep, STRIDED_I)
                     if wp.static(FIXED):
                         add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bounds[1])
                     else:
@@ -565,51 +315,13 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                     d3 = wp.vec3(0.0)
                     d4 = wp.vec3(0.0)
                     if j < nd:
-                        if wp.static(VEC):
-                            q = row4i(dih_ids, j)
-                            i1 = q[0]
-                            i2 = q[1]
-                            i3 = q[2]
-                            i4 = q[3]
-                        else:
-                            i1 = dih_ids[j, 0]
-                            i2 = dih_ids[j, 1]
-                            i3 = dih_ids[j, 2]
-                            i4 = dih_ids[j, 3]
-                        rest = float(0.0)
-                        if wp.static(PIN):
-                            rest = load_here(dih_rest, j)
-                        else:
-                            rest = dih_rest[j]
-                        w1 = float(0.0)
-                        w2 = float(0.0)
-                        w3 = float(0.0)
-                        w4 = float(0.0)
-                        if wp.static(VEC):
-                            qw = row4f(dih_w, j)
-                            w1 = qw[0]
-                            w2 = qw[1]
-                            w3 = qw[2]
-                            w4 = qw[3]
-                        elif wp.static(ROWM):
-                            w1 = dih_w[j, 0]
-                            w2 = dih_w[j, 1]
-                            w3 = dih_w[j, 2]
-                            w4 = dih_w[j, 3]
-                        else:
-                            w1 = inv_mass[i1]
-                            w2 = inv_mass[i2]
-                            w3 = inv_mass[i3]
-                            w4 = inv_mass[i4]
+                        i1, i2, i3, i4, w1, w2, w3, w4, rest = corners4(dih_ids, dih_w, inv_mass, dih_rest, j, VEC_I,
+                                                                        PIN_I, ROWM_I)
                         dlam = float(0.0)
                         if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
                             moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
                                                                               w4, rest, dih_alpha * inv_h2, 0.0)
-                        if keep_lam != 0 and sub == count - 1:
-                            r = j
-                            if wp.static(STRIDED):
-                                r = dih_row[j]
-                            lam_dih[w * nd + r] = dlam
+                        keep_multiplier(lam_dih, dih_row, w * nd, j, dlam, keep, STRIDED_I)
                     if wp.static(FIXED):
                         add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bounds[2])
                     else:
