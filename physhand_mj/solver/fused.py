@@ -66,14 +66,10 @@ CUDA_BLOCK = 640  # the block Config.fused_substep=None takes on CUDA (cuda_auto
 # for bit on CUDA, ~3 x the constraint arithmetic: 0.52 x the gathers' frame on an H100 at W = 1024,
 # where "scatter" is 1.53 x; benchmarks/fused_substep.py --sum).
 SUM = "scatter"
-# The order a block walks a family's constraints in with SUM "scatter": "asset" (the asset's order;
-# the CPU's, bit for bit the five-launch substep) or "strided" (the family stored permuted so that
-# the 32 lanes of a warp take constraints ~C / 32 apart: in the asset's order a warp's 32 edges add
-# their first corner into ~9 distinct vertices (9.2 lanes on one shared address on average, tets
-# 1.4-2.1, dihedrals 1.1-1.6), strided ~1.0-1.1, so its shared-memory atomics do not serialise;
-# the sum's order changes, so the CPU result differs from the five-launch one by rounding).
-# Measured on an H100 with the float sum (2026-11-26, benchmarks/fused_substep.py --order): 0.90-0.96 x
-# the asset's order, which stays.
+# The order a block walks a family's constraints in with SUM "scatter": "asset" (the CPU's, bit for bit
+# the five-launch substep) or "strided" (stored permuted so that a warp's 32 lanes take constraints
+# ~C / 32 apart, 1.0-1.1 lanes per shared address instead of ~9 for edges; the CPU result then differs
+# by rounding). 0.90-0.96 x the asset's order on an H100 with the float sum (docs/solver.md).
 ORDER = "asset"
 # How a group's corrections are added into the shared accumulator with SUM "scatter": "float" (float
 # atomics: on NVIDIA GPUs a shared-memory float add is a compare-and-swap loop, ATOMS.CAST.SPIN in
