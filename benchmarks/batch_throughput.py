@@ -77,6 +77,17 @@ def plot(out: Path) -> Path:
     return out
 
 
+def hand_only_setup():
+    """The embedded asset and the hand_only scene these benchmarks bend: (asset, model, data, the
+    asset's bone ids in the model, the mount pose)."""
+    import physhand_mj as ph
+    from physhand_mj.hand_mjcf import body_ids, mount_pose, open_hand_scene
+
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    return asset, model, data, body_ids(model, asset.body_names), mount_pose(model, data)
+
+
 def bending_poses(model, data, ids, worlds: int):
     """``poses(f)``: the bone poses (positions, quaternions) of frame ``f`` for ``worlds`` worlds of the
     hand_only scene, open, world k bending its index finger at rate 1 + k % 7 (7 distinct poses a
@@ -132,10 +143,8 @@ def main() -> None:
         return
     import warp as wp
 
-    import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.bench import device_name
-    from physhand_mj.hand_mjcf import body_ids, mount_pose, open_hand_scene
     from physhand_mj.types import Config
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -157,10 +166,7 @@ def main() -> None:
 
         fused.BLOCK_DIM = a.fused_block
     wp.init()
-    asset = ph.load_asset()
-    _, model, data = open_hand_scene("hand_only", "open")
-    ids = body_ids(model, asset.body_names)
-    mount = mount_pose(model, data)
+    asset, model, data, ids, mount = hand_only_setup()
     rows = []
     from physhand_mj.types import GeomType
 

@@ -52,15 +52,13 @@ VARIANTS = dict(base=("float", "vertex", True, False, False, False),
 def main() -> None:
     import warp as wp
 
-    import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.bench import device_name
-    from physhand_mj.hand_mjcf import body_ids, mount_pose, open_hand_scene
     from physhand_mj.solver import fused
     from physhand_mj.types import Config
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from batch_throughput import bending_poses
+    from batch_throughput import bending_poses, hand_only_setup
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
@@ -79,10 +77,7 @@ def main() -> None:
     if a.block:
         fused.BLOCK_DIM = a.block
     wp.init()
-    asset = ph.load_asset()
-    _, model, data = open_hand_scene("hand_only", "open")
-    ids = body_ids(model, asset.body_names)
-    mount = mount_pose(model, data)
+    asset, model, data, ids, mount = hand_only_setup()
     rows = []
     switches = ("ACCUM", "MASS", "LAM_EVERY_SUBSTEP", "PIN_LOADS", "VEC_LOADS", "FRAME_LAUNCH")
     saved = tuple(getattr(fused, k) for k in switches)
