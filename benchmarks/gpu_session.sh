@@ -273,6 +273,45 @@ case $phase in
     done
     step pytest_fused 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py
     ;;
+  s36_tests)  # 2026-11-27 (second session): the CUDA tests on the review's fixes and the fused_tile split
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step pytest_cuda 560 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_fused.py tests/test_batch.py \
+      tests/test_solver.py::test_cpu_and_cuda_agree tests/test_hard_contact.py::test_hard_case_on_cuda \
+      tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel
+    ;;
+  s36_bench)  # the shipped kernel against the old one (and the old one at its 1,024 threads), the box's kernel split
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step shipped 200 python3 benchmarks/fused_variants.py --device cuda --worlds 1024,4096 --frames 6 \
+      --variants base,frame --out docs/benchmarks/fused_variants_cuda_shipped2.json
+    step base1024 100 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --block 1024 \
+      --variants base --out docs/benchmarks/fused_variants_cuda_base_block1024.json
+    step box_profile 240 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_box_profile.json
+    ;;
+  s36_slack_tests)  # Config.feature_slack: its CUDA tests and the CUDA tests of the feature path
+    step pytest_slack 560 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_feature_slack.py \
+      tests/test_winding.py tests/test_hard_contact.py::test_hard_case_on_cuda tests/test_batch.py
+    ;;
+  s36_slack_bench)  # Config.feature_slack on the HOI batches: the box with and without it, its split; three grasps
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step box_1024 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_box_slack.json
+    step box_1024_margin 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 10 \
+      --config '{"feature_slack": 0.01}' --out docs/benchmarks/batch_hoi_cuda_box_noslack.json
+    step box_profile 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_box_slack_profile.json
+    step box_4096 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_box_slack_4096.json
+    ;;
+  s36_slack_bench2)  # the other grasps with feature points at W = 4,096, Config() with the slack
+    for s in phone glass2 toothpaste; do
+      step "hoi_$s" 150 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
+        --out "docs/benchmarks/batch_hoi_cuda_${s}_slack_4096.json"
+    done
+    ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac
 # flat into $OUT: nested folders under $OUT did not come back (2026-11-23: "left out (depth)"), and each

@@ -172,6 +172,16 @@ class Config:
         and 8 passes could end with Eq. 9 having moved the skin back over a corner); with it and
         the two settings above 0 of 600 held hard-case frames left anything inside the skin on the
         CPU and an H100, 26 and 18 without the three (docs/contact.md, held frames);
+        feature_slack: the least motion of the skin within one frame that the object's feature
+        points are listed and their patches (the local winding number's, contact/winding.py) sized
+        for (m; 4 mm: a held grasp's skin jitters up to 1.5 mm a frame at single vertices): a feature point d from the skin at the frame's start is listed when d is within
+        the slack plus contact_margin and its patch holds the skin triangles within d plus the slack
+        (not within contact_frame_margin: 4-8 x fewer patch entries on the box grasp); each frame the
+        slack is raised to 2.5 x the skin's largest move in the last frame with contact, up to
+        contact_frame_margin, and a frame in which the skin moved half its slack or more is
+        reported (``feature_slack_exceeded``) and warned about (docs/contact.md); at
+        contact_frame_margin or more: every feature point within that margin, patches of that
+        radius (the lists before 2026-11-27);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
@@ -304,6 +314,7 @@ class Config:
     contact_offset: float = 4.0e-6
     feature_offset: float = 6.0e-5
     feature_spacing: float = 2.5e-4
+    feature_slack: float = 4.0e-3
     multires_samples: int = 21
     multires_rounds: int = 2
     opt_queries: int = 32
@@ -377,6 +388,7 @@ class Config:
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
         nonneg("feature_offset")
+        nonneg("feature_slack")
         if not (isinstance(self.feature_spacing, (int, float, np.floating, np.integer))
                 and not isinstance(self.feature_spacing, bool) and math.isfinite(self.feature_spacing)
                 and self.feature_spacing > 0):

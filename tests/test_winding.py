@@ -154,8 +154,8 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         slot, start, length = (wp.zeros_like(a) for a in (c.feat_slot, c.patch_start, c.patch_len))
         fill, far = wp.zeros_like(c.patch_len), wp.zeros_like(c.far_angle)
         wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.feat, c.feat_count, pts.pts, pts.geom,
-                                                  c.objects.pose, c.config.contact_frame_margin, c.tris_per_world,
-                                                  c.geoms_per_world],
+                                                  c.objects.pose, c.config.contact_frame_margin, c.feat_dist, c.slack,
+                                                  c.tris_per_world, c.geoms_per_world],
                   [used, pool, slot, start, length, fill, far], device="cpu", block_dim=1)
         assert np.array_equal(length.numpy()[:n], c.patch_len.numpy()[:n])
         p0, p1, s0, s1 = c.patch_pool.numpy(), pool.numpy(), c.patch_start.numpy(), start.numpy()

@@ -13,7 +13,8 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
-                                          near_features, stage_features, stage_features_scan, stage_features_tiled)
+                                          near_features, next_slack, skin_motion, stage_features, stage_features_scan,
+                                          stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
 from physhand_mj.contact.measures import ContactMeasures
@@ -165,6 +166,7 @@ class Contact(ContactMeasures, ContactReports):
             self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
+        self._slack_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
         # mesh_query_point_sign_normal), here of the rest skin's
         rest = model.rest_x[: int(f.max()) + 1].numpy()[f] if len(f) else np.zeros((0, 3, 3))
@@ -239,17 +241,32 @@ class Contact(ContactMeasures, ContactReports):
                     self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
                     self.far_angle = wp.zeros(n, dtype=float, device=m.device)
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
+                # Config.feature_slack (features.py): per listed feature its distance to the skin at the
+                # frame's start (m); per world the slack its lists are made with (the first frame's:
+                # contact_frame_margin), the skin's largest move in the frame, the frame's report
+                # (slack, move, exceeded) and its host copy; the skin at the frame's start
+                self.feat_dist = wp.zeros(pts.n_features, dtype=float, device=m.device)
+                self.slack = wp.full(self.worlds, cfg.contact_frame_margin, dtype=float, device=m.device)
+                self.motion = wp.zeros(self.worlds, dtype=float, device=m.device)
+                self.slack_report = wp.zeros((self.worlds, 3), dtype=float, device=m.device)
+                self._slack_host = wp.zeros((self.worlds, 3), dtype=float, device="cpu",
+                                            pinned=wp.get_device(m.device).is_cuda)
+                self.x_start = wp.zeros(m.n_skin, dtype=wp.vec3, device=m.device)
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
-            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *vol.refit_ops()]
+            x_start, n_skin = self.x_start, m.n_skin
+            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, self.motion.zero_,
+                    lambda: wp.copy(x_start, state.x, count=n_skin), *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
-                                                   cfg.contact_frame_margin], [self.feat, self.feat_count])
+                                                   cfg.contact_frame_margin, cfg.contact_margin, self.slack,
+                                                   self.geoms_per_world], [self.feat, self.feat_count, self.feat_dist])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
                 ops += [self.patch_used.zero_, self.patch_fill.zero_]
                 launch(feature_patches_tiled, (pts.n_features, self.feature_lanes),
                        [m.skin_faces, self._query_x(state), self.feat, self.feat_count, pts.pts, pts.geom, qpose,
-                        cfg.contact_frame_margin, self.tris_per_world, self.geoms_per_world],
+                        cfg.contact_frame_margin, self.feat_dist, self.slack, self.tris_per_world,
+                        self.geoms_per_world],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.patch_fill, self.far_angle], block_dim=self.feature_lanes)
             elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
@@ -257,9 +274,21 @@ class Contact(ContactMeasures, ContactReports):
                 ops += [self._refit_op(volw), self.patch_used.zero_]
                 launch(feature_patches, pts.n_features,
                        [vol.mesh.id, volw.mesh.id, m.skin_faces, self._query_x(state), self.feat, self.feat_count,
-                        pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin],
+                        pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, self.feat_dist,
+                        self.slack, self.geoms_per_world],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.far_angle], count=self.feat_count)
+
+    def record_frame_end(self, launch, ops: list, state) -> None:
+        """At the end of a frame with contact: how far the skin moved in it, per world, against the
+        slack its feature lists were made with, and the next frame's slack (Config.feature_slack,
+        features.py). Nothing without listed feature points."""
+        if self.feat is None:
+            return
+        m = self.model
+        launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world], [self.motion])
+        launch(next_slack, self.worlds, [self.motion, float(self.config.feature_slack),
+                                         float(self.config.contact_frame_margin)], [self.slack, self.slack_report])
 
     def _counter(self):
         c = self.counters[self._slot: self._slot + 1]

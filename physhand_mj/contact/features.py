@@ -27,6 +27,18 @@ the same bound as the stage broadphase of triangles), and its passes test only t
 skin's BVH before each (no winding data: ~0.1 ms for 10k triangles on a CPU). Signs come from the
 skin's pseudo normals (the skin is closed and consistently wound), confirmed by a local winding number.
 
+How far the lists reach (``Config.feature_slack``, since 2026-11-27). Within a frame the objects stay
+where the frame put them and only the skin moves; say no skin vertex moves more than D. A feature
+point d from the skin at the frame's start (``near_features`` measures d) gets the patch of skin
+triangles within r = d + s of it, s the world's slack. Its closest triangle at the start then lies
+in the patch, and stays within d + D of the point, while a triangle outside the patch stays farther
+than r - D = d + s - D. With 2 D < s the closest skin point is always in the patch, and points
+farther than s + contact_margin at the start never come within contact_margin: the frame's list
+leaves them out. The frame checks 2 D < s at its end (``skin_motion``, ``next_slack``), reports
+a world that broke it (``feature_slack_exceeded``), and sizes the next frame's slack to 2.5 x its D
+(at least Config.feature_slack, at most contact_frame_margin). The first frame, and every world
+until it has run a frame with contact, lists with contact_frame_margin.
+
 The inside test is the local winding number of :mod:`physhand_mj.contact.winding`; the closest-point
 queries without a BVH (CUDA's block per feature, batches' thread per feature) are in
 :mod:`physhand_mj.contact.closest`.
@@ -49,16 +61,60 @@ def near_features(
     pose: wp.array(dtype=wp.transform),
     geom_count: wp.array(dtype=int),
     margin: float,
+    keep: float,
+    slack: wp.array(dtype=float),
+    geoms_per_world: int,
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
+    out_dist: wp.array(dtype=float),
 ):
-    """Append the feature points (indices into ``pts``) within ``margin`` (m) of the skin."""
+    """Append the feature points (indices into ``pts``) within ``keep`` (m) plus their world's
+    ``slack`` (m, the skin's motion a frame allows for: Config.feature_slack) of the skin, at most
+    ``margin`` (m), with their distance to it (``out_dist``, m, in list order)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
-    q = wp.mesh_query_point_no_sign(skin, object_point(i, pts, pts_geom, pose), margin)
+    p = object_point(i, pts, pts_geom, pose)
+    q = wp.mesh_query_point_no_sign(skin, p, wp.min(margin, keep + slack[pts_geom[i] // geoms_per_world]))
     if q.result:
-        out[wp.atomic_add(out_count, 0, 1)] = i
+        k = wp.atomic_add(out_count, 0, 1)
+        out[k] = i
+        out_dist[k] = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+
+
+@wp.kernel
+def skin_motion(
+    x: wp.array(dtype=wp.vec3),
+    x_start: wp.array(dtype=wp.vec3),
+    vertex_world: wp.array(dtype=int),
+    motion: wp.array(dtype=float),
+):
+    """Per world the largest distance (m) a skin vertex moved since the frame's start (atomic max)."""
+    i = wp.tid()
+    d = wp.length(x[i] - x_start[i])
+    if d == d:  # (a non-finite vertex is the guard's)
+        wp.atomic_max(motion, vertex_world[i], d)
+
+
+@wp.kernel
+def next_slack(
+    motion: wp.array(dtype=float),
+    least: float,
+    most: float,
+    slack: wp.array(dtype=float),
+    report: wp.array2d(dtype=float),
+):
+    """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
+    move, 1 where that move reached half the slack: a triangle outside a patch could then have come
+    nearer than one inside it, module docstring), and the next frame's slack: 2.5 x the move, at least
+    ``least`` and at most ``most`` (m)."""
+    w = wp.tid()
+    d = motion[w]
+    s = slack[w]
+    report[w, 0] = s
+    report[w, 1] = d
+    report[w, 2] = wp.where(2.0 * d >= s, 1.0, 0.0)
+    slack[w] = wp.min(wp.max(least, 2.5 * d), most)
 
 
 @wp.kernel

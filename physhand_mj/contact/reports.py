@@ -30,6 +30,7 @@ class ContactReports:
             wp.copy(self._feat_host, self.feat_count)
             if self.config.feature_winding:
                 wp.copy(self._patch_used_host, self.patch_used)
+            wp.copy(self._slack_host, self.slack_report)
 
     def raise_if_stuck(self) -> None:
         """After the frame's sync: raise when a fused stage's grid barrier gave up waiting for a block
@@ -59,6 +60,31 @@ class ContactReports:
                               f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
                               f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
         return int(self._feat_host.numpy()[0])
+
+    def feature_motion(self) -> dict:
+        """The last frame with contact, worst world (after the frame's sync; Config.feature_slack,
+        features.py): ``feature_slack_mm``, the slack its feature lists were made with (m -> mm),
+        ``skin_motion_mm``, the skin's largest move in it, and ``feature_slack_exceeded``, the worlds
+        whose skin moved half their slack or more (a patch could then have missed a triangle nearer
+        than the ones it holds; warned about once). Empty without listed feature points."""
+        if self.feat is None:
+            return {}
+        r = self._slack_host.numpy()
+        over = int(np.count_nonzero(r[:, 2]))
+        # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
+        # broadphase's own, as before the slack; the count says it either way)
+        if over and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
+            import warnings
+
+            self._slack_warned = True
+            w = int(np.argmax(r[:, 1]))
+            warnings.warn(f"contact: the skin moved {r[w, 1] * 1e3:.2f} mm in one frame, half or more of the "
+                          f"{r[w, 0] * 1e3:.2f} mm its object feature points were listed for (Config.feature_slack); "
+                          f"a feature point's patch could have missed a closer skin triangle in that frame; the next "
+                          f"frame's lists allow for 2.5 x the move; raise Config.feature_slack (m) for hands that move "
+                          f"this fast", RuntimeWarning, stacklevel=3)
+        return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
+                    skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active

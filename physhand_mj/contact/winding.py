@@ -69,6 +69,13 @@ def frame_winding(skin_w: wp.uint64, p: wp.vec3, margin: float):
     return 0.0
 
 
+@wp.func
+def patch_radius(most: float, dist: float, slack: float):
+    """The patch radius (m) of a feature point ``dist`` from the skin at the frame's start in a world
+    listed with ``slack`` (Config.feature_slack, features.py): dist + slack, at most ``most``."""
+    return wp.min(most, dist + slack)
+
+
 @wp.kernel
 def feature_patches(
     skin: wp.uint64,
@@ -82,6 +89,9 @@ def feature_patches(
     pose: wp.array(dtype=wp.transform),
     radius: float,
     margin: float,
+    feat_dist: wp.array(dtype=float),
+    slack: wp.array(dtype=float),
+    geoms_per_world: int,
     pool_count: wp.array(dtype=int),
     pool: wp.array(dtype=int),
     slot: wp.array(dtype=int),
@@ -90,23 +100,25 @@ def feature_patches(
     far_angle: wp.array(dtype=float),
 ):
     """Once per frame, for the k-th listed feature point i (module docstring, the local winding
-    number): its patch (the skin triangles whose boxes meet the cube of half-size ``radius`` m around
-    it, from ``skin``'s BVH, that come within ``radius`` of it) appended to ``pool``, and Omega_far = 4 pi w_0 - Omega_patch with w_0
-    ``skin_w``'s fast winding number (an integer, -1 to 1). ``slot[i] = k``. A patch that does not
-    fit the pool gets length -1 (its point keeps the pseudo-normal sign)."""
+    number): its patch (the skin triangles whose boxes meet the cube of half-size r around it, from
+    ``skin``'s BVH, that come within r of it; r = :func:`patch_radius`) appended to ``pool``, and
+    Omega_far = 4 pi w_0 - Omega_patch with w_0 ``skin_w``'s fast winding number (an integer, -1 to
+    1). ``slot[i] = k``. A patch that does not fit the pool gets length -1 (its point keeps the
+    pseudo-normal sign)."""
     k = wp.tid()
     if k >= feat_count[0]:
         return
     i = feat[k]
     slot[i] = k
     p = object_point(i, pts, pts_geom, pose)
-    lo = p - wp.vec3(radius)
-    hi = p + wp.vec3(radius)
+    r = patch_radius(radius, feat_dist[k], slack[pts_geom[i] // geoms_per_world])
+    lo = p - wp.vec3(r)
+    hi = p + wp.vec3(r)
     n = int(0)
     t = int(0)
     q = wp.mesh_query_aabb(skin, lo, hi)
     while wp.mesh_query_aabb_next(q, t):
-        if within(p, t, faces, x, radius):
+        if within(p, t, faces, x, r):
             n += 1
     start = wp.atomic_add(pool_count, 0, n)
     if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
@@ -116,7 +128,7 @@ def feature_patches(
     n = int(0)
     q = wp.mesh_query_aabb(skin, lo, hi)
     while wp.mesh_query_aabb_next(q, t):
-        if within(p, t, faces, x, radius) and n < size:  # (the same triangles as counted)
+        if within(p, t, faces, x, r) and n < size:  # (the same triangles as counted)
             pool[start + n] = t
             n += 1
     w0 = frame_winding(skin_w, p, margin)
@@ -190,6 +202,8 @@ def feature_patches_tiled(
     pts_geom: wp.array(dtype=int),
     pose: wp.array(dtype=wp.transform),
     radius: float,
+    feat_dist: wp.array(dtype=float),
+    slack: wp.array(dtype=float),
     tris_per_world: int,
     geoms_per_world: int,
     pool_count: wp.array(dtype=int),
@@ -211,7 +225,9 @@ def feature_patches_tiled(
     i = feat[k]
     p = object_point(i, pts, pts_geom, pose)
     lanes = wp.block_dim()
-    first = (pts_geom[i] // geoms_per_world) * tris_per_world
+    world = pts_geom[i] // geoms_per_world
+    first = world * tris_per_world
+    r = patch_radius(radius, feat_dist[k], slack[world])
     total = float(0.0)
     near = float(0.0)
     cnt = int(0)
@@ -224,7 +240,7 @@ def feature_patches_tiled(
         c = x[faces[t, 2]]
         w = solid_angle(a - p, b - p, c - p)
         total += w
-        if within(p, t, faces, x, radius):
+        if within(p, t, faces, x, r):
             near += w
             cnt += 1
     n = wp.tile_sum(wp.tile(cnt))[0]
@@ -242,7 +258,7 @@ def feature_patches_tiled(
     while j < first + tris_per_world:
         t = j
         j += lanes
-        if within(p, t, faces, x, radius):
+        if within(p, t, faces, x, r):
             pool[start + wp.atomic_add(patch_fill, k, 1)] = t
     if lane == 0:
         slot[i] = k

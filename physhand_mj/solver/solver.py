@@ -254,6 +254,7 @@ class Solver(Sleeping):
             self._contact_summary(out)
             self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
+            self.last_activity.update(self.contact.feature_motion())
         else:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
@@ -467,8 +468,12 @@ class Solver(Sleeping):
 
                 gated(after_contact, 1)
         if self.contact is not None:  # nothing within the frame margin: nothing inside, the rows stay zero
-            gated(lambda sub: self.contact.record_metrics(launch, sub, state, cfg.substeps,
-                                                          objects_side=cfg.object_metrics), 1)
+
+            def frame_end(sub):
+                self.contact.record_metrics(launch, sub, state, cfg.substeps, objects_side=cfg.object_metrics)
+                self.contact.record_frame_end(launch, sub, state)  # the skin's move against the feature slack
+
+            gated(frame_end, 1)
         launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x], [state.guard])
         ops += self._tail
         return ops

@@ -1,0 +1,198 @@
+"""Config.feature_slack (contact/features.py): the object's feature points are listed, and their
+patches sized, for the skin's motion in a frame, not for the whole frame margin. Checked against
+brute force on the skin at the frame's start (which points are listed, which triangles their patches
+hold) and at its end (the patch still holds the closest skin triangle; no unlisted point came near
+the skin), and the slack's bookkeeping on its own."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+import physhand_mj as ph
+from physhand_mj.cases import press_case, run_case
+from physhand_mj.contact.closest import closest_on_triangle
+from physhand_mj.contact.features import next_slack, skin_motion
+from physhand_mj.contact.inside import object_point
+
+
+@wp.func
+def _tri_dist(p: wp.vec3, t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3)):
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    bc = closest_on_triangle(a, b, c, p)
+    return wp.length(bc[0] * a + bc[1] * b + (1.0 - bc[0] - bc[1]) * c - p)
+
+
+@wp.kernel
+def _brute(pts: wp.array(dtype=wp.vec3), geom: wp.array(dtype=int), pose: wp.array(dtype=wp.transform),
+           faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), radius: wp.array(dtype=float),
+           dist: wp.array(dtype=float), count: wp.array(dtype=int)):
+    """Per object point: its distance to the skin ``x`` over every triangle, and how many triangles
+    come within ``radius[i]`` of it."""
+    i = wp.tid()
+    p = object_point(i, pts, geom, pose)
+    best = float(1.0e30)
+    n = int(0)
+    for t in range(faces.shape[0]):
+        d = _tri_dist(p, t, faces, x)
+        best = wp.min(best, d)
+        if d <= radius[i]:
+            n += 1
+    dist[i] = best
+    count[i] = n
+
+
+@wp.kernel
+def _patch_closest(feat: wp.array(dtype=int), pts: wp.array(dtype=wp.vec3), geom: wp.array(dtype=int),
+                   pose: wp.array(dtype=wp.transform), faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+                   pool: wp.array(dtype=int), start: wp.array(dtype=int), length: wp.array(dtype=int),
+                   out: wp.array(dtype=float)):
+    """Per listed feature: its distance to the skin ``x`` over its patch's triangles only."""
+    k = wp.tid()
+    p = object_point(feat[k], pts, geom, pose)
+    best = float(1.0e30)
+    for j in range(start[k], start[k] + length[k]):
+        best = wp.min(best, _tri_dist(p, pool[j], faces, x))
+    out[k] = best
+
+
+def _cpu(a):
+    """A device array's copy on the CPU (the brute force runs there)."""
+    return wp.array(a.numpy(), dtype=a.dtype, device="cpu")
+
+
+def _brute_force(c, x, radius):
+    pts = c.points
+    n = pts.pts.shape[0]
+    dist = wp.zeros(n, dtype=float, device="cpu")
+    count = wp.zeros(n, dtype=int, device="cpu")
+    wp.launch(_brute, n, [_cpu(pts.pts), _cpu(pts.geom), _cpu(c._qp), _cpu(c.model.skin_faces), _cpu(x),
+                          wp.array(np.asarray(radius, np.float32), dtype=float, device="cpu")], [dist, count],
+              device="cpu")
+    return dist.numpy().astype(float), count.numpy()
+
+
+DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device"))]
+
+
+@pytest.fixture(scope="module")
+def asset():
+    return ph.load_asset()
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("slack", [4.0e-3, 1.0e-2])
+def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, slack, device):
+    """A knife edge pressed 4 mm into the fingertip (frames 1-12 of the hard case; its edge's points
+    are the features). At the last frame's start the listed points are exactly the feature points
+    within min(margin, contact_margin + slack) of the skin, each patch holds exactly the triangles
+    within min(margin, d + slack) of its point; at the frame's end (the skin moved less than half
+    the slack: not reported) each listed point's closest skin point lies in its patch, and no
+    unlisted feature point is within contact_margin of the skin. With the slack at the frame margin
+    every feature point within the margin is listed with a patch of that radius (the lists before
+    the slack)."""
+    cfg = ph.Config(device="cpu", feature_slack=slack)
+    r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), cfg, frames=12, check_order=5,
+                 asset=asset)
+    solver, state = r["solver"], r["state"]
+    c = solver.contact
+    act = solver.last_activity
+    assert act["feature_slack_exceeded"] == 0
+    used = act["feature_slack_mm"] * 1e-3
+    assert used >= slack - 1e-9 and used <= cfg.contact_frame_margin + 1e-9
+    if slack >= cfg.contact_frame_margin:
+        assert used == pytest.approx(cfg.contact_frame_margin)
+    else:
+        assert used < cfg.contact_frame_margin  # (the press moved the skin < 4 mm a frame: the slack came down)
+    n = int(c.feat_count.numpy()[0])
+    assert n > 10
+    feat = c.feat.numpy()[:n]
+    is_feature = np.zeros(c.points.pts.shape[0], bool)
+    is_feature[c.points.feature.numpy()] = True
+    # the frame's start: the skin the lists were made on
+    x0 = c.x_start
+    reach = min(cfg.contact_frame_margin, cfg.contact_margin + used)
+    d0, _ = _brute_force(c, x0, np.zeros(c.points.pts.shape[0]))
+    want = set(np.flatnonzero(is_feature & (d0 <= reach)).tolist())
+    near_edge = np.abs(d0 - reach) < 1e-7  # (float rounding at the cut)
+    got = set(feat.tolist())
+    assert {i for i in got ^ want if not near_edge[i]} == set()
+    assert len(got) < int(np.count_nonzero(is_feature)) or slack >= cfg.contact_frame_margin
+    np.testing.assert_allclose(c.feat_dist.numpy()[:n], d0[feat], atol=1e-6)
+    radius = np.full(c.points.pts.shape[0], -1.0)
+    radius[feat] = np.minimum(cfg.contact_frame_margin, c.feat_dist.numpy()[:n] + used)
+    _, count = _brute_force(c, x0, radius)
+    length = c.patch_len.numpy()[:n]
+    assert np.all(length >= 0)
+    np.testing.assert_array_equal(length, count[feat])
+    if device != "cpu":  # (CUDA's patch fills in no fixed order; the same triangles)
+        pool, start = c.patch_pool.numpy(), c.patch_start.numpy()[:n]
+        assert all(len(set(pool[a: a + ln])) == ln for a, ln in zip(start, length))
+    # the frame's end
+    x1 = state.x
+    d1, _ = _brute_force(c, x1, np.zeros(c.points.pts.shape[0]))
+    pc = wp.zeros(n, dtype=float, device="cpu")
+    wp.launch(_patch_closest, n, [_cpu(a) for a in (c.feat, c.points.pts, c.points.geom, c._qp, c.model.skin_faces, x1,
+                                                    c.patch_pool, c.patch_start, c.patch_len)], [pc], device="cpu")
+    np.testing.assert_allclose(pc.numpy(), d1[feat], atol=1e-7)
+    unlisted = is_feature.copy()
+    unlisted[feat] = False
+    assert np.all(d1[unlisted] > cfg.contact_margin)
+    # and the contact's result: nothing inside by either measure
+    assert r["skin_count"][-1] == 0 and r["check_count"][-1] == 0 and r["obj_count"][-1] == 0
+
+
+def test_the_slack_follows_the_skins_move_and_reports_a_frame_that_outran_it():
+    """skin_motion / next_slack on their own: per world the largest move, a move of half the slack
+    or more flagged, the next slack 2.5 x the move between the least and the frame margin; a
+    non-finite vertex does not count (the guard's)."""
+    x0 = np.zeros((6, 3), np.float32)
+    x1 = x0.copy()
+    x1[0, 0] = 5e-4  # world 0: 0.5 mm
+    x1[1, 1] = 1e-4
+    x1[2, 2] = 3e-3  # world 1: 3 mm, half the 4 mm slack or more
+    x1[4, 0] = 6e-3  # world 2: 6 mm (capped at the margin next)
+    x1[5, 0] = np.nan
+    vw = np.array([0, 0, 1, 1, 2, 2], np.int32)
+    motion = wp.zeros(3, dtype=float, device="cpu")
+    wp.launch(skin_motion, 6, [wp.array(x1, dtype=wp.vec3, device="cpu"), wp.array(x0, dtype=wp.vec3, device="cpu"),
+                               wp.array(vw, dtype=int, device="cpu")], [motion], device="cpu")
+    np.testing.assert_allclose(motion.numpy(), [5e-4, 3e-3, 6e-3], rtol=1e-6)
+    slack = wp.array(np.array([4e-3, 4e-3, 1e-2], np.float32), dtype=float, device="cpu")
+    report = wp.zeros((3, 3), dtype=float, device="cpu")
+    wp.launch(next_slack, 3, [motion, 4e-3, 1e-2], [slack, report], device="cpu")
+    np.testing.assert_allclose(report.numpy(), [[4e-3, 5e-4, 0], [4e-3, 3e-3, 1], [1e-2, 6e-3, 1]], rtol=1e-6)
+    np.testing.assert_allclose(slack.numpy(), [4e-3, 7.5e-3, 1e-2], rtol=1e-6)
+
+
+def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):
+    """A capsule starting 4 mm inside the palm: the first frame lists with the frame margin, the
+    next with 2.5 x the skin's move in the first (at least Config.feature_slack); a frame that moved
+    the skin half its slack or more while the lists were cut short warns once."""
+    cfg = ph.Config(device="cpu")
+    r = run_case(press_case("plate", site="palm", depth=0.004, start=-0.004), cfg, frames=1, check_order=5,
+                 asset=asset)
+    solver, state = r["solver"], r["state"]
+    act = solver.last_activity
+    assert act["feature_slack_mm"] == pytest.approx(cfg.contact_frame_margin * 1e3)
+    move = act["skin_motion_mm"] * 1e-3
+    assert move > 0
+    nxt = float(solver.contact.slack.numpy()[0])
+    assert nxt == pytest.approx(min(max(cfg.feature_slack, 2.5 * move), cfg.contact_frame_margin), rel=1e-5)
+    # a report of a frame that outran a cut-short slack warns (once), one at the margin does not
+    c = solver.contact
+    c._slack_warned = False
+    c._slack_host.numpy()[0] = (cfg.contact_frame_margin, 0.6 * cfg.contact_frame_margin, 1.0)
+    assert c.feature_motion()["feature_slack_exceeded"] == 1 and not c._slack_warned
+    c._slack_host.numpy()[0] = (4e-3, 2.5e-3, 1.0)
+    with pytest.warns(RuntimeWarning, match="feature_slack"):
+        assert c.feature_motion()["feature_slack_exceeded"] == 1
+    assert c._slack_warned
+
+
+def test_feature_slack_must_be_a_distance():
+    with pytest.raises(ValueError, match="feature_slack"):
+        ph.Config(feature_slack=-1e-3).validate()
+    with pytest.raises(ValueError, match="feature_slack"):
+        ph.Config(feature_slack=float("nan")).validate()
