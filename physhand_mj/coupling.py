@@ -324,7 +324,10 @@ class SoftHand:
         host does not decide it), ``triangles_frame`` / ``triangles_stage`` (the frame's and the
         stages' broadphase lists), ``triangles_tested`` (triangles the contact passes queried),
         ``features_listed``, ``ops_run`` / ``contact_ops_run`` (recorded launches, memsets and refits
-        run; with no object near no contact op runs); with Config.region_sleep also
+        run; with no object near no contact op runs); with object feature points,
+        ``feature_slack_mm``, ``skin_motion_mm`` and ``feature_slack_exceeded`` (the last frame with
+        contact: the slack its feature lists allowed for, its skin's largest move, whether that move
+        reached half the slack: Config.feature_slack); with Config.region_sleep also
         ``regions_asleep`` (names), ``vertices_asleep`` and ``constraints_solved``
         (physhand_mj/regions.py)."""
         tm = self._timing

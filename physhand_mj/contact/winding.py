@@ -5,17 +5,20 @@ that does not fold, but a grasp squeezes skin triangles until some turn over (th
 into the hand), and a feature point in front of such a triangle is taken as inside although it is
 outside: a spurious push. The generalised winding number w(p) = sum of the triangles' solid angles
 / 4 pi (Jacobson et al. 2013) has no such failure, but its BVH data cost a refit per pass. Split the
-closed skin into the triangles near p (its *patch*: every skin triangle within ``contact_frame_margin``
-of p at the frame's start) and the rest:
+closed skin into the triangles near p (its *patch*: every skin triangle within d + s of p at the frame's
+start, d its distance to the skin then and s its world's slack, at most ``contact_frame_margin``:
+Config.feature_slack, features.py) and the rest:
 
     w(p) = (Omega_patch(p) + Omega_far(p)) / 4 pi,   Omega_far = 4 pi w_0(p) - Omega_patch,0(p)
 
 where w_0 is Warp's fast winding number at the frame's start (an integer: -1 past a fold that turned the
 skin inside out), once per frame. Every pass
 sums the patch's solid angles exactly (Van Oosterom and Strackee) and keeps Omega_far from the
-frame's start: the far triangles stay farther from p than the frame broadphase's margin minus the
-frame's motion (the broadphase's own assumption), so their solid angle changes smoothly and little
-(w moves by a few hundredths for a 5 mm slide), far from the 1/2 that decides. On the CPU the
+frame's start: the far triangles stay farther from p than d + s minus the frame's motion (which
+the frame checks against s: features.py), so their solid angle changes smoothly and little
+(w moved by a few hundredths for a 5 mm slide with 1 cm patches; a move of delta across a patch's
+rim of radius r changes it by about delta / 2r, under 1/4 while 2 delta < s <= r), far from the 1/2
+that decides. On the CPU the
 patch's sum confirms only the points the pseudo normal takes as inside (a push is at stake); the
 CUDA kernels scan the patch instead of the frame's whole triangle list and take every sign from it.
 """
