@@ -11,7 +11,7 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.cases import press_case, run_case
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.contact.features import next_slack, skin_motion
+from physhand_mj.contact.features import certify_features, next_slack, skin_motion
 from physhand_mj.contact.inside import object_point
 
 
@@ -73,6 +73,25 @@ def _brute_force(c, x, radius):
     return dist.numpy().astype(float), count.numpy()
 
 
+@wp.kernel
+def _signs(mesh: wp.uint64, pts: wp.array(dtype=wp.vec3), geom: wp.array(dtype=int),
+           pose: wp.array(dtype=wp.transform), far: float, out: wp.array(dtype=float)):
+    i = wp.tid()
+    q = wp.mesh_query_point_sign_normal(mesh, object_point(i, pts, geom, pose), far)
+    out[i] = 0.0
+    if q.result:
+        out[i] = q.sign
+
+
+def _pseudo_inside(c, x, far):
+    """Per object point: whether the skin ``x``'s pseudo normals put it inside (within ``far``)."""
+    mesh = wp.Mesh(points=_cpu(x), indices=wp.array(c.model.skin_faces.numpy().reshape(-1), dtype=int, device="cpu"))
+    out = wp.zeros(c.points.pts.shape[0], dtype=float, device="cpu")
+    wp.launch(_signs, out.shape[0], [mesh.id, _cpu(c.points.pts), _cpu(c.points.geom), _cpu(c._qp), far], [out],
+              device="cpu")
+    return out.numpy() < 0
+
+
 DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device"))]
 
 
@@ -86,7 +105,8 @@ def asset():
 def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, slack, device):
     """A knife edge pressed 4 mm into the fingertip (frames 1-12 of the hard case; its edge's points
     are the features). At the last frame's start the listed points are exactly the feature points
-    within min(margin, contact_margin + slack) of the skin, each patch holds exactly the triangles
+    within min(margin, contact_margin + slack) of the skin (and those within the margin the pseudo
+    normals put inside), each patch holds exactly the triangles
     within min(margin, d + slack) of its point; at the frame's end (the skin moved less than half
     the slack: not reported) each listed point's closest skin point lies in its patch, and no
     unlisted feature point is within contact_margin of the skin. With the slack at the frame margin
@@ -114,7 +134,8 @@ def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, sl
     x0 = c.x_start
     reach = min(cfg.contact_frame_margin, cfg.contact_margin + used)
     d0, _ = _brute_force(c, x0, np.zeros(c.points.pts.shape[0]))
-    want = set(np.flatnonzero(is_feature & (d0 <= reach)).tolist())
+    inside = _pseudo_inside(c, x0, cfg.contact_frame_margin)
+    want = set(np.flatnonzero(is_feature & ((d0 <= reach) | (inside & (d0 <= cfg.contact_frame_margin)))).tolist())
     near_edge = np.abs(d0 - reach) < 1e-7  # (float rounding at the cut)
     got = set(feat.tolist())
     assert {i for i in got ^ want if not near_edge[i]} == set()
@@ -143,43 +164,74 @@ def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, sl
     assert r["skin_count"][-1] == 0 and r["check_count"][-1] == 0 and r["obj_count"][-1] == 0
 
 
-def test_the_slack_follows_the_skins_move_and_reports_a_frame_that_outran_it():
-    """skin_motion / next_slack on their own: per world the largest move, a move of half the slack
-    or more flagged, the next slack 2.5 x the move between the least and the frame margin; a
-    non-finite vertex does not count (the guard's)."""
-    x0 = np.zeros((6, 3), np.float32)
-    x1 = x0.copy()
-    x1[0, 0] = 5e-4  # world 0: 0.5 mm
-    x1[1, 1] = 1e-4
-    x1[2, 2] = 3e-3  # world 1: 3 mm, half the 4 mm slack or more
-    x1[4, 0] = 6e-3  # world 2: 6 mm (capped at the margin next)
-    x1[5, 0] = np.nan
-    vw = np.array([0, 0, 1, 1, 2, 2], np.int32)
-    motion = wp.zeros(3, dtype=float, device="cpu")
-    wp.launch(skin_motion, 6, [wp.array(x1, dtype=wp.vec3, device="cpu"), wp.array(x0, dtype=wp.vec3, device="cpu"),
-                               wp.array(vw, dtype=int, device="cpu")], [motion], device="cpu")
-    np.testing.assert_allclose(motion.numpy(), [5e-4, 3e-3, 6e-3], rtol=1e-6)
-    slack = wp.array(np.array([4e-3, 4e-3, 1e-2], np.float32), dtype=float, device="cpu")
-    report = wp.zeros((3, 3), dtype=float, device="cpu")
-    wp.launch(next_slack, 3, [motion, 4e-3, 1e-2], [slack, report], device="cpu")
-    np.testing.assert_allclose(report.numpy(), [[4e-3, 5e-4, 0], [4e-3, 3e-3, 1], [1e-2, 6e-3, 1]], rtol=1e-6)
-    np.testing.assert_allclose(slack.numpy(), [4e-3, 7.5e-3, 1e-2], rtol=1e-6)
+def _arr(a, dtype):
+    return wp.array(np.asarray(a), dtype=dtype, device="cpu")
+
+
+def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
+    """skin_motion / certify_features / next_slack on a hand-made skin (one world, slack 4 mm, margin
+    10 mm, a 3 mm edge bound): feature point 0 is listed 1 mm from triangle A (vertices 0-2),
+    triangle B (vertices 3-5) starts 8 mm away; point 1 is unlisted, 20 mm from everything. A move
+    of B too small to come nearer than A passes, one large enough and near enough fails, a move of
+    A itself past half the slack fails, a fast vertex far from every point passes; the next slack is
+    2.5 x A's move, between the least and the margin; a non-finite vertex counts 0."""
+    faces = wp.array(np.array([[0, 1, 2], [3, 4, 5]], np.int32), dtype=int, device="cpu")
+    x0 = np.array([[-1, -1, 1], [1, -1, 1], [0, 1, 1], [-1, -1, 8], [1, -1, 8], [0, 1, 8]], np.float32) * 1e-3
+    pts = _arr(np.array([[0, 0, 0], [0, 0, -20e-3]], np.float32), wp.vec3)
+    pose = wp.array(np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32), dtype=wp.transform, device="cpu")
+
+    def check(moves):
+        x1 = x0.copy()
+        for v, dv in moves.items():
+            x1[v] += np.asarray(dv, np.float32)
+        slack = _arr(np.float32([4e-3]), float)
+        vmotion, motion = wp.zeros(6, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu")
+        fast, fast_count = wp.zeros((1, 4), dtype=int, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
+        wp.launch(skin_motion, 6, [_arr(x1, wp.vec3), _arr(x0, wp.vec3), _arr(np.zeros(6, np.int32), int), slack],
+                  [vmotion, motion, fast, fast_count], device="cpu")
+        near, failed = wp.zeros(1, dtype=float, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
+        wp.launch(certify_features, 2, [_arr(np.int32([0, 1]), int), pts, _arr(np.int32([0, 0]), int), pose,
+                                        _arr(np.int32([1]), int), 1, _arr(np.float32([1e-3, -1.0]), float),
+                                        _arr(np.int32([0, 0]), int), faces, _arr(x0, wp.vec3), vmotion, fast,
+                                        fast_count, slack, 1e-2, 5e-4, 3e-3], [near, failed], device="cpu")
+        report = wp.zeros((1, 3), dtype=float, device="cpu")
+        wp.launch(next_slack, 1, [motion, near, failed, 4e-3, 1e-2], [slack, report], device="cpu")
+        return report.numpy()[0], float(slack.numpy()[0]), int(fast_count.numpy()[0])
+
+    r, nxt, n = check({3: (0, 0, -3e-3)})  # B 3 mm towards the point: fast, but it needs 4 mm
+    assert (r[2], n) == (0, 1) and r[1] == pytest.approx(3e-3) and nxt == pytest.approx(4e-3)
+    r, nxt, _ = check({3: (0, 0, -4.5e-3)})  # 4.5 mm, starting 8 mm away: could come nearer than A
+    assert r[2] == 1
+    r, nxt, _ = check({0: (0, 0, 2.5e-3)})  # A itself moved past half the slack
+    assert r[2] == 1 and nxt == pytest.approx(6.25e-3)
+    r, nxt, _ = check({5: (50e-3, 0, 0)})  # 5 cm sideways, far from both points
+    assert r[2] == 1  # (it started 8 mm from point 0: that much move could reach it; the check is conservative)
+    x0[3:] += np.float32([0, 0, 30e-3])  # B starting 38 mm away: too far for its 5 mm move
+    r, nxt, _ = check({3: (5e-3, 0, 0)})
+    assert r[2] == 0 and r[1] == pytest.approx(5e-3)
+    r, nxt, _ = check({1: (np.nan, 0, 0), 2: (0, 0, 1e-3)})
+    assert r[2] == 0 and r[1] == pytest.approx(1e-3) and nxt == pytest.approx(4e-3)
+    r, nxt, _ = check({1: (0, 0, 4.5e-3)})  # A's vertex 4.5 mm: the next slack capped at the margin
+    assert r[2] == 1 and nxt == pytest.approx(1e-2)
 
 
 def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):
-    """A capsule starting 4 mm inside the palm: the first frame lists with the frame margin, the
-    next with 2.5 x the skin's move in the first (at least Config.feature_slack); a frame that moved
-    the skin half its slack or more while the lists were cut short warns once."""
+    """A plate starting 4 mm inside the palm: the first frame lists with the frame margin, the next
+    with 2.5 x the largest move of the listed points' closest triangles in the first (at least
+    Config.feature_slack); a flagged frame warns once where the lists were cut short, not at the
+    margin."""
     cfg = ph.Config(device="cpu")
     r = run_case(press_case("plate", site="palm", depth=0.004, start=-0.004), cfg, frames=1, check_order=5,
                  asset=asset)
-    solver, state = r["solver"], r["state"]
+    solver = r["solver"]
     act = solver.last_activity
     assert act["feature_slack_mm"] == pytest.approx(cfg.contact_frame_margin * 1e3)
     move = act["skin_motion_mm"] * 1e-3
     assert move > 0
     nxt = float(solver.contact.slack.numpy()[0])
-    assert nxt == pytest.approx(min(max(cfg.feature_slack, 2.5 * move), cfg.contact_frame_margin), rel=1e-5)
+    near = float(solver.contact.near_motion.numpy()[0])
+    assert 0 < near <= move + 1e-9
+    assert nxt == pytest.approx(min(max(cfg.feature_slack, 2.5 * near), cfg.contact_frame_margin), rel=1e-5)
     # a report of a frame that outran a cut-short slack warns (once), one at the margin does not
     c = solver.contact
     c._slack_warned = False

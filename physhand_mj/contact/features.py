@@ -28,20 +28,21 @@ skin's BVH before each (no winding data: ~0.1 ms for 10k triangles on a CPU). Si
 skin's pseudo normals (the skin is closed and consistently wound), confirmed by a local winding number.
 
 How far the lists reach (``Config.feature_slack``, since 2026-11-27). Within a frame the objects stay
-where the frame put them and only the skin moves; say no skin vertex moves more than D. A feature
-point d from the skin at the frame's start (``near_features`` measures d) gets the patch of skin
-triangles within r = d + s of it, s the world's slack. Its closest triangle at the start then lies
-in the patch, and stays within d + D of the point, while a triangle outside the patch stays farther
-than r - D = d + s - D. With 2 D < s the closest skin point is always in the patch, and points
-farther than s + contact_margin at the start never come within contact_margin: the frame's list
-leaves them out. The frame checks 2 D < s at its end (``skin_motion``, ``next_slack``), reports
-a world that broke it (``feature_slack_exceeded``), and sizes the next frame's slack to 2.5 x its D
-(at least Config.feature_slack, at most contact_frame_margin). The first frame, and every world
-until it has run a frame with contact, lists with contact_frame_margin.
-
-The inside test is the local winding number of :mod:`physhand_mj.contact.winding`; the closest-point
-queries without a BVH (CUDA's block per feature, batches' thread per feature) are in
-:mod:`physhand_mj.contact.closest`.
+where the frame put them and only the skin moves. A feature point d from the skin at the frame's
+start (``near_features`` measures d) is listed when d <= s + contact_margin, s its world's slack, or
+when the skin's pseudo normals put it inside; its patch holds the skin triangles within r = d + s
+of it (both at most contact_frame_margin). If no skin vertex moves more than D with 2 D < s, that
+is exact: the point's closest triangle at the start is in the patch and stays within d + D of it,
+a triangle outside the patch stays farther than r - D, and an unlisted point never comes within
+contact_margin. The frame checks this at its end, locally (``skin_motion``, ``certify_features``):
+a skin vertex that moved half the slack or more spoils a point only if it started near enough to
+it, given its move, to bring a triangle outside the patch nearer than the point's closest one (or
+an unlisted point within contact_margin). A world with such a point is reported
+(``feature_slack_exceeded``). The next frame's slack is 2.5 x the largest move of the listed
+points' closest triangles (``next_slack``), at least Config.feature_slack and at most
+contact_frame_margin. The first frame, and every world until it has run a frame with contact,
+lists with contact_frame_margin. The moves are the frame's end positions against its start, not
+the paths between.
 """
 
 import warp as wp
@@ -50,6 +51,9 @@ from physhand_mj.contact.closest import closest_on_triangle, closest_signed
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import accumulate, depth_weight
 from physhand_mj.contact.winding import closest_scan, closest_tiled, winding_sign
+
+
+FAST_PER_WORLD = 32  # fast skin vertices a world's frame check keeps (more: the world's frame is flagged)
 
 
 @wp.kernel
@@ -67,19 +71,41 @@ def near_features(
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
     out_dist: wp.array(dtype=float),
+    pt_dist: wp.array(dtype=float),
+    pt_face: wp.array(dtype=int),
 ):
     """Append the feature points (indices into ``pts``) within ``keep`` (m) plus their world's
-    ``slack`` (m, the skin's motion a frame allows for: Config.feature_slack) of the skin, at most
-    ``margin`` (m), with their distance to it (``out_dist``, m, in list order)."""
+    ``slack`` (m, the skin's motion a frame allows for: Config.feature_slack) of the skin, and those
+    farther but within ``margin`` (m) that the skin's pseudo normals put inside it (a deep point is
+    pushed however far the slack is), with their distance to the skin (``out_dist``, m, in list
+    order; ``pt_dist`` and ``pt_face``, the closest skin triangle, by point: unlisted points keep
+    the -1 the frame starts them with)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
     p = object_point(i, pts, pts_geom, pose)
-    q = wp.mesh_query_point_no_sign(skin, p, wp.min(margin, keep + slack[pts_geom[i] // geoms_per_world]))
+    reach = keep + slack[pts_geom[i] // geoms_per_world]
+    q = wp.mesh_query_point_no_sign(skin, p, wp.min(margin, reach))
+    face = int(-1)
+    u = float(0.0)
+    v = float(0.0)
     if q.result:
+        face = q.face
+        u = q.u
+        v = q.v
+    elif reach < margin:
+        qs = wp.mesh_query_point_sign_normal(skin, p, margin)
+        if qs.result and qs.sign < 0.0:
+            face = qs.face
+            u = qs.u
+            v = qs.v
+    if face >= 0:
+        d = wp.length(p - wp.mesh_eval_position(skin, face, u, v))
         k = wp.atomic_add(out_count, 0, 1)
         out[k] = i
-        out_dist[k] = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+        out_dist[k] = d
+        pt_dist[i] = d
+        pt_face[i] = face
 
 
 @wp.kernel
@@ -87,34 +113,113 @@ def skin_motion(
     x: wp.array(dtype=wp.vec3),
     x_start: wp.array(dtype=wp.vec3),
     vertex_world: wp.array(dtype=int),
+    slack: wp.array(dtype=float),
+    vmotion: wp.array(dtype=float),
     motion: wp.array(dtype=float),
+    fast: wp.array2d(dtype=int),
+    fast_count: wp.array(dtype=int),
 ):
-    """Per world the largest distance (m) a skin vertex moved since the frame's start (atomic max)."""
+    """After a frame: how far (m) each skin vertex moved since the frame's start (``vmotion``), the
+    world's largest move (``motion``, atomic max) and its *fast* vertices, those that moved half
+    its slack or more (``fast[w]``, ``fast_count[w]`` counts past the row's end). A non-finite
+    vertex counts 0 (the guard's)."""
     i = wp.tid()
     d = wp.length(x[i] - x_start[i])
-    if d == d:  # (a non-finite vertex is the guard's)
-        wp.atomic_max(motion, vertex_world[i], d)
+    if not (d == d):
+        d = 0.0
+    vmotion[i] = d
+    w = vertex_world[i]
+    wp.atomic_max(motion, w, d)
+    if d >= 0.5 * slack[w]:
+        j = wp.atomic_add(fast_count, w, 1)
+        if j < fast.shape[1]:
+            fast[w, j] = i
+
+
+@wp.kernel
+def certify_features(
+    feature: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    geom_count: wp.array(dtype=int),
+    geoms_per_world: int,
+    pt_dist: wp.array(dtype=float),
+    pt_face: wp.array(dtype=int),
+    faces: wp.array2d(dtype=int),
+    x_start: wp.array(dtype=wp.vec3),
+    vmotion: wp.array(dtype=float),
+    fast: wp.array2d(dtype=int),
+    fast_count: wp.array(dtype=int),
+    slack: wp.array(dtype=float),
+    margin: float,
+    keep: float,
+    reach: float,
+    near_motion: wp.array(dtype=float),
+    failed: wp.array(dtype=int),
+):
+    """After a frame, per object feature point p: did its list and patch hold (module docstring)?
+
+    Listed (distance d, closest triangle C at the start, patch radius r = min(margin, d + s)): a
+    triangle T outside the patch was farther than r; to come nearer p than C, which moved at most
+    D_C (its vertices' largest move), a point of T moved at least g - D_C (g = r - d), so a vertex v
+    of T did, and v started within d + D_C + |move of v| + ``reach`` (m, a skin edge's length
+    bound) of p. Not listed (farther than keep + s, outside): to come within ``keep`` a vertex moved
+    more than s and started within keep + |its move| + reach. The frame's fast vertices (half the
+    slack or more) are asked; below that threshold, or with more fast vertices than the list holds,
+    the point fails without asking. A failure sets ``failed[w]``; D_C of the listed points goes into
+    ``near_motion[w]`` (their largest: the next slack's measure)."""
+    i = feature[wp.tid()]
+    if pts_geom[i] >= geom_count[0]:
+        return
+    w = pts_geom[i] // geoms_per_world
+    s = slack[w]
+    n = fast_count[w]
+    d = pt_dist[i]
+    listed = d >= 0.0
+    dc = float(0.0)
+    if listed:
+        f = pt_face[i]
+        dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
+        wp.atomic_max(near_motion, w, dc)
+    if n == 0:
+        return
+    p = object_point(i, pts, pts_geom, pose)
+    need = s  # the move a vertex needs to spoil this point's list
+    if listed:
+        need = wp.min(margin, d + s) - d - dc
+    if need < 0.5 * s or n > fast.shape[1]:
+        failed[w] = 1
+        return
+    for j in range(n):
+        v = fast[w, j]
+        mv = vmotion[v]
+        if mv >= need:
+            lim = keep + mv + reach
+            if listed:
+                lim = d + dc + mv + reach
+            if wp.length(x_start[v] - p) <= lim:
+                failed[w] = 1
 
 
 @wp.kernel
 def next_slack(
     motion: wp.array(dtype=float),
+    near_motion: wp.array(dtype=float),
+    failed: wp.array(dtype=int),
     least: float,
     most: float,
     slack: wp.array(dtype=float),
     report: wp.array2d(dtype=float),
 ):
     """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
-    move, 1 where that move reached half the slack: a triangle outside a patch could then have come
-    nearer than one inside it, module docstring), and the next frame's slack: 2.5 x the move, at least
-    ``least`` and at most ``most`` (m)."""
+    move, 1 where :func:`certify_features` failed a point), and the next frame's slack: 2.5 x the
+    largest move of the listed points' closest triangles, at least ``least`` and at most ``most`` (m)."""
     w = wp.tid()
-    d = motion[w]
-    s = slack[w]
-    report[w, 0] = s
-    report[w, 1] = d
-    report[w, 2] = wp.where(2.0 * d >= s, 1.0, 0.0)
-    slack[w] = wp.min(wp.max(least, 2.5 * d), most)
+    report[w, 0] = slack[w]
+    report[w, 1] = motion[w]
+    report[w, 2] = float(failed[w])
+    slack[w] = wp.min(wp.max(least, 2.5 * near_motion[w]), most)
 
 
 @wp.kernel

@@ -65,8 +65,9 @@ class ContactReports:
         """The last frame with contact, worst world (after the frame's sync; Config.feature_slack,
         features.py): ``feature_slack_mm``, the slack its feature lists were made with (m -> mm),
         ``skin_motion_mm``, the skin's largest move in it, and ``feature_slack_exceeded``, the worlds
-        whose skin moved half their slack or more (a patch could then have missed a triangle nearer
-        than the ones it holds; warned about once). Empty without listed feature points."""
+        in which a skin vertex moved far enough, near enough to a feature point, that the point's
+        list or patch could have missed a skin triangle (warned about once where the lists had been
+        cut short of contact_frame_margin). Empty without listed feature points."""
         if self.feat is None:
             return {}
         r = self._slack_host.numpy()
@@ -77,12 +78,12 @@ class ContactReports:
             import warnings
 
             self._slack_warned = True
-            w = int(np.argmax(r[:, 1]))
-            warnings.warn(f"contact: the skin moved {r[w, 1] * 1e3:.2f} mm in one frame, half or more of the "
-                          f"{r[w, 0] * 1e3:.2f} mm its object feature points were listed for (Config.feature_slack); "
-                          f"a feature point's patch could have missed a closer skin triangle in that frame; the next "
-                          f"frame's lists allow for 2.5 x the move; raise Config.feature_slack (m) for hands that move "
-                          f"this fast", RuntimeWarning, stacklevel=3)
+            w = int(np.flatnonzero(r[:, 2])[0])
+            warnings.warn(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
+                          f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
+                          f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
+                          f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast",
+                          RuntimeWarning, stacklevel=3)
         return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
                     skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 
