@@ -38,8 +38,9 @@ contact_margin. The frame checks this at its end, locally (``skin_motion``, ``ce
 a skin vertex that moved half the slack or more spoils a point only if it started near enough to
 it, given its move, to bring a triangle outside the patch nearer than the point's closest one (or
 an unlisted point within contact_margin). A world with such a point is reported
-(``feature_slack_exceeded``). The next frame's slack is 2.5 x the largest move of the listed
-points' closest triangles (``next_slack``), at least Config.feature_slack and at most
+(``feature_slack_exceeded``). The next frame's slack is 2.5 x the largest move near the points (their
+closest triangles', and the fast vertices' that started near enough to matter: ``next_slack``),
+at least Config.feature_slack and at most
 contact_frame_margin. The first frame, and every world until it has run a frame with contact,
 lists with contact_frame_margin. The moves are the frame's end positions against its start, not
 the paths between.
@@ -167,7 +168,8 @@ def certify_features(
     bound) of p. Not listed (farther than keep + s, outside): to come within ``keep`` a vertex moved
     more than s and started within keep + |its move| + reach. The frame's fast vertices (half the
     slack or more) are asked; below that threshold, or with more fast vertices than the list holds,
-    the point fails without asking. A failure sets ``failed[w]``; D_C of the listed points goes into
+    the point fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the
+    move of every fast vertex near enough to a point for its move to matter there, go into
     ``near_motion[w]`` (their largest: the next slack's measure)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
@@ -188,18 +190,19 @@ def certify_features(
     need = s  # the move a vertex needs to spoil this point's list
     if listed:
         need = wp.min(margin, d + s) - d - dc
-    if need < 0.5 * s or n > fast.shape[1]:
-        failed[w] = 1
-        return
-    for j in range(n):
+    fail = need < 0.5 * s or n > fast.shape[1]  # (below the list's threshold, or past its end: not asked)
+    for j in range(wp.min(n, fast.shape[1])):
         v = fast[w, j]
         mv = vmotion[v]
-        if mv >= need:
-            lim = keep + mv + reach
-            if listed:
-                lim = d + dc + mv + reach
-            if wp.length(x_start[v] - p) <= lim:
-                failed[w] = 1
+        lim = keep + mv + reach
+        if listed:
+            lim = d + dc + mv + reach
+        if wp.length(x_start[v] - p) <= lim:  # near enough for its move to matter here
+            wp.atomic_max(near_motion, w, mv)
+            if mv >= need:
+                fail = True
+    if fail:
+        failed[w] = 1
 
 
 @wp.kernel
@@ -214,7 +217,7 @@ def next_slack(
 ):
     """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
     move, 1 where :func:`certify_features` failed a point), and the next frame's slack: 2.5 x the
-    largest move of the listed points' closest triangles, at least ``least`` and at most ``most`` (m)."""
+    largest move near the feature points (``near_motion``), at least ``least`` and at most ``most`` (m)."""
     w = wp.tid()
     report[w, 0] = slack[w]
     report[w, 1] = motion[w]
