@@ -60,6 +60,7 @@ class Activity:
                                 and (not cfg.feature_contact or c.tiled_features))
         self.open1 = True  # CUDA: the frame broadphase kept a triangle (set by Solver.step before the frame)
         self.near = np.ones(1, np.int32)  # level 0 flag, decided on the host before the frame (CPU)
+        self.last_open1 = True  # whether the last frame ran its level-1 contact block (report)
         self.objects_near = -1  # objects (MuJoCo bodies) in the work set; -1: not decided on the host
         cpu = c is not None and not self.device.is_cuda
         self._cand = c.cand_count.numpy() if cpu else None
@@ -111,6 +112,7 @@ class Activity:
         if self.gate_ahead:
             near = True  # level 0 is not decided on the host then
         open1 = near and (cand > 0 or not gating1)
+        self.last_open1 = open1  # (the frame ran its contact block: Contact.feature_motion's reports are its own)
         contact_ops = sum(g.leaf_ops(open1, counters) for g in self.gates
                           if g.top and (near if g.level == 0 else open1)) + self.ahead_ops
         ops = self.ungated_ops + contact_ops

@@ -388,7 +388,9 @@ class Config:
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
         nonneg("feature_offset")
-        nonneg("feature_slack")
+        if not (isinstance(self.feature_slack, (int, float)) and not isinstance(self.feature_slack, bool)
+                and math.isfinite(self.feature_slack) and self.feature_slack > 0):
+            raise ValueError(f"Config.feature_slack must be a distance > 0 in m (e.g. 4e-3), got {self.feature_slack!r}")
         if not (isinstance(self.feature_spacing, (int, float, np.floating, np.integer))
                 and not isinstance(self.feature_spacing, bool) and math.isfinite(self.feature_spacing)
                 and self.feature_spacing > 0):

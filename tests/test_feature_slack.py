@@ -11,7 +11,7 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.cases import press_case, run_case
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.contact.features import certify_features, next_slack, skin_motion
+from physhand_mj.contact.features import UNLISTED, certify_features, next_slack, skin_motion, skin_reach
 from physhand_mj.contact.inside import object_point
 
 
@@ -111,15 +111,15 @@ def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, sl
     the slack: not reported) each listed point's closest skin point lies in its patch, and no
     unlisted feature point is within contact_margin of the skin. With the slack at the frame margin
     every feature point within the margin is listed with a patch of that radius (the lists before
-    the slack)."""
-    cfg = ph.Config(device="cpu", feature_slack=slack)
+    the slack). On CUDA the patches are a block's over every skin triangle (feature_patches_tiled)."""
+    cfg = ph.Config(device=device, feature_slack=slack)
     r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), cfg, frames=12, check_order=5,
                  asset=asset)
     solver, state = r["solver"], r["state"]
     c = solver.contact
     act = solver.last_activity
     assert act["feature_slack_exceeded"] == 0
-    used = act["feature_slack_mm"] * 1e-3
+    used = float(c.slack_report.numpy()[0, 0])  # (m, as the lists were made: not the report's rounded mm)
     assert used >= slack - 1e-9 and used <= cfg.contact_frame_margin + 1e-9
     if slack >= cfg.contact_frame_margin:
         assert used == pytest.approx(cfg.contact_frame_margin)
@@ -169,51 +169,80 @@ def _arr(a, dtype):
 
 
 def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
-    """skin_motion / certify_features / next_slack on a hand-made skin (one world, slack 4 mm, margin
-    10 mm, a 3 mm edge bound): feature point 0 is listed 1 mm from triangle A (vertices 0-2),
-    triangle B (vertices 3-5) starts 8 mm away; point 1 is unlisted, 20 mm from everything. A move
-    of B too small to come nearer than A passes, one large enough and near enough fails, a move of
-    A itself past half the slack fails, a fast vertex far from every point passes; the next slack is
-    2.5 x the largest move near the points (A's, or a fast vertex's near enough to matter), between
-    the least and the margin; a non-finite vertex counts 0."""
+    """skin_motion / skin_reach / certify_features / next_slack on a hand-made skin (one world, margin
+    10 mm): feature point 0 is listed 1 mm from triangle A (vertices 0-2), triangle B (vertices
+    3-5) starts 8 mm away; point 1 is unlisted, 20 mm below. With a 4 mm slack: a move of B too
+    small to come within contact_margin of the point passes; one large enough and near enough
+    fails; A itself moving 2.5 mm passes for a point outside and fails for one inside (a triangle
+    outside the patch could then be nearer than A); a fast vertex sliding 5 cm sideways fails too
+    (the check knows end positions only: conservative); B moving 5 mm 38 mm away passes. The next slack is 2.5 x the
+    largest move near the points, at least 0.8 x the last and the least, at most the margin; after
+    a failed frame at least 2.5 x the world's largest move. A non-finite vertex counts 0. With the
+    margin's slack (a world's first frame) a triangle 10.2 mm from the unlisted point that comes to
+    0.4 mm of it fails. A capped patch of a point 8 mm inside with an 8 mm slack needs less move than
+    the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More fast vertices than the list
+    holds fail the world."""
     faces = wp.array(np.array([[0, 1, 2], [3, 4, 5]], np.int32), dtype=int, device="cpu")
-    x0 = np.array([[-1, -1, 1], [1, -1, 1], [0, 1, 1], [-1, -1, 8], [1, -1, 8], [0, 1, 8]], np.float32) * 1e-3
-    pts = _arr(np.array([[0, 0, 0], [0, 0, -20e-3]], np.float32), wp.vec3)
+    base = np.array([[-1, -1, 1], [1, -1, 1], [0, 1, 1], [-1, -1, 8], [1, -1, 8], [0, 1, 8]], np.float32) * 1e-3
     pose = wp.array(np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32), dtype=wp.transform, device="cpu")
 
-    def check(moves):
+    def check(moves, x0=base, slack0=4e-3, pts=((0, 0, 0), (0, 0, -20e-3)), dist=(1e-3, UNLISTED), cap=4):
         x1 = x0.copy()
         for v, dv in moves.items():
             x1[v] += np.asarray(dv, np.float32)
-        slack = _arr(np.float32([4e-3]), float)
-        vmotion, motion = wp.zeros(6, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu")
-        fast, fast_count = wp.zeros((1, 4), dtype=int, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
-        wp.launch(skin_motion, 6, [_arr(x1, wp.vec3), _arr(x0, wp.vec3), _arr(np.zeros(6, np.int32), int), slack],
+        slack = _arr(np.float32([slack0]), float)
+        nv = x0.shape[0]
+        vmotion, motion = wp.zeros(nv, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu")
+        fast, fast_count = wp.zeros((1, cap), dtype=int, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
+        wp.launch(skin_motion, nv, [_arr(x1, wp.vec3), _arr(x0, wp.vec3), _arr(np.zeros(nv, np.int32), int), slack],
                   [vmotion, motion, fast, fast_count], device="cpu")
+        reach = wp.zeros(1, dtype=float, device="cpu")
+        wp.launch(skin_reach, 2, [faces, _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int)], [reach], device="cpu")
         near, failed = wp.zeros(1, dtype=float, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
-        wp.launch(certify_features, 2, [_arr(np.int32([0, 1]), int), pts, _arr(np.int32([0, 0]), int), pose,
-                                        _arr(np.int32([1]), int), 1, _arr(np.float32([1e-3, -1.0]), float),
-                                        _arr(np.int32([0, 0]), int), faces, _arr(x0, wp.vec3), vmotion, fast,
-                                        fast_count, slack, 1e-2, 5e-4, 3e-3], [near, failed], device="cpu")
+        n = len(pts)
+        wp.launch(certify_features, n, [_arr(np.arange(n, dtype=np.int32), int),
+                                        _arr(np.asarray(pts, np.float32), wp.vec3), _arr(np.zeros(n, np.int32), int),
+                                        pose, _arr(np.int32([1]), int), 1, _arr(np.float32(dist), float),
+                                        _arr(np.zeros(n, np.int32), int), faces, _arr(x0, wp.vec3), vmotion, fast,
+                                        fast_count, slack, 1e-2, 5e-4, reach], [near, failed], device="cpu")
         report = wp.zeros((1, 3), dtype=float, device="cpu")
-        wp.launch(next_slack, 1, [motion, near, failed, 4e-3, 1e-2], [slack, report], device="cpu")
+        wp.launch(next_slack, 1, [motion, near, failed, fast_count, cap, 4e-3, 1e-2], [slack, report], device="cpu")
         return report.numpy()[0], float(slack.numpy()[0]), int(fast_count.numpy()[0])
 
     r, nxt, n = check({3: (0, 0, -3e-3)})  # B 3 mm towards the point: fast, but it needs 4 mm
     assert (r[2], n) == (0, 1) and r[1] == pytest.approx(3e-3) and nxt == pytest.approx(4e-3)
-    r, nxt, _ = check({3: (0, 0, -4.5e-3)})  # 4.5 mm, starting 8 mm away: could come nearer than A
-    assert r[2] == 1 and nxt == pytest.approx(1e-2)  # (2.5 x 4.5 mm, capped at the margin)
-    r, nxt, _ = check({0: (0, 0, 2.5e-3)})  # A itself moved past half the slack
-    assert r[2] == 1 and nxt == pytest.approx(6.25e-3)
-    r, nxt, _ = check({5: (50e-3, 0, 0)})  # 5 cm sideways, far from both points
+    r, nxt, _ = check({3: (0, 0, -4.6e-3)})  # 4.6 mm, starting 8 mm away: could come within keep of the point
+    assert r[2] == 1 and nxt == pytest.approx(1e-2)  # (2.5 x 4.6 mm, capped at the margin)
+    r, nxt, _ = check({0: (0, 0, 2.5e-3)})  # A itself 2.5 mm: no triangle outside the patch came near
+    assert r[2] == 0 and nxt == pytest.approx(6.25e-3)  # (but the next lists allow for it)
+    r, nxt, _ = check({0: (0, 0, 2.5e-3)}, dist=(-1e-3, UNLISTED))  # the same with the point inside: C moved
+    assert r[2] == 1  # past half the slack, so a triangle outside the patch could now be nearer than C
+    r, nxt, _ = check({5: (50e-3, 0, 0)})  # 5 cm sideways
     assert r[2] == 1  # (it started 8 mm from point 0: that much move could reach it; the check is conservative)
-    x0[3:] += np.float32([0, 0, 30e-3])  # B starting 38 mm away: too far for its 5 mm move
-    r, nxt, _ = check({3: (5e-3, 0, 0)})
-    assert r[2] == 0 and r[1] == pytest.approx(5e-3)
+    far = base.copy()
+    far[3:] += np.float32([0, 0, 30e-3])  # B starting 38 mm away: too far for its 5 mm move
+    r, nxt, _ = check({3: (5e-3, 0, 0)}, x0=far)
+    assert r[2] == 0 and r[1] == pytest.approx(5e-3) and nxt == pytest.approx(4e-3)
     r, nxt, _ = check({1: (np.nan, 0, 0), 2: (0, 0, 1e-3)})
     assert r[2] == 0 and r[1] == pytest.approx(1e-3) and nxt == pytest.approx(4e-3)
-    r, nxt, _ = check({1: (0, 0, 4.5e-3)})  # A's vertex 4.5 mm: the next slack capped at the margin
+    r, nxt, _ = check({1: (0, 0, 4.8e-3)})  # A's vertex 4.8 mm: the next slack capped at the margin
     assert r[2] == 1 and nxt == pytest.approx(1e-2)
+    r, nxt, _ = check({}, slack0=1e-2)  # nothing moved: the slack comes down by SLACK_DECAY a frame
+    assert r[2] == 0 and nxt == pytest.approx(8e-3)
+    # the margin's slack: point 1 unlisted (farther than the margin), B's vertex 10.2 mm from it moves to 0.4 mm
+    low = base.copy()
+    low[3:] = np.float32([[0, 0, -9.8e-3], [1e-3, 0, -9.8e-3], [0, 1e-3, -9.8e-3]])
+    r, nxt, _ = check({3: (0, 0, -9.8e-3)}, x0=low, slack0=1e-2, pts=((0, 0, -20e-3),), dist=(UNLISTED,))
+    assert r[2] == 1
+    # a capped patch: 8 mm inside, slack 8 mm (r = 10 mm, 2 mm to spare): fails unasked; 8 mm outside
+    # (a move of 9.5 mm would be needed to come within keep) passes
+    r, nxt, n = check({}, slack0=8e-3, pts=((0, 0, -7e-3),), dist=(-8e-3,))
+    assert (r[2], n) == (1, 0)
+    r, nxt, n = check({}, slack0=8e-3, pts=((0, 0, -7e-3),), dist=(8e-3,))
+    assert (r[2], n) == (0, 0)
+    # more fast vertices than the list holds (cap 1): the world fails, the next slack from its largest move
+    r, nxt, n = check({3: (0, 0, 30e-3), 4: (0, 0, 30e-3)}, x0=far, cap=1)
+    assert r[2] == 1 and n == 2 and nxt == pytest.approx(1e-2)
 
 
 def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):
@@ -249,6 +278,8 @@ def test_feature_slack_must_be_a_distance():
         ph.Config(feature_slack=-1e-3).validate()
     with pytest.raises(ValueError, match="feature_slack"):
         ph.Config(feature_slack=float("nan")).validate()
+    with pytest.raises(ValueError, match="feature_slack"):  # (0: every vertex fast, every frame flagged)
+        ph.Config(feature_slack=0.0).validate()
 
 
 def test_the_slack_changes_no_push_on_the_cpu(asset):

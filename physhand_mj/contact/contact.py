@@ -12,9 +12,10 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
-from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
-                                          FAST_PER_WORLD, certify_features, near_features, next_slack, skin_motion,
-                                          stage_features, stage_features_scan, stage_features_tiled)
+from physhand_mj.contact.features import (FAST_PER_WORLD, FEATURE_LANES, certify_features, feature_contact,
+                                          feature_contact_scan, feature_contact_tiled, near_features, next_slack,
+                                          skin_motion, skin_reach, stage_features, stage_features_scan,
+                                          stage_features_tiled, UNLISTED)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
 from physhand_mj.contact.measures import ContactMeasures
@@ -172,9 +173,6 @@ class Contact(ContactMeasures, ContactReports):
         rest = model.rest_x[: int(f.max()) + 1].numpy()[f] if len(f) else np.zeros((0, 3, 3))
         edges = np.linalg.norm(rest - np.roll(rest, -1, axis=1), axis=2)
         self.feature_eps = float(1.0e-3 * edges.mean()) if len(f) else 0.0
-        # m, a bound on a skin edge's length in a frame (twice the longest at rest): how far a skin
-        # triangle's points lie from its vertices (features.certify_features)
-        self.skin_reach = float(2.0 * edges.max()) if len(f) else 0.0
         self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
                                        pinned=wp.get_device(d).is_cuda)
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
@@ -248,9 +246,10 @@ class Contact(ContactMeasures, ContactReports):
                 # frame's start (m); per world the slack its lists are made with (the first frame's:
                 # contact_frame_margin), the skin's largest move in the frame, the frame's report
                 # (slack, move, exceeded) and its host copy; the skin at the frame's start
-                # (the frame's end check, features.certify_features: per object point its distance and
-                # closest triangle at the start, -1 unlisted; per skin vertex its move; per world its
-                # fast vertices, the listed points' closest triangles' largest move, a failed point)
+                # (the frame's end check, features.certify_features: per object point its signed distance
+                # and closest triangle at the start, UNLISTED where not listed; per skin vertex its move;
+                # per world its fast vertices, the largest move near the points, a failed point, the
+                # longest skin edge)
                 W, dev = self.worlds, m.device
                 self.feat_dist = wp.zeros(pts.n_features, dtype=float, device=dev)
                 self.slack = wp.full(W, cfg.contact_frame_margin, dtype=float, device=dev)
@@ -258,18 +257,19 @@ class Contact(ContactMeasures, ContactReports):
                 self.slack_report = wp.zeros((W, 3), dtype=float, device=dev)
                 self._slack_host = wp.zeros((W, 3), dtype=float, device="cpu", pinned=wp.get_device(dev).is_cuda)
                 self.x_start = wp.zeros(m.n_skin, dtype=wp.vec3, device=dev)
-                self.pt_dist = wp.full(pts.pts.shape[0], -1.0, dtype=float, device=dev)
+                self.pt_dist = wp.full(pts.pts.shape[0], UNLISTED, dtype=float, device=dev)
                 self.pt_face = wp.zeros(pts.pts.shape[0], dtype=int, device=dev)
                 self.vmotion = wp.zeros(m.n_skin, dtype=float, device=dev)
                 self.fast = wp.zeros((W, FAST_PER_WORLD), dtype=int, device=dev)
                 self.fast_count = wp.zeros(W, dtype=int, device=dev)
                 self.near_motion = wp.zeros(W, dtype=float, device=dev)
                 self.slack_failed = wp.zeros(W, dtype=int, device=dev)
+                self.reach = wp.zeros(W, dtype=float, device=dev)
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
             x_start, n_skin, pt_dist = self.x_start, m.n_skin, self.pt_dist
             ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, self.motion.zero_, self.fast_count.zero_,
-                    self.near_motion.zero_, self.slack_failed.zero_, lambda: pt_dist.fill_(-1.0),
+                    self.near_motion.zero_, self.slack_failed.zero_, self.reach.zero_, lambda: pt_dist.fill_(UNLISTED),
                     lambda: wp.copy(x_start, state.x, count=n_skin), *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin, cfg.contact_margin, self.slack,
@@ -303,13 +303,15 @@ class Contact(ContactMeasures, ContactReports):
         m, cfg, pts = self.model, self.config, self.points
         launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
                [self.vmotion, self.motion, self.fast, self.fast_count])
+        launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world], [self.reach])
         launch(certify_features, pts.n_features,
                [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
                 self.pt_dist, self.pt_face, m.skin_faces, self.x_start, self.vmotion, self.fast, self.fast_count,
-                self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.skin_reach],
+                self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
                [self.near_motion, self.slack_failed])
-        launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, float(cfg.feature_slack),
-                                         float(cfg.contact_frame_margin)], [self.slack, self.slack_report])
+        launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
+                                         FAST_PER_WORLD, float(cfg.feature_slack), float(cfg.contact_frame_margin)],
+               [self.slack, self.slack_report])
 
     def _counter(self):
         c = self.counters[self._slot: self._slot + 1]

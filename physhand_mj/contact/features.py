@@ -79,34 +79,28 @@ def near_features(
     ``slack`` (m, the skin's motion a frame allows for: Config.feature_slack) of the skin, and those
     farther but within ``margin`` (m) that the skin's pseudo normals put inside it (a deep point is
     pushed however far the slack is), with their distance to the skin (``out_dist``, m, in list
-    order; ``pt_dist`` and ``pt_face``, the closest skin triangle, by point: unlisted points keep
-    the -1 the frame starts them with)."""
+    order; by point ``pt_dist``, signed by the pseudo normals, negative inside, and ``pt_face``,
+    the closest skin triangle: unlisted points keep the UNLISTED the frame starts them with)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
     p = object_point(i, pts, pts_geom, pose)
     reach = keep + slack[pts_geom[i] // geoms_per_world]
-    q = wp.mesh_query_point_no_sign(skin, p, wp.min(margin, reach))
-    face = int(-1)
-    u = float(0.0)
-    v = float(0.0)
-    if q.result:
-        face = q.face
-        u = q.u
-        v = q.v
-    elif reach < margin:
-        qs = wp.mesh_query_point_sign_normal(skin, p, margin)
-        if qs.result and qs.sign < 0.0:
-            face = qs.face
-            u = qs.u
-            v = qs.v
-    if face >= 0:
-        d = wp.length(p - wp.mesh_eval_position(skin, face, u, v))
+    q = wp.mesh_query_point_sign_normal(skin, p, wp.min(margin, reach))
+    listed = q.result
+    if not listed and reach < margin:
+        q = wp.mesh_query_point_sign_normal(skin, p, margin)
+        listed = q.result and q.sign < 0.0
+    if listed:
+        d = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
         k = wp.atomic_add(out_count, 0, 1)
         out[k] = i
         out_dist[k] = d
-        pt_dist[i] = d
-        pt_face[i] = face
+        pt_dist[i] = wp.where(q.sign < 0.0, -d, d)
+        pt_face[i] = q.face
+
+
+UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
 
 
 @wp.kernel
@@ -138,6 +132,20 @@ def skin_motion(
 
 
 @wp.kernel
+def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int),
+               reach: wp.array(dtype=float)):
+    """Per world the longest skin edge (m) at the frame's end (atomic max): how far a triangle's
+    points lie from its vertices (:func:`certify_features`). A non-finite edge counts 0."""
+    t = wp.tid()
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    e = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+    if e == e:
+        wp.atomic_max(reach, vertex_world[faces[t, 0]], e)
+
+
+@wp.kernel
 def certify_features(
     feature: wp.array(dtype=int),
     pts: wp.array(dtype=wp.vec3),
@@ -155,20 +163,23 @@ def certify_features(
     slack: wp.array(dtype=float),
     margin: float,
     keep: float,
-    reach: float,
+    reach: wp.array(dtype=float),
     near_motion: wp.array(dtype=float),
     failed: wp.array(dtype=int),
 ):
     """After a frame, per object feature point p: did its list and patch hold (module docstring)?
 
-    Listed (distance d, closest triangle C at the start, patch radius r = min(margin, d + s)): a
-    triangle T outside the patch was farther than r; to come nearer p than C, which moved at most
-    D_C (its vertices' largest move), a point of T moved at least g - D_C (g = r - d), so a vertex v
-    of T did, and v started within d + D_C + |move of v| + ``reach`` (m, a skin edge's length
-    bound) of p. Not listed (farther than keep + s, outside): to come within ``keep`` a vertex moved
-    more than s and started within keep + |its move| + reach. The frame's fast vertices (half the
-    slack or more) are asked; below that threshold, or with more fast vertices than the list holds,
-    the point fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the
+    A point's scans matter while it is within ``keep`` of the skin or inside it. Listed (distance d,
+    closest triangle C at the start, patch radius r = min(margin, d + s)), outside at the start: a
+    triangle T outside the patch (farther than r then) that comes within keep of p moved a point at
+    least r - keep, so a vertex v of T did, and v started within keep + |move of v| + ``reach[w]``
+    (m, the world's longest skin edge at the frame's end: :func:`skin_reach`) of p. Inside at the
+    start (by the pseudo normals), T must also not come nearer than C, which moved at most D_C (its
+    vertices' largest move): a move of r - max(keep, d + D_C), from within max(keep, d + D_C) +
+    |move| + reach. Not listed (farther than min(margin, keep + s), outside): to come within keep a
+    vertex moved more than min(margin, keep + s) - keep and started within keep + |its move| + reach. The frame's fast vertices (half the slack or more) are
+    asked; where a point's needed move is below that threshold, or the world has more fast vertices
+    than the list holds, the point fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the
     move of every fast vertex near enough to a point for its move to matter there, go into
     ``near_motion[w]`` (their largest: the next slack's measure)."""
     i = feature[wp.tid()]
@@ -177,27 +188,23 @@ def certify_features(
     w = pts_geom[i] // geoms_per_world
     s = slack[w]
     n = fast_count[w]
-    d = pt_dist[i]
-    listed = d >= 0.0
-    dc = float(0.0)
-    if listed:
+    sd = pt_dist[i]
+    near = keep  # how near the spoiling triangle must come
+    need = wp.min(margin, keep + s) - keep  # the move a vertex needs to spoil this point's list
+    if sd < UNLISTED:
+        d = wp.abs(sd)
         f = pt_face[i]
         dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
         wp.atomic_max(near_motion, w, dc)
-    if n == 0:
-        return
-    p = object_point(i, pts, pts_geom, pose)
-    need = s  # the move a vertex needs to spoil this point's list
-    if listed:
-        need = wp.min(margin, d + s) - d - dc
+        if sd < 0.0:
+            near = wp.max(keep, d + dc)
+        need = wp.min(margin, d + s) - near
     fail = need < 0.5 * s or n > fast.shape[1]  # (below the list's threshold, or past its end: not asked)
+    p = object_point(i, pts, pts_geom, pose)
     for j in range(wp.min(n, fast.shape[1])):
         v = fast[w, j]
         mv = vmotion[v]
-        lim = keep + mv + reach
-        if listed:
-            lim = d + dc + mv + reach
-        if wp.length(x_start[v] - p) <= lim:  # near enough for its move to matter here
+        if wp.length(x_start[v] - p) <= near + mv + reach[w]:  # near enough for its move to matter here
             wp.atomic_max(near_motion, w, mv)
             if mv >= need:
                 fail = True
@@ -205,11 +212,16 @@ def certify_features(
         failed[w] = 1
 
 
+SLACK_DECAY = wp.constant(0.8)  # the next slack is at least this much of the last: moves under half of it go unseen
+
+
 @wp.kernel
 def next_slack(
     motion: wp.array(dtype=float),
     near_motion: wp.array(dtype=float),
     failed: wp.array(dtype=int),
+    fast_count: wp.array(dtype=int),
+    cap: int,
     least: float,
     most: float,
     slack: wp.array(dtype=float),
@@ -217,12 +229,19 @@ def next_slack(
 ):
     """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
     move, 1 where :func:`certify_features` failed a point), and the next frame's slack: 2.5 x the
-    largest move near the feature points (``near_motion``), at least ``least`` and at most ``most`` (m)."""
+    largest move near the feature points (``near_motion``; the world's largest move after a failed
+    frame or one with more fast vertices than ``cap``, whose moves were not all seen), at least
+    SLACK_DECAY x this frame's (a move under half the slack was not measured) and ``least``, at most
+    ``most`` (m)."""
     w = wp.tid()
-    report[w, 0] = slack[w]
+    s = slack[w]
+    m = near_motion[w]
+    if failed[w] != 0 or fast_count[w] > cap:
+        m = wp.max(m, motion[w])
+    report[w, 0] = s
     report[w, 1] = motion[w]
     report[w, 2] = float(failed[w])
-    slack[w] = wp.min(wp.max(least, 2.5 * near_motion[w]), most)
+    slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
 
 
 @wp.kernel

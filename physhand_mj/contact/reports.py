@@ -61,16 +61,21 @@ class ContactReports:
                               f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
         return int(self._feat_host.numpy()[0])
 
-    def feature_motion(self) -> dict:
-        """The last frame with contact, worst world (after the frame's sync; Config.feature_slack,
-        features.py): ``feature_slack_mm``, the slack its feature lists were made with (m -> mm),
-        ``skin_motion_mm``, the skin's largest move in it, and ``feature_slack_exceeded``, the worlds
-        in which a skin vertex moved far enough, near enough to a feature point, that the point's
-        list or patch could have missed a skin triangle (warned about once where the lists had been
-        cut short of contact_frame_margin). Empty without listed feature points."""
+    def feature_motion(self, ran: bool = True) -> dict:
+        """The last frame, worst world (after the frame's sync; Config.feature_slack, features.py):
+        ``feature_slack_mm``, the slack its feature lists were made with (m -> mm), ``skin_motion_mm``,
+        the skin's largest move in it, and ``feature_slack_exceeded``, the worlds in which a skin
+        vertex moved far enough, near enough to a feature point, that the point's list or patch could
+        have missed a skin triangle (warned about once where the lists had been cut short of
+        contact_frame_margin). A frame that did not run its contact block (``ran`` False: nothing
+        near) made no lists: its move and count are 0, its slack the last lists'. Empty without
+        feature points."""
         if self.feat is None:
             return {}
         r = self._slack_host.numpy()
+        if not ran:
+            return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4), skin_motion_mm=0.0,
+                        feature_slack_exceeded=0)
         over = int(np.count_nonzero(r[:, 2]))
         # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
         # broadphase's own, as before the slack; the count says it either way)

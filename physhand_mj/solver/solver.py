@@ -254,7 +254,7 @@ class Solver(Sleeping):
             self._contact_summary(out)
             self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
-            self.last_activity.update(self.contact.feature_motion())
+            self.last_activity.update(self.contact.feature_motion(self.activity.last_open1))
         else:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
