@@ -177,7 +177,7 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     outside the patch could then be nearer than A); a fast vertex sliding 5 cm sideways fails too
     (the check knows end positions only: conservative); B moving 5 mm 38 mm away passes. The next slack is 2.5 x the
     largest move near the points, at least 0.8 x the last and the least, at most the margin; after
-    a failed frame at least 2.5 x the world's largest move. A non-finite vertex counts 0. With the
+    a failed frame at least 2.5 x the world's largest move; a world that listed nothing keeps it. A non-finite vertex counts 0. With the
     margin's slack (a world's first frame) a triangle 10.2 mm from the unlisted point that comes to
     0.4 mm of it fails. A capped patch of a point 8 mm inside with an 8 mm slack needs less move than
     the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More fast vertices than the list
@@ -206,7 +206,9 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
                                         _arr(np.zeros(n, np.int32), int), faces, _arr(x0, wp.vec3), vmotion, fast,
                                         fast_count, slack, 1e-2, 5e-4, reach], [near, failed], device="cpu")
         report = wp.zeros((1, 3), dtype=float, device="cpu")
-        wp.launch(next_slack, 1, [motion, near, failed, fast_count, cap, 4e-3, 1e-2], [slack, report], device="cpu")
+        listed = _arr(np.int32([int(any(abs(x) < UNLISTED for x in dist))]), int)
+        wp.launch(next_slack, 1, [motion, near, failed, fast_count, cap, listed, 4e-3, 1e-2], [slack, report],
+                  device="cpu")
         return report.numpy()[0], float(slack.numpy()[0]), int(fast_count.numpy()[0])
 
     r, nxt, n = check({3: (0, 0, -3e-3)})  # B 3 mm towards the point: fast, but it needs 4 mm
@@ -229,6 +231,8 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     assert r[2] == 1 and nxt == pytest.approx(1e-2)
     r, nxt, _ = check({}, slack0=1e-2)  # nothing moved: the slack comes down by SLACK_DECAY a frame
     assert r[2] == 0 and nxt == pytest.approx(8e-3)
+    r, nxt, _ = check({}, slack0=1e-2, pts=((0, 0, -20e-3),), dist=(UNLISTED,))  # nothing listed: it stays
+    assert r[2] == 0 and nxt == pytest.approx(1e-2)
     # the margin's slack: point 1 unlisted (farther than the margin), B's vertex 10.2 mm from it moves to 0.4 mm
     low = base.copy()
     low[3:] = np.float32([[0, 0, -9.8e-3], [1e-3, 0, -9.8e-3], [0, 1e-3, -9.8e-3]])

@@ -265,16 +265,18 @@ class Contact(ContactMeasures, ContactReports):
                 self.near_motion = wp.zeros(W, dtype=float, device=dev)
                 self.slack_failed = wp.zeros(W, dtype=int, device=dev)
                 self.reach = wp.zeros(W, dtype=float, device=dev)
+                self.world_listed = wp.zeros(W, dtype=int, device=dev)
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
             x_start, n_skin, pt_dist = self.x_start, m.n_skin, self.pt_dist
             ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, self.motion.zero_, self.fast_count.zero_,
-                    self.near_motion.zero_, self.slack_failed.zero_, self.reach.zero_, lambda: pt_dist.fill_(UNLISTED),
+                    self.near_motion.zero_, self.slack_failed.zero_, self.reach.zero_, self.world_listed.zero_,
+                    lambda: pt_dist.fill_(UNLISTED),
                     lambda: wp.copy(x_start, state.x, count=n_skin), *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin, cfg.contact_margin, self.slack,
                                                    self.geoms_per_world],
-                   [self.feat, self.feat_count, self.feat_dist, self.pt_dist, self.pt_face])
+                   [self.feat, self.feat_count, self.feat_dist, self.pt_dist, self.pt_face, self.world_listed])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
                 ops += [self.patch_used.zero_, self.patch_fill.zero_]
@@ -310,7 +312,8 @@ class Contact(ContactMeasures, ContactReports):
                 self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
                [self.near_motion, self.slack_failed])
         launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
-                                         FAST_PER_WORLD, float(cfg.feature_slack), float(cfg.contact_frame_margin)],
+                                         FAST_PER_WORLD, self.world_listed, float(cfg.feature_slack),
+                                         float(cfg.contact_frame_margin)],
                [self.slack, self.slack_report])
 
     def _counter(self):

@@ -74,13 +74,15 @@ def near_features(
     out_dist: wp.array(dtype=float),
     pt_dist: wp.array(dtype=float),
     pt_face: wp.array(dtype=int),
+    world_count: wp.array(dtype=int),
 ):
     """Append the feature points (indices into ``pts``) within ``keep`` (m) plus their world's
     ``slack`` (m, the skin's motion a frame allows for: Config.feature_slack) of the skin, and those
     farther but within ``margin`` (m) that the skin's pseudo normals put inside it (a deep point is
     pushed however far the slack is), with their distance to the skin (``out_dist``, m, in list
     order; by point ``pt_dist``, signed by the pseudo normals, negative inside, and ``pt_face``,
-    the closest skin triangle: unlisted points keep the UNLISTED the frame starts them with)."""
+    the closest skin triangle: unlisted points keep the UNLISTED the frame starts them with; per
+    world the points listed, ``world_count``)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
@@ -98,6 +100,7 @@ def near_features(
         out_dist[k] = d
         pt_dist[i] = wp.where(q.sign < 0.0, -d, d)
         pt_face[i] = q.face
+        wp.atomic_add(world_count, pts_geom[i] // geoms_per_world, 1)
 
 
 UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
@@ -222,6 +225,7 @@ def next_slack(
     failed: wp.array(dtype=int),
     fast_count: wp.array(dtype=int),
     cap: int,
+    world_count: wp.array(dtype=int),
     least: float,
     most: float,
     slack: wp.array(dtype=float),
@@ -232,7 +236,8 @@ def next_slack(
     largest move near the feature points (``near_motion``; the world's largest move after a failed
     frame or one with more fast vertices than ``cap``, whose moves were not all seen), at least
     SLACK_DECAY x this frame's (a move under half the slack was not measured) and ``least``, at most
-    ``most`` (m)."""
+    ``most`` (m). A world that listed no point and failed none keeps its slack (so a frame whose
+    contact block runs with nothing near changes nothing: Config.skip_idle gives the same lists)."""
     w = wp.tid()
     s = slack[w]
     m = near_motion[w]
@@ -241,7 +246,8 @@ def next_slack(
     report[w, 0] = s
     report[w, 1] = motion[w]
     report[w, 2] = float(failed[w])
-    slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
+    if world_count[w] > 0 or failed[w] != 0:
+        slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
 
 
 @wp.kernel
