@@ -174,12 +174,15 @@ class Config:
         CPU and an H100, 26 and 18 without the three (docs/contact.md, held frames);
         feature_slack: the least motion of the skin within one frame that the object's feature
         points are listed and their patches (the local winding number's, contact/winding.py) sized
-        for (m; 4 mm: a held grasp's skin jitters up to 1.5 mm a frame at single vertices): a feature point d from the skin at the frame's start is listed when d is within
-        the slack plus contact_margin and its patch holds the skin triangles within d plus the slack
-        (not within contact_frame_margin: 4-8 x fewer patch entries on the box grasp); each frame the
-        slack is raised to 2.5 x the skin's largest move in the last frame with contact, up to
-        contact_frame_margin, and a frame in which the skin moved half its slack or more is
-        reported (``feature_slack_exceeded``) and warned about (docs/contact.md); at
+        for (m, > 0; 4 mm: a held grasp's skin jitters up to 1.5 mm a frame at single vertices): a
+        feature point d from the skin at the frame's start is listed when d is within the slack
+        plus contact_margin (or the pseudo normals put it inside), and its patch holds the skin
+        triangles within d plus the slack
+        (not within contact_frame_margin: 4-8 x fewer patch entries on the box grasp); each frame
+        the slack follows 2.5 x the skin's largest move near the points in the last frame with
+        contact, up to contact_frame_margin, and a frame in which a skin vertex moved far enough,
+        near enough to a point, to spoil its list is reported (``feature_slack_exceeded``) and
+        warned about (docs/contact.md); at
         contact_frame_margin or more: every feature point within that margin, patches of that
         radius (the lists before 2026-11-27);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the

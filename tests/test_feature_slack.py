@@ -177,10 +177,12 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     outside the patch could then be nearer than A); a fast vertex sliding 5 cm sideways fails too
     (the check knows end positions only: conservative); B moving 5 mm 38 mm away passes. The next slack is 2.5 x the
     largest move near the points, at least 0.8 x the last and the least, at most the margin; after
-    a failed frame at least 2.5 x the world's largest move; a world that listed nothing keeps it. A non-finite vertex counts 0. With the
+    a failed frame at least 2.5 x the world's largest move; a world that listed nothing keeps it. A
+    non-finite vertex counts 0. With the
     margin's slack (a world's first frame) a triangle 10.2 mm from the unlisted point that comes to
     0.4 mm of it fails. A capped patch of a point 8 mm inside with an 8 mm slack needs less move than
-    the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More fast vertices than the list
+    the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More
+    fast vertices than the list
     holds fail the world."""
     faces = wp.array(np.array([[0, 1, 2], [3, 4, 5]], np.int32), dtype=int, device="cpu")
     base = np.array([[-1, -1, 1], [1, -1, 1], [0, 1, 1], [-1, -1, 8], [1, -1, 8], [0, 1, 8]], np.float32) * 1e-3

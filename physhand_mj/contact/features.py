@@ -180,10 +180,11 @@ def certify_features(
     start (by the pseudo normals), T must also not come nearer than C, which moved at most D_C (its
     vertices' largest move): a move of r - max(keep, d + D_C), from within max(keep, d + D_C) +
     |move| + reach. Not listed (farther than min(margin, keep + s), outside): to come within keep a
-    vertex moved more than min(margin, keep + s) - keep and started within keep + |its move| + reach. The frame's fast vertices (half the slack or more) are
-    asked; where a point's needed move is below that threshold, or the world has more fast vertices
-    than the list holds, the point fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the
-    move of every fast vertex near enough to a point for its move to matter there, go into
+    vertex moved more than min(margin, keep + s) - keep and started within keep + |its move| +
+    reach. The frame's fast vertices (half the slack or more) are asked; where a point's needed move
+    is below that threshold, or the world has more fast vertices than the list holds, the point
+    fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of
+    every fast vertex near enough to a point for its move to matter there, go into
     ``near_motion[w]`` (their largest: the next slack's measure)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
@@ -215,7 +216,8 @@ def certify_features(
         failed[w] = 1
 
 
-SLACK_DECAY = wp.constant(0.8)  # the next slack is at least this much of the last: moves under half of it go unseen
+# the next slack is at least this much of the last (moves under half of it go unseen: next_slack)
+SLACK_DECAY = wp.constant(0.8)
 
 
 @wp.kernel
