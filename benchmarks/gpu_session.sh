@@ -29,10 +29,14 @@
 #   variants2..7, blocks  each step of the fixed-point kernel against the one before (2026-11-27; docs/solver.md)
 #   final_tests   the CUDA tests the fused kernel touches (test_fused, test_batch, CPU/CUDA solver, a hard case)
 #   final_bench, final2   the shipped kernel against the old one, solver only and two HOI grasps at W = 4,096
+#   s36_tests, s36_bench   (2026-11-27, second session) the CUDA tests on the last session's fixes; the shipped
+#            kernel against the old one; the box's kernel split
+#   s36_slack_tests, s36_slack_bench, s36_slack_bench2   Config.feature_slack: its CUDA tests, the box with and
+#            without it (bench2's three grasps at W = 4,096 ran past their 150 s limits on a fresh machine)
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks or final2}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench or s36_slack_bench2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
