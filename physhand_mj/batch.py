@@ -428,14 +428,20 @@ class BatchedHands:
     def frame_worlds(self) -> list[dict]:
         """Per world, the last frame's ``nonfinite`` / ``inverted`` / ``tethered`` guard counts and its
         skin samples inside objects at the frame's end (``penetration_count`` / ``_max_um`` /
-        ``_avg_um``, the solver's frame metric): what ``Solver.step`` reports for one hand."""
+        ``_avg_um``, the solver's frame metric) and, with object feature points, whether its feature
+        lists' check failed (``feature_slack_exceeded``, 0 or 1): what ``Solver.step`` reports for
+        one hand."""
         g = self.solver.guard_worlds
         c = self.solver.contact
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
         from physhand_mj.metrics import summarize_rows
 
-        return [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
+        rows = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
                 for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
+        if c is not None:  # this world's feature lists' check (Config.feature_slack), where it has feature points
+            for row, over in zip(rows, c.feature_motion_worlds(self.solver.activity.last_open1)):
+                row["feature_slack_exceeded"] = over
+        return rows
 
     def penetration(self, order: int = 5) -> list[dict]:
         """Both penetration measures of every world's skin as it is now, each world against its own

@@ -20,6 +20,9 @@ of each frame (and row 0), evaluated after the frame's timing; empty on the othe
 ``objects_near`` / ``triangles_tested`` / ``features_listed`` / ``ops_run``: what the frame ran
 (physhand_mj/activity.py: objects in the work set, triangles the contact passes queried, object
 feature points listed, recorded ops run), on the last row of each frame.
+``feature_slack_exceeded``: 1 where a skin vertex moved far enough in the frame, near enough to an
+object's feature point, that the point's list or patch could have missed a skin triangle
+(Config.feature_slack, physhand_mj/contact/features.py), else 0; empty without feature points.
 """
 
 from __future__ import annotations
@@ -33,8 +36,8 @@ import numpy as np
 
 LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_max_um", "penetration_avg_um",
                "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um",
-               "objects_near", "triangles_tested", "features_listed", "ops_run"]
-ACTIVITY = LOG_COLUMNS[-4:]  # what ran in the frame (physhand_mj/activity.py), on its last row
+               "objects_near", "triangles_tested", "features_listed", "ops_run", "feature_slack_exceeded"]
+ACTIVITY = LOG_COLUMNS[-5:]  # what ran in the frame (physhand_mj/activity.py), on its last row
 
 
 def load_scene(scene, keyframe: str | None = None, model=None):
@@ -205,7 +208,7 @@ def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: d
         lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
                       _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
                       *(((both["object_in_skin_count"], _um(both["object_in_skin_max_um"])) if both else ("", ""))
-                        + tuple(res.get(k, "") for k in ACTIVITY) if s + 1 == cfg.substeps else ("",) * 6)])
+                        + tuple(res.get(k, "") for k in ACTIVITY) if s + 1 == cfg.substeps else ("",) * 7)])
     return lines
 
 

@@ -92,6 +92,15 @@ class ContactReports:
         return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
                     skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 
+    def feature_motion_worlds(self, ran: bool = True) -> list:
+        """Per world, 1 where the last frame's feature-list check failed (:meth:`feature_motion`),
+        else 0 (also in a frame whose contact block did not run); empty without feature points."""
+        if self.feat is None:
+            return []
+        if not ran:
+            return [0] * self.worlds
+        return [int(v) for v in self._slack_host.numpy()[:, 2]]
+
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
         triangles and the skin vertices its first pass corrected (in contact at the stage's start; Eq. 9's
