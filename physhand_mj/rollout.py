@@ -22,7 +22,7 @@ of each frame (and row 0), evaluated after the frame's timing; empty on the othe
 feature points listed, recorded ops run), on the last row of each frame.
 ``feature_slack_exceeded``: 1 where a skin vertex moved far enough in the frame, near enough to an
 object's feature point, that the point's list or patch could have missed a skin triangle
-(Config.feature_slack, physhand_mj/contact/features.py), else 0; empty without feature points.
+(Config.feature_slack, physhand_mj/contact/slack.py), else 0; empty without feature points.
 """
 
 from __future__ import annotations

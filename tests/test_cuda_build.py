@@ -31,11 +31,11 @@ def test_the_one_block_contact_stage_builds_for_an_h100(tmp_path):
 
 @pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")
 def test_the_feature_kernels_build_for_an_h100(tmp_path):
-    """contact/features.py (the object side's lists and pushes, and Config.feature_slack's frame check:
-    skin_motion, certify_features, next_slack) and contact/winding.py (the patches, sized per point)
-    build to sm_90 machine code."""
-    from physhand_mj.contact import features, winding
+    """contact/features.py (the object side's lists and pushes), contact/slack.py (Config.feature_slack's
+    frame check: skin_motion, skin_reach, certify_features, next_slack) and contact/winding.py (the
+    patches, sized per point) build to sm_90 machine code."""
+    from physhand_mj.contact import features, slack, winding
 
-    for module in (features, winding):
+    for module in (features, slack, winding):
         out = wp.compile_aot_module(module, arch=90, module_dir=tmp_path / module.__name__, use_ptx=False)
         assert out and all(p.exists() and p.stat().st_size > 0 for p in out)

@@ -1,4 +1,4 @@
-"""Config.feature_slack (contact/features.py): the object's feature points are listed, and their
+"""Config.feature_slack (contact/slack.py): the object's feature points are listed, and their
 patches sized, for the skin's motion in a frame, not for the whole frame margin. Checked against
 brute force on the skin at the frame's start (which points are listed, which triangles their patches
 hold) and at its end (the patch still holds the closest skin triangle; no unlisted point came near
@@ -11,7 +11,7 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.cases import press_case, run_case
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.contact.features import UNLISTED, certify_features, next_slack, skin_motion, skin_reach
+from physhand_mj.contact.slack import UNLISTED, certify_features, next_slack, skin_motion, skin_reach
 from physhand_mj.contact.inside import object_point
 
 

@@ -3,7 +3,8 @@
 :class:`Contact` owns the preallocated contact buffers of one solver and records its launches into
 the solver's frame (so a CUDA graph captures them); the penetration metrics are its
 :class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py), the frame's host-side
-reports its :class:`~physhand_mj.contact.reports.ContactReports` (contact/reports.py).
+reports its :class:`~physhand_mj.contact.reports.ContactReports` (contact/reports.py), the feature lists'
+slack and its check :class:`~physhand_mj.contact.slack.FeatureSlack` (contact/slack.py).
 """
 
 from __future__ import annotations
@@ -12,16 +13,15 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
-from physhand_mj.contact.features import (FAST_PER_WORLD, FEATURE_LANES, certify_features, feature_contact,
-                                          feature_contact_scan, feature_contact_tiled, near_features, next_slack,
-                                          skin_motion, skin_reach, stage_features, stage_features_scan,
-                                          stage_features_tiled, UNLISTED)
+from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
+                                          near_features, stage_features, stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
 from physhand_mj.contact.reports import ContactReports
+from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
 from physhand_mj.contact.stage import STAGE_LANES, record_stage
 from physhand_mj.types import Config, Model, Placement, Strategy
@@ -54,7 +54,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact(ContactMeasures, ContactReports):
+class Contact(ContactMeasures, ContactReports, FeatureSlack):
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -167,7 +167,6 @@ class Contact(ContactMeasures, ContactReports):
             self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
-        self._slack_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
         # mesh_query_point_sign_normal), here of the rest skin's
         rest = model.rest_x[: int(f.max()) + 1].numpy()[f] if len(f) else np.zeros((0, 3, 3))
@@ -242,37 +241,11 @@ class Contact(ContactMeasures, ContactReports):
                     self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
                     self.far_angle = wp.zeros(n, dtype=float, device=m.device)
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
-                # Config.feature_slack (features.py): per listed feature its distance to the skin at the
-                # frame's start (m); per world the slack its lists are made with (the first frame's:
-                # contact_frame_margin), the skin's largest move in the frame, the frame's report
-                # (slack, move, exceeded) and its host copy; the skin at the frame's start
-                # (the frame's end check, features.certify_features: per object point its signed distance
-                # and closest triangle at the start, UNLISTED where not listed; per skin vertex its move;
-                # per world its fast vertices, the largest move near the points, a failed point, the
-                # longest skin edge)
-                W, dev = self.worlds, m.device
-                self.feat_dist = wp.zeros(pts.n_features, dtype=float, device=dev)
-                self.slack = wp.full(W, cfg.contact_frame_margin, dtype=float, device=dev)
-                self.motion = wp.zeros(W, dtype=float, device=dev)
-                self.slack_report = wp.zeros((W, 3), dtype=float, device=dev)
-                self._slack_host = wp.zeros((W, 3), dtype=float, device="cpu", pinned=wp.get_device(dev).is_cuda)
-                self.x_start = wp.zeros(m.n_skin, dtype=wp.vec3, device=dev)
-                self.pt_dist = wp.full(pts.pts.shape[0], UNLISTED, dtype=float, device=dev)
-                self.pt_face = wp.zeros(pts.pts.shape[0], dtype=int, device=dev)
-                self.vmotion = wp.zeros(m.n_skin, dtype=float, device=dev)
-                self.fast = wp.zeros((W, FAST_PER_WORLD), dtype=int, device=dev)
-                self.fast_count = wp.zeros(W, dtype=int, device=dev)
-                self.near_motion = wp.zeros(W, dtype=float, device=dev)
-                self.slack_failed = wp.zeros(W, dtype=int, device=dev)
-                self.reach = wp.zeros(W, dtype=float, device=dev)
-                self.world_listed = wp.zeros(W, dtype=int, device=dev)
+                self._make_slack(pts.pts.shape[0])  # Config.feature_slack's buffers (slack.py)
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
-            x_start, n_skin, pt_dist = self.x_start, m.n_skin, self.pt_dist
-            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, self.motion.zero_, self.fast_count.zero_,
-                    self.near_motion.zero_, self.slack_failed.zero_, self.reach.zero_, self.world_listed.zero_,
-                    lambda: pt_dist.fill_(UNLISTED),
-                    lambda: wp.copy(x_start, state.x, count=n_skin), *vol.refit_ops()]
+            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self._slack_start_ops(state),
+                    *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin, cfg.contact_margin, self.slack,
                                                    self.geoms_per_world],
@@ -295,26 +268,6 @@ class Contact(ContactMeasures, ContactReports):
                         self.slack, self.geoms_per_world],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.far_angle], count=self.feat_count)
-
-    def record_frame_end(self, launch, ops: list, state) -> None:
-        """At the end of a frame with contact: how far the skin moved in it, per world, against the
-        slack its feature lists were made with, and the next frame's slack (Config.feature_slack,
-        features.py). Nothing without listed feature points."""
-        if self.feat is None:
-            return
-        m, cfg, pts = self.model, self.config, self.points
-        launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
-               [self.vmotion, self.motion, self.fast, self.fast_count])
-        launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world], [self.reach])
-        launch(certify_features, pts.n_features,
-               [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
-                self.pt_dist, self.pt_face, m.skin_faces, self.x_start, self.vmotion, self.fast, self.fast_count,
-                self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
-               [self.near_motion, self.slack_failed])
-        launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
-                                         FAST_PER_WORLD, self.world_listed, float(cfg.feature_slack),
-                                         float(cfg.contact_frame_margin)],
-               [self.slack, self.slack_report])
 
     def _counter(self):
         c = self.counters[self._slot: self._slot + 1]

@@ -27,23 +27,7 @@ the same bound as the stage broadphase of triangles), and its passes test only t
 skin's BVH before each (no winding data: ~0.1 ms for 10k triangles on a CPU). Signs come from the
 skin's pseudo normals (the skin is closed and consistently wound), confirmed by a local winding number.
 
-How far the lists reach (``Config.feature_slack``, since 2026-11-27). Within a frame the objects stay
-where the frame put them and only the skin moves. A feature point d from the skin at the frame's
-start (``near_features`` measures d) is listed when d <= s + contact_margin, s its world's slack, or
-when the skin's pseudo normals put it inside; its patch holds the skin triangles within r = d + s
-of it (both at most contact_frame_margin). If no skin vertex moves more than D with 2 D < s, that
-is exact: the point's closest triangle at the start is in the patch and stays within d + D of it,
-a triangle outside the patch stays farther than r - D, and an unlisted point never comes within
-contact_margin. The frame checks this at its end, locally (``skin_motion``, ``certify_features``):
-a skin vertex that moved half the slack or more spoils a point only if it started near enough to
-it, given its move, to bring a triangle outside the patch nearer than the point's closest one (or
-an unlisted point within contact_margin). A world with such a point is reported
-(``feature_slack_exceeded``). The next frame's slack is 2.5 x the largest move near the points (their
-closest triangles', and the fast vertices' that started near enough to matter: ``next_slack``),
-at least Config.feature_slack and at most
-contact_frame_margin. The first frame, and every world until it has run a frame with contact,
-lists with contact_frame_margin. The moves are the frame's end positions against its start, not
-the paths between.
+How far the lists reach (``Config.feature_slack``, since 2026-11-27): :mod:`physhand_mj.contact.slack`.
 """
 
 import warp as wp
@@ -52,9 +36,6 @@ from physhand_mj.contact.closest import closest_on_triangle, closest_signed
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import accumulate, depth_weight
 from physhand_mj.contact.winding import closest_scan, closest_tiled, winding_sign
-
-
-FAST_PER_WORLD = 32  # fast skin vertices a world's frame check keeps (more: the world's frame is flagged)
 
 
 @wp.kernel
@@ -81,7 +62,7 @@ def near_features(
     farther but within ``margin`` (m) that the skin's pseudo normals put inside it (a deep point is
     pushed however far the slack is), with their distance to the skin (``out_dist``, m, in list
     order; by point ``pt_dist``, signed by the pseudo normals, negative inside, and ``pt_face``,
-    the closest skin triangle: unlisted points keep the UNLISTED the frame starts them with; per
+    the closest skin triangle: unlisted points keep the slack.UNLISTED the frame starts them with; per
     world the points listed, ``world_count``)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
@@ -101,155 +82,6 @@ def near_features(
         pt_dist[i] = wp.where(q.sign < 0.0, -d, d)
         pt_face[i] = q.face
         wp.atomic_add(world_count, pts_geom[i] // geoms_per_world, 1)
-
-
-UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
-
-
-@wp.kernel
-def skin_motion(
-    x: wp.array(dtype=wp.vec3),
-    x_start: wp.array(dtype=wp.vec3),
-    vertex_world: wp.array(dtype=int),
-    slack: wp.array(dtype=float),
-    vmotion: wp.array(dtype=float),
-    motion: wp.array(dtype=float),
-    fast: wp.array2d(dtype=int),
-    fast_count: wp.array(dtype=int),
-):
-    """After a frame: how far (m) each skin vertex moved since the frame's start (``vmotion``), the
-    world's largest move (``motion``, atomic max) and its *fast* vertices, those that moved half
-    its slack or more (``fast[w]``, ``fast_count[w]`` counts past the row's end). A non-finite
-    vertex counts 0 (the guard's)."""
-    i = wp.tid()
-    d = wp.length(x[i] - x_start[i])
-    if not (d == d):
-        d = 0.0
-    vmotion[i] = d
-    w = vertex_world[i]
-    wp.atomic_max(motion, w, d)
-    if d >= 0.5 * slack[w]:
-        j = wp.atomic_add(fast_count, w, 1)
-        if j < fast.shape[1]:
-            fast[w, j] = i
-
-
-@wp.kernel
-def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int),
-               reach: wp.array(dtype=float)):
-    """Per world the longest skin edge (m) at the frame's end (atomic max): how far a triangle's
-    points lie from its vertices (:func:`certify_features`). A non-finite edge counts 0."""
-    t = wp.tid()
-    a = x[faces[t, 0]]
-    b = x[faces[t, 1]]
-    c = x[faces[t, 2]]
-    e = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
-    if e == e:
-        wp.atomic_max(reach, vertex_world[faces[t, 0]], e)
-
-
-@wp.kernel
-def certify_features(
-    feature: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    geom_count: wp.array(dtype=int),
-    geoms_per_world: int,
-    pt_dist: wp.array(dtype=float),
-    pt_face: wp.array(dtype=int),
-    faces: wp.array2d(dtype=int),
-    x_start: wp.array(dtype=wp.vec3),
-    vmotion: wp.array(dtype=float),
-    fast: wp.array2d(dtype=int),
-    fast_count: wp.array(dtype=int),
-    slack: wp.array(dtype=float),
-    margin: float,
-    keep: float,
-    reach: wp.array(dtype=float),
-    near_motion: wp.array(dtype=float),
-    failed: wp.array(dtype=int),
-):
-    """After a frame, per object feature point p: did its list and patch hold (module docstring)?
-
-    A point's scans matter while it is within ``keep`` of the skin or inside it. Listed (distance d,
-    closest triangle C at the start, patch radius r = min(margin, d + s)), outside at the start: a
-    triangle T outside the patch (farther than r then) that comes within keep of p moved a point at
-    least r - keep, so a vertex v of T did, and v started within keep + |move of v| + ``reach[w]``
-    (m, the world's longest skin edge at the frame's end: :func:`skin_reach`) of p. Inside at the
-    start (by the pseudo normals), T must also not come nearer than C, which moved at most D_C (its
-    vertices' largest move): a move of r - max(keep, d + D_C), from within max(keep, d + D_C) +
-    |move| + reach. Not listed (farther than min(margin, keep + s), outside): to come within keep a
-    vertex moved more than min(margin, keep + s) - keep and started within keep + |its move| +
-    reach. The frame's fast vertices (half the slack or more) are asked; where a point's needed move
-    is below that threshold, or the world has more fast vertices than the list holds, the point
-    fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of
-    every fast vertex near enough to a point for its move to matter there, go into
-    ``near_motion[w]`` (their largest: the next slack's measure)."""
-    i = feature[wp.tid()]
-    if pts_geom[i] >= geom_count[0]:
-        return
-    w = pts_geom[i] // geoms_per_world
-    s = slack[w]
-    n = fast_count[w]
-    sd = pt_dist[i]
-    near = keep  # how near the spoiling triangle must come
-    need = wp.min(margin, keep + s) - keep  # the move a vertex needs to spoil this point's list
-    if sd < UNLISTED:
-        d = wp.abs(sd)
-        f = pt_face[i]
-        dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
-        wp.atomic_max(near_motion, w, dc)
-        if sd < 0.0:
-            near = wp.max(keep, d + dc)
-        need = wp.min(margin, d + s) - near
-    fail = need < 0.5 * s or n > fast.shape[1]  # (below the list's threshold, or past its end: not asked)
-    p = object_point(i, pts, pts_geom, pose)
-    for j in range(wp.min(n, fast.shape[1])):
-        v = fast[w, j]
-        mv = vmotion[v]
-        if wp.length(x_start[v] - p) <= near + mv + reach[w]:  # near enough for its move to matter here
-            wp.atomic_max(near_motion, w, mv)
-            if mv >= need:
-                fail = True
-    if fail:
-        failed[w] = 1
-
-
-# the next slack is at least this much of the last (moves under half of it go unseen: next_slack)
-SLACK_DECAY = wp.constant(0.8)
-
-
-@wp.kernel
-def next_slack(
-    motion: wp.array(dtype=float),
-    near_motion: wp.array(dtype=float),
-    failed: wp.array(dtype=int),
-    fast_count: wp.array(dtype=int),
-    cap: int,
-    world_count: wp.array(dtype=int),
-    least: float,
-    most: float,
-    slack: wp.array(dtype=float),
-    report: wp.array2d(dtype=float),
-):
-    """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
-    move, 1 where :func:`certify_features` failed a point), and the next frame's slack: 2.5 x the
-    largest move near the feature points (``near_motion``; the world's largest move after a failed
-    frame or one with more fast vertices than ``cap``, whose moves were not all seen), at least
-    SLACK_DECAY x this frame's (a move under half the slack was not measured) and ``least``, at most
-    ``most`` (m). A world that listed no point and failed none keeps its slack (so a frame whose
-    contact block runs with nothing near changes nothing: Config.skip_idle gives the same lists)."""
-    w = wp.tid()
-    s = slack[w]
-    m = near_motion[w]
-    if failed[w] != 0 or fast_count[w] > cap:
-        m = wp.max(m, motion[w])
-    report[w, 0] = s
-    report[w, 1] = motion[w]
-    report[w, 2] = float(failed[w])
-    if world_count[w] > 0 or failed[w] != 0:
-        slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
 
 
 @wp.kernel

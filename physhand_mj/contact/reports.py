@@ -30,7 +30,7 @@ class ContactReports:
             wp.copy(self._feat_host, self.feat_count)
             if self.config.feature_winding:
                 wp.copy(self._patch_used_host, self.patch_used)
-            wp.copy(self._slack_host, self.slack_report)
+            wp.copy(self._slack_host, self.slack_report)  # (slack.py's report)
 
     def raise_if_stuck(self) -> None:
         """After the frame's sync: raise when a fused stage's grid barrier gave up waiting for a block
@@ -60,46 +60,6 @@ class ContactReports:
                               f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
                               f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
         return int(self._feat_host.numpy()[0])
-
-    def feature_motion(self, ran: bool = True) -> dict:
-        """The last frame, worst world (after the frame's sync; Config.feature_slack, features.py):
-        ``feature_slack_mm``, the slack its feature lists were made with (m -> mm), ``skin_motion_mm``,
-        the skin's largest move in it, and ``feature_slack_exceeded``, the worlds in which a skin
-        vertex moved far enough, near enough to a feature point, that the point's list or patch could
-        have missed a skin triangle (warned about once where the lists had been cut short of
-        contact_frame_margin). A frame that did not run its contact block (``ran`` False: nothing
-        near) made no lists: its move and count are 0, its slack the last lists'. Empty without
-        feature points."""
-        if self.feat is None:
-            return {}
-        r = self._slack_host.numpy()
-        if not ran:
-            return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4), skin_motion_mm=0.0,
-                        feature_slack_exceeded=0)
-        over = int(np.count_nonzero(r[:, 2]))
-        # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
-        # broadphase's own, as before the slack; the count says it either way)
-        if over and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
-            import warnings
-
-            self._slack_warned = True
-            w = int(np.flatnonzero(r[:, 2])[0])
-            warnings.warn(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
-                          f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
-                          f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
-                          f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast",
-                          RuntimeWarning, stacklevel=3)
-        return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
-                    skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
-
-    def feature_motion_worlds(self, ran: bool = True) -> list:
-        """Per world, 1 where the last frame's feature-list check failed (:meth:`feature_motion`),
-        else 0 (also in a frame whose contact block did not run); empty without feature points."""
-        if self.feat is None:
-            return []
-        if not ran:
-            return [0] * self.worlds
-        return [int(v) for v in self._slack_host.numpy()[:, 2]]
 
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active

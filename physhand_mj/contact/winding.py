@@ -7,7 +7,7 @@ outside: a spurious push. The generalised winding number w(p) = sum of the trian
 / 4 pi (Jacobson et al. 2013) has no such failure, but its BVH data cost a refit per pass. Split the
 closed skin into the triangles near p (its *patch*: every skin triangle within d + s of p at the frame's
 start, d its distance to the skin then and s its world's slack, at most ``contact_frame_margin``:
-Config.feature_slack, features.py) and the rest:
+Config.feature_slack, slack.py) and the rest:
 
     w(p) = (Omega_patch(p) + Omega_far(p)) / 4 pi,   Omega_far = 4 pi w_0(p) - Omega_patch,0(p)
 
@@ -75,7 +75,7 @@ def frame_winding(skin_w: wp.uint64, p: wp.vec3, margin: float):
 @wp.func
 def patch_radius(most: float, dist: float, slack: float):
     """The patch radius (m) of a feature point ``dist`` from the skin at the frame's start in a world
-    listed with ``slack`` (Config.feature_slack, features.py): dist + slack, at most ``most``."""
+    listed with ``slack`` (Config.feature_slack, slack.py): dist + slack, at most ``most``."""
     return wp.min(most, dist + slack)
 
 

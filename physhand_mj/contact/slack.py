@@ -1,0 +1,277 @@
+"""How far the object's feature lists reach, and the frame's check of it (``Config.feature_slack``).
+
+How far the lists reach (``Config.feature_slack``, since 2026-11-27). Within a frame the objects stay
+where the frame put them and only the skin moves. A feature point d from the skin at the frame's
+start (``near_features`` measures d) is listed when d <= s + contact_margin, s its world's slack, or
+when the skin's pseudo normals put it inside; its patch holds the skin triangles within r = d + s
+of it (both at most contact_frame_margin). If no skin vertex moves more than D with 2 D < s, that
+is exact: the point's closest triangle at the start is in the patch and stays within d + D of it,
+a triangle outside the patch stays farther than r - D, and an unlisted point never comes within
+contact_margin. The frame checks this at its end, locally (``skin_motion``, ``certify_features``):
+a skin vertex that moved half the slack or more spoils a point only if it started near enough to
+it, given its move, to bring a triangle outside the patch nearer than the point's closest one (or
+an unlisted point within contact_margin). A world with such a point is reported
+(``feature_slack_exceeded``). The next frame's slack is 2.5 x the largest move near the points (their
+closest triangles', and the fast vertices' that started near enough to matter: ``next_slack``), at
+least SLACK_DECAY x this frame's and Config.feature_slack, at most contact_frame_margin. Every
+world lists with contact_frame_margin until it has listed a point; a world that lists none keeps its
+slack. The moves are the frame's end positions against its start, not the paths between.
+
+Kernels that take arrays (``skin_motion``, ``skin_reach``, ``certify_features``, ``next_slack``) and
+:class:`FeatureSlack`, the :class:`~physhand_mj.contact.contact.Contact` mixin that holds their
+buffers, records them at a frame's end and reports them after the frame's sync.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.contact.inside import object_point
+
+FAST_PER_WORLD = 32  # fast skin vertices a world's frame check keeps (more: the world's frame is flagged)
+UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
+
+
+@wp.kernel
+def skin_motion(
+    x: wp.array(dtype=wp.vec3),
+    x_start: wp.array(dtype=wp.vec3),
+    vertex_world: wp.array(dtype=int),
+    slack: wp.array(dtype=float),
+    vmotion: wp.array(dtype=float),
+    motion: wp.array(dtype=float),
+    fast: wp.array2d(dtype=int),
+    fast_count: wp.array(dtype=int),
+):
+    """After a frame: how far (m) each skin vertex moved since the frame's start (``vmotion``), the
+    world's largest move (``motion``, atomic max) and its *fast* vertices, those that moved half
+    its slack or more (``fast[w]``, ``fast_count[w]`` counts past the row's end). A non-finite
+    vertex counts 0 (the guard's)."""
+    i = wp.tid()
+    d = wp.length(x[i] - x_start[i])
+    if not (d == d):
+        d = 0.0
+    vmotion[i] = d
+    w = vertex_world[i]
+    wp.atomic_max(motion, w, d)
+    if d >= 0.5 * slack[w]:
+        j = wp.atomic_add(fast_count, w, 1)
+        if j < fast.shape[1]:
+            fast[w, j] = i
+
+
+@wp.kernel
+def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int),
+               reach: wp.array(dtype=float)):
+    """Per world the longest skin edge (m) at the frame's end (atomic max): how far a triangle's
+    points lie from its vertices (:func:`certify_features`). A non-finite edge counts 0."""
+    t = wp.tid()
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    e = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+    if e == e:
+        wp.atomic_max(reach, vertex_world[faces[t, 0]], e)
+
+
+@wp.kernel
+def certify_features(
+    feature: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    geom_count: wp.array(dtype=int),
+    geoms_per_world: int,
+    pt_dist: wp.array(dtype=float),
+    pt_face: wp.array(dtype=int),
+    faces: wp.array2d(dtype=int),
+    x_start: wp.array(dtype=wp.vec3),
+    vmotion: wp.array(dtype=float),
+    fast: wp.array2d(dtype=int),
+    fast_count: wp.array(dtype=int),
+    slack: wp.array(dtype=float),
+    margin: float,
+    keep: float,
+    reach: wp.array(dtype=float),
+    near_motion: wp.array(dtype=float),
+    failed: wp.array(dtype=int),
+):
+    """After a frame, per object feature point p: did its list and patch hold (module docstring)?
+
+    A point's scans matter while it is within ``keep`` of the skin or inside it. Listed (distance d,
+    closest triangle C at the start, patch radius r = min(margin, d + s)), outside at the start: a
+    triangle T outside the patch (farther than r then) that comes within keep of p moved a point at
+    least r - keep, so a vertex v of T did, and v started within keep + |move of v| + ``reach[w]``
+    (m, the world's longest skin edge at the frame's end: :func:`skin_reach`) of p. Inside at the
+    start (by the pseudo normals), T must also not come nearer than C, which moved at most D_C (its
+    vertices' largest move): a move of r - max(keep, d + D_C), from within max(keep, d + D_C) +
+    |move| + reach. Not listed (farther than min(margin, keep + s), outside): to come within keep a
+    vertex moved more than min(margin, keep + s) - keep and started within keep + |its move| +
+    reach. The frame's fast vertices (half the slack or more) are asked; where a point's needed move
+    is below that threshold, or the world has more fast vertices than the list holds, the point
+    fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of
+    every fast vertex near enough to a point for its move to matter there, go into
+    ``near_motion[w]`` (their largest: the next slack's measure)."""
+    i = feature[wp.tid()]
+    if pts_geom[i] >= geom_count[0]:
+        return
+    w = pts_geom[i] // geoms_per_world
+    s = slack[w]
+    n = fast_count[w]
+    sd = pt_dist[i]
+    near = keep  # how near the spoiling triangle must come
+    need = wp.min(margin, keep + s) - keep  # the move a vertex needs to spoil this point's list
+    if sd < UNLISTED:
+        d = wp.abs(sd)
+        f = pt_face[i]
+        dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
+        wp.atomic_max(near_motion, w, dc)
+        if sd < 0.0:
+            near = wp.max(keep, d + dc)
+        need = wp.min(margin, d + s) - near
+    fail = need < 0.5 * s or n > fast.shape[1]  # (below the list's threshold, or past its end: not asked)
+    p = object_point(i, pts, pts_geom, pose)
+    for j in range(wp.min(n, fast.shape[1])):
+        v = fast[w, j]
+        mv = vmotion[v]
+        if wp.length(x_start[v] - p) <= near + mv + reach[w]:  # near enough for its move to matter here
+            wp.atomic_max(near_motion, w, mv)
+            if mv >= need:
+                fail = True
+    if fail:
+        failed[w] = 1
+
+
+# the next slack is at least this much of the last (moves under half of it go unseen: next_slack)
+SLACK_DECAY = wp.constant(0.8)
+
+
+@wp.kernel
+def next_slack(
+    motion: wp.array(dtype=float),
+    near_motion: wp.array(dtype=float),
+    failed: wp.array(dtype=int),
+    fast_count: wp.array(dtype=int),
+    cap: int,
+    world_count: wp.array(dtype=int),
+    least: float,
+    most: float,
+    slack: wp.array(dtype=float),
+    report: wp.array2d(dtype=float),
+):
+    """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
+    move, 1 where :func:`certify_features` failed a point), and the next frame's slack: 2.5 x the
+    largest move near the feature points (``near_motion``; the world's largest move after a failed
+    frame or one with more fast vertices than ``cap``, whose moves were not all seen), at least
+    SLACK_DECAY x this frame's (a move under half the slack was not measured) and ``least``, at most
+    ``most`` (m). A world that listed no point and failed none keeps its slack (so a frame whose
+    contact block runs with nothing near changes nothing: Config.skip_idle gives the same lists)."""
+    w = wp.tid()
+    s = slack[w]
+    m = near_motion[w]
+    if failed[w] != 0 or fast_count[w] > cap:
+        m = wp.max(m, motion[w])
+    report[w, 0] = s
+    report[w, 1] = motion[w]
+    report[w, 2] = float(failed[w])
+    if world_count[w] > 0 or failed[w] != 0:
+        slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
+
+
+class FeatureSlack:
+    """The feature lists' slack, a mixin of :class:`~physhand_mj.contact.contact.Contact` (which owns
+    the model, config, object points and world layout): the buffers, the frame start's resets, the
+    frame end's check and its reports."""
+
+    def _make_slack(self, n_points: int) -> None:
+        """Per listed feature its distance to the skin at the frame's start (m, ``feat_dist``); per
+        object point its signed distance and closest triangle then (``pt_dist``, UNLISTED where not
+        listed; ``pt_face``); per skin vertex the skin at the start and its move; per world the slack
+        its lists are made with (the first: contact_frame_margin), its largest move, its fast
+        vertices, the largest move near the points, a failed point, its longest skin edge, the
+        points listed, the frame's report (slack, move, failed) and its host copy."""
+        m, cfg, W, dev = self.model, self.config, self.worlds, self.model.device
+        self.feat_dist = wp.zeros(self.points.n_features, dtype=float, device=dev)
+        self.pt_dist = wp.full(n_points, UNLISTED, dtype=float, device=dev)
+        self.pt_face = wp.zeros(n_points, dtype=int, device=dev)
+        self.x_start = wp.zeros(m.n_skin, dtype=wp.vec3, device=dev)
+        self.vmotion = wp.zeros(m.n_skin, dtype=float, device=dev)
+        self.slack = wp.full(W, cfg.contact_frame_margin, dtype=float, device=dev)
+        self.motion = wp.zeros(W, dtype=float, device=dev)
+        self.fast = wp.zeros((W, FAST_PER_WORLD), dtype=int, device=dev)
+        self.fast_count = wp.zeros(W, dtype=int, device=dev)
+        self.near_motion = wp.zeros(W, dtype=float, device=dev)
+        self.slack_failed = wp.zeros(W, dtype=int, device=dev)
+        self.reach = wp.zeros(W, dtype=float, device=dev)
+        self.world_listed = wp.zeros(W, dtype=int, device=dev)
+        self.slack_report = wp.zeros((W, 3), dtype=float, device=dev)
+        self._slack_host = wp.zeros((W, 3), dtype=float, device="cpu", pinned=wp.get_device(dev).is_cuda)
+        self._slack_warned = False
+
+    def _slack_start_ops(self, state) -> list:
+        """The frame start's ops, before the feature list: the per-frame resets and the skin's copy."""
+        x_start, x, n_skin, pt_dist = self.x_start, state.x, self.model.n_skin, self.pt_dist
+        return [self.motion.zero_, self.fast_count.zero_, self.near_motion.zero_, self.slack_failed.zero_,
+                self.reach.zero_, self.world_listed.zero_, lambda: pt_dist.fill_(UNLISTED),
+                lambda: wp.copy(x_start, x, count=n_skin)]
+
+    def record_frame_end(self, launch, ops: list, state) -> None:
+        """At the end of a frame with contact: how far the skin moved in it, per world, against the
+        slack its feature lists were made with, and the next frame's slack. Nothing without listed
+        feature points."""
+        if self.feat is None:
+            return
+        m, cfg, pts = self.model, self.config, self.points
+        launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
+               [self.vmotion, self.motion, self.fast, self.fast_count])
+        launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world], [self.reach])
+        launch(certify_features, pts.n_features,
+               [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
+                self.pt_dist, self.pt_face, m.skin_faces, self.x_start, self.vmotion, self.fast, self.fast_count,
+                self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
+               [self.near_motion, self.slack_failed])
+        launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
+                                         FAST_PER_WORLD, self.world_listed, float(cfg.feature_slack),
+                                         float(cfg.contact_frame_margin)],
+               [self.slack, self.slack_report])
+
+    def feature_motion(self, ran: bool = True) -> dict:
+        """The last frame, worst world (after the frame's sync; Config.feature_slack, this module):
+        ``feature_slack_mm``, the slack its feature lists were made with (m -> mm), ``skin_motion_mm``,
+        the skin's largest move in it, and ``feature_slack_exceeded``, the worlds in which a skin
+        vertex moved far enough, near enough to a feature point, that the point's list or patch could
+        have missed a skin triangle (warned about once where the lists had been cut short of
+        contact_frame_margin). A frame that did not run its contact block (``ran`` False: nothing
+        near) made no lists: its move and count are 0, its slack the last lists'. Empty without
+        feature points."""
+        if self.feat is None:
+            return {}
+        r = self._slack_host.numpy()
+        if not ran:
+            return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4), skin_motion_mm=0.0,
+                        feature_slack_exceeded=0)
+        over = int(np.count_nonzero(r[:, 2]))
+        # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
+        # broadphase's own, as before the slack; the count says it either way)
+        if over and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
+            import warnings
+
+            self._slack_warned = True
+            w = int(np.flatnonzero(r[:, 2])[0])
+            warnings.warn(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
+                          f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
+                          f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
+                          f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast",
+                          RuntimeWarning, stacklevel=3)
+        return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
+                    skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
+
+    def feature_motion_worlds(self, ran: bool = True) -> list:
+        """Per world, 1 where the last frame's feature-list check failed (:meth:`feature_motion`),
+        else 0 (also in a frame whose contact block did not run); empty without feature points."""
+        if self.feat is None:
+            return []
+        if not ran:
+            return [0] * self.worlds
+        return [int(v) for v in self._slack_host.numpy()[:, 2]]
