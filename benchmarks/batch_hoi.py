@@ -105,6 +105,38 @@ def plot_curves(src: Path, out: Path) -> Path:
     return out
 
 
+def host_split(hands, pos, quat, op, oq, frames: int) -> dict:
+    """ms per frame of BatchedHands.step's parts, each timed apart: the object and bone poses in, the
+    solver's step (its graph, its one sync and its reports), the per-world report (frame_worlds);
+    and the solver step's Python functions with the most own time (cProfile, one more frame each)."""
+    import cProfile
+    import pstats
+
+    parts = dict(poses=0.0, solver_step=0.0, frame_worlds=0.0)
+    for _ in range(frames):
+        t0 = time.perf_counter()
+        hands.set_object_poses(op, oq)
+        hands.solver.set_body_poses(hands.state, (pos + hands.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
+        t1 = time.perf_counter()
+        hands.solver.step(hands.state)
+        t2 = time.perf_counter()
+        hands.frame_worlds()
+        t3 = time.perf_counter()
+        parts["poses"] += t1 - t0
+        parts["solver_step"] += t2 - t1
+        parts["frame_worlds"] += t3 - t2
+    out = {k: round(v / frames * 1e3, 3) for k, v in parts.items()}
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(frames):
+        hands.step(pos, quat, op, oq)
+    prof.disable()
+    st = pstats.Stats(prof)
+    top = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:15]  # (own time)
+    out["top_own_ms"] = {f"{Path(k[0]).name}:{k[1]}:{k[2]}": round(v[2] / frames * 1e3, 3) for k, v in top}
+    return out
+
+
 def main() -> None:
     if "--curves" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --curves [JSON]
         args = [a for a in sys.argv[1:] if a != "--curves"]
@@ -131,6 +163,9 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per world count")
     p.add_argument("--config", default="{}", help="Config fields as JSON")
     p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 24)")
+    p.add_argument("--host-split", action="store_true",
+                   help="time the frame's parts apart (poses in, solver step, per-world report) and profile the "
+                        "solver step's host side (top functions by own time)")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/batch_hoi_<device>.json)")
     a = p.parse_args()
     extra = json.loads(a.config)
@@ -188,10 +223,15 @@ def main() -> None:
                         dense = hands.solver.contact.measure_worlds(hands.state, order=9, check=True)
                         row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2),
                                    check_count_max=int(dense[:, 3].max()), check_max_um=round(float(dense[:, 5].max()) * 1e6, 2))
+                    if a.host_split:  # the frame's host parts, timed apart (the solver's step syncs once)
+                        row["host_split_ms"] = host_split(hands, pos, quat, op, oq, a.frames)
                     if a.profile and hands.solver.device.is_cuda:
                         from batch_throughput import kernel_split
 
-                        row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames)
+                        n_launch = {}
+                        row["kernels_ms_per_frame"] = kernel_split(hands, lambda f: (pos, quat), (op, oq), a.frames,
+                                                                   n_launch)
+                        row["kernel_launches_per_frame"] = n_launch
                 for m in said:
                     warnings.warn_explicit(m.message, m.category, m.filename, m.lineno)  # still on stderr
                 # what the run warned about (a full patch pool: points not pushed) goes with its row

@@ -109,9 +109,10 @@ def bending_poses(model, data, ids, worlds: int):
     return poses
 
 
-def kernel_split(hands, poses, ball, frames: int) -> dict:
+def kernel_split(hands, poses, ball, frames: int, counts: dict | None = None) -> dict:
     """GPU ms per frame of every kernel (memsets and copies as they come), graphs off: ``frames``
-    frames after one to record the ungraphed frame, timed by the driver (``wp.timing_begin``)."""
+    frames after one to record the ungraphed frame, timed by the driver (``wp.timing_begin``);
+    ``counts`` (a dict) gets the top kernels' launches per frame."""
     from collections import defaultdict
 
     import warp as wp
@@ -128,12 +129,16 @@ def kernel_split(hands, poses, ball, frames: int) -> dict:
             hands.step(*poses(101 + f), *ball)
         wp.synchronize()
         agg = defaultdict(float)
+        num = defaultdict(int)
         for r in wp.timing_end():
             agg[r.name] += r.elapsed
+            num[r.name] += 1
     finally:
         solver.config.cuda_graph = saved
         solver._graphs.clear()
     top = sorted(agg.items(), key=lambda kv: -kv[1])[:24]
+    if counts is not None:
+        counts.update({k: round(num[k] / frames, 2) for k, _ in top})
     return {k: round(v / frames, 3) for k, v in top} | {"all": round(sum(agg.values()) / frames, 3)}
 
 

@@ -33,10 +33,13 @@
 #            kernel against the old one; the box's kernel split
 #   s36_slack_tests, s36_slack_bench, s36_slack_bench2   Config.feature_slack: its CUDA tests, the box with and
 #            without it (bench2's three grasps at W = 4,096 ran past their 150 s limits on a fresh machine)
+#   s37_a, s37_b, s37_tests   (2026-11-27, third session) feature_patches in one BVH walk with a coarse w_0:
+#            its split (feature_patch_split.py), the box's kernel and host split, the box and the other grasps
+#            at W = 4,096, and the CUDA tests of the feature path and the slack's check
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench or s36_slack_bench2}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b or s37_tests}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -316,6 +319,26 @@ case $phase in
       step "hoi_$s" 280 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
         --out "docs/benchmarks/batch_hoi_cuda_${s}_slack_4096.json"
     done
+    ;;
+  s37_a)  # feature_patches in one walk: its parts on the box at W = 1,024, the box's kernel and host split, W = 4,096
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step split 150 python3 benchmarks/feature_patch_split.py --device cuda --worlds 1024 --repeats 20 \
+      --out docs/benchmarks/feature_patch_split_cuda.json
+    step box_profile 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
+      --host-split --out docs/benchmarks/batch_hoi_cuda_box_s37_profile.json
+    step box_4096 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_box_s37_4096.json
+    ;;
+  s37_b)  # the other grasps with feature points at W = 4,096 (one call; each row ~40 s of set-up first)
+    for s in phone glass2 toothpaste; do
+      step "hoi_$s" 170 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
+        --out "docs/benchmarks/batch_hoi_cuda_${s}_s37_4096.json"
+    done
+    ;;
+  s37_tests)  # the CUDA tests of the feature path, the slack's check and the batches
+    step pytest_cuda 560 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or batch" \
+      tests/test_feature_slack.py tests/test_winding.py tests/test_batch.py tests/test_hard_contact.py::test_hard_case_on_cuda
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

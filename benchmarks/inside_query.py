@@ -67,7 +67,11 @@ def _w0_before(skin: wp.uint64, p: wp.array(dtype=wp.vec3), margin: float, out: 
 @wp.kernel
 def _w0_after(skin: wp.uint64, p: wp.array(dtype=wp.vec3), margin: float, out: wp.array(dtype=float)):
     i = wp.tid()
-    out[i] = frame_winding(skin, p[i], margin)
+    d = float(1.0e6)  # (frame_winding takes the distance a listed feature's own search found)
+    c = wp.mesh_query_point_no_sign(skin, p[i], margin)
+    if c.result:
+        d = wp.length(p[i] - wp.mesh_eval_position(skin, c.face, c.u, c.v))
+    out[i] = frame_winding(skin, p[i], d, margin)
 
 
 def main() -> None:

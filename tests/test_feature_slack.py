@@ -112,6 +112,29 @@ def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, sl
     unlisted feature point is within contact_margin of the skin. With the slack at the frame margin
     every feature point within the margin is listed with a patch of that radius (the lists before
     the slack). On CUDA the patches are a block's over every skin triangle (feature_patches_tiled)."""
+    _check_lists(asset, slack, device)
+
+
+def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
+    """winding.feature_patches with each listed feature's own slot cut to 30 entries: the larger
+    patches are written again at the pool's top, below its end and above the list's slots, and the
+    lists and patches still match brute force at both ends of the frame (the test above)."""
+    from physhand_mj.contact import contact as contact_mod
+
+    monkeypatch.setattr(contact_mod, "PATCH_POOL_PER_FEATURE", 30)  # (the knife's patches: 19 to ~70)
+    c = _check_lists(asset, 4.0e-3, "cpu")
+    assert c.patch_cap == 30
+    n = int(c.feat_count.numpy()[0])
+    length, start = c.patch_len.numpy()[:n], c.patch_start.numpy()[:n]
+    top = length > 30
+    assert top.any() and (~top).any()
+    np.testing.assert_array_equal(start[~top], 30 * np.arange(n)[~top])  # (their own slots)
+    assert np.all(start[top] >= 30 * n) and np.all(start[top] + length[top] <= c.patch_pool.shape[0])
+    used = c.patch_used.numpy()
+    assert used[0] == length.sum() and used[1] == length[top].sum() and used[2] == 0
+
+
+def _check_lists(asset, slack, device):
     cfg = ph.Config(device=device, feature_slack=slack)
     r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), cfg, frames=12, check_order=5,
                  asset=asset)
@@ -162,6 +185,7 @@ def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, sl
     assert np.all(d1[unlisted] > cfg.contact_margin)
     # and the contact's result: nothing inside by either measure
     assert r["skin_count"][-1] == 0 and r["check_count"][-1] == 0 and r["obj_count"][-1] == 0
+    return c
 
 
 def _arr(a, dtype):

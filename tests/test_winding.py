@@ -189,14 +189,19 @@ def _object_points_world(c, idx):
 @wp.kernel
 def _inside_two_ways(skin: wp.uint64, p: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3, margin: float,
                      out: wp.array2d(dtype=float)):
-    """inside_depth and frame_winding (one closest-point search, one winding number) beside Warp's
-    sign queries that each ran both (the code they replaced)."""
+    """inside_depth and frame_winding (given the point's distance to the skin; a coarse winding number,
+    asked again where it lies far from an integer) beside Warp's sign queries that each ran both (the
+    code they replaced)."""
     i = wp.tid()
     out[i, 0] = inside_depth(skin, p[i], lo, hi)
     q = wp.mesh_query_point_sign_winding_number(skin, p[i], INSIDE_RANGE)
     if q.result and q.sign < 0.0:
         out[i, 1] = wp.length(p[i] - wp.mesh_eval_position(skin, q.face, q.u, q.v))
-    out[i, 2] = frame_winding(skin, p[i], margin)
+    d = float(1.0e6)
+    c = wp.mesh_query_point_no_sign(skin, p[i], 1.0)
+    if c.result:
+        d = wp.length(p[i] - wp.mesh_eval_position(skin, c.face, c.u, c.v))
+    out[i, 2] = frame_winding(skin, p[i], d, margin)
     w0 = float(-1.0)
     r = wp.mesh_query_point_sign_winding_number(skin, p[i], margin, 2.0, -0.5)
     if not r.result:
@@ -214,10 +219,13 @@ def _inside_two_ways(skin: wp.uint64, p: wp.array(dtype=wp.vec3), lo: wp.vec3, h
 def test_inside_depth_and_frame_winding_equal_warps_sign_queries(asset, device):
     """The object-side measure's inside test and the feature patches' w_0 search for the closest
     skin point only where it matters; their answers equal Warp's sign queries bit for bit at 6,000
-    points within 3 cm of the rest hand's skin, wound outward (w 0 or 1) and inward (w -1 inside)."""
+    points within 3 cm of the rest hand's skin and 2,000 on it, wound outward (w 0 or 1) and inward (w -1 inside)."""
     x = np.asarray(asset.positions[: asset.n_skin], np.float32)
     rng = np.random.default_rng(3)
     pts = (x[rng.integers(0, len(x), 6000)] + rng.normal(0.0, 0.01, (6000, 3))).astype(np.float32)
+    # and 2,000 on the skin (triangle centroids: w ~ 1/2, where frame_winding's coarse sum asks again)
+    f = np.asarray(asset.skin_faces)[rng.integers(0, len(asset.skin_faces), 2000)]
+    pts = np.concatenate([pts, x[f].mean(axis=1).astype(np.float32)])
     lo, hi = wp.vec3(*(x.min(0) - 1e-3)), wp.vec3(*(x.max(0) + 1e-3))
     seen = {}
     for wound, faces in (("out", asset.skin_faces), ("in", np.asarray(asset.skin_faces)[:, ::-1])):
@@ -266,7 +274,9 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     """The pool's bound against the case that overflowed it on an H100 (the HOI box grasp at W = 4,096:
     442,139,565 entries, ~107,944 a world, against 2^28): one world's need on the CPU (the same scene
     and keyframe; a world's patches do not depend on the others), times 4,096, fits both the bound and
-    the pool a batch of 4,096 such worlds allocates (128 entries per feature point up to the bound)."""
+    the pool a batch of 4,096 such worlds allocates (128 entries per feature point up to the bound),
+    laid out as winding.feature_patches lays it out: each listed feature's own slot of c entries (c
+    what that pool gives a feature point) and the larger patches again at the pool's top."""
     import mujoco
 
     from physhand_mj.contact import contact as contact_mod
@@ -278,14 +288,20 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     # worst case; Config.feature_slack cuts later frames' lists to ~1/4 of this)
     hand = ph.SoftHand(model, data, ph.Config(device="cpu", feature_slack=1e-2))
     c = hand.solver.contact
-    need = 0
-    for _ in range(3):
-        hand.step()
-        c.features_listed()
-        need = max(need, int(c._patch_used_host.numpy()[0]))
-    assert 50_000 < need <= c.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them
     worlds = 4096
     pool = min(max(c.points.n_features * worlds * contact_mod.PATCH_POOL_PER_FEATURE, contact_mod.PATCH_POOL_MIN),
                contact_mod.PATCH_POOL_MAX)
+    cap = min(contact_mod.PATCH_POOL_PER_FEATURE, pool // (c.points.n_features * worlds))
+    need = layout = 0
+    for _ in range(3):
+        hand.step()
+        c.features_listed()
+        n = int(c.feat_count.numpy()[0])
+        length = c.patch_len.numpy()[:n]
+        assert np.all(length >= 0)
+        need = max(need, int(c._patch_used_host.numpy()[0]))
+        layout = max(layout, n * cap + int(length[length > cap].sum()))
+    assert 50_000 < need <= c.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them
     assert need * worlds <= pool, (need * worlds, pool)
-    assert need * worlds < 2**31  # the int32 counter does not wrap
+    assert cap >= 32 and layout * worlds <= pool, (cap, layout * worlds, pool)
+    assert need * worlds < 2**31  # the int32 counters do not wrap

@@ -33,6 +33,8 @@ from physhand_mj.solver.solver import launch_options
 # patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches).
 # 2^30 int32 entries (4 GiB) at most: the HOI box grasp at W = 4096 needs 442 M (an H100, 2026-11-26;
 # with the 2^28 it had then, points of some worlds went unpushed, up to 0.49 mm inside)
+# The BVH path (winding.feature_patches) gives the k-th listed feature the slot pool[k c: (k + 1) c],
+# c = min(PATCH_POOL_PER_FEATURE, pool // feature points), and the larger patches room at the top.
 PATCH_POOL_PER_FEATURE = 128
 PATCH_POOL_MIN = 1 << 15
 PATCH_POOL_MAX = 1 << 30
@@ -165,7 +167,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
             self.stage_barrier = wp.zeros(4, dtype=int, device=d)
             self._stuck = self.stage_barrier[2:3]  # (the view copied every frame, made once)
             self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
-        self._patch_used_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
+        self._patch_used_host = wp.zeros(3, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
         # mesh_query_point_sign_normal), here of the rest skin's
@@ -234,7 +236,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                     n = pts.n_features
                     cap = int(min(max(n * PATCH_POOL_PER_FEATURE, PATCH_POOL_MIN), PATCH_POOL_MAX))
                     self.patch_pool = wp.zeros(cap, dtype=int, device=m.device)
-                    self.patch_used = wp.zeros(1, dtype=int, device=m.device)
+                    self.patch_cap = min(PATCH_POOL_PER_FEATURE, cap // n)  # (a listed feature's own slot)
+                    # [entries the patches need in all, taken at the pool's top, patches that did not fit]
+                    self.patch_used = wp.zeros(3, dtype=int, device=m.device)
                     self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index
                     self.patch_start = wp.zeros(n, dtype=int, device=m.device)
                     self.patch_len = wp.full(n, -1, dtype=int, device=m.device)
@@ -265,7 +269,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                 launch(feature_patches, pts.n_features,
                        [vol.mesh.id, volw.mesh.id, m.skin_faces, self._query_x(state), self.feat, self.feat_count,
                         pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, self.feat_dist,
-                        self.slack, self.geoms_per_world],
+                        self.slack, self.geoms_per_world, self.patch_cap],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.far_angle], count=self.feat_count)
 

@@ -49,13 +49,16 @@ class ContactReports:
         if self.feat is None:
             return 0
         if self.config.feature_winding and not self._patch_warned:
-            used = int(self._patch_used_host.numpy()[0])
-            if used > self.patch_pool.shape[0] or used < 0:  # (< 0: the int32 counter wrapped past 2^31)
+            used, _, failed = (int(v) for v in self._patch_used_host.numpy())
+            # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past
+            # the pool's size; < 0: an int32 counter wrapped past 2^31)
+            if failed or used > self.patch_pool.shape[0] or used < 0:
                 import warnings
 
                 self._patch_warned = True
                 need = f"{used}" if used >= 0 else "over 2^31"
-                warnings.warn(f"contact: the feature points' patches needed {need} entries, the pool holds "
+                what = f"{failed} feature points' patches did not fit: " if failed else ""
+                warnings.warn(f"contact: {what}the feature points' patches needed {need} entries, the pool holds "
                               f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
                               f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
                               f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)

@@ -51,20 +51,32 @@ def within(p: wp.vec3, t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=w
     return wp.length(bc[0] * a + bc[1] * b + (1.0 - bc[0] - bc[1]) * c - p) <= radius
 
 
+# w_0's fast winding number (frame_winding): Warp's accuracy beta (a BVH node's dipole stands for its
+# triangles beyond beta x its radius; the queries' default is 2) and the distance from an integer past
+# which the answer is asked again at beta 2. At the listed points of the HOI box grasp, beta 1 came
+# within 0.048 of an integer (beta 2: 0.0024) at a quarter of the cost (benchmarks/feature_patch_split.py)
+W0_ACCURACY = 1.0
+W0_RETRY = 0.25
+
+
 @wp.func
-def frame_winding(skin_w: wp.uint64, p: wp.vec3, margin: float):
-    """w_0 at ``p``: Warp's fast winding number of the skin ``skin_w`` rounded to -1, 0 or 1; 0 with
-    no skin within ``margin`` (m).
+def frame_winding(skin_w: wp.uint64, p: wp.vec3, dist: float, margin: float):
+    """w_0 at ``p``, ``dist`` (m) from the skin: Warp's fast winding number of the skin ``skin_w``
+    rounded to -1, 0 or 1; 0 farther than ``margin`` (m) from the skin.
 
     w_0 is an integer off the surface, and not only 0 or 1: a squeezed skin folds inside out (w = -1
     at points past the fold, measured on the demo); rounded as Warp's sign queries would at the
     thresholds -1/2 and 1/2 (``wp.mesh_query_point_sign_winding_number(skin_w, p, margin, 2.0, -0.5)``
     then ``0.5``; w_0 = 2 where the skin overlaps itself counts as 1: the point stays inside unless the
-    skin moves across it twice), with one closest-point search and one winding number instead of
-    two of each (tests/test_winding.py: equal to the two queries)."""
-    if not wp.mesh_query_point_no_sign(skin_w, p, margin).result:
-        return 0.0  # (a listed feature has skin within margin)
-    wn = winding_number(skin_w, p, 2.0)
+    skin moves across it twice). Only the integer matters, so the winding number is first summed
+    coarsely (W0_ACCURACY) and again at the queries' accuracy where that sum lies more than W0_RETRY
+    from an integer; the distance is the caller's (a listed feature's, from its closest-point
+    search), not searched again (tests/test_winding.py: equal to the two queries)."""
+    if dist > margin:
+        return 0.0
+    wn = winding_number(skin_w, p, W0_ACCURACY)
+    if not (wp.abs(wn - wp.round(wn)) <= W0_RETRY):  # (a NaN asks again too)
+        wn = winding_number(skin_w, p, 2.0)
     if not (wn > -0.5):  # (the queries' test: sign -1 where w > threshold)
         return -1.0
     if wn > 0.5:
@@ -77,6 +89,19 @@ def patch_radius(most: float, dist: float, slack: float):
     """The patch radius (m) of a feature point ``dist`` from the skin at the frame's start in a world
     listed with ``slack`` (Config.feature_slack, slack.py): dist + slack, at most ``most``."""
     return wp.min(most, dist + slack)
+
+
+@wp.func
+def near_angle(p: wp.vec3, t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), radius: float):
+    """Whether skin triangle ``t`` comes within ``radius`` (m) of ``p`` (:func:`within`), and its solid
+    angle (sr) at ``p`` (0 when it does not)."""
+    a = x[faces[t, 0]]
+    b = x[faces[t, 1]]
+    c = x[faces[t, 2]]
+    bc = closest_on_triangle(a, b, c, p)
+    if wp.length(bc[0] * a + bc[1] * b + (1.0 - bc[0] - bc[1]) * c - p) <= radius:
+        return True, solid_angle(a - p, b - p, c - p)
+    return False, 0.0
 
 
 @wp.kernel
@@ -95,6 +120,7 @@ def feature_patches(
     feat_dist: wp.array(dtype=float),
     slack: wp.array(dtype=float),
     geoms_per_world: int,
+    cap: int,
     pool_count: wp.array(dtype=int),
     pool: wp.array(dtype=int),
     slot: wp.array(dtype=int),
@@ -104,10 +130,16 @@ def feature_patches(
 ):
     """Once per frame, for the k-th listed feature point i (module docstring, the local winding
     number): its patch (the skin triangles whose boxes meet the cube of half-size r around it, from
-    ``skin``'s BVH, that come within r of it; r = :func:`patch_radius`) appended to ``pool``, and
+    ``skin``'s BVH, that come within r of it; r = :func:`patch_radius`) written to ``pool``, and
     Omega_far = 4 pi w_0 - Omega_patch with w_0 ``skin_w``'s fast winding number (an integer, -1 to
-    1). ``slot[i] = k``. A patch that does not fit the pool gets length -1 (its point keeps the
-    pseudo-normal sign)."""
+    1). ``slot[i] = k``.
+
+    One walk of the BVH writes the patch to its own slot, pool[k cap: (k + 1) cap] (k < the listed
+    count, so the slots of a frame's list lie below ``feat_count[0] cap``), and sums its solid angles;
+    a patch of more than ``cap`` triangles is written again by a second walk at the pool's top
+    (``pool_count[1]`` entries taken from the end down, never into the list's slots). A patch that
+    does not fit gets length -1 (its point keeps the pseudo-normal sign) and counts in
+    ``pool_count[2]``; ``pool_count[0]`` sums every patch's length (what a packed pool would need)."""
     k = wp.tid()
     if k >= feat_count[0]:
         return
@@ -117,27 +149,37 @@ def feature_patches(
     r = patch_radius(radius, feat_dist[k], slack[pts_geom[i] // geoms_per_world])
     lo = p - wp.vec3(r)
     hi = p + wp.vec3(r)
+    start = k * cap
     n = int(0)
     t = int(0)
+    omega = float(0.0)
     q = wp.mesh_query_aabb(skin, lo, hi)
     while wp.mesh_query_aabb_next(q, t):
-        if within(p, t, faces, x, r):
+        near, w = near_angle(p, t, faces, x, r)
+        if near:
+            if n < cap:
+                pool[start + n] = t
+            omega += w
             n += 1
-    start = wp.atomic_add(pool_count, 0, n)
-    if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
-        patch_len[k] = -1
-        return
-    size = n
-    n = int(0)
-    q = wp.mesh_query_aabb(skin, lo, hi)
-    while wp.mesh_query_aabb_next(q, t):
-        if within(p, t, faces, x, r) and n < size:  # (the same triangles as counted)
-            pool[start + n] = t
-            n += 1
-    w0 = frame_winding(skin_w, p, margin)
+    wp.atomic_add(pool_count, 0, n)
+    if n > cap:  # (no start + n below: it wraps past 2^31; so do the counters)
+        top = wp.atomic_add(pool_count, 1, n)
+        if top < 0 or top > pool.shape[0] - n or pool.shape[0] - top - n < feat_count[0] * cap:
+            patch_len[k] = -1
+            wp.atomic_add(pool_count, 2, 1)
+            return
+        start = pool.shape[0] - top - n
+        size = n
+        n = int(0)
+        q = wp.mesh_query_aabb(skin, lo, hi)
+        while wp.mesh_query_aabb_next(q, t):
+            near, w = near_angle(p, t, faces, x, r)
+            if near and n < size:  # (the same test on the same triangles as the first walk)
+                pool[start + n] = t
+                n += 1
     patch_start[k] = start
     patch_len[k] = n
-    far_angle[k] = FOUR_PI * w0 - patch_angle(p, faces, x, pool, start, n)
+    far_angle[k] = FOUR_PI * frame_winding(skin_w, p, feat_dist[k], margin) - omega
 
 
 @wp.func
