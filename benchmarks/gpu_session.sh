@@ -36,10 +36,12 @@
 #   s37_a, s37_b, s37_tests   (2026-11-27, third session) feature_patches in one BVH walk with a coarse w_0:
 #            its split (feature_patch_split.py), the box's kernel and host split, the box and the other grasps
 #            at W = 4,096, and the CUDA tests of the feature path and the slack's check
+#   s37_c    the same session's second machine: the solver alone at W = 4,096 (the 50,000), the box after the
+#            slack check's atomics and apply_contact's shifted copy, and the CUDA tests they touch
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b or s37_tests}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests or s37_c}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -339,6 +341,18 @@ case $phase in
   s37_tests)  # the CUDA tests of the feature path, the slack's check and the batches
     step pytest_cuda 560 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or batch" \
       tests/test_feature_slack.py tests/test_winding.py tests/test_batch.py tests/test_hard_contact.py::test_hard_case_on_cuda
+    ;;
+  s37_c)  # the solver alone at W = 4,096 on this machine, the box after this session's second change, its tests
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
+      --out docs/benchmarks/fused_variants_cuda_s37.json
+    step box_4096 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_box_s37c_4096.json
+    step box_profile 80 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
+      --host-split --out docs/benchmarks/batch_hoi_cuda_box_s37c_profile.json
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or share_one_mesh" \
+      tests/test_batch.py tests/test_feature_slack.py
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

@@ -253,6 +253,22 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
             self.feature_scan = tiled == "scan"
 
         monkeypatch.setattr(Contact, "__init__", tiled_init)
+        # a later pass's feature scan reads the object side's shifted copy of the skin, which
+        # query.apply_contact keeps current vertex by vertex (no copy of the whole skin per pass)
+        record, seen = Contact._record_features, []
+
+        def checked(self, launch, ops, state, p, *rest):
+            def same():
+                n = self.model.n_skin
+                x, shift = state.x.numpy()[:n], self.query_shift.numpy()
+                np.testing.assert_array_equal(self.volume(state, winding=False).points.numpy(), x + shift)
+                seen.append(p)
+
+            if p and self.query_shift is not None:  # (the batch's; the serial runs query x itself)
+                ops.append(same)
+            return record(self, launch, ops, state, p, *rest)
+
+        monkeypatch.setattr(Contact, "_record_features", checked)
     poses = bone_poses_at(model, data, model.key("open").qpos, ids)
     cfg = Config(device="cpu")
     ball = trimesh.creation.icosphere(subdivisions=2, radius=0.02)
@@ -283,6 +299,7 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
     np.testing.assert_array_equal(batch.positions(0), serial[0][1].x.numpy())
     assert np.abs(batch.positions(1) - serial[1][1].x.numpy()).max() < 5e-5
     assert np.abs(batch.skin(1) - rest[: asset.n_skin]).max() > 1e-3  # world 1 was pressed
+    assert not tiled or len(seen) > 10  # (the later passes' copies were checked)
 
 
 def test_metrics_and_guards_per_world(setup):

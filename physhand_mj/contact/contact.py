@@ -80,7 +80,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
         self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
         # batched worlds solved at one origin but queried apart (set_query_offsets): the object side's
         # skin meshes hold x + the world's offset and its queries use the geoms' poses so moved
-        self.query_shift = self._qoff = self._qpose = None
+        self.query_shift = self._qoff = self._qpose = self._no_shift = None
         # per world and contact stage: [active triangles, vertices the first pass corrected] (W > 1)
         self.world_stage = wp.zeros((w, max(stages, 1) * 2), dtype=int, device=d) if w > 1 else None
         self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
@@ -379,8 +379,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                     self.tris_per_world, self.geoms_per_world, *lst,
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
                     cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
-        launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits],
-               [state.x, self.push, self.moved, self.disp, self.pass_move], count=self.touched_count)
+        shift, shifted = self._apply_shift(state)
+        launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
+               [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=self.touched_count)
         self._tally_touched(launch, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
             moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
@@ -435,9 +436,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
         as it is now, applied at once; returns the counter slot of the vertices it moved and that
         counter."""
         m, o, cfg = self.model, self.objects, self.config
-        if p:  # (pass 0 sees the skin its stage's list was made on)
-            vol = self.volume(state, winding=False)
-            ops += vol.sync_ops() if self.tiled_features else [self._refit_op(vol, feat_count)]
+        if p and not self.tiled_features:  # (pass 0 sees the skin its stage's list was made on; CUDA's
+            # scans read the skin's shifted copy, which apply_contact keeps current: no refit there)
+            ops.append(self._refit_op(self.volume(state, winding=False), feat_count))
         slot = self._slot
         feat_touched = self._counter()
         if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
@@ -465,9 +466,19 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                     self._side()],
                    [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
                    count=feat_count)
-        launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits],
-               [state.x, self.push, self.moved, self.disp, self.pass_move], count=feat_touched)
+        shift, shifted = self._apply_shift(state)
+        launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits, shift],
+               [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
+
+    def _apply_shift(self, state) -> tuple:
+        """apply_contact's (shift, shifted copy): batched worlds queried apart keep the object side's
+        copy of the skin (set_query_offsets) current vertex by vertex; else two empty arrays."""
+        if self.query_shift is None:
+            if self._no_shift is None:
+                self._no_shift = wp.zeros(0, dtype=wp.vec3, device=self.model.device)
+            return self._no_shift, self._no_shift
+        return self.query_shift, self.volume(state, winding=False).points
 
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,

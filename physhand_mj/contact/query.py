@@ -509,21 +509,27 @@ def apply_contact(
     stamp: int,
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
+    shift: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
     disp: wp.array(dtype=float),
     pass_move: wp.array(dtype=float),
+    shifted: wp.array(dtype=wp.vec3),
 ):
     """For each touched vertex i: x_i += (depth-weighted mean of its Eq. 9 corrections); push_i
     accumulates |correction| over the frame (the contact report's force estimate); moved_i = stamp
     (this pass's number) and disp_i = |correction| (summed if this pass already moved i), for the
     next pass's list; the accumulators are cleared. ``pass_move`` (Config.contact_pass_tol > 0; else
-    empty): pass_move[stamp] = the pass's largest disp_i."""
+    empty): pass_move[stamp] = the pass's largest disp_i. Batched worlds queried apart (``shifted``
+    not empty: the object side's copy of the skin, Contact.set_query_offsets): shifted_i = x_i +
+    shift_i for a skin vertex, so the copy stays current between passes without a full copy."""
     k = wp.tid()
     if k >= touched_count[0]:
         return
     i = touched[k]
     apply_vertex(i, stamp, delta, hits, x, push, moved, disp)
+    if i < shifted.shape[0]:
+        shifted[i] = x[i] + shift[i]
     if pass_move.shape[0] > 0:
         wp.atomic_max(pass_move, stamp, disp[i])

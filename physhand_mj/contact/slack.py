@@ -54,7 +54,8 @@ def skin_motion(
         d = 0.0
     vmotion[i] = d
     w = vertex_world[i]
-    wp.atomic_max(motion, w, d)
+    if d > motion[w]:  # (a read first: a world's vertices all hit one address, most below its max)
+        wp.atomic_max(motion, w, d)
     if d >= 0.5 * slack[w]:
         j = wp.atomic_add(fast_count, w, 1)
         if j < fast.shape[1]:
@@ -71,8 +72,9 @@ def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
     e = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
-    if e == e:
-        wp.atomic_max(reach, vertex_world[faces[t, 0]], e)
+    w = vertex_world[faces[t, 0]]
+    if e == e and e > reach[w]:  # (as in skin_motion: the atomic only where it can raise the max)
+        wp.atomic_max(reach, w, e)
 
 
 @wp.kernel
