@@ -37,7 +37,8 @@
 #            its split (feature_patch_split.py), the box's kernel and host split, the box and the other grasps
 #            at W = 4,096, and the CUDA tests of the feature path and the slack's check
 #   s37_c    the same session's second machine: the solver alone at W = 4,096 (the 50,000), the box after the
-#            slack check's atomics and apply_contact's shifted copy, and the CUDA tests they touch
+#            slack check's atomics and apply_contact's shifted copy, and the CUDA tests they touch (run 2026-11-27:
+#            a fresh machine compiles query.py's kernels first; the box's 150 s and 200 s limits were too short)
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
@@ -347,11 +348,11 @@ case $phase in
       --format=csv
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s37.json
-    step box_4096 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
+    step box_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
       --out docs/benchmarks/batch_hoi_cuda_box_s37c_4096.json
-    step box_profile 80 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
+    step box_profile 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
       --host-split --out docs/benchmarks/batch_hoi_cuda_box_s37c_profile.json
-    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or share_one_mesh" \
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or share_one_mesh" \
       tests/test_batch.py tests/test_feature_slack.py
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
