@@ -274,9 +274,9 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     """The pool's bound against the case that overflowed it on an H100 (the HOI box grasp at W = 4,096:
     442,139,565 entries, ~107,944 a world, against 2^28): one world's need on the CPU (the same scene
     and keyframe; a world's patches do not depend on the others), times 4,096, fits both the bound and
-    the pool a batch of 4,096 such worlds allocates (128 entries per feature point up to the bound),
+    the pool a batch of 4,096 such worlds allocates (256 entries per feature point up to the bound),
     laid out as winding.feature_patches lays it out: each listed feature's own slot of c entries (c
-    what that pool gives a feature point) and the larger patches again at the pool's top."""
+    at most half that pool over the frame's list) and the larger patches again at the pool's top."""
     import mujoco
 
     from physhand_mj.contact import contact as contact_mod
@@ -291,7 +291,6 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     worlds = 4096
     pool = min(max(c.points.n_features * worlds * contact_mod.PATCH_POOL_PER_FEATURE, contact_mod.PATCH_POOL_MIN),
                contact_mod.PATCH_POOL_MAX)
-    cap = min(contact_mod.PATCH_POOL_PER_FEATURE, pool // (c.points.n_features * worlds))
     need = layout = 0
     for _ in range(3):
         hand.step()
@@ -300,8 +299,31 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
         length = c.patch_len.numpy()[:n]
         assert np.all(length >= 0)
         need = max(need, int(c._patch_used_host.numpy()[0]))
+        cap = min(contact_mod.PATCH_SLOT, pool // (2 * n * worlds))
         layout = max(layout, n * cap + int(length[length > cap].sum()))
+        assert cap >= 32, cap
     assert 50_000 < need <= c.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them
     assert need * worlds <= pool, (need * worlds, pool)
-    assert cap >= 32 and layout * worlds <= pool, (cap, layout * worlds, pool)
+    assert layout * worlds <= pool, (layout * worlds, pool)
     assert need * worlds < 2**31  # the int32 counters do not wrap
+
+
+def test_a_deep_start_lists_nearly_every_point_and_every_patch_fits():
+    """The coarse mesh 4 mm deep in the fingertip (a hard case) lists most of its feature points at
+    once, with patches past the slot a listed point gets: the list's slots fill at most half the
+    pool (two slots' worth per feature point), so every patch fits (slots sized by the whole pool of
+    128 entries per point left those patches no room: 157 of them went without one, in a pool that
+    held them all packed)."""
+    import warnings
+
+    from physhand_mj.cases import press_case, run_case
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*PATCH_POOL_MAX.*")
+        r = run_case(press_case("coarse", site="fingertip", depth=0.004, start=-0.004), ph.Config(device="cpu"),
+                     frames=2, asset=ph.load_asset())
+    c = r["solver"].contact
+    n = int(c.feat_count.numpy()[0])
+    used = c.patch_used.numpy()
+    assert n > c.points.n_features // 2 and used[1] > 0 and used[2] == 0, (n, c.points.n_features, used)
+    assert np.all(c.patch_len.numpy()[:n] >= 0)

@@ -33,9 +33,13 @@ from physhand_mj.solver.solver import launch_options
 # patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches).
 # 2^30 int32 entries (4 GiB) at most: the HOI box grasp at W = 4096 needs 442 M (an H100, 2026-11-26;
 # with the 2^28 it had then, points of some worlds went unpushed, up to 0.49 mm inside)
-# The BVH path (winding.feature_patches) gives the k-th listed feature the slot pool[k c: (k + 1) c],
-# c = min(PATCH_POOL_PER_FEATURE, pool // feature points), and the larger patches room at the top.
-PATCH_POOL_PER_FEATURE = 128
+# The BVH path (winding.feature_patches) gives the k-th of a frame's n listed features the slot
+# pool[k c: (k + 1) c], c = min(PATCH_SLOT, pool // 2 n), and the larger patches room at the top (the
+# other half at least): a pool of 2 x 128 entries per feature point holds in its top half every list
+# the packed pool of 128 held, however many patches pass their slots (slots over the whole pool left
+# the hard cases' deep starts no room: 47-267 points without a patch, tests/test_winding.py)
+PATCH_SLOT = 128
+PATCH_POOL_PER_FEATURE = 2 * PATCH_SLOT
 PATCH_POOL_MIN = 1 << 15
 PATCH_POOL_MAX = 1 << 30
 
@@ -236,7 +240,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                     n = pts.n_features
                     cap = int(min(max(n * PATCH_POOL_PER_FEATURE, PATCH_POOL_MIN), PATCH_POOL_MAX))
                     self.patch_pool = wp.zeros(cap, dtype=int, device=m.device)
-                    self.patch_cap = min(PATCH_POOL_PER_FEATURE, cap // n)  # (a listed feature's own slot)
+                    self.patch_cap = PATCH_SLOT  # (a listed feature's own slot, at most)
                     # [entries the patches need in all, taken at the pool's top, patches that did not fit]
                     self.patch_used = wp.zeros(3, dtype=int, device=m.device)
                     self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index

@@ -57,8 +57,9 @@ class ContactReports:
 
                 self._patch_warned = True
                 need = f"{used}" if used >= 0 else "over 2^31"
+                # (the BVH path's slots and top can need up to twice the packed count: winding.feature_patches)
                 what = f"{failed} feature points' patches did not fit: " if failed else ""
-                warnings.warn(f"contact: {what}the feature points' patches needed {need} entries, the pool holds "
+                warnings.warn(f"contact: {what}the feature points' patches needed {need} entries packed, the pool holds "
                               f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
                               f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
                               f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)

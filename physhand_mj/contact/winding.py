@@ -120,7 +120,7 @@ def feature_patches(
     feat_dist: wp.array(dtype=float),
     slack: wp.array(dtype=float),
     geoms_per_world: int,
-    cap: int,
+    most: int,
     pool_count: wp.array(dtype=int),
     pool: wp.array(dtype=int),
     slot: wp.array(dtype=int),
@@ -134,12 +134,13 @@ def feature_patches(
     Omega_far = 4 pi w_0 - Omega_patch with w_0 ``skin_w``'s fast winding number (an integer, -1 to
     1). ``slot[i] = k``.
 
-    One walk of the BVH writes the patch to its own slot, pool[k cap: (k + 1) cap] (k < the listed
-    count, so the slots of a frame's list lie below ``feat_count[0] cap``), and sums its solid angles;
-    a patch of more than ``cap`` triangles is written again by a second walk at the pool's top
-    (``pool_count[1]`` entries taken from the end down, never into the list's slots). A patch that
-    does not fit gets length -1 (its point keeps the pseudo-normal sign) and counts in
-    ``pool_count[2]``; ``pool_count[0]`` sums every patch's length (what a packed pool would need)."""
+    One walk of the BVH writes the patch to its own slot, pool[k c: (k + 1) c] (k < the listed
+    count n, c = min(``most``, pool size // 2 n): the list's slots fill at most the pool's lower
+    half), and sums its solid angles; a patch of more than c triangles is written again by a second
+    walk at the pool's top (``pool_count[1]`` entries taken from the end down, never into the list's
+    slots). A patch that does not fit gets length -1 (its point keeps the pseudo-normal sign) and
+    counts in ``pool_count[2]``; ``pool_count[0]`` sums every patch's length (what a packed pool
+    would need)."""
     k = wp.tid()
     if k >= feat_count[0]:
         return
@@ -149,6 +150,7 @@ def feature_patches(
     r = patch_radius(radius, feat_dist[k], slack[pts_geom[i] // geoms_per_world])
     lo = p - wp.vec3(r)
     hi = p + wp.vec3(r)
+    cap = wp.min(most, pool.shape[0] // wp.max(2 * feat_count[0], 1))
     start = k * cap
     n = int(0)
     t = int(0)
