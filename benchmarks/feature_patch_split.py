@@ -134,6 +134,8 @@ def main() -> None:
         for _ in range(3):
             hands.step(pos, quat, op, oq)
     c, state = hands.solver.contact, hands.state
+    if c is None or c.feat is None or not c.config.feature_winding:
+        raise SystemExit("no feature points with the local winding number (Config.feature_winding): nothing to split")
     pts, m, cfg = c.points, c.model, c.config
     vol, volw = c.volume(state, winding=False), c.volume(state, winding=True)
     qpose = c._qp
@@ -141,6 +143,8 @@ def main() -> None:
     d = m.device
     n = pts.n_features
     listed = int(c.feat_count.numpy()[0])
+    if not listed:
+        raise SystemExit("no feature points listed after the warm-up frames: nothing to split")
     tmp_i = wp.zeros(n, dtype=int, device=d)
     tmp_f = wp.zeros(n, dtype=float, device=d)
     fm = cfg.contact_frame_margin

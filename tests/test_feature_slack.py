@@ -131,6 +131,8 @@ def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
     assert top.any() and (~top).any()
     np.testing.assert_array_equal(start[~top], cap * np.arange(n)[~top])  # (their own slots)
     assert np.all(start[top] >= cap * n) and np.all(start[top] + length[top] <= c.patch_pool.shape[0])
+    span = sorted(zip(start[top], start[top] + length[top]))
+    assert all(a[1] <= b[0] for a, b in zip(span, span[1:]))  # (the top's patches do not overlap)
     used = c.patch_used.numpy()
     assert used[0] == length.sum() and used[1] == length[top].sum() and used[2] == 0
 

@@ -267,6 +267,7 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
     lens = c.patch_len.numpy()[:n]
     assert n > 0 and np.any(lens == -1) and np.any(lens > 0)
     assert lens[lens > 0].sum() <= 512
+    assert c.patch_used.numpy()[2] == np.count_nonzero(lens < 0)  # (the failures are counted, and warned of)
     assert np.all(np.isfinite(hand.state.x.numpy()))
 
 

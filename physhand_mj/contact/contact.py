@@ -37,7 +37,8 @@ from physhand_mj.solver.solver import launch_options
 # pool[k c: (k + 1) c], c = min(PATCH_SLOT, pool // 2 n), and the larger patches room at the top (the
 # other half at least): a pool of 2 x 128 entries per feature point holds in its top half every list
 # the packed pool of 128 held, however many patches pass their slots (slots over the whole pool left
-# the hard cases' deep starts no room: 47-267 points without a patch, tests/test_winding.py)
+# the hard cases' deep starts no room: 47-267 points without a patch, tests/test_winding.py); at
+# PATCH_POOL_MAX every patch is sure to fit while the list needs at most half of it packed
 PATCH_SLOT = 128
 PATCH_POOL_PER_FEATURE = 2 * PATCH_SLOT
 PATCH_POOL_MIN = 1 << 15

@@ -165,7 +165,9 @@ def feature_patches(
             n += 1
     wp.atomic_add(pool_count, 0, n)
     if n > cap:  # (no start + n below: it wraps past 2^31; so do the counters)
-        top = wp.atomic_add(pool_count, 1, n)
+        top = pool_count[1]  # (a full top fails unasked: the counter stays below 2^31 however many ask)
+        if top <= pool.shape[0]:
+            top = wp.atomic_add(pool_count, 1, n)
         if top < 0 or top > pool.shape[0] - n or pool.shape[0] - top - n < feat_count[0] * cap:
             patch_len[k] = -1
             wp.atomic_add(pool_count, 2, 1)
