@@ -226,7 +226,11 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
         wp.launch(skin_motion, nv, [_arr(x1, wp.vec3), _arr(x0, wp.vec3), _arr(np.zeros(nv, np.int32), int), slack],
                   [vmotion, motion, fast, fast_count], device="cpu")
         reach = wp.zeros(1, dtype=float, device="cpu")
-        wp.launch(skin_reach, 2, [faces, _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int)], [reach], device="cpu")
+        wp.launch(skin_reach, 2, [faces, _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int), fast_count], [reach],
+                  device="cpu")
+        tri = x1[faces.numpy()]  # (the longest edge, asked only where a vertex moved fast)
+        longest = max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(), 0.0)
+        assert reach.numpy()[0] == (pytest.approx(longest, rel=1e-6) if fast_count.numpy()[0] else 0.0)
         near, failed = wp.zeros(1, dtype=float, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
         n = len(pts)
         wp.launch(certify_features, n, [_arr(np.arange(n, dtype=np.int32), int),

@@ -64,10 +64,13 @@ def skin_motion(
 
 @wp.kernel
 def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int),
-               reach: wp.array(dtype=float)):
+               fast_count: wp.array(dtype=int), reach: wp.array(dtype=float)):
     """Per world the longest skin edge (m) at the frame's end (atomic max): how far a triangle's
-    points lie from its vertices (:func:`certify_features`). A non-finite edge counts 0."""
+    points lie from its vertices (:func:`certify_features`, which reads it only for a world's fast
+    vertices: a world without one is skipped and keeps 0). A non-finite edge counts 0."""
     t = wp.tid()
+    if fast_count[vertex_world[faces[t, 0]]] == 0:
+        return
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
@@ -227,7 +230,7 @@ class FeatureSlack:
         m, cfg, pts = self.model, self.config, self.points
         launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
                [self.vmotion, self.motion, self.fast, self.fast_count])
-        launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world], [self.reach])
+        launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world, self.fast_count], [self.reach])
         launch(certify_features, pts.n_features,
                [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
                 self.pt_dist, self.pt_face, m.skin_faces, self.x_start, self.vmotion, self.fast, self.fast_count,
