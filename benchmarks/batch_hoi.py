@@ -12,7 +12,7 @@ contact does not share (skin samples on the denser order-9 lattice, the object's
 inside the skin); the worst world is reported.
 
     python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
-                                   [--config '{"feature_winding": false}'] [--profile]
+                                   [--config '{"feature_winding": false}'] [--profile] [--host-split]
     python benchmarks/batch_hoi.py --plot [JSON]   (docs/images/batch_hoi_1024.png from a run's JSON)
     python benchmarks/batch_hoi.py --curves [JSON] (docs/images/batch_hoi_curves.png: hand-frames/s against W)
 
