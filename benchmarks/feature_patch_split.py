@@ -103,6 +103,7 @@ def main() -> None:
     from physhand_mj.batch import BatchedHands
     from physhand_mj.batch_rollout import _Run
     from physhand_mj.bench import device_name
+    from physhand_mj.contact.contact import PATCH_SLOT
     from physhand_mj.coupling import rest_placement
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -154,7 +155,7 @@ def main() -> None:
         c.patch_used.zero_()
         wp.launch(feature_patches, n, inputs=[vol.mesh.id, volw.mesh.id, m.skin_faces, x, c.feat, c.feat_count,
                                               pts.pts, pts.geom, qpose, fm, fm, c.feat_dist, c.slack,
-                                              c.geoms_per_world, c.patch_cap],
+                                              c.geoms_per_world, PATCH_SLOT],
                   outputs=[c.patch_used, c.patch_pool, c.feat_slot, c.patch_start, c.patch_len, c.far_angle], device=d)
 
     parts = {

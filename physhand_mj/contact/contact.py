@@ -4,7 +4,8 @@
 the solver's frame (so a CUDA graph captures them); the penetration metrics are its
 :class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py), the frame's host-side
 reports its :class:`~physhand_mj.contact.reports.ContactReports` (contact/reports.py), the feature lists'
-slack and its check :class:`~physhand_mj.contact.slack.FeatureSlack` (contact/slack.py).
+slack and its check :class:`~physhand_mj.contact.slack.FeatureSlack` (contact/slack.py), where the
+object side's queries run :class:`~physhand_mj.contact.query_space.QuerySpace` (contact/query_space.py).
 """
 
 from __future__ import annotations
@@ -16,10 +17,11 @@ from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists,
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
                                           near_features, stage_features, stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
-from physhand_mj.contact.inside import shift_poses, ObjectPoints, SkinVolume
+from physhand_mj.contact.inside import ObjectPoints
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project
+from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
@@ -61,7 +63,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact(ContactMeasures, ContactReports, FeatureSlack):
+class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -85,7 +87,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
         self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
         # batched worlds solved at one origin but queried apart (set_query_offsets): the object side's
         # skin meshes hold x + the world's offset and its queries use the geoms' poses so moved
-        self.query_shift = self._qoff = self._qpose = self._no_shift = None
+        self.query_shift = self._qoff = self._qpose = None
+        self._no_shift = wp.zeros(0, dtype=wp.vec3, device=model.device)  # (apply_contact's, unshifted)
         # per world and contact stage: [active triangles, vertices the first pass corrected] (W > 1)
         self.world_stage = wp.zeros((w, max(stages, 1) * 2), dtype=int, device=d) if w > 1 else None
         self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
@@ -241,7 +244,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                     n = pts.n_features
                     cap = int(min(max(n * PATCH_POOL_PER_FEATURE, PATCH_POOL_MIN), PATCH_POOL_MAX))
                     self.patch_pool = wp.zeros(cap, dtype=int, device=m.device)
-                    self.patch_cap = PATCH_SLOT  # (a listed feature's own slot, at most)
                     # [entries the patches need in all, taken at the pool's top, patches that did not fit]
                     self.patch_used = wp.zeros(3, dtype=int, device=m.device)
                     self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index
@@ -274,7 +276,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                 launch(feature_patches, pts.n_features,
                        [vol.mesh.id, volw.mesh.id, m.skin_faces, self._query_x(state), self.feat, self.feat_count,
                         pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, self.feat_dist,
-                        self.slack, self.geoms_per_world, self.patch_cap],
+                        self.slack, self.geoms_per_world, PATCH_SLOT],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.far_angle], count=self.feat_count)
 
@@ -476,15 +478,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 
-    def _apply_shift(self, state) -> tuple:
-        """apply_contact's (shift, shifted copy): batched worlds queried apart keep the object side's
-        copy of the skin (set_query_offsets) current vertex by vertex; else two empty arrays."""
-        if self.query_shift is None:
-            if self._no_shift is None:
-                self._no_shift = wp.zeros(0, dtype=wp.vec3, device=self.model.device)
-            return self._no_shift, self._no_shift
-        return self.query_shift, self.volume(state, winding=False).points
-
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
         length, far angle]; off: the feature list's arrays stand in (never read)."""
@@ -518,58 +511,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack):
         if self._points is None:
             self._points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing)
         return self._points
-
-    def volume(self, state, winding: bool = True) -> SkinVolume:
-        """The closed skin of ``state`` as a mesh, with winding-number data or not (made on first use;
-        shifted per world where :meth:`set_query_offsets` asked)."""
-        key = (id(state.x), winding)
-        v = self._volumes.get(key)
-        if v is None:
-            v = self._volumes[key] = SkinVolume(state.x, self.model.n_skin, self.model.skin_faces, winding,
-                                                shift=self.query_shift, worlds=self.worlds)
-        return v
-
-    def set_query_offsets(self, offsets) -> None:
-        """Batched worlds (physhand_mj/batch.py) solved at one origin: the object side's queries (the
-        feature lists and pushes, the object points inside the skin) run on the skin and the geoms
-        moved by ``offsets`` (W, 3) m per world, so they stay in their world (every such query is
-        distance-limited, to well under the offsets' spacing) while the solve stays at the origin.
-        Call before the first step or measure."""
-        off = np.asarray(offsets, np.float32).reshape(self.worlds, 3)
-        if self._volumes:
-            raise RuntimeError("set_query_offsets must come before the first step or measure")
-        if not np.any(off):
-            return
-        d = self.model.device
-        world = self.model.vertex_world.numpy()[: self.model.n_skin]
-        self.query_shift = wp.array(off[world], dtype=wp.vec3, device=d)
-        self._qoff = wp.array(off, dtype=wp.vec3, device=d)
-        self._qpose = wp.zeros(self.objects.capacity, dtype=wp.transform, device=d)
-
-    def _query_pose(self, launch):
-        """The geoms' poses for the object side's queries (moved per world by the query offsets)."""
-        if self._qpose is None:
-            return self.objects.pose
-        launch(shift_poses, self._qpose.shape[0], [self.objects.pose, self._qoff, self.geoms_per_world], [self._qpose])
-        return self._qpose
-
-    @property
-    def _qp(self):
-        """The poses the object side queries with (set once per frame by :meth:`_query_pose`)."""
-        return self.objects.pose if self._qpose is None else self._qpose
-
-    def _query_x(self, state):
-        """Skin positions as the object side's meshes hold them (shifted per world, or state.x)."""
-        return state.x if self.query_shift is None else self.volume(state, winding=False).points
-
-    def _refit_op(self, vol: SkinVolume, count=None):
-        """An op syncing ``vol``'s points (where shifted) and refitting its BVH; on the CPU only when
-        ``count`` (default: the frame's feature list length) is non-zero (free to read there)."""
-        ops = vol.refit_ops()
-        if wp.get_device(self.model.device).is_cuda:
-            return ops[0] if len(ops) == 1 else (lambda: [op() for op in ops])
-        count = (self.feat_count if count is None else count).numpy()
-        return lambda: [op() for op in ops] if count[0] else None
 
     # -- host side ---------------------------------------------------------------------------------
     def run_stage(self, state) -> np.ndarray:
