@@ -39,10 +39,13 @@
 #   s37_c    the same session's second machine: the solver alone at W = 4,096 (the 50,000), the box after the
 #            slack check's atomics and apply_contact's shifted copy, and the CUDA tests they touch (run 2026-11-27:
 #            a fresh machine compiles query.py's kernels first; the box's 150 s and 200 s limits were too short)
+#   s38_a, s38_b, s38_c   (2026-11-27, fourth session) Config.feature_list_share: the box at W = 4,096 with
+#            the lists at keep + s / 2 and keep + s on one machine, 30 frames, the cache back; the other grasps at
+#            W = 4,096 and the box's kernel split; the solver alone at W = 4,096 and the CUDA tests
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests or s37_c}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b or s38_c}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -354,6 +357,32 @@ case $phase in
       --host-split --out docs/benchmarks/batch_hoi_cuda_box_s37c_profile.json
     step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or share_one_mesh" \
       tests/test_batch.py tests/test_feature_slack.py
+    ;;
+  s38_a)  # (2026-11-27, fourth session) Config.feature_list_share: the box at W = 4,096 with the lists at
+    # keep + s / 2 (the default) and keep + s (before), one machine; 30 frames; the kernel split; the cache back
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step box_4096 330 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_box_s38_4096.json
+    step box_4096_share1 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 \
+      --config '{"feature_list_share": 1.0}' --out docs/benchmarks/batch_hoi_cuda_box_s38_4096_share1.json
+    step box_4096_30 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 30 \
+      --out docs/benchmarks/batch_hoi_cuda_box_s38_4096_30.json
+    step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
+    ;;
+  s38_b)  # the other grasps at W = 4,096 on the same machine, the box's kernel split at W = 1,024
+    for s in phone glass1 glass2 apple toothpaste; do
+      step "hoi_$s" 120 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
+        --out "docs/benchmarks/batch_hoi_cuda_${s}_s38_4096.json"
+    done
+    step box_profile 120 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_box_s38_profile.json
+    ;;
+  s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
+    step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
+      --out docs/benchmarks/fused_variants_cuda_s38.json
+    step pytest_cuda 400 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or batch" \
+      tests/test_feature_slack.py tests/test_winding.py tests/test_batch.py
     ;;
   *) echo "unknown phase $phase"; exit 2 ;;
 esac

@@ -175,16 +175,21 @@ class Config:
         feature_slack: the least motion of the skin within one frame that the object's feature
         points are listed and their patches (the local winding number's, contact/winding.py) sized
         for (m, > 0; 4 mm: a held grasp's skin jitters up to 1.5 mm a frame at single vertices): a
-        feature point d from the skin at the frame's start is listed when d is within the slack
-        plus contact_margin (or the pseudo normals put it inside), and its patch holds the skin
-        triangles within d plus the slack
-        (not within contact_frame_margin: 4-8 x fewer patch entries on the box grasp); each frame
-        the slack follows 2.5 x the skin's largest move near the points in the last frame with
-        contact, up to contact_frame_margin, and a frame in which a skin vertex moved far enough,
-        near enough to a point, to spoil its list is reported (``feature_slack_exceeded``) and
-        warned about (docs/contact.md); at
-        contact_frame_margin or more: every feature point within that margin, patches of that
-        radius (the lists before 2026-11-27);
+        feature point d from the skin at the frame's start is listed when d is within
+        feature_list_share x the slack plus contact_margin (or the pseudo normals put it inside),
+        and its patch holds the skin triangles within d plus the slack (not within
+        contact_frame_margin: 4-8 x fewer patch entries on the box grasp); each frame the slack
+        follows 2.5 x the skin's largest move near the points in the last frame with contact, up
+        to contact_frame_margin, and a frame in which a skin vertex moved far enough, near enough
+        to a point, to spoil its list is reported (``feature_slack_exceeded``) and warned about
+        (docs/contact.md); at contact_frame_margin or more: every feature point within that
+        margin, patches of that radius (the lists before 2026-11-27);
+        feature_list_share: how far past contact_margin a feature point is listed, as a share of
+        the slack (a ratio, 0.5-1; 0.5: d <= contact_margin + slack / 2, which the frame's check
+        certifies under the bound on the skin's move that the patches need anyway, twice its move
+        under the slack; 1: the lists of 2026-11-27's first three sessions, where about half of the
+        box grasp's listed points lay farther, none of which a pass could push in a frame that check
+        passes);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
@@ -318,6 +323,7 @@ class Config:
     feature_offset: float = 6.0e-5
     feature_spacing: float = 2.5e-4
     feature_slack: float = 4.0e-3
+    feature_list_share: float = 0.5
     multires_samples: int = 21
     multires_rounds: int = 2
     opt_queries: int = 32
@@ -394,6 +400,10 @@ class Config:
         if not (isinstance(self.feature_slack, (int, float)) and not isinstance(self.feature_slack, bool)
                 and math.isfinite(self.feature_slack) and self.feature_slack > 0):
             raise ValueError(f"Config.feature_slack must be a distance > 0 in m (e.g. 4e-3), got {self.feature_slack!r}")
+        if not (isinstance(self.feature_list_share, (int, float)) and not isinstance(self.feature_list_share, bool)
+                and 0.5 <= self.feature_list_share <= 1.0):
+            raise ValueError(f"Config.feature_list_share must be a ratio in [0.5, 1] (the share of the slack past "
+                             f"contact_margin within which feature points are listed), got {self.feature_list_share!r}")
         if not (isinstance(self.feature_spacing, (int, float, np.floating, np.integer))
                 and not isinstance(self.feature_spacing, bool) and math.isfinite(self.feature_spacing)
                 and self.feature_spacing > 0):

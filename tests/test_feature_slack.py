@@ -101,18 +101,19 @@ def asset():
 
 
 @pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize("slack", [4.0e-3, 1.0e-2])
-def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, slack, device):
+@pytest.mark.parametrize("slack,share", [(4.0e-3, 0.5), (4.0e-3, 1.0), (1.0e-2, 0.5)])
+def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, slack, share, device):
     """A knife edge pressed 4 mm into the fingertip (frames 1-12 of the hard case; its edge's points
     are the features). At the last frame's start the listed points are exactly the feature points
-    within min(margin, contact_margin + slack) of the skin (and those within the margin the pseudo
+    within min(margin, contact_margin + share x slack) of the skin (Config.feature_list_share: 0.5,
+    the default, and 1.0, the lists before it; and those within the margin the pseudo
     normals put inside), each patch holds exactly the triangles
     within min(margin, d + slack) of its point; at the frame's end (the skin moved less than half
     the slack: not reported) each listed point's closest skin point lies in its patch, and no
     unlisted feature point is within contact_margin of the skin. With the slack at the frame margin
     every feature point within the margin is listed with a patch of that radius (the lists before
     the slack). On CUDA the patches are a block's over every skin triangle (feature_patches_tiled)."""
-    _check_lists(asset, slack, device)
+    _check_lists(asset, slack, device, share)
 
 
 def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
@@ -137,8 +138,8 @@ def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
     assert used[0] == length.sum() and used[1] == length[top].sum() and used[2] == 0
 
 
-def _check_lists(asset, slack, device):
-    cfg = ph.Config(device=device, feature_slack=slack)
+def _check_lists(asset, slack, device, share=0.5):
+    cfg = ph.Config(device=device, feature_slack=slack, feature_list_share=share)
     r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), cfg, frames=12, check_order=5,
                  asset=asset)
     solver, state = r["solver"], r["state"]
@@ -158,13 +159,21 @@ def _check_lists(asset, slack, device):
     is_feature[c.points.feature.numpy()] = True
     # the frame's start: the skin the lists were made on
     x0 = c.x_start
-    reach = min(cfg.contact_frame_margin, cfg.contact_margin + used)
+    reach = min(cfg.contact_frame_margin, cfg.contact_margin + cfg.feature_list_share * used)
+    if used >= cfg.contact_frame_margin - 1e-9:  # (a slack at the margin lists every point within it)
+        reach = cfg.contact_frame_margin
     d0, _ = _brute_force(c, x0, np.zeros(c.points.pts.shape[0]))
     inside = _pseudo_inside(c, x0, cfg.contact_frame_margin)
     want = set(np.flatnonzero(is_feature & ((d0 <= reach) | (inside & (d0 <= cfg.contact_frame_margin)))).tolist())
     near_edge = np.abs(d0 - reach) < 1e-7  # (float rounding at the cut)
     got = set(feat.tolist())
     assert {i for i in got ^ want if not near_edge[i]} == set()
+    # the band past the list's reach, within keep + slack: measured for the frame's check, not listed
+    band = is_feature & ~np.isin(np.arange(len(d0)), feat) & (d0 <= min(cfg.contact_frame_margin,
+                                                                         cfg.contact_margin + used) - 1e-7)
+    assert band.any() == (share < 1.0 and slack < cfg.contact_frame_margin)
+    np.testing.assert_allclose(c.pt_dist.numpy()[band], d0[band], atol=1e-6)
+    assert np.all(c.pt_face.numpy()[band] == -1)
     assert len(got) < int(np.count_nonzero(is_feature)) or slack >= cfg.contact_frame_margin
     np.testing.assert_allclose(c.feat_dist.numpy()[:n], d0[feat], atol=1e-6)
     radius = np.full(c.points.pts.shape[0], -1.0)
@@ -209,13 +218,15 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     margin's slack (a world's first frame) a triangle 10.2 mm from the unlisted point that comes to
     0.4 mm of it fails. A capped patch of a point 8 mm inside with an 8 mm slack needs less move than
     the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More
-    fast vertices than the list
-    holds fail the world."""
+    fast vertices than the list holds fail the world. An unlisted point 3.2 mm from B, measured
+    (past the lists' keep + s / 2, Config.feature_list_share), needs a 2.7 mm move of B's vertex
+    towards it; not measured (taken as keep + s away) or listed, more."""
     faces = wp.array(np.array([[0, 1, 2], [3, 4, 5]], np.int32), dtype=int, device="cpu")
     base = np.array([[-1, -1, 1], [1, -1, 1], [0, 1, 1], [-1, -1, 8], [1, -1, 8], [0, 1, 8]], np.float32) * 1e-3
     pose = wp.array(np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32), dtype=wp.transform, device="cpu")
 
-    def check(moves, x0=base, slack0=4e-3, pts=((0, 0, 0), (0, 0, -20e-3)), dist=(1e-3, UNLISTED), cap=4):
+    def check(moves, x0=base, slack0=4e-3, pts=((0, 0, 0), (0, 0, -20e-3)), dist=(1e-3, UNLISTED), cap=4,
+              face=None):
         x1 = x0.copy()
         for v, dv in moves.items():
             x1[v] += np.asarray(dv, np.float32)
@@ -236,7 +247,7 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
         wp.launch(certify_features, n, [_arr(np.arange(n, dtype=np.int32), int),
                                         _arr(np.asarray(pts, np.float32), wp.vec3), _arr(np.zeros(n, np.int32), int),
                                         pose, _arr(np.int32([1]), int), 1, _arr(np.float32(dist), float),
-                                        _arr(np.zeros(n, np.int32), int), faces, _arr(x0, wp.vec3), vmotion, fast,
+                                        _arr(np.int32(face or [0] * n), int), faces, _arr(x0, wp.vec3), vmotion, fast,
                                         fast_count, slack, 1e-2, 5e-4, reach], [near, failed], device="cpu")
         report = wp.zeros((1, 3), dtype=float, device="cpu")
         listed = _arr(np.int32([int(any(abs(x) < UNLISTED for x in dist))]), int)
@@ -280,6 +291,19 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     # more fast vertices than the list holds (cap 1): the world fails, the next slack from its largest move
     r, nxt, n = check({3: (0, 0, 30e-3), 4: (0, 0, 30e-3)}, x0=far, cap=1)
     assert r[2] == 1 and n == 2 and nxt == pytest.approx(1e-2)
+    # Config.feature_list_share: a point 3.2 mm above B and one of B's vertices rising towards it. Not
+    # measured (beyond the lists' reach, taken as keep + s away), a 2.9 mm move passes; measured in
+    # the band past the lists' keep + s / 2 (pt_face -1: 3.2 mm), it needs 2.7 mm: 2.5 mm passes, 2.9
+    # mm fails; the point listed 3.2 mm from B (face 1) needs 3.2 + 4 - 0.5 mm: 2.9 mm passes
+    above = dict(pts=((0, 0, 0), (0, 0, 11.2e-3)))
+    r, nxt, n = check({3: (0, 0, 2.9e-3)}, dist=(1e-3, UNLISTED), **above)
+    assert (r[2], n) == (0, 1)
+    r, nxt, n = check({3: (0, 0, 2.5e-3)}, dist=(1e-3, 3.2e-3), face=(0, -1), **above)
+    assert (r[2], n) == (0, 1)
+    r, nxt, n = check({3: (0, 0, 2.9e-3)}, dist=(1e-3, 3.2e-3), face=(0, -1), **above)
+    assert (r[2], n) == (1, 1)
+    r, nxt, n = check({3: (0, 0, 2.9e-3)}, dist=(1e-3, 3.2e-3), face=(0, 1), **above)
+    assert (r[2], n) == (0, 1)
 
 
 def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):
@@ -317,6 +341,9 @@ def test_feature_slack_must_be_a_distance():
         ph.Config(feature_slack=float("nan")).validate()
     with pytest.raises(ValueError, match="feature_slack"):  # (0: every vertex fast, every frame flagged)
         ph.Config(feature_slack=0.0).validate()
+    for share in (0.4, 1.5, float("nan"), True):  # (under half the slack a listed point's check fails unasked)
+        with pytest.raises(ValueError, match="feature_list_share"):
+            ph.Config(feature_list_share=share).validate()
 
 
 def test_the_slack_changes_no_push_on_the_cpu(asset):
@@ -324,11 +351,14 @@ def test_the_slack_changes_no_push_on_the_cpu(asset):
     changes which points are listed and the patches their winding numbers sum over. A cone tip
     started 4 mm deep in the fingertip (its skin jitters up to ~3 mm a frame around the tip, some
     frames flagged): the skin after 16 frames with the 4 mm slack equals the run listing at the frame
-    margin (the lists before the slack) to 1 um, and neither leaves anything inside."""
+    margin (the lists before the slack) to 1 um, and neither leaves anything inside; so does the run
+    listing within the whole slack (Config.feature_list_share 1, the default's half before)."""
     runs = {}
-    for slack in (4.0e-3, 1.0e-2):
+    for slack, share in ((4.0e-3, 0.5), (1.0e-2, 0.5), (4.0e-3, 1.0)):
         r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=-0.004),
-                     ph.Config(device="cpu", feature_slack=slack), frames=16, check_order=5, asset=asset)
+                     ph.Config(device="cpu", feature_slack=slack, feature_list_share=share), frames=16,
+                     check_order=5, asset=asset)
         assert r["skin_count"][-1] == 0 and r["obj_count"][-1] == 0 and r["check_count"][-1] == 0
-        runs[slack] = r["skin"]
-    np.testing.assert_allclose(runs[4.0e-3], runs[1.0e-2], atol=1e-6)
+        runs[slack, share] = r["skin"]
+    np.testing.assert_allclose(runs[4.0e-3, 0.5], runs[1.0e-2, 0.5], atol=1e-6)
+    np.testing.assert_allclose(runs[4.0e-3, 0.5], runs[4.0e-3, 1.0], atol=1e-6)

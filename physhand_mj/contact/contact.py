@@ -259,7 +259,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                     *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin, cfg.contact_margin, self.slack,
-                                                   self.geoms_per_world],
+                                                   float(cfg.feature_list_share), self.geoms_per_world],
                    [self.feat, self.feat_count, self.feat_dist, self.pt_dist, self.pt_face, self.world_listed])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin

@@ -49,6 +49,7 @@ def near_features(
     margin: float,
     keep: float,
     slack: wp.array(dtype=float),
+    share: float,
     geoms_per_world: int,
     out: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
@@ -57,25 +58,41 @@ def near_features(
     pt_face: wp.array(dtype=int),
     world_count: wp.array(dtype=int),
 ):
-    """Append the feature points (indices into ``pts``) within ``keep`` (m) plus their world's
-    ``slack`` (m, the skin's motion a frame allows for: Config.feature_slack) of the skin, and those
-    farther but within ``margin`` (m) that the skin's pseudo normals put inside it (a deep point is
-    pushed however far the slack is), with their distance to the skin (``out_dist``, m, in list
-    order; by point ``pt_dist``, signed by the pseudo normals, negative inside, and ``pt_face``,
-    the closest skin triangle: unlisted points keep the slack.UNLISTED the frame starts them with; per
-    world the points listed, ``world_count``)."""
+    """Append the feature points (indices into ``pts``) within ``keep`` (m) plus ``share`` of their
+    world's ``slack`` s (m, the skin's motion a frame allows for: Config.feature_slack; the share:
+    Config.feature_list_share) of the skin, and those farther but within ``margin`` (m) that the
+    skin's pseudo normals put inside it (a deep point is pushed however far the slack is), with
+    their distance to the skin (``out_dist``, m, in list order; by point ``pt_dist``, signed by the
+    pseudo normals, negative inside, and ``pt_face``, the closest skin triangle; per world the
+    points listed, ``world_count``). Every distance is capped at ``margin``, and a slack at the
+    margin lists every point within it (the lists before the slack). A point farther than
+    its list's reach but within keep + s is measured and not listed: ``pt_dist`` its distance,
+    ``pt_face`` -1 (the frame's check, slack.certify_features, asks what move could bring it within
+    keep); the others keep the slack.UNLISTED the frame starts them with."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
     p = object_point(i, pts, pts_geom, pose)
-    reach = keep + slack[pts_geom[i] // geoms_per_world]
-    q = wp.mesh_query_point_sign_normal(skin, p, wp.min(margin, reach))
-    listed = q.result
-    if not listed and reach < margin:
+    s = slack[pts_geom[i] // geoms_per_world]
+    ask = wp.min(margin, keep + s)
+    q = wp.mesh_query_point_sign_normal(skin, p, ask)
+    listed = False
+    d = float(0.0)
+    if q.result:
+        d = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+        lim = margin  # (a slack at the margin: every point within it, the lists before the slack)
+        if s < margin:
+            lim = wp.min(margin, keep + share * s)
+        listed = d <= lim or q.sign < 0.0
+        if not listed:  # (outside, in the band the list leaves out)
+            pt_dist[i] = d
+            pt_face[i] = -1
+    elif ask < margin:
         q = wp.mesh_query_point_sign_normal(skin, p, margin)
         listed = q.result and q.sign < 0.0
+        if listed:
+            d = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
     if listed:
-        d = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
         k = wp.atomic_add(out_count, 0, 1)
         out[k] = i
         out_dist[k] = d

@@ -2,12 +2,13 @@
 
 How far the lists reach (``Config.feature_slack``, since 2026-11-27). Within a frame the objects stay
 where the frame put them and only the skin moves. A feature point d from the skin at the frame's
-start (``near_features`` measures d) is listed when d <= s + contact_margin, s its world's slack, or
-when the skin's pseudo normals put it inside; its patch holds the skin triangles within r = d + s
-of it (both at most contact_frame_margin). If no skin vertex moves more than D with 2 D < s, that
-is exact: the point's closest triangle at the start is in the patch and stays within d + D of it,
-a triangle outside the patch stays farther than r - D, and an unlisted point never comes within
-contact_margin. The frame checks this at its end, locally (``skin_motion``, ``certify_features``):
+start (``near_features`` measures d) is listed when d <= s / 2 + contact_margin, s its world's
+slack (``Config.feature_list_share`` s: a half by default since 2026-11-27's fourth session, the whole
+slack before), or when the skin's pseudo normals put it inside; its patch holds the skin triangles
+within r = d + s of it (both at most contact_frame_margin). If no skin vertex moves more than D with
+2 D < s, that is exact: the point's closest triangle at the start is in the patch and stays within
+d + D of it, a triangle outside the patch stays farther than r - D, and an unlisted point (farther
+than s / 2 + contact_margin) never comes within contact_margin: the same bound on D serves both. The frame checks this at its end, locally (``skin_motion``, ``certify_features``):
 a skin vertex that moved half the slack or more spoils a point only if it started near enough to
 it, given its move, to bring a triangle outside the patch nearer than the point's closest one (or
 an unlisted point within contact_margin). A world with such a point is reported
@@ -111,9 +112,11 @@ def certify_features(
     (m, the world's longest skin edge at the frame's end: :func:`skin_reach`) of p. Inside at the
     start (by the pseudo normals), T must also not come nearer than C, which moved at most D_C (its
     vertices' largest move): a move of r - max(keep, d + D_C), from within max(keep, d + D_C) +
-    |move| + reach. Not listed (farther than min(margin, keep + s), outside): to come within keep a
-    vertex moved more than min(margin, keep + s) - keep and started within keep + |its move| +
-    reach. The frame's fast vertices (half the slack or more) are asked; where a point's needed move
+    |move| + reach. Not listed, outside: to come within keep a vertex moved d - keep, d its
+    distance, measured where it lies within keep + s (past the list's keep + Config.feature_list_share
+    s: ``pt_face`` -1), else taken as min(margin, keep + s), and started within keep + |its move| +
+    reach. The frame's fast vertices
+    (half the slack or more) are asked; where a point's needed move
     is below that threshold, or the world has more fast vertices than the list holds, the point
     fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of
     every fast vertex near enough to a point for its move to matter there, go into
@@ -127,7 +130,9 @@ def certify_features(
     sd = pt_dist[i]
     near = keep  # how near the spoiling triangle must come
     need = wp.min(margin, keep + s) - keep  # the move a vertex needs to spoil this point's list
-    if sd < UNLISTED:
+    if sd < UNLISTED and pt_face[i] < 0:  # not listed, measured d from the skin (past share x s)
+        need = sd - keep
+    elif sd < UNLISTED:
         d = wp.abs(sd)
         f = pt_face[i]
         dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
