@@ -370,9 +370,11 @@ case $phase in
       --out docs/benchmarks/batch_hoi_cuda_box_s38_4096_30.json
     step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
     ;;
-  s38_b)  # the other grasps at W = 4,096 on the same machine, the box's kernel split at W = 1,024
+  s38_b)  # the other grasps at W = 4,096 on the same machine, the box's kernel split at W = 1,024 (run 2026-11-27:
+    # with 120 s a grasp, right after s38_a on the same machine, each of the first four ran past its limit with
+    # nothing printed; the phone alone took 137 s in the next call: give each 280 s, two grasps a call)
     for s in phone glass1 glass2 apple toothpaste; do
-      step "hoi_$s" 120 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
+      step "hoi_$s" 280 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
         --out "docs/benchmarks/batch_hoi_cuda_${s}_s38_4096.json"
     done
     step box_profile 120 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \

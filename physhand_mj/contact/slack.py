@@ -130,8 +130,8 @@ def certify_features(
     sd = pt_dist[i]
     near = keep  # how near the spoiling triangle must come
     need = wp.min(margin, keep + s) - keep  # the move a vertex needs to spoil this point's list
-    if sd < UNLISTED and pt_face[i] < 0:  # not listed, measured d from the skin (past share x s)
-        need = sd - keep
+    if sd < UNLISTED and pt_face[i] < 0:  # not listed, measured d from the skin: past keep + share x s,
+        need = wp.max(sd - keep, 0.5 * s)  # share >= 1/2 (a point just past it is not failed by rounding)
     elif sd < UNLISTED:
         d = wp.abs(sd)
         f = pt_face[i]
