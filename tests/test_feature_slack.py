@@ -211,7 +211,9 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     small to come within contact_margin of the point passes; one large enough and near enough
     fails; A itself moving 2.5 mm passes for a point outside and fails for one inside (a triangle
     outside the patch could then be nearer than A); a fast vertex sliding 5 cm sideways fails too
-    (the check knows end positions only: conservative); B moving 5 mm 38 mm away passes. The next slack is 2.5 x the
+    (the check knows end positions only, and the world's longest edge: conservative); B's vertex
+    moving 4.6 mm away from the point passes (it ends too far from it) but counts towards the next
+    slack; B moving 5 mm 38 mm away passes. The next slack is 2.5 x the
     largest move near the points, at least 0.8 x the last and the least, at most the margin; after
     a failed frame at least 2.5 x the world's largest move; a world that listed nothing keeps it. A
     non-finite vertex counts 0. With the
@@ -247,7 +249,8 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
         wp.launch(certify_features, n, [_arr(np.arange(n, dtype=np.int32), int),
                                         _arr(np.asarray(pts, np.float32), wp.vec3), _arr(np.zeros(n, np.int32), int),
                                         pose, _arr(np.int32([1]), int), 1, _arr(np.float32(dist), float),
-                                        _arr(np.int32(face or [0] * n), int), faces, _arr(x0, wp.vec3), vmotion, fast,
+                                        _arr(np.int32(face or [0] * n), int), faces, _arr(x0, wp.vec3),
+                                        _arr(x1, wp.vec3), vmotion, fast,
                                         fast_count, slack, 1e-2, 5e-4, reach], [near, failed], device="cpu")
         report = wp.zeros((1, 3), dtype=float, device="cpu")
         listed = _arr(np.int32([int(any(abs(x) < UNLISTED for x in dist))]), int)
@@ -263,16 +266,20 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     assert r[2] == 0 and nxt == pytest.approx(6.25e-3)  # (but the next lists allow for it)
     r, nxt, _ = check({0: (0, 0, 2.5e-3)}, dist=(-1e-3, UNLISTED))  # the same with the point inside: C moved
     assert r[2] == 1  # past half the slack, so a triangle outside the patch could now be nearer than C
-    r, nxt, _ = check({5: (50e-3, 0, 0)})  # 5 cm sideways
-    assert r[2] == 1  # (it started 8 mm from point 0: that much move could reach it; the check is conservative)
+    r, nxt, _ = check({5: (50e-3, 0, 0)})  # 5 cm sideways: B's edges are then 5 cm long, and a triangle
+    assert r[2] == 1  # that long could reach the point from where it ended (conservative)
+    r, nxt, _ = check({3: (0, 0, 4.6e-3)})  # 4.6 mm away from the point (what towards it fails, above): it
+    assert r[2] == 0 and nxt == pytest.approx(1e-2)  # started near enough to count for the next slack, but
+    # ended 12.7 mm from the point, farther than keep + B's longest edge (5.1 mm): no triangle of it came near
     far = base.copy()
     far[3:] += np.float32([0, 0, 30e-3])  # B starting 38 mm away: too far for its 5 mm move
     r, nxt, _ = check({3: (5e-3, 0, 0)}, x0=far)
     assert r[2] == 0 and r[1] == pytest.approx(5e-3) and nxt == pytest.approx(4e-3)
     r, nxt, _ = check({1: (np.nan, 0, 0), 2: (0, 0, 1e-3)})
     assert r[2] == 0 and r[1] == pytest.approx(1e-3) and nxt == pytest.approx(4e-3)
-    r, nxt, _ = check({1: (0, 0, 4.8e-3)})  # A's vertex 4.8 mm: the next slack capped at the margin
-    assert r[2] == 1 and nxt == pytest.approx(1e-2)
+    r, nxt, _ = check({1: (0, 0, 4.8e-3)})  # A's vertex 4.8 mm away from the point: the next slack capped
+    assert r[2] == 0 and nxt == pytest.approx(1e-2)  # at the margin; it ended 6 mm from the point (flagged before
+    # 2026-11-27's fourth session, when the check knew only where it started)
     r, nxt, _ = check({}, slack0=1e-2)  # nothing moved: the slack comes down by SLACK_DECAY a frame
     assert r[2] == 0 and nxt == pytest.approx(8e-3)
     r, nxt, _ = check({}, slack0=1e-2, pts=((0, 0, -20e-3),), dist=(UNLISTED,))  # nothing listed: it stays

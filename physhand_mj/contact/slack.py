@@ -93,6 +93,7 @@ def certify_features(
     pt_face: wp.array(dtype=int),
     faces: wp.array2d(dtype=int),
     x_start: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
     vmotion: wp.array(dtype=float),
     fast: wp.array2d(dtype=int),
     fast_count: wp.array(dtype=int),
@@ -105,21 +106,21 @@ def certify_features(
 ):
     """After a frame, per object feature point p: did its list and patch hold (module docstring)?
 
-    A point's scans matter while it is within ``keep`` of the skin or inside it. Listed (distance d,
-    closest triangle C at the start, patch radius r = min(margin, d + s)), outside at the start: a
-    triangle T outside the patch (farther than r then) that comes within keep of p moved a point at
-    least r - keep, so a vertex v of T did, and v started within keep + |move of v| + ``reach[w]``
-    (m, the world's longest skin edge at the frame's end: :func:`skin_reach`) of p. Inside at the
-    start (by the pseudo normals), T must also not come nearer than C, which moved at most D_C (its
-    vertices' largest move): a move of r - max(keep, d + D_C), from within max(keep, d + D_C) +
-    |move| + reach. Not listed, outside: to come within keep a vertex moved d - keep, d its
-    distance, measured where it lies within keep + s (past the list's keep + Config.feature_list_share
-    s: ``pt_face`` -1), else taken as min(margin, keep + s), and started within keep + |its move| +
-    reach. The frame's fast vertices
-    (half the slack or more) are asked; where a point's needed move
-    is below that threshold, or the world has more fast vertices than the list holds, the point
-    fails without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of
-    every fast vertex near enough to a point for its move to matter there, go into
+    A point's scans matter while it is within ``keep`` of the skin or inside it. A triangle T that
+    comes within a distance ``near`` of p at the frame's end has a vertex v that moved at least as far
+    as T's nearest point did, and v ended within near + ``reach[w]`` of p (m, the world's longest
+    skin edge at the end: :func:`skin_reach`; ``x``, the skin then), so it started within near +
+    |its move| + reach. Listed (distance d, closest triangle C at the start, patch radius r =
+    min(margin, d + s)), outside at the start: a triangle outside the patch (farther than r then)
+    that comes within near = keep moved a point at least r - keep. Inside at the start (by the pseudo
+    normals), it must also not come nearer than C, which moved at most D_C (its vertices' largest
+    move): near = max(keep, d + D_C), a move of r - near. Not listed, outside: a move of d - keep,
+    d its distance, measured where it lies within keep + s (past the list's keep +
+    Config.feature_list_share s: ``pt_face`` -1; at least s / 2), else taken as min(margin, keep +
+    s). The frame's fast vertices (half the slack or more) are asked; where a point's needed move is
+    below that threshold, or the world has more fast vertices than the list holds, the point fails
+    without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of every
+    fast vertex that started near enough to a point for its move to matter there, go into
     ``near_motion[w]`` (their largest: the next slack's measure)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
@@ -147,8 +148,8 @@ def certify_features(
         mv = vmotion[v]
         if wp.length(x_start[v] - p) <= near + mv + reach[w]:  # near enough for its move to matter here
             wp.atomic_max(near_motion, w, mv)
-            if mv >= need:
-                fail = True
+            if mv >= need and wp.length(x[v] - p) <= near + reach[w]:  # and it ended near enough for its
+                fail = True  # triangles to reach within ``near`` of p
     if fail:
         failed[w] = 1
 
@@ -238,8 +239,8 @@ class FeatureSlack:
         launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world, self.fast_count], [self.reach])
         launch(certify_features, pts.n_features,
                [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
-                self.pt_dist, self.pt_face, m.skin_faces, self.x_start, self.vmotion, self.fast, self.fast_count,
-                self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
+                self.pt_dist, self.pt_face, m.skin_faces, self.x_start, state.x, self.vmotion, self.fast,
+                self.fast_count, self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
                [self.near_motion, self.slack_failed])
         launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
                                          FAST_PER_WORLD, self.world_listed, float(cfg.feature_slack),
