@@ -247,13 +247,14 @@ class FeatureSlack:
                                          float(cfg.contact_frame_margin)],
                [self.slack, self.slack_report])
 
-    def feature_motion(self, ran: bool = True) -> dict:
+    def feature_motion(self, ran: bool = True, warn: bool = True) -> dict:
         """The last frame, worst world (after the frame's sync; Config.feature_slack, this module):
         ``feature_slack_mm``, the slack its feature lists were made with (m -> mm), ``skin_motion_mm``,
         the skin's largest move in it, and ``feature_slack_exceeded``, the worlds in which a skin
         vertex moved far enough, near enough to a feature point, that the point's list or patch could
         have missed a skin triangle (warned about once where the lists had been cut short of
-        contact_frame_margin). A frame that did not run its contact block (``ran`` False: nothing
+        contact_frame_margin, unless ``warn`` is False: Solver.warn_feature_slack, off while SoftHand
+        settles, which moves the bones on purpose; the count is reported either way). A frame that did not run its contact block (``ran`` False: nothing
         near) made no lists: its move and count are 0, its slack the last lists'. Empty without
         feature points."""
         if self.feat is None:
@@ -265,7 +266,7 @@ class FeatureSlack:
         over = int(np.count_nonzero(r[:, 2]))
         # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
         # broadphase's own, as before the slack; the count says it either way)
-        if over and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
+        if over and warn and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
             import warnings
 
             self._slack_warned = True

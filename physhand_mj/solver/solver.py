@@ -115,6 +115,7 @@ class Solver(Sleeping):
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
+        self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
         self._fused = fused_launch.choose(model, self.config, self.device)  # Config.fused_substep
         # per-region sleeping (physhand_mj/regions.py; one world)
         self.regions = None
@@ -254,7 +255,7 @@ class Solver(Sleeping):
             self._contact_summary(out)
             self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
-            self.last_activity.update(self.contact.feature_motion(self.activity.last_open1))
+            self.last_activity.update(self.contact.feature_motion(self.activity.last_open1, self.warn_feature_slack))
         else:
             self.last_activity = dict(objects_near=0, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                       features_listed=0, ops_run=len(ops), contact_ops_run=0)
