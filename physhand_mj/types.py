@@ -190,9 +190,6 @@ class Config:
         under the slack; 1: the lists of 2026-11-27's first three sessions, where about half of the
         box grasp's listed points lay farther, none of which a pass could push in a frame that check
         passes);
-        feature_pass_skip: CUDA batches' feature scans (a thread per feature over its patch) skip a
-        feature that did not push in its last scan while the passes since have moved its patch's
-        vertices less than it lay outside (the same skin as scanning it: features.py);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
@@ -327,7 +324,6 @@ class Config:
     feature_spacing: float = 2.5e-4
     feature_slack: float = 4.0e-3
     feature_list_share: float = 0.5
-    feature_pass_skip: bool = True
     multires_samples: int = 21
     multires_rounds: int = 2
     opt_queries: int = 32

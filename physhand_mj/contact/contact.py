@@ -89,7 +89,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         # skin meshes hold x + the world's offset and its queries use the geoms' poses so moved
         self.query_shift = self._qoff = self._qpose = None
         self._no_shift = wp.zeros(0, dtype=wp.vec3, device=model.device)  # (apply_contact's, unshifted)
-        self._applied = -1  # the stamp of the last recorded apply_contact (a pass's number)
         # per world and contact stage: [active triangles, vertices the first pass corrected] (W > 1)
         self.world_stage = wp.zeros((w, max(stages, 1) * 2), dtype=int, device=d) if w > 1 else None
         self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
@@ -253,7 +252,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                     self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
                     self.far_angle = wp.zeros(n, dtype=float, device=m.device)
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
-                    self.feat_clear = wp.zeros(n, dtype=float, device=m.device)  # the scans' skip bounds (m)
                 self._make_slack(pts.pts.shape[0])  # Config.feature_slack's buffers (slack.py)
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
@@ -324,7 +322,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                     self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
                     *self._winding_args()[1:], o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x],
                    [self.feat_stage, feat_count, self.delta, self.hits, self.touched, self._first_push,
-                    self.vertex_obj, self.feat_clear])
+                    self.vertex_obj])
         elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
             # with its first pass's feature push (into that pass's counter slot, taken by _record_features)
             feat_count = self.feat_stage_counts[stage: stage + 1]
@@ -391,7 +389,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         shift, shifted = self._apply_shift(state)
         launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=self.touched_count)
-        self._applied = stamp  # (the moves a later feature scan's skip asks about)
         self._tally_touched(launch, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
             moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
@@ -458,9 +455,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                    [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
                     self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
                     cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
-                    *self._winding_args()[1:], int(cfg.feature_pass_skip), self.moved, self.disp, self._applied,
-                    self.slack, self.geoms_per_world],
-                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj, self.feat_clear])
+                    *self._winding_args()[1:]],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
         elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
             launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
                    [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,

@@ -152,9 +152,7 @@ def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, 
     """The correction of the module docstring for feature point ``p`` whose closest skin point is
     (u, v, 1 - u - v) on skin triangle ``f`` (the point u x0 + v x1 + (1 - u - v) x2, Warp's mesh
     query convention), ``sign`` +1 outside the skin / -1 inside: into ``delta``/``hits`` when p is
-    inside (or closer than offset / 2 outside) and inside the triangle's plane. Returns how far the
-    skin may move before it could push (m, s - offset / 2 where p is s outside and not pushed; -1
-    where it pushed or left p to the skin's side: :func:`feature_contact_scan`'s skip)."""
+    inside (or closer than offset / 2 outside) and inside the triangle's plane."""
     i0 = faces[f, 0]
     i1 = faces[f, 1]
     i2 = faces[f, 2]
@@ -165,13 +163,13 @@ def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, 
     dist = wp.length(p - c)
     s = sign * dist  # > 0 outside the skin
     if s >= 0.5 * offset:
-        return s - 0.5 * offset
+        return
     # along the triangle's inward normal m: far enough that p ends ``offset`` outside its plane
     # (a tangential push would slide the skin along the object), at most ``max_step`` per pass
     m = -wp.normalize(wp.cross(x[i1] - x[i0], x[i2] - x[i0]))
     need = wp.dot(p - c, m) + offset
     if need <= 0.0:
-        return -1.0  # p is outside this triangle's plane: the skin's side handles it
+        return  # p is outside this triangle's plane: the skin's side handles it
     corr = m * wp.min(need, max_step)
     inv = 1.0 / (w0 * w0 + w1 * w1 + w2 * w2)
     # each vertex's say in its mean: the depth weight times its share (floored: a weight must be > 0)
@@ -181,30 +179,6 @@ def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, 
     v2 = wd * wp.max(w2, 1.0e-3)
     accumulate(i0, i1, i2, corr * (w0 * inv), corr * (w1 * inv), corr * (w2 * inv), v0, v1, v2, obj, delta,
                hits, touched, touched_count, vertex_obj)
-    return -1.0
-
-
-# a skipped feature's bound keeps this much (m) against float rounding in the distances it compares
-SKIP_TOL = wp.constant(1.0e-8)
-
-
-@wp.func
-def patch_moved(k: int, faces: wp.array2d(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
-                patch_len: wp.array(dtype=int), moved: wp.array(dtype=int), disp: wp.array(dtype=float), stamp: int,
-                most: float):
-    """The largest move (m) in the contact pass ``stamp`` (query.apply_contact's ``moved``/``disp``)
-    of a vertex of feature slot ``k``'s patch, or a value >= ``most`` as soon as one reaches it."""
-    m = float(0.0)
-    start = patch_start[k]
-    for j in range(patch_len[k]):
-        t = pool[start + j]
-        for c in range(3):
-            v = faces[t, c]
-            if moved[v] == stamp:
-                m = wp.max(m, disp[v])
-        if m >= most:
-            return m
-    return m
 
 
 @wp.func
@@ -432,11 +406,9 @@ def stage_features_scan(
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
     vertex_obj: wp.array(dtype=int),
-    clear: wp.array(dtype=float),
 ):
     """:func:`stage_features_tiled` with a thread per listed feature (:func:`closest_scan`), with
-    the stage's first feature push likewise; per kept feature slot ``clear``, how far the skin may
-    move before the feature could push (:func:`push_feature`'s return)."""
+    the stage's first feature push likewise."""
     k = wp.tid()
     if k >= cand_count[0]:
         return
@@ -449,8 +421,8 @@ def stage_features_scan(
     if sign * wp.length(p - c) < keep:
         out[wp.atomic_add(out_count, 0, 1)] = i
         f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-        clear[slot[i]] = push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0,
-                                      delta, hits, touched, touched_count, vertex_obj)
+        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
+                     touched_count, vertex_obj)
 
 
 @wp.kernel
@@ -474,49 +446,21 @@ def feature_contact_scan(
     patch_start: wp.array(dtype=int),
     patch_len: wp.array(dtype=int),
     far_angle: wp.array(dtype=float),
-    skip: int,
-    moved: wp.array(dtype=int),
-    disp: wp.array(dtype=float),
-    stamp: int,
-    slack: wp.array(dtype=float),
-    geoms_per_world: int,
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
     vertex_obj: wp.array(dtype=int),
-    clear: wp.array(dtype=float),
 ):
-    """:func:`feature_contact_tiled` with a thread per listed feature (:func:`closest_scan`).
-
-    With ``skip`` (Config.feature_pass_skip) a feature that did not push in its last scan, s outside
-    the skin with s - offset / 2 = ``clear[k]`` > 0 (k its slot), is not scanned while the skin's
-    moves since then stay under that: the pass ``stamp`` before this one moved each vertex of its
-    patch by at most m (``moved``/``disp``), so every point of the patch's triangles by at most m,
-    and with m < clear[k] the feature stays more than offset / 2 outside (the slack's check
-    certifies that no triangle outside the patch comes nearer); its bound drops by m. Only in a
-    world listing with a slack under ``margin`` (``slack``, Config.feature_slack): at the margin (a
-    world's first frames, and after fast moves) the skin may move centimetres in a frame, the local
-    winding number's far part drifts, and a scan can find a sign the last one did not without the
-    skin coming near (the demo's settling frames parted by up to 19 mm that way). The skin after a
-    pass is then the same as without the skip (tests/test_feature_slack.py)."""
+    """:func:`feature_contact_tiled` with a thread per listed feature (:func:`closest_scan`)."""
     k = wp.tid()
     if k >= cand_count[0]:
         return
     i = cand[k]
-    j = slot[i]
-    if skip != 0 and slack[pts_geom[i] // geoms_per_world] < margin:
-        c = clear[j]
-        if c > SKIP_TOL:
-            m = patch_moved(j, faces, pool, patch_start, patch_len, moved, disp, stamp, c - SKIP_TOL)
-            if m < c - SKIP_TOL:
-                clear[j] = c - m
-                return
     p = object_point(i, pts, pts_geom, pose)
     found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len, far_angle)
-    if not found:  # (no skin within ``margin`` in the patch; a patch that did not fit is scanned again)
-        clear[j] = wp.where(patch_len[j] >= 0, margin - 0.5 * offset, -1.0)
+    if not found:
         return
     f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-    clear[j] = push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits,
-                            touched, touched_count, vertex_obj)
+    push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
+                 touched_count, vertex_obj)
