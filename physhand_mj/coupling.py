@@ -111,11 +111,13 @@ class SoftHand:
         rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
         settler = self.solver if settle_contact or self.solver.contact is None else Solver(self.solver.model, self.config)
         settler.warn_fast_motion = settler.warn_feature_slack = False  # settling moves the bones on purpose
-        for k in range(settle_frames):
-            a = (k + 1) / settle_frames
-            settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
-            settler.step(self.state)
-        self.solver.warn_fast_motion = self.solver.warn_feature_slack = True
+        try:
+            for k in range(settle_frames):
+                a = (k + 1) / settle_frames
+                settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+                settler.step(self.state)
+        finally:
+            self.solver.warn_fast_motion = self.solver.warn_feature_slack = True
         self._write_back()
 
     # -- setup -----------------------------------------------------------------------------------
@@ -242,12 +244,15 @@ class SoftHand:
         rest_pos = fresh.pose_host[1][:, :3].astype(float)
         rest_quat = fresh.pose_host[1][:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
         self.solver.wake(self.state)  # a new episode settles before it may sleep
+        warn = self.solver.warn_fast_motion, self.solver.warn_feature_slack  # (a user's choice is kept)
         self.solver.warn_fast_motion = self.solver.warn_feature_slack = False  # settling moves the bones on purpose
-        for k in range(settle_frames):
-            a = (k + 1) / settle_frames
-            self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
-            self._last = self.solver.step(self.state)
-        self.solver.warn_fast_motion = self.solver.warn_feature_slack = True
+        try:
+            for k in range(settle_frames):
+                a = (k + 1) / settle_frames
+                self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+                self._last = self.solver.step(self.state)
+        finally:
+            self.solver.warn_fast_motion, self.solver.warn_feature_slack = warn
         self._timing = dict(sync=0.0, solver=0.0, writeback=0.0, frames=0)
         self._write_back()
 

@@ -400,7 +400,8 @@ class Config:
         if not (isinstance(self.feature_slack, (int, float)) and not isinstance(self.feature_slack, bool)
                 and math.isfinite(self.feature_slack) and self.feature_slack > 0):
             raise ValueError(f"Config.feature_slack must be a distance > 0 in m (e.g. 4e-3), got {self.feature_slack!r}")
-        if not (isinstance(self.feature_list_share, (int, float)) and not isinstance(self.feature_list_share, bool)
+        if not (isinstance(self.feature_list_share, (int, float, np.floating, np.integer))
+                and not isinstance(self.feature_list_share, bool)
                 and 0.5 <= self.feature_list_share <= 1.0):
             raise ValueError(f"Config.feature_list_share must be a ratio in [0.5, 1] (the share of the slack past "
                              f"contact_margin within which feature points are listed), got {self.feature_list_share!r}")

@@ -222,7 +222,9 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More
     fast vertices than the list holds fail the world. An unlisted point 3.2 mm from B, measured
     (past the lists' keep + s / 2, Config.feature_list_share), needs a 2.7 mm move of B's vertex
-    towards it; not measured (taken as keep + s away) or listed, more."""
+    towards it; not measured (taken as keep + s away) or listed, more. B swept through that point,
+    ending far from it, fails (its vertices' ways passed through the point); so does a listed
+    point's closest triangle passing through it (the point may now be inside)."""
     faces = wp.array(np.array([[0, 1, 2], [3, 4, 5]], np.int32), dtype=int, device="cpu")
     base = np.array([[-1, -1, 1], [1, -1, 1], [0, 1, 1], [-1, -1, 8], [1, -1, 8], [0, 1, 8]], np.float32) * 1e-3
     pose = wp.array(np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32), dtype=wp.transform, device="cpu")
@@ -239,10 +241,10 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
         wp.launch(skin_motion, nv, [_arr(x1, wp.vec3), _arr(x0, wp.vec3), _arr(np.zeros(nv, np.int32), int), slack],
                   [vmotion, motion, fast, fast_count], device="cpu")
         reach = wp.zeros(1, dtype=float, device="cpu")
-        wp.launch(skin_reach, 2, [faces, _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int), fast_count], [reach],
-                  device="cpu")
-        tri = x1[faces.numpy()]  # (the longest edge, asked only where a vertex moved fast)
-        longest = max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(), 0.0)
+        wp.launch(skin_reach, 2, [faces, _arr(x0, wp.vec3), _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int),
+                                  fast_count], [reach], device="cpu")
+        edges = [np.linalg.norm(t - np.roll(t, 1, axis=1), axis=2) for t in (x0[faces.numpy()], x1[faces.numpy()])]
+        longest = max(np.nanmax(e) for e in edges)  # (at the start or the end; asked only where a vertex moved fast)
         assert reach.numpy()[0] == (pytest.approx(longest, rel=1e-6) if fast_count.numpy()[0] else 0.0)
         near, failed = wp.zeros(1, dtype=float, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
         n = len(pts)
@@ -277,9 +279,8 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     assert r[2] == 0 and r[1] == pytest.approx(5e-3) and nxt == pytest.approx(4e-3)
     r, nxt, _ = check({1: (np.nan, 0, 0), 2: (0, 0, 1e-3)})
     assert r[2] == 0 and r[1] == pytest.approx(1e-3) and nxt == pytest.approx(4e-3)
-    r, nxt, _ = check({1: (0, 0, 4.8e-3)})  # A's vertex 4.8 mm away from the point: the next slack capped
-    assert r[2] == 0 and nxt == pytest.approx(1e-2)  # at the margin; it ended 6 mm from the point (flagged before
-    # 2026-11-27's fourth session, when the check knew only where it started)
+    r, nxt, _ = check({1: (0, 0, 4.8e-3)})  # A's vertex 4.8 mm: the next slack capped at the margin (its way
+    assert r[2] == 1 and nxt == pytest.approx(1e-2)  # starts 1.7 mm from the point, A's edges grow to 5.3 mm)
     r, nxt, _ = check({}, slack0=1e-2)  # nothing moved: the slack comes down by SLACK_DECAY a frame
     assert r[2] == 0 and nxt == pytest.approx(8e-3)
     r, nxt, _ = check({}, slack0=1e-2, pts=((0, 0, -20e-3),), dist=(UNLISTED,))  # nothing listed: it stays
@@ -311,6 +312,22 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     assert (r[2], n) == (1, 1)
     r, nxt, n = check({3: (0, 0, 2.9e-3)}, dist=(1e-3, 3.2e-3), face=(0, 1), **above)
     assert (r[2], n) == (0, 1)
+    # B swept 6 (9) mm up through that point, leaving it 2.8 (5.8) mm inside behind B, every vertex of B
+    # ending farther than keep + B's edges from it: B's way passed through it, so it fails (measured or not)
+    lift = {v: (0, 0, 6e-3) for v in (3, 4, 5)}
+    r, nxt, n = check(lift, dist=(1e-3, 3.2e-3), face=(0, -1), **above)
+    assert (r[2], n) == (1, 3)
+    r, nxt, n = check(lift, dist=(1e-3, UNLISTED), **above)
+    assert (r[2], n) == (1, 3)
+    r, nxt, n = check({v: (0, 0, 9e-3) for v in (3, 4, 5)}, dist=(1e-3, 3.2e-3), face=(0, -1), **above)
+    assert (r[2], n) == (1, 3)
+    # A, point 0's closest triangle 1 mm above it, moved 2.5 mm down through it: the point may now be inside,
+    # where a triangle outside its patch must not come nearer than A (d + 2.5 mm): a move of 1.5 mm could do
+    # that, under half the slack: it fails unasked; A's vertex 0 moving 2.5 mm up leaves it on A's side: passes
+    r, nxt, n = check({v: (0, 0, -2.5e-3) for v in (0, 1, 2)})
+    assert r[2] == 1
+    r, nxt, n = check({0: (0, 0, 2.5e-3)})
+    assert r[2] == 0
 
 
 def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):
@@ -351,6 +368,7 @@ def test_feature_slack_must_be_a_distance():
     for share in (0.4, 1.5, float("nan"), True):  # (under half the slack a listed point's check fails unasked)
         with pytest.raises(ValueError, match="feature_list_share"):
             ph.Config(feature_list_share=share).validate()
+    ph.Config(feature_list_share=np.float64(0.75)).validate()
 
 
 def test_the_slack_changes_no_push_on_the_cpu(asset):

@@ -8,15 +8,17 @@ slack before), or when the skin's pseudo normals put it inside; its patch holds 
 within r = d + s of it (both at most contact_frame_margin). If no skin vertex moves more than D with
 2 D < s, that is exact: the point's closest triangle at the start is in the patch and stays within
 d + D of it, a triangle outside the patch stays farther than r - D, and an unlisted point (farther
-than s / 2 + contact_margin) never comes within contact_margin: the same bound on D serves both. The frame checks this at its end, locally (``skin_motion``, ``certify_features``):
-a skin vertex that moved half the slack or more spoils a point only if it started near enough to
-it, given its move, to bring a triangle outside the patch nearer than the point's closest one (or
-an unlisted point within contact_margin). A world with such a point is reported
-(``feature_slack_exceeded``). The next frame's slack is 2.5 x the largest move near the points (their
-closest triangles', and the fast vertices' that started near enough to matter: ``next_slack``), at
-least SLACK_DECAY x this frame's and Config.feature_slack, at most contact_frame_margin. Every
-world lists with contact_frame_margin until it has listed a point; a world that lists none keeps its
-slack. The moves are the frame's end positions against its start, not the paths between.
+than s / 2 + contact_margin) never comes within contact_margin: the same bound on D serves both.
+The frame checks this at its end, locally (``skin_motion``, ``certify_features``): a skin vertex
+that moved half the slack or more spoils a point only if its move could bring a triangle outside
+the patch nearer than the point's closest one, or an unlisted point within contact_margin or
+inside, and its path (start to end, straight) passed near enough to the point for one of its
+triangles to do so. A world with such a point is reported (``feature_slack_exceeded``). The next
+frame's slack is 2.5 x the largest move near the points (their closest triangles', and the fast
+vertices' that started near enough to matter: ``next_slack``), at least SLACK_DECAY x this frame's
+and Config.feature_slack, at most contact_frame_margin. Every world lists with
+contact_frame_margin until it has listed a point; a world that lists none keeps its slack. The
+moves are the frame's end positions against its start, not the paths between.
 
 Kernels that take arrays (``skin_motion``, ``skin_reach``, ``certify_features``, ``next_slack``) and
 :class:`FeatureSlack`, the :class:`~physhand_mj.contact.contact.Contact` mixin that holds their
@@ -63,22 +65,56 @@ def skin_motion(
             fast[w, j] = i
 
 
-@wp.kernel
-def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int),
-               fast_count: wp.array(dtype=int), reach: wp.array(dtype=float)):
-    """Per world the longest skin edge (m) at the frame's end (atomic max): how far a triangle's
-    points lie from its vertices (:func:`certify_features`, which reads it only for a world's fast
-    vertices: a world without one is skipped and keeps 0). A non-finite edge counts 0."""
-    t = wp.tid()
-    if fast_count[vertex_world[faces[t, 0]]] == 0:
-        return
+@wp.func
+def longest_edge(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), t: int):
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
-    e = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+    return wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+
+
+@wp.kernel
+def skin_reach(faces: wp.array2d(dtype=int), x_start: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3),
+               vertex_world: wp.array(dtype=int), fast_count: wp.array(dtype=int), reach: wp.array(dtype=float)):
+    """Per world the longest skin edge (m) at the frame's start or end (atomic max): how far a
+    triangle's points lie from its vertices then, and anywhere on the straight way between, where
+    each edge is a blend of its two ends (:func:`certify_features`, which reads it only for a
+    world's fast vertices: a world without one is skipped and keeps 0). A non-finite edge counts 0."""
+    t = wp.tid()
+    if fast_count[vertex_world[faces[t, 0]]] == 0:
+        return
+    e0 = longest_edge(faces, x_start, t)
+    e = longest_edge(faces, x, t)
+    if not (e == e):
+        e = 0.0
+    if e0 == e0:
+        e = wp.max(e, e0)
     w = vertex_world[faces[t, 0]]
-    if e == e and e > reach[w]:  # (as in skin_motion: the atomic only where it can raise the max)
+    if e > reach[w]:  # (as in skin_motion: the atomic only where it can raise the max)
         wp.atomic_max(reach, w, e)
+
+
+@wp.func
+def plane_crossed(p: wp.vec3, faces: wp.array2d(dtype=int), x0: wp.array(dtype=wp.vec3), x1: wp.array(dtype=wp.vec3),
+                  f: int):
+    """Whether p lies on the other side of triangle ``f``'s plane at the end (``x1``) than at the
+    start (``x0``), or on it: the triangle may have passed through p."""
+    a0 = x0[faces[f, 0]]
+    a1 = x1[faces[f, 0]]
+    s0 = wp.dot(p - a0, wp.cross(x0[faces[f, 1]] - a0, x0[faces[f, 2]] - a0))
+    s1 = wp.dot(p - a1, wp.cross(x1[faces[f, 1]] - a1, x1[faces[f, 2]] - a1))
+    return s0 * s1 <= 0.0
+
+
+@wp.func
+def segment_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3):
+    """The distance (m) from p to the segment from a to b."""
+    ab = b - a
+    t = float(0.0)
+    n = wp.dot(ab, ab)
+    if n > 0.0:
+        t = wp.clamp(wp.dot(p - a, ab) / n, 0.0, 1.0)
+    return wp.length(a + t * ab - p)
 
 
 @wp.kernel
@@ -106,22 +142,25 @@ def certify_features(
 ):
     """After a frame, per object feature point p: did its list and patch hold (module docstring)?
 
-    A point's scans matter while it is within ``keep`` of the skin or inside it. A triangle T that
-    comes within a distance ``near`` of p at the frame's end has a vertex v that moved at least as far
-    as T's nearest point did, and v ended within near + ``reach[w]`` of p (m, the world's longest
-    skin edge at the end: :func:`skin_reach`; ``x``, the skin then), so it started within near +
-    |its move| + reach. Listed (distance d, closest triangle C at the start, patch radius r =
-    min(margin, d + s)), outside at the start: a triangle outside the patch (farther than r then)
-    that comes within near = keep moved a point at least r - keep. Inside at the start (by the pseudo
-    normals), it must also not come nearer than C, which moved at most D_C (its vertices' largest
-    move): near = max(keep, d + D_C), a move of r - near. Not listed, outside: a move of d - keep,
-    d its distance, measured where it lies within keep + s (past the list's keep +
-    Config.feature_list_share s: ``pt_face`` -1; at least s / 2), else taken as min(margin, keep +
-    s). The frame's fast vertices (half the slack or more) are asked; where a point's needed move is
-    below that threshold, or the world has more fast vertices than the list holds, the point fails
-    without asking. A failure sets ``failed[w]``; D_C of the listed points, and the move of every
-    fast vertex that started near enough to a point for its move to matter there, go into
-    ``near_motion[w]`` (their largest: the next slack's measure)."""
+    A point's scans matter while it is within ``keep`` of the skin or inside it. Take each vertex
+    on the straight way from its start to its end (the check knows no more of its path). A triangle
+    T that comes within a distance ``near`` of p, or passes through it, has a vertex v that moved at
+    least as far as that point of T did, and v's way passed within near + ``reach[w]`` of p (m, the
+    world's longest skin edge at the start or the end: :func:`skin_reach`; an edge on the way is a
+    blend of its two ends, no longer than the longer); so v also started within near + |its move| +
+    reach. Listed (distance d, closest triangle C at the start, patch radius r = min(margin, d +
+    s)), outside at the start, on the same side of C's plane at both ends: a triangle outside the
+    patch (farther than r then) that comes within near = keep moved a point at least r - keep.
+    Inside at the start (by the pseudo normals), or on C's other side at the end (C may have
+    passed through p: :func:`plane_crossed`): it must also not come nearer than C, which moved at
+    most D_C (its vertices' largest move), near = max(keep, d + D_C), a move of r - near. Not listed, outside: a move of d - keep, d its distance, measured where it lies within
+    keep + s (past the list's keep + Config.feature_list_share s: ``pt_face`` -1; at least s / 2),
+    else taken as min(margin, keep + s). The frame's fast vertices (half the slack or more) are
+    asked; where a point's needed move is below that threshold, or the world has more fast
+    vertices than the list holds, the point fails without asking. A failure sets ``failed[w]``;
+    D_C of the listed points, and the move of every fast vertex that started near enough to a
+    point for its move to matter there, go into ``near_motion[w]`` (their largest: the next
+    slack's measure)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
@@ -129,6 +168,7 @@ def certify_features(
     s = slack[w]
     n = fast_count[w]
     sd = pt_dist[i]
+    p = object_point(i, pts, pts_geom, pose)
     near = keep  # how near the spoiling triangle must come
     need = wp.min(margin, keep + s) - keep  # the move a vertex needs to spoil this point's list
     if sd < UNLISTED and pt_face[i] < 0:  # not listed, measured d from the skin: past keep + share x s,
@@ -138,18 +178,17 @@ def certify_features(
         f = pt_face[i]
         dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
         wp.atomic_max(near_motion, w, dc)
-        if sd < 0.0:
+        if sd < 0.0 or plane_crossed(p, faces, x_start, x, f):  # (inside, or C may have crossed p)
             near = wp.max(keep, d + dc)
         need = wp.min(margin, d + s) - near
     fail = need < 0.5 * s or n > fast.shape[1]  # (below the list's threshold, or past its end: not asked)
-    p = object_point(i, pts, pts_geom, pose)
     for j in range(wp.min(n, fast.shape[1])):
         v = fast[w, j]
         mv = vmotion[v]
         if wp.length(x_start[v] - p) <= near + mv + reach[w]:  # near enough for its move to matter here
             wp.atomic_max(near_motion, w, mv)
-            if mv >= need and wp.length(x[v] - p) <= near + reach[w]:  # and it ended near enough for its
-                fail = True  # triangles to reach within ``near`` of p
+            if mv >= need and segment_distance(p, x_start[v], x[v]) <= near + reach[w]:  # (its way passed
+                fail = True  # near enough for one of its triangles to come within ``near`` of p)
     if fail:
         failed[w] = 1
 
@@ -236,7 +275,8 @@ class FeatureSlack:
         m, cfg, pts = self.model, self.config, self.points
         launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
                [self.vmotion, self.motion, self.fast, self.fast_count])
-        launch(skin_reach, self.n_tris, [m.skin_faces, state.x, m.vertex_world, self.fast_count], [self.reach])
+        launch(skin_reach, self.n_tris, [m.skin_faces, self.x_start, state.x, m.vertex_world, self.fast_count],
+               [self.reach])
         launch(certify_features, pts.n_features,
                [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
                 self.pt_dist, self.pt_face, m.skin_faces, self.x_start, state.x, self.vmotion, self.fast,
