@@ -153,14 +153,14 @@ def certify_features(
     patch (farther than r then) that comes within near = keep moved a point at least r - keep.
     Inside at the start (by the pseudo normals), or on C's other side at the end (C may have
     passed through p: :func:`plane_crossed`): it must also not come nearer than C, which moved at
-    most D_C (its vertices' largest move), near = max(keep, d + D_C), a move of r - near. Not listed, outside: a move of d - keep, d its distance, measured where it lies within
-    keep + s (past the list's keep + Config.feature_list_share s: ``pt_face`` -1; at least s / 2),
-    else taken as min(margin, keep + s). The frame's fast vertices (half the slack or more) are
-    asked; where a point's needed move is below that threshold, or the world has more fast
-    vertices than the list holds, the point fails without asking. A failure sets ``failed[w]``;
-    D_C of the listed points, and the move of every fast vertex that started near enough to a
-    point for its move to matter there, go into ``near_motion[w]`` (their largest: the next
-    slack's measure)."""
+    most D_C (its vertices' largest move), near = max(keep, d + D_C), a move of r - near. Not
+    listed, outside: a move of d - keep, d its distance, measured where it lies within keep + s
+    (past the list's keep + Config.feature_list_share s: ``pt_face`` -1; at least s / 2), else
+    taken as min(margin, keep + s). The frame's fast vertices (half the slack or more) are asked;
+    where a point's needed move is below that threshold, or the world has more fast vertices than
+    the list holds, the point fails without asking. A failure sets ``failed[w]``; D_C of the
+    listed points, and the move of every fast vertex that started near enough to a point for its
+    move to matter there, go into ``near_motion[w]`` (their largest: the next slack's measure)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
         return
@@ -294,9 +294,9 @@ class FeatureSlack:
         vertex moved far enough, near enough to a feature point, that the point's list or patch could
         have missed a skin triangle (warned about once where the lists had been cut short of
         contact_frame_margin, unless ``warn`` is False: Solver.warn_feature_slack, off while SoftHand
-        settles, which moves the bones on purpose; the count is reported either way). A frame that did not run its contact block (``ran`` False: nothing
-        near) made no lists: its move and count are 0, its slack the last lists'. Empty without
-        feature points."""
+        settles, which moves the bones on purpose; the count is reported either way). A frame that
+        did not run its contact block (``ran`` False: nothing near) made no lists: its move and count
+        are 0, its slack the last lists'. Empty without feature points."""
         if self.feat is None:
             return {}
         r = self._slack_host.numpy()
