@@ -387,3 +387,61 @@ def test_the_slack_changes_no_push_on_the_cpu(asset):
         runs[slack, share] = r["skin"]
     np.testing.assert_allclose(runs[4.0e-3, 0.5], runs[1.0e-2, 0.5], atol=1e-6)
     np.testing.assert_allclose(runs[4.0e-3, 0.5], runs[4.0e-3, 1.0], atol=1e-6)
+
+
+def test_band_points_in_batched_worlds(asset):
+    """Batched worlds, each queried at its own offset (Contact.set_query_offsets): the hoi_box grasp in
+    two worlds on the CPU, five frames. At the last frame's start, per world w with slack s_w: the
+    listed points are those within contact_margin + s_w / 2 of their own world's skin (or inside by
+    its pseudo normals), the points past that and within contact_margin + s_w are measured (their
+    distance in pt_dist, pt_face -1), all by brute force over the shifted skin (worlds 1 m apart)."""
+    import mujoco
+    import tempfile
+    from pathlib import Path
+
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.batch_rollout import _Run
+    from physhand_mj.coupling import rest_placement
+
+    run = _Run(0, ph.scene_path("hoi_box"), "grasp", Path(tempfile.mkdtemp()), asset)
+    mujoco.mj_kinematics(run.model, run.data)
+    bp, bq = run.bone_poses()
+    op, oq = run.object_poses()
+    place = rest_placement(asset, bp[0], bq[0])
+    cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device="cpu")
+    w = 2
+    hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)), objects=run.specs,
+                         spacing=1.0)
+    pos, quat = np.tile(bp, (w, 1, 1)), np.tile(bq, (w, 1, 1))
+    hands.settle(pos, quat)
+    op, oq = np.tile(op, (w, 1, 1)), np.tile(oq, (w, 1, 1))
+    hands.set_object_poses(op, oq)
+    for _ in range(5):  # (the first three list at the frame margin: the grasp starts inside the box)
+        hands.step(pos, quat, op, oq)
+    c = hands.solver.contact
+    assert c.query_shift is not None
+    used = c.slack_report.numpy()[:, 0]  # (m, each world's slack its last lists were made with)
+    assert np.all(used < cfg.contact_frame_margin)
+    x0 = c.x_start.numpy() + c.query_shift.numpy()  # the frame's start, where the worlds were queried
+    d0, _ = _brute_force(c, _cpu_arr(x0), np.zeros(c.points.pts.shape[0]))
+    world = c.points.geom.numpy() // c.geoms_per_world
+    is_feature = np.zeros(len(d0), bool)
+    is_feature[c.points.feature.numpy()] = True
+    listed = np.zeros(len(d0), bool)
+    listed[c.feat.numpy()[: int(c.feat_count.numpy()[0])]] = True
+    lim = cfg.contact_margin + cfg.feature_list_share * used[world]
+    ask = cfg.contact_margin + used[world]
+    edge = (np.abs(d0 - lim) < 1e-7) | (np.abs(d0 - ask) < 1e-7)  # (float rounding at the cuts)
+    inside = _pseudo_inside(c, _cpu_arr(x0), cfg.contact_frame_margin)
+    want = is_feature & ((d0 <= lim) | (inside & (d0 <= cfg.contact_frame_margin)))
+    assert not np.any((listed != want) & ~edge)
+    band = is_feature & ~listed & (d0 <= ask) & ~edge
+    assert band.sum() > 50 and set(np.unique(world[band])) == {0, 1}
+    np.testing.assert_allclose(c.pt_dist.numpy()[band], d0[band], atol=1e-6)
+    assert np.all(c.pt_face.numpy()[band] == -1)
+    beyond = is_feature & ~listed & (d0 > ask) & ~edge
+    assert beyond.any() and np.all(c.pt_dist.numpy()[beyond] >= UNLISTED)
+
+
+def _cpu_arr(x):
+    return wp.array(np.asarray(x, np.float32), dtype=wp.vec3, device="cpu")
