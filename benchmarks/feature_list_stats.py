@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
-from pathlib import Path
 
-import numpy as np
 
 
 def main() -> None:
@@ -29,14 +26,11 @@ def main() -> None:
     p.add_argument("--scan", action="store_true", help="CUDA's feature kernels (a thread per feature) on the CPU")
     p.add_argument("--config", default="{}", help="Config fields as JSON")
     a = p.parse_args()
-    import mujoco
     import warp as wp
 
     import physhand_mj as ph
-    from physhand_mj.batch import BatchedHands
-    from physhand_mj.batch_rollout import _Run
+    from physhand_mj.batch_rollout import replicated_batch
     from physhand_mj.contact.contact import Contact
-    from physhand_mj.coupling import rest_placement
 
     if a.scan:
         init = Contact.__init__
@@ -47,19 +41,9 @@ def main() -> None:
 
         Contact.__init__ = scan_init
     wp.init()
-    asset, W = ph.load_asset(), a.worlds
-    run = _Run(0, ph.scene_path(f"hoi_{a.scene}"), "grasp", Path(tempfile.mkdtemp()), asset)
-    mujoco.mj_kinematics(run.model, run.data)
-    bp, bq = run.bone_poses()
-    op, oq = run.object_poses()
-    place = rest_placement(asset, bp[0], bq[0])
-    cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device="cpu", **json.loads(a.config))
-    hands = BatchedHands(asset, W, cfg, np.tile(place[0], (W, 1)), np.tile(place[1], (W, 1)), objects=run.specs,
-                         spacing=1.0)
-    pos, quat = np.tile(bp, (W, 1, 1)), np.tile(bq, (W, 1, 1))
-    hands.settle(pos, quat)
-    op, oq = np.tile(op, (W, 1, 1)), np.tile(oq, (W, 1, 1))
-    hands.set_object_poses(op, oq)
+    hands, (pos, quat, op, oq) = replicated_batch(ph.load_asset(), ph.scene_path(f"hoi_{a.scene}"), "grasp", a.worlds,
+                                                  **json.loads(a.config))
+    cfg, W = hands.solver.config, a.worlds
     c = hands.solver.contact
     for f in range(a.frames):
         t = time.perf_counter()

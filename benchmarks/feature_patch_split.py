@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -100,11 +99,9 @@ def angle_only(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), feat: w
 
 def main() -> None:
     import physhand_mj as ph
-    from physhand_mj.batch import BatchedHands
-    from physhand_mj.batch_rollout import _Run
+    from physhand_mj.batch_rollout import replicated_batch
     from physhand_mj.bench import device_name
     from physhand_mj.contact.contact import PATCH_SLOT
-    from physhand_mj.coupling import rest_placement
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
@@ -117,23 +114,10 @@ def main() -> None:
     wp.init()
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
     asset = ph.load_asset()
-    with tempfile.TemporaryDirectory() as tmp:
-        run = _Run(0, ph.scene_path(f"hoi_{a.scene}"), "grasp", Path(tmp), asset)
-        import mujoco
-        mujoco.mj_kinematics(run.model, run.data)
-        bone_pos, bone_quat = run.bone_poses()
-        obj_pos, obj_quat = run.object_poses()
-        place = rest_placement(asset, bone_pos[0], bone_quat[0])
-        w = a.worlds
-        cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device=a.device, **json.loads(a.config))
-        hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)),
-                             objects=run.specs, spacing=1.0)
-        pos, quat = np.tile(bone_pos, (w, 1, 1)), np.tile(bone_quat, (w, 1, 1))
-        hands.settle(pos, quat)
-        op, oq = np.tile(obj_pos, (w, 1, 1)), np.tile(obj_quat, (w, 1, 1))
-        hands.set_object_poses(op, oq)
-        for _ in range(3):
-            hands.step(pos, quat, op, oq)
+    hands, args = replicated_batch(asset, ph.scene_path(f"hoi_{a.scene}"), "grasp", a.worlds, device=a.device,
+                                   **json.loads(a.config))
+    for _ in range(3):
+        hands.step(*args)
     c, state = hands.solver.contact, hands.state
     if c is None or c.feat is None or not c.config.feature_winding:
         raise SystemExit("no feature points with the local winding number (Config.feature_winding): nothing to split")
@@ -197,7 +181,7 @@ def main() -> None:
         wp.launch(winding_only, n, inputs=[volw.mesh.id, *common, beta], outputs=[tmp_f], device=d)
         wn[beta] = tmp_f.numpy()[:listed].astype(np.float64)
     frac = {b: float(np.abs(v - np.round(v)).max()) if listed else 0.0 for b, v in wn.items()}
-    info = dict(device=dev, scene=a.scene, worlds=w, listed=listed, patch_len_mean=float(lens[lens >= 0].mean()),
+    info = dict(device=dev, scene=a.scene, worlds=a.worlds, listed=listed, patch_len_mean=float(lens[lens >= 0].mean()),
                 patch_len_max=int(lens.max()), overflow=int((lens < 0).sum()),
                 winding_off_integer_max=frac[2.0], winding_beta1_off_integer_max=frac[1.0],
                 winding_beta1_rounding_differs=int((np.round(wn[1.0]) != np.round(wn[2.0])).sum()),

@@ -105,6 +105,37 @@ class _Run:
         return self.data.geom_xpos[self.geoms].copy(), geom_quats(self.data, self.geoms)
 
 
+def replicated_batch(asset, scene, key, worlds: int, device: str = "cpu", spacing: float = 1.0, **config):
+    """``worlds`` copies of one scene's keyframe in one :class:`~physhand_mj.batch.BatchedHands`, set up
+    as a batched rollout sets up its batch (the rest placement, the settling frames without contact,
+    the objects placed), to be held where the keyframe puts bones and objects (the HOI benchmarks'
+    setting: Table 2's held grasp). The Config: the scene's time step, 10 substeps, ``device`` and
+    the ``config`` fields. Returns (hands, (bone_pos, bone_quat, obj_pos, obj_quat)), the last four
+    tiled per world: the arguments of ``hands.step`` that hold the keyframe."""
+    import tempfile
+
+    import mujoco
+
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.coupling import rest_placement
+
+    w = int(worlds)
+    run = _Run(0, scene, key, Path(tempfile.gettempdir()), asset)  # (writes nothing: no log is opened)
+    mujoco.mj_kinematics(run.model, run.data)
+    bone_pos, bone_quat = run.bone_poses()
+    obj_pos, obj_quat = run.object_poses()
+    place = rest_placement(asset, bone_pos[0], bone_quat[0])
+    cfg = ph.Config(**{"frame_dt": float(run.model.opt.timestep), "substeps": 10, "device": device, **config})
+    hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)), objects=run.specs,
+                         spacing=spacing)
+    pos, quat = np.tile(bone_pos, (w, 1, 1)), np.tile(bone_quat, (w, 1, 1))
+    hands.settle(pos, quat)
+    op, oq = np.tile(obj_pos, (w, 1, 1)), np.tile(obj_quat, (w, 1, 1))
+    hands.set_object_poses(op, oq)
+    return hands, (pos, quat, op, oq)
+
+
 def rollout_batched(targets, out, *, worlds: int, steps: int = 36, substeps: int = 10, contact: str = "multires",
                     device: str | None = None, config: dict | None = None, emit=None, progress: bool = True,
                     spacing: float | None = None, on_start=None, measure_every: int = 1) -> list[dict]:

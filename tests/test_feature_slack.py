@@ -395,27 +395,10 @@ def test_band_points_in_batched_worlds(asset):
     listed points are those within contact_margin + s_w / 2 of their own world's skin (or inside by
     its pseudo normals), the points past that and within contact_margin + s_w are measured (their
     distance in pt_dist, pt_face -1), all by brute force over the shifted skin (worlds 1 m apart)."""
-    import mujoco
-    import tempfile
-    from pathlib import Path
+    from physhand_mj.batch_rollout import replicated_batch
 
-    from physhand_mj.batch import BatchedHands
-    from physhand_mj.batch_rollout import _Run
-    from physhand_mj.coupling import rest_placement
-
-    run = _Run(0, ph.scene_path("hoi_box"), "grasp", Path(tempfile.mkdtemp()), asset)
-    mujoco.mj_kinematics(run.model, run.data)
-    bp, bq = run.bone_poses()
-    op, oq = run.object_poses()
-    place = rest_placement(asset, bp[0], bq[0])
-    cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device="cpu")
-    w = 2
-    hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)), objects=run.specs,
-                         spacing=1.0)
-    pos, quat = np.tile(bp, (w, 1, 1)), np.tile(bq, (w, 1, 1))
-    hands.settle(pos, quat)
-    op, oq = np.tile(op, (w, 1, 1)), np.tile(oq, (w, 1, 1))
-    hands.set_object_poses(op, oq)
+    hands, (pos, quat, op, oq) = replicated_batch(asset, ph.scene_path("hoi_box"), "grasp", 2)
+    cfg = hands.solver.config
     for _ in range(5):  # (the first three list at the frame margin: the grasp starts inside the box)
         hands.step(pos, quat, op, oq)
     c = hands.solver.contact
