@@ -42,10 +42,12 @@
 #   s38_a, s38_b, s38_c   (2026-11-27, fourth session) Config.feature_list_share: the box at W = 4,096 with
 #            the lists at keep + s / 2 and keep + s on one machine, 30 frames, the cache back; the other grasps at
 #            W = 4,096 and the box's kernel split; the solver alone at W = 4,096 and the CUDA tests
+#   s39_a, s39_b, s39_c   (2026-11-27, fifth session) the bowl (a mesh) at W = 1,024 and its kernel split, the cache
+#            back; glass 1 and 2, then the apple and the toothpaste at W = 4,096 (two grasps a call)
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b or s38_c}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b or s39_c}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -379,6 +381,22 @@ case $phase in
     done
     step box_profile 120 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
       --out docs/benchmarks/batch_hoi_cuda_box_s38_profile.json
+    ;;
+  s39_a)  # (2026-11-27, fifth session) the bowl, issue 15's one grasp under 10,000: W = 1,024, its kernel split
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
+      --format=csv
+    step bowl_1024 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s39_1024.json
+    step bowl_profile 200 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s39_profile.json
+    step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
+    ;;
+  s39_b|s39_c)  # the other grasps at W = 4,096 with the current code, two a call (280 s each)
+    if [ "$phase" = s39_b ]; then grasps="glass1 glass2"; else grasps="apple toothpaste"; fi
+    for s in $grasps; do
+      step "hoi_$s" 280 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
+        --out "docs/benchmarks/batch_hoi_cuda_${s}_s39_4096.json"
+    done
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
