@@ -137,6 +137,20 @@ def host_split(hands, pos, quat, op, oq, frames: int) -> dict:
     return out
 
 
+def _laps(into: dict, tag: str):
+    """A function lap(name): the wall time (s) since the last lap (or since made) into ``into[name]``,
+    printed to stderr at once, so a run cut by its time limit shows where its time went."""
+    last = [time.perf_counter()]
+
+    def lap(name: str) -> None:
+        now = time.perf_counter()
+        into[name] = round(now - last[0], 2)
+        last[0] = now
+        print(f"{tag} {name}: {into[name]} s", file=sys.stderr, flush=True)
+
+    return lap
+
+
 def main() -> None:
     if "--curves" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --curves [JSON]
         args = [a for a in sys.argv[1:] if a != "--curves"]
@@ -199,17 +213,23 @@ def main() -> None:
                     hands = BatchedHands(asset, w, cfg, np.tile(place[0], (w, 1)), np.tile(place[1], (w, 1)),
                                          objects=run.specs, spacing=1.0)
                     setup_s = time.perf_counter() - t0
+                    phase_s = {}  # wall time of the row's untimed parts (a run cut by a time limit says where)
+                    lap = _laps(phase_s, f"[{scene} W={w}]")
                     pos, quat = np.tile(bone_pos, (w, 1, 1)), np.tile(bone_quat, (w, 1, 1))
                     hands.settle(pos, quat)
+                    lap("settle")
                     op, oq = np.tile(obj_pos, (w, 1, 1)), np.tile(obj_quat, (w, 1, 1))
                     hands.set_object_poses(op, oq)
                     for _ in range(2):
                         hands.step(pos, quat, op, oq)
+                    lap("warmup (compile, record, capture)")
                     t = time.perf_counter()
                     for _ in range(a.frames):
                         out = hands.step(pos, quat, op, oq)
                     ms = (time.perf_counter() - t) / a.frames * 1e3
+                    lap("timed frames")
                     pen = hands.penetration()
+                    lap("order 5 and object points")
                     row = dict(scene=scene, worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
                                setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
                                triangles_tested=out.get("triangles_tested"),
@@ -223,6 +243,8 @@ def main() -> None:
                         dense = hands.solver.contact.measure_worlds(hands.state, order=9, check=True)
                         row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2),
                                    check_count_max=int(dense[:, 3].max()), check_max_um=round(float(dense[:, 5].max()) * 1e6, 2))
+                        lap("order 9 and check points")
+                    row["phases_s"] = phase_s
                     if a.host_split:  # the frame's host parts, timed apart (the solver's step syncs once)
                         row["host_split_ms"] = host_split(hands, pos, quat, op, oq, a.frames)
                     if a.profile and hands.solver.device.is_cuda:

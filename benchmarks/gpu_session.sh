@@ -43,11 +43,14 @@
 #            the lists at keep + s / 2 and keep + s on one machine, 30 frames, the cache back; the other grasps at
 #            W = 4,096 and the box's kernel split; the solver alone at W = 4,096 and the CUDA tests
 #   s39_a, s39_b, s39_c   (2026-11-27, fifth session) the bowl (a mesh) at W = 1,024 and its kernel split, the cache
-#            back; glass 1 and 2, then the apple and the toothpaste at W = 4,096 (two grasps a call)
+#            back; glass 1 and 2, then the apple and the toothpaste at W = 4,096 (two grasps a call) (s39_a ran past its
+#            limits, nothing printed: batch_hoi.py now prints each phase's wall time to stderr)
+#   s39_d, s39_e  the near faces' pruned loop (sdf.sdf_mesh_near): its CUDA tests and the bowl at W = 256 with the
+#            kernel split; the bowl at W = 1,024 and the cache back
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b or s39_c}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d or s39_e}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -58,7 +61,7 @@ step() {  # step NAME SECONDS command...
   timeout "$limit" "$@" >"$OUT/logs/$name.log" 2>&1
   local rc=$?
   echo "[$name] rc=$rc $((SECONDS - t0)) s"
-  tail -n 4 "$OUT/logs/$name.log" | cut -c1-300
+  tail -n 8 "$OUT/logs/$name.log" | cut -c1-300
 }
 case $phase in
   tests)
@@ -397,6 +400,16 @@ case $phase in
       step "hoi_$s" 280 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 4096 --frames 10 \
         --out "docs/benchmarks/batch_hoi_cuda_${s}_s39_4096.json"
     done
+    ;;
+  s39_d)  # sdf_mesh_near's pruned loop: its CUDA tests, then the bowl's kernel split at W = 256
+    step pytest_near 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "near" tests/test_mesh_sdf.py
+    step bowl_256_profile 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 256 --frames 5 \
+      --profile --out docs/benchmarks/batch_hoi_cuda_bowl_s39_256_profile.json
+    ;;
+  s39_e)  # the bowl at W = 1,024 (10 frames), then the kernel cache back
+    step bowl_1024 420 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s39_1024.json
+    step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

@@ -411,7 +411,7 @@ def _near_lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), 
     b = tri[3 * t + 1]
     c = tri[3 * t + 2]
     m, r = triangle_bound(a, b, c)
-    ids, n = mesh_near_faces(mesh, m, r, size[0])
+    ids, dist, n = mesh_near_faces(mesh, m, r, size[0])
     n_near[t] = n
     k = int(0)
     for i in range(order + 1):
@@ -421,7 +421,7 @@ def _near_lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), 
             p = a * (1.0 - u - v) + b * u + c * v
             exact[t, k] = geom_sdf(int(GeomType.MESH), p, size, wp.vec2ul(mesh, wp.uint64(0)))
             if n >= 0:
-                near[t, k] = sdf_mesh_near(p, size, mesh, ids, n)
+                near[t, k] = sdf_mesh_near(p, size, mesh, ids, dist, n, m)
             k += 1
 
 

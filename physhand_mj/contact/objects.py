@@ -225,7 +225,7 @@ NEAR_FACES_SHARE = 0.75  # ... and the share of probes that must find them under
 def _near_faces_count(mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), count: wp.array(dtype=int)):
     t = wp.tid()
     m, r = triangle_bound(tri[3 * t], tri[3 * t + 1], tri[3 * t + 2])
-    ids, n = mesh_near_faces(mesh, m, r, 1.0e6)
+    ids, dist, n = mesh_near_faces(mesh, m, r, 1.0e6)
     count[t] = n
 
 

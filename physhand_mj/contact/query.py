@@ -33,7 +33,7 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_grad,
-                                     mesh_near_faces, mesh_near_ids, sdf_mesh_near)
+                                     mesh_near_dist, mesh_near_faces, mesh_near_ids, sdf_mesh_near)
 from physhand_mj.types import Strategy
 
 VERTEX = wp.constant(int(Strategy.VERTEX))
@@ -368,13 +368,15 @@ def decide_triangle(
         # ids): its faces near the triangle, found once, answer every sample of both rounds
         # (sdf.mesh_near_faces; n_near = -1: the BVH per sample)
         near_ids = mesh_near_ids()
+        near_d = mesh_near_dist()
+        lm = wp.vec3(0.0)
         n_near = int(-1)
         if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf.MESH_SIGN_PSEUDO_NEAR
             la = wp.transform_point(s_inv, a)
             lb = wp.transform_point(s_inv, b)
             lc = wp.transform_point(s_inv, c)
             lm, lr = triangle_bound(la, lb, lc)
-            near_ids, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
+            near_ids, near_d, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
         for r in range(rounds):
             # the three lowest samples of this round, ascending
             d0 = float(FAR)
@@ -391,7 +393,7 @@ def decide_triangle(
                     p = ta * (1.0 - u - v) + tb * u + tc * v
                     d = float(FAR)
                     if n_near >= 0:
-                        d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, n_near)
+                        d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near, lm)
                     else:
                         d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh,
                                    base, n_geoms, near)
@@ -401,7 +403,7 @@ def decide_triangle(
                 p = (ta + tb + tc) * (1.0 / 3.0)
                 d = float(FAR)
                 if n_near >= 0:
-                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, n_near)
+                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near, lm)
                 else:
                     d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
                                n_geoms, near)

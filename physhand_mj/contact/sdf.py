@@ -283,6 +283,7 @@ def sdf_mesh_grad(p: wp.vec3, size: wp.vec3, ids: wp.vec2ul):
 # objects.NEAR_FACES_MEDIAN faces near (objects.near_faces_pay).
 MESH_NEAR_CAP = 16
 mesh_near_ids = wp.types.vector(length=MESH_NEAR_CAP, dtype=wp.int32)
+mesh_near_dist = wp.types.vector(length=MESH_NEAR_CAP, dtype=wp.float32)
 
 
 @wp.func
@@ -307,16 +308,13 @@ def mesh_face_closest(mesh: wp.uint64, f: int, p: wp.vec3):
 
 
 @wp.func
-def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
-    """(ids, n): the faces of ``mesh`` within d(m) + 2 r of ``m`` (mesh frame, m), n of them in
-    ids[:n]; n = -1 when they are more than MESH_NEAR_CAP or nothing is within ``query_range`` of m
-    (then query each point the usual way). Float rounding of the points' transforms is covered by a
+def mesh_faces_within(mesh: wp.uint64, m: wp.vec3, dm: float, r: float):
+    """(ids, dist, n): the faces of ``mesh`` within ``dm`` + 2 r of ``m`` (mesh frame, m; ``dm``: m's
+    distance from the mesh), n of them in ids[:n], their distances from m (m) in dist[:n]; n = -1
+    when they are more than MESH_NEAR_CAP. Float rounding of the points' transforms is covered by a
     slack of 1e-6 |m| + 1e-7 m."""
     ids = mesh_near_ids()
-    hit = wp.mesh_query_point_no_sign(mesh, m, query_range)
-    if not hit.result:
-        return ids, -1
-    dm = wp.length(m - wp.mesh_eval_position(mesh, hit.face, hit.u, hit.v))
+    dist = mesh_near_dist()
     reach = (dm + 2.0 * r) * (1.0 + 1.0e-5) + 1.0e-7 + 1.0e-6 * wp.max(wp.abs(m))
     n = int(0)
     query = wp.mesh_query_aabb(mesh, m - wp.vec3(reach), m + wp.vec3(reach))
@@ -325,25 +323,59 @@ def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
         d2, u, v = mesh_face_closest(mesh, f, m)
         if d2 >= 0.0 and d2 <= reach * reach:
             if n == MESH_NEAR_CAP:
-                return ids, -1
+                return ids, dist, -1
             ids[n] = f
+            dist[n] = wp.sqrt(d2)
             n += 1
-    return ids, n
+    return ids, dist, n
 
 
 @wp.func
-def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, n: int):
+def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
+    """(ids, dist, n): the faces of ``mesh`` within d(m) + 2 r of ``m`` (mesh frame, m), n of them in
+    ids[:n], their distances from m (m) in dist[:n] (:func:`mesh_faces_within`); n = -1 when they
+    are more than MESH_NEAR_CAP or nothing is within ``query_range`` of m (then query each point the
+    usual way)."""
+    hit = wp.mesh_query_point_no_sign(mesh, m, query_range)
+    if not hit.result:
+        return mesh_near_ids(), mesh_near_dist(), -1
+    dm = wp.length(m - wp.mesh_eval_position(mesh, hit.face, hit.u, hit.v))
+    return mesh_faces_within(mesh, m, dm, r)
+
+
+@wp.func
+def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
+                  m: wp.vec3):
     """phi (m) of a pseudo-normal-signed mesh at ``p`` (mesh frame) whose closest face is among
-    ids[:n] (:func:`mesh_near_faces`): :func:`sdf_mesh_grad`'s value without the BVH walk."""
+    ids[:n] (:func:`mesh_near_faces` about ``m``): :func:`sdf_mesh_grad`'s value without the BVH
+    walk. The face nearest m is tested first; a face whose distance from p is provably larger than
+    the best so far (its distance from m less |p - m|, a distance being 1-Lipschitz, less a rounding
+    slack) is skipped. Ties keep the earlier face in ids, as testing them in order does: the same
+    face, barycentrics and phi as the plain loop."""
+    first = int(0)
+    for k in range(1, n):
+        if dist[k] < dist[first]:
+            first = k
+    rho = wp.length(p - m) + 1.0e-7 + 1.0e-6 * wp.max(wp.abs(m))
     best = size[0] * size[0]
     face = int(-1)
+    pos = int(n)
     bu = float(0.0)
     bv = float(0.0)
-    for k in range(n):
+    for j in range(n + 1):
+        k = first
+        if j > 0:
+            k = j - 1
+            if k == first:
+                continue
+            lb = dist[k] - rho
+            if lb > 0.0 and lb * lb * (1.0 - 1.0e-5) > best:
+                continue
         d2, u, v = mesh_face_closest(mesh, ids[k], p)
-        if d2 >= 0.0 and d2 < best:
+        if d2 >= 0.0 and (d2 < best or (d2 == best and k < pos)):
             best = d2
             face = ids[k]
+            pos = k
             bu = u
             bv = v
     if face < 0:
