@@ -300,6 +300,16 @@ def mesh_face_closest(mesh: wp.uint64, f: int, p: wp.vec3):
     e2 = x2 - x1
     if wp.length(wp.cross(e0, e1)) / (wp.dot(e0, e0) + wp.dot(e1, e1) + wp.dot(e2, e2)) < 1.0e-6:
         return -1.0, 0.0, 0.0
+    return mesh_face_closest_kept(mesh, f, p)
+
+
+@wp.func
+def mesh_face_closest_kept(mesh: wp.uint64, f: int, p: wp.vec3):
+    """:func:`mesh_face_closest` for a face known not to be a sliver (:func:`mesh_faces_within`
+    keeps no sliver): the same (squared distance, u, v) without the sliver test."""
+    x0 = wp.mesh_get_point(mesh, 3 * f)
+    x1 = wp.mesh_get_point(mesh, 3 * f + 1)
+    x2 = wp.mesh_get_point(mesh, 3 * f + 2)
     bc = closest_on_triangle(x0, x1, x2, p)
     v = bc[1]
     w = 1.0 - bc[0] - v
@@ -371,8 +381,8 @@ def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids
             lb = dist[k] - rho
             if lb > 0.0 and lb * lb * (1.0 - 1.0e-5) > best:
                 continue
-        d2, u, v = mesh_face_closest(mesh, ids[k], p)
-        if d2 >= 0.0 and (d2 < best or (d2 == best and k < pos)):
+        d2, u, v = mesh_face_closest_kept(mesh, ids[k], p)
+        if d2 < best or (d2 == best and k < pos):
             best = d2
             face = ids[k]
             pos = k
