@@ -230,6 +230,9 @@ def main() -> None:
                     lap("timed frames")
                     pen = hands.penetration()
                     lap("order 5 and object points")
+                    print(f"[{scene} W={w}] {w / ms * 1e3:.1f} hand-frames/s; worst world inside: order 5 "
+                          f"{max(r['penetration_count'] for r in pen)}, object points "
+                          f"{max(r['object_in_skin_count'] for r in pen)}", file=sys.stderr, flush=True)
                     row = dict(scene=scene, worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
                                setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
                                triangles_tested=out.get("triangles_tested"),

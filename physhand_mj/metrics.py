@@ -22,6 +22,8 @@ from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.query import scene_phi, world_phi
 from physhand_mj.contact.sdf import geom_sdf
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 ORDER = 5  # 21 samples per triangle
 
 

@@ -37,6 +37,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 REGION_NAMES = ("palm", "thumb", "index", "middle", "ring", "little")
 BOUND_SLACK = 0.005  # m: a region's skin bound beyond its soft vertices' rest distance from their bone
 

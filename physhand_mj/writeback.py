@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.kernel
 def to_mesh_frame(x: wp.array(dtype=wp.vec3), frame: wp.array(dtype=float), local: wp.array(dtype=wp.vec3),

@@ -21,6 +21,8 @@ import numpy as np
 import trimesh
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 log = logging.getLogger(__name__)
 wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # keep stdout for the CLI JSON line
 

@@ -22,6 +22,8 @@ import warp as wp
 
 from physhand_mj.contact.sdf import MESH, geom_sdf, grid_lower_bound
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.func
 def triangle_bound(a: wp.vec3, b: wp.vec3, c: wp.vec3):

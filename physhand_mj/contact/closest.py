@@ -6,6 +6,8 @@ each listed triangle's solid angle (:func:`solid_angle`, the local winding numbe
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 NO_FACE = 2147483647  # a lane that found no triangle (larger than any face index)
 FOUR_PI = 12.566370614359172  # (the local winding number's, contact/winding.py)
 

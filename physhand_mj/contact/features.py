@@ -37,6 +37,8 @@ from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import accumulate, depth_weight
 from physhand_mj.contact.winding import closest_scan, closest_tiled, winding_sign
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.kernel
 def near_features(

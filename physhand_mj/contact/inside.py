@@ -19,6 +19,8 @@ import warp as wp
 from physhand_mj.contact.surface import PointKind, mesh_points, primitive_points
 from physhand_mj.types import GeomType
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 INSIDE_RANGE = 0.05  # m: farthest a point inside the hand can be from the skin (the palm is ~3 cm thick)
 
 

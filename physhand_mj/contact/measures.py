@@ -13,6 +13,8 @@ from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, o
                                         object_points_inside_reuse, reset_patches, skin_patches)
 from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 # the independent check's object points (Contact.check_points): each edge piece that holds a feature
 # point (Config.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
 # a feature point; surface rings of revolution shifted half a step off the cone's slant line), the

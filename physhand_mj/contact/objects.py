@@ -18,6 +18,8 @@ from physhand_mj.contact.sdf import (GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO, MESH_
                                      WINDING_ACCURACY, mesh_near_faces, sdf_mesh_grad)
 from physhand_mj.types import GeomType
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 # mujoco.mjtGeom values of the geoms the skin can collide with (height fields and SDF plugins are not)
 MJ_GEOM_TYPES = {0: GeomType.PLANE, 2: GeomType.SPHERE, 3: GeomType.CAPSULE, 4: GeomType.ELLIPSOID,
                  5: GeomType.CYLINDER, 6: GeomType.BOX, 7: GeomType.MESH}

@@ -36,6 +36,8 @@ from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MES
                                      mesh_near_dist, mesh_near_faces, mesh_near_ids, sdf_mesh_near)
 from physhand_mj.types import Strategy
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 VERTEX = wp.constant(int(Strategy.VERTEX))
 OPT = wp.constant(int(Strategy.OPT))
 MULTIRES = wp.constant(int(Strategy.MULTIRES))

@@ -13,6 +13,8 @@ from physhand_mj.contact.broadphase import world_geoms
 from physhand_mj.contact.query import geom_data, lattice_order, only_geom, phi_at, project
 from physhand_mj.contact.sdf import FAR
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 TILE_LANES = 32  # lanes per triangle in the CUDA multires kernel (>= the lattice's sample count)
 
 

@@ -37,6 +37,8 @@ import warp as wp
 from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.types import GeomType
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 PLANE = wp.constant(int(GeomType.PLANE))
 SPHERE = wp.constant(int(GeomType.SPHERE))
 CAPSULE = wp.constant(int(GeomType.CAPSULE))

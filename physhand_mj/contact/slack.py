@@ -32,6 +32,8 @@ import warp as wp
 
 from physhand_mj.contact.inside import object_point
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 FAST_PER_WORLD = 32  # fast skin vertices a world's frame check keeps (more: the world's frame is flagged)
 UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
 

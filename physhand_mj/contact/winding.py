@@ -29,6 +29,8 @@ from physhand_mj.contact.closest import (FOUR_PI, closest_on_triangle, closest_s
                                          scan_closest, solid_angle)
 from physhand_mj.contact.inside import object_point, winding_number
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.func
 def patch_angle(p: wp.vec3, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), pool: wp.array(dtype=int),

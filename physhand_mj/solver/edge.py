@@ -4,6 +4,8 @@ import warp as wp
 
 from physhand_mj.solver.gather import constraint_at, idle, scatter
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.func
 def edge_correction(x1: wp.vec3, x2: wp.vec3, w1: float, w2: float, rest: float, at: float, lam_j: float):

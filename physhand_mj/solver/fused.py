@@ -53,6 +53,8 @@ from physhand_mj.solver.integrate import finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 # Threads per world's block on CUDA (the CPU runs one lane per block). 640 since 2026-11-27: with the
 # fixed-point sum the kernel needs more than the 64 registers a thread that 1,024 threads leave (it
 # spilled); W = 4,096 on one H100, hand-frames/s: 384 threads 29,820, 512 36,271, 576 37,919, 640

@@ -19,6 +19,8 @@ from physhand_mj.solver.edge import edge_correction
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import tet_correction
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.func
 def edges_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),

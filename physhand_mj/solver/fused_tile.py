@@ -10,6 +10,8 @@ from typing import Any
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 # Shared tiles are written through the two native helpers below, which add to one element and leave
 # out Warp's barrier: every Warp builtin that writes a tile element (``tile[i] = v``, ``tile[i] += v``,
 # ``wp.tile_scatter_add``) ends in ``__syncthreads``, and one barrier per constraint corner kept a

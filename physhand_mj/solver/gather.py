@@ -31,6 +31,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.func
 def scatter(delta: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.vec3), slot: int, i: int, dx: wp.vec3):

@@ -5,6 +5,8 @@ import warp as wp
 from physhand_mj.solver.gather import gathered, gathered_lanes
 from physhand_mj.solver.tet import six_volume
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 @wp.func
 def count_guard(guard: wp.array(dtype=int), k: int, world: int):

@@ -10,6 +10,8 @@ import warp as wp
 
 from physhand_mj.solver.gather import constraint_at, idle, scatter
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 
 
 @wp.func

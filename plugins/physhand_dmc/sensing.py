@@ -29,6 +29,8 @@ import warp as wp
 
 from physhand_mj import SoftHand
 
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
 # The embedded MyoHand's anatomical regions: skin vertices go to the body of their nearest skeleton
 # vertex (the asset's flesh/skin attachment pairs); metacarpal and carpal skin is split into palm and
 # back by the side of the bone it lies on (the asset's palm normal).
