@@ -15,8 +15,8 @@ import warp as wp
 
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad, mesh_near_faces,
-                                     sdf_mesh_near)
+from physhand_mj.contact.sdf import (FAR, MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad,
+                                     mesh_face_closest, mesh_near_faces, mesh_near_ids, mesh_signed, sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -493,6 +493,98 @@ def test_near_faces_answer_every_sample_as_the_bvh_does(shape, device):
                n_near], device=device)
     assert (n_near.numpy() == -1).mean() > 0.9
     assert int(objs._host["size"][0][1]) == MESH_SIGN_PSEUDO  # and Objects.add leaves it to the BVH walk
+
+
+@wp.func
+def _plain_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, n: int):
+    """sdf_mesh_near as first written: every listed face tested in order, the first strictly closest kept."""
+    best = size[0] * size[0]
+    face = int(-1)
+    bu = float(0.0)
+    bv = float(0.0)
+    for k in range(n):
+        d2, u, v = mesh_face_closest(mesh, ids[k], p)
+        if d2 >= 0.0 and d2 < best:
+            best = d2
+            face = ids[k]
+            bu = u
+            bv = v
+    if face < 0:
+        return FAR
+    d, g = mesh_signed(p, mesh, face, bu, bv, False, 1.0)
+    return d
+
+
+@wp.kernel
+def _pruned_and_plain(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), order: int,
+                      pruned: wp.array2d(dtype=float), plain: wp.array2d(dtype=float), n_near: wp.array(dtype=int)):
+    t = wp.tid()
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    m, r = triangle_bound(a, b, c)
+    ids, dist, n = mesh_near_faces(mesh, m, r, size[0])
+    n_near[t] = n
+    if n < 0:
+        return
+    k = int(0)
+    for i in range(order + 1):
+        for j in range(order + 1 - i):
+            p = a * (1.0 - float(i + j) / float(order)) + b * (float(i) / float(order)) + c * (float(j) / float(order))
+            pruned[t, k] = sdf_mesh_near(p, size, mesh, ids, dist, n, m)
+            plain[t, k] = _plain_near(p, size, mesh, ids, n)
+            k += 1
+
+
+def diagonal_triangles(mesh, n_per_edge=40, seed=5, spread=1.2e-3):
+    """Small triangles centred on the flat edges of ``mesh`` (a box's face diagonals: two coplanar
+    faces, every point above the edge equally close to both), 0-3 mm out."""
+    rng = np.random.default_rng(seed)
+    flat = mesh.face_adjacency_angles < 1e-6
+    out = []
+    for (v0, v1), (f0, _) in zip(mesh.face_adjacency_edges[flat], mesh.face_adjacency[flat]):
+        a, b = mesh.vertices[v0], mesh.vertices[v1]
+        for _ in range(n_per_edge):
+            centre = a + (b - a) * rng.uniform(0.1, 0.9) + mesh.face_normals[f0] * rng.uniform(0.0, 3e-3)
+            out.append(centre + rng.normal(size=(3, 3)) * spread)
+    return np.asarray(out, np.float32)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("shape", ["bowl", "box", "star"])
+def test_pruned_near_faces_answer_as_the_plain_loop(shape, device):
+    """sdf_mesh_near tests the face nearest the triangle's centre first and skips the faces that its
+    distance bound proves farther than the best so far: the same phi as testing every listed face in
+    order, bit for bit, ties included (points over a box's face diagonals, equally close to its two
+    triangles), inside and outside, on the order-9 lattice. (Fails with the bound's |p - m| left out.
+    Keeping the seed face at a tie gives the same phi here too: the two faces' closest points round
+    alike, so the tie rule itself is not observable through phi in these cases.)"""
+    from physhand_mj import scene_path
+
+    if shape == "bowl":
+        mesh = trimesh.load(scene_path("hoi_bowl").parent / "assets" / "bowl.stl")
+    elif shape == "star":
+        mesh = star_prism()[0]
+    else:
+        mesh = CONVEX[shape]()
+    objs = Objects(device, 1)
+    objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="m", mesh_range=1.0)
+    tri = small_triangles(mesh, 600, seed=7)
+    if shape == "box":
+        tri = np.concatenate([tri, diagonal_triangles(mesh)])
+    order = 9
+    k = (order + 1) * (order + 2) // 2
+    pruned = wp.full((len(tri), k), np.nan, dtype=float, device=device)
+    plain = wp.full((len(tri), k), np.nan, dtype=float, device=device)
+    n_near = wp.zeros(len(tri), dtype=int, device=device)
+    wp.launch(_pruned_and_plain, len(tri), [wp.vec3(*objs._host["size"][0]), wp.uint64(int(objs._host["mesh"][0][0])),
+                                            wp.array(tri.reshape(-1, 3), dtype=wp.vec3, device=device), order],
+              [pruned, plain, n_near], device=device)
+    used = n_near.numpy() >= 0
+    assert used.mean() > 0.6 and (n_near.numpy()[used] > 1).mean() > 0.5  # several faces to choose from
+    q, e = pruned.numpy()[used], plain.numpy()[used]
+    assert (e < 0).sum() > 1000 and (e > 0).sum() > 1000  # inside and outside
+    assert np.array_equal(q, e), f"{(q != e).sum()} of {q.size} samples differ, at most {np.abs(q - e).max()} m"
 
 
 def test_a_contact_run_is_the_same_with_and_without_the_near_faces(monkeypatch):
