@@ -319,12 +319,36 @@ def mesh_face_closest_kept(mesh: wp.uint64, f: int, p: wp.vec3):
     return wp.length_sq(c - p), 1.0 - v - w, v
 
 
+NEAR_ROUNDING = wp.constant(1.0e-7)  # m^-1: a listed face's rounding allowance per (longest edge / sliver ratio^2)
+
+
+@wp.func
+def face_rounding(mesh: wp.uint64, f: int):
+    """An upper bound (m) of the float32 rounding in two closest-point distances to face ``f``
+    (mesh_face_closest's, at two points within a few cm of it): NEAR_ROUNDING x L / q^2, L the
+    longest edge, q = |e0 x e1| / sum |e|^2 the sliver ratio (> 1e-6 for a listed face). The
+    barycentric solve loses precision as a face thins: on random points near faces 10 cm long,
+    5 cm to 1 m from the origin, the error reached 3e-8, 3e-6 and 3e-5 m at aspect ratios 0.1, 0.03
+    and 0.01 (this allows 4e-6, 4e-5 and 4e-4 m); a well-shaped face of 1 cm gets ~1e-8 m."""
+    x0 = wp.mesh_get_point(mesh, 3 * f)
+    x1 = wp.mesh_get_point(mesh, 3 * f + 1)
+    x2 = wp.mesh_get_point(mesh, 3 * f + 2)
+    e0 = x1 - x0
+    e1 = x2 - x0
+    e2 = x2 - x1
+    sq = wp.dot(e0, e0) + wp.dot(e1, e1) + wp.dot(e2, e2)
+    q = wp.length(wp.cross(e0, e1)) / sq
+    longest = wp.sqrt(wp.max(wp.dot(e0, e0), wp.max(wp.dot(e1, e1), wp.dot(e2, e2))))
+    return NEAR_ROUNDING * longest / (q * q)
+
+
 @wp.func
 def mesh_faces_within(mesh: wp.uint64, m: wp.vec3, dm: float, r: float):
     """(ids, dist, n): the faces of ``mesh`` within ``dm`` + 2 r of ``m`` (mesh frame, m; ``dm``: m's
-    distance from the mesh), n of them in ids[:n], their distances from m (m) in dist[:n]; n = -1
-    when they are more than MESH_NEAR_CAP. Float rounding of the points' transforms is covered by a
-    slack of 1e-6 |m| + 1e-7 m."""
+    distance from the mesh), n of them in ids[:n]; dist[:n] a lower bound of each one's distance
+    from m (m; its computed distance less :func:`face_rounding`, for :func:`sdf_mesh_near`'s
+    skips); n = -1 when they are more than MESH_NEAR_CAP. No sliver is listed (mesh_face_closest
+    refuses them). Float rounding of the points' transforms is covered by a slack of 1e-6 |m| + 1e-7 m."""
     ids = mesh_near_ids()
     dist = mesh_near_dist()
     reach = (dm + 2.0 * r) * (1.0 + 1.0e-5) + 1.0e-7 + 1.0e-6 * wp.max(wp.abs(m))
@@ -337,7 +361,7 @@ def mesh_faces_within(mesh: wp.uint64, m: wp.vec3, dm: float, r: float):
             if n == MESH_NEAR_CAP:
                 return ids, dist, -1
             ids[n] = f
-            dist[n] = wp.sqrt(d2)
+            dist[n] = wp.sqrt(d2) - face_rounding(mesh, f)
             n += 1
     return ids, dist, n
 
@@ -356,24 +380,26 @@ def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
 
 
 @wp.func
-def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
-                  m: wp.vec3):
-    """phi (m) of a pseudo-normal-signed mesh at ``p`` (mesh frame) whose closest face is among
-    ids[:n] (:func:`mesh_near_faces` about ``m``): :func:`sdf_mesh_grad`'s value without the BVH
-    walk. The face nearest m is tested first; a face whose distance from p is provably larger than
-    the best so far (its distance from m less |p - m|, a distance being 1-Lipschitz, less a rounding
-    slack) is skipped. Ties keep the earlier face in ids, as testing them in order does: the same
-    face, barycentrics and phi as the plain loop."""
+def mesh_near_closest(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
+                      m: wp.vec3):
+    """(face or -1, u, v, squared distance) of ``p``'s closest face among ids[:n] (mesh frame;
+    :func:`mesh_faces_within` about ``m``), within ``size[0]``: what testing every listed face in
+    order gives (the first strictly closest), with fewer tests. The face nearest m goes first; face
+    k is skipped when dist[k] (a lower bound of its distance from m) less |p - m| (and a slack of
+    1e-6 |m| + 1e-7 m) exceeds the best distance so far: a distance is 1-Lipschitz, so it cannot
+    be closer. A tie goes to the face earlier in ids, as in the plain loop."""
+    face = int(-1)
+    best = size[0] * size[0]
+    bu = float(0.0)
+    bv = float(0.0)
+    if n <= 0:
+        return face, bu, bv, best
     first = int(0)
     for k in range(1, n):
         if dist[k] < dist[first]:
             first = k
     rho = wp.length(p - m) + 1.0e-7 + 1.0e-6 * wp.max(wp.abs(m))
-    best = size[0] * size[0]
-    face = int(-1)
-    pos = int(n)
-    bu = float(0.0)
-    bv = float(0.0)
+    pos = int(-1)
     for j in range(n + 1):
         k = first
         if j > 0:
@@ -390,6 +416,16 @@ def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids
             pos = k
             bu = u
             bv = v
+    return face, bu, bv, best
+
+
+@wp.func
+def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
+                  m: wp.vec3):
+    """phi (m) of a pseudo-normal-signed mesh at ``p`` (mesh frame) whose closest face is among
+    ids[:n] (:func:`mesh_near_faces` about ``m``): :func:`sdf_mesh_grad`'s value without the BVH
+    walk, the closest face found by :func:`mesh_near_closest`."""
+    face, bu, bv, best = mesh_near_closest(p, size, mesh, ids, dist, n, m)
     if face < 0:
         return FAR
     d, g = mesh_signed(p, mesh, face, bu, bv, False, 1.0)
