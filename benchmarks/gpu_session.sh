@@ -48,11 +48,14 @@
 #   s39_d, s39_e  the near faces' pruned loop (sdf.sdf_mesh_near): its CUDA tests and the bowl at W = 256 with the
 #            kernel split; the bowl at W = 1,024 and the cache back (run 2026-11-27: s39_d's warm-up compiled for 225 s,
 #            the W = 256 split ran past its limit in the order-9 check)
-#   s39_f    one call on a fresh machine: the bowl at W = 1,024, 5 frames, then its kernel split
+#   s39_f    one call on a fresh machine: the bowl at W = 1,024, 5 frames, then its kernel split (run 2026-11-27: the
+#            warm-up compiled for 376 s; the timed frames printed, the order-9 check ran past the limit)
+#   s40_a, s40_b  (not yet run) after the forward-only modules: the CUDA tests of the near faces' pruning and
+#            the bowl at W = 1,024 with every measure, the cache back; the bowl's kernel split and W = 4,096
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e or s39_f}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a or s40_b}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -416,6 +419,19 @@ case $phase in
   s39_f)  # the bowl at W = 1,024 and its kernel split in one process (one compilation, ~230 s on a fresh machine)
     step bowl_1024_profile 540 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 5 \
       --profile --out docs/benchmarks/batch_hoi_cuda_bowl_s39_1024_profile.json
+    ;;
+  s40_a)  # the near faces' CUDA tests, the bowl at W = 1,024 with all four measures (compile time now without adjoints)
+    step pytest_near 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "near or skip_bound" \
+      tests/test_mesh_sdf.py
+    step bowl_1024 400 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s40_1024.json
+    step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
+    ;;
+  s40_b)  # the bowl's kernel split at W = 1,024, then W = 4,096
+    step bowl_profile 250 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s40_profile.json
+    step bowl_4096 320 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s40_4096.json
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
