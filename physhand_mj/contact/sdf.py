@@ -289,18 +289,27 @@ mesh_near_dist = wp.types.vector(length=MESH_NEAR_CAP, dtype=wp.float32)
 
 
 @wp.func
-def mesh_face_closest(mesh: wp.uint64, f: int, p: wp.vec3):
-    """(squared distance, u, v) from ``p`` to face ``f`` of ``mesh`` exactly as Warp's
-    mesh_query_point_no_sign tests a BVH leaf's face (warp/native/mesh.h: its closest point, its
-    squared distance, its returned u = 1 - v - w); slivers (|e0 x e1| / sum |e|^2 < 1e-6, which
-    Warp skips) return a negative distance."""
+def face_shape(mesh: wp.uint64, f: int):
+    """(q, L) of face ``f``: its sliver ratio q = |e0 x e1| / sum |e|^2 (Warp skips faces under 1e-6)
+    and its longest edge L (m)."""
     x0 = wp.mesh_get_point(mesh, 3 * f)
     x1 = wp.mesh_get_point(mesh, 3 * f + 1)
     x2 = wp.mesh_get_point(mesh, 3 * f + 2)
     e0 = x1 - x0
     e1 = x2 - x0
     e2 = x2 - x1
-    if wp.length(wp.cross(e0, e1)) / (wp.dot(e0, e0) + wp.dot(e1, e1) + wp.dot(e2, e2)) < 1.0e-6:
+    q = wp.length(wp.cross(e0, e1)) / (wp.dot(e0, e0) + wp.dot(e1, e1) + wp.dot(e2, e2))
+    return q, wp.sqrt(wp.max(wp.dot(e0, e0), wp.max(wp.dot(e1, e1), wp.dot(e2, e2))))
+
+
+@wp.func
+def mesh_face_closest(mesh: wp.uint64, f: int, p: wp.vec3):
+    """(squared distance, u, v) from ``p`` to face ``f`` of ``mesh`` exactly as Warp's
+    mesh_query_point_no_sign tests a BVH leaf's face (warp/native/mesh.h: its closest point, its
+    squared distance, its returned u = 1 - v - w); slivers (|e0 x e1| / sum |e|^2 < 1e-6, which
+    Warp skips) return a negative distance."""
+    q, longest = face_shape(mesh, f)
+    if q < 1.0e-6:
         return -1.0, 0.0, 0.0
     return mesh_face_closest_kept(mesh, f, p)
 
@@ -330,15 +339,7 @@ def face_rounding(mesh: wp.uint64, f: int):
     barycentric solve loses precision as a face thins: on random points near faces 10 cm long,
     5 cm to 1 m from the origin, the error reached 3e-8, 3e-6 and 3e-5 m at aspect ratios 0.1, 0.03
     and 0.01 (this allows 4e-6, 4e-5 and 4e-4 m); a well-shaped face of 1 cm gets ~1e-8 m."""
-    x0 = wp.mesh_get_point(mesh, 3 * f)
-    x1 = wp.mesh_get_point(mesh, 3 * f + 1)
-    x2 = wp.mesh_get_point(mesh, 3 * f + 2)
-    e0 = x1 - x0
-    e1 = x2 - x0
-    e2 = x2 - x1
-    sq = wp.dot(e0, e0) + wp.dot(e1, e1) + wp.dot(e2, e2)
-    q = wp.length(wp.cross(e0, e1)) / sq
-    longest = wp.sqrt(wp.max(wp.dot(e0, e0), wp.max(wp.dot(e1, e1), wp.dot(e2, e2))))
+    q, longest = face_shape(mesh, f)
     return NEAR_ROUNDING * longest / (q * q)
 
 
