@@ -370,7 +370,7 @@ def mesh_faces_within(mesh: wp.uint64, m: wp.vec3, dm: float, r: float):
 @wp.func
 def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
     """(ids, dist, n): the faces of ``mesh`` within d(m) + 2 r of ``m`` (mesh frame, m), n of them in
-    ids[:n], their distances from m (m) in dist[:n] (:func:`mesh_faces_within`); n = -1 when they
+    ids[:n], lower bounds of their distances from m (m) in dist[:n] (:func:`mesh_faces_within`); n = -1 when they
     are more than MESH_NEAR_CAP or nothing is within ``query_range`` of m (then query each point the
     usual way)."""
     hit = wp.mesh_query_point_no_sign(mesh, m, query_range)
