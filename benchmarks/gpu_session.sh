@@ -421,8 +421,7 @@ case $phase in
       --profile --out docs/benchmarks/batch_hoi_cuda_bowl_s39_1024_profile.json
     ;;
   s40_a)  # the near faces' CUDA tests, the bowl at W = 1,024 with all four measures (compile time now without adjoints)
-    step pytest_near 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "near or skip_bound" \
-      tests/test_mesh_sdf.py
+    step pytest_near 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_mesh_near_faces.py
     step bowl_1024 400 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
       --out docs/benchmarks/batch_hoi_cuda_bowl_s40_1024.json
     step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
