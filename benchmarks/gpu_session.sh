@@ -55,7 +55,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a or s40_b}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b or s41_c}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -431,6 +431,25 @@ case $phase in
       --out docs/benchmarks/batch_hoi_cuda_bowl_s40_profile.json
     step bowl_4096 320 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
       --out docs/benchmarks/batch_hoi_cuda_bowl_s40_4096.json
+    ;;
+  s41_a)  # the card's clocks, the bowl at W = 1,024 with all four measures (compile without adjoints timed), the cache back
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm,clocks.sm,power.limit --format=csv
+    step bowl_1024 480 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s41_1024.json
+    step cache 60 bash -c "tar -C ~/.cache/warp -cf - . | xz -T0 -6 > $OUT/warp_cache.tar.xz"
+    ;;
+  s41_b)  # the near faces' CUDA tests, the bowl's kernel split at W = 1,024, the solver alone at W = 4,096 (the 50,000)
+    step pytest_near 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_mesh_near_faces.py
+    step bowl_profile 200 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s41_profile.json
+    step solver_4096 160 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
+      --out docs/benchmarks/fused_variants_cuda_s41.json
+    ;;
+  s41_c)  # after ObjectPoints samples each shape once: the bowl at W = 1,024 and 4,096 with all four measures, its split
+    step bowl 420 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024,4096 --frames 10 \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s41.json
+    step bowl_profile 150 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 --profile \
+      --out docs/benchmarks/batch_hoi_cuda_bowl_s41_profile.json
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

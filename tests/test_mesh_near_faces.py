@@ -260,7 +260,8 @@ def test_the_near_faces_skip_bound_holds_on_thin_faces(device):
                                wp.array(p.astype(np.float32), dtype=wp.vec3, device=device)], [gap, gap_raw],
               device=device)
     raw = gap_raw.numpy()
-    assert (raw > 0).sum() > 10, "the sample holds no face whose rounding breaks the plain bound"
+    # (44 such faces on the CPU, 10 on an H100: CUDA contracts the closest point's arithmetic into FMAs)
+    assert (raw > 0).any(), "the sample holds no face whose rounding breaks the plain bound"
     assert not (gap.numpy() > 0).any(), f"{(gap.numpy() > 0).sum()} faces break the bound, by up to {gap.numpy().max()} m"
 
 
