@@ -55,7 +55,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b or s41_c}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c or s41_d}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -450,6 +450,23 @@ case $phase in
       --out docs/benchmarks/batch_hoi_cuda_bowl_s41.json
     step bowl_profile 150 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 --profile \
       --out docs/benchmarks/batch_hoi_cuda_bowl_s41_profile.json
+    ;;
+  s41_d)  # the culled skin measure and the tiled multires kernel walking a batch's list with the near faces:
+    # CUDA tests, the bowl at W = 1,024 per-thread and tiled (split each), then W = 4,096 with the faster
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_measures.py \
+      tests/test_mesh_near_faces.py::test_the_tiled_kernel_walks_a_batch_list_with_the_near_faces_as_the_per_thread_kernel \
+      tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel
+    step bowl_1024_thread 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --profile --out docs/benchmarks/batch_hoi_cuda_bowl_s41d_thread.json
+    step bowl_1024_tiled 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --profile --config '{"tiled_contact": true}' --out docs/benchmarks/batch_hoi_cuda_bowl_s41d_tiled.json
+    best=$(python3 -c "
+import json
+r = {k: json.load(open(f'docs/benchmarks/batch_hoi_cuda_bowl_s41d_{k}.json'))['rows'][0]['hand_frames_per_s'] for k in ('thread', 'tiled')}
+print('true' if r['tiled'] > r['thread'] else 'false')" 2>/dev/null || echo false)
+    echo "tiled at W = 4,096: $best"
+    step bowl_4096 230 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config "{\"tiled_contact\": $best}" --out docs/benchmarks/batch_hoi_cuda_bowl_s41d_4096.json
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

@@ -295,3 +295,45 @@ def test_a_contact_run_is_the_same_with_and_without_the_near_faces(monkeypatch):
             skins[kind, marked] = r["skin"]
     for kind, _, _ in cases:
         np.testing.assert_array_equal(skins[kind, True], skins[kind, False])
+
+
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
+def test_the_tiled_kernel_walks_a_batch_list_with_the_near_faces_as_the_per_thread_kernel():
+    """CUDA's tiled multires kernel (a block per triangle, a lane per sample) on a batch: its few
+    blocks walk the pass's list with a stride (forced to 7 blocks here, so each walks thousands)
+    and answer the coarse icosahedron's samples from its near faces. Three worlds, the mesh 2 mm
+    into world 1's hand: after 3 frames the skins are the per-thread kernel's within 5 % of how far
+    the press moved them, and nothing is inside by the order-9 lattice or the check points."""
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.cases import press_case
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.metrics import summarize
+
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
+    case = press_case("coarse")
+    spec = dict(gtype=GeomType.MESH, size=None, name="coarse", vertices=case.vertices, faces=case.faces)
+    skins, moved = {}, {}
+    for tiled in (False, True):
+        batch = BatchedHands(asset, 3, ph.Config(device="cuda", tiled_contact=tiled), *mount_pose(model, data),
+                             objects=[spec])
+        contact = batch.solver.contact
+        assert contact.tiled == tiled and int(batch.objects._host["size"][0][1]) == MESH_SIGN_PSEUDO_NEAR
+        contact.tiled_blocks = 7
+        rest = batch.skin(1)
+        top = rest[np.argmax(rest[:, 2])].astype(float)
+        # the mesh's lowest vertex (its tip, at z = -16 mm in its frame) 2 mm under the top of the hand
+        where = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.016 - 0.002], top + [0.0, 0.1, 0.05]])[:, None]
+        ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 3)
+        for _ in range(3):
+            out = batch.step(np.stack([poses[0]] * 3), np.stack([poses[1]] * 3), where, ident)
+        dense = summarize(contact.measure(batch.state, order=9, check=True))
+        assert out["penetration_count"] == 0 and dense["penetration_count"] == 0, dense
+        assert dense["object_in_skin_count"] == 0, dense
+        skins[tiled] = batch.skins()
+        moved[tiled] = np.abs(skins[tiled][1] - rest).max()
+    assert moved[False] > 5e-4, "the mesh did not press world 1: the test would compare nothing"
+    assert np.abs(skins[True] - skins[False]).max() < 0.05 * moved[False], (np.abs(skins[True] - skins[False]).max(),
+                                                                            moved[False])

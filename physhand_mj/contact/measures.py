@@ -11,7 +11,7 @@ import warp as wp
 
 from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, object_points_inside,
                                         object_points_inside_reuse, reset_patches, skin_patches)
-from physhand_mj.metrics import lattice_phi, penetration_samples, reduce_worlds
+from physhand_mj.metrics import lattice_phi, penetration_cull, penetration_samples, reduce_worlds
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -52,9 +52,16 @@ class ContactMeasures:
             return
         per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
         v = self.world_views()
+        geoms = [v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count]
+        listed, count = self._penetration_list()
+        if obj < 0:  # the triangles near an object first, then a thread per kept triangle
+            ops.append(count.zero_)
+            launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
+        else:  # (one object's measure: every triangle asks, its bound is the object's alone)
+            listed, count = self._no_list
         launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count, v["obj"],
-                obj, row, order, self.tris_per_world, per], [out])
+               [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count],
+               [out])
         pts = self.points if points is None else points
         if objects_side and self.closed_skin and len(pts):
             vol = self.volume(state)
@@ -75,6 +82,15 @@ class ContactMeasures:
                    [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion, r.lower,
                     r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per], [out, pts.depth, r.slack])
             launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
+
+    def _penetration_list(self):
+        """The skin measure's kept triangles and their count (made on first use, shared by every
+        measure: they run one after another)."""
+        if getattr(self, "_pen_list", None) is None:
+            d = self.model.device
+            self._pen_list = (wp.zeros(self.n_tris, dtype=int, device=d), wp.zeros(1, dtype=int, device=d))
+            self._no_list = (wp.zeros(0, dtype=int, device=d), wp.zeros(0, dtype=int, device=d))
+        return self._pen_list
 
     def _reuse(self, pts: ObjectPoints, vol, pose) -> "_Reuse":
         """The object-side measure's memory for ``pts`` against the skin volume ``vol`` (made on first
