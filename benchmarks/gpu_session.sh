@@ -453,12 +453,12 @@ case $phase in
     ;;
   s41_d)  # the culled skin measure and the tiled multires kernel walking a batch's list with the near faces:
     # CUDA tests, the bowl at W = 1,024 per-thread and tiled (split each), then W = 4,096 with the faster
-    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_measures.py \
+    step pytest_cuda 150 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_measures.py \
       tests/test_mesh_near_faces.py::test_the_tiled_kernel_walks_a_batch_list_with_the_near_faces_as_the_per_thread_kernel \
       tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel
-    step bowl_1024_thread 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+    step bowl_1024_thread 100 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
       --profile --out docs/benchmarks/batch_hoi_cuda_bowl_s41d_thread.json
-    step bowl_1024_tiled 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+    step bowl_1024_tiled 100 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
       --profile --config '{"tiled_contact": true}' --out docs/benchmarks/batch_hoi_cuda_bowl_s41d_tiled.json
     best=$(python3 -c "
 import json
