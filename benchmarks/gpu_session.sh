@@ -55,7 +55,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c or s41_d}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d or s41_e}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -453,6 +453,7 @@ case $phase in
     ;;
   s41_d)  # the culled skin measure and the tiled multires kernel walking a batch's list with the near faces:
     # CUDA tests, the bowl at W = 1,024 per-thread and tiled (split each), then W = 4,096 with the faster
+    # (run 2026-11-27 at 445b1c8; the tiled kernel's change and its test were reverted after s41_e)
     step pytest_cuda 150 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_measures.py \
       tests/test_mesh_near_faces.py::test_the_tiled_kernel_walks_a_batch_list_with_the_near_faces_as_the_per_thread_kernel \
       tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel
@@ -467,6 +468,13 @@ print('true' if r['tiled'] > r['thread'] else 'false')" 2>/dev/null || echo fals
     echo "tiled at W = 4,096: $best"
     step bowl_4096 230 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
       --config "{\"tiled_contact\": $best}" --out docs/benchmarks/batch_hoi_cuda_bowl_s41d_4096.json
+    ;;
+  s41_e)  # one hand grasping the bowl (SoftHand.step, grid 2 mm): this code (the tiled multires kernel with the
+    # near faces, the culled skin measure) and commit 74895ea's (in old_s41/, untracked, made with git archive)
+    step grid_new 150 python3 benchmarks/mesh_grid.py --device cuda --frames 30 --spacings 0.002 \
+      --out docs/benchmarks/mesh_grid_cuda_s41.json
+    step grid_old 150 bash -c "cd old_s41 && PYTHONPATH=/tmp/site:\$PWD:\$PWD/plugins python3 benchmarks/mesh_grid.py \
+      --device cuda --frames 30 --spacings 0.002 --out /tmp/mesh_grid_cuda_s41_old.json && cp /tmp/mesh_grid_cuda_s41_old.json $OUT/"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

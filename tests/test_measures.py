@@ -1,5 +1,6 @@
 """The skin measure's two layouts (physhand_mj/metrics.py): the triangles near an object culled into a
-list and measured a thread each give the one-kernel measure's rows, on a hand pressed deep into a
+list and measured a thread each (batched worlds' layout, forced here on one hand) give the one-kernel
+measure's rows, on a hand pressed deep into a
 sphere and into a mesh (the bowl's kind of object) at once."""
 
 import numpy as np
@@ -41,6 +42,8 @@ def _pressed(device):
 def test_the_culled_skin_measure_equals_the_one_kernel_measure(device, order):
     solver, state = _pressed(device)
     contact = solver.contact
+    assert not contact.cull_measure  # one hand: the one-kernel layout by default
+    contact.cull_measure = True
     listed = contact.measure_worlds(state, order=order, objects_side=False)[0]
     # the same kernel without a list: every triangle asks its bound itself, one thread each
     m, v = contact.model, contact.world_views()

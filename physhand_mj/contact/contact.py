@@ -119,10 +119,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
-        # its blocks: one per skin triangle for one hand; for batched worlds as many as the GPU holds at
-        # once (32 blocks of TILE_LANES an SM), each walking the pass's list with that stride
-        sms = getattr(wp.get_device(d), "sm_count", 0) or 132
-        self.tiled_blocks = max(n_tris, 1) if model.worlds == 1 else max(min(n_tris, 32 * sms), 1)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -379,11 +375,11 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
             moved_slots.append(slot)
             self._tally_touched(launch, p, feat_touched)
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
-            launch(decide_and_project_tiled, (self.tiled_blocks, TILE_LANES),
+            launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                     self.tris_per_world, self.geoms_per_world, *lst,
-                    cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware),
-                    self.tiled_blocks, state.x], outs, block_dim=TILE_LANES)
+                    cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
+                   block_dim=TILE_LANES)
         else:
             launch(decide_and_project, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,

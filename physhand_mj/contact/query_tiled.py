@@ -9,9 +9,9 @@ bound and projection are the per-thread kernel's.
 
 import warp as wp
 
-from physhand_mj.contact.broadphase import triangle_bound, world_geoms
+from physhand_mj.contact.broadphase import world_geoms
 from physhand_mj.contact.query import geom_data, lattice_order, only_geom, phi_at, project
-from physhand_mj.contact.sdf import FAR, MESH, mesh_near_dist, mesh_near_faces, mesh_near_ids, sdf_mesh_near
+from physhand_mj.contact.sdf import FAR
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -53,7 +53,6 @@ def decide_and_project_tiled(
     rounds: int,
     offset: float,
     side_aware: int,
-    blocks: int,
     # State in:
     x: wp.array(dtype=wp.vec3),
     # Contact out:
@@ -70,100 +69,84 @@ def decide_and_project_tiled(
     """:func:`decide_and_project` for MULTIRES on CUDA with a block of TILE_LANES threads per active
     triangle: each lane queries one lattice sample, block reductions pick the three lowest, lane 0
     projects. Same samples, rounds, early-out, bound and Eq. 9 as the per-thread kernel; the serial
-    chain per triangle shrinks from samples x rounds queries to rounds x (1 query + 3 reductions).
-
-    The launch has ``blocks`` blocks; block k takes the listed triangles k, k + blocks, ... (one hand:
-    a block per skin triangle, each takes at most one; batched worlds: a few blocks per SM walk the
-    list instead of a block per triangle of every world, nearly all idle). A mesh marked for its near
-    faces (sdf.MESH_SIGN_PSEUDO_NEAR) answers every sample from the faces near the triangle, found
-    once per triangle (each lane walks the same BVH path in lockstep), as the per-thread kernel does."""
+    chain per triangle shrinks from samples x rounds queries to rounds x (1 query + 3 reductions)."""
     k, lane = wp.tid()
-    while k < active_count[0]:  # uniform over the block: k is the block's triangle
-        t = active[k]
-        near = active_mask[k]
-        i0 = faces[t, 0]
-        i1 = faces[t, 1]
-        i2 = faces[t, 2]
-        a = x[i0]
-        b = x[i1]
-        c = x[i2]
-        base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
-        n_geoms = end - base
-        single = only_geom(near, base, n_geoms)
-        s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
-        near_ids = mesh_near_ids()
-        near_d = mesh_near_dist()
-        lm = wp.vec3(0.0)
-        n_near = int(-1)
-        if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf.MESH_SIGN_PSEUDO_NEAR
-            lm, lr = triangle_bound(wp.transform_point(s_inv, a), wp.transform_point(s_inv, b),
-                                    wp.transform_point(s_inv, c))
-            near_ids, near_d, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
-        order = lattice_order(samples)
-        n_lat = (order + 1) * (order + 2) / 2
-        best = float(FAR)
-        best_p = a
-        certified = float(-FAR)
-        ta = a
-        tb = b
-        tc = c
-        for r in range(rounds):
-            p = (ta + tb + tc) * (1.0 / 3.0)  # a leftover query on the centroid (lane n_lat)
-            if lane < n_lat:
-                u, v = lattice_uv(lane, order)
-                p = ta * (1.0 - u - v) + tb * u + tc * v
-            d = float(FAR)
-            if lane < n_lat or (lane == n_lat and n_lat < samples):
-                if n_near >= 0:
-                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near, lm)
-                else:
-                    d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
-                               n_geoms, near)
-            # the three lowest samples (indices j0, j1, j2), ascending
-            j0 = wp.tile_argmin(wp.tile(d))[0]
-            d0 = wp.tile_min(wp.tile(d))[0]
-            e = d
-            if lane == j0:
-                e = float(FAR)
-            j1 = wp.tile_argmin(wp.tile(e))[0]
-            if lane == j1:
-                e = float(FAR)
-            j2 = wp.tile_argmin(wp.tile(e))[0]
-            q0 = (ta + tb + tc) * (1.0 / 3.0)
-            q1 = q0
-            q2 = q0
-            if j0 < n_lat:
-                u, v = lattice_uv(j0, order)
-                q0 = ta * (1.0 - u - v) + tb * u + tc * v
-            if j1 < n_lat:
-                u, v = lattice_uv(j1, order)
-                q1 = ta * (1.0 - u - v) + tb * u + tc * v
-            if j2 < n_lat:
-                u, v = lattice_uv(j2, order)
-                q2 = ta * (1.0 - u - v) + tb * u + tc * v
-            if d0 < best:
-                best = d0
-                best_p = q0
-            if r == 0:
-                longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
-                h = longest / float(order) * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
-                if d0 > h:
-                    certified = d0 - h
-                    break
-            ta = q0
-            tb = q1
-            tc = q2
-        if lane == 0:
-            eval_x[t, 0] = a
-            eval_x[t, 1] = b
-            eval_x[t, 2] = c
-            bound_mask[t] = near
-            decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
-            bound[t] = best
-            if certified > -FAR:
-                bound[t] = certified
-            if best < 0.5 * offset:
-                nt = wp.normalize(wp.cross(b - a, c - a))
-                project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius,
-                        mesh, geom_obj, delta, hits, touched, touched_count, vertex_obj)
-        k += blocks
+    if k >= active_count[0]:
+        return  # uniform over the block: k is the block's triangle
+    t = active[k]
+    near = active_mask[k]
+    i0 = faces[t, 0]
+    i1 = faces[t, 1]
+    i2 = faces[t, 2]
+    a = x[i0]
+    b = x[i1]
+    c = x[i2]
+    base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
+    n_geoms = end - base
+    single = only_geom(near, base, n_geoms)
+    s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
+    order = lattice_order(samples)
+    n_lat = (order + 1) * (order + 2) / 2
+    best = float(FAR)
+    best_p = a
+    certified = float(-FAR)
+    ta = a
+    tb = b
+    tc = c
+    for r in range(rounds):
+        d = float(FAR)
+        if lane < n_lat:
+            u, v = lattice_uv(lane, order)
+            d = phi_at(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
+                         gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+        elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
+            d = phi_at((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
+                         gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+        # the three lowest samples (indices j0, j1, j2), ascending
+        j0 = wp.tile_argmin(wp.tile(d))[0]
+        d0 = wp.tile_min(wp.tile(d))[0]
+        e = d
+        if lane == j0:
+            e = float(FAR)
+        j1 = wp.tile_argmin(wp.tile(e))[0]
+        if lane == j1:
+            e = float(FAR)
+        j2 = wp.tile_argmin(wp.tile(e))[0]
+        q0 = (ta + tb + tc) * (1.0 / 3.0)
+        q1 = q0
+        q2 = q0
+        if j0 < n_lat:
+            u, v = lattice_uv(j0, order)
+            q0 = ta * (1.0 - u - v) + tb * u + tc * v
+        if j1 < n_lat:
+            u, v = lattice_uv(j1, order)
+            q1 = ta * (1.0 - u - v) + tb * u + tc * v
+        if j2 < n_lat:
+            u, v = lattice_uv(j2, order)
+            q2 = ta * (1.0 - u - v) + tb * u + tc * v
+        if d0 < best:
+            best = d0
+            best_p = q0
+        if r == 0:
+            longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+            h = longest / float(order) * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
+            if d0 > h:
+                certified = d0 - h
+                break
+        ta = q0
+        tb = q1
+        tc = q2
+    if lane != 0:
+        return
+    eval_x[t, 0] = a
+    eval_x[t, 1] = b
+    eval_x[t, 2] = c
+    bound_mask[t] = near
+    decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
+    bound[t] = best
+    if certified > -FAR:
+        bound[t] = certified
+    if best < 0.5 * offset:
+        nt = wp.normalize(wp.cross(b - a, c - a))
+        project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+                touched, touched_count, vertex_obj)
