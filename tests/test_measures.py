@@ -63,3 +63,34 @@ def test_the_culled_skin_measure_equals_the_one_kernel_measure(device, order):
     # and each object alone (the filtered measure keeps the one-kernel layout) adds up to the same count
     per_object = sum(contact.measure_worlds(state, obj=o, order=order, objects_side=False)[0][0] for o in (0, 1))
     assert per_object == whole[0]
+
+
+def test_check_points_measured_in_pieces_equal_the_whole(monkeypatch):
+    """A batch's check points are W copies of each object's (the HOI bowl's 212,271 a world did not
+    fit an H100 at W = 4,096): past measures.CHECK_POINTS_AT_ONCE they are made and asked a few
+    worlds at a time. Three worlds, a sphere 2 mm into world 1's hand and 3 mm into world 2's: one
+    world a piece gives each world's row of the whole set, and no piece is kept."""
+    import physhand_mj.contact.measures as measures
+    from physhand_mj.batch import BatchedHands
+
+    wp.init()
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    batch = BatchedHands(asset, 3, Config(device="cpu"), *mount_pose(model, data),
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.018], top + [0.0, 0.0, 0.017]])[:, None]
+    batch.set_object_poses(where, np.array([[[1.0, 0.0, 0.0, 0.0]]] * 3))
+    contact = batch.solver.contact
+    one_world = len(contact._check_piece(range(contact.geoms_per_world)))
+    monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", one_world)
+    assert [list(r) for r in contact._check_pieces()] == [[g] for g in range(3)]
+    pieces = contact.measure_worlds(batch.state, order=9, check=True)
+    assert contact._check_points is None  # nothing kept
+    monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", 3 * one_world)
+    assert contact._check_pieces() is None
+    whole = contact.measure_worlds(batch.state, order=9, check=True)
+    assert pieces[0, 3] == 0 and pieces[1, 3] > 0 and pieces[2, 3] > pieces[1, 3], pieces
+    np.testing.assert_array_equal(pieces[:, [0, 1, 2, 3, 5]], whole[:, [0, 1, 2, 3, 5]])
+    np.testing.assert_allclose(pieces[:, 4], whole[:, 4], rtol=1e-6)

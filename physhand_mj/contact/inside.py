@@ -328,13 +328,21 @@ class ObjectPoints:
     Arrays: ``pts`` (P,) vec3 m, ``geom`` (P,) int, ``kind`` (P,) int (:class:`PointKind`), and
     ``feature`` (the indices of the CORNER and EDGE points) for the contact stage."""
 
-    def __init__(self, objects, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3, edge_subdivide: int = 1):
+    def __init__(self, objects, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3, edge_subdivide: int = 1,
+                 geoms=None, shapes: dict | None = None):
+        """``geoms``: only these geoms' points (indices into ``objects``; default all), e.g. a few
+        worlds of a batch at a time; ``shapes``: a dict of the shapes sampled so far, to share
+        between such pieces (filled here)."""
         h = objects._host
         meshes = {int(m.id): m for m in objects._meshes}
-        made, keys = {}, []  # one sampling per distinct shape: a batch's W worlds share theirs (a mesh: ~0.3 s each)
-        for g in range(len(objects.names)):
+        geoms = range(len(objects.names)) if geoms is None else [int(g) for g in geoms]
+        keys = []
+        # one sampling per distinct shape: a batch's W worlds share theirs (a mesh: ~0.3 s each)
+        made = {} if shapes is None else shapes
+        for g in geoms:
             t = GeomType(int(h["gtype"][g]))
             key = (int(t), int(h["mesh"][g][0])) if t == GeomType.MESH else (int(t), *map(float, h["size"][g]))
+            key = (*key, float(edge_spacing), float(surface_spacing), int(edge_subdivide))
             if key not in made:
                 if t == GeomType.MESH:
                     m = meshes[key[1]]
@@ -360,7 +368,7 @@ class ObjectPoints:
             pts[o:o + c], kind[o:o + c], pts32[o:o + c] = p, k, p32
             o += c
         self.kind_host = kind
-        self.geom_host = np.repeat(np.arange(self.n_geoms, dtype=np.int32), counts)
+        self.geom_host = np.repeat(np.asarray(geoms, dtype=np.int32), counts)
         self.pts_host = pts
         n = max(total, 1)
         self.pts = wp.array(pts32, dtype=wp.vec3, device=d)
@@ -372,7 +380,7 @@ class ObjectPoints:
         self.depth = wp.zeros(n, dtype=float, device=d)
         # per geom: the farthest of its points from its origin (m; how far a turn can carry them)
         rad = np.zeros(max(self.n_geoms, 1))
-        rad[: self.n_geoms] = [made[key][3] for key in keys]
+        rad[list(geoms)] = [made[key][3] for key in keys]
         self.geom_radius = wp.array(rad, dtype=float, device=d)
 
     def __len__(self) -> int:

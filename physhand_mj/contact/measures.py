@@ -22,6 +22,9 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 CHECK_EDGE_SUBDIVIDE = 4  # check points: each feature point's piece of edge cut in 4 (even: none coincides)
 assert CHECK_EDGE_SUBDIVIDE % 2 == 0
 CHECK_SURFACE_SPACING = 5.0e-4
+# the most check points made at once (count; ~28 bytes each on the device): a batch measures more in
+# pieces of whole worlds (ContactMeasures.measure_worlds)
+CHECK_POINTS_AT_ONCE = 50_000_000
 
 
 class ContactMeasures:
@@ -41,33 +44,27 @@ class ContactMeasures:
         return self._check_points
 
     def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
-                       order: int = 5, points: ObjectPoints | None = None):
+                       order: int = 5, points: ObjectPoints | None = None, skin_side: bool = True,
+                       reuse: bool | None = None):
         """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
-        metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2) and, with
-        ``objects_side``, object surface points inside the closed skin (columns 3-5; ``points``, default
-        :attr:`points`). ``obj`` >= 0: that object only."""
+        metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2; unless not
+        ``skin_side``) and, with ``objects_side``, object surface points inside the closed skin (columns
+        3-5; ``points``, default :attr:`points`; ``reuse``: ask only what could have changed since the
+        last measure of the same points, default Config.reuse_outside). ``obj`` >= 0: that object only."""
         m, o = self.model, self.objects
         out = self.metrics if out is None else out
         if not self.n_tris:
             return
         per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
         v = self.world_views()
-        geoms = [v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count]
-        listed, count = self._penetration_list()
-        if obj < 0 and self.cull_measure:  # the triangles near an object first, then a thread per kept triangle
-            ops.append(count.zero_)
-            launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
-        else:  # one hand, or one object's measure: every triangle asks its bound itself
-            listed, count = self._no_list
-        launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count],
-               [out])
+        if skin_side:
+            self._record_skin_side(launch, ops, state, row, obj, out, order, per, v)
         pts = self.points if points is None else points
         if objects_side and self.closed_skin and len(pts):
             vol = self.volume(state)
             ops += vol.ops()
             qpose = self._query_pose(launch)
-            if not self.config.reuse_outside:
+            if not (self.config.reuse_outside if reuse is None else reuse):
                 launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
                                                         obj, row, self.geoms_per_world, per], [out, pts.depth])
                 return
@@ -82,6 +79,20 @@ class ContactMeasures:
                    [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion, r.lower,
                     r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per], [out, pts.depth, r.slack])
             launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
+
+    def _record_skin_side(self, launch, ops, state, row, obj, out, order, per, v):
+        """The skin measure: samples of the order-``order`` lattice inside objects (columns 0-2)."""
+        m, o = self.model, self.objects
+        geoms = [v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count]
+        listed, count = self._penetration_list()
+        if obj < 0 and self.cull_measure:  # the triangles near an object first, then a thread per kept triangle
+            ops.append(count.zero_)
+            launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
+        else:  # one hand, or one object's measure: every triangle asks its bound itself
+            listed, count = self._no_list
+        launch(penetration_samples, self.n_tris,
+               [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count],
+               [out])
 
     @property
     def cull_measure(self) -> bool:
@@ -142,11 +153,44 @@ class ContactMeasures:
         def launch(kernel, dim, inputs, outputs, **_):
             ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
 
-        self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
-                            points=self.check_points if check else None)
+        pieces = self._check_pieces() if check and objects_side else None
+        if pieces is None:
+            self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
+                                points=self.check_points if check else None)
+        else:  # the check points a few worlds at a time, each piece made, asked and dropped (not kept)
+            self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=False, order=order)
         for op in ops:
             op()
+        for geoms in pieces or ():
+            ops.clear()
+            pts = self._check_piece(geoms)
+            self.record_metrics(launch, ops, state, 0, obj=obj, out=out, points=pts, skin_side=False, reuse=False)
+            for op in ops:
+                op()
+            ops.clear()  # (the launches hold the piece's arrays)
+            del pts
         return out.numpy().astype(float)
+
+    def _check_pieces(self) -> list | None:
+        """None when :attr:`check_points` fit at once (at most CHECK_POINTS_AT_ONCE points), else the
+        geom ranges of the pieces they are measured in (whole worlds each). A batch's check points are
+        W copies of each object's: the HOI bowl has 212,271, so W = 4,096 would hold 870 million."""
+        if self._check_points is not None:
+            return None
+        gpw = self.geoms_per_world
+        shapes = self.__dict__.setdefault("_check_shapes", {})
+        one = self._check_piece(range(min(gpw, len(self.objects.names))), shapes)  # world 0's
+        if len(one) * self.worlds <= CHECK_POINTS_AT_ONCE:
+            return None
+        per = max(CHECK_POINTS_AT_ONCE // max(len(one), 1), 1)  # worlds a piece
+        n = len(self.objects.names)
+        return [range(w * gpw, min((w + per) * gpw, n)) for w in range(0, self.worlds, per) if w * gpw < n]
+
+    def _check_piece(self, geoms, shapes: dict | None = None) -> ObjectPoints:
+        """:attr:`check_points` of ``geoms`` alone (the shapes sampled once, shared by the pieces)."""
+        shapes = self.__dict__.setdefault("_check_shapes", {}) if shapes is None else shapes
+        return ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing, edge_subdivide=CHECK_EDGE_SUBDIVIDE,
+                            surface_spacing=CHECK_SURFACE_SPACING, geoms=geoms, shapes=shapes)
 
     def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
         """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
