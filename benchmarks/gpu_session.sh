@@ -6,7 +6,8 @@
 # an H100, a warm cache 15 s). Bring the cache back once (`tar -C ~/.cache/warp -cf - . | xz >
 # $OUT/warp_cache.tar.xz`), keep it in an ignored folder (.devc/), carry it with the setup call and
 # unpack it first (`mkdir -p ~/.cache/warp && tar -C ~/.cache/warp -xJf .devc/warp_cache.tar.xz`):
-# only the modules changed since then compile again.
+# only the modules changed since then compile again. Modules changed here since can be compiled for
+# the H100 on this CPU first: `python benchmarks/aot_cache.py --merge .devc/warp_cache.tar.xz` (NVRTC).
 # Each step has its own time limit, so one slow or failing step cannot eat the phase; its log goes to
 # $OUT/logs/, and every JSON/CSV/PNG a step writes under docs/ is copied to $OUT/ (flat).
 #   tests    the CUDA tests (CPU/CUDA agreement, hard cases on CUDA), softhand_frame, activity_frame
