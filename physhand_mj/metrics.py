@@ -27,6 +27,13 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 ORDER = 5  # 21 samples per triangle
 
 
+@wp.func
+def world_of(t: int, tris_per_world: int, k: int, geom_count: wp.array(dtype=int)):
+    """(world, geoms in use) of skin triangle ``t``: its world's row of the (W, k) geom views."""
+    w = t // tris_per_world
+    return w, wp.max(wp.min(k, geom_count[0] - w * k), 0)
+
+
 @wp.kernel
 def penetration_samples(
     faces: wp.array2d(dtype=int),
@@ -68,9 +75,7 @@ def penetration_samples(
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
     m, r = triangle_bound(a, b, c)
-    w = t // tris_per_world
-    k = gtype.shape[1]
-    n = wp.max(wp.min(k, geom_count[0] - w * k), 0)
+    w, n = world_of(t, tris_per_world, gtype.shape[1], geom_count)
     wtype = gtype[w]
     wsize = size[w]
     winv = inv_pose[w]
@@ -122,13 +127,8 @@ def penetration_cull(
     > circumradius clears every sample (no object filter). Appended in any order on a GPU; on
     the CPU in ascending t, so its atomics add in the order of the one-kernel measure."""
     t = wp.tid()
-    a = x[faces[t, 0]]
-    b = x[faces[t, 1]]
-    c = x[faces[t, 2]]
-    m, r = triangle_bound(a, b, c)
-    w = t // tris_per_world
-    k = gtype.shape[1]
-    n = wp.max(wp.min(k, geom_count[0] - w * k), 0)
+    m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
+    w, n = world_of(t, tris_per_world, gtype.shape[1], geom_count)
     if scene_phi(m, gtype[w], size[w], inv_pose[w], radius[w], mesh[w], n, -1) > r:
         return
     listed[wp.atomic_add(listed_count, 0, 1)] = t
