@@ -243,17 +243,20 @@ def main() -> None:
                                finite=bool(np.isfinite(hands.state.x.numpy()).all()))
                     if hands.solver.contact is not None:  # measures the contact does not use: the order-9 lattice,
                         # and the denser object check points inside the closed skin (worst world)
+                        contact, failed = hands.solver.contact, None
                         try:
-                            dense = hands.solver.contact.measure_worlds(hands.state, order=9, check=True)
+                            dense = contact.measure_worlds(hands.state, order=9, check=True)
                             row.update(check_count_max=int(dense[:, 3].max()),
                                        check_max_um=round(float(dense[:, 5].max()) * 1e6, 2))
-                        except RuntimeError as e:  # the check points are W copies of each object's (the bowl:
-                            # 212,271 a world, ~24 GB at W = 4,096): the order-9 lattice alone then
-                            print(f"[{scene} W={w}] no check points: {str(e)[:120]}", file=sys.stderr, flush=True)
-                            row["check_skipped"] = str(e)[:200]
-                            hands.solver.contact._check_points = None
+                        except RuntimeError as e:  # a measure that does not fit the GPU even in pieces
+                            failed = str(e)[:200]
+                        if failed:  # (outside the handler: its traceback would keep the failed arrays alive)
+                            print(f"[{scene} W={w}] no check points: {failed[:120]}", file=sys.stderr, flush=True)
+                            row["check_skipped"] = failed
+                            contact._check_points = None
+                            contact._reuse_memory.clear()  # (re-made on use: every point asked again once)
                             gc.collect()
-                            dense = hands.solver.contact.measure_worlds(hands.state, order=9, objects_side=False)
+                            dense = contact.measure_worlds(hands.state, order=9, objects_side=False)
                         row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2))
                         lap("order 9 and check points")
                     row["phases_s"] = phase_s

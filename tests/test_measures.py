@@ -68,8 +68,9 @@ def test_the_culled_skin_measure_equals_the_one_kernel_measure(device, order):
 def test_check_points_measured_in_pieces_equal_the_whole(monkeypatch):
     """A batch's check points are W copies of each object's (the HOI bowl's 212,271 a world did not
     fit an H100 at W = 4,096): past measures.CHECK_POINTS_AT_ONCE they are made and asked a few
-    worlds at a time. Three worlds, a sphere 2 mm into world 1's hand and 3 mm into world 2's: one
-    world a piece gives each world's row of the whole set, and no piece is kept."""
+    worlds at a time. Three worlds of two geoms each (a sphere and a box), the sphere 2 mm into world
+    1's hand and 3 mm into world 2's: one world a piece gives each world's row of the whole set, and
+    no piece is kept."""
     import physhand_mj.contact.measures as measures
     from physhand_mj.batch import BatchedHands
 
@@ -77,17 +78,23 @@ def test_check_points_measured_in_pieces_equal_the_whole(monkeypatch):
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
     batch = BatchedHands(asset, 3, Config(device="cpu"), *mount_pose(model, data),
-                         objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball"),
+                                  dict(gtype=GeomType.BOX, size=(0.01, 0.02, 0.005), name="block")])
     skin = batch.skin(0)
     top = skin[np.argmax(skin[:, 2])].astype(float)
-    where = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.018], top + [0.0, 0.0, 0.017]])[:, None]
-    batch.set_object_poses(where, np.array([[[1.0, 0.0, 0.0, 0.0]]] * 3))
+    ball = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.018], top + [0.0, 0.0, 0.017]])
+    block = ball + [0.0, 0.3, 0.0]  # 30 cm aside: its points count, none inside
+    batch.set_object_poses(np.stack([ball, block], 1), np.array([[[1.0, 0.0, 0.0, 0.0]] * 2] * 3))
     contact = batch.solver.contact
-    one_world = len(contact._check_piece(range(contact.geoms_per_world)))
+    assert contact.geoms_per_world == 2
+    one_world = len(contact._check_piece(range(2)))
     monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", one_world)
-    assert [list(r) for r in contact._check_pieces()] == [[g] for g in range(3)]
+    assert [list(r) for r in contact._check_pieces()] == [[0, 1], [2, 3], [4, 5]]
     pieces = contact.measure_worlds(batch.state, order=9, check=True)
     assert contact._check_points is None  # nothing kept
+    monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", 2 * one_world)  # two worlds, then one
+    assert [list(r) for r in contact._check_pieces()] == [[0, 1, 2, 3], [4, 5]]
+    assert np.array_equal(contact.measure_worlds(batch.state, order=9, check=True), pieces)
     monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", 3 * one_world)
     assert contact._check_pieces() is None
     whole = contact.measure_worlds(batch.state, order=9, check=True)

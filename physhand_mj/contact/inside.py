@@ -333,27 +333,9 @@ class ObjectPoints:
         """``geoms``: only these geoms' points (indices into ``objects``; default all), e.g. a few
         worlds of a batch at a time; ``shapes``: a dict of the shapes sampled so far, to share
         between such pieces (filled here)."""
-        h = objects._host
-        meshes = {int(m.id): m for m in objects._meshes}
         geoms = range(len(objects.names)) if geoms is None else [int(g) for g in geoms]
-        keys = []
-        # one sampling per distinct shape: a batch's W worlds share theirs (a mesh: ~0.3 s each)
         made = {} if shapes is None else shapes
-        for g in geoms:
-            t = GeomType(int(h["gtype"][g]))
-            key = (int(t), int(h["mesh"][g][0])) if t == GeomType.MESH else (int(t), *map(float, h["size"][g]))
-            key = (*key, float(edge_spacing), float(surface_spacing), int(edge_subdivide))
-            if key not in made:
-                if t == GeomType.MESH:
-                    m = meshes[key[1]]
-                    p, k = mesh_points(m.points.numpy(), m.indices.numpy().reshape(-1, 3), edge_spacing,
-                                       surface_spacing, edge_subdivide=edge_subdivide)
-                else:
-                    p, k = primitive_points(t, h["size"][g], edge_spacing, surface_spacing, edge_subdivide)
-                # (points, kinds, the points in float32, the farthest from the geom's origin (m; how far a turn
-                # can carry them))
-                made[key] = (p, k, p.astype(np.float32), float(np.linalg.norm(p, axis=1).max()) if len(p) else 0.0)
-            keys.append(key)
+        keys = self.shapes(objects, geoms, made, edge_spacing, surface_spacing, edge_subdivide)
         # the batch's copies written into arrays made once (W = 4,096 bowls: 220 million points; appending and
         # joining W pieces took ~45 s on the host)
         d = objects.device
@@ -382,6 +364,30 @@ class ObjectPoints:
         rad = np.zeros(max(self.n_geoms, 1))
         rad[list(geoms)] = [made[key][3] for key in keys]
         self.geom_radius = wp.array(rad, dtype=float, device=d)
+
+    @staticmethod
+    def shapes(objects, geoms, made: dict, edge_spacing: float = 5e-4, surface_spacing: float = 1e-3,
+               edge_subdivide: int = 1) -> list:
+        """The shape key of each of ``geoms``, each distinct shape sampled once into ``made`` (key ->
+        (points, kinds, points in float32, the farthest point's distance from the geom's origin (m; how
+        far a turn can carry them))): a batch's W worlds share theirs (a mesh: ~0.3 s each)."""
+        h = objects._host
+        meshes = {int(m.id): m for m in objects._meshes}
+        keys = []
+        for g in geoms:
+            t = GeomType(int(h["gtype"][g]))
+            key = (int(t), int(h["mesh"][g][0])) if t == GeomType.MESH else (int(t), *map(float, h["size"][g]))
+            key = (*key, float(edge_spacing), float(surface_spacing), int(edge_subdivide))
+            if key not in made:
+                if t == GeomType.MESH:
+                    m = meshes[key[1]]
+                    p, k = mesh_points(m.points.numpy(), m.indices.numpy().reshape(-1, 3), edge_spacing,
+                                       surface_spacing, edge_subdivide=edge_subdivide)
+                else:
+                    p, k = primitive_points(t, h["size"][g], edge_spacing, surface_spacing, edge_subdivide)
+                made[key] = (p, k, p.astype(np.float32), float(np.linalg.norm(p, axis=1).max()) if len(p) else 0.0)
+            keys.append(key)
+        return keys
 
     def __len__(self) -> int:
         return len(self.pts_host)

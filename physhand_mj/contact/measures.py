@@ -39,8 +39,7 @@ class ContactMeasures:
         independent check of the second measure (the feature push works on :attr:`points`' corners and edges, so a
         measure on those same points would share the method's own samples)."""
         if self._check_points is None:
-            self._check_points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing,
-                                              edge_subdivide=CHECK_EDGE_SUBDIVIDE, surface_spacing=CHECK_SURFACE_SPACING)
+            self._check_points = self._check_piece(None)
         return self._check_points
 
     def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
@@ -153,21 +152,20 @@ class ContactMeasures:
         def launch(kernel, dim, inputs, outputs, **_):
             ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
 
-        pieces = self._check_pieces() if check and objects_side else None
+        check = check and objects_side
+        pieces = self._check_pieces() if check else None
         if pieces is None:
             self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
                                 points=self.check_points if check else None)
         else:  # the check points a few worlds at a time, each piece made, asked and dropped (not kept)
             self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=False, order=order)
-        for op in ops:
-            op()
+        while ops:
+            ops.pop(0)()
         for geoms in pieces or ():
-            ops.clear()
             pts = self._check_piece(geoms)
             self.record_metrics(launch, ops, state, 0, obj=obj, out=out, points=pts, skin_side=False, reuse=False)
-            for op in ops:
-                op()
-            ops.clear()  # (the launches hold the piece's arrays)
+            while ops:  # (popped: a launch kept would hold this piece's arrays while the next is made)
+                ops.pop(0)()
             del pts
         return out.numpy().astype(float)
 
@@ -177,20 +175,31 @@ class ContactMeasures:
         W copies of each object's: the HOI bowl has 212,271, so W = 4,096 would hold 870 million."""
         if self._check_points is not None:
             return None
-        gpw = self.geoms_per_world
+        gpw, n = self.geoms_per_world, len(self.objects.names)
         shapes = self.__dict__.setdefault("_check_shapes", {})
-        one = self._check_piece(range(min(gpw, len(self.objects.names))), shapes)  # world 0's
-        if len(one) * self.worlds <= CHECK_POINTS_AT_ONCE:
+        keys = ObjectPoints.shapes(self.objects, range(n), shapes, *self._check_spacing())
+        per_geom = [len(shapes[k][0]) for k in keys]
+        per_world = [sum(per_geom[w * gpw:(w + 1) * gpw]) for w in range(self.worlds)]
+        if sum(per_world) <= CHECK_POINTS_AT_ONCE:
             return None
-        per = max(CHECK_POINTS_AT_ONCE // max(len(one), 1), 1)  # worlds a piece
-        n = len(self.objects.names)
-        return [range(w * gpw, min((w + per) * gpw, n)) for w in range(0, self.worlds, per) if w * gpw < n]
+        pieces, start, held = [], 0, 0  # whole worlds a piece, each piece at most the limit (or one world)
+        for w, c in enumerate(per_world):
+            if held and held + c > CHECK_POINTS_AT_ONCE:
+                pieces.append(range(start * gpw, min(w * gpw, n)))
+                start, held = w, 0
+            held += c
+        pieces.append(range(start * gpw, n))
+        return [p for p in pieces if len(p)]
 
-    def _check_piece(self, geoms, shapes: dict | None = None) -> ObjectPoints:
-        """:attr:`check_points` of ``geoms`` alone (the shapes sampled once, shared by the pieces)."""
-        shapes = self.__dict__.setdefault("_check_shapes", {}) if shapes is None else shapes
-        return ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing, edge_subdivide=CHECK_EDGE_SUBDIVIDE,
-                            surface_spacing=CHECK_SURFACE_SPACING, geoms=geoms, shapes=shapes)
+    def _check_spacing(self) -> tuple:
+        """The check points' (edge spacing m, surface spacing m, edge subdivision) for ObjectPoints."""
+        return self.config.feature_spacing, CHECK_SURFACE_SPACING, CHECK_EDGE_SUBDIVIDE
+
+    def _check_piece(self, geoms) -> ObjectPoints:
+        """:attr:`check_points` of ``geoms`` alone (None: all; the shapes sampled once, shared)."""
+        e, s, k = self._check_spacing()
+        return ObjectPoints(self.objects, edge_spacing=e, surface_spacing=s, edge_subdivide=k, geoms=geoms,
+                            shapes=self.__dict__.setdefault("_check_shapes", {}))
 
     def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
         """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
