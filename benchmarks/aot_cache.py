@@ -9,11 +9,13 @@ block size it is launched with; ``BLOCK_DIMS`` lists those. Kernels made at run 
 substep's, one per model size and block) are not covered: a device run adds them to its own cache.
 
     python benchmarks/aot_cache.py [--arch 90] [--merge .devc/warp_cache.tar.xz]
-                                   [--out .devc/warp_cache.tar.xz]
+                                   [--out .devc/warp_cache.tar.xz] [--resources [PATTERN]]
 
 Writes a tar.xz of ``<warp version>/wp_<module>_<hash>/...`` to unpack into ``~/.cache/warp`` on the
 device (``benchmarks/gpu_session.sh``'s recipe), merged with the entries of ``--merge`` (kept where
-this run did not make the same folder).
+this run did not make the same folder). ``--resources`` also prints each kernel's registers and local
+frame a thread (read from the cubin's ``.nv.info``: no CUDA tools needed), for kernels whose name
+holds PATTERN: how many threads an SM can hold (65,536 registers an SM on sm_90) and what spills.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import importlib
 import io
 import pkgutil
 import shutil
+import struct
 import tarfile
 import tempfile
 import time
@@ -42,6 +45,13 @@ BLOCK_DIMS = {
 }
 
 
+# kernels made at run time that a device run uses (Config.multires_registers' caps)
+def made_kernels() -> list:
+    from physhand_mj.contact.query import multires_kernel
+
+    return [multires_kernel(r) for r in (128, 168)]
+
+
 def kernel_modules() -> list[str]:
     """physhand_mj's modules that define Warp kernels (imported to look)."""
     names = []
@@ -55,7 +65,25 @@ def kernel_modules() -> list[str]:
     return names
 
 
-def compile_all(arch: int, dest: Path) -> list[str]:
+def _compile(mod, label: str, arch: int, version: Path, made: list, resources: str | None) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        for f in wp.compile_aot_module(mod, device=None, arch=arch, module_dir=tmp):
+            stem = f.name.split(f".sm{arch}")[0]
+            folder = version / stem
+            folder.mkdir(parents=True, exist_ok=True)
+            for g in Path(tmp).glob(stem + ".*"):
+                shutil.copy(g, folder / g.name)
+            made.append(stem)
+            print(f"{stem} ({label}): {time.perf_counter() - t0:.1f} s", flush=True)
+            if resources is not None:
+                for name, (regs, frame) in sorted(cubin_resources(f.read_bytes() if f.exists() else
+                                                                  (folder / f.name).read_bytes()).items()):
+                    if resources in name and name.endswith("_forward"):
+                        print(f"    {regs:4d} registers, {frame:5d} B local frame: {name}")
+
+
+def compile_all(arch: int, dest: Path, resources: str | None = None) -> list[str]:
     """Compile every kernel module for ``arch`` at each of its block sizes into ``dest``/<warp version>/;
     returns the folders made."""
     made = []
@@ -67,18 +95,42 @@ def compile_all(arch: int, dest: Path) -> list[str]:
         for bd in (None, *BLOCK_DIMS.get(name, ())):
             if bd is not None:
                 wp.set_module_options({"block_dim": bd}, module=mod)
-            with tempfile.TemporaryDirectory() as tmp:
-                t0 = time.perf_counter()
-                for f in wp.compile_aot_module(mod, device=None, arch=arch, module_dir=tmp):
-                    stem = f.name.split(f".sm{arch}")[0]
-                    folder = version / stem
-                    folder.mkdir(parents=True, exist_ok=True)
-                    for g in Path(tmp).glob(stem + ".*"):
-                        shutil.copy(g, folder / g.name)
-                    made.append(stem)
-                    print(f"{stem} (block {bd or default}): {time.perf_counter() - t0:.1f} s", flush=True)
+            _compile(mod, f"block {bd or default}", arch, version, made, resources)
         wp.set_module_options({"block_dim": default}, module=mod)
+    for k in made_kernels():
+        _compile(k.module, "made at run time", arch, version, made, resources)
     return made
+
+
+def cubin_resources(data: bytes) -> dict:
+    """{kernel: (registers, local frame bytes)} from a cubin's ELF ``.nv.info`` section (attributes
+    EIATTR_REGCOUNT 0x2f and EIATTR_FRAME_SIZE 0x11, each (symbol index, value))."""
+    shoff = struct.unpack_from("<Q", data, 0x28)[0]
+    shentsize, shnum, shstrndx = struct.unpack_from("<HHH", data, 0x3A)
+    secs = [struct.unpack_from("<IIQQQQIIQQ", data, shoff + i * shentsize) for i in range(shnum)]
+
+    def cstr(off):
+        return data[off:data.index(b"\0", off)].decode()
+
+    names = [cstr(secs[shstrndx][4] + s[0]) for s in secs]
+    symtab = next(s for s in secs if s[1] == 2)  # SHT_SYMTAB
+    strtab = secs[symtab[6]]
+    syms = [cstr(strtab[4] + struct.unpack_from("<I", data, symtab[4] + 24 * i)[0]) for i in range(symtab[5] // 24)]
+    info = secs[names.index(".nv.info")]
+    out: dict = {}
+    o, end = info[4], info[4] + info[5]
+    while o < end:
+        fmt, attr = data[o], data[o + 1]
+        if fmt == 0x04:  # EIFMT_SVAL: a 2-byte size, then the value
+            size = struct.unpack_from("<H", data, o + 2)[0]
+            if size == 8 and attr in (0x2F, 0x11):
+                sym, value = struct.unpack_from("<II", data, o + 4)
+                regs, frame = out.get(syms[sym], (0, 0))
+                out[syms[sym]] = (value, frame) if attr == 0x2F else (regs, value)
+            o += 4 + size
+        else:  # EIFMT_NVAL / BVAL / HVAL: 4 bytes
+            o += 4
+    return out
 
 
 def main() -> None:
@@ -86,6 +138,8 @@ def main() -> None:
     p.add_argument("--arch", type=int, default=90, help="CUDA architecture (90: H100 and H200)")
     p.add_argument("--merge", default=None, help="a kernel-cache tar.xz whose other entries to keep")
     p.add_argument("--out", default=str(ROOT / ".devc" / "warp_cache.tar.xz"), help="tar.xz to write")
+    p.add_argument("--resources", nargs="?", const="", default=None,
+                   help="print registers and local frame of the kernels whose name holds this text")
     a = p.parse_args()
     wp.init()
     with tempfile.TemporaryDirectory() as tmp:
@@ -93,7 +147,7 @@ def main() -> None:
         if a.merge and Path(a.merge).exists():
             with tarfile.open(a.merge) as t:
                 t.extractall(dest, filter="data")
-        made = compile_all(a.arch, dest)
+        made = compile_all(a.arch, dest, a.resources)
         buf = io.BytesIO()
         with tarfile.open(fileobj=buf, mode="w:xz") as t:
             for entry in sorted(dest.iterdir()):

@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d or s41_e}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e or s42_a}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -476,6 +476,21 @@ print('true' if r['tiled'] > r['thread'] else 'false')" 2>/dev/null || echo fals
       --out docs/benchmarks/mesh_grid_cuda_s41.json
     step grid_old 150 bash -c "cd old_s41 && PYTHONPATH=/tmp/site:\$PWD:\$PWD/plugins python3 benchmarks/mesh_grid.py \
       --device cuda --frames 30 --spacings 0.002 --out /tmp/mesh_grid_cuda_s41_old.json && cp /tmp/mesh_grid_cuda_s41_old.json $OUT/"
+    ;;
+  s42_a)  # (not yet run) the per-thread multires kernel specialised and capped (Config.multires_registers; the
+    # generic one: 255 registers and a 2,064-byte local frame a thread on sm_90, so 8 warps an SM): the bowl at
+    # W = 1,024 with 0 / 128 / 168, then W = 4,096 with the fastest and every measure (the check points in pieces)
+    for r in 0 128 168; do
+      step "bowl_r$r" 100 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --profile --config "{\"multires_registers\": $r}" --out "docs/benchmarks/batch_hoi_cuda_bowl_s42_r$r.json"
+    done
+    best=$(python3 -c "
+import json
+r = {k: json.load(open(f'docs/benchmarks/batch_hoi_cuda_bowl_s42_r{k}.json'))['rows'][0]['hand_frames_per_s'] for k in (0, 128, 168)}
+print(max(r, key=r.get))" 2>/dev/null || echo 0)
+    echo "registers at W = 4,096: $best"
+    step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config "{\"multires_registers\": $best}" --out docs/benchmarks/batch_hoi_cuda_bowl_s42_4096.json
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

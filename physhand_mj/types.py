@@ -226,6 +226,12 @@ class Config:
         thread per triangle for batched worlds, where the launch's block per skin triangle of every
         world, nearly all idle, cost 2.8 x the batch's throughput (3,282 against 9,112
         hand-frames/s at W = 1024, docs/scale.md).
+      multires_registers: CUDA's per-thread multires kernel (batched worlds; tiled_contact False): 0
+        (default) runs the kernel that serves every strategy (255 registers and a 2,064-byte local
+        frame a thread on sm_90); N > 0 a copy specialised to MULTIRES (the other strategies' inlined
+        queries left out: a 1,296-byte frame) capped at N registers a thread (128: 1,808 bytes), for
+        more threads an SM. The same answers (the CPU's skins bit for bit); its speed on a GPU is not
+        yet measured (docs/scale.md).
       tiled_features: on CUDA, run the object's side (feature_contact: each contact stage's feature
         list and every pass's feature push) with a block of 128 threads per listed feature point,
         the lanes scanning the point's patch (the skin triangles within contact_frame_margin of it
@@ -337,6 +343,7 @@ class Config:
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool | None = None
+    multires_registers: int = 0
     tiled_features: bool | None = None
     feature_winding: bool = True
     feature_last: bool = True
@@ -375,6 +382,10 @@ class Config:
             raise ValueError(f"Config.relaxation must lie in (0, 2), got {self.relaxation!r}")
         if not (self.tiled_contact is None or isinstance(self.tiled_contact, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_contact must be None (one hand: tiled), True or False, got {self.tiled_contact!r}")
+        r = self.multires_registers
+        if not (isinstance(r, (int, np.integer)) and not isinstance(r, bool) and (r == 0 or 32 <= r <= 255)):
+            raise ValueError(f"Config.multires_registers must be 0 (the generic kernel) or an integer from 32 to 255 "
+                             f"(registers a thread), got {r!r}")
         if not isinstance(self.region_sleep, (bool, np.bool_)):
             raise ValueError(f"Config.region_sleep must be True or False, got {self.region_sleep!r}")
         if not (self.fused_substep is None or isinstance(self.fused_substep, (bool, np.bool_))):

@@ -20,7 +20,7 @@ from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import ObjectPoints
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
-from physhand_mj.contact.query import apply_contact, decide_and_project
+from physhand_mj.contact.query import apply_contact, decide_and_project, multires_kernel
 from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
@@ -381,7 +381,10 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                    block_dim=TILE_LANES)
         else:
-            launch(decide_and_project, self.n_tris,
+            decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
+            if cfg.multires_registers and cfg.contact == Strategy.MULTIRES:
+                decide = multires_kernel(int(cfg.multires_registers))
+            launch(decide, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                     self.tris_per_world, self.geoms_per_world, *lst,
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,

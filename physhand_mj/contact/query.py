@@ -488,6 +488,39 @@ def decide_and_project(
                     delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count)
 
 
+_MULTIRES_KERNELS: dict = {}
+
+
+def multires_kernel(max_registers: int):
+    """:func:`decide_and_project` specialised to MULTIRES (the strategy a constant, so the other
+    strategies' inlined queries and their local arrays drop out) and capped at ``max_registers``
+    registers a thread on CUDA (Config.multires_registers; ignored on the CPU). The same code path,
+    so the same answers. One kernel per cap, made on first use."""
+    if max_registers not in _MULTIRES_KERNELS:
+
+        def decide_and_project_multires(
+            faces: wp.array2d(dtype=int), gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+            inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul),
+            geom_count: wp.array(dtype=int), geom_obj: wp.array(dtype=int), tris_per_world: int,
+            geoms_per_world: int, active: wp.array(dtype=int), active_mask: wp.array(dtype=int),
+            active_count: wp.array(dtype=int), strategy: int, samples: int, rounds: int, opt_queries: int,
+            offset: float, side_aware: int, x: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3),
+            hits: wp.array(dtype=float), decision: wp.array(dtype=wp.vec4), vertex_obj: wp.array(dtype=int),
+            bound: wp.array(dtype=float), bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3),
+            touched: wp.array(dtype=int), touched_count: wp.array(dtype=int)):
+            k = wp.tid()
+            if k >= active_count[0]:
+                return
+            decide_triangle(active[k], active_mask[k], faces, gtype, size, inv_pose, radius, mesh, geom_count,
+                            geom_obj, tris_per_world, geoms_per_world, MULTIRES, samples, rounds, opt_queries, offset,
+                            side_aware, x, delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched,
+                            touched_count)
+
+        _MULTIRES_KERNELS[max_registers] = wp.kernel(decide_and_project_multires, module="unique",
+                                                     enable_backward=False, cuda_max_registers=max_registers)
+    return _MULTIRES_KERNELS[max_registers]
+
+
 @wp.func
 def apply_vertex(i: int, stamp: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float),
                  x: wp.array(dtype=wp.vec3), push: wp.array(dtype=float), moved: wp.array(dtype=int),

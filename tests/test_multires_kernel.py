@@ -1,0 +1,63 @@
+"""Config.multires_registers: the per-thread multires kernel specialised to MULTIRES (and capped in
+registers on CUDA) takes the generic kernel's code path, so a batch pressed by a sphere and by a mesh
+ends with the same skins bit for bit on the CPU; bad values are refused with the fix."""
+
+import numpy as np
+import pytest
+import trimesh
+
+import physhand_mj as ph
+from physhand_mj.batch import BatchedHands
+from physhand_mj.contact.query import decide_and_project, multires_kernel
+from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+from physhand_mj.types import Config, GeomType
+
+
+def _pressed_batch(**config):
+    """Two worlds after 3 frames: a 2 cm sphere 2 mm / 3 mm into the back of each hand, a 3 cm mesh box
+    2 mm into world 0's palm (30 cm aside in world 1); returns the skins before and after, and the
+    last frame's report."""
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
+    box = trimesh.creation.box((0.03, 0.03, 0.03))
+    batch = BatchedHands(asset, 2, Config(device="cpu", **config), *mount_pose(model, data),
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball"),
+                                  dict(gtype=GeomType.MESH, size=None, vertices=box.vertices, faces=box.faces,
+                                       name="block")])
+    before = batch.skins()
+    skin = before[0]
+    top, bottom = skin[np.argmax(skin[:, 2])].astype(float), skin[np.argmin(skin[:, 2])].astype(float)
+    ball = np.stack([top + [0.0, 0.0, 0.018], top + [0.0, 0.0, 0.017]])
+    block = np.stack([bottom - [0.0, 0.0, 0.013], bottom + [0.0, 0.3, 0.0]])
+    where, ident = np.stack([ball, block], 1), np.array([[[1.0, 0.0, 0.0, 0.0]] * 2] * 2)
+    for _ in range(3):
+        out = batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), where, ident)
+    return before, batch.skins(), out
+
+
+def test_the_specialised_kernel_gives_the_generic_kernels_skins(monkeypatch):
+    import physhand_mj.contact.contact as contact_mod
+
+    made = []
+
+    def spy(registers):
+        made.append(registers)
+        return multires_kernel(registers)
+
+    monkeypatch.setattr(contact_mod, "multires_kernel", spy)
+    before, generic, out = _pressed_batch()
+    assert not made  # the default: the generic kernel
+    _, special, out2 = _pressed_batch(multires_registers=128)
+    assert made and set(made) == {128}  # every pass recorded the specialised kernel
+    assert np.abs(generic - before).max() > 1e-3, "nothing pressed the hands: the test would compare nothing"
+    assert out["triangles_tested"] == out2["triangles_tested"] > 0
+    np.testing.assert_array_equal(special, generic)
+    assert out["penetration_count"] == out2["penetration_count"] == 0
+    assert multires_kernel(128) is multires_kernel(128) and multires_kernel(128) is not decide_and_project
+
+
+@pytest.mark.parametrize("bad", [-1, 16, 256, 1.5, True, "128"])
+def test_bad_register_caps_are_refused(bad):
+    with pytest.raises(ValueError, match="multires_registers"):
+        Config(multires_registers=bad).validate()
