@@ -115,14 +115,24 @@ def _random_case(scene, margins, fraction, corner, kind, site, depth, spin):
         if held is None and d == depth:
             held = run.pos.copy()  # the object's centre while it is held (world, m)
     r = run.arrays()
+    # the same poses without the object (the reference run, also for the inverted tets below)
+    ref = Stress(scene, ph.Config(device="cpu"))
+    for f in range(POSE_FRAMES):
+        ref.frame(qpos=scene.open + (f + 1) / POSE_FRAMES * (target - scene.open))
+    for _ in sched:
+        ref.frame()
+    # a pose near the joint limits dips the flesh's volume by itself when its bones stop (up to 11 % for
+    # a frame, docs/stability.md; 10.6 % at 99 % toward every lower limit, found 2026-11-27 with the box
+    # never touching): the bound is 10 % or the reference's dip and 2 % more
+    ref_dip = float(np.abs(ref.arrays()["volume"]).max())
     # a random object path can pass through a bone of a curled finger on its way to the site: then no
     # penetration-free skin exists (the skin is caught between bone and object, or crossed with it),
     # and as for the objects started 20 mm inside (test_stress_fast) only finite, bounded, volume and
     # nothing left once away are asserted, not the hold's growth
     bone_hit = int(r["bones_in"].max())
-    out = run.check(volume_tol=0.10, carried_mm=50.0, grow_count=10, grow_um=100.0,
+    out = run.check(volume_tol=max(0.10, ref_dip + 0.02), carried_mm=50.0, grow_count=10, grow_um=100.0,
                     hold=None if bone_hit else (POSE_FRAMES + 5, POSE_FRAMES + 11))
-    out["bones_inside_max"] = bone_hit
+    out.update(bones_inside_max=bone_hit, volume_reference_pct=round(ref_dip * 100, 3))
     # "no tet left inverted once the contact ends", where the contact was: a curled pose inverts
     # crease tets by itself (up to ~200 at 80 % toward the limits, measured), and their count flickers
     # by +-10 % frame to frame while the hand settles, anywhere in the hand. So the reference is the
@@ -130,11 +140,6 @@ def _random_case(scene, margins, fraction, corner, kind, site, depth, spin):
     # within NEAR_M of the held object's centre, after SETTLE more frames for both, the fewest inverted
     # over the last 4 frames at most the most the reference shows over its last 4 (the crease tets
     # flicker: which ones and how many differ between any two runs by ~2 of ~2,000, measured)
-    ref = Stress(scene, ph.Config(device="cpu"))
-    for f in range(POSE_FRAMES):
-        ref.frame(qpos=scene.open + (f + 1) / POSE_FRAMES * (target - scene.open))
-    for _ in sched:
-        ref.frame()
     tets = run._tets
     near = (np.linalg.norm(run.state.x.numpy().astype(float)[tets] - held, axis=2) < NEAR_M).any(axis=1)
     counts = {"run": [], "ref": []}
@@ -187,5 +192,31 @@ def test_random_pose_and_object(scene, margins, fraction, corner, kind, site, de
                                               0.0035, 0.7426187605677753, 0.5, 0.0, 0.09609655162192102,
                                               0.9135363080883572, 0.47098838368334006, 0.13590729560863804],
          kind="cone_tip", site="palm", depth=0.001596452722582931, spin=0.9564154343227714)
+# found 2026-11-27: a pose 99 % toward every lower joint limit dips the flesh's volume 10.6 % for one frame
+# as its bones stop, with the box at the fingertip never touching (the reference run dips the same)
+@example(fraction=0.9856565839441895, corner=[0.0] * 23, kind="box", site="fingertip", depth=0.0, spin=0.0)
+# and (known, not fixed) a box 1.8 mm into the palm of a pose at a corner of the joint limits: after it
+# left, 1-2 of the 1,515 tets within 15 mm of it stayed inverted over the last 4 settled frames where
+# the same poses without it ended with none (7, 6, 5, 2, 1, 2, 2, 2 against 2, 2, 1, 0, 0, 0, 0, 0);
+# the same at the session's first commit (docs/stability.md)
+@example(fraction=1.0, corner=[0.05431910454354251, 0.4794181465200896, 0.7227280365771603, 2.220446049250313e-16,
+                                              0.7889038704941895, 0.9557469567381343, 1e-05, 1.192092896e-07,
+                                              3.354982171374753e-265, 0.25, 0.5649441031062347, 0.99,
+                                              0.3462234884607221, 1.175494351e-38, 1.7564478326707839e-35, 0.26844573821603596,
+                                              2.0974829447850946e-67, 1.192092896e-07, 2.5311199458905614e-45, 0.11884384268338713,
+                                              0.6975882581253791, 1.4022061836700555e-274, 0.29335251431374326],
+         kind='box', site='palm', depth=0.0017624629569744923, spin=1.0).xfail(raises=AssertionError,
+                                                                       reason="crease tets left inverted")
+# and (known, not fixed) the 1 mm plate 3.8 mm into the palm of a pose 22 % toward a corner: one held frame
+# with 29 order-9 samples up to 279 um inside and 7 check points, clean the frames before and after
+# (the same at the session's first commit; docs/stability.md)
+@example(fraction=0.22385958446249693, corner=[0.560489991871182, 0.6631885711529352, 0.4004507006285841, 0.0,
+                                              0.29824300012372423, 1.0, 2.7118927224725378e-300, 0.7254019572792391,
+                                              0.40443039470491915, 0.7680149143589079, 4.43542848281755e-124, 0.8511687512722153,
+                                              0.4976141759365357, 0.4896558928155442, 5e-324, 0.7847293146468222,
+                                              0.4880446011210814, 0.8712950773701829, 0.9439184022736937, 0.0641725379992606,
+                                              0.0, 0.8263483876325219, 0.25177644170004837],
+         kind='plate', site='palm', depth=0.0037772973312942214, spin=6.103515625e-05).xfail(raises=AssertionError,
+                                                                       reason="a held frame's residue")
 def test_random_pose_and_object_many(scene, margins, fraction, corner, kind, site, depth, spin):
     _random_case(scene, margins, fraction, corner, kind, site, depth, spin)
