@@ -83,12 +83,11 @@ class ContactMeasures:
         """The skin measure: samples of the order-``order`` lattice inside objects (columns 0-2)."""
         m, o = self.model, self.objects
         geoms = [v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count]
-        listed, count = self._penetration_list()
-        if obj < 0 and self.cull_measure:  # the triangles near an object first, then a thread per kept triangle
+        culled = obj < 0 and self.cull_measure
+        listed, count = self._penetration_list(culled)
+        if culled:  # the triangles near an object first, then a thread per kept triangle
             ops.append(count.zero_)
             launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
-        else:  # one hand, or one object's measure: every triangle asks its bound itself
-            listed, count = self._no_list
         launch(penetration_samples, self.n_tris,
                [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count],
                [out])
@@ -104,14 +103,14 @@ class ContactMeasures:
     def cull_measure(self, on: bool) -> None:
         self._cull_measure = bool(on)
 
-    def _penetration_list(self):
+    def _penetration_list(self, culled: bool):
         """The skin measure's kept triangles and their count (made on first use, shared by every
-        measure: they run one after another)."""
-        if getattr(self, "_pen_list", None) is None:
-            d = self.model.device
-            self._pen_list = (wp.zeros(self.n_tris, dtype=int, device=d), wp.zeros(1, dtype=int, device=d))
-            self._no_list = (wp.zeros(0, dtype=int, device=d), wp.zeros(0, dtype=int, device=d))
-        return self._pen_list
+        measure: they run one after another); not culled: empty arrays (every triangle asks)."""
+        key = "_pen_list" if culled else "_no_list"
+        if key not in self.__dict__:
+            d, n = self.model.device, self.n_tris if culled else 0
+            self.__dict__[key] = (wp.zeros(n, dtype=int, device=d), wp.zeros(int(culled), dtype=int, device=d))
+        return self.__dict__[key]
 
     def _reuse(self, pts: ObjectPoints, vol, pose) -> "_Reuse":
         """The object-side measure's memory for ``pts`` against the skin volume ``vol`` (made on first
