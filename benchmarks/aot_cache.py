@@ -45,11 +45,15 @@ BLOCK_DIMS = {
 }
 
 
-# kernels made at run time that a device run uses (Config.multires_registers' caps)
+# kernels made at run time that a device run uses (Config.multires_registers' caps, with
+# Config.multires_block_dim's blocks)
+MADE = ((128, 256), (168, 256), (128, 128), (96, 128), (80, 128), (64, 128))
+
+
 def made_kernels() -> list:
     from physhand_mj.contact.query import multires_kernel
 
-    return [multires_kernel(r) for r in (128, 168)]
+    return [multires_kernel(r, b) for r, b in MADE]
 
 
 def kernel_modules() -> list[str]:

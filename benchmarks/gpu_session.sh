@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e or s42_a}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c or s43_d}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -477,20 +477,87 @@ print('true' if r['tiled'] > r['thread'] else 'false')" 2>/dev/null || echo fals
     step grid_old 150 bash -c "cd old_s41 && PYTHONPATH=/tmp/site:\$PWD:\$PWD/plugins python3 benchmarks/mesh_grid.py \
       --device cuda --frames 30 --spacings 0.002 --out /tmp/mesh_grid_cuda_s41_old.json && cp /tmp/mesh_grid_cuda_s41_old.json $OUT/"
     ;;
-  s42_a)  # (not yet run) the per-thread multires kernel specialised and capped (Config.multires_registers; the
-    # generic one: 255 registers and a 2,064-byte local frame a thread on sm_90, so 8 warps an SM): the bowl at
-    # W = 1,024 with 0 / 128 / 168, then W = 4,096 with the fastest and every measure (the check points in pieces)
+  s42_a)  # the per-thread multires kernel specialised and capped (Config.multires_registers; the generic one:
+    # 255 registers and a 2,064-byte local frame a thread on sm_90, so 8 warps an SM): the bowl at W = 1,024 with
+    # 0 / 128 / 168, then one hand on the bowl (SoftHand.step) with 0 and 128, alternated; the fastest batch
+    # setting is left in /tmp/s42_best for s42_b
     for r in 0 128 168; do
-      step "bowl_r$r" 100 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      step "bowl_r$r" 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
         --profile --config "{\"multires_registers\": $r}" --out "docs/benchmarks/batch_hoi_cuda_bowl_s42_r$r.json"
+      cp "docs/benchmarks/batch_hoi_cuda_bowl_s42_r$r.json" "$OUT/" 2>/dev/null
     done
-    best=$(python3 -c "
+    python3 -c "
 import json
 r = {k: json.load(open(f'docs/benchmarks/batch_hoi_cuda_bowl_s42_r{k}.json'))['rows'][0]['hand_frames_per_s'] for k in (0, 128, 168)}
-print(max(r, key=r.get))" 2>/dev/null || echo 0)
+print(r); print(max(r, key=r.get), file=open('/tmp/s42_best', 'w'))" || echo 0 > /tmp/s42_best
+    for r in 0 128 0 128; do
+      step "hand_r$r" 60 python3 benchmarks/mesh_grid.py --device cuda --frames 30 --spacings 0.002 \
+        --config "{\"multires_registers\": $r}" --out "$OUT/mesh_grid_cuda_s42_r${r}_$SECONDS.json"
+    done
+    ;;
+  s42_b)  # the bowl at W = 4,096 with s42_a's fastest setting and every measure (the check points in pieces)
+    best=$(cat /tmp/s42_best 2>/dev/null || echo 0)
     echo "registers at W = 4,096: $best"
+    step bowl_4096 420 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config "{\"multires_registers\": $best}" --out "$OUT/batch_hoi_cuda_bowl_s42_4096.json"
+    ;;
+  s43_a)  # Nsight Compute on the bowl's decision-point kernel (W = 1,024, the generic kernel and the one capped at
+    # 128 registers): occupancy, warp states, divergence, memory; reports and their text pages into $OUT
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    echo "ncu: ${NCU:-none}"; ls -d /usr/local/cuda*/bin 2>/dev/null
+    for r in 0 128; do
+      step "ncu_r$r" 270 "$NCU" --target-processes all -k regex:decide --launch-skip 61 --launch-count 2 \
+        --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
+        --section SchedulerStats --section MemoryWorkloadAnalysis --section SourceCounters --section InstructionStats \
+        -f -o "$OUT/decide_r$r" python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 3 \
+        --config "{\"multires_registers\": $r, \"cuda_graph\": false}" --out /tmp/ncu_r$r.json
+      "$NCU" --import "$OUT/decide_r$r.ncu-rep" --page details > "$OUT/decide_r$r.txt" 2>&1
+      head -c 3000 "$OUT/decide_r$r.txt"
+    done
+    ;;
+  s43_b)  # the six analytic grasps at W = 1,024 with the generic kernel and the one capped at 128 registers
+    for s in toothpaste glass1 glass2 apple phone box; do
+      for r in 0 128; do
+        step "${s}_r$r" 80 python3 benchmarks/batch_hoi.py --device cuda --scenes "$s" --worlds 1024 --frames 10 \
+          --config "{\"multires_registers\": $r}" --out "$OUT/batch_hoi_cuda_${s}_s43_r$r.json"
+      done
+    done
+    ;;
+  s43_c)  # Nsight Compute on one timed frame's 30 decision-point launches (the bowl, W = 1,024, capped at 128
+    # registers, no CUDA graph: ncu cannot profile nodes of a graph with conditional nodes); raw metrics as CSV
+    NCU=/usr/local/cuda/bin/ncu
+    step ncu_frame 300 "$NCU" --target-processes all -k regex:decide --launch-skip 60 --launch-count 30 \
+      --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
+      --section SchedulerStats --section InstructionStats -f -o "$OUT/decide_frame" \
+      python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 3 \
+      --config '{"multires_registers": 128, "cuda_graph": false}' --out /tmp/ncu_frame.json
+    "$NCU" --import "$OUT/decide_frame.ncu-rep" --page raw --csv > "$OUT/decide_frame_raw.csv" 2>&1
+    python3 - "$OUT/decide_frame_raw.csv" <<'PY'
+import csv, sys
+rows = list(csv.reader(open(sys.argv[1])))
+h = rows[0]
+col = {n: h.index(n) for n in h}
+def get(r, n):
+    return r[col[n]] if n in col else "?"
+for r in rows[2:]:
+    print(get(r, "gpu__time_duration.sum"), get(r, "smsp__inst_executed.sum"), get(r, "sm__warps_active.avg.pct_of_peak_sustained_active"),
+          get(r, "smsp__warps_eligible.avg.per_cycle_active"))
+PY
+    ;;
+  s43_d)  # the bowl at W = 1,024: the multires kernel's register cap and block size, then W = 4,096 with the fastest
+    for rb in 0:256 128:256 128:128 96:128 80:128 64:128; do
+      r=${rb%:*}; b=${rb#*:}
+      step "bowl_r${r}_b$b" 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --config "{\"multires_registers\": $r, \"multires_block_dim\": $b}" --out "$OUT/batch_hoi_cuda_bowl_s43_r${r}_b$b.json"
+    done
+    best=$(python3 -c "
+import glob, json
+r = {f.split('_s43_')[1][:-5]: json.load(open(f))['rows'][0]['hand_frames_per_s'] for f in glob.glob('$OUT/batch_hoi_cuda_bowl_s43_r*.json')}
+print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].replace('_b', ' '))")
+    set -- $best
+    echo "at W = 4,096: registers $1, block $2"
     step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
-      --config "{\"multires_registers\": $best}" --out docs/benchmarks/batch_hoi_cuda_bowl_s42_4096.json
+      --config "{\"multires_registers\": $1, \"multires_block_dim\": $2}" --out "$OUT/batch_hoi_cuda_bowl_s43_4096.json"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

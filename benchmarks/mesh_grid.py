@@ -3,6 +3,7 @@ changes nothing: the HOI bowl (a 1,408-face mesh) grasped by SoftHand with each 
 the grid's answers against the exact BVH query at points around the bowl.
 
     python benchmarks/mesh_grid.py [--device cpu|cuda] [--frames 12] [--spacings 0,0.001,0.002]
+                                   [--config '{"multires_registers": 128}']
                                    [--out docs/benchmarks/mesh_grid_<device>.json]
 
 Per spacing (m; 0 = no grid, every query walks the BVH): SoftHand setup time (s, includes building
@@ -41,13 +42,13 @@ def _phi(size: wp.vec3, ids: wp.vec2ul, p: wp.array(dtype=wp.vec3), out: wp.arra
     out[i] = geom_sdf(int(GeomType.MESH), p[i], size, ids)
 
 
-def run_scene(device: str, spacing: float, frames: int) -> dict:
+def run_scene(device: str, spacing: float, frames: int, extra: dict | None = None) -> dict:
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hoi_bowl")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("grasp").id)
     mujoco.mj_forward(model, data)
     t0 = time.perf_counter()
-    hand = ph.SoftHand(model, data, ph.Config(device=device, mesh_grid=spacing))
+    hand = ph.SoftHand(model, data, ph.Config(device=device, mesh_grid=spacing, **(extra or {})))
     setup = time.perf_counter() - t0
     ms = []
     for _ in range(frames):
@@ -110,12 +111,14 @@ def main():
     ap.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
     ap.add_argument("--frames", type=int, default=12, help="5 ms frames per run (the first 2 are not timed)")
     ap.add_argument("--spacings", default="0,0.001,0.002", help="grid spacings to compare (m, comma-separated)")
+    ap.add_argument("--config", default="{}", help="other Config fields as JSON, for every run")
     ap.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/mesh_grid_<device>.json)")
     a = ap.parse_args()
+    extra = json.loads(a.config)
     spacings = [float(s) for s in a.spacings.split(",")]
     rows, ref = [], None
     for s in spacings:
-        r = run_scene(a.device, s, a.frames)
+        r = run_scene(a.device, s, a.frames, extra)
         skin = r.pop("skin")
         ref = skin if ref is None else ref
         r["max_skin_diff_um"] = round(float(np.abs(skin - ref).max() * 1e6), 4)
@@ -124,7 +127,7 @@ def main():
     queries = [query_accuracy(a.device, s) for s in spacings if s > 0]
     for q in queries:
         print(json.dumps(q), flush=True)
-    doc = dict(device=device_name(a.device), frames=a.frames, scene="hoi_bowl/grasp", rows=rows, queries=queries)
+    doc = dict(device=device_name(a.device), frames=a.frames, config=extra, scene="hoi_bowl/grasp", rows=rows, queries=queries)
     out = Path(a.out) if a.out else ROOT / "docs" / "benchmarks" / f"mesh_grid_{a.device.split(':')[0]}.json"
     out.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"wrote {out}")

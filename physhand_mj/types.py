@@ -232,6 +232,9 @@ class Config:
         queries left out: a 1,296-byte frame) capped at N registers a thread (128: 1,808 bytes), for
         more threads an SM. The same answers (the CPU's skins bit for bit); its speed on a GPU is not
         yet measured (docs/scale.md).
+      multires_block_dim: threads a block of that specialised kernel (CUDA; 32 to 1,024, a multiple
+        of 32). Warp's mesh queries keep their BVH stacks in shared memory, 32 ints a thread (33.8 KB
+        a block of 256), which with the registers bounds the blocks an SM holds.
       tiled_features: on CUDA, run the object's side (feature_contact: each contact stage's feature
         list and every pass's feature push) with a block of 128 threads per listed feature point,
         the lanes scanning the point's patch (the skin triangles within contact_frame_margin of it
@@ -344,6 +347,7 @@ class Config:
     cuda_graph: bool = True
     tiled_contact: bool | None = None
     multires_registers: int = 0
+    multires_block_dim: int = 256
     tiled_features: bool | None = None
     feature_winding: bool = True
     feature_last: bool = True
@@ -386,6 +390,10 @@ class Config:
         if not (isinstance(r, (int, np.integer)) and not isinstance(r, bool) and (r == 0 or 32 <= r <= 255)):
             raise ValueError(f"Config.multires_registers must be 0 (the generic kernel) or an integer from 32 to 255 "
                              f"(registers a thread), got {r!r}")
+        b = self.multires_block_dim
+        if not (isinstance(b, (int, np.integer)) and not isinstance(b, bool) and 32 <= b <= 1024 and b % 32 == 0):
+            raise ValueError(f"Config.multires_block_dim must be a multiple of 32 from 32 to 1024 (threads a block), "
+                             f"got {b!r}")
         if not isinstance(self.region_sleep, (bool, np.bool_)):
             raise ValueError(f"Config.region_sleep must be True or False, got {self.region_sleep!r}")
         if not (self.fused_substep is None or isinstance(self.fused_substep, (bool, np.bool_))):

@@ -41,23 +41,30 @@ def test_the_specialised_kernel_gives_the_generic_kernels_skins(monkeypatch):
 
     made = []
 
-    def spy(registers):
-        made.append(registers)
-        return multires_kernel(registers)
+    def spy(registers, block_dim=256):
+        made.append((registers, block_dim))
+        return multires_kernel(registers, block_dim)
 
     monkeypatch.setattr(contact_mod, "multires_kernel", spy)
     before, generic, out = _pressed_batch()
     assert not made  # the default: the generic kernel
-    _, special, out2 = _pressed_batch(multires_registers=128)
-    assert made and set(made) == {128}  # every pass recorded the specialised kernel
+    _, special, out2 = _pressed_batch(multires_registers=128, multires_block_dim=64)
+    assert made and set(made) == {(128, 64)}  # every pass recorded the specialised kernel
     assert np.abs(generic - before).max() > 1e-3, "nothing pressed the hands: the test would compare nothing"
     assert out["triangles_tested"] == out2["triangles_tested"] > 0
     np.testing.assert_array_equal(special, generic)
     assert out["penetration_count"] == out2["penetration_count"] == 0
     assert multires_kernel(128) is multires_kernel(128) and multires_kernel(128) is not decide_and_project
+    assert multires_kernel(128, 64) is not multires_kernel(128) and multires_kernel(128, 64).module.options["block_dim"] == 64
 
 
 @pytest.mark.parametrize("bad", [-1, 16, 256, 1.5, True, "128"])
 def test_bad_register_caps_are_refused(bad):
     with pytest.raises(ValueError, match="multires_registers"):
         Config(multires_registers=bad).validate()
+
+
+@pytest.mark.parametrize("bad", [0, 16, 48, 2048, 64.0, True])
+def test_bad_block_sizes_are_refused(bad):
+    with pytest.raises(ValueError, match="multires_block_dim"):
+        Config(multires_block_dim=bad).validate()

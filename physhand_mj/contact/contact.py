@@ -383,7 +383,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         else:
             decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
             if cfg.multires_registers and cfg.contact == Strategy.MULTIRES:
-                decide = multires_kernel(int(cfg.multires_registers))
+                decide = multires_kernel(int(cfg.multires_registers), int(cfg.multires_block_dim))
             launch(decide, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                     self.tris_per_world, self.geoms_per_world, *lst,

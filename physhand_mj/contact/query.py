@@ -491,12 +491,15 @@ def decide_and_project(
 _MULTIRES_KERNELS: dict = {}
 
 
-def multires_kernel(max_registers: int):
+def multires_kernel(max_registers: int, block_dim: int = 256):
     """:func:`decide_and_project` specialised to MULTIRES (the strategy a constant, so the other
     strategies' inlined queries and their local arrays drop out) and capped at ``max_registers``
-    registers a thread on CUDA (Config.multires_registers; ignored on the CPU). The same code path,
-    so the same answers. One kernel per cap, made on first use."""
-    if max_registers not in _MULTIRES_KERNELS:
+    registers a thread on CUDA (Config.multires_registers; ignored on the CPU), compiled for blocks of
+    ``block_dim`` threads (Config.multires_block_dim: Warp's mesh queries keep their BVH stacks in
+    shared memory, 32 ints a thread of the block). The same code path, so the same answers. One
+    kernel per (cap, block), made on first use."""
+    key = (int(max_registers), int(block_dim))
+    if key not in _MULTIRES_KERNELS:
 
         def decide_and_project_multires(
             faces: wp.array2d(dtype=int), gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
@@ -516,9 +519,12 @@ def multires_kernel(max_registers: int):
                             side_aware, x, delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched,
                             touched_count)
 
-        _MULTIRES_KERNELS[max_registers] = wp.kernel(decide_and_project_multires, module="unique",
-                                                     enable_backward=False, cuda_max_registers=max_registers)
-    return _MULTIRES_KERNELS[max_registers]
+        # a module of its own per (cap, block): Warp's "unique" modules are shared by equal code
+        k = wp.kernel(decide_and_project_multires, module=f"{__name__}.multires_r{key[0]}_b{key[1]}",
+                      enable_backward=False, cuda_max_registers=key[0])
+        k.module.options["block_dim"] = key[1]
+        _MULTIRES_KERNELS[key] = k
+    return _MULTIRES_KERNELS[key]
 
 
 @wp.func
