@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c or s43_d}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d or s43_e}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -558,6 +558,15 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     echo "at W = 4,096: registers $1, block $2"
     step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
       --config "{\"multires_registers\": $1, \"multires_block_dim\": $2}" --out "$OUT/batch_hoi_cuda_bowl_s43_4096.json"
+    ;;
+  s43_e)  # Config() as shipped (multires_registers None: 128 for a CUDA batch with a mesh object, else 0): the
+    # bowl at W = 1,024 and 4,096, the apple at W = 1,024
+    step bowl_1024 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s43e_1024.json"
+    step apple_1024 90 python3 benchmarks/batch_hoi.py --device cuda --scenes apple --worlds 1024 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_apple_s43e_1024.json"
+    step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s43e_4096.json"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

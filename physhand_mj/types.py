@@ -227,11 +227,13 @@ class Config:
         world, nearly all idle, cost 2.8 x the batch's throughput (3,282 against 9,112
         hand-frames/s at W = 1024, docs/scale.md).
       multires_registers: CUDA's per-thread multires kernel (batched worlds; tiled_contact False): 0
-        (default) runs the kernel that serves every strategy (255 registers and a 2,064-byte local
-        frame a thread on sm_90); N > 0 a copy specialised to MULTIRES (the other strategies' inlined
-        queries left out: a 1,296-byte frame) capped at N registers a thread (128: 1,808 bytes), for
-        more threads an SM. The same answers (the CPU's skins bit for bit); its speed on a GPU is not
-        yet measured (docs/scale.md).
+        runs the kernel that serves every strategy (255 registers and a 2,064-byte local frame a
+        thread on sm_90); N > 0 a copy specialised to MULTIRES (the other strategies' inlined queries
+        left out: a 1,296-byte frame) capped at N registers a thread (128: 1,808 bytes), for more
+        threads an SM. The same answers (the CPU's skins bit for bit). None (default): 128 for a CUDA
+        batch with a mesh object, else 0 (contact.multires_registers_for; H100, W = 1,024: the bowl
+        5,605-5,689 -> 6,327-6,351 hand-frames/s at 128, the analytic grasps 4-24 % slower at 128,
+        docs/scale.md).
       multires_block_dim: threads a block of that specialised kernel (CUDA; 32 to 1,024, a multiple
         of 32). Warp's mesh queries keep their BVH stacks in shared memory, 32 ints a thread (33.8 KB
         a block of 256), which with the registers bounds the blocks an SM holds.
@@ -346,7 +348,7 @@ class Config:
     device: str | None = None
     cuda_graph: bool = True
     tiled_contact: bool | None = None
-    multires_registers: int = 0
+    multires_registers: int | None = None
     multires_block_dim: int = 256
     tiled_features: bool | None = None
     feature_winding: bool = True
@@ -387,9 +389,10 @@ class Config:
         if not (self.tiled_contact is None or isinstance(self.tiled_contact, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_contact must be None (one hand: tiled), True or False, got {self.tiled_contact!r}")
         r = self.multires_registers
-        if not (isinstance(r, (int, np.integer)) and not isinstance(r, bool) and (r == 0 or 32 <= r <= 255)):
-            raise ValueError(f"Config.multires_registers must be 0 (the generic kernel) or an integer from 32 to 255 "
-                             f"(registers a thread), got {r!r}")
+        if r is not None and not (isinstance(r, (int, np.integer)) and not isinstance(r, bool)
+                                  and (r == 0 or 32 <= r <= 255)):
+            raise ValueError(f"Config.multires_registers must be None (chosen per run), 0 (the generic kernel) or an "
+                             f"integer from 32 to 255 (registers a thread), got {r!r}")
         b = self.multires_block_dim
         if not (isinstance(b, (int, np.integer)) and not isinstance(b, bool) and 32 <= b <= 1024 and b % 32 == 0):
             raise ValueError(f"Config.multires_block_dim must be a multiple of 32 from 32 to 1024 (threads a block), "

@@ -68,3 +68,17 @@ def test_bad_register_caps_are_refused(bad):
 def test_bad_block_sizes_are_refused(bad):
     with pytest.raises(ValueError, match="multires_block_dim"):
         Config(multires_block_dim=bad).validate()
+
+
+def test_the_register_cap_is_chosen_for_mesh_batches_on_cuda():
+    from physhand_mj.contact.contact import AUTO_MULTIRES_REGISTERS, multires_registers_for
+
+    auto = Config()
+    assert auto.multires_registers is None
+    assert multires_registers_for(auto, True, 1024, True) == AUTO_MULTIRES_REGISTERS  # a CUDA batch with a mesh
+    assert multires_registers_for(auto, True, 1024, False) == 0  # analytic objects only: the generic kernel
+    assert multires_registers_for(auto, True, 1, True) == 0  # one hand (the tiled kernel's run)
+    assert multires_registers_for(auto, False, 1024, True) == 0  # the CPU
+    assert multires_registers_for(Config(multires_registers=96), False, 1, False) == 96  # set: as set
+    assert multires_registers_for(Config(multires_registers=0), True, 1024, True) == 0
+    assert multires_registers_for(Config(contact=ph.Strategy.VERTEX), True, 1024, True) == 0
