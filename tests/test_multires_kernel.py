@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
+import warp as wp
+
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands
 from physhand_mj.contact.query import decide_and_project, multires_kernel
@@ -13,7 +15,7 @@ from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand
 from physhand_mj.types import Config, GeomType
 
 
-def _pressed_batch(**config):
+def _pressed_batch(device="cpu", **config):
     """Two worlds after 3 frames: a 2 cm sphere 2 mm / 3 mm into the back of each hand, a 3 cm mesh box
     2 mm into world 0's palm (30 cm aside in world 1); returns the skins before and after, and the
     last frame's report."""
@@ -21,7 +23,7 @@ def _pressed_batch(**config):
     _, model, data = open_hand_scene("hand_only", "open")
     poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
     box = trimesh.creation.box((0.03, 0.03, 0.03))
-    batch = BatchedHands(asset, 2, Config(device="cpu", **config), *mount_pose(model, data),
+    batch = BatchedHands(asset, 2, Config(device=device, **config), *mount_pose(model, data),
                          objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball"),
                                   dict(gtype=GeomType.MESH, size=None, vertices=box.vertices, faces=box.faces,
                                        name="block")])
@@ -56,6 +58,28 @@ def test_the_specialised_kernel_gives_the_generic_kernels_skins(monkeypatch):
     assert out["penetration_count"] == out2["penetration_count"] == 0
     assert multires_kernel(128) is multires_kernel(128) and multires_kernel(128) is not decide_and_project
     assert multires_kernel(128, 64) is not multires_kernel(128) and multires_kernel(128, 64).module.options["block_dim"] == 64
+
+
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
+def test_the_capped_kernel_chosen_on_cuda_presses_as_the_generic_kernel(monkeypatch):
+    """On CUDA the default (None) picks the capped kernel for this batch (a mesh object); its skins
+    match the generic kernel's within 2 um (CUDA's float atomics sum in no fixed order)."""
+    import physhand_mj.contact.contact as contact_mod
+
+    made = []
+
+    def spy(registers, block_dim=256):
+        made.append((registers, block_dim))
+        return multires_kernel(registers, block_dim)
+
+    monkeypatch.setattr(contact_mod, "multires_kernel", spy)
+    before, generic, out = _pressed_batch("cuda", multires_registers=0)
+    assert not made
+    _, capped, out2 = _pressed_batch("cuda")
+    assert made and set(made) == {(contact_mod.AUTO_MULTIRES_REGISTERS, 256)}
+    assert np.abs(generic - before).max() > 1e-3, "nothing pressed the hands: the test would compare nothing"
+    assert np.abs(capped - generic).max() < 2e-6
+    assert out["penetration_count"] == out2["penetration_count"] == 0
 
 
 @pytest.mark.parametrize("bad", [-1, 16, 256, 1.5, True, "128"])
