@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e or s43_f}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f or s44_a}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -571,6 +571,23 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
   s43_f)  # the CUDA tests of this session's kernel choice and the measures
     step pytest_cuda 400 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_multires_kernel.py \
       tests/test_measures.py tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel
+    ;;
+  s44_a)  # a lane per lattice sample (Config.sample_lanes; None = on for CUDA batches with a mesh object): the bowl
+    # at W = 1,024 off / on (alternated), on with --profile, at W = 4,096 as shipped; one hand on the bowl with
+    # the lanes (tiled_contact off) against the tiled kernel (one hand's default), alternated
+    for v in false true false true; do
+      step "bowl_lanes_$v" 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --config "{\"sample_lanes\": $v}" --out "$OUT/batch_hoi_cuda_bowl_s44_lanes_${v}_$SECONDS.json"
+    done
+    step bowl_lanes_profile 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --profile --out "$OUT/batch_hoi_cuda_bowl_s44_profile.json"
+    step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s44_4096.json"
+    for c in tiled lanes tiled lanes; do
+      cfg='{}'; [ $c = lanes ] && cfg='{"tiled_contact": false, "sample_lanes": true}'
+      step "hand_$c" 60 python3 benchmarks/mesh_grid.py --device cuda --frames 30 --spacings 0.002 --config "$cfg" \
+        --out "$OUT/mesh_grid_cuda_s44_${c}_$SECONDS.json"
+    done
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

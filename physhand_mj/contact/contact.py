@@ -21,6 +21,7 @@ from physhand_mj.contact.inside import ObjectPoints
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project, multires_kernel
+from physhand_mj.contact.query_lanes import SampleLanes
 from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
@@ -135,6 +136,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
+        self.lanes = None  # query_lanes.SampleLanes, made on the first pass that takes them
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -396,10 +398,12 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                     self.tris_per_world, self.geoms_per_world, *lst,
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                    block_dim=TILE_LANES)
+        elif self._sample_lanes() is not None:  # a lane per lattice sample (query_lanes.py)
+            self.lanes.record(launch, m.skin_faces, o, self.tris_per_world, self.geoms_per_world, lst,
+                              cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x, outs)
         else:
             decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
-            regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds,
-                                          bool(np.any(o._host["gtype"] == int(GeomType.MESH))))
+            regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, self._has_mesh())
             if regs:
                 decide = multires_kernel(regs, int(cfg.multires_block_dim))
             launch(decide, self.n_tris,
@@ -426,6 +430,22 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                    [*lst, flag],
                    count=self.active_count, min_dim=1)
         return lst, tuple(moved_slots), flag
+
+    def _has_mesh(self) -> bool:
+        return bool(np.any(self.objects._host["gtype"] == int(GeomType.MESH)))
+
+    def _sample_lanes(self):
+        """The pass's SampleLanes (made on first use) where Config.sample_lanes asks for them (None:
+        a CUDA batch with a mesh object, multires, the per-thread layout), else None."""
+        cfg, m = self.config, self.model
+        want = cfg.sample_lanes
+        if want is None:
+            want = wp.get_device(m.device).is_cuda and m.worlds > 1 and self._has_mesh()
+        if not (want and cfg.contact == Strategy.MULTIRES):
+            return None
+        if self.lanes is None:
+            self.lanes = SampleLanes(self.n_tris, cfg.multires_samples, cfg.multires_rounds, m.device)
+        return self.lanes
 
     def _moved_enough(self, stamp: int, stage: int):
         """Config.contact_pass_tol's host test of a pass (the CPU's level-2 gate; CUDA's keep_moved
