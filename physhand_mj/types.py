@@ -237,8 +237,9 @@ class Config:
       sample_lanes: multires decision points with a lane per lattice sample (contact/query_lanes.py:
         a pass as a per-triangle set-up with the near faces found once, then per round a thread per
         (triangle, sample) and a per-triangle reduction), so a warp's lanes ask samples of the same
-        triangle; the same answers (the CPU's skins bit for bit). None (default): on for CUDA
-        batches with a mesh object (tiled_contact False), else the per-thread kernel.
+        triangle; the same answers (the CPU's skins bit for bit). Off by default: on an H100 the bowl
+        batch ran at the per-thread kernel's speed with it (6,259-6,293 against 6,269-6,360
+        hand-frames/s at W = 1,024) and one hand at twice its frame (docs/scale.md).
       multires_block_dim: threads a block of that specialised kernel (CUDA; 32 to 1,024, a multiple
         of 32). Warp's mesh queries keep their BVH stacks in shared memory, 32 ints a thread (33.8 KB
         a block of 256), which with the registers bounds the blocks an SM holds.
@@ -355,7 +356,7 @@ class Config:
     tiled_contact: bool | None = None
     multires_registers: int | None = None
     multires_block_dim: int = 256
-    sample_lanes: bool | None = None
+    sample_lanes: bool = False
     tiled_features: bool | None = None
     feature_winding: bool = True
     feature_last: bool = True
@@ -399,9 +400,8 @@ class Config:
                                   and (r == 0 or 32 <= r <= 255)):
             raise ValueError(f"Config.multires_registers must be None (chosen per run), 0 (the generic kernel) or an "
                              f"integer from 32 to 255 (registers a thread), got {r!r}")
-        if not (self.sample_lanes is None or isinstance(self.sample_lanes, (bool, np.bool_))):
-            raise ValueError(f"Config.sample_lanes must be None (on for CUDA batches with a mesh object), True or False, "
-                             f"got {self.sample_lanes!r}")
+        if not isinstance(self.sample_lanes, (bool, np.bool_)):
+            raise ValueError(f"Config.sample_lanes must be True or False, got {self.sample_lanes!r}")
         b = self.multires_block_dim
         if not (isinstance(b, (int, np.integer)) and not isinstance(b, bool) and 32 <= b <= 1024 and b % 32 == 0):
             raise ValueError(f"Config.multires_block_dim must be a multiple of 32 from 32 to 1024 (threads a block), "

@@ -70,7 +70,7 @@ def test_lanes_are_the_lattice_in_its_order(samples):
     np.testing.assert_allclose(out.numpy(), np.array(want), atol=1e-6)
 
 
-@pytest.mark.parametrize("bad", [1, 0, "yes"])
+@pytest.mark.parametrize("bad", [1, 0, "yes", None])
 def test_bad_lane_settings_are_refused(bad):
     with pytest.raises(ValueError, match="sample_lanes"):
         Config(sample_lanes=bad).validate()

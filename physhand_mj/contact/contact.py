@@ -435,13 +435,10 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         return bool(np.any(self.objects._host["gtype"] == int(GeomType.MESH)))
 
     def _sample_lanes(self):
-        """The pass's SampleLanes (made on first use) where Config.sample_lanes asks for them (None:
-        a CUDA batch with a mesh object, multires, the per-thread layout), else None."""
+        """The pass's SampleLanes (made on first use) where Config.sample_lanes asks for them (multires,
+        not the tiled kernel), else None."""
         cfg, m = self.config, self.model
-        want = cfg.sample_lanes
-        if want is None:
-            want = wp.get_device(m.device).is_cuda and m.worlds > 1 and self._has_mesh()
-        if not (want and cfg.contact == Strategy.MULTIRES):
+        if not (cfg.sample_lanes and cfg.contact == Strategy.MULTIRES):
             return None
         if self.lanes is None:
             self.lanes = SampleLanes(self.n_tris, cfg.multires_samples, cfg.multires_rounds, m.device)

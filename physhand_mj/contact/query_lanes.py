@@ -1,5 +1,4 @@
-"""Multires decision points with a lane per lattice sample (Config.sample_lanes; CUDA batches with a
-mesh object by default).
+"""Multires decision points with a lane per lattice sample (Config.sample_lanes; off by default).
 
 The per-thread kernel (query.decide_and_project) gives each thread a triangle: on the HOI bowl batch
 Nsight Compute found its heavy passes running at 7.6-7.9 of 32 lanes a warp instruction, each lane
@@ -19,6 +18,15 @@ is split so that neighbouring lanes ask samples of the same triangle over the sa
 The same operations in the same order on the same values: the CPU's skins are bit for bit the
 per-thread kernel's (tests/test_sample_lanes.py). The loops stride over the list (its length is on
 the device), so a launch of G threads costs nothing past the list.
+
+Measured on an H100 (2026-11-27, docs/scale.md): no faster. The bowl batch at W = 1,024 ran at
+6,259-6,293 hand-frames/s against 6,269-6,360 per thread; its samples took 49.4 ms a frame, the
+set-up 12.2 and the reductions 6.7, against 67.0 for the per-thread kernel. Grouping a triangle's
+samples did not take out the cost the per-thread kernel's divergence suggested; what a sample costs
+(its pruned walk over the near faces, their vertices fetched through the mesh's indices, the
+pseudo-normal sign) is the next thing to look at, and this layout is where per-triangle data for
+the samples (the near faces' vertices) could be prepared once. One hand: 11.0-11.2 ms a frame
+against 5.5 for the tiled kernel (six launches a pass of a GPU-wide grid).
 """
 
 import warp as wp
