@@ -226,23 +226,13 @@ class Config:
         thread per triangle for batched worlds, where the launch's block per skin triangle of every
         world, nearly all idle, cost 2.8 x the batch's throughput (3,282 against 9,112
         hand-frames/s at W = 1024, docs/scale.md).
-      multires_registers: CUDA's per-thread multires kernel (batched worlds; tiled_contact False): 0
-        runs the kernel that serves every strategy (255 registers and a 2,064-byte local frame a
-        thread on sm_90); N > 0 a copy specialised to MULTIRES (the other strategies' inlined queries
-        left out: a 1,296-byte frame) capped at N registers a thread (128: 1,808 bytes), for more
-        threads an SM. The same answers (the CPU's skins bit for bit). None (default): 128 for a CUDA
-        batch with a mesh object, else 0 (contact.multires_registers_for; H100, W = 1,024: the bowl
-        5,605-5,689 -> 6,327-6,351 hand-frames/s at 128, the analytic grasps 4-24 % slower at 128,
-        docs/scale.md).
-      sample_lanes: multires decision points with a lane per lattice sample (contact/query_lanes.py:
-        a pass as a per-triangle set-up with the near faces found once, then per round a thread per
-        (triangle, sample) and a per-triangle reduction), so a warp's lanes ask samples of the same
-        triangle; the same answers (the CPU's skins bit for bit). Off by default: on an H100 the bowl
-        batch ran at the per-thread kernel's speed with it (6,259-6,293 against 6,269-6,360
-        hand-frames/s at W = 1,024) and one hand at twice its frame (docs/scale.md).
-      multires_block_dim: threads a block of that specialised kernel (CUDA; 32 to 1,024, a multiple
-        of 32). Warp's mesh queries keep their BVH stacks in shared memory, 32 ints a thread (33.8 KB
-        a block of 256), which with the registers bounds the blocks an SM holds.
+      multires_registers: CUDA's per-thread multires kernel (batched worlds): 0 runs the kernel of
+        every strategy (255 registers, a 2,064-byte local frame a thread on sm_90); N > 0 a copy
+        specialised to MULTIRES capped at N registers (128: 1,808 bytes), the same answers. None
+        (default): 128 for a CUDA batch with a mesh object, else 0 (H100: the bowl 1.11-1.13 x, the
+        analytic grasps 4-24 % slower capped); multires_block_dim: that copy's threads a block.
+      sample_lanes: multires with a lane per lattice sample (contact/query_lanes.py; the same answers),
+        off by default: no faster on an H100 batched, twice the frame on one hand (docs/scale.md).
       tiled_features: on CUDA, run the object's side (feature_contact: each contact stage's feature
         list and every pass's feature push) with a block of 128 threads per listed feature point,
         the lanes scanning the point's patch (the skin triangles within contact_frame_margin of it
