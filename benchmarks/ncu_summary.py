@@ -14,22 +14,24 @@ import csv
 import json
 from pathlib import Path
 
-FIELDS = {
-    "duration_ms": ("gpu__time_duration.sum", 1e-3),  # ncu reports ms or us per its unit row
-    "warp_instructions": ("smsp__inst_executed.sum", 1.0),
-    "threads_per_warp_instruction": ("smsp__thread_inst_executed_per_inst_executed.ratio", 1.0),
-    "issue_active_pct": ("smsp__issue_active.avg.pct_of_peak_sustained_active", 1.0),
-    "eligible_warps_per_scheduler": ("smsp__warps_eligible.avg.per_cycle_active", 1.0),
-    "active_warps_pct": ("sm__warps_active.avg.pct_of_peak_sustained_active", 1.0),
-    "registers": ("launch__registers_per_thread", 1.0),
-    "local_frame_bytes": ("launch__stack_size", 1.0),
-    "shared_bytes_per_block": ("launch__shared_mem_per_block_static", 1.0),
+FIELDS = {  # key: ncu metric (the duration scaled to ms by its unit row)
+    "duration_ms": "gpu__time_duration.sum",
+    "warp_instructions": "smsp__inst_executed.sum",
+    "threads_per_warp_instruction": "smsp__thread_inst_executed_per_inst_executed.ratio",
+    "issue_active_pct": "smsp__issue_active.avg.pct_of_peak_sustained_active",
+    "eligible_warps_per_scheduler": "smsp__warps_eligible.avg.per_cycle_active",
+    "active_warps_pct": "sm__warps_active.avg.pct_of_peak_sustained_active",
+    "registers": "launch__registers_per_thread",
+    "local_frame_bytes": "launch__stack_size",
+    "shared_bytes_per_block": "launch__shared_mem_per_block_static",
 }
+TO_MS = {"ns": 1e-6, "nsecond": 1e-6, "us": 1e-3, "usecond": 1e-3, "ms": 1.0, "msecond": 1.0, "s": 1e3, "second": 1e3}
 STALL = "smsp__average_warps_issue_stalled_"
 
 
 def _num(s: str) -> float:
-    return float(s.replace(",", ""))
+    s = s.replace(",", "").strip()
+    return float(s) if s else float("nan")
 
 
 def summarise(path: Path) -> list[dict]:
@@ -38,17 +40,19 @@ def summarise(path: Path) -> list[dict]:
     out = []
     for r in rows[2:]:
         row = {"kernel": r[head.index("Kernel Name")] if "Kernel Name" in head else ""}
-        for key, (name, _) in FIELDS.items():
+        for key, name in FIELDS.items():
             if name in head:
                 v = _num(r[head.index(name)])
                 if key == "duration_ms":
-                    unit = units[head.index(name)]
-                    v *= {"ns": 1e-6, "us": 1e-3, "usecond": 1e-3, "ms": 1.0, "msecond": 1.0}.get(unit, 1e-6)
+                    unit = units[head.index(name)].strip().lower()
+                    if unit not in TO_MS:
+                        raise ValueError(f"{name}: unknown unit {unit!r} in {path}")
+                    v *= TO_MS[unit]
                 if key == "shared_bytes_per_block" and units[head.index(name)].lower().startswith("k"):
                     v *= 1024
                 row[key] = round(v, 4)
         stalls = {n[len(STALL):].replace("_per_issue_active.ratio", ""): _num(r[i]) for i, n in enumerate(head)
-                  if n.startswith(STALL) and n.endswith("_per_issue_active.ratio") and r[i]}
+                  if n.startswith(STALL) and n.endswith("_per_issue_active.ratio") and r[i].strip()}
         row["stalls_per_issue"] = {k: round(v, 3) for k, v in sorted(stalls.items(), key=lambda kv: -kv[1])[:6]}
         out.append(row)
     return out

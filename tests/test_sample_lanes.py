@@ -15,10 +15,11 @@ from physhand_mj.types import Config
 from tests.test_multires_kernel import _pressed_batch
 
 
-@pytest.mark.parametrize("small_scratch", [False, True], ids=["scratch for all", "4 entries, the rest per thread"])
-def test_lanes_press_as_the_per_thread_kernel(monkeypatch, small_scratch):
-    if small_scratch:
-        monkeypatch.setattr(lanes_mod, "LANES_MIN_CAP", 4)
+@pytest.mark.parametrize("samples, rounds, cap", [(21, 2, None), (21, 2, 4), (16, 3, 64)],
+                         ids=["scratch for all", "4 entries, the rest per thread", "centroid lane, 3 rounds, 64 entries"])
+def test_lanes_press_as_the_per_thread_kernel(monkeypatch, samples, rounds, cap):
+    if cap is not None:  # the entries past the scratch run the per-thread decide, after the lanes' (the list's order)
+        monkeypatch.setattr(lanes_mod, "LANES_MIN_CAP", cap)
         monkeypatch.setattr(lanes_mod, "LANES_SHARE", 0.0)
     made = []
     real = lanes_mod.SampleLanes
@@ -30,10 +31,15 @@ def test_lanes_press_as_the_per_thread_kernel(monkeypatch, small_scratch):
 
     import physhand_mj.contact.contact as contact_mod
     monkeypatch.setattr(contact_mod, "SampleLanes", Spy)
-    before, thread, out = _pressed_batch(sample_lanes=False)
+    kw = dict(multires_samples=samples, multires_rounds=rounds)
+    before, thread, out = _pressed_batch(sample_lanes=False, **kw)
     assert not made
-    _, lanes, out2 = _pressed_batch(sample_lanes=True)
-    assert made and made[0].cap == (4 if small_scratch else made[0].cap) and made[0].lanes == 21
+    _, lanes, out2 = _pressed_batch(sample_lanes=True, **kw)
+    assert made and made[0].lanes == lattice_lanes(samples)[1]
+    if cap is not None:
+        assert made[0].cap == cap and out2["triangles_tested"] > 3 * cap  # entries past the scratch had work
+    else:
+        assert made[0].cap == made[0].tri.shape[0] >= out2["triangles_tested"] / 3
     assert np.abs(thread - before).max() > 1e-3, "nothing pressed the hands: the test would compare nothing"
     assert out["triangles_tested"] == out2["triangles_tested"] > 4
     np.testing.assert_array_equal(lanes, thread)

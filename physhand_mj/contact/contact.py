@@ -404,13 +404,16 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         else:
             decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
             regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, self._has_mesh())
-            if regs:
-                decide = multires_kernel(regs, int(cfg.multires_block_dim))
+            block = None
+            if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
+                block = int(cfg.multires_block_dim)
+                decide = multires_kernel(regs, block)
             launch(decide, self.n_tris,
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                     self.tris_per_world, self.geoms_per_world, *lst,
                     int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
-                    cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2])
+                    cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2],
+                   block_dim=block)
         shift, shifted = self._apply_shift(state)
         launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=self.touched_count)

@@ -305,9 +305,6 @@ class SampleLanes:
                                   stride, x],
                [bound_mask, eval_x, self.tri, self.best, self.certified, self.going, self.near_ids, self.near_d,
                 self.near_n, self.near_m], **per_entry)
-        launch(lanes_overflow, dim, [faces, *geoms, o.radius, o.mesh_exact, o.count, o.obj, tris_per_world,
-                                     geoms_per_world, *lst, cap, stride, self.samples, self.rounds, offset, side_aware, x],
-               [delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count], **per_entry)
         for r in range(self.rounds):
             launch(lanes_samples, dim, [*geoms, o.radius, o.mesh_exact, o.count, tris_per_world, geoms_per_world, *lst,
                                         cap, stride, self.lanes, self.order, int(self.cuda), self.tri, self.going,
@@ -318,3 +315,7 @@ class SampleLanes:
                                        int(r + 1 == self.rounds), offset, side_aware, eval_x, self.sample_d],
                    [self.tri, self.best, self.certified, self.going, delta, hits, decision, vertex_obj, bound, touched,
                     touched_count], **per_entry)
+        # entries past the scratch last, so that Eq. 9's sums run in the list's order as the per-thread kernel's do
+        launch(lanes_overflow, dim, [faces, *geoms, o.radius, o.mesh_exact, o.count, o.obj, tris_per_world,
+                                     geoms_per_world, *lst, cap, stride, self.samples, self.rounds, offset, side_aware, x],
+               [delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count], **per_entry)
