@@ -9,7 +9,7 @@ block size it is launched with; ``BLOCK_DIMS`` lists those. Kernels made at run 
 substep's, one per model size and block) are not covered: a device run adds them to its own cache.
 
     python benchmarks/aot_cache.py [--arch 90] [--merge .devc/warp_cache.tar.xz]
-                                   [--out .devc/warp_cache.tar.xz] [--resources [PATTERN]]
+                                   [--out .devc/warp_cache.tar.xz] [--resources [PATTERN]] [--lineinfo]
 
 Writes a tar.xz of ``<warp version>/wp_<module>_<hash>/...`` to unpack into ``~/.cache/warp`` on the
 device (``benchmarks/gpu_session.sh``'s recipe), merged with the entries of ``--merge`` (kept where
@@ -54,6 +54,21 @@ def made_kernels() -> list:
     from physhand_mj.contact.query import multires_kernel
 
     return [multires_kernel(r, b) for r, b in MADE]
+
+
+def decision_modules_with_lineinfo() -> list:
+    """The decision-point kernels' modules with line info on, for Nsight Compute's source view
+    (``batch_hoi.py --lineinfo`` sets the same): contact.query's (the generic kernel), contact.query_lanes'
+    and the capped multires kernel's (128 registers, blocks of 256). Returns their Warp modules."""
+    from physhand_mj.contact import query, query_lanes
+
+    mods = []
+    for m in (query, query_lanes):
+        wp.set_module_options({"lineinfo": True}, module=m)
+        mods.append(wp.get_module(m.__name__))
+    k = query.multires_kernel(128, 256)
+    k.module.options["lineinfo"] = True
+    return mods + [k.module]
 
 
 def kernel_modules() -> list[str]:
@@ -144,6 +159,8 @@ def main() -> None:
     p.add_argument("--out", default=str(ROOT / ".devc" / "warp_cache.tar.xz"), help="tar.xz to write")
     p.add_argument("--resources", nargs="?", const="", default=None,
                    help="print registers and local frame of the kernels whose name holds this text")
+    p.add_argument("--lineinfo", action="store_true",
+                   help="also the decision-point modules with line info (batch_hoi.py --lineinfo)")
     a = p.parse_args()
     wp.init()
     with tempfile.TemporaryDirectory() as tmp:
@@ -152,6 +169,9 @@ def main() -> None:
             with tarfile.open(a.merge) as t:
                 t.extractall(dest, filter="data")
         made = compile_all(a.arch, dest, a.resources)
+        if a.lineinfo:
+            for mod in decision_modules_with_lineinfo():
+                _compile(mod, "line info", a.arch, dest / wp.config.version, made, a.resources)
         buf = io.BytesIO()
         with tarfile.open(fileobj=buf, mode="w:xz") as t:
             for entry in sorted(dest.iterdir()):

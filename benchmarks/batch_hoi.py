@@ -180,9 +180,16 @@ def main() -> None:
     p.add_argument("--host-split", action="store_true",
                    help="time the frame's parts apart (poses in, solver step, per-world report) and profile the "
                         "solver step's host side (top functions by own time)")
+    p.add_argument("--lineinfo", action="store_true",
+                   help="build the decision-point kernels with line info (Nsight Compute's source view; "
+                        "aot_cache.decision_modules_with_lineinfo)")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/batch_hoi_<device>.json)")
     a = p.parse_args()
     extra = json.loads(a.config)
+    if a.lineinfo:
+        from aot_cache import decision_modules_with_lineinfo
+
+        decision_modules_with_lineinfo()
     wp.init()
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
     out_path = Path(a.out) if a.out else ROOT / "docs" / "benchmarks" / f"batch_hoi_{a.device.split(':')[0]}.json"

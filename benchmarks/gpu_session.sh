@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f or s44_a}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a or s45_a}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -587,6 +587,24 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
       cfg='{}'; [ $c = lanes ] && cfg='{"tiled_contact": false, "sample_lanes": true}'
       step "hand_$c" 60 python3 benchmarks/mesh_grid.py --device cuda --frames 30 --spacings 0.002 --config "$cfg" \
         --out "$OUT/mesh_grid_cuda_s44_${c}_$SECONDS.json"
+    done
+    ;;
+  s45_a)  # (not yet run) blocks of 128 for the capped multires kernel, now that the launch takes them, alternated
+    # with 256; then Nsight Compute's source view (line info) of the heavy decision-point launches, per thread
+    # and with a lane per sample: where a sample's idle lanes come from
+    for b in 256 128 256 128; do
+      step "bowl_b${b}_$SECONDS" 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --config "{\"multires_registers\": 128, \"multires_block_dim\": $b}" --out "$OUT/batch_hoi_cuda_bowl_s45_b${b}_$SECONDS.json"
+    done
+    NCU=/usr/local/cuda/bin/ncu
+    for v in false true; do
+      step "ncu_src_lanes_$v" 200 "$NCU" --target-processes all -k regex:"decide|lanes_samples" --launch-skip 64 \
+        --launch-count 4 --section SourceCounters --section WarpStateStats --section InstructionStats \
+        --import-source yes -f -o "$OUT/src_lanes_$v" python3 benchmarks/batch_hoi.py --device cuda --scenes bowl \
+        --worlds 1024 --frames 3 --lineinfo --config "{\"sample_lanes\": $v, \"cuda_graph\": false}" --out /tmp/src.json
+      "$NCU" --import "$OUT/src_lanes_$v.ncu-rep" --page raw --csv > "$OUT/src_lanes_${v}_raw.csv" 2>&1
+      "$NCU" --import "$OUT/src_lanes_$v.ncu-rep" --page source --csv --print-source cuda > "$OUT/src_lanes_${v}_source.csv" 2>&1
+      python3 benchmarks/ncu_summary.py "$OUT/src_lanes_${v}_raw.csv" | head -8
     done
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
