@@ -7,7 +7,8 @@ is split so that neighbouring lanes ask samples of the same triangle over the sa
 
 1. :func:`lanes_begin`, a thread per listed triangle: the per-triangle set-up of
    query.decide_triangle (its geom, its mesh's near faces found once), into per-entry scratch;
-   entries past the scratch's capacity run the whole per-thread decide instead (:func:`lanes_overflow`);
+   entries past the scratch's capacity run the whole per-thread decide instead (:func:`lanes_overflow`,
+   launched after the rounds, so Eq. 9's sums run in the list's order as the per-thread kernel's);
 2. per round, :func:`lanes_samples`, a thread per (triangle, sample) on CUDA (a thread per
    triangle looping its samples on the CPU): each sample's phi, as query.decide_triangle asks it;
 3. per round, :func:`lanes_reduce`, a thread per triangle: the three lowest in the lattice's order
