@@ -226,11 +226,9 @@ class Config:
         thread per triangle for batched worlds, where the launch's block per skin triangle of every
         world, nearly all idle, cost 2.8 x the batch's throughput (3,282 against 9,112
         hand-frames/s at W = 1024, docs/scale.md).
-      multires_registers: CUDA's per-thread multires kernel (batched worlds): 0 runs the kernel of
-        every strategy (255 registers, a 2,064-byte local frame a thread on sm_90); N > 0 a copy
-        specialised to MULTIRES capped at N registers (128: 1,808 bytes), the same answers. None
-        (default): 128 for a CUDA batch with a mesh object, else 0 (H100: the bowl 1.11-1.13 x, the
-        analytic grasps 4-24 % slower capped); multires_block_dim: that copy's threads a block.
+      multires_registers: CUDA batches' per-thread multires kernel: 0 the kernel of every strategy, N a
+        copy specialised to MULTIRES capped at N registers a thread (same answers); None (default): 128
+        with a mesh object, else 0 (docs/scale.md); multires_block_dim: that copy's threads a block.
       sample_lanes: multires with a lane per lattice sample (contact/query_lanes.py; the same answers),
         off by default: no faster on an H100 batched, twice the frame on one hand (docs/scale.md).
       tiled_features: on CUDA, run the object's side (feature_contact: each contact stage's feature

@@ -286,10 +286,6 @@ class SampleLanes:
         self.near_m = wp.zeros(cap, dtype=wp.vec3, device=d)
         self.sample_d = wp.zeros((cap, self.lanes), dtype=float, device=d)
 
-    def nbytes(self) -> int:
-        return sum(a.capacity for a in (self.tri, self.best, self.certified, self.going, self.near_ids, self.near_d,
-                                        self.near_n, self.near_m, self.sample_d))
-
     def record(self, launch, faces, objects, tris_per_world: int, geoms_per_world: int, lst, offset: float,
                side_aware: int, x, outs: list) -> None:
         """The pass's launches (``launch`` as Contact records them) for list ``lst`` = (active, mask,
