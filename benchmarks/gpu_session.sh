@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a or s45_a}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a, s45_a, s46_solver or s46_b}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -606,6 +606,27 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
       "$NCU" --import "$OUT/src_lanes_$v.ncu-rep" --page source --csv --print-source cuda > "$OUT/src_lanes_${v}_source.csv" 2>&1
       python3 benchmarks/ncu_summary.py "$OUT/src_lanes_${v}_raw.csv" | head -8
     done
+    ;;
+  s46_solver)  # the solver alone at W = 4,096 on this session's machine (issue 15's 50,000 without contact)
+    step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
+      --out "$OUT/fused_variants_cuda_s46.json"
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit --format=csv
+    ;;
+  s46_b)  # the mesh's pseudo-normal table (objects.PSEUDO_NORMAL_TABLE) off / on alternated, the bowl at W = 1,024;
+    # then the SASS view of last session's Nsight Compute report of the per-thread decide (carried in .ncu/)
+    NCU=/usr/local/cuda/bin/ncu
+    if [ -f .ncu/src_lanes_false.ncu-rep ]; then
+      "$NCU" --import .ncu/src_lanes_false.ncu-rep --page source --csv --print-source sass > "$OUT/sass_decide.csv" 2>&1
+      "$NCU" --import .ncu/src_lanes_false.ncu-rep --page source --csv --print-source cuda,sass > "$OUT/cuda_sass_decide.csv" 2>&1
+      ls -la "$OUT"/*.csv; head -c 600 "$OUT/sass_decide.csv"
+    fi
+    for t in False True False True; do
+      step "bowl_table_${t}_$SECONDS" 90 python3 benchmarks/with_modules.py physhand_mj.contact.objects.PSEUDO_NORMAL_TABLE=$t \
+        -- benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --out "$OUT/batch_hoi_cuda_bowl_s46_table_${t}_$SECONDS.json"
+    done
+    step bowl_table_profile 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --profile --out "$OUT/batch_hoi_cuda_bowl_s46_profile.json"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

@@ -155,6 +155,30 @@ def test_gradient_is_unit_and_points_outward(shape):
     assert mesh_sdf(mesh, surface + STEP * grad_s)[0].min() > 0.5 * STEP * np.sin(np.radians(15))
 
 
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("shape", ["cone30_tip", "wedge30_knife", "box"])
+def test_pseudo_normal_table_gives_the_walks_bits(shape, device, monkeypatch):
+    """A closed mesh keeps its faces' edge and vertex pseudo normals in a table (its ``velocities``,
+    filled by the same walk): phi and gradient, off and on the surface (where the gradient is the
+    pseudo normal itself), are those of a mesh without the table, bit for bit."""
+    from physhand_mj.contact import objects
+
+    mesh = CONVEX[shape]()
+    edges = mesh.edges_unique
+    p = np.concatenate([samples(mesh, seed=3), mesh.vertices, mesh.vertices[edges].mean(1)])
+    with_table = mesh_sdf(mesh, p, device)
+    monkeypatch.setattr(objects, "PSEUDO_NORMAL_TABLE", False)
+    walked = mesh_sdf(mesh, p, device)
+    assert np.array_equal(with_table[0], walked[0]) and np.array_equal(with_table[1], walked[1])
+    m, _ = objects.prepare_mesh(mesh.vertices, mesh.faces, device=device)
+    assert m.velocities is None or len(m.velocities) == 0, "the switch builds meshes without the table"
+    monkeypatch.setattr(objects, "PSEUDO_NORMAL_TABLE", True)
+    m, _ = objects.prepare_mesh(mesh.vertices, mesh.faces, device=device)
+    assert len(m.velocities) == 6 * len(mesh.faces)
+    # the walk reaches every vertex and edge: no zero entry (each feature has a face of its own)
+    assert np.linalg.norm(m.velocities.numpy(), axis=1).min() > 0.0
+
+
 # -- open, mis-wound and overlapping meshes ------------------------------------------------------------
 
 def _open_cases():

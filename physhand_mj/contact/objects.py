@@ -14,8 +14,9 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING,
-                                     WINDING_ACCURACY, mesh_near_faces, sdf_mesh_grad)
+from physhand_mj.contact.sdf import (FEATURES_PER_FACE, GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR,
+                                     MESH_SIGN_WINDING, WINDING_ACCURACY, mesh_near_faces, pseudo_normal_table,
+                                     sdf_mesh_grad)
 from physhand_mj.types import GeomType
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -88,10 +89,22 @@ def _winding_above(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), threshold: 
     above[i] = wp.where(hit.result and hit.sign < 0.0, 1, 0)
 
 
+# a pseudo-normal-signed mesh carries its faces' feature normals (sdf.pseudo_normal_table): the same
+# bits as the walk each query made before; False builds meshes without (the walk per query), for timings
+PSEUDO_NORMAL_TABLE = True
+
+
 def _warp_mesh(v: np.ndarray, f: np.ndarray, device: str, winding: bool) -> wp.Mesh:
-    return wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
+    """The ``wp.Mesh`` of (v, f); a pseudo-normal-signed one (not ``winding``) carries its faces'
+    feature normals (``sdf.pseudo_normal_table``) in its ``velocities``, which nothing else uses:
+    the sign's edge and vertex cases then read one entry instead of walking the BVH."""
+    table = None if winding or not PSEUDO_NORMAL_TABLE else wp.zeros(len(f) * int(FEATURES_PER_FACE), dtype=wp.vec3, device=device)
+    mesh = wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
                    indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32, device=device),
-                   support_winding_number=winding)
+                   velocities=table, support_winding_number=winding)
+    if table is not None:  # filled by the walk itself (sdf.mesh_feature_normal), on this mesh's own BVH
+        wp.launch(pseudo_normal_table, len(table), inputs=[mesh.id], outputs=[table], device=device)
+    return mesh
 
 
 def _bounded_area(mesh, tm) -> tuple[float, float]:

@@ -161,36 +161,48 @@ def _has(i0: int, i1: int, i2: int, k: int):
 
 
 @wp.func
-def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
-    """Angle-weighted pseudo normal (not normalised) at the point with barycentrics (u, v, 1-u-v)
-    of ``face``: the face normal inside the face; on an edge, the sum of its two faces' normals; at a
-    vertex, the sum of its faces' normals weighted by their corner angles there. The sign of
-    dot(p - c, N) at p's closest point c is then exact for a closed, consistently wound mesh
-    (Baerentzen and Aanaes 2005). The faces sharing the feature come from an AABB query over it,
-    matched by vertex index: the mesh's duplicate vertices must be merged (Objects.add does)."""
+def mesh_feature(u: float, v: float):
+    """The closest point's feature on its face, from its barycentrics (u, v, 1-u-v): -1 inside the
+    face; 0-2 the vertex of that slot (two coordinates ~0); 3 + j the edge opposite slot j (one ~0)."""
     w = 1.0 - u - v
-    f3 = face * 3
     on_u = u <= BARY_EPS
     on_v = v <= BARY_EPS
     on_w = w <= BARY_EPS
     n_on = int(on_u) + int(on_v) + int(on_w)
     if n_on == 0:
-        return wp.mesh_eval_face_normal(mesh, face)
-    # the feature: vertex slot ka (two coordinates ~0), or the edge of slots ka, kb (one ~0)
-    ka = int(0)
-    kb = int(-1)
+        return -1
     if n_on >= 2:
         if not on_v:
-            ka = 1
+            return 1
         elif not on_w:
-            ka = 2
-    elif on_u:
+            return 2
+        return 0
+    if on_u:
+        return 3
+    if on_v:
+        return 4
+    return 5
+
+
+@wp.func
+def mesh_feature_normal(mesh: wp.uint64, face: int, feature: int):
+    """Angle-weighted pseudo normal (not normalised) of ``feature`` (:func:`mesh_feature`, >= 0) of
+    ``face``: on an edge, the sum of its two faces' normals; at a vertex, the sum of its faces'
+    normals weighted by their corner angles there. The faces sharing the feature come from an AABB
+    query over it, matched by vertex index: the mesh's duplicate vertices must be merged (Objects.add
+    does). What :func:`mesh_pseudo_normal` reads from the mesh's table where it has one."""
+    ka = int(0)
+    kb = int(-1)
+    if feature < 3:
+        ka = feature
+    elif feature == 3:
         ka = 1
         kb = 2
-    elif on_v:
+    elif feature == 4:
         kb = 2
     else:
         kb = 1
+    f3 = face * 3
     a = wp.mesh_get_index(mesh, f3 + ka)
     pa = wp.mesh_get_point(mesh, f3 + ka)
     b = int(-1)
@@ -225,6 +237,34 @@ def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
                         weight = _corner_angle(x0 - x2, x1 - x2)
                 acc += wp.normalize(c) * weight
     return acc
+
+
+FEATURES_PER_FACE = wp.constant(6)  # a face's entries in a mesh's pseudo-normal table: 3 vertices, 3 edges
+
+
+@wp.func
+def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
+    """Angle-weighted pseudo normal (not normalised) at the point with barycentrics (u, v, 1-u-v)
+    of ``face``: the face normal inside the face, else its feature's (:func:`mesh_feature_normal`).
+    The sign of dot(p - c, N) at p's closest point c is then exact for a closed, consistently wound
+    mesh (Baerentzen and Aanaes 2005). A mesh made by ``objects.prepare_mesh`` keeps every face's six
+    feature normals in its ``velocities`` array (:func:`pseudo_normal_table`: the same function's
+    values, so the same bits), read here instead of an AABB walk per query."""
+    feature = mesh_feature(u, v)
+    if feature < 0:
+        return wp.mesh_eval_face_normal(mesh, face)
+    table = wp.mesh_get(mesh).velocities
+    if table.shape[0] > 0:
+        return table[face * FEATURES_PER_FACE + feature]
+    return mesh_feature_normal(mesh, face, feature)
+
+
+@wp.kernel
+def pseudo_normal_table(mesh: wp.uint64, out: wp.array(dtype=wp.vec3)):
+    """Every face's six feature normals (:func:`mesh_feature_normal`) into ``out`` (6 F long), the
+    table :func:`mesh_pseudo_normal` reads from a mesh's ``velocities``."""
+    k = wp.tid()
+    out[k] = mesh_feature_normal(mesh, k // FEATURES_PER_FACE, k % FEATURES_PER_FACE)
 
 
 @wp.func

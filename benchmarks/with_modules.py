@@ -1,0 +1,37 @@
+"""Run a benchmark script with module switches set first, for A/B timings of code paths that are
+module constants rather than Config fields.
+
+    python benchmarks/with_modules.py physhand_mj.contact.objects.PSEUDO_NORMAL_TABLE=False -- \
+        benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024
+
+Each ``module.NAME=VALUE`` (VALUE a Python literal) is set after importing the module and before
+the script runs (as ``__main__``, with the arguments after ``--``).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import runpy
+import sys
+
+
+def main() -> None:
+    args = sys.argv[1:]
+    if "--" not in args:
+        raise SystemExit(__doc__)
+    cut = args.index("--")
+    for item in args[:cut]:
+        target, _, value = item.partition("=")
+        module, _, name = target.rpartition(".")
+        mod = importlib.import_module(module)
+        if not hasattr(mod, name):
+            raise SystemExit(f"{module} has no {name}")
+        setattr(mod, name, ast.literal_eval(value))
+    script, rest = args[cut + 1], args[cut + 2:]
+    sys.argv = [script, *rest]
+    runpy.run_path(script, run_name="__main__")
+
+
+if __name__ == "__main__":
+    main()
