@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a, s45_a, s46_solver, s46_b or s46_c}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a, s45_a, s46_solver, s46_b, s46_c or s46_d}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -641,6 +641,20 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     "$NCU" --import /tmp/src_table.ncu-rep --page source --csv --print-source cuda,sass > /tmp/src_table_lines.csv 2>&1
     python3 benchmarks/ncu_summary.py "$OUT/src_table_raw.csv" | head -8
     python3 benchmarks/ncu_lines.py /tmp/src_table_lines.csv --top 60 > "$OUT/src_table_lines.txt"; head -80 "$OUT/src_table_lines.txt"
+    ;;
+  s46_d)  # the mesh's near-face samples from loaded points (their closest point reused, the face normal in the table,
+    # the first face found once a list), against the commit before it (carried in .base/: `git archive REV physhand_mj
+    # mjcf | tar -x -C .base`; without mjcf/ the base runs found no scene) alternated: the bowl at W = 1,024 and one
+    # hand on the bowl; then the bowl at W = 4,096 with this tree
+    for v in base new base new; do
+      pp=$PYTHONPATH; [ $v = base ] && pp=$PWD/.base:$PYTHONPATH
+      step "bowl_${v}_$SECONDS" 90 env PYTHONPATH=$pp python3 benchmarks/batch_hoi.py --device cuda --scenes bowl \
+        --worlds 1024 --frames 10 --out "$OUT/batch_hoi_cuda_bowl_s46d_${v}_$SECONDS.json"
+      step "hand_${v}_$SECONDS" 60 env PYTHONPATH=$pp python3 benchmarks/mesh_grid.py --device cuda --frames 30 \
+        --spacings 0.002 --out "$OUT/mesh_grid_cuda_s46d_${v}_$SECONDS.json"
+    done
+    step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s46d_4096.json"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

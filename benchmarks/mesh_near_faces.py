@@ -30,7 +30,8 @@ import physhand_mj as ph
 from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, geom_sdf, mesh_near_dist, mesh_near_faces, mesh_near_ids, sdf_mesh_near
+from physhand_mj.contact.sdf import (MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, geom_sdf, mesh_near_dist, mesh_near_faces, mesh_near_first,
+                                     mesh_near_ids, sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,6 +53,7 @@ def _lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), near_
     if near_path != 0:
         m, r = triangle_bound(a, b, c)
         ids, dist, n = mesh_near_faces(mesh, m, r, size[0])
+    first = mesh_near_first(dist, n)
     n_near[t] = n
     for rnd in range(2):
         k = int(0)
@@ -61,7 +63,7 @@ def _lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), near_
                 v = float(j) / float(ORDER)
                 p = a * (1.0 - u - v) + b * u + c * v
                 if n >= 0:
-                    phi[t, k] = sdf_mesh_near(p, size, mesh, ids, dist, n, m)
+                    phi[t, k] = sdf_mesh_near(p, size, mesh, ids, dist, n, first, m)
                 else:
                     phi[t, k] = geom_sdf(int(GeomType.MESH), p, size, wp.vec2ul(mesh, wp.uint64(0)))
                 k += 1

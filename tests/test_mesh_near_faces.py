@@ -12,7 +12,8 @@ from mesh_shapes import CONVEX, bowl_mesh, small_triangles, star_prism
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
 from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, face_rounding, geom_sdf, mesh_face_closest,
-                                     mesh_near_closest, mesh_near_faces, mesh_near_ids, sdf_mesh_near)
+                                     mesh_near_closest, mesh_near_faces, mesh_near_first, mesh_near_ids,
+                                     sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -51,7 +52,7 @@ def _near_lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), 
             p = _lattice_point(a, b, c, i, j, order)
             exact[t, k] = geom_sdf(int(GeomType.MESH), p, size, wp.vec2ul(mesh, wp.uint64(0)))
             if n >= 0:
-                near[t, k] = sdf_mesh_near(p, size, mesh, ids, dist, n, m)
+                near[t, k] = sdf_mesh_near(p, size, mesh, ids, dist, n, mesh_near_first(dist, n), m)
             k += 1
 
 
@@ -144,7 +145,7 @@ def _pruned_and_plain(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec
     for i in range(order + 1):
         for j in range(order + 1 - i):
             p = _lattice_point(a, b, c, i, j, order)
-            f, u, v, d2 = mesh_near_closest(p, size, mesh, ids, dist, n, m)
+            f, u, v, d2, c = mesh_near_closest(p, size, mesh, ids, dist, n, mesh_near_first(dist, n), m)
             pruned[t, k] = wp.vec4(float(f), u, v, d2)
             f, u, v, d2 = _plain_near(p, size, mesh, ids, n)
             plain[t, k] = wp.vec4(float(f), u, v, d2)

@@ -158,8 +158,8 @@ def test_gradient_is_unit_and_points_outward(shape):
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("shape", ["cone30_tip", "wedge30_knife", "box"])
 def test_pseudo_normal_table_gives_the_walks_bits(shape, device, monkeypatch):
-    """A closed mesh keeps its faces' edge and vertex pseudo normals in a table (its ``velocities``,
-    filled by the same walk): phi and gradient, off and on the surface (where the gradient is the
+    """A closed mesh keeps its faces' edge, vertex and face normals in a table (its ``velocities``,
+    filled by the same functions): phi and gradient, off and on the surface (where the gradient is the
     pseudo normal itself), are those of a mesh without the table, bit for bit."""
     from physhand_mj.contact import objects
 
@@ -174,7 +174,7 @@ def test_pseudo_normal_table_gives_the_walks_bits(shape, device, monkeypatch):
     assert m.velocities is None or len(m.velocities) == 0, "the switch builds meshes without the table"
     monkeypatch.setattr(objects, "PSEUDO_NORMAL_TABLE", True)
     m, _ = objects.prepare_mesh(mesh.vertices, mesh.faces, device=device)
-    assert len(m.velocities) == 6 * len(mesh.faces)
+    assert len(m.velocities) == 7 * len(mesh.faces)
     # the walk reaches every vertex and edge: no zero entry (each feature has a face of its own)
     assert np.linalg.norm(m.velocities.numpy(), axis=1).min() > 0.0
 

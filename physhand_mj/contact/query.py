@@ -33,7 +33,8 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_grad,
-                                     mesh_near_dist, mesh_near_faces, mesh_near_ids, sdf_mesh_near)
+                                     mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids,
+                                     sdf_mesh_near)
 from physhand_mj.types import Strategy
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -373,12 +374,14 @@ def decide_triangle(
         near_d = mesh_near_dist()
         lm = wp.vec3(0.0)
         n_near = int(-1)
+        near_first = int(0)
         if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf.MESH_SIGN_PSEUDO_NEAR
             la = wp.transform_point(s_inv, a)
             lb = wp.transform_point(s_inv, b)
             lc = wp.transform_point(s_inv, c)
             lm, lr = triangle_bound(la, lb, lc)
             near_ids, near_d, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
+            near_first = mesh_near_first(near_d, n_near)
         for r in range(rounds):
             # the three lowest samples of this round, ascending
             d0 = float(FAR)
@@ -395,7 +398,8 @@ def decide_triangle(
                     p = ta * (1.0 - u - v) + tb * u + tc * v
                     d = float(FAR)
                     if n_near >= 0:
-                        d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near, lm)
+                        d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near,
+                                          near_first, lm)
                     else:
                         d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh,
                                    base, n_geoms, near)
@@ -405,7 +409,8 @@ def decide_triangle(
                 p = (ta + tb + tc) * (1.0 / 3.0)
                 d = float(FAR)
                 if n_near >= 0:
-                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near, lm)
+                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near,
+                                      near_first, lm)
                 else:
                     d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
                                n_geoms, near)

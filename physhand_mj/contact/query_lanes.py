@@ -35,7 +35,8 @@ import warp as wp
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.query import (MULTIRES, decide_triangle, geom_data, keep_three_lowest, only_geom, phi_at,
                                        project)
-from physhand_mj.contact.sdf import FAR, MESH, mesh_near_dist, mesh_near_faces, mesh_near_ids, sdf_mesh_near
+from physhand_mj.contact.sdf import (FAR, MESH, mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids,
+                                     sdf_mesh_near)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -150,13 +151,14 @@ def lanes_samples(
             tb = tri[k, 1]
             tc = tri[k, 2]
             n_near = near_n[k]
+            first = mesh_near_first(near_d[k], n_near)
             s1 = wp.where(spread != 0, s0 + 1, lanes)
             for s in range(s0, s1):
                 p = lattice_point(ta, tb, tc, s, order, inv)
                 d = float(FAR)
                 if n_near >= 0:
                     d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids[k], near_d[k], n_near,
-                                      near_m[k])
+                                      first, near_m[k])
                 else:
                     d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
                                n_geoms, near)

@@ -239,7 +239,7 @@ def mesh_feature_normal(mesh: wp.uint64, face: int, feature: int):
     return acc
 
 
-FEATURES_PER_FACE = wp.constant(6)  # a face's entries in a mesh's pseudo-normal table: 3 vertices, 3 edges
+FEATURES_PER_FACE = wp.constant(7)  # a face's entries in a mesh's pseudo-normal table: 3 vertices, 3 edges, itself
 
 
 @wp.func
@@ -248,23 +248,29 @@ def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
     of ``face``: the face normal inside the face, else its feature's (:func:`mesh_feature_normal`).
     The sign of dot(p - c, N) at p's closest point c is then exact for a closed, consistently wound
     mesh (Baerentzen and Aanaes 2005). A mesh made by ``objects.prepare_mesh`` keeps every face's six
-    feature normals in its ``velocities`` array (:func:`pseudo_normal_table`: the same function's
-    values, so the same bits), read here instead of an AABB walk per query."""
+    feature normals and its own in its ``velocities`` array (:func:`pseudo_normal_table`: the same
+    functions' values, so the same bits), read here instead of an AABB walk per query."""
     feature = mesh_feature(u, v)
-    if feature < 0:
-        return wp.mesh_eval_face_normal(mesh, face)
     table = wp.mesh_get(mesh).velocities
     if table.shape[0] > 0:
-        return table[face * FEATURES_PER_FACE + feature]
+        return table[face * FEATURES_PER_FACE + wp.where(feature < 0, FEATURES_PER_FACE - 1, feature)]
+    if feature < 0:
+        return wp.mesh_eval_face_normal(mesh, face)
     return mesh_feature_normal(mesh, face, feature)
 
 
 @wp.kernel
 def pseudo_normal_table(mesh: wp.uint64, out: wp.array(dtype=wp.vec3)):
-    """Every face's six feature normals (:func:`mesh_feature_normal`) into ``out`` (6 F long), the
-    table :func:`mesh_pseudo_normal` reads from a mesh's ``velocities``."""
+    """Every face's six feature normals (:func:`mesh_feature_normal`) and its face normal
+    (``wp.mesh_eval_face_normal``) into ``out`` (7 F long), the table :func:`mesh_pseudo_normal`
+    reads from a mesh's ``velocities``."""
     k = wp.tid()
-    out[k] = mesh_feature_normal(mesh, k // FEATURES_PER_FACE, k % FEATURES_PER_FACE)
+    face = k // FEATURES_PER_FACE
+    feature = k % FEATURES_PER_FACE
+    if feature == FEATURES_PER_FACE - 1:
+        out[k] = wp.mesh_eval_face_normal(mesh, face)
+    else:
+        out[k] = mesh_feature_normal(mesh, face, feature)
 
 
 @wp.func
@@ -361,6 +367,12 @@ def mesh_face_closest_kept(mesh: wp.uint64, f: int, p: wp.vec3):
     x0 = wp.mesh_get_point(mesh, 3 * f)
     x1 = wp.mesh_get_point(mesh, 3 * f + 1)
     x2 = wp.mesh_get_point(mesh, 3 * f + 2)
+    return face_closest(x0, x1, x2, p)
+
+
+@wp.func
+def face_closest(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, p: wp.vec3):
+    """:func:`mesh_face_closest_kept` of the face with points (x0, x1, x2)."""
     bc = closest_on_triangle(x0, x1, x2, p)
     v = bc[1]
     w = 1.0 - bc[0] - v
@@ -421,24 +433,34 @@ def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
 
 
 @wp.func
-def mesh_near_closest(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
-                      m: wp.vec3):
-    """(face or -1, u, v, squared distance) of ``p``'s closest face among ids[:n] (mesh frame;
-    :func:`mesh_faces_within` about ``m``), within ``size[0]``: what testing every listed face in
-    order gives (the first strictly closest), with fewer tests. The face nearest m goes first; face
-    k is skipped when dist[k] (a lower bound of its distance from m) less |p - m| (and a slack of
-    1e-6 |m| + 1e-7 m) exceeds the best distance so far: a distance is 1-Lipschitz, so it cannot
-    be closer. A tie goes to the face earlier in ids, as in the plain loop."""
-    face = int(-1)
-    best = size[0] * size[0]
-    bu = float(0.0)
-    bv = float(0.0)
-    if n <= 0:
-        return face, bu, bv, best
+def mesh_near_first(dist: mesh_near_dist, n: int):
+    """The face :func:`mesh_near_closest` tests first: the lowest dist[:n] (the earliest of equals;
+    0 when n <= 0), found once per list rather than per sample."""
     first = int(0)
     for k in range(1, n):
         if dist[k] < dist[first]:
             first = k
+    return first
+
+
+@wp.func
+def mesh_near_closest(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
+                      first: int, m: wp.vec3):
+    """(face or -1, u, v, squared distance, closest point) of ``p``'s closest face among ids[:n]
+    (mesh frame; :func:`mesh_faces_within` about ``m``), within ``size[0]``: what testing every
+    listed face in order gives (the first strictly closest), with fewer tests. Face ``first``
+    (:func:`mesh_near_first`, the face nearest m) goes first; face k is skipped when dist[k] (a
+    lower bound of its distance from m) less |p - m| (and a slack of 1e-6 |m| + 1e-7 m) exceeds the
+    best distance so far: a distance is 1-Lipschitz, so it cannot be closer. A tie goes to the face
+    earlier in ids, as in the plain loop. The closest point is ``wp.mesh_eval_position``'s at (face,
+    u, v), by its operations, from the points already loaded."""
+    face = int(-1)
+    best = size[0] * size[0]
+    bu = float(0.0)
+    bv = float(0.0)
+    bc = wp.vec3(0.0)
+    if n <= 0:
+        return face, bu, bv, best, bc
     rho = wp.length(p - m) + 1.0e-7 + 1.0e-6 * wp.max(wp.abs(m))
     pos = int(-1)
     for j in range(n + 1):
@@ -450,27 +472,35 @@ def mesh_near_closest(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near
             lb = dist[k] - rho
             if lb > 0.0 and lb * lb * (1.0 - 1.0e-5) > best:
                 continue
-        d2, u, v = mesh_face_closest_kept(mesh, ids[k], p)
+        f = ids[k]
+        x0 = wp.mesh_get_point(mesh, 3 * f)
+        x1 = wp.mesh_get_point(mesh, 3 * f + 1)
+        x2 = wp.mesh_get_point(mesh, 3 * f + 2)
+        d2, u, v = face_closest(x0, x1, x2, p)
         if d2 < best or (d2 == best and k < pos):
             best = d2
-            face = ids[k]
+            face = f
             pos = k
             bu = u
             bv = v
-    return face, bu, bv, best
+            bc = x0 * u + x1 * v + x2 * (1.0 - u - v)  # mesh_eval_position
+    return face, bu, bv, best, bc
 
 
 @wp.func
 def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
-                  m: wp.vec3):
+                  first: int, m: wp.vec3):
     """phi (m) of a pseudo-normal-signed mesh at ``p`` (mesh frame) whose closest face is among
-    ids[:n] (:func:`mesh_near_faces` about ``m``): :func:`sdf_mesh_grad`'s value without the BVH
-    walk, the closest face found by :func:`mesh_near_closest`."""
-    face, bu, bv, best = mesh_near_closest(p, size, mesh, ids, dist, n, m)
+    ids[:n] (:func:`mesh_near_faces` about ``m``; ``first``: :func:`mesh_near_first`):
+    :func:`sdf_mesh_grad`'s value without the BVH walk, the closest face found by
+    :func:`mesh_near_closest` and signed as :func:`mesh_signed` signs it."""
+    face, bu, bv, best, c = mesh_near_closest(p, size, mesh, ids, dist, n, first, m)
     if face < 0:
         return FAR
-    d, g = mesh_signed(p, mesh, face, bu, bv, False, 1.0)
-    return d
+    d = p - c
+    if wp.dot(d, mesh_pseudo_normal(mesh, face, bu, bv)) < 0.0:
+        return -wp.length(d)
+    return wp.length(d)
 
 
 @wp.func
