@@ -15,8 +15,8 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
   skin triangle, whose decision points then search them: :func:`mesh_near_faces`). The distance
   is exact (a BVH closest-point query). The sign of a closed, consistently wound mesh is the
   angle-weighted pseudo normal (Baerentzen and Aanaes 2005) of the closest point's own feature
-  (face, edge or vertex: the faces sharing it, found by index), which is exact at edges and tips
-  and costs about one closest-point query; Warp's ``mesh_query_point_sign_normal`` instead gathers
+  (face, edge or vertex: the faces sharing it, found by index), which is exact at edges and tips;
+  the walks that find those faces run once per mesh, into a table (:func:`pseudo_normal_table`); Warp's ``mesh_query_point_sign_normal`` instead gathers
   every face within 1e-3 average edge lengths of the closest distance and gets knife edges wrong
   (docs/contact.md). An open or overlapping mesh takes the generalised winding number (> 1/2 is
   inside: holes are closed over), 2-4x dearer. Cost O(log F) per query against O(1) for the
