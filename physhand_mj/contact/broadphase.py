@@ -20,7 +20,7 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import FAR, MESH, geom_sdf, grid_lower_bound
+from physhand_mj.contact.sdf import MESH, geom_sdf, grid_lower_bound
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -41,17 +41,14 @@ def world_geoms(t: int, tris_per_world: int, geoms_per_world: int, count: int):
 
 
 @wp.func
-def reach_clear(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-                gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-                radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int),
-                tris_per_world: int, geoms_per_world: int, margin: float):
-    """(mask, clear): the bit mask of the geoms (of those in ``allowed``) that skin triangle ``t``
-    can reach within ``margin`` (m; 0: none, :func:`find_active`), and a lower bound (m) of phi(m) -
-    r over every geom tried (m, r: the triangle's centroid and radius about it; FAR when none): the
-    bound each test used, the bounding sphere's, the distance grid's or the exact distance."""
+def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
+               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
+               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int),
+               tris_per_world: int, geoms_per_world: int, margin: float):
+    """The bit mask of the geoms (of those in ``allowed``) that skin triangle ``t`` can reach within
+    ``margin`` (m); 0: none (:func:`find_active`)."""
     m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
     mask = int(0)
-    clear = float(FAR)
     g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
     for g in range(g0, g1):
         bit = int(1 << 30)
@@ -60,31 +57,14 @@ def reach_clear(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(
         if (allowed & bit) == 0:
             continue
         q = wp.transform_point(inv_pose[g], m)
-        lower = wp.length(q) - radius[g] - r
-        if lower <= margin:
+        if wp.length(q) - radius[g] - r <= margin:
             ids = mesh[g]
-            skip = False
             if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid rejects what it proves far, in one read
-                lower = grid_lower_bound(ids[1], q) - r
-                if lower > margin:
-                    skip = True
+                if grid_lower_bound(ids[1], q) - r > margin:
+                    continue
                 ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
-            if not skip:
-                lower = geom_sdf(gtype[g], q, size[g], ids) - r
-                if lower <= margin:
-                    mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
-        clear = wp.min(clear, lower)
-    return mask, clear
-
-
-@wp.func
-def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int),
-               tris_per_world: int, geoms_per_world: int, margin: float):
-    """:func:`reach_clear`'s mask alone."""
-    mask, clear = reach_clear(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                              geoms_per_world, margin)
+            if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:
+                mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
     return mask
 
 
@@ -104,7 +84,6 @@ def find_active(
     active: wp.array(dtype=int),
     active_mask: wp.array(dtype=int),
     active_count: wp.array(dtype=int),
-    clear: wp.array(dtype=float),
 ):
     """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms,
     so decision points query only the geoms near their triangle (the frame's list; a stage's comes
@@ -117,18 +96,14 @@ def find_active(
     and the decision points, query.world_phi, always try those, within the world's [w k, (w + 1) k)
     only); one world's bits are its global geom indices, as before batching. A mesh's distance grid
     (objects.mesh_grid) rejects the triangles its lower bound proves far; the others are asked the
-    exact distance, so the lists are those of the exact distance. ``clear`` (empty: not kept) gets
-    each listed triangle's lower bound of phi(m) - r over its world's geoms (:func:`reach_clear`),
-    for :func:`stage_list_entry`'s skip."""
+    exact distance, so the lists are those of the exact distance."""
     t = wp.tid()
-    mask, c = reach_clear(t, -1, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                          geoms_per_world, margin)
+    mask = reach_mask(t, -1, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
+                      geoms_per_world, margin)
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
         active[slot] = t
         active_mask[slot] = mask
-        if clear.shape[0] > 0:
-            clear[t] = c
 
 
 @wp.func
@@ -217,26 +192,6 @@ def first_pass_keeps(t: int, mask: int, faces: wp.array2d(dtype=int), x: wp.arra
     return True
 
 
-SKIP_ROUNDING = wp.constant(4.0e-6)  # stage_skip's allowance per metre of coordinate, plus SKIP_FLOOR (m)
-SKIP_FLOOR = wp.constant(1.0e-6)
-
-
-@wp.func
-def stage_skip(t: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), x_frame: wp.array(dtype=wp.vec3),
-               clear: float, margin: float):
-    """Whether triangle ``t``, ``clear`` (m) a lower bound of phi(m) - r over its geoms when its
-    vertices were at ``x_frame``, is proven out of ``margin`` now: clear - 3 d > margin + the float
-    allowance SKIP_ROUNDING |x| + SKIP_FLOOR (the coordinates' rounding in the transforms and the
-    distances), d its vertices' largest move since."""
-    i0 = faces[t, 0]
-    i1 = faces[t, 1]
-    i2 = faces[t, 2]
-    a = x[i0]
-    d = wp.max(wp.length(a - x_frame[i0]), wp.max(wp.length(x[i1] - x_frame[i1]), wp.length(x[i2] - x_frame[i2])))
-    size = wp.max(wp.abs(a))
-    return clear - 3.0 * d > margin + SKIP_ROUNDING * size + SKIP_FLOOR
-
-
 @wp.func
 def stage_list_entry(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
                      gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
@@ -245,17 +200,9 @@ def stage_list_entry(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.a
                      geoms_per_world: int, margin: float, bound: wp.array(dtype=float),
                      bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3), active: wp.array(dtype=int),
                      active_mask: wp.array(dtype=int), active_count: wp.array(dtype=int), out: wp.array(dtype=int),
-                     out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int), clear: wp.array(dtype=float),
-                     x_frame: wp.array(dtype=wp.vec3)):
+                     out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
     """Frame-list triangle ``t`` (near the geoms of ``allowed``) into its stage's active list when it
-    can reach a geom within ``margin``, and into the first pass's list when :func:`first_pass_keeps`.
-    With ``clear`` (:func:`find_active`'s bound of phi(m) - r, ``x_frame`` the positions it saw) a
-    triangle whose vertices moved at most d since is left without a query when clear - 3 d exceeds
-    ``margin`` (and a rounding allowance): its centroid moved at most d and its radius grew at most
-    2 d, so no geom's test could pass (the same lists, :func:`stage_skip`)."""
-    if clear.shape[0] > 0:
-        if stage_skip(t, faces, x, x_frame, clear[t], margin):
-            return
+    can reach a geom within ``margin``, and into the first pass's list when :func:`first_pass_keeps`."""
     mask = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
                       geoms_per_world, margin)
     if mask == 0:
@@ -294,18 +241,16 @@ def stage_lists(
     out: wp.array(dtype=int),
     out_mask: wp.array(dtype=int),
     out_count: wp.array(dtype=int),
-    clear: wp.array(dtype=float),
-    x_frame: wp.array(dtype=wp.vec3),
 ):
     """A contact stage's two lists in one launch: :func:`find_active` over the frame's list ``src``
     (the stage's active triangles, ``active``) and, of those, its first pass's (``out``,
-    :func:`first_pass_keeps`); ``clear``, ``x_frame``: :func:`stage_list_entry`'s skip (empty: none)."""
+    :func:`first_pass_keeps`)."""
     k = wp.tid()
     if k >= src_count[0]:
         return
     stage_list_entry(src[k], src_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
                      geoms_per_world, margin, bound, bound_mask, eval_x, active, active_mask, active_count, out,
-                     out_mask, out_count, clear, x_frame)
+                     out_mask, out_count)
 
 
 @wp.kernel

@@ -54,9 +54,6 @@ FEATURE_SCAN_WORLDS = 64
 
 
 
-# a contact stage's list skips the frame-list triangles the frame broadphase's bound still proves out of
-# reach (broadphase.stage_skip: the same lists, fewer distance queries); False: every one asks (timings, tests)
-STAGE_SKIP = True
 AUTO_MULTIRES_REGISTERS = 128  # Config.multires_registers = None: the cap for a CUDA batch with a mesh object
 
 
@@ -120,11 +117,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
         self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
         self.cand_count = self.counters[0:1]
-        # the frame broadphase's lower bound of phi - r per listed triangle and the skin it saw: a stage's
-        # list then skips the triangles still proven out of reach (broadphase.stage_skip; the same lists)
-        skip = STAGE_SKIP
-        self.frame_clear = wp.zeros(max(n_tris, 1) if skip else 0, dtype=float, device=d)
-        self.x_frame = wp.zeros(max(model.n_skin, 1) if skip else 0, dtype=wp.vec3, device=d)
         self.active = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the stage's list
         self.active_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
         self.active_count = self.cand_count  # replaced per stage by its counter
@@ -251,7 +243,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         (launch_pre or launch)(find_active, self.n_tris,
                                [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                 self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
-                               [self.cand, self.cand_mask, self.cand_count, self.frame_clear])
+                               [self.cand, self.cand_mask, self.cand_count])
         if gated is None:
             self._record_frame_lists(launch, ops, state)
         else:
@@ -260,10 +252,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
     def _record_frame_lists(self, launch, ops: list, state) -> None:
         """The per-frame resets and the frame's feature list (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
-        x_frame, x, n_skin = self.x_frame, state.x, self.model.n_skin
         ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30), self.pass_flags.zero_]  # objects moved
-        if x_frame.shape[0]:  # the skin find_active saw (stage_lists' skip)
-            ops.append(lambda: wp.copy(x_frame, x, count=n_skin))
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.feat is None:
@@ -336,8 +325,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.cand,
                                           self.cand_mask, self.cand_count, self.bound, self.bound_mask, self.eval_x],
-               [self.active, self.active_mask, self.active_count, *lst, self.frame_clear, self.x_frame],
-               count=self.cand_count)
+               [self.active, self.active_mask, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
         if self.world_stage is not None:  # the stage's active triangles per world
             launch(tally_worlds, self.n_tris, [self.active, self.active_count, self.tris_per_world, m.vertex_world,

@@ -268,8 +268,6 @@ def contact_stage(
     moved: wp.array(dtype=int),
     disp: wp.array(dtype=float),
     bar: wp.array(dtype=int),
-    clear: wp.array(dtype=float),
-    x_frame: wp.array(dtype=wp.vec3),
 ):
     """One contact stage (module docstring); launch one block: dim = block_dim = STAGE_LANES on
     CUDA, 1 on the CPU. ``slots``: the stage's counter slots [active list, first pass list, then per
@@ -285,7 +283,7 @@ def contact_stage(
     while k < n_cand:
         stage_list_entry(cand[k], cand_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count,
                          ONE_WORLD, ONE_WORLD, margin, bound, bound_mask, eval_x, active, active_mask,
-                         counters[s_act: s_act + 1], pass_list, pass_mask, counters[s_lst: s_lst + 1], clear, x_frame)
+                         counters[s_act: s_act + 1], pass_list, pass_mask, counters[s_lst: s_lst + 1])
         k += lanes
     n_feat = feat_count[0]
     grid_sync(bar, BARRIER_SPINS)
@@ -395,5 +393,5 @@ def record_stage(contact, launch, state) -> None:
            [state.x, contact.counters, contact.active, contact.active_mask, contact.pass_list, contact.pass_mask,
             contact.feat_stage if feats else dummy, contact.feat_stage_counts, contact.bound, contact.bound_mask,
             contact.eval_x, contact.decision, contact.delta, contact.hits, contact.touched, contact.vertex_obj,
-            contact.push, contact.moved, contact.disp, contact.stage_barrier, contact.frame_clear, contact.x_frame],
+            contact.push, contact.moved, contact.disp, contact.stage_barrier],
            block_dim=contact.stage_lanes)
