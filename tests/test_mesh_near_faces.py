@@ -145,7 +145,7 @@ def _pruned_and_plain(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec
     for i in range(order + 1):
         for j in range(order + 1 - i):
             p = _lattice_point(a, b, c, i, j, order)
-            f, u, v, d2, c = mesh_near_closest(p, size, mesh, ids, dist, n, mesh_near_first(dist, n), m)
+            f, u, v, d2 = mesh_near_closest(p, size, mesh, ids, dist, n, mesh_near_first(dist, n), m)
             pruned[t, k] = wp.vec4(float(f), u, v, d2)
             f, u, v, d2 = _plain_near(p, size, mesh, ids, n)
             plain[t, k] = wp.vec4(float(f), u, v, d2)

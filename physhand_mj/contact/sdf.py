@@ -446,21 +446,19 @@ def mesh_near_first(dist: mesh_near_dist, n: int):
 @wp.func
 def mesh_near_closest(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, dist: mesh_near_dist, n: int,
                       first: int, m: wp.vec3):
-    """(face or -1, u, v, squared distance, closest point) of ``p``'s closest face among ids[:n]
-    (mesh frame; :func:`mesh_faces_within` about ``m``), within ``size[0]``: what testing every
-    listed face in order gives (the first strictly closest), with fewer tests. Face ``first``
+    """(face or -1, u, v, squared distance) of ``p``'s closest face among ids[:n] (mesh frame;
+    :func:`mesh_faces_within` about ``m``), within ``size[0]``: what testing every listed face in
+    order gives (the first strictly closest), with fewer tests. Face ``first``
     (:func:`mesh_near_first`, the face nearest m) goes first; face k is skipped when dist[k] (a
     lower bound of its distance from m) less |p - m| (and a slack of 1e-6 |m| + 1e-7 m) exceeds the
     best distance so far: a distance is 1-Lipschitz, so it cannot be closer. A tie goes to the face
-    earlier in ids, as in the plain loop. The closest point is ``wp.mesh_eval_position``'s at (face,
-    u, v), by its operations, from the points already loaded."""
+    earlier in ids, as in the plain loop."""
     face = int(-1)
     best = size[0] * size[0]
     bu = float(0.0)
     bv = float(0.0)
-    bc = wp.vec3(0.0)
     if n <= 0:
-        return face, bu, bv, best, bc
+        return face, bu, bv, best
     rho = wp.length(p - m) + 1.0e-7 + 1.0e-6 * wp.max(wp.abs(m))
     pos = int(-1)
     for j in range(n + 1):
@@ -472,19 +470,14 @@ def mesh_near_closest(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near
             lb = dist[k] - rho
             if lb > 0.0 and lb * lb * (1.0 - 1.0e-5) > best:
                 continue
-        f = ids[k]
-        x0 = wp.mesh_get_point(mesh, 3 * f)
-        x1 = wp.mesh_get_point(mesh, 3 * f + 1)
-        x2 = wp.mesh_get_point(mesh, 3 * f + 2)
-        d2, u, v = face_closest(x0, x1, x2, p)
+        d2, u, v = mesh_face_closest_kept(mesh, ids[k], p)
         if d2 < best or (d2 == best and k < pos):
             best = d2
-            face = f
+            face = ids[k]
             pos = k
             bu = u
             bv = v
-            bc = x0 * u + x1 * v + x2 * (1.0 - u - v)  # mesh_eval_position
-    return face, bu, bv, best, bc
+    return face, bu, bv, best
 
 
 @wp.func
@@ -493,11 +486,12 @@ def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids
     """phi (m) of a pseudo-normal-signed mesh at ``p`` (mesh frame) whose closest face is among
     ids[:n] (:func:`mesh_near_faces` about ``m``; ``first``: :func:`mesh_near_first`):
     :func:`sdf_mesh_grad`'s value without the BVH walk, the closest face found by
-    :func:`mesh_near_closest` and signed as :func:`mesh_signed` signs it."""
-    face, bu, bv, best, c = mesh_near_closest(p, size, mesh, ids, dist, n, first, m)
+    :func:`mesh_near_closest` and signed as :func:`mesh_signed` signs it (its value alone: the same
+    closest point, ``wp.mesh_eval_position``'s, the same bits on CUDA too)."""
+    face, bu, bv, best = mesh_near_closest(p, size, mesh, ids, dist, n, first, m)
     if face < 0:
         return FAR
-    d = p - c
+    d = p - wp.mesh_eval_position(mesh, face, bu, bv)
     if wp.dot(d, mesh_pseudo_normal(mesh, face, bu, bv)) < 0.0:
         return -wp.length(d)
     return wp.length(d)
