@@ -174,9 +174,20 @@ def test_pseudo_normal_table_gives_the_walks_bits(shape, device, monkeypatch):
     assert m.velocities is None or len(m.velocities) == 0, "the switch builds meshes without the table"
     monkeypatch.setattr(objects, "PSEUDO_NORMAL_TABLE", True)
     m, _ = objects.prepare_mesh(mesh.vertices, mesh.faces, device=device)
-    assert len(m.velocities) == 7 * len(mesh.faces)
+    assert len(m.velocities) == 7 * (len(m.indices) // 3)
     # the walk reaches every vertex and edge: no zero entry (each feature has a face of its own)
     assert np.linalg.norm(m.velocities.numpy(), axis=1).min() > 0.0
+    # a mesh with velocities of another length (per vertex) is not taken for a table: it walks
+    pts = wp.array(m.points.numpy(), dtype=wp.vec3, device=device)
+    other = wp.Mesh(points=pts, indices=wp.array(m.indices.numpy(), dtype=wp.int32, device=device),
+                    velocities=wp.full(len(pts), wp.vec3(1.0, 0.0, 0.0), dtype=wp.vec3, device=device))
+    size = wp.vec3(1.0, float(MESH_SIGN_PSEUDO), 0.0)
+    phi = wp.zeros(len(p), dtype=float, device=device)
+    grad = wp.zeros(len(p), dtype=wp.vec3, device=device)
+    wp.launch(_eval, len(p), inputs=[size, wp.vec2ul(other.id, 0), wp.array(p.astype(np.float32), dtype=wp.vec3,
+                                                                              device=device)],
+              outputs=[phi, grad], device=device)
+    assert np.array_equal(phi.numpy().astype(float), walked[0]) and np.array_equal(grad.numpy().astype(float), walked[1])
 
 
 # -- open, mis-wound and overlapping meshes ------------------------------------------------------------

@@ -151,7 +151,9 @@ def lanes_samples(
             tb = tri[k, 1]
             tc = tri[k, 2]
             n_near = near_n[k]
-            first = mesh_near_first(near_d[k], n_near)
+            first = int(0)
+            if n_near > 1:
+                first = mesh_near_first(near_d[k], n_near)
             s1 = wp.where(spread != 0, s0 + 1, lanes)
             for s in range(s0, s1):
                 p = lattice_point(ta, tb, tc, s, order, inv)

@@ -249,10 +249,12 @@ def mesh_pseudo_normal(mesh: wp.uint64, face: int, u: float, v: float):
     The sign of dot(p - c, N) at p's closest point c is then exact for a closed, consistently wound
     mesh (Baerentzen and Aanaes 2005). A mesh made by ``objects.prepare_mesh`` keeps every face's six
     feature normals and its own in its ``velocities`` array (:func:`pseudo_normal_table`: the same
-    functions' values, so the same bits), read here instead of an AABB walk per query."""
+    functions' values, so the same bits), read here instead of an AABB walk per query; a mesh whose
+    velocities are anything else (not 7 per face) walks."""
     feature = mesh_feature(u, v)
-    table = wp.mesh_get(mesh).velocities
-    if table.shape[0] > 0:
+    held = wp.mesh_get(mesh)
+    table = held.velocities
+    if table.shape[0] == FEATURES_PER_FACE * (held.indices.shape[0] // 3):
         return table[face * FEATURES_PER_FACE + wp.where(feature < 0, FEATURES_PER_FACE - 1, feature)]
     if feature < 0:
         return wp.mesh_eval_face_normal(mesh, face)
