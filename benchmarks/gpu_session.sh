@@ -56,7 +56,7 @@
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
-phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a, s45_a, s46_solver, s46_b, s46_c, s46_d, s46_e, s46_f or s46_g}
+phase=${1:?phase: tests, frames, peers, accuracy, fused, fused_a, fused_b, order, hoi_a, hoi_b, hoi_c, rollout_wall, ray, variants, profile, variants2, variants3, variants4, variants5, variants6, variants7, final_tests, final_bench, blocks, final2, s36_tests, s36_bench, s36_slack_tests, s36_slack_bench, s36_slack_bench2, s37_a, s37_b, s37_tests, s37_c, s38_a, s38_b, s38_c, s39_a, s39_b, s39_c, s39_d, s39_e, s39_f, s40_a, s40_b, s41_a, s41_b, s41_c, s41_d, s41_e, s42_a, s42_b, s43_a, s43_b, s43_c, s43_d, s43_e, s43_f, s44_a, s45_a, s46_solver, s46_b, s46_c, s46_d, s46_e, s46_f, s46_g or s46_h}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT/logs"
 stamp=$(mktemp)
@@ -694,6 +694,16 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
       step "bowl_r${r}_$SECONDS" 90 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
         --config "{\"multires_registers\": $r}" --out "$OUT/batch_hoi_cuda_bowl_s46g_r${r}_$SECONDS.json"
     done
+    ;;
+  s46_h)  # the final code (the table taken only at 7 entries a face): the CUDA tests of the session's changes, the
+    # bowl at W = 4,096 as shipped, the solver alone at W = 4,096
+    step pytest_cuda 420 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda" tests/test_mesh_sdf.py \
+      tests/test_mesh_near_faces.py tests/test_multires_kernel.py tests/test_batch.py tests/test_sample_lanes.py \
+      tests/test_contact.py::test_tiled_cuda_multires_matches_the_per_thread_kernel tests/test_hard_contact.py
+    step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s46h_4096.json"
+    step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
+      --out "$OUT/fused_variants_cuda_s46h.json"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
