@@ -205,7 +205,8 @@ def main() -> None:
     def save(rows, complete: bool):  # after every row: a run cut by a time limit keeps the rows it made
         out_path.parent.mkdir(parents=True, exist_ok=True)
         out_path.write_text(json.dumps(dict(device=dev, frames=a.frames, config=extra, complete=complete,
-                                            command=_with_modules() + "benchmarks/batch_hoi.py " + " ".join(sys.argv[1:]),
+                                            command=_with_modules() + "benchmarks/batch_hoi.py "
+                                            + " ".join(sys.argv[1:]),
                                             rows=rows), indent=1))
 
     asset = ph.load_asset()

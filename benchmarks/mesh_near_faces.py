@@ -30,8 +30,8 @@ import physhand_mj as ph
 from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, geom_sdf, mesh_near_dist, mesh_near_faces, mesh_near_first,
-                                     mesh_near_ids, sdf_mesh_near)
+from physhand_mj.contact.sdf import (MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, geom_sdf, mesh_near_dist, mesh_near_faces,
+                                     mesh_near_first, mesh_near_ids, sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -32,7 +32,8 @@ def main() -> None:
         target, eq, value = item.partition("=")
         module, _, name = target.rpartition(".")
         if not eq or not module:
-            raise SystemExit(f"{item!r}: give module.NAME=VALUE, e.g. physhand_mj.contact.objects.PSEUDO_NORMAL_TABLE=False")
+            raise SystemExit(f"{item!r}: give module.NAME=VALUE, "
+                             "e.g. physhand_mj.contact.objects.PSEUDO_NORMAL_TABLE=False")
         mod = importlib.import_module(module)
         if not hasattr(mod, name):
             raise SystemExit(f"{module} has no {name}")

@@ -100,7 +100,9 @@ def _warp_mesh(v: np.ndarray, f: np.ndarray, device: str, winding: bool) -> wp.M
     the sign's edge and vertex cases then read one entry instead of walking the BVH. The table is
     made once, for these points: an object mesh is rigid (its pose moves it), and a mesh whose
     points were changed afterwards would need the table filled again."""
-    table = None if winding or not PSEUDO_NORMAL_TABLE else wp.zeros(len(f) * int(FEATURES_PER_FACE), dtype=wp.vec3, device=device)
+    table = None
+    if not winding and PSEUDO_NORMAL_TABLE:
+        table = wp.zeros(len(f) * int(FEATURES_PER_FACE), dtype=wp.vec3, device=device)
     mesh = wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
                    indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32, device=device),
                    velocities=table, support_winding_number=winding)

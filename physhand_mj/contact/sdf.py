@@ -16,8 +16,8 @@ Every function takes a point in the geom's local frame and returns ``phi`` (m, n
   is exact (a BVH closest-point query). The sign of a closed, consistently wound mesh is the
   angle-weighted pseudo normal (Baerentzen and Aanaes 2005) of the closest point's own feature
   (face, edge or vertex: the faces sharing it, found by index), which is exact at edges and tips;
-  the walks that find those faces run once per mesh, into a table (:func:`pseudo_normal_table`); Warp's ``mesh_query_point_sign_normal`` instead gathers
-  every face within 1e-3 average edge lengths of the closest distance and gets knife edges wrong
+  the walks that find those faces run once per mesh, into a table (:func:`pseudo_normal_table`);
+  Warp's ``mesh_query_point_sign_normal`` instead gathers every face within 1e-3 average edge lengths of the closest distance and gets knife edges wrong
   (docs/contact.md). An open or overlapping mesh takes the generalised winding number (> 1/2 is
   inside: holes are closed over), 2-4x dearer. Cost O(log F) per query against O(1) for the
   analytic shapes. A mesh geom's id is a ``wp.vec2ul``: (wp.Mesh id, grid id or 0). The grid
@@ -369,12 +369,6 @@ def mesh_face_closest_kept(mesh: wp.uint64, f: int, p: wp.vec3):
     x0 = wp.mesh_get_point(mesh, 3 * f)
     x1 = wp.mesh_get_point(mesh, 3 * f + 1)
     x2 = wp.mesh_get_point(mesh, 3 * f + 2)
-    return face_closest(x0, x1, x2, p)
-
-
-@wp.func
-def face_closest(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, p: wp.vec3):
-    """:func:`mesh_face_closest_kept` of the face with points (x0, x1, x2)."""
     bc = closest_on_triangle(x0, x1, x2, p)
     v = bc[1]
     w = 1.0 - bc[0] - v
