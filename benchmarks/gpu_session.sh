@@ -656,7 +656,8 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
       --out "$OUT/batch_hoi_cuda_bowl_s46d_4096.json"
     ;;
-  s46_e)  # the stage lists' skip (contact.STAGE_SKIP) against the commit before it (.base/, `git archive REV
+  s46_e)  # (ran on e7c7494; the skip since reverted, e392de8: rerunning it measures the code of the day twice)
+    # the stage lists' skip (contact.STAGE_SKIP) against the commit before it (.base/, `git archive REV
     # physhand_mj mjcf`), alternated: the bowl and the box at W = 1,024; the bowl's kernel split; the bowl at
     # W = 4,096; first the CUDA tests of this session's changes
     step pytest_cuda 420 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda" tests/test_mesh_sdf.py \
