@@ -706,6 +706,27 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out "$OUT/fused_variants_cuda_s46h.json"
     ;;
+  s47_a)  # (2026-11-27, ninth session) Config.frame_metrics: the bowl at W = 1,024 with the frame's skin measure
+    # (as shipped) and without, alternated; the CUDA tests of the measures and the batch; one hand's bowl frame both ways
+    for i in 1 2; do
+      step "bowl_fm_on_$i" 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --out "$OUT/batch_hoi_cuda_bowl_s47_fm_on_$i.json"
+      step "bowl_fm_off_$i" 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+        --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47_fm_off_$i.json"
+    done
+    step bowl_fm_off_profile 120 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --profile --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47_fm_off_profile.json"
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or frame_metrics" \
+      tests/test_batch.py tests/test_activity.py
+    ;;
+  s47_b)  # the bowl at W = 4,096 without the frame's skin measure, then as shipped; one hand's bowl frame both ways
+    step bowl_4096_off 240 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47_4096_fm_off.json"
+    step bowl_4096_on 240 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s47_4096_fm_on.json"
+    step one_hand 100 python3 benchmarks/mesh_grid.py --device cuda --frames 30 --spacings 0.002 \
+      --config '{"frame_metrics": false}' --out "$OUT/mesh_grid_cuda_s47_fm_off.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

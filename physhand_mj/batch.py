@@ -428,12 +428,15 @@ class BatchedHands:
     def frame_worlds(self) -> list[dict]:
         """Per world, the last frame's ``nonfinite`` / ``inverted`` / ``tethered`` guard counts and its
         skin samples inside objects at the frame's end (``penetration_count`` / ``_max_um`` /
-        ``_avg_um``, the solver's frame metric) and, with object feature points, whether its feature
+        ``_avg_um``, the solver's frame metric; none with Config.frame_metrics off: :meth:`penetration`
+        measures them when called) and, with object feature points, whether its feature
         lists' check failed (``feature_slack_exceeded``, 0 or 1): what ``Solver.step`` reports for
         one hand."""
         g = self.solver.guard_worlds
         c = self.solver.contact
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
+        if not self.config.frame_metrics:  # nothing measured in the frame (Config.frame_metrics): no columns
+            rows = rows[:, :0]
         from physhand_mj.metrics import summarize_rows
 
         rows = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)

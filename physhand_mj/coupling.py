@@ -340,11 +340,14 @@ class SoftHand:
         out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0, object_in_skin_count=0,
                    object_in_skin_max_um=0.0, object_in_skin_avg_um=0.0)
         out.update(self._last)
-        if self.solver.contact is not None and not self.config.object_metrics and tm["frames"]:
-            from physhand_mj.metrics import summarize  # the second measure on demand (Config.object_metrics)
+        cfg = self.config
+        if self.solver.contact is not None and not (cfg.object_metrics and cfg.frame_metrics) and tm["frames"]:
+            from physhand_mj.metrics import summarize  # on demand what the frame did not measure (Config.
+            # object_metrics, frame_metrics)
 
-            row = self.solver.contact.measure(self.state)
-            out.update({k: v for k, v in summarize(row).items() if k.startswith("object_in_skin")})
+            row = self.solver.contact.measure(self.state, objects_side=not cfg.object_metrics)
+            out.update({k: v for k, v in summarize(row).items() if (k.startswith("object_in_skin") and not
+                                                                    cfg.object_metrics) or not cfg.frame_metrics})
         out["finite"] = bool(np.all(np.isfinite(self._skin)))
         out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
                    ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])

@@ -183,6 +183,9 @@ def rollout_config(model, substeps: int, contact: str, device, config: dict | No
     import physhand_mj as ph
     from physhand_mj.types import Strategy
 
+    if not (config or {}).get("frame_metrics", True):
+        raise ValueError("a rollout logs every frame's skin measure: leave Config.frame_metrics on (use "
+                         "BatchedHands or Solver directly to run frames without it)")
     return ph.Config(frame_dt=float(model.opt.timestep), substeps=substeps, contact=Strategy[contact.upper()],
                      device=device, substep_metrics=True, **(config or {}))
 

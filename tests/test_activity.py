@@ -320,6 +320,45 @@ def test_substep_metrics_only_when_asked_and_change_nothing_else(scene):
     assert np.array_equal(r2[:, 3:], np.zeros_like(r2[:, 3:]))  # the second measure runs at the frame's end only
 
 
+def test_frame_metrics_only_when_asked_and_change_nothing_else(scene):
+    """Config.frame_metrics=False records no skin measure in the frame (one launch fewer, nothing else
+    changed), leaves the skin the same bit for bit, reports no penetration from the frame, and the
+    measure asked afterwards gives the frame's own row: a 1 mm sphere 0.5 mm into the middle of a skin
+    triangle, which the vertex strategy's decision points (corners, edge midpoints) do not see."""
+    runs = []
+    faces = scene[0].skin_faces
+    for on in (True, False):
+        solver, state, objects, top = _solver(scene, size=(0.001, 0.0, 0.0), contact="vertex", frame_metrics=on)
+        x = state.x.numpy()[faces]
+        t = np.argmin(np.linalg.norm(x.mean(axis=1) - top, axis=1))
+        n = np.cross(x[t, 1] - x[t, 0], x[t, 2] - x[t, 0])
+        objects.set_pose(0, x[t].mean(axis=0) - 5e-4 * n / np.linalg.norm(n), (1.0, 0.0, 0.0, 0.0))
+        names = _recorded(solver, state, scene[2])
+        for _ in range(2):
+            out = _step(solver, state, scene[2])
+        runs.append((names, state.x.numpy().copy(), out, solver, state))
+    (n1, x1, o1, s1, _), (n2, x2, o2, s2, st2) = runs
+    count = lambda names: sum(1 for n in names if n and n.endswith("penetration_samples"))
+    assert count(n1) == 1 and count(n2) == 0
+    assert _without(n1, "penetration_samples") == n2
+    assert np.array_equal(x1, x2)
+    assert "penetration_count" in o1 and not any(k.startswith("penetration") for k in o2), o2
+    frame_row = s1.contact.read_metrics()[-1][:3]
+    assert frame_row[0] > 0, frame_row  # (the sphere presses in: a row that could differ)
+    np.testing.assert_array_equal(frame_row, s2.contact.measure(st2, objects_side=False)[:3])
+
+
+def test_a_rollout_refuses_to_log_without_frame_metrics():
+    from types import SimpleNamespace
+
+    from physhand_mj.rollout import rollout_config
+
+    model = SimpleNamespace(opt=SimpleNamespace(timestep=0.002))
+    assert rollout_config(model, 10, "multires", "cpu", {}).frame_metrics
+    with pytest.raises(ValueError, match="frame_metrics"):
+        rollout_config(model, 10, "multires", "cpu", {"frame_metrics": False})
+
+
 def test_softhand_metrics_say_what_ran():
     import mujoco
 

@@ -344,6 +344,37 @@ def test_metrics_and_guards_per_world(setup):
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not wp.is_cuda_available(), reason="no CUDA device"))])
+def test_a_batch_without_frame_metrics_measures_on_demand(setup, device):
+    """Config.frame_metrics=False: the batch's frames report no skin measure (no column rather than a
+    zero), its skins are those of a batch that measures every frame (bit for bit on the CPU; CUDA's
+    contact sums with float atomics in no fixed order), and ``penetration()`` measures the same per
+    world."""
+    from physhand_mj.types import GeomType
+
+    asset, model, data, ids, mount = setup
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    runs = []
+    for on in (True, False):
+        batch = BatchedHands(asset, 2, Config(device=device, frame_metrics=on), *mount,
+                             objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+        skin = batch.skin(0)
+        top = skin[np.argmax(skin[:, 2])].astype(float)
+        where = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]])[:, None]
+        ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+        out = batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), where, ident)
+        runs.append((out, batch.skins(), batch.penetration()))
+    (o1, x1, p1), (o2, x2, p2) = runs
+    assert "penetration_count" in o1 and "penetration_count" in o1["worlds"][1]
+    assert not any(k.startswith("penetration") for k in [*o2, *o2["worlds"][1]]), o2["worlds"]
+    if device == "cpu":
+        assert np.array_equal(x1, x2)
+    else:
+        np.testing.assert_allclose(x1, x2, atol=2e-5)
+    assert p1 == p2 and [w["penetration_count"] for w in p1] == [w["penetration_count"] for w in o1["worlds"]]
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="no CUDA device"))])
 def test_reused_outside_answers_per_world(setup, device):
     """Config.reuse_outside in a batch: each world's skin patches and objects bound its own points.
     Frame by frame the hands close towards a pinch (their skins move, the balls held away), then

@@ -279,7 +279,9 @@ class Solver(Sleeping):
         from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
 
         rows = self.contact.read_metrics(synchronize=False)
-        out.update(summarize(rows[-1] if self.config.object_metrics else rows[-1][:3]))
+        both = summarize(rows[-1])  # (the frame measured only what Config.frame_metrics / object_metrics ask)
+        out.update({k: v for k, v in both.items() if (self.config.frame_metrics and k.startswith("penetration"))
+                    or (self.config.object_metrics and k.startswith("object_in_skin"))})
         self.substep_metrics = rows[:-1]
 
     def _guard_len(self) -> int:
@@ -471,7 +473,9 @@ class Solver(Sleeping):
         if self.contact is not None:  # nothing within the frame margin: nothing inside, the rows stay zero
 
             def frame_end(sub):
-                self.contact.record_metrics(launch, sub, state, cfg.substeps, objects_side=cfg.object_metrics)
+                if cfg.frame_metrics or cfg.object_metrics:  # (none when no one reads them: measured on demand)
+                    self.contact.record_metrics(launch, sub, state, cfg.substeps, objects_side=cfg.object_metrics,
+                                                skin_side=cfg.frame_metrics)
                 self.contact.record_frame_end(launch, sub, state)  # the skin's move against the feature slack
 
             gated(frame_end, 1)
