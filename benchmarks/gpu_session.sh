@@ -727,6 +727,16 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step one_hand 100 python3 benchmarks/mesh_grid.py --device cuda --frames 30 --spacings 0.002 \
       --config '{"frame_metrics": false}' --out "$OUT/mesh_grid_cuda_s47_fm_off.json"
     ;;
+  s47_c)  # the winding-number skin BVH's leaf size (inside.WINDING_LEAF_SIZE): its refit and queries at W = 1,024, then
+    # the bowl at W = 1,024 without the frame's measure, leaf 4 (Warp's default) against 16, alternated
+    step winding_leaf 150 python3 benchmarks/winding_leaf.py --device cuda --worlds 1024 --leaves 4,8,16,32 \
+      --out "$OUT/winding_leaf_cuda_s47.json"
+    for leaf in 4 16 4 16; do
+      step "bowl_leaf_${leaf}_$SECONDS" 100 python3 benchmarks/with_modules.py physhand_mj.contact.inside.WINDING_LEAF_SIZE=$leaf \
+        -- benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 --config '{"frame_metrics": false}' \
+        --out "$OUT/batch_hoi_cuda_bowl_s47_leaf_${leaf}_$SECONDS.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -28,6 +28,10 @@ INSIDE_RANGE = 0.05  # m: farthest a point inside the hand can be from the skin 
 # SAH on the CPU; a refit keeps the tree's topology, and the feature queries (one GPU thread walks
 # the tree per feature: latency-bound) visit fewer nodes in an SAH tree. Built once per state.
 BVH_CONSTRUCTOR = "sah"
+# triangles a leaf of the winding-number skin mesh's BVH (Warp's bvh_leaf_size; its default is 4): its
+# refit computes every node's dipole data once a frame, a larger leaf means fewer nodes, and a query
+# that opens a leaf sums its triangles exactly (benchmarks/winding_leaf.py)
+WINDING_LEAF_SIZE = 4
 
 
 class SkinVolume:
@@ -45,7 +49,8 @@ class SkinVolume:
             wp.launch(add_shift, n_skin, inputs=[self.x, shift], outputs=[self.points], device=x.device)
         self.mesh = wp.Mesh(points=self.points, indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32,
                                                                   device=x.device),
-                            support_winding_number=winding, bvh_constructor=BVH_CONSTRUCTOR)
+                            support_winding_number=winding, bvh_constructor=BVH_CONSTRUCTOR,
+                            bvh_leaf_size=WINDING_LEAF_SIZE if winding else None)
         # the skin's bounding box (lower, upper), m; batched worlds (skins world by world): one per
         # world, world w's at [2 w, 2 w + 1] (a box over every world's skin, 1 m apart, culls nothing)
         self.worlds = max(int(worlds), 1)
