@@ -737,6 +737,21 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
         --out "$OUT/batch_hoi_cuda_bowl_s47_leaf_${leaf}_$SECONDS.json"
     done
     ;;
+  s47_d)  # leaf 16 for CUDA batches' winding mesh (shipped): the CUDA tests of the winding and the batches, the bowl at
+    # W = 4,096 without the frame's measure
+    step pytest_cuda 240 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or frame_metrics" \
+      tests/test_winding.py tests/test_batch.py tests/test_feature_slack.py
+    step bowl_4096_off 240 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47d_4096_fm_off.json"
+    ;;
+  s47_e)  # the box (1,100 feature points a world: the winding queries' heaviest user) at W = 4,096 without the frame's
+    # measure, leaf 4 against 16 (shipped)
+    for leaf in 4 16; do
+      step "box_leaf_$leaf" 280 python3 benchmarks/with_modules.py physhand_mj.contact.inside.WINDING_LEAF_SIZE=$leaf \
+        -- benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 10 --config '{"frame_metrics": false}' \
+        --out "$OUT/batch_hoi_cuda_box_s47e_4096_leaf_$leaf.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -28,10 +28,12 @@ INSIDE_RANGE = 0.05  # m: farthest a point inside the hand can be from the skin 
 # SAH on the CPU; a refit keeps the tree's topology, and the feature queries (one GPU thread walks
 # the tree per feature: latency-bound) visit fewer nodes in an SAH tree. Built once per state.
 BVH_CONSTRUCTOR = "sah"
-# triangles a leaf of the winding-number skin mesh's BVH (Warp's bvh_leaf_size; its default is 4): its
-# refit computes every node's dipole data once a frame, a larger leaf means fewer nodes, and a query
-# that opens a leaf sums its triangles exactly (benchmarks/winding_leaf.py)
-WINDING_LEAF_SIZE = 4
+# triangles a leaf of a CUDA batch's winding-number skin mesh (Warp's bvh_leaf_size; one hand and the
+# CPU keep Warp's default, 4). Its refit computes every node's dipole data once a frame, over every
+# world's skin: a larger leaf means fewer nodes, while a query that opens a leaf sums more triangles
+# exactly. H100, 1,024 skins (benchmarks/winding_leaf.py): the refit 7.49 / 4.61 / 2.96 / 2.13 ms at
+# leaf 4 / 8 / 16 / 32, 20k queries 0.77 / 1.01 / 1.54 / 2.58 ms
+WINDING_LEAF_SIZE = 16
 
 
 class SkinVolume:
@@ -50,7 +52,7 @@ class SkinVolume:
         self.mesh = wp.Mesh(points=self.points, indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32,
                                                                   device=x.device),
                             support_winding_number=winding, bvh_constructor=BVH_CONSTRUCTOR,
-                            bvh_leaf_size=WINDING_LEAF_SIZE if winding else None)
+                            bvh_leaf_size=WINDING_LEAF_SIZE if winding and worlds > 1 and x.device.is_cuda else None)
         # the skin's bounding box (lower, upper), m; batched worlds (skins world by world): one per
         # world, world w's at [2 w, 2 w + 1] (a box over every world's skin, 1 m apart, culls nothing)
         self.worlds = max(int(worlds), 1)
