@@ -15,7 +15,8 @@ import warp as wp
 
 from mesh_shapes import CONVEX, cone, near_features, star_prism
 from physhand_mj.contact import Objects
-from physhand_mj.contact.sdf import MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad
+from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad,
+                                      grid_node)
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -365,6 +366,57 @@ def test_the_distance_grid_answers_only_far_points_with_a_lower_bound(shape, dev
     objs = Objects(device, 1)
     objs.add(GeomType.MESH, None, vertices=open_box.vertices, faces=open_box.faces, name="open")
     assert int(objs._host["size"][0][1]) == MESH_SIGN_WINDING and int(objs._host["mesh"][0][1]) == 0
+
+
+@wp.kernel
+def _node(ids: wp.array(dtype=wp.vec2ul), p: wp.array(dtype=wp.vec3), dc: wp.array(dtype=float),
+          dist: wp.array(dtype=float)):
+    i = wp.tid()
+    a, b = grid_node(ids[0][1], p[i])
+    dc[i] = a
+    dist[i] = b
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_grids_bounds_list_the_triangles_the_exact_distance_lists(device):
+    """broadphase.find_active with a mesh's grid (its lower bound rejects, its upper bound, the
+    nearest node's distance plus the way to it, accepts; only the rest asks the exact distance) lists
+    the triangles that the exact distance alone lists, with the same masks, at the frame's and the
+    stage's margins; the upper bound decides most of the near ones."""
+    from physhand_mj.contact import broadphase
+    from physhand_mj.contact.broadphase import find_active
+
+    mesh = CONVEX["wedge30_knife"]()
+    rng = np.random.default_rng(5)
+    surf, _ = trimesh.sample.sample_surface(mesh, 4000, seed=3)
+    c = surf + rng.normal(0.0, 4e-3, surf.shape)  # small triangles (1-3 mm) about the surface, both sides
+    tri = c[:, None] + rng.normal(0.0, 1.2e-3, (len(c), 3, 3))
+    x = wp.array(tri.reshape(-1, 3).astype(np.float32), dtype=wp.vec3, device=device)
+    faces = wp.array(np.arange(3 * len(c), dtype=np.int32).reshape(-1, 3), dtype=int, device=device)
+    objs = Objects(device, 1)
+    objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="knife")
+    assert int(objs._host["mesh"][0][1]) != 0  # (it has a grid)
+    n = len(c)
+
+    def listed(ids, margin):
+        out = [wp.zeros(n, dtype=int, device=device) for _ in range(2)] + [wp.zeros(1, dtype=int, device=device)]
+        wp.launch(find_active, n, inputs=[faces, x, objs.gtype, objs.size, objs.inv_pose, objs.radius, ids, objs.count,
+                                          n, 1, margin], outputs=out, device=device)
+        k = int(out[2].numpy()[0])
+        return dict(zip(out[0].numpy()[:k].tolist(), out[1].numpy()[:k].tolist()))
+
+    for margin in (5e-4, 1e-2):
+        exact, grid = listed(objs.mesh_exact, margin), listed(objs.mesh, margin)
+        assert 200 < len(exact) < n, (margin, len(exact))
+        assert grid == exact, margin
+        if margin == 1e-2:  # the upper bound alone decides most of the listed triangles (the path is taken)
+            m, r = tri.mean(axis=1), np.linalg.norm(tri - tri.mean(axis=1)[:, None], axis=2).max(axis=1)
+            dc, dist = wp.zeros(n, dtype=float, device=device), wp.zeros(n, dtype=float, device=device)
+            wp.launch(_node, n, inputs=[objs.mesh, wp.array(m.astype(np.float32), dtype=wp.vec3, device=device)],
+                      outputs=[dc, dist], device=device)
+            sure = dc.numpy() + dist.numpy() - r <= margin
+            assert broadphase.USE_GRID_UPPER and sure.sum() > 0.5 * len(exact), (sure.sum(), len(exact))
+            assert set(np.flatnonzero(sure)) <= set(exact)
 
 
 def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():

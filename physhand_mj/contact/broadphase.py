@@ -20,9 +20,13 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import MESH, geom_sdf, grid_lower_bound
+from physhand_mj.contact.sdf import GRID_OFF, GRID_PAD, MESH, geom_sdf, grid_node
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
+# a mesh's distance grid also accepts the triangles its upper bound proves near (the nearest node's
+# distance plus the way to it), without the exact query; False: only its lower bound (for timings)
+USE_GRID_UPPER = wp.constant(True)
 
 
 @wp.func
@@ -59,8 +63,15 @@ def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(d
         q = wp.transform_point(inv_pose[g], m)
         if wp.length(q) - radius[g] - r <= margin:
             ids = mesh[g]
-            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid rejects what it proves far, in one read
-                if grid_lower_bound(ids[1], q) - r > margin:
+            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid decides what it can prove, in one read:
+                dc, s = grid_node(ids[1], q)  # phi(q) within dc -+ s
+                lower = GRID_PAD  # (off the grid: farther than GRID_PAD; sdf.grid_lower_bound)
+                if dc > 0.5 * GRID_OFF:
+                    lower = wp.where(dc > 0.0, dc - s, -1.0)
+                    if USE_GRID_UPPER and dc + s - r <= margin:  # near for sure
+                        mask = mask | bit
+                        continue
+                if lower - r > margin:  # far for sure
                     continue
                 ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
             if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:

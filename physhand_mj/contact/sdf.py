@@ -67,17 +67,27 @@ def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
     surface. Off the grid (the nearest node index outside it: the lookup returns the background
     GRID_OFF) p lies more than GRID_PAD outside the mesh's box, so GRID_PAD bounds its distance (the
     skin's far side around a large object, which would otherwise walk the BVH from afar)."""
+    dc, s = grid_node(grid, p)
+    if dc < 0.5 * GRID_OFF:
+        return GRID_PAD
+    if dc <= 0.0:
+        return -1.0
+    return dc - s
+
+
+@wp.func
+def grid_node(grid: wp.uint64, p: wp.vec3):
+    """(the exact signed distance stored at the grid node nearest p, p's distance to it); (GRID_OFF,
+    0) off the grid. Bounds of phi(p) follow (1-Lipschitz): dc - s <= phi(p) <= dc + s."""
     uvw = wp.volume_world_to_index(grid, p)
     i = int(wp.floor(uvw[0] + 0.5))
     j = int(wp.floor(uvw[1] + 0.5))
     k = int(wp.floor(uvw[2] + 0.5))
     dc = wp.volume_lookup_f(grid, i, j, k)
     if dc < 0.5 * GRID_OFF:
-        return GRID_PAD
-    if dc <= 0.0:
-        return -1.0
+        return dc, 0.0
     c = wp.volume_index_to_world(grid, wp.vec3(float(i), float(j), float(k)))
-    return dc - wp.length(p - c)
+    return dc, wp.length(p - c)
 
 
 @wp.func
