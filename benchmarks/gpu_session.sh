@@ -752,6 +752,23 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
         --out "$OUT/batch_hoi_cuda_box_s47e_4096_leaf_$leaf.json"
     done
     ;;
+  s47_f)  # the grid's upper bound in the broadphase (broadphase.USE_GRID_UPPER): the bowl at W = 1,024 without the
+    # frame's measure, off / on alternated, the profile with it; the CUDA tests of the grid's lists
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda and grid" tests/test_mesh_sdf.py
+    for up in False True False True; do
+      step "bowl_upper_${up}_$SECONDS" 100 python3 benchmarks/with_modules.py physhand_mj.contact.broadphase.USE_GRID_UPPER=$up \
+        -- benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 --config '{"frame_metrics": false}' \
+        --out "$OUT/batch_hoi_cuda_bowl_s47f_upper_${up}_$SECONDS.json"
+    done
+    step bowl_profile 100 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 10 \
+      --profile --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47f_profile.json"
+    ;;
+  s47_g)  # the code as it stands, W = 4,096: the bowl without the frame's measure and as shipped
+    step bowl_4096_off 240 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47g_4096_fm_off.json"
+    step bowl_4096_on 240 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --out "$OUT/batch_hoi_cuda_bowl_s47g_4096_fm_on.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -86,7 +86,7 @@ def main() -> None:
                    rounded_equal_to_first=bool(np.array_equal(wn, ref)), inside=int((wn > 0.5).sum()))
         print(json.dumps(row), flush=True)
         rows.append(row)
-        del mesh
+        mesh = None  # (freed before the next leaf size is built)
     res = dict(device=f"{d} ({d.name})" if d.is_cuda else str(d), worlds=w, triangles=int(len(faces) // 3),
                points=len(pts), rows=rows, command="python benchmarks/winding_leaf.py " + " ".join(
                    f"--{k.replace('_', '-')} {v}" for k, v in vars(a).items() if k != "out"))
