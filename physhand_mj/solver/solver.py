@@ -163,11 +163,16 @@ class Solver(Sleeping):
         if pos.shape != (b, 3) or quat.shape != (b, 4):
             raise ValueError(f"bone poses must be ({b}, 3) positions and ({b}, 4) quaternions, "
                              f"got {pos.shape} and {quat.shape}")
-        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
-            bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
-                ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
-            raise SolverError(f"non-finite pose for bones {bad}: fix the MuJoCo state (qpos) first")
-        norm = np.linalg.norm(quat, axis=1, keepdims=True)
+        # (batches: W x the bones every frame, in series with the GPU: one sum each instead of a mask,
+        # the squared norms in one pass; the exact test only to name the bones)
+        n2 = np.einsum("ij,ij->i", quat, quat)
+        if not (np.isfinite(pos.sum()) and np.isfinite(n2.sum())):
+            if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
+                bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
+                    ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
+                raise SolverError(f"non-finite pose for bones {bad}: fix the MuJoCo state (qpos) first")
+            n2 = np.linalg.norm(quat, axis=1) ** 2  # (finite but huge: the sums overflowed)
+        norm = np.sqrt(n2)[:, None]
         if np.any(norm < 1e-9):
             raise SolverError("a bone quaternion has zero length")
         end = state.pose_host[1]  # [p, q x y z w], written in place (batches: W x the bones, every frame)
@@ -188,7 +193,8 @@ class Solver(Sleeping):
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
         elif self.contact is not None and self.warn_fast_motion and not self._warned_fast and self.model.n_bodies:
-            jump = float(np.max(np.linalg.norm(state.pose_host[1][:, :3] - state.pose_host[0][:, :3], axis=1)))
+            d = state.pose_host[1][:, :3] - state.pose_host[0][:, :3]
+            jump = float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
             if jump > self.config.contact_frame_margin - self.config.contact_margin:
                 import warnings
 
@@ -200,8 +206,9 @@ class Solver(Sleeping):
                               RuntimeWarning, stacklevel=2)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
-        frame_poses = (state.pose_host[0].copy(), state.pose_host[1].copy())
         rigid = self._bones_still(state) if self._settled(state) else None
+        # (the start copied, as it is overwritten below; the end stays until the next set_body_poses)
+        frame_poses = (state.pose_host[0].copy(), state.pose_host[1])
         if self.regions is not None:
             self.regions.before_frame(*frame_poses)
         self._pose_host.numpy()[:] = state.pose_host
