@@ -59,6 +59,7 @@ def plot(src: Path, out: Path) -> Path:
                 fontsize=6.5, color="white")
     ax.axhline(10_000, color="0.3", lw=0.8, ls=":")
     ax.text(len(rows) - 0.5, 10_000 * 1.02, "target (H100)", fontsize=7, color="0.3", ha="right")
+    ax.tick_params(axis="x", labelsize=8, labelrotation=20)
     dev = "H100" if "H100" in d["device"] else d["device"]
     w = rows[0]["worlds"] if rows else 0
     ax.set(ylabel="hand-frames per second (5 ms frames)",

@@ -217,11 +217,9 @@ class Config:
         21 x 2 = 42 queries: an order-5 first round catches narrow penetrations at sharp rims that
         10 x 3 and the paper's 16 x 2 miss, docs/contact.md); opt_queries: Frank-Wolfe queries of OPT (the paper's
         baseline: 32); substep_metrics: evaluate the penetration metrics after every substep (for
-        logs), not only at the end of the frame; frame_metrics: evaluate the first measure (skin
-        samples inside objects) at the end of every frame (``Solver.step``'s and
-        ``BatchedHands.step``'s ``penetration_*``, the rollout log); False records none in the frame
-        (a batch that reads its measures once, at its end): ``SoftHand.metrics`` /
-        ``BatchedHands.penetration`` evaluate it when called, with the same kernels.
+        logs), not only at the end of the frame; frame_metrics: the skin measure at every frame's end
+        (``step()``'s ``penetration_*``, the rollout log); False (a batch that reads its measures at
+        its end) records none: ``SoftHand.metrics`` / ``BatchedHands.penetration`` measure on demand.
       device: Warp device, ``"cpu"`` or ``"cuda"`` / ``"cuda:0"``; None picks Warp's default.
       cuda_graph: capture one frame as a CUDA graph on CUDA devices.
       tiled_contact: on CUDA, run multires with a block of 32 threads per triangle (a lane per
