@@ -346,8 +346,8 @@ class SoftHand:
             # object_metrics, frame_metrics)
 
             row = self.solver.contact.measure(self.state, objects_side=not cfg.object_metrics)
-            out.update({k: v for k, v in summarize(row).items() if (k.startswith("object_in_skin") and not
-                                                                    cfg.object_metrics) or not cfg.frame_metrics})
+            asked = ("object_in_skin",) * (not cfg.object_metrics) + ("penetration",) * (not cfg.frame_metrics)
+            out.update({k: v for k, v in summarize(row).items() if k.startswith(asked)})
         out["finite"] = bool(np.all(np.isfinite(self._skin)))
         out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
                    ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])

@@ -348,6 +348,28 @@ def test_frame_metrics_only_when_asked_and_change_nothing_else(scene):
     np.testing.assert_array_equal(frame_row, s2.contact.measure(st2, objects_side=False)[:3])
 
 
+def test_softhand_metrics_measure_on_demand_what_the_frame_did_not():
+    """SoftHand.metrics() with the skin measure off in the frame and the object side on gives what the
+    defaults give (the frame's skin measure, the object side on demand): each side from where it was
+    measured, none overwritten by the other's zeros (the HOI box grasp one frame in: both nonzero)."""
+    import mujoco
+
+    runs = []
+    for cfg in (dict(), dict(frame_metrics=False, object_metrics=True)):
+        model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hoi_box")))
+        data = mujoco.MjData(model)
+        mujoco.mj_resetDataKeyframe(model, data, model.key("grasp").id)
+        mujoco.mj_forward(model, data)
+        hand = ph.SoftHand(model, data, ph.Config(device="cpu", **cfg), settle_frames=0)
+        mujoco.mj_step(model, data)
+        out = hand.step()
+        runs.append((out, {k: v for k, v in hand.metrics().items() if k.startswith(("penetration", "object_in"))}))
+    (o1, m1), (o2, m2) = runs
+    assert m1 == m2 and m1["penetration_count"] > 0 and m1["object_in_skin_count"] > 0, (m1, m2)
+    assert "penetration_count" in o1 and "object_in_skin_count" not in o1
+    assert "object_in_skin_count" in o2 and "penetration_count" not in o2
+
+
 def test_a_rollout_refuses_to_log_without_frame_metrics():
     from types import SimpleNamespace
 

@@ -171,8 +171,8 @@ class Solver(Sleeping):
                 bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
                     ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
                 raise SolverError(f"non-finite pose for bones {bad}: fix the MuJoCo state (qpos) first")
-            n2 = np.linalg.norm(quat, axis=1) ** 2  # (finite but huge: the sums overflowed)
-        norm = np.sqrt(n2)[:, None]
+            n2 = None  # (finite but huge: the sums overflowed)
+        norm = (np.sqrt(n2) if n2 is not None else np.linalg.norm(quat, axis=1))[:, None]
         if np.any(norm < 1e-9):
             raise SolverError("a bone quaternion has zero length")
         end = state.pose_host[1]  # [p, q x y z w], written in place (batches: W x the bones, every frame)
