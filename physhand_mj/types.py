@@ -186,10 +186,8 @@ class Config:
         margin, patches of that radius (the lists before 2026-11-27);
         feature_list_share: how far past contact_margin a feature point is listed, as a share of
         the slack (a ratio, 0.5-1; 0.5: d <= contact_margin + slack / 2, which the frame's check
-        certifies under the bound on the skin's move that the patches need anyway, twice its move
-        under the slack; 1: the lists of 2026-11-27's first three sessions, where about half of the
-        box grasp's listed points lay farther, none of which a pass could push in a frame that check
-        passes);
+        certifies under the bound on the skin's move the patches need anyway; 1: the lists of the
+        first three sessions of 2026-11-27, half of whose box points no pass could push in time);
         side_aware: where the SDF gradient at a decision point points out of the hand, leave the
           object along the triangle's inward normal instead of by Eq. 9 (contact/query.py
           ``project``; fixes deep starts past an object's mid-plane and thin walls). Both need a
@@ -259,8 +257,7 @@ class Config:
         against 4.03-4.36 ms, closing 6.3-6.4 against 5.8-5.9, the hard cases' held frames 14.7
         against 4.4 ms (0 of 600 with residue); a pass costs the latency of its phases, not of its
         launches (docs/activity.md). Needs the GPU's SMs to itself (a stage that could not run all
-        its blocks at once raises SolverError). Batched worlds and the other strategies keep the
-        recorded stage.
+        its blocks at once raises SolverError). Batches and the other strategies keep the recorded stage.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
         skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).

@@ -60,25 +60,8 @@ GRID_OFF = wp.constant(-1.0e30)  # a mesh grid's background: what a lookup off i
 
 
 @wp.func
-def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
-    """A lower bound (m) of p's distance outside the mesh from the mesh's grid: the nearest node's
-    exact distance minus p's distance to that node (a distance function is 1-Lipschitz, and a node
-    outside with distance d has no surface within d). -1 where that node is inside or on the
-    surface. Off the grid (the nearest node index outside it: the lookup returns the background
-    GRID_OFF) p lies more than GRID_PAD outside the mesh's box, so GRID_PAD bounds its distance (the
-    skin's far side around a large object, which would otherwise walk the BVH from afar)."""
-    dc, s = grid_node(grid, p)
-    if dc < 0.5 * GRID_OFF:
-        return GRID_PAD
-    if dc <= 0.0:
-        return -1.0
-    return dc - s
-
-
-@wp.func
 def grid_node(grid: wp.uint64, p: wp.vec3):
-    """(the exact signed distance stored at the grid node nearest p, p's distance to it); (GRID_OFF,
-    0) off the grid. Bounds of phi(p) follow (1-Lipschitz): dc - s <= phi(p) <= dc + s."""
+    """(dc, s): the exact phi at the grid node nearest p, p's distance to it: dc -+ s bound phi(p)."""
     uvw = wp.volume_world_to_index(grid, p)
     i = int(wp.floor(uvw[0] + 0.5))
     j = int(wp.floor(uvw[1] + 0.5))
@@ -88,6 +71,21 @@ def grid_node(grid: wp.uint64, p: wp.vec3):
         return dc, 0.0
     c = wp.volume_index_to_world(grid, wp.vec3(float(i), float(j), float(k)))
     return dc, wp.length(p - c)
+
+
+@wp.func
+def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
+    """A lower bound (m) of p's distance outside the mesh from its grid (:func:`grid_node`'s dc - s; a
+    node outside with distance d has no surface within d); -1 where that node is inside or on the
+    surface. Off the grid (the lookup returns the background GRID_OFF) p lies more than GRID_PAD
+    outside the mesh's box, so GRID_PAD bounds its distance (the skin's far side around a large
+    object, which would otherwise walk the BVH from afar)."""
+    dc, s = grid_node(grid, p)
+    if dc < 0.5 * GRID_OFF:
+        return GRID_PAD
+    if dc <= 0.0:
+        return -1.0
+    return dc - s
 
 
 @wp.func
@@ -348,8 +346,7 @@ mesh_near_dist = wp.types.vector(length=MESH_NEAR_CAP, dtype=wp.float32)
 
 @wp.func
 def face_shape(mesh: wp.uint64, f: int):
-    """(q, L) of face ``f``: its sliver ratio q = |e0 x e1| / sum |e|^2 (Warp skips faces under 1e-6)
-    and its longest edge L (m)."""
+    """(q, L) of face ``f``: sliver ratio q = |e0 x e1| / sum |e|^2 (Warp skips < 1e-6), longest edge L."""
     x0 = wp.mesh_get_point(mesh, 3 * f)
     x1 = wp.mesh_get_point(mesh, 3 * f + 1)
     x2 = wp.mesh_get_point(mesh, 3 * f + 2)
@@ -428,9 +425,8 @@ def mesh_faces_within(mesh: wp.uint64, m: wp.vec3, dm: float, r: float):
 @wp.func
 def mesh_near_faces(mesh: wp.uint64, m: wp.vec3, r: float, query_range: float):
     """(ids, dist, n): the faces of ``mesh`` within d(m) + 2 r of ``m`` (mesh frame, m), n of them in
-    ids[:n], lower bounds of their distances from m (m) in dist[:n] (:func:`mesh_faces_within`); n = -1 when they
-    are more than MESH_NEAR_CAP or nothing is within ``query_range`` of m (then query each point the
-    usual way)."""
+    ids[:n], lower bounds of their distances from m (m) in dist[:n] (:func:`mesh_faces_within`); n = -1
+    when more than MESH_NEAR_CAP or nothing within ``query_range`` of m (query each point as usual)."""
     hit = wp.mesh_query_point_no_sign(mesh, m, query_range)
     if not hit.result:
         return mesh_near_ids(), mesh_near_dist(), -1
