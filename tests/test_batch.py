@@ -347,19 +347,24 @@ def test_metrics_and_guards_per_world(setup):
 def test_a_batch_without_frame_metrics_measures_on_demand(setup, device):
     """Config.frame_metrics=False: the batch's frames report no skin measure (no column rather than a
     zero), its skins are those of a batch that measures every frame (bit for bit on the CPU; CUDA's
-    contact sums with float atomics in no fixed order), and ``penetration()`` measures the same per
-    world."""
+    contact sums with float atomics in no fixed order), and ``penetration()`` measures per world what
+    the frame measured: world 1 holds a 1 mm sphere 0.5 mm inside a skin triangle, which the vertex
+    strategy's decision points (corners, edge midpoints) do not see, world 0 nothing near."""
     from physhand_mj.types import GeomType
 
     asset, model, data, ids, mount = setup
     poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    faces = asset.skin_faces
     runs = []
     for on in (True, False):
-        batch = BatchedHands(asset, 2, Config(device=device, frame_metrics=on), *mount,
-                             objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
-        skin = batch.skin(0)
+        batch = BatchedHands(asset, 2, Config(device=device, contact="vertex", frame_metrics=on), *mount,
+                             objects=[dict(gtype=GeomType.SPHERE, size=(0.001, 0, 0), name="ball")])
+        skin = batch.skin(1)
         top = skin[np.argmax(skin[:, 2])].astype(float)
-        where = np.stack([top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]])[:, None]
+        x = skin[faces].astype(float)
+        t = np.argmin(np.linalg.norm(x.mean(axis=1) - top, axis=1))
+        n = np.cross(x[t, 1] - x[t, 0], x[t, 2] - x[t, 0])
+        where = np.stack([top + [0.0, 0.1, 0.05], x[t].mean(axis=0) - 5e-4 * n / np.linalg.norm(n)])[:, None]
         ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
         out = batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), where, ident)
         runs.append((out, batch.skins(), batch.penetration()))
@@ -368,9 +373,11 @@ def test_a_batch_without_frame_metrics_measures_on_demand(setup, device):
     assert not any(k.startswith("penetration") for k in [*o2, *o2["worlds"][1]]), o2["worlds"]
     if device == "cpu":
         assert np.array_equal(x1, x2)
+        assert p1 == p2
     else:
         np.testing.assert_allclose(x1, x2, atol=2e-5)
-    assert p1 == p2 and [w["penetration_count"] for w in p1] == [w["penetration_count"] for w in o1["worlds"]]
+    assert o1["worlds"][0]["penetration_count"] == 0 < o1["worlds"][1]["penetration_count"], o1["worlds"]
+    assert [w["penetration_count"] for w in p2] == [w["penetration_count"] for w in o1["worlds"]], (p2, o1["worlds"])
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(

@@ -68,7 +68,8 @@ def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(d
                 lower = GRID_PAD  # (off the grid: farther than GRID_PAD; sdf.grid_lower_bound)
                 if dc > 0.5 * GRID_OFF:
                     lower = wp.where(dc > 0.0, dc - s, -1.0)
-                    if USE_GRID_UPPER and dc + s - r <= margin:  # near for sure
+                    # near for sure (and within the query range, where the exact query answers phi)
+                    if USE_GRID_UPPER and dc + s - r <= margin and wp.abs(dc) + s <= size[g][0]:
                         mask = mask | bit
                         continue
                 if lower - r > margin:  # far for sure
@@ -106,8 +107,9 @@ def find_active(
     world-relative: bit j is geom w k + j (j < 31; the world's geoms from its 31st on share bit 30,
     and the decision points, query.world_phi, always try those, within the world's [w k, (w + 1) k)
     only); one world's bits are its global geom indices, as before batching. A mesh's distance grid
-    (objects.mesh_grid) rejects the triangles its lower bound proves far; the others are asked the
-    exact distance, so the lists are those of the exact distance."""
+    (objects.mesh_grid) rejects the triangles its lower bound proves far and takes those its upper
+    bound proves near (within the mesh's query range); the others are asked the exact distance, so
+    the lists are those of the exact distance."""
     t = wp.tid()
     mask = reach_mask(t, -1, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
                       geoms_per_world, margin)

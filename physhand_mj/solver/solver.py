@@ -166,7 +166,9 @@ class Solver(Sleeping):
         # (batches: W x the bones every frame, in series with the GPU: one sum each instead of a mask,
         # the squared norms in one pass; the exact test only to name the bones)
         n2 = np.einsum("ij,ij->i", quat, quat)
-        if not (np.isfinite(pos.sum()) and np.isfinite(n2.sum())):
+        with np.errstate(over="ignore"):  # (a huge finite sum only sends it to the exact test)
+            finite = np.isfinite(pos.sum()) and np.isfinite(n2.sum())
+        if not finite:
             if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
                 bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
                     ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
