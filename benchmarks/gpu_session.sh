@@ -776,6 +776,13 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096_off 270 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
       --host-split --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47h_4096_fm_off.json"
     ;;
+  s47_i)  # after the review (the grid's upper bound only within the mesh's query range; the batch test measuring a
+    # world with samples inside): the CUDA tests, the bowl at W = 4,096 without the frame's measure
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or frame_metrics" \
+      tests/test_mesh_sdf.py tests/test_batch.py tests/test_activity.py
+    step bowl_4096_off 270 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
+      --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47i_4096_fm_off.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
