@@ -20,7 +20,7 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import GRID_OFF, GRID_PAD, MESH, geom_sdf, grid_node
+from physhand_mj.contact.sdf import GRID_OFF, MESH, geom_sdf, grid_lower, grid_node
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -65,14 +65,11 @@ def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(d
             ids = mesh[g]
             if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid decides what it can prove, in one read:
                 dc, s = grid_node(ids[1], q)  # phi(q) within dc -+ s
-                lower = GRID_PAD  # (off the grid: farther than GRID_PAD; sdf.grid_lower_bound)
-                if dc > 0.5 * GRID_OFF:
-                    lower = wp.where(dc > 0.0, dc - s, -1.0)
-                    # near for sure (and within the query range, where the exact query answers phi)
-                    if USE_GRID_UPPER and dc + s - r <= margin and wp.abs(dc) + s <= size[g][0]:
-                        mask = mask | bit
-                        continue
-                if lower - r > margin:  # far for sure
+                # near for sure (on the grid, within the query range, where the exact query answers phi)
+                if USE_GRID_UPPER and dc > 0.5 * GRID_OFF and dc + s - r <= margin and wp.abs(dc) + s <= size[g][0]:
+                    mask = mask | bit
+                    continue
+                if grid_lower(dc, s) - r > margin:  # far for sure
                     continue
                 ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
             if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:

@@ -300,7 +300,7 @@ def _grid_values(mesh: wp.uint64, size: wp.vec3, origin: wp.vec3, h: float, ny: 
 def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
     """The exact signed distance (m) of ``mesh`` (sign method ``sign``) at the nodes of a regular grid
     over its box grown by GRID_PAD, as a ``wp.Volume`` (node (i, j, k) at the box corner + spacing x
-    (i, j, k); background sdf.GRID_OFF off the grid, which sdf.grid_lower_bound reads as "farther than
+    (i, j, k); background sdf.GRID_OFF off the grid, which sdf.grid_lower reads as "farther than
     GRID_PAD from the mesh's box"), or None for ``spacing`` <= 0 and for meshes signed by the
     winding number (open or overlapping: their inside is not bounded by faces alone). The spacing grows past
     ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.geom_sdf (values only) uses it

@@ -74,13 +74,11 @@ def grid_node(grid: wp.uint64, p: wp.vec3):
 
 
 @wp.func
-def grid_lower_bound(grid: wp.uint64, p: wp.vec3):
-    """A lower bound (m) of p's distance outside the mesh from its grid (:func:`grid_node`'s dc - s; a
-    node outside with distance d has no surface within d); -1 where that node is inside or on the
-    surface. Off the grid (the lookup returns the background GRID_OFF) p lies more than GRID_PAD
-    outside the mesh's box, so GRID_PAD bounds its distance (the skin's far side around a large
-    object, which would otherwise walk the BVH from afar)."""
-    dc, s = grid_node(grid, p)
+def grid_lower(dc: float, s: float):
+    """A lower bound (m) of p's distance outside the mesh from :func:`grid_node`'s (dc, s) at p (a node
+    outside with distance d has no surface within d); -1 where that node is inside or on the surface.
+    Off the grid (dc = GRID_OFF) p lies more than GRID_PAD outside the mesh's box, so GRID_PAD bounds
+    its distance (the skin's far side around a large object, which would otherwise walk the BVH)."""
     if dc < 0.5 * GRID_OFF:
         return GRID_PAD
     if dc <= 0.0:
@@ -519,7 +517,8 @@ def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
         return d
     if gtype == MESH:
         if mesh[1] != wp.uint64(0):  # the grid's lower bound where it proves p far outside (module docstring)
-            lb = grid_lower_bound(mesh[1], p)
+            dc, s = grid_node(mesh[1], p)
+            lb = grid_lower(dc, s)
             if lb > GRID_BAND:
                 return lb
         d, g = sdf_mesh_grad(p, size, mesh)
