@@ -6,13 +6,15 @@ set up as ``physhand rollout LIST --batch W`` sets up a batch (the rest placemen
 without contact, the objects placed), then the bones held at the keyframe (Table 2's setting) while
 the contact resolves the grasp's 2.5-3.8 mm initial penetration: ``--frames`` 5 ms frames timed
 after 2 warm-up frames (compilation, recording and graph capture excluded), one host sync per
-frame; the MuJoCo step is not part of it (the poses are the keyframe's). At the end, per world: skin
+frame (``--modes step,submit``: also pipelined by ``BatchedHands.submit``, the modes alternated
+block by block ``--repeats`` times); the MuJoCo step is not part of it (the poses are the keyframe's). At the end, per world: skin
 samples inside the object (order 5) and object points inside the skin, and the two measures the
 contact does not share (skin samples on the denser order-9 lattice, the object's check points
 inside the skin); the worst world is reported.
 
     python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
                                    [--config '{"feature_winding": false}'] [--profile] [--host-split]
+                                   [--modes step,submit] [--repeats 3]
     python benchmarks/batch_hoi.py --plot [JSON]   (docs/images/batch_hoi_1024.png from a run's JSON)
     python benchmarks/batch_hoi.py --curves [JSON] (docs/images/batch_hoi_curves.png: hand-frames/s against W)
 
@@ -186,6 +188,10 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per world count")
     p.add_argument("--config", default="{}", help="Config fields as JSON")
     p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 24)")
+    p.add_argument("--modes", default="step",
+                   help="how frames are run, comma-separated, alternated block by block: step "
+                        "(BatchedHands.step) and/or submit (BatchedHands.submit, pipelined)")
+    p.add_argument("--repeats", type=int, default=1, help="timed blocks of --frames frames per mode")
     p.add_argument("--host-split", action="store_true",
                    help="time the frame's parts apart (poses in, solver step, per-world report) and profile the "
                         "solver step's host side (top functions by own time)")
@@ -240,18 +246,18 @@ def main() -> None:
                     for _ in range(2):
                         hands.step(pos, quat, op, oq)
                     lap("warmup (compile, record, capture)")
-                    t = time.perf_counter()
-                    for _ in range(a.frames):
-                        out = hands.step(pos, quat, op, oq)
-                    ms = (time.perf_counter() - t) / a.frames * 1e3
+                    from batch_throughput import mode_rows
+
+                    timing, out = mode_rows(hands, lambda k: [(pos, quat, op, oq)] * a.frames, w,
+                                            a.modes.split(","), a.repeats)
+                    ms = timing["ms_per_frame"]
                     lap("timed frames")
                     pen = hands.penetration()
                     lap("order 5 and object points")
                     print(f"[{scene} W={w}] {w / ms * 1e3:.1f} hand-frames/s; worst world inside: order 5 "
                           f"{max(r['penetration_count'] for r in pen)}, object points "
                           f"{max(r['object_in_skin_count'] for r in pen)}", file=sys.stderr, flush=True)
-                    row = dict(scene=scene, worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
-                               setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
+                    row = dict(scene=scene, worlds=w, **timing, setup_s=round(setup_s, 2), features_listed=out.get("features_listed"),
                                triangles_tested=out.get("triangles_tested"),
                                penetration_count_max=max(r["penetration_count"] for r in pen),
                                penetration_max_um=round(max(r["penetration_max_um"] for r in pen), 2),

@@ -2,12 +2,15 @@
 
 W copies of the embedded hand in one solver, open pose, each world's index finger bending at its own
 rate; ``--frames`` 5 ms frames timed after 2 warm-up frames (compilation, recording and graph
-capture excluded), one host sync per frame. ``--objects``: each world holds a sphere (r = 2 cm)
+capture excluded), one host sync per frame; ``--modes step,submit``: also pipelined
+(``BatchedHands.submit``: the next frame's poses checked while the GPU runs this one), the modes
+alternated block by block ``--repeats`` times. ``--objects``: each world holds a sphere (r = 2 cm)
 pressing the back of its hand 2 mm (the worlds then lie 1 m apart; the contact is world-indexed).
 Memory per world: the bytes of the replicated model's and state's device arrays divided by W.
 
     python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5] [--objects]
                                           [--config '{"jacobi_gather": true}'] [--tag NAME]
+                                          [--modes step,submit] [--repeats 3]
     python benchmarks/batch_throughput.py --plot     # docs/images/batch_throughput.png from the JSONs
 
 Writes docs/benchmarks/batch_throughput_<device>[_objects][_<tag>].json; each row also gives the
@@ -142,6 +145,44 @@ def kernel_split(hands, poses, ball, frames: int, counts: dict | None = None) ->
     return {k: round(v / frames, 3) for k, v in top} | {"all": round(sum(agg.values()) / frames, 3)}
 
 
+def timed_frames(hands, frames: list, mode: str = "step"):
+    """ms per frame of ``frames`` (``BatchedHands.step``'s argument tuples, one a frame) and the last
+    frame's report: ``mode`` "step", a frame and its report at a time, or "submit", pipelined
+    (``BatchedHands.submit`` each, then ``wait``: the last frame's end is inside the time)."""
+    t = time.perf_counter()
+    if mode == "step":
+        for args in frames:
+            out = hands.step(*args)
+    elif mode == "submit":
+        for args in frames:
+            hands.submit(*args)
+        out = hands.wait()
+    else:
+        raise ValueError(f"mode must be 'step' or 'submit', got {mode!r}")
+    return (time.perf_counter() - t) / len(frames) * 1e3, out
+
+
+def mode_rows(hands, frames_of, worlds: int, modes: list, repeats: int):
+    """Each mode timed ``repeats`` times, the modes alternated block by block (``frames_of(k)``: the
+    k-th block's frames); per mode its ms per frame (every block) and hand-frames/s (the median's),
+    the first mode's also as the row's ``ms_per_frame`` / ``hand_frames_per_s``; and the last report."""
+    ms = {m: [] for m in modes}
+    k = 0
+    for _ in range(repeats):
+        for m in modes:
+            t, out = timed_frames(hands, frames_of(k), m)
+            ms[m].append(round(t, 3))
+            k += 1
+    row = {}
+    for m in modes:
+        med = float(np.median(ms[m]))
+        row[f"ms_per_frame_{m}"] = ms[m]
+        row[f"hand_frames_per_s_{m}"] = round(worlds / med * 1e3, 1)
+    first = float(np.median(ms[modes[0]]))
+    row.update(ms_per_frame=round(first, 3), hand_frames_per_s=round(worlds / first * 1e3, 1))
+    return row, out
+
+
 def main() -> None:
     if "--plot" in sys.argv[1:]:
         print(plot(ROOT / "docs" / "images" / "batch_throughput.png").relative_to(ROOT))
@@ -162,6 +203,10 @@ def main() -> None:
     p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
     p.add_argument("--profile", action="store_true",
                    help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 24")
+    p.add_argument("--modes", default="step",
+                   help="how frames are run, comma-separated, alternated block by block: step "
+                        "(BatchedHands.step) and/or submit (BatchedHands.submit, pipelined)")
+    p.add_argument("--repeats", type=int, default=1, help="timed blocks of --frames frames per mode")
     p.add_argument("--fused-block", type=int, default=0,
                    help="with Config.fused_substep: threads per world's block (solver/fused.py BLOCK_DIM)")
     a = p.parse_args()
@@ -190,15 +235,13 @@ def main() -> None:
 
         for f in range(2):
             out = hands.step(*poses(f), *ball)
-        inputs = [poses(f) for f in range(2, 2 + a.frames)]  # (bone poses from MuJoCo: not timed)
-        t = time.perf_counter()
-        for pos, quat in inputs:
-            out = hands.step(pos, quat, *ball)
-        ms = (time.perf_counter() - t) / a.frames * 1e3
+        modes = a.modes.split(",")
+        # (bone poses from MuJoCo, made before the timing)
+        inputs = [poses(f) + tuple(ball) for f in range(2, 2 + a.frames * a.repeats * len(modes))]
+        timing, out = mode_rows(hands, lambda k: inputs[k * a.frames:(k + 1) * a.frames], w, modes, a.repeats)
         mem = (_nbytes(hands.solver.model) + _nbytes(hands.state)) / w
-        rows.append(dict(worlds=w, ms_per_frame=round(ms, 3), hand_frames_per_s=round(w / ms * 1e3, 1),
-                         mb_per_world=round(mem / 2**20, 2), vertices=hands.solver.model.n_vertices,
-                         setup_s=round(setup_s, 2)))
+        rows.append(dict(worlds=w, **timing, mb_per_world=round(mem / 2**20, 2),
+                         vertices=hands.solver.model.n_vertices, setup_s=round(setup_s, 2)))
         if a.profile and hands.solver.device.is_cuda:  # where the frame's GPU time goes, kernel by kernel
             rows[-1]["kernels_ms_per_frame"] = kernel_split(hands, poses, ball, a.frames)
         if a.objects:  # the contact did work in every world, and nothing stayed inside

@@ -783,6 +783,22 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096_off 270 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 10 \
       --config '{"frame_metrics": false}' --out "$OUT/batch_hoi_cuda_bowl_s47i_4096_fm_off.json"
     ;;
+  s48_a)  # (2026-11-27, tenth session) BatchedHands.submit: its CUDA tests with the batches' and the grid's (the
+    # grid_lower refactor had not run on CUDA), then the solver alone at W = 4,096 by step and by submit, alternated
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or frame_metrics or pipelin" \
+      tests/test_batch_pipeline.py tests/test_mesh_sdf.py tests/test_batch.py
+    step solver_4096 200 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 8 \
+      --modes step,submit --repeats 3 --tag s48a_modes
+    ;;
+  s48_b)  # the bowl at W = 4,096 without the frame's measure, by step and by submit, alternated; its host split
+    step bowl_4096_off 400 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes step,submit --repeats 3 --config '{"frame_metrics": false}' \
+      --out "$OUT/batch_hoi_cuda_bowl_s48b_4096_fm_off.json"
+    ;;
+  s48_c)  # the bowl at W = 4,096 with Config() as shipped, by step and by submit, alternated
+    step bowl_4096 400 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes step,submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s48c_4096.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

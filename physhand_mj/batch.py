@@ -295,6 +295,8 @@ class BatchedHands:
         self.body_shift = np.repeat(self.offsets, self.n_bodies, axis=0)
         self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
         self.last_worlds: list[dict] = []
+        self._launched = False  # a frame is in flight (submit): its report comes from the next submit / wait
+        self._unclaimed = None  # (report, per-world arrays) of a finished frame not yet returned
 
     # -- lifetime ----------------------------------------------------------------------------------
     def close(self) -> None:
@@ -305,8 +307,12 @@ class BatchedHands:
         BatchedHands(...) as hands:``."""
         import gc
 
+        import warp as wp
+
         if self.solver is None:
             return
+        if self._launched:  # (the frame in flight ends before its arrays go; its report with them)
+            wp.synchronize_device(self.solver.device)
         s = self.solver
         s._graphs.clear()
         s._ops.clear()
@@ -375,6 +381,7 @@ class BatchedHands:
         ``SoftHand(..., settle_contact=False)`` does for one hand (a grasp keyframe starts from the
         undeformed posed skin, its penetrations included)."""
         self._alive()
+        self._complete()  # (a submitted frame first: its report stays for submit / wait)
         from physhand_mj.coupling import _nlerp
         from physhand_mj.solver import Solver
 
@@ -394,13 +401,20 @@ class BatchedHands:
         """Every world's object poses, ``object_pos`` (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z,
         each in its world's frame (``step`` takes them too)."""
         self._alive()
+        self._complete()  # (a submitted frame still reads the poses it was given)
+        rows = self._object_rows(object_pos, object_quat)
+        if rows is not None:
+            self.objects.set_pose_rows(rows)
+
+    def _object_rows(self, object_pos, object_quat):
+        """The objects' pose rows (Objects.pose_rows), checked; None without objects."""
         if self.objects is None:
-            return
+            return None
         if object_pos is None or object_quat is None:
             raise ValueError(f"object poses are needed: object_pos {(self.worlds, self.n_objects, 3)} m and "
                              f"object_quat {(self.worlds, self.n_objects, 4)} w x y z")
         op = np.asarray(object_pos, float).reshape(self.worlds, self.n_objects, 3) + self.offsets[:, None]
-        self.objects.set_poses(op.reshape(-1, 3), np.asarray(object_quat, float).reshape(-1, 4))
+        return self.objects.pose_rows(op.reshape(-1, 3), np.asarray(object_quat, float).reshape(-1, 4))
 
     def _check_poses(self, pos, quat):
         pos, quat = np.asarray(pos, float), np.asarray(quat, float)
@@ -416,13 +430,60 @@ class BatchedHands:
         (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z, in each world's frame. Returns the
         solver's frame dict (counts summed over worlds, the batch's penetration summary) with
         ``worlds``: per world its guard counts and the frame's skin-sample penetration summary
-        (:meth:`frame_worlds`)."""
+        (:meth:`frame_worlds`). The same as :meth:`submit` then :meth:`wait`."""
+        self._alive()
+        if self._launched or self._unclaimed is not None:
+            raise RuntimeError("a submitted frame's report is not read yet: BatchedHands.wait() before step()")
+        self.submit(pos, quat, object_pos, object_quat)
+        return self.wait()
+
+    def submit(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None) -> dict | None:
+        """:meth:`step` in a pipeline: the frame is queued on the device and the call returns the
+        report of the frame submitted before it (None for the first). The new poses are checked on
+        the host while the device still runs that frame, and its per-world rows are built while
+        the device runs this one; every decision a frame takes (sleeping, the work set) is taken
+        from the same inputs as in :meth:`step`, so the frames are the same. :meth:`wait` returns
+        the last frame's report. Reading the batch (skins, penetration, metrics) waits for the
+        frame in flight first; its report stays for the next :meth:`submit` or :meth:`wait`::
+
+            for k in range(frames):
+                report = hands.submit(pos[k], quat[k])  # frame k-1's report (None at k = 0)
+            report = hands.wait()                        # frame frames-1's
+        """
         self._alive()
         pos, quat = self._check_poses(pos, quat)
-        self.set_object_poses(object_pos, object_quat)
-        self.solver.set_body_poses(self.state, (pos + self.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
-        out = self.solver.step(self.state)
-        out["worlds"] = self.last_worlds = self.frame_worlds()
+        rows = self.solver.pose_rows((pos + self.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
+        obj = self._object_rows(object_pos, object_quat)
+        self._complete()  # the frame in flight: its sync and the solver's report
+        if obj is not None:
+            self.objects.set_pose_rows(obj)
+        self.solver.set_body_pose_rows(self.state, rows)
+        self.solver.launch(self.state)
+        self._launched = True
+        return self._claim()
+
+    def wait(self) -> dict | None:
+        """The report of the frame in flight (:meth:`submit`), after waiting for it; None if every
+        submitted frame was reported."""
+        self._alive()
+        self._complete()
+        return self._claim()
+
+    def _complete(self) -> None:
+        """Wait for the frame in flight (if any) and keep its report and the raw per-world rows,
+        copied before the next frame's copies overwrite the host buffers."""
+        if not getattr(self, "_launched", False):
+            return
+        self._launched = False
+        out = self.solver.finish(self.state)
+        self._unclaimed = (out, self._world_arrays())
+
+    def _claim(self) -> dict | None:
+        if self._unclaimed is None:
+            return None
+        out, raw = self._unclaimed
+        self._unclaimed = None
+        out["worlds"] = self.last_worlds = self._world_rows(*raw)
         return out
 
     def frame_worlds(self) -> list[dict]:
@@ -432,19 +493,28 @@ class BatchedHands:
         measures them when called) and, with object feature points, whether its feature
         lists' check failed (``feature_slack_exceeded``, 0 or 1): what ``Solver.step`` reports for
         one hand."""
-        g = self.solver.guard_worlds
+        self._complete()
+        return self._world_rows(*self._world_arrays())
+
+    def _world_arrays(self):
+        """The last frame's per-world guard counts, skin-measure rows and feature checks (copies)."""
+        g = self.solver.guard_worlds  # (a copy per frame: Solver._read_guard_worlds)
         c = self.solver.contact
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
         if not self.config.frame_metrics:  # nothing measured in the frame (Config.frame_metrics): no columns
             rows = rows[:, :0]
+        over = c.feature_motion_worlds(self.solver.activity.last_open1) if c is not None else None
+        return g, rows, over
+
+    def _world_rows(self, g, rows, over) -> list[dict]:
         from physhand_mj.metrics import summarize_rows
 
-        rows = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
-                for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
-        if c is not None:  # this world's feature lists' check (Config.feature_slack), where it has feature points
-            for row, over in zip(rows, c.feature_motion_worlds(self.solver.activity.last_open1)):
-                row["feature_slack_exceeded"] = over
-        return rows
+        out = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
+               for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
+        if over is not None:  # this world's feature lists' check (Config.feature_slack), where it has feature points
+            for row, o in zip(out, over):
+                row["feature_slack_exceeded"] = o
+        return out
 
     def penetration(self, order: int = 5) -> list[dict]:
         """Both penetration measures of every world's skin as it is now, each world against its own
@@ -452,6 +522,7 @@ class BatchedHands:
         metric's is 5) and ``object_in_skin_*`` (object surface points inside the closed skin), as
         ``SoftHand.penetration`` gives them for one hand (counts, um)."""
         self._alive()
+        self._complete()  # (a submitted frame first: its report stays for submit / wait)
         from physhand_mj.metrics import summarize_rows
 
         c = self.solver.contact
@@ -463,6 +534,7 @@ class BatchedHands:
         counts (``nonfinite``, ``inverted``, ``tethered``) and ``finite`` (its skin holds finite
         positions now)."""
         self._alive()
+        self._complete()  # (a submitted frame first: its report stays for submit / wait)
         x = self.state.x.numpy()
         ns = self.asset.n_skin
         guards = self.frame_worlds() if self.state.frames else [
@@ -476,6 +548,7 @@ class BatchedHands:
     def skin(self, world: int) -> np.ndarray:
         """(n_skin, 3) skin positions (m) of one world, in its frame (copies that world's part only)."""
         self._alive()
+        self._complete()  # (a submitted frame first: its report stays for submit / wait)
         ns = self.asset.n_skin
         return self.state.x[world * ns:(world + 1) * ns].numpy() - self.offsets[world].astype(np.float32)
 
@@ -484,6 +557,7 @@ class BatchedHands:
         device (a batched rollout's end: skin(w) per world copied the whole state W times, 89 ms a
         world at W = 1024 on an H100, 91 of the batch's 147 s)."""
         self._alive()
+        self._complete()  # (a submitted frame first: its report stays for submit / wait)
         ns = self.asset.n_skin
         x = self.state.x[: self.worlds * ns].numpy().reshape(self.worlds, ns, 3)
         return x - self.offsets[:, None, :].astype(np.float32)
@@ -491,6 +565,7 @@ class BatchedHands:
     def positions(self, world: int) -> np.ndarray:
         """(N, 3) all positions (m) of one world, in the asset's vertex order and the world's frame."""
         self._alive()
+        self._complete()  # (a submitted frame first: its report stays for submit / wait)
         n, ns = self.asset.n_vertices, self.asset.n_skin
         x = self.state.x.numpy()
         rest = self.worlds * ns + world * (n - ns)

@@ -469,6 +469,12 @@ class Objects:
     def set_poses(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """All geom poses at once (the per-frame call): pos (n, 3) m, quat (n, 4) w x y z, in ``add``
         order. Only the pose array is uploaded, through a preallocated host buffer."""
+        self.set_pose_rows(self.pose_rows(pos, quat))
+
+    def pose_rows(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
+        """:meth:`set_poses`' checks and conversion, nothing uploaded: (2 n, 7) float32, every geom's
+        Warp transform [p, q x y z w], then their inverses. (BatchedHands.submit prepares the next
+        frame's while the device runs this one; :meth:`set_pose_rows` uploads them.)"""
         n = len(self.names)
         pos = np.asarray(pos, float).reshape(n, 3)
         quat = np.asarray(quat, float).reshape(n, 4)
@@ -478,8 +484,22 @@ class Objects:
                                                            & (norm[:, 0] >= 1e-9)))]
             raise ValueError(f"geoms {bad}: non-finite or zero pose")
         q = quat / norm
-        self._host["pose"][:n] = np.concatenate([pos, q[:, 1:], q[:, :1]], axis=1)
-        self._upload_pose()
+        rows = np.empty((2 * n, 7), np.float32)
+        rows[:n] = np.concatenate([pos, q[:, 1:], q[:, :1]], axis=1)
+        rows[n:] = invert_transforms(rows[:n])  # (of the float32 poses, as _upload_pose inverts them)
+        return rows
+
+    def set_pose_rows(self, rows: np.ndarray) -> None:
+        """Upload the poses and inverses :meth:`pose_rows` made."""
+        n, c = len(self.names), self.pose.shape[0]
+        if rows.shape != (2 * n, 7):
+            raise ValueError(f"pose rows must be ({2 * n}, 7) (Objects.pose_rows), got {rows.shape}")
+        self._host["pose"][:n] = rows[:n]
+        buf = self._pose_buf.numpy()
+        buf[:n] = rows[:n]
+        buf[c:c + n] = rows[n:]
+        wp.copy(self.pose, self._pose_buf, count=c)
+        wp.copy(self.inv_pose, self._pose_buf, src_offset=c, count=c)
 
     def _upload_pose(self) -> None:
         c = self.pose.shape[0]

@@ -123,9 +123,9 @@ class Sleeping:
         state.sleep_box = np.where(pick == 1, hi, lo)
         self._alone_key = None  # a new box: test it afresh (an old key could name a freed box's id)
 
-    def _sleep_frame(self, state: State, key) -> dict:
+    def _launch_sleep(self, state: State, key) -> None:
         """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
-        (CUDA: one captured graph)."""
+        (CUDA: one captured graph). :meth:`_finish_sleep` reports it (Solver.launch / finish)."""
         ops = self._sleep_ops.get(key)
         if ops is None:
             m, d = self.model, self.device
@@ -145,6 +145,10 @@ class Sleeping:
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
             self.contact.copy_metrics()
+        self._sleep_launched = (key, len(ops), ahead)
+
+    def _finish_sleep(self, state: State) -> dict:
+        key, n_ops, ahead = self._sleep_launched
         wp.synchronize_device(self.device)
         state.time += self.config.frame_dt
         state.frames += 1
@@ -153,7 +157,7 @@ class Sleeping:
         ahead = len(self._pre.get(key, ())) * int(ahead)
         near = self.activity.objects_near if self.contact is not None else 0
         self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
-                                  features_listed=0, ops_run=len(ops) + ahead, contact_ops_run=ahead)
+                                  features_listed=0, ops_run=n_ops + ahead, contact_ops_run=ahead)
         self._read_guard_worlds(self._guard_host.numpy())
         out = {"nonfinite": int(self._guard_host.numpy()[0]), "inverted": 0}
         if self.contact is not None:

@@ -102,6 +102,7 @@ class Solver(Sleeping):
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
         self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
+        self._in_flight = None  # (state, ops or None asleep, rigid, frame poses) between launch and finish
         self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
@@ -157,6 +158,13 @@ class Solver(Sleeping):
         """Bone poses at the end of the next frame: pos (B, 3) m, quat (B, 4) w x y z, in the
         solver's world frame, ordered as ``model.body_names``. The skeleton moves there during the
         frame (interpolated per substep)."""
+        self.pose_rows(pos, quat, out=state.pose_host[1])  # (written in place: batches, W x the bones a frame)
+        state.pose_fresh = True
+
+    def pose_rows(self, pos: np.ndarray, quat: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`set_body_poses`' checks and conversion without a state: (B, 7) float32 rows [p, q x y z
+        w], the quaternions normed, into ``out`` when given. (BatchedHands.submit checks the next
+        frame's poses while the device runs this one, then :meth:`set_body_pose_rows`.)"""
         pos = np.asarray(pos, dtype=np.float64)
         quat = np.asarray(quat, dtype=np.float64)
         b = self.model.n_bodies
@@ -177,10 +185,15 @@ class Solver(Sleeping):
         norm = (np.sqrt(n2) if n2 is not None else np.linalg.norm(quat, axis=1))[:, None]
         if np.any(norm < 1e-9):
             raise SolverError("a bone quaternion has zero length")
-        end = state.pose_host[1]  # [p, q x y z w], written in place (batches: W x the bones, every frame)
+        end = out if out is not None else np.empty((b, 7), np.float32)  # [p, q x y z w]
         end[:, :3] = pos
         np.divide(quat[:, 1:], norm, out=end[:, 3:6], casting="unsafe")
         np.divide(quat[:, :1], norm, out=end[:, 6:], casting="unsafe")
+        return end
+
+    def set_body_pose_rows(self, state: State, rows: np.ndarray) -> None:
+        """The next frame's end poses as :meth:`pose_rows` made them (checked and normed)."""
+        state.pose_host[1] = rows
         state.pose_fresh = True
 
     # -- the frame -------------------------------------------------------------------------------
@@ -190,7 +203,18 @@ class Solver(Sleeping):
         vertices Config.skin_tether held, summed over substeps) and, with contact, the penetration
         summary; what ran (activity.py: ``objects_near`` ... ``contact_ops_run``) and ``asleep``
         (the frame only carried a settled hand along its bones: Config.sleep_speed); raises
-        SolverError under ``NonFinite.RAISE``."""
+        SolverError under ``NonFinite.RAISE``. The same as :meth:`launch` then :meth:`finish`."""
+        self.launch(state)
+        return self.finish(state)
+
+    def launch(self, state: State) -> None:
+        """The frame's first half: every decision made before it (the poses, sleeping, the work
+        set), its launches queued on the device (on CUDA one graph) with the copies of its reports.
+        :meth:`finish` waits for it and reads them; until then the host is free (a batch checks the
+        next frame's poses meanwhile: BatchedHands.submit) and ``state`` must not be read or
+        changed. One frame in flight at a time."""
+        if self._in_flight is not None:
+            raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
@@ -205,7 +229,7 @@ class Solver(Sleeping):
                               f"Config.contact_frame_margin - contact_margin "
                               f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
                               f"contacts may be missed; raise contact_frame_margin or use shorter frames",
-                              RuntimeWarning, stacklevel=2)
+                              RuntimeWarning, stacklevel=3)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
         rigid = self._bones_still(state) if self._settled(state) else None
@@ -230,7 +254,9 @@ class Solver(Sleeping):
                 self.contact.finish_recording(self.activity.passes_gated)
         act = self.activity
         if not first and rigid and self._asleep_and_alone(state, frame_poses):
-            return self._sleep_frame(state, key)  # (CUDA: no broadphase ahead, no extra sync)
+            self._launch_sleep(state, key)  # (CUDA: no broadphase ahead, no extra sync)
+            self._in_flight = (state, None, rigid, frame_poses)
+            return
         if act.gate_ahead:  # the frame broadphase ahead of the frame: its count picks the graph
             for op in self._pre[key]:
                 op()
@@ -238,7 +264,9 @@ class Solver(Sleeping):
             wp.synchronize_device(self.device)
             act.open1 = bool(self._cand_host.numpy()[0])
         if not first and rigid and self._may_sleep(state):
-            return self._sleep_frame(state, key)
+            self._launch_sleep(state, key)
+            self._in_flight = (state, None, rigid, frame_poses)
+            return
         if first:
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
@@ -251,6 +279,16 @@ class Solver(Sleeping):
             self.contact.copy_metrics()
         if self.regions is not None:
             self.regions.copy_back()
+        self._in_flight = (state, ops, rigid, frame_poses)
+
+    def finish(self, state: State) -> dict:
+        """The frame :meth:`launch` queued: its one host sync, then its report (:meth:`step`'s)."""
+        if self._in_flight is None or self._in_flight[0] is not state:
+            raise RuntimeError("no frame of this state is in flight: Solver.launch(state) first")
+        _, ops, rigid, frame_poses = self._in_flight
+        self._in_flight = None
+        if ops is None:  # a sleeping frame
+            return self._finish_sleep(state)
         wp.synchronize_device(self.device)  # the frame's host sync (on CUDA with contact: its second)
         g = self._guard_host.numpy()
         self._read_guard_worlds(g)

@@ -1,0 +1,137 @@
+"""BatchedHands.submit / wait (physhand_mj/batch.py): a frame queued while the host checks the next
+frame's poses and builds the last frame's per-world rows runs the frames ``step`` runs, with the
+same reports one call later; reading the batch mid-pipeline waits for the frame in flight."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+import physhand_mj as ph
+from physhand_mj.batch import BatchedHands
+from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+from physhand_mj.types import Config, GeomType
+
+DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device"))]
+
+
+@pytest.fixture(scope="module")
+def setup():
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    return asset, model, data, body_ids(model, asset.body_names), mount_pose(model, data)
+
+
+def _pressed_batch(setup, device):
+    """Two worlds with a 1 mm sphere each: world 1's inside a skin triangle of the back of the hand,
+    where the vertex strategy's decision points (corners, edge midpoints) do not see it, so its
+    depth shows in every frame's measure; world 0's 5 cm clear. Returns the batch, the spheres'
+    places (2, 1, 3) m and the triangle's outward normal."""
+    asset = setup[0]
+    batch = BatchedHands(asset, 2, Config(device=device, contact="vertex"), *setup[4],
+                         objects=[dict(gtype=GeomType.SPHERE, size=(0.001, 0, 0), name="ball")])
+    skin = batch.skin(1)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    x = skin[asset.skin_faces].astype(float)
+    t = np.argmin(np.linalg.norm(x.mean(axis=1) - top, axis=1))
+    n = np.cross(x[t, 1] - x[t, 0], x[t, 2] - x[t, 0])
+    n /= np.linalg.norm(n)
+    return batch, np.stack([top + [0.0, 0.1, 0.05], x[t].mean(axis=0) - 5e-4 * n])[:, None], n
+
+
+def _frames(setup, frames: int, n):
+    """Per frame the bones of both worlds (the open pose) and how far world 1's sphere moves
+    (0.05 mm a frame deeper along -n)."""
+    asset, model, data, ids, mount = setup
+    pos, quat = bone_poses_at(model, data, model.key("open").qpos, ids)
+    return [(np.stack([pos, pos]), np.stack([quat, quat]), -5e-5 * (k + 1) * n) for k in range(frames)]
+
+
+def _moved(where, shift):
+    """The spheres' places with world 1's moved by ``shift`` (m)."""
+    return where + np.stack([np.zeros(3), shift])[:, None]
+
+
+def _strip(report: dict) -> dict:
+    return {k: v for k, v in report.items() if k != "worlds"}
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_submitted_frames_are_the_frames_step_runs(setup, device):
+    """Five frames of a pressed world and a free one, by ``step`` and by ``submit``: the same skins
+    (CPU: bit for bit; CUDA: the contact's float atomics add in no fixed order) and the same reports,
+    each returned by the next call; ``wait`` returns the last, then None."""
+    a, where, n = _pressed_batch(setup, device)
+    b, _, _ = _pressed_batch(setup, device)
+    frames = _frames(setup, 5, n)
+    ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+    by_step, by_submit = [], []
+    for pos, quat, shift in frames:
+        by_step.append(a.step(pos, quat, _moved(where, shift), ident))
+    for pos, quat, shift in frames:
+        by_submit.append(b.submit(pos, quat, _moved(where, shift), ident))
+    assert by_submit[0] is None
+    by_submit = by_submit[1:] + [b.wait()]
+    assert b.wait() is None
+    depth = [r["worlds"][1]["penetration_max_um"] for r in by_step]
+    assert all(r["triangles_tested"] > 0 for r in by_step)  # (world 1's sphere is near: the contact runs)
+    assert len(set(depth)) == len(depth) and min(depth) > 100, depth  # (each frame's rows differ)
+    if device == "cpu":
+        assert np.array_equal(a.skins(), b.skins())
+        assert [_strip(r) for r in by_step] == [_strip(r) for r in by_submit]
+        assert [r["worlds"] for r in by_step] == [r["worlds"] for r in by_submit]
+    else:
+        np.testing.assert_allclose(a.skins(), b.skins(), atol=2e-5)
+        assert [sorted(r) for r in by_step] == [sorted(r) for r in by_submit]
+        assert [[w["nonfinite"] for w in r["worlds"]] for r in by_step] == \
+            [[w["nonfinite"] for w in r["worlds"]] for r in by_submit]
+    assert b.last_worlds == by_submit[-1]["worlds"]
+
+
+def test_reading_mid_pipeline_waits_and_keeps_the_report(setup):
+    """``penetration()`` between two submits measures the frame in flight after it ends (the skin
+    ``step`` gives), and that frame's report comes with the next submit; ``step`` with a report
+    not yet read says to wait first."""
+    a, where, n = _pressed_batch(setup, "cpu")
+    b, _, _ = _pressed_batch(setup, "cpu")
+    frames = _frames(setup, 3, n)
+    ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+    (p0, q0, s0), (p1, q1, s1), (p2, q2, s2) = frames
+    r0 = a.step(p0, q0, _moved(where, s0), ident)
+    r1 = a.step(p1, q1, _moved(where, s1), ident)
+    assert b.submit(p0, q0, _moved(where, s0), ident) is None
+    got0 = b.submit(p1, q1, _moved(where, s1), ident)
+    assert b.penetration() == a.penetration()  # frame 1 ended first
+    with pytest.raises(RuntimeError, match="wait"):
+        b.step(p2, q2, _moved(where, s2), ident)
+    got1 = b.submit(p2, q2, _moved(where, s2), ident)  # frame 1's report, kept through the reading
+    assert _strip(got0) == _strip(r0) and _strip(got1) == _strip(r1)
+    assert got1["worlds"] == r1["worlds"]
+    r2 = a.step(p2, q2, _moved(where, s2), ident)
+    assert np.array_equal(a.skins(), b.skins())
+    assert _strip(b.wait()) == _strip(r2)
+    b.close()  # (nothing in flight)
+    c, _, _ = _pressed_batch(setup, "cpu")
+    c.submit(p0, q0, _moved(where, s0), ident)
+    c.close()  # a frame in flight ends before the arrays go
+    with pytest.raises(RuntimeError, match="closed"):
+        c.wait()
+
+
+def test_a_pipelined_batch_falls_asleep_and_wakes_when_step_does(setup):
+    """No objects, the bones held, then moved: the frames ``submit`` runs sleep and wake at the
+    frames ``step``'s do (the sleep test reads the frame before's outcome, which ``submit`` finishes
+    before it decides the next), and the skins stay bit for bit."""
+    asset, model, data, ids, mount = setup
+    pos, quat = bone_poses_at(model, data, model.key("open").qpos, ids)
+    pos, quat = np.stack([pos] * 2), np.stack([quat] * 2)
+    moved = pos.copy()
+    moved[1, 5:] += [0.0, 0.0, 2e-3]  # world 1's later bones 2 mm up: the hand must wake
+    plan = [(pos, quat)] * 75 + [(moved, quat)] * 2  # (asleep from frame ~70 with these settings)
+    cfg = Config(device="cpu", sleep_speed=0.02, sleep_frames=3)
+    a = BatchedHands(asset, 2, cfg, *mount)
+    b = BatchedHands(asset, 2, cfg, *mount)
+    by_step = [a.step(p, q)["asleep"] for p, q in plan]
+    by_submit = [r["asleep"] for r in [b.submit(p, q) for p, q in plan][1:] + [b.wait()]]
+    assert any(by_step) and not by_step[-1], by_step  # (it slept, then woke)
+    assert by_submit == by_step
+    assert np.array_equal(a.skins(), b.skins())
