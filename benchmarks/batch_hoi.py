@@ -15,7 +15,7 @@ inside the skin); the worst world is reported.
     python benchmarks/batch_hoi.py [--device cpu|cuda] [--scenes box,apple] [--worlds 1,16,64] [--frames 10]
                                    [--config '{"feature_winding": false}'] [--profile] [--host-split]
                                    [--modes step,submit] [--repeats 3]
-    python benchmarks/batch_hoi.py --plot [JSON]   (docs/images/batch_hoi_1024.png from a run's JSON)
+    python benchmarks/batch_hoi.py --plot [JSON [PNG]]   (docs/images/batch_hoi_1024.png from a run's JSON)
     python benchmarks/batch_hoi.py --curves [JSON] (docs/images/batch_hoi_curves.png: hand-frames/s against W)
 
 Writes docs/benchmarks/batch_hoi_<device>.json (or --out) after every row, ``complete`` true at the
@@ -42,7 +42,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 def plot(src: Path, out: Path) -> Path:
     """Bars of hand-frames per second per HOI grasp from one batch_hoi JSON (one world count), the
-    10,000 target drawn, each bar labelled with its worst world's four measures (inside counts)."""
+    10,000 target drawn, each bar labelled with its worst world's four measures (inside counts);
+    rows timed both ways (``--modes step,submit``) get a pale bar for ``step`` beside ``submit``'s."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -52,15 +53,30 @@ def plot(src: Path, out: Path) -> Path:
     rows = sorted(d["rows"], key=lambda r: -r["hand_frames_per_s"])
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     hz = [r["hand_frames_per_s"] for r in rows]
-    ax.bar([r["scene"] for r in rows], hz, color=["tab:green" if h >= 10_000 else "tab:orange" for h in hz])
+    both = all("hand_frames_per_s_step" in r and "hand_frames_per_s_submit" in r for r in rows)
+    x = np.arange(len(rows), dtype=float)
+    colors = ["tab:green" if h >= 10_000 else "tab:orange" for h in hz]
+    if both:
+        step = [r["hand_frames_per_s_step"] for r in rows]
+        ax.bar(x - 0.2, step, 0.4, color=["tab:green" if h >= 10_000 else "tab:orange" for h in step], alpha=0.4,
+               label="step (a frame and its report at a time)")
+        ax.bar(x + 0.2, hz, 0.4, color=colors, label="submit (pipelined)")
+        ax.legend(fontsize=7, loc="upper right")
+    else:
+        ax.bar(x, hz, color=colors)
+    ax.set_xticks(x, [r["scene"] for r in rows])
     for i, r in enumerate(rows):
         inside = [r.get(k) for k in ("penetration_count_max", "order9_count_max", "object_in_skin_count_max",
                                      "check_count_max")]
-        ax.text(i, r["hand_frames_per_s"] * 1.01, f"{int(r['hand_frames_per_s'] + 0.5):,}", ha="center", fontsize=8)
-        ax.text(i, 300, "inside:\n" + " / ".join("-" if v is None else str(v) for v in inside), ha="center",
-                fontsize=6.5, color="white")
+        ax.text(x[i] + (0.2 if both else 0), r["hand_frames_per_s"] * 1.01, f"{int(r['hand_frames_per_s'] + 0.5):,}",
+                ha="center", fontsize=7 if both else 8)
+        ax.text(x[i], 300, "inside:\n" + ("/" if both else " / ").join("-" if v is None else str(v) for v in inside),
+                ha="center", fontsize=6.5, color="white")
     ax.axhline(10_000, color="0.3", lw=0.8, ls=":")
-    ax.text(len(rows) - 0.5, 10_000 * 1.02, "target (H100)", fontsize=7, color="0.3", ha="right")
+    if both:
+        ax.text(-0.5, 10_000 * 0.93, "target (H100)", fontsize=7, color="0.3", ha="left", va="top")
+    else:
+        ax.text(len(rows) - 0.5, 10_000 * 1.02, "target (H100)", fontsize=7, color="0.3", ha="right")
     ax.tick_params(axis="x", labelsize=8, labelrotation=20)
     dev = "H100" if "H100" in d["device"] else d["device"]
     w = rows[0]["worlds"] if rows else 0
@@ -171,7 +187,8 @@ def main() -> None:
     if "--plot" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --plot [JSON]
         args = [a for a in sys.argv[1:] if a != "--plot"]
         src = Path(args[0]) if args else ROOT / "docs" / "benchmarks" / "batch_hoi_cuda_1024.json"
-        print(plot(src, ROOT / "docs" / "images" / "batch_hoi_1024.png").relative_to(ROOT))
+        png = Path(args[1]).resolve() if len(args) > 1 else ROOT / "docs" / "images" / "batch_hoi_1024.png"
+        print(plot(src, png).relative_to(ROOT))
         return
     import warp as wp
 
@@ -299,8 +316,12 @@ def main() -> None:
                 rows.append(row)
                 print(json.dumps(row), flush=True)
                 save(rows, complete=False)
+                # the batch's arrays go before the next one's (W = 4096: ~7 GB each; a local `contact` had kept
+                # the last batch's contact buffers alive: two grasps at W = 4,096 in one run ran out of memory)
+                hands.close()
+                contact = None
                 del hands, out, pen
-                gc.collect()  # the batch's arrays go before the next one's (W = 4096: ~7 GB each)
+                gc.collect()
     save(rows, complete=True)
     print(json.dumps(dict(device=dev, out=str(out_path))))
 

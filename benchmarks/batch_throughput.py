@@ -163,13 +163,16 @@ def timed_frames(hands, frames: list, mode: str = "step"):
 
 
 def mode_rows(hands, frames_of, worlds: int, modes: list, repeats: int):
-    """Each mode timed ``repeats`` times, the modes alternated block by block (``frames_of(k)``: the
-    k-th block's frames); per mode its ms per frame (every block) and hand-frames/s (the median's),
-    the first mode's also as the row's ``ms_per_frame`` / ``hand_frames_per_s``; and the last report."""
+    """Each mode timed ``repeats`` times, the modes alternated block by block and their order
+    reversed every other round (A B, B A, ...: a grasp's first frames after the warm-up still
+    resolve its initial penetration and cost more, which no one mode should take alone;
+    ``frames_of(k)``: the k-th block's frames); per mode its ms per frame (every block) and
+    hand-frames/s (the median's), the first mode's also as the row's ``ms_per_frame`` /
+    ``hand_frames_per_s``; and the last report."""
     ms = {m: [] for m in modes}
     k = 0
-    for _ in range(repeats):
-        for m in modes:
+    for r in range(repeats):
+        for m in (modes if r % 2 == 0 else modes[::-1]):
             t, out = timed_frames(hands, frames_of(k), m)
             ms[m].append(round(t, 3))
             k += 1

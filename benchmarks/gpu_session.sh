@@ -799,6 +799,22 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096 400 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
       --modes step,submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s48c_4096.json"
     ;;
+  s48_d)  # the solver alone at W = 4,096, kernel by kernel (graphs off); the box at W = 4,096, Config() as shipped,
+    # by step and by submit
+    step solver_4096_profile 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 4 \
+      --profile --tag s48d_profile
+    step box_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 4096 --frames 8 \
+      --modes step,submit --repeats 2 --out "$OUT/batch_hoi_cuda_box_s48d_4096.json"
+    ;;
+  s48_e)  # two more grasps at W = 4,096, Config() as shipped, by step and by submit
+    step apple_glass2_4096 560 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,glass2 --worlds 4096 \
+      --frames 8 --modes step,submit --repeats 3 --out "$OUT/batch_hoi_cuda_apple_glass2_s48e_4096.json"
+    ;;
+  s48_f)  # the other four grasps at W = 4,096, Config() as shipped, by step and by submit (after s48_e ran out of
+    # memory on its second grasp: batch_hoi.py kept the first batch's contact alive)
+    step four_4096 590 python3 benchmarks/batch_hoi.py --device cuda --scenes glass2,phone,glass1,toothpaste \
+      --worlds 4096 --frames 8 --modes step,submit --repeats 3 --out "$OUT/batch_hoi_cuda_four_s48f_4096.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
