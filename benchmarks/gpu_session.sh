@@ -53,6 +53,8 @@
 #            warm-up compiled for 376 s; the timed frames printed, the order-9 check ran past the limit)
 #   s40_a, s40_b  (not yet run) after the forward-only modules: the CUDA tests of the near faces' pruning and
 #            the bowl at W = 1,024 with every measure, the cache back; the bowl's kernel split and W = 4,096
+#   s48_a..s48_f  (2026-11-27, tenth session) BatchedHands.submit: its CUDA tests, the solver alone and every HOI
+#            grasp at W = 4,096 by step and by submit, the solver's kernel split (later phases: their own comments)
 #   ray      the Ray start's pieces, then benchmarks/ray_scaling.py --cluster on 1 and 2 GPUs, 4,096 runs (a
 #            2-GPU machine; Ray's wheel carried too; run 2026-11-26 late: 1.84 x)
 set -uo pipefail
