@@ -817,6 +817,15 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step four_4096 590 python3 benchmarks/batch_hoi.py --device cuda --scenes glass2,phone,glass1,toothpaste \
       --worlds 4096 --frames 8 --modes step,submit --repeats 3 --out "$OUT/batch_hoi_cuda_four_s48f_4096.json"
     ;;
+  s48_g)  # Solver.launch / finish against the code before them (.base/ = 36af7a8, carried): the demo's one-hand frame
+    # (benchmarks/softhand_frame.py), alternated twice; then the CUDA tests of sleeping, gating, the solver, a hard case
+    for r in 1 2; do
+      step softhand_base_$r 120 env PYTHONPATH=/tmp/site:$PWD/.base:$PWD/.base/plugins python3 .base/benchmarks/softhand_frame.py --device cuda
+      step softhand_head_$r 120 python3 benchmarks/softhand_frame.py --device cuda
+    done
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda" tests/test_sleep.py \
+      tests/test_activity.py tests/test_solver.py tests/test_hard_contact.py tests/test_coupling.py
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

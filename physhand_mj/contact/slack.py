@@ -317,7 +317,7 @@ class FeatureSlack:
                           f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
                           f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
                           f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast",
-                          RuntimeWarning, stacklevel=3)
+                          RuntimeWarning, stacklevel=4)  # (feature_motion <- Solver.finish <- step <- its caller)
         return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
                     skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 
