@@ -32,7 +32,9 @@ PARTS = {
     "batch_setup": ("batch.py", "__init__"),
     "settle": ("batch.py", "settle"),
     "mujoco_step": ("~", "<built-in method mujoco._functions.mj_step>"),
-    "solver_frames": ("batch.py", "step"),
+    "solver_frames": ("batch.py", "step"),  # (before 2026-11-27's tenth session: the frames by step)
+    "solver_submit": ("batch.py", "submit"),  # (since: pipelined, the frames queued by submit ...
+    "solver_wait": ("batch.py", "wait"),  # ... and their reports waited for)
     "measures_per_frame": ("batch.py", "penetration"),
     "log_rows": ("rollout.py", "frame_rows"),
     "skins_out": ("batch.py", "skins"),

@@ -826,6 +826,14 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda" tests/test_sleep.py \
       tests/test_activity.py tests/test_solver.py tests/test_hard_contact.py tests/test_coupling.py
     ;;
+  s48_h)  # the batched rollout pipelined (BatchedHands.submit) against the commit before it (.base2/, carried):
+    # rollout_batched's wall time at W = 1,024, hoi_apple, 36 frames, alternated
+    for r in 1 2; do
+      step rollout_base_$r 140 env PYTHONPATH=/tmp/site:$PWD/.base2:$PWD/.base2/plugins python3 \
+        .base2/benchmarks/batch_rollout_wall.py --device cuda --worlds 1024 --steps 36
+      step rollout_head_$r 140 python3 benchmarks/batch_rollout_wall.py --device cuda --worlds 1024 --steps 36
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -297,8 +297,43 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     obj_frame = [0] * W  # per world: the frame the object-side values in last come from
     frame_pos = [p for p in poses]
     frame_obj = [r.object_poses() for r in runs]
+    flight = None  # the frame in flight (BatchedHands.submit): (step, worlds in it, MuJoCo times, t0)
+
+    def land(step, members, times, t0):
+        """Frame ``step`` (in flight) ended: its measures, then each member world's nonfinite check;
+        returns what its log rows need (written later, while the next frame runs)."""
+        res = hands.wait()
+        dt = (time.perf_counter() - t0) / W  # (submit to report: the cost of one hand-frame)
+        both = hands.penetration() if measured(step, steps, measure_every) else None  # (not timed)
+        subrows = c.read_metrics_worlds(synchronize=False) if c is not None else None
+        counts = c.stage_counts_worlds() if c is not None else None
+        logged = []
+        for w in members:
+            world = dict(res, **res["worlds"][w])  # the batch frame's activity, this world's measures
+            logged.append((w, world))
+            last[w], obj_frame[w] = carry_object_side(world, both and both[w], last[w], step, obj_frame[w])
+            if world["nonfinite"]:
+                _fail(runs[w], SolverError(f"{world['nonfinite']} skin/flesh positions turned non-finite in frame "
+                                           f"{step}"), rows)
+                alive[w] = False
+        return step, times, dt, both, subrows, counts, logged
+
+    def write(step, times, dt, both, subrows, counts, logged):
+        for w, world in logged:
+            r = runs[w]
+            r.log.writerows(frame_rows(step, _At(times[w]), cfg, None if subrows is None else subrows[w][:-1],
+                                       None if counts is None else counts[w], dt, both and both[w], world))
+            r.file.flush()
+            r.times.append(dt)
+
+    # Pipelined (BatchedHands.submit): MuJoCo steps frame k + 1 and the log rows of frame k - 1 are
+    # written while the device runs frame k. Every decision is the serial order's: a world that turns
+    # non-finite in frame k keeps its frame-k poses in frame k + 1 (its MuJoCo step, taken ahead, is
+    # dropped) and a MuJoCo failure of frame k + 1 counts only for worlds still alive after frame k.
+    landed = None  # a frame that ended, its log rows not yet written
     try:
         for step in range(1, steps + 1):
+            new, broken = {}, {}
             for w, r in enumerate(runs):
                 if not alive[w]:
                     continue  # a failed world keeps its last poses: it no longer logs
@@ -307,38 +342,42 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                     bones, obj = r.bone_poses(), r.object_poses()
                     if not (np.all(np.isfinite(obj[0])) and np.all(np.isfinite(obj[1]))):
                         raise SolverError(f"non-finite MuJoCo pose for object geoms of {Path(r.scene).name}")
-                    frame_pos[w], frame_obj[w] = bones, obj
+                    new[w] = (bones, obj)
                 except SolverError as e:
-                    _fail(r, e, rows)
+                    broken[w] = e
+            times = {w: float(runs[w].data.time) for w in new}
+            landed = land(*flight) if flight is not None else None  # frame step - 1
+            flight = None
+            for w, e in broken.items():
+                if alive[w]:  # (not if frame step - 1 already failed it: the serial order never stepped it)
+                    _fail(runs[w], e, rows)
                     alive[w] = False
-            if not any(alive):
+            for w, (bones, obj) in new.items():
+                if alive[w]:
+                    frame_pos[w], frame_obj[w] = bones, obj
+            if any(alive):
+                pos, quat = np.stack([p for p, _ in frame_pos]), np.stack([q for _, q in frame_pos])
+                t0 = time.perf_counter()
+                if k:
+                    hands.submit(pos, quat, np.stack([o for o, _ in frame_obj]), np.stack([q for _, q in frame_obj]))
+                else:
+                    hands.submit(pos, quat)
+                flight = (step, [w for w in range(W) if alive[w]], times, t0)
+            if landed is not None:
+                write(*landed)
+                landed = None
+                bar.update(1)
+            if flight is None:
                 break
-            pos, quat = np.stack([p for p, _ in frame_pos]), np.stack([q for _, q in frame_pos])
-            t = time.perf_counter()
-            if k:
-                res = hands.step(pos, quat, np.stack([o for o, _ in frame_obj]), np.stack([q for _, q in frame_obj]))
-            else:
-                res = hands.step(pos, quat)
-            dt = (time.perf_counter() - t) / W  # the cost of one hand-frame
-            both = hands.penetration() if measured(step, steps, measure_every) else None  # (not timed)
-            subrows = c.read_metrics_worlds(synchronize=False) if c is not None else None
-            counts = c.stage_counts_worlds() if c is not None else None
-            for w, r in enumerate(runs):
-                if not alive[w]:
-                    continue
-                world = dict(res, **res["worlds"][w])  # the batch frame's activity, this world's measures
-                r.log.writerows(frame_rows(step, r.data, cfg, None if subrows is None else subrows[w][:-1],
-                                           None if counts is None else counts[w], dt, both and both[w], world))
-                r.file.flush()
-                r.times.append(dt)
-                last[w], obj_frame[w] = carry_object_side(world, both and both[w], last[w], step, obj_frame[w])
-                if world["nonfinite"]:
-                    _fail(r, SolverError(f"{world['nonfinite']} skin/flesh positions turned non-finite in frame "
-                                         f"{step}"), rows)
-                    alive[w] = False
+        if flight is not None:
+            landed = land(*flight)
+            write(*landed)
+            landed = None
             bar.update(1)
     except KeyboardInterrupt:
         interrupted = True
+        if landed is not None:  # (a frame that ended before the stop keeps its rows)
+            write(*landed)
     finally:
         bar.close()
         for r in runs:
@@ -357,6 +396,14 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                                     object_frame=obj_frame[w])
     hands.close()  # the batch's device memory back before the next batch allocates
     return interrupted
+
+
+class _At:
+    """What :func:`~physhand_mj.rollout.frame_rows` reads of MjData (``time``, s), as it was when the
+    frame's poses were taken (MuJoCo has stepped on since, the batch being pipelined)."""
+
+    def __init__(self, t: float):
+        self.time = t
 
 
 def _fail(run: _Run, error: Exception, rows: list) -> None:

@@ -96,8 +96,9 @@ def test_cli_batch(tmp_path):
 
 
 def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
-    """One run's MuJoCo object pose turns NaN after its first frame: that run fails with the serial
-    one-line error, the other world of its batch finishes as in the unbroken batched run."""
+    """One run's MuJoCo object pose turns NaN in its second frame: that run fails with the serial
+    one-line error and keeps its log of frame 1, the other world of its batch finishes as in the
+    unbroken batched run."""
     from physhand_mj import batch_rollout
 
     tmp = runs["tmp"]
@@ -109,7 +110,7 @@ def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
         pos, quat = real(self)
         if Path(self.scene).name == bad.name:
             calls[self.index] = calls.get(self.index, 0) + 1
-            if calls[self.index] > 2:  # the batch's first poses and frame 1 are fine, then NaN
+            if calls[self.index] > 3:  # the batch's first poses (read twice) and frame 1's are fine, then NaN
                 pos = np.full_like(pos, np.nan)
         return pos, quat
 
@@ -119,6 +120,12 @@ def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
     assert "non-finite MuJoCo pose for object geoms" in rows[1]["error"]
     assert not rows[0].get("error"), rows[0]
     assert _untimed(rows[0], SUMMARY_COLUMNS) == _untimed(runs["batched"][0], SUMMARY_COLUMNS)
+    # the failed run's log keeps its start and frame 1 (its 10 substeps: written while frame 2 ran, the
+    # batch being pipelined), as the unbroken run logged them
+    log, ref = read_csv(tmp / "nan" / "apple_b" / "log.csv"), read_csv(tmp / "batched" / "apple_b" / "log.csv")
+    assert len(log) == 1 + 10
+    assert [{c: r[c] for c in LOG_COLUMNS if c not in TIMED | BATCH_FRAME} for r in log] == \
+        [{c: r[c] for c in LOG_COLUMNS if c not in TIMED | BATCH_FRAME} for r in ref[:11]]
 
 
 def test_a_finished_batch_is_freed_before_the_next(tmp_path):
@@ -177,7 +184,7 @@ def test_measure_every_in_a_batch(runs):
 
 
 def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, monkeypatch):
-    """A batch stopped by Ctrl-C during frame 3 (raised from the batch's step) with measure_every=2:
+    """A batch stopped by Ctrl-C during frame 3 (raised from the batch's submit of it) with measure_every=2:
     each world's summary has 2 steps and the object-side values of frame 2 (the vertex strategy:
     they change frame by frame), as the every-frame batch logged them; ``object_in_skin_frame`` 2."""
     from physhand_mj.batch import BatchedHands
@@ -186,15 +193,15 @@ def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, 
     every = rollout_batched(targets, tmp_path / "every", worlds=2, steps=3, contact="vertex", device="cpu",
                             progress=False)
     calls = []
-    step = BatchedHands.step
+    submit = BatchedHands.submit
 
     def stop_in_frame_3(self, *a, **k):
         calls.append(1)
         if len(calls) == 3:
             raise KeyboardInterrupt
-        return step(self, *a, **k)
+        return submit(self, *a, **k)
 
-    monkeypatch.setattr(BatchedHands, "step", stop_in_frame_3)
+    monkeypatch.setattr(BatchedHands, "submit", stop_in_frame_3)
     stopped = rollout_batched(targets, tmp_path / "stopped", worlds=2, steps=3, contact="vertex", device="cpu",
                               progress=False, measure_every=2)
     for r, e, run in zip(stopped, every, ("hoi_apple-grasp", "apple_b")):
