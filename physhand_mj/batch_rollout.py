@@ -9,7 +9,9 @@ same time step) share a batch; the others go to batches of their own. A batch is
 :class:`~physhand_mj.batch.BatchedHands`: each run keeps its own MjModel / MjData, stepped with
 ``mujoco.mj_step`` one world after another, and its bone and object poses go into the batch, whose
 one solver frame advances every world (stepping MuJoCo world by world costs 28-87 us a world-frame
-on an H100 host, a few percent of a batch: benchmarks/mujoco_side.py, docs/scale.md). Each run then
+on an H100 host, a few percent of a batch: benchmarks/mujoco_side.py, docs/scale.md). The frames
+are pipelined (:meth:`~physhand_mj.batch.BatchedHands.submit`): MuJoCo's next step and the last
+frame's log rows run on the host while the device runs a frame. Each run then
 writes what the serial
 :func:`~physhand_mj.rollout.rollout` writes (``log.csv``, ``skin_final.ply``, its summary row, its
 JSON line), from per-world measures: every world is measured against its own objects.
