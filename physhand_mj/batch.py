@@ -295,7 +295,6 @@ class BatchedHands:
         self.body_shift = np.repeat(self.offsets, self.n_bodies, axis=0)
         self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
         self.last_worlds: list[dict] = []
-        self._launched = False  # a frame is in flight (submit): its report comes from the next submit / wait
         self._unclaimed = None  # (report, per-world arrays) of a finished frame not yet returned
 
     # -- lifetime ----------------------------------------------------------------------------------
@@ -444,7 +443,9 @@ class BatchedHands:
         the device runs this one; every decision a frame takes (sleeping, the work set) is taken
         from the same inputs as in :meth:`step`, so the frames are the same. :meth:`wait` returns
         the last frame's report. Reading the batch (skins, penetration, metrics) waits for the
-        frame in flight first; its report stays for the next :meth:`submit` or :meth:`wait`::
+        frame in flight first; its report stays for the next :meth:`submit` or :meth:`wait`. A
+        frame's error is raised by the call that waits for it; an error in the new frame's launch
+        leaves the finished frame's report for :meth:`wait`::
 
             for k in range(frames):
                 report = hands.submit(pos[k], quat[k])  # frame k-1's report (None at k = 0)
@@ -459,7 +460,6 @@ class BatchedHands:
             self.objects.set_pose_rows(obj)
         self.solver.set_body_pose_rows(self.state, rows)
         self.solver.launch(self.state)
-        self._launched = True
         return self._claim()
 
     def wait(self) -> dict | None:
@@ -469,12 +469,19 @@ class BatchedHands:
         self._complete()
         return self._claim()
 
+    @property
+    def _launched(self) -> bool:
+        """A frame is in flight (:meth:`submit`): its report comes from the next submit / wait (the
+        solver's own record, so an interrupted submit cannot leave the two apart)."""
+        return self.solver is not None and self.solver._in_flight is not None
+
     def _complete(self) -> None:
         """Wait for the frame in flight (if any) and keep its report and the raw per-world rows,
-        copied before the next frame's copies overwrite the host buffers."""
-        if not getattr(self, "_launched", False):
+        copied before the next frame's copies overwrite the host buffers. A frame's error
+        (``Solver.finish``: a stuck stage, NonFinite.RAISE) is raised here, by whichever call
+        waits for it; that frame's report is then lost."""
+        if not self._launched:
             return
-        self._launched = False
         out = self.solver.finish(self.state)
         self._unclaimed = (out, self._world_arrays())
 
@@ -510,7 +517,8 @@ class BatchedHands:
         from physhand_mj.metrics import summarize_rows
 
         out = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
-               for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(), summarize_rows(rows))]
+               for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(),
+                                             summarize_rows(rows))]
         if over is not None:  # this world's feature lists' check (Config.feature_slack), where it has feature points
             for row, o in zip(out, over):
                 row["feature_slack_exceeded"] = o

@@ -18,9 +18,10 @@ JSON line), from per-world measures: every world is measured against its own obj
 
 Differences from the serial run, by construction: worlds holding objects are solved 1 m apart
 (float32 rounds positions at that scale: the skins agree with the serial ones to tens of um, see
-docs/scale.md); ``ms_frame`` / ``ms_per_frame`` are the batch frame's wall time divided by W (the
-cost of one hand-frame); ``objects_near``, ``triangles_tested``, ``features_listed`` and ``ops_run``
-count what the batch frame ran for all its worlds.
+docs/scale.md); ``ms_frame`` / ``ms_per_frame`` are the host's time in the batch frame's submit
+and in waiting for it, divided by W (the cost of one hand-frame: on the CPU the whole frame, which
+runs inside submit; on a GPU what the host work meanwhile did not hide); ``objects_near``,
+``triangles_tested``, ``features_listed`` and ``ops_run`` count what the batch frame ran for all its worlds.
 """
 
 from __future__ import annotations
@@ -299,13 +300,16 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     obj_frame = [0] * W  # per world: the frame the object-side values in last come from
     frame_pos = [p for p in poses]
     frame_obj = [r.object_poses() for r in runs]
-    flight = None  # the frame in flight (BatchedHands.submit): (step, worlds in it, MuJoCo times, t0)
+    flight = None  # the frame in flight (BatchedHands.submit): (step, worlds in it, MuJoCo times, s in submit)
 
-    def land(step, members, times, t0):
+    def land(step, members, times, t_submit):
         """Frame ``step`` (in flight) ended: its measures, then each member world's nonfinite check;
         returns what its log rows need (written later, while the next frame runs)."""
+        t = time.perf_counter()
         res = hands.wait()
-        dt = (time.perf_counter() - t0) / W  # (submit to report: the cost of one hand-frame)
+        # the cost of one hand-frame: the host's time in the frame's submit and in waiting for it (CPU:
+        # the whole frame, run inside submit; CUDA: what the host work between did not hide)
+        dt = (t_submit + time.perf_counter() - t) / W
         both = hands.penetration() if measured(step, steps, measure_every) else None  # (not timed)
         subrows = c.read_metrics_worlds(synchronize=False) if c is not None else None
         counts = c.stage_counts_worlds() if c is not None else None
@@ -333,6 +337,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     # non-finite in frame k keeps its frame-k poses in frame k + 1 (its MuJoCo step, taken ahead, is
     # dropped) and a MuJoCo failure of frame k + 1 counts only for worlds still alive after frame k.
     landed = None  # a frame that ended, its log rows not yet written
+    done = 0  # the last frame whose log rows were all written
     try:
         for step in range(1, steps + 1):
             new, broken = {}, {}
@@ -364,22 +369,35 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                     hands.submit(pos, quat, np.stack([o for o, _ in frame_obj]), np.stack([q for _, q in frame_obj]))
                 else:
                     hands.submit(pos, quat)
-                flight = (step, [w for w in range(W) if alive[w]], times, t0)
+                flight = (step, [w for w in range(W) if alive[w]], times, time.perf_counter() - t0)
             if landed is not None:
-                write(*landed)
-                landed = None
+                pending, landed = landed, None  # (cleared first: a stop inside write writes no row twice)
+                write(*pending)
+                done = pending[0]
                 bar.update(1)
             if flight is None:
                 break
         if flight is not None:
-            landed = land(*flight)
-            write(*landed)
-            landed = None
+            landed, flight = land(*flight), None
+            pending, landed = landed, None
+            write(*pending)
+            done = pending[0]
             bar.update(1)
     except KeyboardInterrupt:
         interrupted = True
-        if landed is not None:  # (a frame that ended before the stop keeps its rows)
-            write(*landed)
+        # as the serial loop: a frame that ended keeps its rows (each written once), and a stop while
+        # MuJoCo steps frame k + 1 comes after frame k's rows (the frame in flight ends and is
+        # logged), unless the rows before it were cut short (then no world's log gets a gap)
+        try:
+            if landed is not None:
+                pending, landed = landed, None
+                write(*pending)
+                done = pending[0]
+            if flight is not None and flight[0] == done + 1 and hands.solver._in_flight is not None:
+                pending, flight = land(*flight), None
+                write(*pending)
+        except KeyboardInterrupt:  # (a second Ctrl-C: stop now, with what is written)
+            pass
     finally:
         bar.close()
         for r in runs:

@@ -79,11 +79,12 @@ def test_submitted_frames_are_the_frames_step_runs(setup, device):
         assert np.array_equal(a.skins(), b.skins())
         assert [_strip(r) for r in by_step] == [_strip(r) for r in by_submit]
         assert [r["worlds"] for r in by_step] == [r["worlds"] for r in by_submit]
-    else:
+    else:  # (each frame's rows differ by ~50 um: a report one frame off would be far outside 5 um)
         np.testing.assert_allclose(a.skins(), b.skins(), atol=2e-5)
         assert [sorted(r) for r in by_step] == [sorted(r) for r in by_submit]
         assert [[w["nonfinite"] for w in r["worlds"]] for r in by_step] == \
             [[w["nonfinite"] for w in r["worlds"]] for r in by_submit]
+        np.testing.assert_allclose([r["worlds"][1]["penetration_max_um"] for r in by_submit], depth, atol=5.0)
     assert b.last_worlds == by_submit[-1]["worlds"]
 
 
@@ -109,6 +110,10 @@ def test_reading_mid_pipeline_waits_and_keeps_the_report(setup):
     r2 = a.step(p2, q2, _moved(where, s2), ident)
     assert np.array_equal(a.skins(), b.skins())
     assert _strip(b.wait()) == _strip(r2)
+    b.submit(p0, q0, _moved(where, s0), ident)
+    with pytest.raises(RuntimeError, match="in flight"):  # (the frame in flight still reads its end poses)
+        b.solver.set_body_poses(b.state, p0.reshape(-1, 3), q0.reshape(-1, 4))
+    b.wait()
     b.close()  # (nothing in flight)
     c, _, _ = _pressed_batch(setup, "cpu")
     c.submit(p0, q0, _moved(where, s0), ident)

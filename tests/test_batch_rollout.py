@@ -210,3 +210,52 @@ def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, 
         assert (r["object_in_skin_count"], r["object_in_skin_max_um"]) == (
             int(row["object_in_skin_count"]), float(row["object_in_skin_max_um"])), (r, row)
     assert e["object_in_skin_frame"] == 3
+
+
+def test_a_batch_stopped_while_mujoco_steps_logs_the_frame_that_was_running(tmp_path, monkeypatch):
+    """Ctrl-C while MuJoCo steps frame 3 (the batch pipelined: frame 2 still on the device then) stops
+    where the serial loop stopped: frames 1 and 2 logged, each run's summary with 2 steps, its skin
+    that of a 2-frame run; and Ctrl-C inside frame 2's log rows writes no row twice."""
+    import mujoco
+
+    from physhand_mj import batch_rollout
+
+    targets = [(APPLE, "grasp"), (apple_b(tmp_path), None)]
+    two = rollout_batched(targets, tmp_path / "two", worlds=2, steps=2, device="cpu", progress=False)
+    real_step = mujoco.mj_step
+    calls = []
+
+    def stop_in_frame_3(m, d, *a):
+        calls.append(1)
+        if len(calls) == 5:  # (2 worlds: frame 3's first call)
+            raise KeyboardInterrupt
+        return real_step(m, d, *a)
+
+    monkeypatch.setattr(mujoco, "mj_step", stop_in_frame_3)
+    stopped = rollout_batched(targets, tmp_path / "stopped", worlds=2, steps=4, device="cpu", progress=False)
+    monkeypatch.setattr(mujoco, "mj_step", real_step)
+    for r, t, run in zip(stopped, two, ("hoi_apple-grasp", "apple_b")):
+        assert r["interrupted"] and r["steps"] == 2, r
+        log = read_csv(tmp_path / "stopped" / run / "log.csv")
+        assert sorted({int(x["step"]) for x in log}) == [0, 1, 2] and len(log) == 1 + 2 * 10
+        a = trimesh.load(tmp_path / "stopped" / run / "skin_final.ply", process=False).vertices
+        b = trimesh.load(tmp_path / "two" / run / "skin_final.ply", process=False).vertices
+        np.testing.assert_array_equal(a, b, err_msg=run)
+        assert r["penetration_count"] == t["penetration_count"], (r, t)
+
+    real_rows = batch_rollout.frame_rows
+    calls.clear()
+
+    def stop_in_rows(*a, **k):
+        calls.append(1)
+        if len(calls) == 4:  # (world 1's rows of frame 2)
+            raise KeyboardInterrupt
+        return real_rows(*a, **k)
+
+    monkeypatch.setattr(batch_rollout, "frame_rows", stop_in_rows)
+    rollout_batched(targets, tmp_path / "rows", worlds=2, steps=4, device="cpu", progress=False)
+    for run, frames in (("hoi_apple-grasp", [0, 1, 2]), ("apple_b", [0, 1])):
+        log = read_csv(tmp_path / "rows" / run / "log.csv")
+        keys = [(x["step"], x["substep"]) for x in log]
+        assert len(keys) == len(set(keys)), run  # no row twice
+        assert sorted({int(x["step"]) for x in log}) == frames, run

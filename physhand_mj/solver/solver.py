@@ -158,8 +158,16 @@ class Solver(Sleeping):
         """Bone poses at the end of the next frame: pos (B, 3) m, quat (B, 4) w x y z, in the
         solver's world frame, ordered as ``model.body_names``. The skeleton moves there during the
         frame (interpolated per substep)."""
+        self._not_in_flight(state)
         self.pose_rows(pos, quat, out=state.pose_host[1])  # (written in place: batches, W x the bones a frame)
         state.pose_fresh = True
+
+    def _not_in_flight(self, state: State) -> None:
+        """The next frame's poses may not be written while this state's frame is in flight: its
+        ``finish`` still reads that frame's end poses (the sleep test)."""
+        if self._in_flight is not None and self._in_flight[0] is state:
+            raise RuntimeError("a frame of this state is in flight (Solver.launch): Solver.finish(state) before "
+                               "setting the next frame's poses")
 
     def pose_rows(self, pos: np.ndarray, quat: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """:meth:`set_body_poses`' checks and conversion without a state: (B, 7) float32 rows [p, q x y z
@@ -193,6 +201,9 @@ class Solver(Sleeping):
 
     def set_body_pose_rows(self, state: State, rows: np.ndarray) -> None:
         """The next frame's end poses as :meth:`pose_rows` made them (checked and normed)."""
+        self._not_in_flight(state)
+        if np.shape(rows) != state.pose_host[1].shape:
+            raise ValueError(f"pose rows must be {state.pose_host[1].shape} (Solver.pose_rows), got {np.shape(rows)}")
         state.pose_host[1] = rows
         state.pose_fresh = True
 
