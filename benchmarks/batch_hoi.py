@@ -199,6 +199,7 @@ def main() -> None:
     from physhand_mj.batch_rollout import _Run
     from physhand_mj.bench import device_name
     from physhand_mj.coupling import rest_placement
+    from batch_throughput import mode_rows  # (benchmarks/ is on sys.path)
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N]")
@@ -265,8 +266,6 @@ def main() -> None:
                     for _ in range(2):
                         hands.step(pos, quat, op, oq)
                     lap("warmup (compile, record, capture)")
-                    from batch_throughput import mode_rows
-
                     timing, out = mode_rows(hands, lambda k: [(pos, quat, op, oq)] * a.frames, w,
                                             a.modes.split(","), a.repeats)
                     ms = timing["ms_per_frame"]

@@ -491,21 +491,21 @@ class Objects:
 
     def set_pose_rows(self, rows: np.ndarray) -> None:
         """Upload the poses and inverses :meth:`pose_rows` made."""
-        n, c = len(self.names), self.pose.shape[0]
+        n = len(self.names)
         if rows.shape != (2 * n, 7):
             raise ValueError(f"pose rows must be ({2 * n}, 7) (Objects.pose_rows), got {rows.shape}")
         self._host["pose"][:n] = rows[:n]
-        buf = self._pose_buf.numpy()
-        buf[:n] = rows[:n]
-        buf[c:c + n] = rows[n:]
-        wp.copy(self.pose, self._pose_buf, count=c)
-        wp.copy(self.inv_pose, self._pose_buf, src_offset=c, count=c)
+        self._copy_pose(rows[:n], rows[n:])
 
     def _upload_pose(self) -> None:
-        c = self.pose.shape[0]
+        self._copy_pose(self._host["pose"], invert_transforms(self._host["pose"]))
+
+    def _copy_pose(self, pose: np.ndarray, inv: np.ndarray) -> None:
+        """The first len(pose) geoms' poses and inverses into the pinned buffer, then both arrays up."""
+        c, k = self.pose.shape[0], len(pose)
         buf = self._pose_buf.numpy()
-        buf[:c] = self._host["pose"]
-        buf[c:] = invert_transforms(self._host["pose"])
+        buf[:k] = pose
+        buf[c:c + k] = inv
         wp.copy(self.pose, self._pose_buf, count=c)
         wp.copy(self.inv_pose, self._pose_buf, src_offset=c, count=c)
 
