@@ -10,7 +10,7 @@ Memory per world: the bytes of the replicated model's and state's device arrays 
 
     python benchmarks/batch_throughput.py [--device cpu|cuda] [--worlds 1,2,4,8] [--frames 5] [--objects]
                                           [--config '{"jacobi_gather": true}'] [--tag NAME]
-                                          [--modes step,submit] [--repeats 3]
+                                          [--modes step,submit] [--repeats 3] [--profile] [--host-profile]
     python benchmarks/batch_throughput.py --plot     # docs/images/batch_throughput.png from the JSONs
 
 Writes docs/benchmarks/batch_throughput_<device>[_objects][_<tag>].json; each row also gives the
@@ -162,6 +162,25 @@ def timed_frames(hands, frames: list, mode: str = "step"):
     return (time.perf_counter() - t) / len(frames) * 1e3, out
 
 
+def host_profile(hands, frames: list, top: int = 16) -> list[dict]:
+    """The host's time in ``frames`` pipelined frames (``timed_frames`` "submit") by function
+    (cProfile): per frame each function's own time and its time with its callees (ms), the ``top``
+    by own time. The wait for the GPU shows as Warp's synchronize; the rest is host work, on the
+    critical path where it comes between a frame's end and the next frame's launch."""
+    import cProfile
+    import pstats
+
+    pr = cProfile.Profile()
+    pr.enable()
+    timed_frames(hands, frames, "submit")
+    pr.disable()
+    rows = [(f"{Path(f).name}:{line}({name})", tt, ct)
+            for (f, line, name), (_, _, tt, ct, _) in pstats.Stats(pr).stats.items()]
+    rows.sort(key=lambda r: -r[1])
+    n = len(frames)
+    return [dict(where=w, own_ms=round(t / n * 1e3, 3), with_callees_ms=round(c / n * 1e3, 3)) for w, t, c in rows[:top]]
+
+
 def mode_rows(hands, frames_of, worlds: int, modes: list, repeats: int):
     """Each mode timed ``repeats`` times, the modes alternated block by block and their order
     reversed every other round (A B, B A, ...: a grasp's first frames after the warm-up still
@@ -206,6 +225,8 @@ def main() -> None:
     p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
     p.add_argument("--profile", action="store_true",
                    help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 24")
+    p.add_argument("--host-profile", action="store_true",
+                   help="also the host's time by function in --frames pipelined frames (cProfile), top 16")
     p.add_argument("--modes", default="step",
                    help="how frames are run, comma-separated, alternated block by block: step "
                         "(BatchedHands.step) and/or submit (BatchedHands.submit, pipelined)")
@@ -245,6 +266,8 @@ def main() -> None:
         mem = (_nbytes(hands.solver.model) + _nbytes(hands.state)) / w
         rows.append(dict(worlds=w, **timing, mb_per_world=round(mem / 2**20, 2),
                          vertices=hands.solver.model.n_vertices, setup_s=round(setup_s, 2)))
+        if a.host_profile:  # where the host's time goes in pipelined frames, function by function
+            rows[-1]["host_ms_per_frame"] = host_profile(hands, [poses(200 + f) + tuple(ball) for f in range(a.frames)])
         if a.profile and hands.solver.device.is_cuda:  # where the frame's GPU time goes, kernel by kernel
             rows[-1]["kernels_ms_per_frame"] = kernel_split(hands, poses, ball, a.frames)
         if a.objects:  # the contact did work in every world, and nothing stayed inside

@@ -1,5 +1,6 @@
 """The fused substep's accumulation variants against each other, interleaved frame by frame in one
-process (solver/fused.py: ACCUM, MASS, LAM_EVERY_SUBSTEP, PIN_LOADS, VEC_LOADS, FRAME_LAUNCH).
+process (solver/fused.py: ACCUM, MASS, LAM_EVERY_SUBSTEP, PIN_LOADS, VEC_LOADS, FRAME_LAUNCH, FOLD_END,
+SKIP_BONES).
 
 W worlds of the embedded hand (BatchedHands with ``fused_substep=True``), open pose, each world's
 index finger bending at its own rate (benchmarks/batch_throughput.py), no contact; ``--frames`` frames
@@ -14,7 +15,11 @@ each way after 2 warm-up frames (compilation, recording and graph capture exclud
 - ``pinned``: ``fixed_row`` with the rest data loaded at the top of each iteration (PIN_LOADS);
 - ``vec``: ``pinned`` with each constraint's ids and masses in one vector load (VEC_LOADS);
 - ``frame``: ``vec`` with a frame's substeps in one launch, the positions kept in shared memory
-  (FRAME_LAUNCH; the default as shipped).
+  (FRAME_LAUNCH; shipped 2026-11-27);
+- ``end``: ``frame`` that also ends the frame (the last substep's velocities, x_safe, the fast and
+  inverted counts from shared memory: FOLD_END), so no last ``advance`` and no ``count_inverted``;
+- ``bones``: ``end`` with a skeleton vertex's global rows left alone between a frame's first and last
+  substeps (SKIP_BONES; the default as shipped).
 
 Per world count: the median ms per frame each way, hand-frames/s, and how far each variant's
 positions end from ``base``'s (every world; CUDA's float atomics alone differ by ~0.4 um between two
@@ -22,7 +27,7 @@ runs: docs/solver.md). Tried and measured, not in the tree (docs/scale.md): each
 next constraint while it solves one, and the substep's start two vertices a thread at a time.
 
     python benchmarks/fused_variants.py [--device cpu|cuda] [--worlds 1024] [--frames 10]
-                                        [--variants base,lam,row,fixed,fixed_row,pinned,vec,frame]
+                                        [--variants base,lam,row,fixed,fixed_row,pinned,vec,frame,end,bones]
                                         [--block 1024] [--out PATH]
 """
 
@@ -38,15 +43,17 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# (ACCUM, MASS, LAM_EVERY_SUBSTEP, PIN_LOADS, VEC_LOADS, FRAME_LAUNCH) of solver/fused.py
-VARIANTS = dict(base=("float", "vertex", True, False, False, False),
-                lam=("float", "vertex", False, False, False, False),
-                row=("float", "row", False, False, False, False),
-                fixed=("fixed", "vertex", False, False, False, False),
-                fixed_row=("fixed", "row", False, False, False, False),
-                pinned=("fixed", "row", False, True, False, False),
-                vec=("fixed", "row", False, True, True, False),
-                frame=("fixed", "row", False, True, True, True))
+# (ACCUM, MASS, LAM_EVERY_SUBSTEP, PIN_LOADS, VEC_LOADS, FRAME_LAUNCH, FOLD_END, SKIP_BONES) of solver/fused.py
+VARIANTS = dict(base=("float", "vertex", True, False, False, False, False, False),
+                lam=("float", "vertex", False, False, False, False, False, False),
+                row=("float", "row", False, False, False, False, False, False),
+                fixed=("fixed", "vertex", False, False, False, False, False, False),
+                fixed_row=("fixed", "row", False, False, False, False, False, False),
+                pinned=("fixed", "row", False, True, False, False, False, False),
+                vec=("fixed", "row", False, True, True, False, False, False),
+                frame=("fixed", "row", False, True, True, True, False, False),
+                end=("fixed", "row", False, True, True, True, True, False),
+                bones=("fixed", "row", False, True, True, True, True, True))
 
 
 def main() -> None:
@@ -79,7 +86,7 @@ def main() -> None:
     wp.init()
     asset, model, data, ids, mount = hand_only_setup()
     rows = []
-    switches = ("ACCUM", "MASS", "LAM_EVERY_SUBSTEP", "PIN_LOADS", "VEC_LOADS", "FRAME_LAUNCH")
+    switches = ("ACCUM", "MASS", "LAM_EVERY_SUBSTEP", "PIN_LOADS", "VEC_LOADS", "FRAME_LAUNCH", "FOLD_END", "SKIP_BONES")
     saved = tuple(getattr(fused, k) for k in switches)
     for w in [int(s) for s in a.worlds.split(",")]:
         poses = bending_poses(model, data, ids, w)

@@ -834,6 +834,20 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
       step rollout_head_$r 140 python3 benchmarks/batch_rollout_wall.py --device cuda --worlds 1024 --steps 36
     done
     ;;
+  s49_a)  # (2026-11-27, eleventh session) the frame launch that ends the frame (fused.FOLD_END, SKIP_BONES):
+    # the CUDA tests (and the tenth session's review fixes, which had not run on CUDA), then the variants at W = 4,096
+    step pytest_cuda 360 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or pipelin or ends_the_frame" \
+      tests/test_fused.py tests/test_batch_pipeline.py tests/test_batch.py tests/test_sleep.py tests/test_activity.py
+    step variants_4096 220 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 \
+      --variants frame,end,bones --out docs/benchmarks/fused_variants_cuda_s49a_4096.json
+    ;;
+  s49_b)  # the solver alone at W = 4,096 by step and by submit, alternated, with the host's time by function;
+    # then its kernels one by one (graphs off)
+    step solver_4096 240 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 8 \
+      --modes step,submit --repeats 3 --host-profile --tag s49b_modes
+    step profile_4096 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 4 --profile \
+      --tag s49b_profile
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -411,3 +411,32 @@ def test_fixed_point_add_rounds_clamps_and_drops_nan():
     assert got[1].tolist() == [round(np.float32(bound) * step), -round(np.float32(bound) * step),
                                round(np.float32(0.05) * step)]
     assert got[2].tolist() == [0, round(np.float32(1e-3) * step), 0]
+
+
+def test_a_frame_launch_ends_the_frame_and_counts_inverted_tets(setup):
+    """fused.FOLD_END: a frame launch without contact also ends the frame (the last substep's
+    velocities, x_safe, the fast vertices) and counts the inverted tets from shared memory, in place
+    of integrate.advance's last launch and integrate.count_inverted. World 1's soft vertices are
+    point-reflected through their centroid between two frames (every tet of theirs inverted, every
+    vertex fast): the next frame's positions, velocities, x^i, x_safe and guard counters (the
+    batch's and each world's) are the five-launch frame's bit for bit, and world 1 counts inverted
+    tets (world 0, held open, none) and all its soft vertices fast."""
+    asset, mount, open_, bent = setup
+    runs = []
+    for fz in (False, True):
+        batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=fz, jacobi_gather=False), frames=2)
+        m = batch.solver.model
+        x = batch.state.x.numpy()
+        flip = (m.vertex_world.numpy() == 1) & (m.inv_mass.numpy() > 0.0)
+        x[flip] = 2.0 * x[flip].mean(axis=0) - x[flip]
+        batch.state.x.assign(x)
+        batch.step(np.stack([open_[0], bent[0]]), np.stack([open_[1], bent[1]]))  # (world 0 held open)
+        runs.append(batch)
+    ref, fz = runs
+    assert ref.solver._fused is None and fz.solver._fused is not None and fz.solver._fused.fold_end
+    for name in ("x", "v", "x_prev", "x_safe", "guard"):
+        assert np.array_equal(getattr(fz.state, name).numpy(), getattr(ref.state, name).numpy()), name
+    g = fz.state.guard.numpy()
+    assert g[1] > 0 and g[3] > 0, g[:4]  # (the reflection left tets inverted and vertices fast)
+    assert g[4 + 4 * 1 + 1] == g[1] and g[4 + 4 * 0 + 1] == 0, g  # (world 1's inverted tets, in its own slot)
+    assert g[4 + 4 * 1 + 3] == fz.solver._fused.n_soft > g[4 + 4 * 0 + 3], g  # (every soft vertex of world 1 fast)

@@ -49,9 +49,10 @@ from physhand_mj.solver.fused_gather import dihedrals_of_vertex, edges_of_vertex
 from physhand_mj.solver.fused_tile import (add2, add2_fixed, add_corners, add_corners_fixed, apply_group,
                                            apply_group_fixed, block_sync, corners2, corners4, fixed_to_float,
                                            keep_multiplier, shared_set, shared_set_int)
-from physhand_mj.solver.integrate import finish_substep, start_substep
+from physhand_mj.solver.fused_tile import row4i
+from physhand_mj.solver.integrate import count_guard, fast_vertex, finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
-from physhand_mj.solver.tet import tet_correction
+from physhand_mj.solver.tet import six_volume, tet_correction
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -100,6 +101,15 @@ FRAME_LAUNCH = True
 # substep) or only a frame's last substep (False: lambda is reset each substep, so the others' are
 # overwritten unread; diagnostics read the last). True is benchmarks/fused_variants.py's old kernel.
 LAM_EVERY_SUBSTEP = False
+# Whether a frame launch (FRAME_LAUNCH, no contact) also ends the frame: the last substep's velocities,
+# x_safe and the fast-vertex count (integrate.advance's last launch), then the inverted-tet count over
+# the positions still in shared memory (integrate.count_inverted, which read them from global memory
+# at random: 3.8 ms of a 86.5 ms frame at W = 4,096 on an H100). The frame is then 2 launches.
+FOLD_END = True
+# Whether a frame launch's substeps between the first and the last leave a skeleton vertex's global
+# rows alone: its position is its bone's, kept in shared memory; its velocity never changes (w = 0),
+# and its x^i and x are read only after the frame (written in the last substep, as before).
+SKIP_BONES = True
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
@@ -190,6 +200,13 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         x_prev: wp.array(dtype=wp.vec3),
         x_safe: wp.array(dtype=wp.vec3),
         guard: wp.array(dtype=int),
+        # The frame's end, folded in where ``end`` != 0 (a frame launch: FOLD_END), and the substeps
+        # between the first and the last without a skeleton vertex's global rows (``skip_bones``):
+        end: int,
+        skip_bones: int,
+        speed_limit: float,
+        vertex_carrier: wp.array(dtype=int),
+        guard_tets: wp.array2d(dtype=int),
     ):
         w, lane = wp.tid()
         bd = wp.block_dim()
@@ -205,7 +222,15 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                         p = x[g]
                     else:
                         p = xs[l]  # (the previous substep's end, kept in shared memory)
-                    if start >= 0:  # the substep's start, as integrate.advance makes it
+                    if (skip_bones != 0 and l >= NS and sub > 0 and sub < count - 1 and wp.isfinite(p[0])
+                            and wp.isfinite(p[1]) and wp.isfinite(p[2])):
+                        # a skeleton vertex between the first and the last substep: its bone's pose,
+                        # as start_substep gives it (finish_substep leaves a finite w = 0 vertex be);
+                        # its x^i is read only where x is not finite, its v never changes
+                        b = vertex_body[g]
+                        if b >= 0:
+                            p = wp.transform_point(body_sub[start + sub, b], body_local[g])
+                    elif start >= 0:  # the substep's start, as integrate.advance makes it
                         vi = v[g]
                         if finish != 0 or sub > 0:
                             p, vi = finish_substep(g, w, p, vi, inv_mass[l], h, x_prev, guard)
@@ -337,15 +362,36 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                         else:
                             dsum = ds[l]
                         p = p + dsum * (relaxation / c)
-                    if sub == count - 1:
+                    if sub == count - 1 and end == 0:
                         x[shifted_id(l, w, N, ns, worlds)] = p
-                    else:  # (the next substep starts from shared memory, its accumulator zeroed)
+                    else:  # (the next substep, or the frame's end, starts from shared memory, its accumulator zeroed)
                         shared_set(xs, l, p, True)
                         if wp.static(FIXED):
                             shared_set_int(ds, l, wp.vec3i(0), True)
                         else:
                             shared_set(ds, l, wp.vec3(0.0), True)
             block_sync()
+        if end != 0:  # the frame's end: integrate.advance's last launch, per vertex of the world
+            for k in range((N + bd - 1) // bd):
+                l = k * bd + lane
+                p = wp.vec3(0.0)
+                if l < N:
+                    g = shifted_id(l, w, N, ns, worlds)
+                    p, vi = finish_substep(g, w, xs[l], v[g], inv_mass[l], h, x_prev, guard)
+                    x_safe[g] = p
+                    if speed_limit > 0.0 and inv_mass[l] > 0.0:
+                        if fast_vertex(g, vi, h, speed_limit, vertex_carrier, body_sub, x_prev):
+                            count_guard(guard, 3, w)
+                    x[g] = p
+                    v[g] = vi
+                shared_set(xs, l, p, l < N)
+            block_sync()
+            for k in range((guard_tets.shape[0] + bd - 1) // bd):  # integrate.count_inverted, from shared memory
+                j = k * bd + lane
+                if j < guard_tets.shape[0]:
+                    t = row4i(guard_tets, j)
+                    if six_volume(xs[t[0]], xs[t[1]], xs[t[2]], xs[t[3]]) <= 0.0:
+                        count_guard(guard, 1, w)
 
     _KERNELS[key] = solve_substep_shared
     return solve_substep_shared
@@ -399,6 +445,7 @@ class FusedSubstep:
         self.dih_ids = wp.array(to_local(first(m.dih_ids)).reshape(-1, 4), dtype=int, device=dev)
         self.dih_rest = wp.array(first(m.dih_rest), dtype=float, device=dev)
         self.dih_alpha = float(m.dih_alpha)
+        self.guard_tets = wp.array(to_local(first(m.guard_tets)).reshape(-1, 4), dtype=int, device=dev)
         # ACCUM and MASS as they were when this body was built (a benchmark builds one of each)
         if ACCUM not in ("float", "fixed", "auto"):
             raise ValueError(f"physhand_mj.solver.fused.ACCUM must be 'float', 'fixed' or 'auto', got {ACCUM!r}")
@@ -410,6 +457,8 @@ class FusedSubstep:
         self.pin = bool(PIN_LOADS)
         self.vec = bool(VEC_LOADS) and self.row_mass
         self.frame_launch = bool(FRAME_LAUNCH)
+        self.fold_end = bool(FOLD_END) and self.frame_launch
+        self.skip_bones = bool(SKIP_BONES)
         self.fx_scale = float(2.0 ** FIXED_BITS)
         # no vertex's sum overflows int32: in group g it takes at most max_i n_i(g) corrections (the
         # group's vertex_count, a count of every id in it), each clamped to the group's bound
@@ -501,14 +550,20 @@ class FusedSubstep:
         return self.shared_bytes(device) <= limit, limit
 
     def inputs(self, inv_h2: float, relaxation: float, state, start: int = -1, finish: int = 0, h: float = 0.0,
-               damp: float = 1.0, gravity=None, model=None, keep_lam: bool = True, count: int = 1) -> list:
+               damp: float = 1.0, gravity=None, model=None, keep_lam: bool = True, count: int = 1, end: bool = False,
+               speed_limit: float = 0.0) -> list:
         """The launch's inputs; ``start`` >= 0 folds integrate.advance's start of substep ``start``
         (and with ``finish`` the previous substep's end) into the launch (``model``: the solver's,
         for the bones of every world's vertices); ``keep_lam``: write the multipliers (a frame's last
         substep; the others' are overwritten unread); ``count``: substeps in the launch (from ``start``
-        on, each but the first finishing the one before: ``start`` >= 0 where ``count`` > 1)."""
+        on, each but the first finishing the one before: ``start`` >= 0 where ``count`` > 1); ``end``:
+        the launch also ends the frame (its last substep's velocities, x_safe, soft vertices faster
+        than ``speed_limit`` m/s counted in guard[3], inverted tets in guard[1]: FOLD_END), so
+        integrate.advance's last launch and integrate.count_inverted do not run."""
         if count > 1 and start < 0:
             raise ValueError("FusedSubstep.inputs: several substeps in one launch need start >= 0")
+        if end and start < 0:
+            raise ValueError("FusedSubstep.inputs: the frame's end in the launch needs start >= 0")
         if start >= 0:
             kin = [model.vertex_body, model.body_local, state.body_sub]
         else:
@@ -520,7 +575,8 @@ class FusedSubstep:
                 self.fx_scale, 1.0 / self.fx_scale, wp.vec3(*self.fx_bounds), state.x, state.lam_edge, state.lam_tet,
                 state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
-                *kin, state.v, state.x_prev, state.x_safe, state.guard]
+                *kin, state.v, state.x_prev, state.x_safe, state.guard, int(bool(end)), int(self.skip_bones),
+                float(speed_limit), model.vertex_carrier if end else self._none, self.guard_tets]
 
 
 # CUDA: Config.fused_substep=None picks the fused substep for a batch of at least this many worlds

@@ -77,6 +77,21 @@ def start_substep(i: int, world: int, xi: wp.vec3, vi: wp.vec3, w: float, start:
     return xi, vi
 
 
+@wp.func
+def fast_vertex(i: int, vi: wp.vec3, h: float, speed_limit: float, vertex_carrier: wp.array(dtype=int),
+                body_sub: wp.array2d(dtype=wp.transform), x_prev: wp.array(dtype=wp.vec3)):
+    """Whether soft vertex ``i`` ends the frame (velocity ``vi``) faster than ``speed_limit`` (m/s)
+    relative to its carrier bone: the rigid velocity the bone gives it over the last substep."""
+    vr = vi
+    b = vertex_carrier[i]
+    ns = body_sub.shape[0]
+    if b >= 0 and ns >= 2:
+        p = x_prev[i]
+        ride = wp.transform_point(body_sub[ns - 1, b], wp.transform_point(wp.transform_inverse(body_sub[ns - 2, b]), p))
+        vr = vi - (ride - p) * (1.0 / h)
+    return wp.length(vr) > speed_limit
+
+
 @wp.kernel
 def advance(
     # Model:
@@ -147,14 +162,7 @@ def advance(
     else:
         x_safe[i] = xi
         if speed_limit > 0.0 and w > 0.0:
-            vr = vi
-            b = vertex_carrier[i]
-            ns = body_sub.shape[0]
-            if b >= 0 and ns >= 2:
-                p = x_prev[i]
-                ride = wp.transform_point(body_sub[ns - 1, b], wp.transform_point(wp.transform_inverse(body_sub[ns - 2, b]), p))
-                vr = vi - (ride - p) * (1.0 / h)
-            if wp.length(vr) > speed_limit:
+            if fast_vertex(i, vi, h, speed_limit, vertex_carrier, body_sub, x_prev):
                 count_guard(guard, 3, vertex_world[i])
                 if region_fast.shape[0] > 0:
                     r = vertex_region[i]

@@ -460,6 +460,8 @@ class Solver(Sleeping):
         region_args = [rs.vertex_region, rs.fast] if rs is not None else [no_int, no_int]
         if rs is not None:
             rs.record_start(launch)
+        end_folded = (self._fused is not None and self._fused.frame_launch and self._fused.fold_end
+                      and self.contact is None and rs is None)
         for s in range(cfg.substeps + 1):
             contact = self.contact
             # Config.contact_every: the contact stages of this substep (the last substep always has them)
@@ -467,7 +469,8 @@ class Solver(Sleeping):
             before = contact is not None and staged and contact.wants("before")
             # the fused substep also makes the substep's start, unless a contact stage comes between
             fold = self._fused is not None and s < cfg.substeps and not before
-            if not fold:
+            # a frame launch that also ends the frame (fused.FOLD_END): no last advance, no inverted-tet count
+            if not fold and not (s == cfg.substeps and end_folded):
                 # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
                 launch(integrate.advance, n, [inv_mass, vertex_body, body_local, m.vertex_count, self._gravity,
                                               self._h, self._damp, int(s > 0), pending, cfg.relaxation,
@@ -486,7 +489,8 @@ class Solver(Sleeping):
                 fz = self._fused
                 inputs = fz.inputs(self._inv_h2, cfg.relaxation, state, start=s if fold else -1, finish=int(s > 0),
                                    h=self._h, damp=self._damp, gravity=self._gravity, model=m,
-                                   keep_lam=whole or s == cfg.substeps - 1, count=cfg.substeps if whole else 1)
+                                   keep_lam=whole or s == cfg.substeps - 1, count=cfg.substeps if whole else 1,
+                                   end=whole and end_folded, speed_limit=float(cfg.sleep_speed))
                 cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs, block_dim=fused_launch.BLOCK_DIM,
                                       device=d, record_cmd=True)
                 cur[0].append(cmd.launch)
@@ -537,7 +541,9 @@ class Solver(Sleeping):
                 self.contact.record_frame_end(launch, sub, state)  # the skin's move against the feature slack
 
             gated(frame_end, 1)
-        launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x], [state.guard])
+        if not end_folded:  # (else counted inside the frame launch, from shared memory)
+            launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x],
+                   [state.guard])
         ops += self._tail
         return ops
 
