@@ -455,11 +455,12 @@ class BatchedHands:
         pos, quat = self._check_poses(pos, quat)
         rows = self.solver.pose_rows((pos + self.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
         obj = self._object_rows(object_pos, object_quat)
+        staged = self.solver.stage_pose_rows(self.state, rows)  # (the upload buffer filled meanwhile too)
         self._complete()  # the frame in flight: its sync and the solver's report
         if obj is not None:
             self.objects.set_pose_rows(obj)
         self.solver.set_body_pose_rows(self.state, rows)
-        self.solver.launch(self.state)
+        self.solver.launch(self.state, staged=staged)
         return self._claim()
 
     def wait(self) -> dict | None:

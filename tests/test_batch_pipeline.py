@@ -140,3 +140,90 @@ def test_a_pipelined_batch_falls_asleep_and_wakes_when_step_does(setup):
     assert any(by_step) and not by_step[-1], by_step  # (it slept, then woke)
     assert by_submit == by_step
     assert np.array_equal(a.skins(), b.skins())
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_poses_staged_during_a_frame_are_the_next_frames(setup, device):
+    """``submit`` fills the next frame's pose upload buffer while the frame before runs
+    (``Solver.stage_pose_rows``). Two worlds bending a finger by a different amount every frame, by
+    ``step`` and by ``submit``: the same bone poses on the device after each frame, and the same skins
+    (CPU bit for bit; CUDA within 1 um). A stale buffer (the frame before's poses) would lag a frame."""
+    asset, model, data, ids, mount = setup
+    q0 = model.key("open").qpos.copy()
+    jnt = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
+
+    def poses(k):
+        out = []
+        for w in range(2):
+            q = q0.copy()
+            q[jnt] += 0.08 * (k + 1) * (w + 1)
+            out.append(bone_poses_at(model, data, q, ids))
+        return np.stack([p[0] for p in out]), np.stack([p[1] for p in out])
+
+    frames = [poses(k) for k in range(4)]
+    a = BatchedHands(asset, 2, Config(device=device), *mount)
+    b = BatchedHands(asset, 2, Config(device=device), *mount)
+    by_step = [a.step(pos, quat) for pos, quat in frames]
+    by_submit = [b.submit(pos, quat) for pos, quat in frames][1:] + [b.wait()]
+    end = a.state.body_pose.numpy()
+    assert np.array_equal(b.state.body_pose.numpy(), end)
+    assert not np.array_equal(end[0], end[1])  # (the bones moved in the last frame)
+    assert [r["nonfinite"] for r in by_step] == [r["nonfinite"] for r in by_submit] == [0] * 4
+    if device == "cpu":
+        assert np.array_equal(a.skins(), b.skins())
+    else:
+        np.testing.assert_allclose(a.skins(), b.skins(), atol=1e-6)
+
+
+def test_a_staged_upload_is_taken_only_with_the_rows_it_was_staged_with(setup):
+    """``Solver.launch(state, staged=token)`` uploads the staged buffer only where
+    ``set_body_pose_rows`` was given the rows it was staged with: set other rows instead and the
+    frame still moves the bones to those (the buffer is filled again from the state)."""
+    asset, model, data, ids, mount = setup
+    hands = BatchedHands(asset, 1, Config(device="cpu"), *mount)
+    solver, state = hands.solver, hands.state
+    q = model.key("open").qpos.copy()
+    pos, quat = bone_poses_at(model, data, q, ids)
+    rows_a = solver.pose_rows(pos + hands.offsets[0], quat)
+    q[model.jnt_qposadr[model.joint("mcp2_flexion_r").id]] += 0.3
+    pos_b, quat_b = bone_poses_at(model, data, q, ids)
+    rows_b = solver.pose_rows(pos_b + hands.offsets[0], quat_b)
+    assert solver.stage_pose_rows(state, rows_a) is None  # (no frame in flight: nothing to stage)
+    solver.set_body_pose_rows(state, rows_a)
+    solver.launch(state)
+    token = solver.stage_pose_rows(state, rows_a)  # (a frame in flight)
+    assert token is not None
+    solver.finish(state)
+    solver.set_body_pose_rows(state, rows_b)  # not the staged rows
+    solver.launch(state, staged=token)
+    solver.finish(state)
+    assert np.array_equal(state.body_pose.numpy()[1], rows_b)
+    solver.set_body_pose_rows(state, rows_a)
+    solver.launch(state)
+    token = solver.stage_pose_rows(state, rows_b)
+    solver.finish(state)
+    solver.set_body_pose_rows(state, rows_b)  # the staged rows: the buffer as staged, [the end before, rows_b]
+    solver.launch(state, staged=token)
+    solver.finish(state)
+    assert np.array_equal(state.body_pose.numpy()[0], rows_a) and np.array_equal(state.body_pose.numpy()[1], rows_b)
+
+
+def test_a_pipelined_batch_warns_of_a_fast_bone_as_step_does(setup):
+    """The fast-motion check (a bone moving farther in a frame than Config.contact_frame_margin -
+    contact_margin) is taken when ``submit`` stages the poses: a batch whose hands jump 3 cm in one
+    frame warns once, naming the same distance by ``step`` and by ``submit``."""
+    asset, model, data, ids, mount = setup
+    pos, quat = bone_poses_at(model, data, model.key("open").qpos, ids)
+    frames = [(np.stack([pos, pos]), np.stack([quat, quat]))] * 2
+    frames.append((np.stack([pos, pos + [0.0, 0.0, 0.03]]), np.stack([quat, quat])))
+    said = []
+    for mode in ("step", "submit"):
+        batch, where, _ = _pressed_batch(setup, "cpu")
+        with pytest.warns(RuntimeWarning, match="contact_frame_margin") as rec:
+            ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+            for p, q in frames:
+                getattr(batch, mode)(p, q, where, ident)
+            if mode == "submit":
+                batch.wait()
+        said.append([str(w.message) for w in rec if "contact_frame_margin" in str(w.message)])
+    assert len(said[0]) == 1 and said[0] == said[1] and "moved 30.0 mm" in said[0][0], said

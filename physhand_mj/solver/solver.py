@@ -110,8 +110,12 @@ class Solver(Sleeping):
         self._inv_h2 = 1.0 / (h * h)
         self._damp = math.exp(-self.config.damping * h)
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
-        self._pose_host = wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu",
-                                   pinned=self.device.is_cuda)
+        # the bone poses' upload buffers ([frame start, frame end] rows), one per frame in turn: a frame
+        # in flight copies from one while the next frame's poses go into the other (stage_pose_rows)
+        self._pose_pins = [wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu", pinned=self.device.is_cuda)
+                           for _ in range(2)]
+        self._pin = 0  # the buffer the next launch uploads from
+        self._rows_set = None  # the rows set_body_pose_rows last took (a staged upload names them)
         self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
@@ -161,6 +165,7 @@ class Solver(Sleeping):
         self._not_in_flight(state)
         self.pose_rows(pos, quat, out=state.pose_host[1])  # (written in place: batches, W x the bones a frame)
         state.pose_fresh = True
+        self._rows_set = None
 
     def _not_in_flight(self, state: State) -> None:
         """The next frame's poses may not be written while this state's frame is in flight: its
@@ -206,6 +211,34 @@ class Solver(Sleeping):
             raise ValueError(f"pose rows must be {state.pose_host[1].shape} (Solver.pose_rows), got {np.shape(rows)}")
         state.pose_host[1] = rows
         state.pose_fresh = True
+        self._rows_set = rows
+
+    def stage_pose_rows(self, state: State, rows: np.ndarray):
+        """While a frame of ``state`` is in flight, fill the next frame's upload buffer with its start
+        (the frame in flight's end) and ``rows`` (its end, :meth:`pose_rows`), so that the host copy
+        leaves the time between that frame's end and the next one's launch. Returns a token for
+        :meth:`launch` (``staged=``), which takes the buffer as it is only if :meth:`set_body_pose_rows`
+        was given these ``rows`` after :meth:`finish`, and fills it itself otherwise; None (nothing to
+        stage) when no frame of ``state`` is in flight or per-region sleeping is on."""
+        if self._in_flight is None or self._in_flight[0] is not state or self.regions is not None:
+            return None
+        if np.shape(rows) != state.pose_host[1].shape:
+            raise ValueError(f"pose rows must be {state.pose_host[1].shape} (Solver.pose_rows), got {np.shape(rows)}")
+        buf = self._pose_pins[self._pin].numpy()  # (the frame in flight uploads from the other one)
+        buf[0] = state.pose_host[0]  # (launch moved the frame in flight's end there; finish leaves it)
+        buf[1] = rows
+        # (the fast-motion check's largest bone move too, for launch)
+        return (state, self._pin, rows, self._bone_jump(buf[0], buf[1]) if self._checks_jump() else None)
+
+    def _checks_jump(self) -> bool:
+        """Whether :meth:`launch` checks how far a bone moves in the frame (contact, the warning not given)."""
+        return self.contact is not None and self.warn_fast_motion and not self._warned_fast and bool(self.model.n_bodies)
+
+    @staticmethod
+    def _bone_jump(p0: np.ndarray, p1: np.ndarray) -> float:
+        """The largest distance a bone's origin moves from pose rows ``p0`` to ``p1`` (m)."""
+        d = p1[:, :3] - p0[:, :3]
+        return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
 
     # -- the frame -------------------------------------------------------------------------------
     def step(self, state: State) -> dict:
@@ -218,20 +251,23 @@ class Solver(Sleeping):
         self.launch(state)
         return self.finish(state)
 
-    def launch(self, state: State) -> None:
+    def launch(self, state: State, staged=None) -> None:
         """The frame's first half: every decision made before it (the poses, sleeping, the work
         set), its launches queued on the device (on CUDA one graph) with the copies of its reports.
         :meth:`finish` waits for it and reads them; until then the host is free (a batch checks the
         next frame's poses meanwhile: BatchedHands.submit) and ``state`` must not be read or
-        changed. One frame in flight at a time."""
+        changed. One frame in flight at a time. ``staged``: :meth:`stage_pose_rows`' token."""
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
+        # the upload buffer as stage_pose_rows filled it: for this state, these rows, nothing set since
+        staged = (staged if staged is not None and staged[0] is state and staged[1] == self._pin
+                  and staged[2] is self._rows_set and state.pose_fresh and self.regions is None else None)
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
-        elif self.contact is not None and self.warn_fast_motion and not self._warned_fast and self.model.n_bodies:
-            d = state.pose_host[1][:, :3] - state.pose_host[0][:, :3]
-            jump = float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
+        elif self._checks_jump():
+            jump = staged[3] if staged is not None and staged[3] is not None else self._bone_jump(
+                state.pose_host[0], state.pose_host[1])
             if jump > self.config.contact_frame_margin - self.config.contact_margin:
                 import warnings
 
@@ -244,16 +280,29 @@ class Solver(Sleeping):
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
         rigid = self._bones_still(state) if self._settled(state) else None
-        # (the start copied, as it is overwritten below; the end stays until the next set_body_poses)
-        frame_poses = (state.pose_host[0].copy(), state.pose_host[1])
+        pin = self._pose_pins[self._pin]
+        buf = pin.numpy()
+        if staged is None:
+            buf[:] = state.pose_host  # (else stage_pose_rows filled it while the frame before ran)
+        self._pin ^= 1
+        self._rows_set = None
+        # (the start from the upload buffer, as pose_host[0] is overwritten below: the buffer is filled
+        # again two frames on, after this frame's finish; the end stays until the next set_body_poses)
+        frame_poses = (buf[0], state.pose_host[1])
         if self.regions is not None:
             self.regions.before_frame(*frame_poses)
-        self._pose_host.numpy()[:] = state.pose_host
-        wp.copy(state.body_pose, self._pose_host)
+        wp.copy(state.body_pose, pin)
         if self.regions is not None:
             self.regions.apply(state)
-        state.pose_host[0] = state.pose_host[1]
-        state.pose_fresh = False
+        try:
+            self._queue_frame(state, rigid, frame_poses)
+        finally:  # (after the frame is queued: the host copy is off the device's critical path)
+            state.pose_host[0] = state.pose_host[1]
+            state.pose_fresh = False
+
+    def _queue_frame(self, state: State, rigid, frame_poses) -> None:
+        """:meth:`launch`'s decisions and launches, after the pose upload (``rigid``: the sleep
+        test's bone conditions; ``frame_poses``: the frame's start and end poses on the host)."""
         key = (id(state), id(self.contact))
         ops = self._ops.get(key)
         self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
