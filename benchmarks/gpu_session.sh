@@ -848,6 +848,19 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step profile_4096 120 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 4 --profile \
       --tag s49b_profile
     ;;
+  s49_c)  # the solver alone at W = 4,096 pipelined (submit), alternated on one machine: the tenth session's
+    # code (.base2/, 30add4c), the frame launch that ends the frame (.base/, d91fcd2) and HEAD (the staged
+    # pose upload too); then the pipeline's CUDA tests
+    for r in 1 2; do
+      step solver_base2_$r 100 env PYTHONPATH=/tmp/site:$PWD/.base2:$PWD/.base2/plugins python3 \
+        .base2/benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 8 --modes submit --repeats 3 --tag b2
+      step solver_base_$r 100 env PYTHONPATH=/tmp/site:$PWD/.base:$PWD/.base/plugins python3 \
+        .base/benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 8 --modes submit --repeats 3 --tag b1
+      step solver_head_$r 100 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 8 \
+        --modes step,submit --repeats 3 --host-profile --tag s49c_head_$r
+    done
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda" tests/test_batch_pipeline.py
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
