@@ -52,11 +52,14 @@ def plot(out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(figsize=(10.0, 4.6))
+    ax.set_prop_cycle(color=plt.cm.tab20.colors)  # (more curves than tab10 has colours)
     for f in sorted((ROOT / "docs" / "benchmarks").glob("batch_throughput_*.json")):
         if f.stem.endswith("_origin"):  # an older run kept for the record (docs/scale.md), not plotted
             continue
         d = json.loads(f.read_text())
+        if "contact" not in d or len(d["rows"]) < 2:  # (a collation, or one W: a point, not a curve)
+            continue
         w = [r["worlds"] for r in d["rows"]]
         hz = [r["hand_frames_per_s"] for r in d["rows"]]
         dev = "H100" if "H100" in d["device"] else ("CPU" if d["device"].startswith("cpu") else d["device"])
@@ -64,9 +67,11 @@ def plot(out: Path) -> Path:
         tag = f.stem.removeprefix("batch_throughput_").split("_", 1)[1:]  # the file's --tag (after cuda/cpu)
         tag = tag[0].removeprefix("objects").strip("_") if tag else ""
         variant = ", ".join(v for v in (variant, tag) if v)
-        ax.plot(w, hz, "o-" if d["contact"] else "s--",
-                label=f"{dev}, {'a sphere pressing each hand' if d['contact'] else 'no contact'}"
-                      + (f" ({variant})" if variant else ""))
+        label = f"{dev}, {'a sphere pressing each hand' if d['contact'] else 'no contact'}"
+        ax.plot(w, hz, "o-" if d["contact"] else "s--", label=label + (f" ({variant})" if variant else ""))
+        if all("hand_frames_per_s_submit" in r for r in d["rows"]):  # (--modes step,submit: the pipelined curve too)
+            ax.plot(w, [r["hand_frames_per_s_submit"] for r in d["rows"]], "^-", lw=2,
+                    label=label + f" ({', '.join(v for v in (variant, 'submit') if v)})")
     ax.axhline(10_000, color="0.5", lw=0.8, ls=":")
     ax.axhline(50_000, color="0.5", lw=0.8, ls=":")
     ax.text(1, 10_000 * 1.08, "target with contact (H100)", fontsize=7, color="0.4")
@@ -74,7 +79,7 @@ def plot(out: Path) -> Path:
     ax.set(xscale="log", yscale="log", xlabel="worlds W (hands in one solver step)",
            ylabel="hand-frames per second (5 ms frames)", title="BatchedHands throughput")
     ax.grid(True, which="both", lw=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     fig.savefig(out, dpi=130)
     return out

@@ -15,6 +15,10 @@ block (L2-resident).
 Where no contact stage comes between a substep's start and its constraints, the launch also makes
 the start while it loads the positions (``start`` >= 0: integrate.advance's ``finish_substep`` of
 the previous substep and ``start_substep``, per vertex of the world), so a substep is one launch.
+A frame without contact runs all its substeps in one such launch (FRAME_LAUNCH), which also ends
+the frame (FOLD_END: the last substep's velocities, x_safe and fast vertices, then the inverted
+tets counted from shared memory) and keeps the skeleton's positions in shared memory between its
+first and last substeps (SKIP_BONES).
 
 A group's corrections are summed per vertex with shared-memory atomics (``SUM = "scatter"``, the
 default) or by each vertex recomputing its constraints in a fixed order (``SUM = "gather"``:
