@@ -9,11 +9,11 @@ positions end apart (0 on the CPU, where the fused substep adds in the atomic pa
 On CUDA the five-launch side is the batch's default (gathers from W = 2).
 
     python benchmarks/fused_substep.py [--device cpu|cuda] [--worlds 1,4] [--frames 20] [--block 1024]
-                                       [--sum scatter|gather] [--order asset|strided]
+                                       [--sum scatter|gather] [--order asset|strided] [--tag NAME]
 
 ``--sum``: how the fused kernel sums a group's corrections per vertex (solver/fused.py SUM);
 ``--order``: the order a block walks the constraints in (solver/fused.py ORDER).
-Writes docs/benchmarks/fused_substep_<device>[_gather][_strided].json.
+Writes docs/benchmarks/fused_substep_<device>[_gather][_strided][_<tag>].json.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ def main() -> None:
     p.add_argument("--block", type=int, default=fused.BLOCK_DIM, help="threads per world's block on CUDA")
     p.add_argument("--sum", default=fused.SUM, choices=("scatter", "gather"), help="solver/fused.py SUM")
     p.add_argument("--order", default=fused.ORDER, choices=("asset", "strided"), help="solver/fused.py ORDER")
+    p.add_argument("--tag", default="", help="suffix of the JSON's name (a run beside the earlier ones)")
     a = p.parse_args()
     fused.BLOCK_DIM = a.block
     fused.SUM = a.sum
@@ -82,7 +83,7 @@ def main() -> None:
         for hands in runs.values():
             hands.close()
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
-    tag = ("_gather" if a.sum == "gather" else "") + ("_strided" if a.order == "strided" else "")
+    tag = ("_gather" if a.sum == "gather" else "") + ("_strided" if a.order == "strided" else "") + (f"_{a.tag}" if a.tag else "")
     out = ROOT / "docs" / "benchmarks" / f"fused_substep_{a.device.split(':')[0]}{tag}.json"
     out.write_text(json.dumps(dict(device=dev, frames=a.frames, block_dim=a.block if "cuda" in a.device else None, sum=a.sum,
                                    order=a.order,

@@ -861,6 +861,15 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     done
     step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda" tests/test_batch_pipeline.py
     ;;
+  s49_d)  # where the fused substep starts to pay now (cuda_auto's 1.5 worlds per SM was set against the float
+    # kernel): fused against the gathers below and around one wave, without and with a sphere pressing each hand
+    step waves 200 python3 benchmarks/fused_substep.py --device cuda --worlds 8,16,24,32,48,64,96,132,198 --frames 10 \
+      --tag waves
+    step sphere_default 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 16,32,64,132,198 --objects \
+      --frames 8 --tag low_default
+    step sphere_fused 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 16,32,64,132,198 --objects \
+      --frames 8 --config '{"fused_substep": true}' --tag low_fused
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
