@@ -242,7 +242,7 @@ class BatchedHands:
         from physhand_mj.solver import fused
 
         if fused.cuda_auto(self.config, asset, self.worlds, wp.get_device(self.config.device)):
-            # Config.fused_substep=None on CUDA: a block per world in shared memory from 1.5 worlds per SM
+            # Config.fused_substep=None on CUDA: a block per world in shared memory from 0.3 worlds per SM
             self.config = dataclasses.replace(self.config, fused_substep=True)
         if spacing is None:  # the object side's queries apart by 1 m (the solve stays at the origin)
             spacing = 1.0

@@ -131,9 +131,8 @@ class Config:
         and batches run faster there (H100: ~10,900 against ~6,900 hand-frames/s); one hand's frame
         costs about the same (0.45 against 0.42 ms) and the CPU's 10-20 % more, with the atomic
         result bit for bit. None (default): batches of 2 or more worlds on CUDA gather
-        (BatchedHands) unless they take the fused substep (``fused_substep``: from 1.5 worlds per
-        SM, whose shared-memory atomics do not repeat bit for bit: ``jacobi_gather=True`` or
-        ``fused_substep=False`` keeps such a batch repeatable), every other solver adds
+        (BatchedHands) unless they take the fused substep (``fused_substep``: from 0.3 worlds per
+        SM, whose fixed-point sum repeats bit for bit too), every other solver adds
         atomically; True / False: always / never.
       nonfinite: :class:`NonFinite` policy.
       contact: :class:`Strategy` for the skin-object decision points (used when the solver has
@@ -283,14 +282,14 @@ class Config:
         block as one lane, unless ``wp.config.enable_cpu_blocks``) and the solver frame ~1.2 x
         faster (one hand to 4 worlds; it also makes the substep's start where no contact stage
         comes before the constraints); on CUDA the corrections' sum order differs
-        (shared-memory atomics) and a block holds one world, so it pays for large batches only
-        (H100: 1.53 x the gathers' solver frame at 1,024 worlds, 0.94 x at 64, 0.12 x for one
-        hand). Needs the Jacobi scheme, one iteration, no region sleep, each world's movable
+        (shared-memory atomics) and a block holds one world, so it pays for batches only (H100,
+        fixed-point sum: 2.95 x the gathers' solver frame at 132 worlds, 1.90 x at 64, 1.20 x at
+        32, 0.69 x at 16, 0.12 x for one hand). Needs the Jacobi scheme, one iteration, no region sleep, each world's movable
         vertices first, and 12 bytes of shared memory per vertex and per soft vertex in a block,
         plus 4 per thread on CUDA (the embedded hand: 207,504 B; an H100/H200 block: 227 KB;
         Warp's CPU arena: 256 KB). None (default): on the CPU where those hold and
-        ``jacobi_gather`` is not True; on CUDA for a BatchedHands of at least 1.5 worlds per SM
-        (H100: 198; solver/fused.py ``cuda_auto``); True: always (ValueError where it cannot
+        ``jacobi_gather`` is not True; on CUDA for a BatchedHands of at least 0.3 worlds per SM
+        (H100: 40; solver/fused.py ``cuda_auto``); True: always (ValueError where it cannot
         run); False: never. How a group's corrections are summed per vertex:
         ``physhand_mj.solver.fused.SUM`` ("scatter" or "gather", docs/solver.md).
     """

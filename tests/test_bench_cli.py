@@ -18,9 +18,10 @@ def test_bench_solver_prints_the_contract_fields(capsys):
     assert out["vertices"] == 10480 and out["ms_per_frame"] > 0
     assert out["nonfinite"] == 0 and out["inverted"] == 0
     # the CPU fuses a substep's start and constraint groups into one launch (Config.fused_substep's
-    # default), and with no contact stage a frame's substeps into one (fused.FRAME_LAUNCH): that
-    # launch, then the frame's bone poses, the last substep's end and the inverted-tet count
-    assert out["fused_substep"] is True and out["ops_run"] == 4, out
+    # default), and with no contact stage a frame's substeps and its end into one (fused.FRAME_LAUNCH,
+    # FOLD_END: the last substep's velocities and the inverted-tet count inside it): the frame's bone
+    # poses, then that launch
+    assert out["fused_substep"] is True and out["ops_run"] == 2, out
 
 
 def test_bench_solver_errors_are_one_line(capsys):

@@ -153,17 +153,18 @@ class _H100:
     max_shared_memory_per_block = 232_448
 
 
-def test_cuda_batches_take_the_fused_substep_from_one_and_a_half_worlds_per_sm(setup):
-    """On CUDA ``fused_substep=None`` takes the fused substep for a batch of at least 1.5 worlds
-    per SM (H100: 198), not below, not where the config or a block's shared memory rules it out,
-    and never on the CPU (which decides per solver, above)."""
+def test_cuda_batches_take_the_fused_substep_from_a_third_of_a_world_per_sm(setup):
+    """On CUDA ``fused_substep=None`` takes the fused substep for a batch of at least 0.3 worlds
+    per SM (fused.CUDA_AUTO_WAVES; H100: 40), not below, not where the config or a block's shared
+    memory rules it out, and never on the CPU (which decides per solver, above)."""
     from physhand_mj.solver import fused
 
     asset, h100 = setup[0], _H100()
     assert fused.asset_shared_bytes(asset, h100) == 207_504 + 4 * fused.BLOCK_DIM
     cfg = Config()
-    assert not fused.cuda_auto(cfg, asset, 197, h100)
-    assert fused.cuda_auto(cfg, asset, 198, h100) and fused.cuda_auto(cfg, asset, 4096, h100)
+    assert fused.CUDA_AUTO_WAVES == 0.3
+    assert not fused.cuda_auto(cfg, asset, 39, h100)
+    assert fused.cuda_auto(cfg, asset, 40, h100) and fused.cuda_auto(cfg, asset, 4096, h100)
     for kw in (dict(jacobi_gather=True), dict(iterations=2), dict(scheme=Scheme.COLORED), dict(region_sleep=True),
                dict(fused_substep=False)):
         assert not fused.cuda_auto(Config(**kw), asset, 4096, h100), kw
@@ -182,13 +183,15 @@ def test_cuda_batches_take_the_fused_substep_from_one_and_a_half_worlds_per_sm(s
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="needs CUDA")
 def test_a_large_cuda_batch_runs_the_fused_substep_by_default(setup):
-    """A BatchedHands of 1.5 worlds per SM on the GPU resolves ``fused_substep=None`` to the fused
-    substep (no per-vertex gather slots built), and a small batch (2 worlds) keeps the gathers."""
+    """A BatchedHands of fused.CUDA_AUTO_WAVES worlds per SM on the GPU resolves ``fused_substep=None``
+    to the fused substep (no per-vertex gather slots built), and a small batch (2 worlds) keeps the gathers."""
     import math
 
     asset, mount = setup[0], setup[1]
     sms = wp.get_device("cuda").sm_count
-    big = BatchedHands(asset, math.ceil(1.5 * sms), Config(device="cuda"), *mount)
+    from physhand_mj.solver import fused
+
+    big = BatchedHands(asset, math.ceil(fused.CUDA_AUTO_WAVES * sms), Config(device="cuda"), *mount)
     assert big.solver.fused_substep and big.config.fused_substep is True
     assert not big.solver.model.gather_off
     big.close()

@@ -585,12 +585,14 @@ class FusedSubstep:
 
 # CUDA: Config.fused_substep=None picks the fused substep for a batch of at least this many worlds
 # per SM. A block holds one world and an SM one block (207 KB of shared memory), so a batch runs in
-# ceil(W / SMs) waves of ~5.8 ms a frame each (H100, W = 1024: 45.0 ms a frame against the
-# gathers' 68.9 ms); below one wave per SM the gathers' five launches are faster (W = 64: 5.06 ms
-# against 5.38, one world 0.55 against 4.55). From 1.5 worlds per SM a batch fills at least two
-# waves of which the last is at least half full (H100: W = 133 0.91 x the gathers, 198 1.27 x, 265 =
-# 2 SMs + 1, the worst remainder above, 1.13 x; benchmarks/fused_substep.py; docs/scale.md).
-CUDA_AUTO_WAVES = 1.5
+# ceil(W / SMs) waves; since the fixed-point sum (2026-11-27) a wave takes ~2.4-3.3 ms a frame on an
+# H100, and from a quarter of the SMs on it beats the gathers' five launches, which grow with W. H100,
+# no contact (benchmarks/fused_substep.py --worlds 8,...,198, interleaved, eleventh session): fused /
+# gathers 0.45 x at W = 8, 0.69 x at 16, 0.94 x at 24, 1.20 x at 32, 1.42 x at 48, 1.90 x at 64, 2.95 x
+# at 132; with a sphere pressing every hand (batch_throughput.py --objects, two runs each way) 0.75 x at
+# 32, 1.18-1.20 x at 40, 1.07-1.40 x at 48, 1.30-1.51 x at 56, 1.35 x at 64, 1.99 x at 132. So 0.3
+# worlds per SM (H100: W >= 40). (1.5 until then: set against the float-sum kernel, ~2.5 x slower.)
+CUDA_AUTO_WAVES = 0.3
 
 
 def config_allows(config) -> bool:
