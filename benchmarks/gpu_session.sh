@@ -870,6 +870,17 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step sphere_fused 150 python3 benchmarks/batch_throughput.py --device cuda --worlds 16,32,64,132,198 --objects \
       --frames 8 --config '{"fused_substep": true}' --tag low_fused
     ;;
+  s49_e)  # the new fused threshold (0.3 worlds per SM): its CUDA tests, and two HOI grasps at W = 64 (now fused
+    # by default) against the gathers, alternated
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or choices" \
+      tests/test_fused.py tests/test_batch.py
+    for r in 1 2; do
+      step hoi64_fused_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box --worlds 64 --frames 8 \
+        --modes step,submit --repeats 3 --out "$OUT/batch_hoi_cuda_s49e_64_fused_$r.json"
+      step hoi64_gathers_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box --worlds 64 --frames 8 \
+        --modes step,submit --repeats 3 --config '{"fused_substep": false}' --out "$OUT/batch_hoi_cuda_s49e_64_gathers_$r.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
