@@ -439,7 +439,8 @@ class BatchedHands:
     def submit(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None) -> dict | None:
         """:meth:`step` in a pipeline: the frame is queued on the device and the call returns the
         report of the frame submitted before it (None for the first). The new poses are checked on
-        the host while the device still runs that frame, and its per-world rows are built while
+        the host and copied into the next upload buffer (``Solver.stage_pose_rows``) while the
+        device still runs that frame, and its per-world rows are built while
         the device runs this one; every decision a frame takes (sleeping, the work set) is taken
         from the same inputs as in :meth:`step`, so the frames are the same. :meth:`wait` returns
         the last frame's report. Reading the batch (skins, penetration, metrics) waits for the
