@@ -158,6 +158,29 @@ def host_split(hands, pos, quat, op, oq, frames: int) -> dict:
     return out
 
 
+def measure_split(hands, calls: int = 3) -> dict:
+    """``hands.penetration()`` ``calls`` times: its wall ms a call and the GPU ms a call of each kernel,
+    memset and copy (Warp's timing, cuda_filter TIMING_ALL), the top 16."""
+    from collections import defaultdict
+
+    import warp as wp
+
+    hands.penetration()  # (its reuse memory made, every point asked once)
+    wp.synchronize()
+    wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+    t = time.perf_counter()
+    for _ in range(calls):
+        hands.penetration()
+    wp.synchronize()
+    wall = (time.perf_counter() - t) / calls * 1e3
+    agg = defaultdict(float)
+    for r in wp.timing_end():
+        agg[r.name] += r.elapsed
+    top = sorted(agg.items(), key=lambda kv: -kv[1])[:16]
+    return dict(wall_ms=round(wall, 2), gpu_ms={k: round(v / calls, 3) for k, v in top},
+                gpu_all_ms=round(sum(agg.values()) / calls, 3))
+
+
 def _laps(into: dict, tag: str):
     """A function lap(name): the wall time (s) since the last lap (or since made) into ``into[name]``,
     printed to stderr at once, so a run cut by its time limit shows where its time went."""
@@ -218,6 +241,9 @@ def main() -> None:
     p.add_argument("--lineinfo", action="store_true",
                    help="build the decision-point kernels with line info (Nsight Compute's source view; "
                         "aot_cache.decision_modules_with_lineinfo)")
+    p.add_argument("--profile-measure", action="store_true",
+                   help="CUDA: the GPU time of BatchedHands.penetration() (both measures, as a rollout's log takes "
+                        "them every frame) kernel by kernel, and its wall time, over 3 calls")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/batch_hoi_<device>.json)")
     a = p.parse_args()
     extra = json.loads(a.config)
@@ -304,6 +330,8 @@ def main() -> None:
                     row["phases_s"] = phase_s
                     if a.host_split:  # the frame's host parts, timed apart (the solver's step syncs once)
                         row["host_split_ms"] = host_split(hands, pos, quat, op, oq, a.frames)
+                    if a.profile_measure and hands.solver.device.is_cuda:
+                        row["measure_split"] = measure_split(hands)
                     if a.profile and hands.solver.device.is_cuda:
                         from batch_throughput import kernel_split
 

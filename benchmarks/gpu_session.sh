@@ -881,6 +881,11 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
         --modes step,submit --repeats 3 --config '{"fused_substep": false}' --out "$OUT/batch_hoi_cuda_s49e_64_gathers_$r.json"
     done
     ;;
+  s49_f)  # where a batched rollout's per-frame measures go (BatchedHands.penetration: 20.7 of 41.4 s at W = 1,024):
+    # its GPU time kernel by kernel and its wall time, the apple and the box at W = 1,024
+    step measure_1024 300 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box --worlds 1024 --frames 4 \
+      --profile-measure --out "$OUT/batch_hoi_cuda_s49f_measure_1024.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
