@@ -177,8 +177,10 @@ def test_poses_staged_during_a_frame_are_the_next_frames(setup, device):
 
 def test_a_staged_upload_is_taken_only_with_the_rows_it_was_staged_with(setup):
     """``Solver.launch(state, staged=token)`` uploads the staged buffer only where
-    ``set_body_pose_rows`` was given the rows it was staged with: set other rows instead and the
-    frame still moves the bones to those (the buffer is filled again from the state)."""
+    ``set_body_pose_rows`` was given the rows it was staged with and the token is the last one
+    staged: set other rows instead, or stage again, and the frame still moves the bones to the rows
+    set (the buffer is filled again from the state); with a valid token the staged buffer itself
+    goes up (a mark written into it after staging arrives)."""
     asset, model, data, ids, mount = setup
     hands = BatchedHands(asset, 1, Config(device="cpu"), *mount)
     solver, state = hands.solver, hands.state
@@ -206,6 +208,28 @@ def test_a_staged_upload_is_taken_only_with_the_rows_it_was_staged_with(setup):
     solver.launch(state, staged=token)
     solver.finish(state)
     assert np.array_equal(state.body_pose.numpy()[0], rows_a) and np.array_equal(state.body_pose.numpy()[1], rows_b)
+    # the staged buffer is what goes up (a mark written into it after staging arrives; refilling would lose it)
+    solver.set_body_pose_rows(state, rows_a)
+    solver.launch(state)
+    token = solver.stage_pose_rows(state, rows_b)
+    mark = rows_b.copy()
+    mark[0, 0] += 0.25
+    solver._pose_pins[token[1]].numpy()[1] = mark
+    solver.finish(state)
+    solver.set_body_pose_rows(state, rows_b)
+    solver.launch(state, staged=token)
+    solver.finish(state)
+    assert np.array_equal(state.body_pose.numpy()[1], mark)
+    # only the last token staged counts: staging again (other rows) voids the first
+    solver.set_body_pose_rows(state, rows_a)
+    solver.launch(state)
+    first = solver.stage_pose_rows(state, rows_b)
+    solver.stage_pose_rows(state, rows_a)
+    solver.finish(state)
+    solver.set_body_pose_rows(state, rows_b)
+    solver.launch(state, staged=first)
+    solver.finish(state)
+    assert np.array_equal(state.body_pose.numpy()[1], rows_b)
 
 
 def test_a_pipelined_batch_warns_of_a_fast_bone_as_step_does(setup):

@@ -162,7 +162,6 @@ def test_cuda_batches_take_the_fused_substep_from_a_third_of_a_world_per_sm(setu
     asset, h100 = setup[0], _H100()
     assert fused.asset_shared_bytes(asset, h100) == 207_504 + 4 * fused.BLOCK_DIM
     cfg = Config()
-    assert fused.CUDA_AUTO_WAVES == 0.3
     assert not fused.cuda_auto(cfg, asset, 39, h100)
     assert fused.cuda_auto(cfg, asset, 40, h100) and fused.cuda_auto(cfg, asset, 4096, h100)
     for kw in (dict(jacobi_gather=True), dict(iterations=2), dict(scheme=Scheme.COLORED), dict(region_sleep=True),
@@ -443,3 +442,32 @@ def test_a_frame_launch_ends_the_frame_and_counts_inverted_tets(setup):
     assert g[1] > 0 and g[3] > 0, g[:4]  # (the reflection left tets inverted and vertices fast)
     assert g[4 + 4 * 1 + 1] == g[1] and g[4 + 4 * 0 + 1] == 0, g  # (world 1's inverted tets, in its own slot)
     assert g[4 + 4 * 1 + 3] == fz.solver._fused.n_soft > g[4 + 4 * 0 + 3], g  # (every soft vertex of world 1 fast)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_folded_frame_end_is_the_unfolded_one(setup, device, monkeypatch):
+    """fused.FOLD_END and SKIP_BONES on and off, the rest of the fused kernel the same: after a frame
+    in which world 1's soft vertices were point-reflected (tets inverted, vertices fast) the
+    positions, velocities, x^i, x_safe and every guard counter are the same bits, on the CPU and on
+    CUDA (whose fixed-point sum adds in no order that shows); the folded run records 2 fewer ops."""
+    from physhand_mj.solver import fused
+
+    asset, mount, open_, bent = setup
+    runs = []
+    for on in (False, True):
+        monkeypatch.setattr(fused, "FOLD_END", on)
+        monkeypatch.setattr(fused, "SKIP_BONES", on)
+        batch, _ = _run(asset, mount, open_, bent, Config(device=device, fused_substep=True), frames=3)
+        assert batch.solver._fused.fold_end == on and batch.solver._fused.skip_bones == on
+        m = batch.solver.model
+        x = batch.state.x.numpy()
+        flip = (m.vertex_world.numpy() == 1) & (m.inv_mass.numpy() > 0.0)
+        x[flip] = 2.0 * x[flip].mean(axis=0) - x[flip]
+        batch.state.x.assign(x)
+        runs.append((batch, batch.step(np.stack([open_[0], bent[0]]), np.stack([open_[1], bent[1]]))))
+    (off, out_off), (on, out_on) = runs
+    for name in ("x", "v", "x_prev", "x_safe", "guard"):
+        assert np.array_equal(getattr(on.state, name).numpy(), getattr(off.state, name).numpy()), name
+    g = on.state.guard.numpy()
+    assert g[1] > 0 and g[3] > 0, g[:4]
+    assert out_on["ops_run"] == out_off["ops_run"] - 2, (out_on["ops_run"], out_off["ops_run"])

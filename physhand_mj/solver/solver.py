@@ -116,6 +116,7 @@ class Solver(Sleeping):
                            for _ in range(2)]
         self._pin = 0  # the buffer the next launch uploads from
         self._rows_set = None  # the rows set_body_pose_rows last took (a staged upload names them)
+        self._staged = None  # the last stage_pose_rows token (launch takes only that one)
         self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self._warned_fast = False
@@ -217,9 +218,12 @@ class Solver(Sleeping):
         """While a frame of ``state`` is in flight, fill the next frame's upload buffer with its start
         (the frame in flight's end) and ``rows`` (its end, :meth:`pose_rows`), so that the host copy
         leaves the time between that frame's end and the next one's launch. Returns a token for
-        :meth:`launch` (``staged=``), which takes the buffer as it is only if :meth:`set_body_pose_rows`
-        was given these ``rows`` after :meth:`finish`, and fills it itself otherwise; None (nothing to
-        stage) when no frame of ``state`` is in flight or per-region sleeping is on."""
+        :meth:`launch` (``staged=``), which takes the buffer as it is only if this is the last token
+        staged and :meth:`set_body_pose_rows` was given this very ``rows`` array after :meth:`finish`,
+        and fills the buffer itself otherwise; ``rows`` must not change in between (the buffer holds
+        their copy). None (nothing to stage) when no frame of ``state`` is in flight or per-region
+        sleeping is on. (BatchedHands.submit: fresh rows each frame, staged once.)"""
+        self._staged = None
         if self._in_flight is None or self._in_flight[0] is not state or self.regions is not None:
             return None
         if np.shape(rows) != state.pose_host[1].shape:
@@ -228,7 +232,8 @@ class Solver(Sleeping):
         buf[0] = state.pose_host[0]  # (launch moved the frame in flight's end there; finish leaves it)
         buf[1] = rows
         # (the fast-motion check's largest bone move too, for launch)
-        return (state, self._pin, rows, self._bone_jump(buf[0], buf[1]) if self._checks_jump() else None)
+        self._staged = (state, self._pin, rows, self._bone_jump(buf[0], buf[1]) if self._checks_jump() else None)
+        return self._staged
 
     def _checks_jump(self) -> bool:
         """Whether :meth:`launch` checks how far a bone moves in the frame (contact, the warning not given)."""
@@ -260,8 +265,10 @@ class Solver(Sleeping):
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
         # the upload buffer as stage_pose_rows filled it: for this state, these rows, nothing set since
-        staged = (staged if staged is not None and staged[0] is state and staged[1] == self._pin
-                  and staged[2] is self._rows_set and state.pose_fresh and self.regions is None else None)
+        staged = (staged if staged is not None and staged is self._staged and staged[0] is state
+                  and staged[1] == self._pin and staged[2] is self._rows_set and state.pose_fresh
+                  and self.regions is None else None)
+        self._staged = None
         # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
         if not state.pose_fresh:
             state.pose_host[1] = state.pose_host[0]
