@@ -886,6 +886,11 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step measure_1024 300 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box --worlds 1024 --frames 4 \
       --profile-measure --out "$OUT/batch_hoi_cuda_s49f_measure_1024.json"
     ;;
+  s49_g)  # after the review: the folded frame end against the unfolded one on CUDA, the staged upload, and every
+    # batch test on CUDA (W = 64 now takes the fused substep)
+    step pytest_cuda 500 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_batch.py \
+      tests/test_batch_pipeline.py tests/test_fused.py -k "cuda or folded or staged or choices or batch"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
