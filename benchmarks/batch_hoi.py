@@ -241,6 +241,8 @@ def main() -> None:
     p.add_argument("--lineinfo", action="store_true",
                    help="build the decision-point kernels with line info (Nsight Compute's source view; "
                         "aot_cache.decision_modules_with_lineinfo)")
+    p.add_argument("--skip-margin", type=float, default=None,
+                   help="physhand_mj.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
     p.add_argument("--profile-measure", action="store_true",
                    help="CUDA: the GPU time of BatchedHands.penetration() (both measures, as a rollout's log takes "
                         "them every frame) kernel by kernel, and its wall time, over 3 calls")
@@ -251,6 +253,10 @@ def main() -> None:
         from aot_cache import decision_modules_with_lineinfo
 
         decision_modules_with_lineinfo()
+    if a.skip_margin is not None:
+        from physhand_mj import metrics
+
+        metrics.SKIP_MARGIN = a.skip_margin
     wp.init()
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
     out_path = Path(a.out) if a.out else ROOT / "docs" / "benchmarks" / f"batch_hoi_{a.device.split(':')[0]}.json"

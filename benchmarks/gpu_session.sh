@@ -891,6 +891,20 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step pytest_cuda 500 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_batch.py \
       tests/test_batch_pipeline.py tests/test_fused.py -k "cuda or folded or staged or choices or batch"
     ;;
+  s49_h)  # the skin measure's corner bound (metrics.SKIP_MARGIN): the bowl's kernels at W = 1,024 with it off and
+    # on, then the bowl at W = 4,096 with Config() as shipped by submit, the bound off and on (the 10,000 with the
+    # frame's measure on)
+    step bowl_1024_off 200 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 \
+      --profile --skip-margin 0 --out "$OUT/batch_hoi_cuda_bowl_s49h_1024_off.json"
+    step bowl_1024_on 150 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 1024 --frames 4 \
+      --profile --out "$OUT/batch_hoi_cuda_bowl_s49h_1024_on.json"
+    ;;
+  s49_i)
+    step bowl_4096_on 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s49i_4096_on.json"
+    step bowl_4096_off 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes submit --repeats 3 --skip-margin 0 --out "$OUT/batch_hoi_cuda_bowl_s49i_4096_off.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -11,6 +11,7 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.contact import Objects
 from physhand_mj.hand_mjcf import mount_pose, open_hand_scene
+from physhand_mj import metrics
 from physhand_mj.metrics import penetration_samples
 from physhand_mj.solver import Solver, make_model
 from physhand_mj.types import Config, GeomType
@@ -51,8 +52,8 @@ def test_the_culled_skin_measure_equals_the_one_kernel_measure(device, order):
     none = wp.zeros(0, dtype=int, device=device)
     wp.launch(penetration_samples, contact.n_tris,
               [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"],
-               contact.objects.count, v["obj"], -1, 0, order, contact.tris_per_world, 1, none, none], [out],
-              device=device)
+               contact.objects.count, v["obj"], -1, 0, order, contact.tris_per_world, 1, none, none,
+               metrics.SKIP_MARGIN], [out], device=device)
     whole = out.numpy()[0].astype(float)
     assert whole[0] > 50 and whole[2] > 3e-3, "the hand is not pressed in: the test would compare nothing"
     assert listed[0] == whole[0] and listed[2] == whole[2]  # counts and the deepest: exact on every device
@@ -101,3 +102,58 @@ def test_check_points_measured_in_pieces_equal_the_whole(monkeypatch):
     assert pieces[0, 3] == 0 and pieces[1, 3] > 0 and pieces[2, 3] > pieces[1, 3], pieces
     np.testing.assert_array_equal(pieces[:, [0, 1, 2, 3, 5]], whole[:, [0, 1, 2, 3, 5]])
     np.testing.assert_allclose(pieces[:, 4], whole[:, 4], rtol=1e-6)
+
+
+def _corner_poke(device):
+    """The open hand at rest with a 3 cm mesh cube standing on a corner, that corner 1 mm into the
+    back of the hand (a sharp feature inside a triangle's interior: its corners outside)."""
+    wp.init()
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    cfg = Config(device=device)
+    objects = Objects(device, 1)
+    solver = Solver(make_model(asset, cfg), cfg, objects=objects)
+    state = solver.make_state(*mount_pose(model, data))
+    skin = state.x.numpy()[: asset.n_skin].astype(float)
+    top = skin[np.argmax(skin[:, 2])]
+    cube = trimesh.creation.box((0.03, 0.03, 0.03))
+    axis = np.array([1.0, 1.0, 1.0]) / np.sqrt(3.0)  # the (1, 1, 1) diagonal turned onto -z
+    rot = trimesh.geometry.align_vectors(-axis, [0.0, 0.0, -1.0])
+    cube.apply_transform(rot)
+    tip = cube.vertices[np.argmin(cube.vertices[:, 2])]
+    objects.add(GeomType.MESH, None, pos=top - tip - [0.0, 0.0, 0.001], vertices=cube.vertices, faces=cube.faces,
+                name="cube")
+    return solver, state
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("case", ["pressed", "corner"])
+def test_samples_left_out_by_the_corner_bound_change_no_row(device, case, monkeypatch):
+    """metrics.SKIP_MARGIN: a kept triangle's corners are asked first and a sample whose bound from
+    a corner (phi(corner) - distance, SDFs being 1-Lipschitz) shows it outside is not asked. Every
+    row (count, depth sum, deepest) is the same bits with the bound on and off, on both layouts,
+    for orders 5 and 9: a sphere and a mesh box pressed deep in, and a cube's corner poking 1 mm
+    into a triangle whose corners are outside; and they match every lattice sample's phi taken one
+    by one without any bound (Contact.penetrating_samples)."""
+    solver, state = (_pressed if case == "pressed" else _corner_poke)(device)
+    contact = solver.contact
+    rows = {}
+    for margin in (0.0, metrics.SKIP_MARGIN):
+        monkeypatch.setattr(metrics, "SKIP_MARGIN", margin)
+        for culled in (False, True):
+            contact.cull_measure = culled
+            for order in (5, 9):
+                rows[margin, culled, order] = contact.measure_worlds(state, order=order, objects_side=False)[0][:3]
+    for order in (5, 9):  # a reference that skips nothing: every lattice sample's phi (lattice_phi, world_phi)
+        pts, depth = contact.penetrating_samples(state, order)
+        ref = rows[metrics.SKIP_MARGIN, True, order]
+        assert ref[0] == len(depth) and ref[2] == np.float32(depth.max()), (case, order, ref, len(depth))
+        assert ref[1] == pytest.approx(depth.sum(), rel=1e-5)
+    for culled in (False, True):
+        for order in (5, 9):
+            off, on = rows[0.0, culled, order], rows[metrics.SKIP_MARGIN, culled, order]
+            assert off[0] > 0, (case, order, "nothing inside: the test would compare nothing")
+            if device == "cpu":
+                assert np.array_equal(on, off), (case, culled, order, on, off)
+            else:  # (the triangles add their sums in the atomics' order)
+                assert on[0] == off[0] and on[2] == off[2] and on[1] == pytest.approx(off[1], rel=1e-5)

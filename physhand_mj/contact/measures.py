@@ -11,6 +11,7 @@ import warp as wp
 
 from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, object_points_inside,
                                         object_points_inside_reuse, reset_patches, skin_patches)
+from physhand_mj import metrics
 from physhand_mj.metrics import lattice_phi, penetration_cull, penetration_samples, reduce_worlds
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -89,8 +90,8 @@ class ContactMeasures:
             ops.append(count.zero_)
             launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
         launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count],
-               [out])
+               [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count,
+                metrics.SKIP_MARGIN], [out])
 
     @property
     def cull_measure(self) -> bool:
