@@ -905,6 +905,12 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096_off 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
       --modes submit --repeats 3 --skip-margin 0 --out "$OUT/batch_hoi_cuda_bowl_s49i_4096_off.json"
     ;;
+  s49_j)  # s49_i again in the other order (the bound off first), on another machine
+    step bowl_4096_off 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes submit --repeats 3 --skip-margin 0 --out "$OUT/batch_hoi_cuda_bowl_s49j_4096_off.json"
+    step bowl_4096_on 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s49j_4096_on.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
