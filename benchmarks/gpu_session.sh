@@ -911,6 +911,14 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096_on 280 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
       --modes submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s49j_4096_on.json"
     ;;
+  s49_k)  # issue 15's two targets once more on another machine, the code as shipped: the solver alone at W = 4,096
+    # by step and submit, then the bowl at W = 4,096 with Config() by submit
+    step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm --format=csv,noheader
+    step solver_4096 200 python3 benchmarks/batch_throughput.py --device cuda --worlds 4096 --frames 8 \
+      --modes step,submit --repeats 3 --tag s49k_modes
+    step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
+      --modes submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s49k_4096.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
