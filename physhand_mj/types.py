@@ -447,13 +447,13 @@ class Config:
                     self.substeps_requested = int(self.substeps)
                 self.substeps = int(math.ceil(self.frame_dt / ms - 1e-9))
         elif self.frame_dt / self.substeps > MAX_STABLE_SUBSTEP * (1 + 1e-9):
-            import warnings
+            from physhand_mj.warn import warn_user
 
             need = math.ceil(self.frame_dt / MAX_STABLE_SUBSTEP - 1e-9)
-            warnings.warn(f"Config: substeps of {self.frame_dt / self.substeps * 1e3:.3g} ms (frame_dt {self.frame_dt} s / "
-                          f"substeps {self.substeps}) are longer than {MAX_STABLE_SUBSTEP * 1e3:g} ms: the flesh sags "
-                          f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
-                          f">= {need} (or leave Config.max_substep at its default, which does)", RuntimeWarning, stacklevel=2)
+            warn_user(f"Config: substeps of {self.frame_dt / self.substeps * 1e3:.3g} ms (frame_dt {self.frame_dt} s / "
+                      f"substeps {self.substeps}) are longer than {MAX_STABLE_SUBSTEP * 1e3:g} ms: the flesh sags "
+                      f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
+                      f">= {need} (or leave Config.max_substep at its default, which does)")
         self.contact = _enum_field(Strategy, self.contact, "contact")
         self.contact_placement = _enum_field(Placement, self.contact_placement, "contact_placement")
         self.scheme = _enum_field(Scheme, self.scheme, "scheme")

@@ -250,4 +250,6 @@ def test_a_pipelined_batch_warns_of_a_fast_bone_as_step_does(setup):
             if mode == "submit":
                 batch.wait()
         said.append([str(w.message) for w in rec if "contact_frame_margin" in str(w.message)])
+        # (physhand_mj.warn.warn_user: the warning names this file's line, not the package's)
+        assert {w.filename for w in rec if "contact_frame_margin" in str(w.message)} == {__file__}, mode
     assert len(said[0]) == 1 and said[0] == said[1] and "moved 30.0 mm" in said[0][0], said

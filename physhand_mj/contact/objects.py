@@ -7,7 +7,6 @@ Geoms of one object form a union (the minimum of their SDFs).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -184,7 +183,9 @@ def prepare_mesh(vertices, faces, *, name: str = "", sign: str = "auto", device:
                 f"the skin out of. Close it (e.g. trimesh.repair.fill_holes(mesh), or a watertight remesh) or give "
                 f"it a thickness (a thin box geom for a plate)")
     if repaired:
-        warnings.warn(f"{what}: {' and '.join(repaired)}", stacklevel=3)
+        from physhand_mj.warn import warn_user
+
+        warn_user(f"{what}: {' and '.join(repaired)}", UserWarning)
     return m, MESH_SIGN_WINDING if winding else MESH_SIGN_PSEUDO
 
 

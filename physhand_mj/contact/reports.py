@@ -53,16 +53,16 @@ class ContactReports:
             # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past
             # the pool's size; < 0: an int32 counter wrapped past 2^31)
             if failed or used > self.patch_pool.shape[0] or used < 0:
-                import warnings
+                from physhand_mj.warn import warn_user
 
                 self._patch_warned = True
                 need = f"{used}" if used >= 0 else "over 2^31"
                 # (the BVH path's slots and top can need up to twice the packed count: winding.feature_patches)
                 what = f"{failed} feature points' patches did not fit: " if failed else ""
-                warnings.warn(f"contact: {what}the feature points' patches needed {need} entries packed, the pool holds "
-                              f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
-                              f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
-                              f"batches); use fewer worlds per batch", RuntimeWarning, stacklevel=2)
+                warn_user(f"contact: {what}the feature points' patches needed {need} entries packed, the pool holds "
+                          f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
+                          f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
+                          f"batches); use fewer worlds per batch")
         return int(self._feat_host.numpy()[0])
 
     def stage_counts(self) -> np.ndarray:

@@ -309,15 +309,14 @@ class FeatureSlack:
         # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
         # broadphase's own, as before the slack; the count says it either way)
         if over and warn and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
-            import warnings
+            from physhand_mj.warn import warn_user
 
             self._slack_warned = True
             w = int(np.flatnonzero(r[:, 2])[0])
-            warnings.warn(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
-                          f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
-                          f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
-                          f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast",
-                          RuntimeWarning, stacklevel=4)  # (feature_motion <- Solver.finish <- step <- its caller)
+            warn_user(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
+                      f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
+                      f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
+                      f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast")
         return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
                     skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 

@@ -276,14 +276,13 @@ class Solver(Sleeping):
             jump = staged[3] if staged is not None and staged[3] is not None else self._bone_jump(
                 state.pose_host[0], state.pose_host[1])
             if jump > self.config.contact_frame_margin - self.config.contact_margin:
-                import warnings
+                from physhand_mj.warn import warn_user
 
                 self._warned_fast = True
-                warnings.warn(f"a bone moved {jump * 1e3:.1f} mm in one frame, more than "
-                              f"Config.contact_frame_margin - contact_margin "
-                              f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
-                              f"contacts may be missed; raise contact_frame_margin or use shorter frames",
-                              RuntimeWarning, stacklevel=3)
+                warn_user(f"a bone moved {jump * 1e3:.1f} mm in one frame, more than "
+                          f"Config.contact_frame_margin - contact_margin "
+                          f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
+                          f"contacts may be missed; raise contact_frame_margin or use shorter frames")
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
         rigid = self._bones_still(state) if self._settled(state) else None

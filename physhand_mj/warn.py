@@ -1,0 +1,33 @@
+"""Warnings that point at the user's line.
+
+A warning raised deep inside the package (a frame's report, a batch's pipeline, a Config check run
+by the solver) would name a line of physhand_mj with a fixed ``stacklevel``, and which line depends
+on the path that called it (``Solver.step``, ``BatchedHands.submit``, a rollout). :func:`warn_user`
+names the first caller outside the package (``physhand_mj`` and the ``physhand_dmc`` task suite)
+instead, as ``warnings.warn(..., skip_file_prefixes=...)`` does from Python 3.12 on.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import warnings
+
+# the package's own folder (this file's) and the task suite's: frames there are not the user's
+_OURS = os.path.dirname(os.path.abspath(__file__)) + os.sep
+_PLUGIN = os.sep + "physhand_dmc" + os.sep
+
+
+def _ours(filename: str) -> bool:
+    path = os.path.abspath(filename)
+    return path.startswith(_OURS) or _PLUGIN in path
+
+
+def warn_user(message: str, category: type[Warning] = RuntimeWarning) -> None:
+    """``warnings.warn(message, category)`` attributed to the first frame outside the package (the
+    last frame of the stack if every frame is the package's)."""
+    level, frame = 2, sys._getframe(1)  # (level 1 is this function; 2 its caller)
+    while frame.f_back is not None and _ours(frame.f_code.co_filename):
+        frame = frame.f_back
+        level += 1
+    warnings.warn(message, category, stacklevel=level)
