@@ -919,6 +919,14 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step bowl_4096 300 python3 benchmarks/batch_hoi.py --device cuda --scenes bowl --worlds 4096 --frames 8 \
       --modes submit --repeats 3 --out "$OUT/batch_hoi_cuda_bowl_s49k_4096.json"
     ;;
+  s49_l)  # issue 15's "measure both and choose": MuJoCo Warp's batched steps and pose reads (mjwarp_poses.py; its
+    # wheel carried in .mjw/ and installed first) against the C API's (mujoco_side.py), the same scenes and W
+    step mjwarp_install 60 python3 -m pip install -q --no-index --no-deps --target /tmp/site .mjw/mujoco_warp-*.whl
+    step mjwarp 300 python3 benchmarks/mjwarp_poses.py --device cuda --scenes hoi_apple,hoi_box \
+      --worlds 256,1024,4096 --frames 36 --out "$OUT/mjwarp_poses_cuda_s49l.json"
+    step mujoco_side 200 python3 benchmarks/mujoco_side.py --scenes hoi_apple,hoi_box --worlds 256,1024,4096 \
+      --frames 36 --out "$OUT/mujoco_side_s49l.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
