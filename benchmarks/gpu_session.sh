@@ -927,6 +927,17 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step mujoco_side 200 python3 benchmarks/mujoco_side.py --scenes hoi_apple,hoi_box --worlds 256,1024,4096 \
       --frames 36 --out "$OUT/mujoco_side_s49l.json"
     ;;
+  s49_m)  # the last checks: the CUDA tests of the measures (the corner bound), the pipeline, the feature slack, the
+    # coupling and gating (warnings now name the caller); the demo's one-hand frame with the bound off and on, alternated
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or corner or culled" \
+      tests/test_measures.py tests/test_batch_pipeline.py tests/test_feature_slack.py tests/test_coupling.py \
+      tests/test_activity.py tests/test_warn.py
+    for r in 1 2; do
+      step softhand_off_$r 120 python3 benchmarks/softhand_frame.py --device cuda --skip-margin 0 \
+        --out "$OUT/softhand_frame_cuda_s49m_off_$r.json"
+      step softhand_on_$r 120 python3 benchmarks/softhand_frame.py --device cuda --out "$OUT/softhand_frame_cuda_s49m_on_$r.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

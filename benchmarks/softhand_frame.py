@@ -47,13 +47,20 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu")
     p.add_argument("--frames", type=int, default=80)
+    p.add_argument("--skip-margin", type=float, default=None,
+                   help="physhand_mj.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
+    p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/softhand_frame_<device>.json)")
     args = p.parse_args()
+    if args.skip_margin is not None:
+        from physhand_mj import metrics
+
+        metrics.SKIP_MARGIN = args.skip_margin
     rows = [run(args.device, args.frames, s) for s in (Strategy.NONE, Strategy.MULTIRES)]
     for r in rows:
         print(json.dumps(r), flush=True)
     dev = device_name(args.device if args.device != "cuda" else "cuda:0")
-    (ROOT / "docs" / "benchmarks" / f"softhand_frame_{args.device.split(':')[0]}.json").write_text(
-        json.dumps(dict(device=dev, frames=args.frames, rows=rows), indent=1))
+    out = Path(args.out) if args.out else ROOT / "docs" / "benchmarks" / f"softhand_frame_{args.device.split(':')[0]}.json"
+    out.write_text(json.dumps(dict(device=dev, frames=args.frames, skip_margin=args.skip_margin, rows=rows), indent=1))
 
 
 if __name__ == "__main__":
