@@ -23,7 +23,7 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.query import world_phi
-from physhand_mj.contact.sdf import FAR, geom_sdf
+from physhand_mj.contact.sdf import FAR, MESH, geom_sdf
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -117,9 +117,23 @@ def penetration_samples(
     if obj_filter < 0 and not culled and phi_below(m, wtype, wsize, winv, wrad, wmesh, n, geom_obj[w], -1, r) > r:
         return
     wobj = geom_obj[w]
-    da = phi_below(a, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
-    db = phi_below(b, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
-    dc = phi_below(c, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
+    # the corners as the lattice makes them (a vertex that is not finite makes every sample NaN, as before)
+    pa = a * 1.0 + b * 0.0 + c * 0.0
+    pb = a * 0.0 + b * 1.0 + c * 0.0
+    pc = a * 0.0 + b * 0.0 + c * 1.0
+    da = phi_below(pa, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
+    db = phi_below(pb, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
+    dc = phi_below(pc, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
+    # the corner bound only where phi is 1-Lipschitz: not for a mesh signed by its winding number (an
+    # open mesh closed over its holes, where the sign flips away from any face), and a corner with no
+    # mesh within its query range (FAR) bounds nothing
+    bound = skip_margin > 0.0
+    for g in range(n):
+        if wtype[g] == MESH and wsize[g][1] > 0.5 and wsize[g][1] < 1.5:  # (sdf.MESH_SIGN_WINDING)
+            bound = False
+    ba = wp.where(da < 0.5 * FAR, da, -FAR)
+    bb = wp.where(db < 0.5 * FAR, db, -FAR)
+    bc = wp.where(dc < 0.5 * FAR, dc, -FAR)
     count = float(0.0)
     total = float(0.0)
     deepest = float(0.0)
@@ -135,8 +149,8 @@ def penetration_samples(
                 d = db
             elif j == order:
                 d = dc
-            elif skip_margin > 0.0 and wp.max(da - wp.length(p - a), wp.max(db - wp.length(p - b),
-                                                                           dc - wp.length(p - c))) > skip_margin:
+            elif bound and wp.max(ba - wp.length(p - pa), wp.max(bb - wp.length(p - pb),
+                                                                bc - wp.length(p - pc))) > skip_margin:
                 d = 1.0  # (outside: not asked)
             else:
                 d = phi_below(p, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)

@@ -3,8 +3,10 @@
 A warning raised deep inside the package (a frame's report, a batch's pipeline, a Config check run
 by the solver) would name a line of physhand_mj with a fixed ``stacklevel``, and which line depends
 on the path that called it (``Solver.step``, ``BatchedHands.submit``, a rollout). :func:`warn_user`
-names the first caller outside the package (``physhand_mj`` and the ``physhand_dmc`` task suite)
-instead, as ``warnings.warn(..., skip_file_prefixes=...)`` does from Python 3.12 on.
+names the first caller outside the package (``physhand_mj``, its ``physhand_dmc`` and
+``physhand_myosuite`` plugins, and dm_control, whose environments call them) instead, as
+``warnings.warn(..., skip_file_prefixes=...)`` does from Python 3.12 on. So a filter that picks
+these warnings by ``module`` sees the caller's module: filter by ``message`` or ``category``.
 """
 
 from __future__ import annotations
@@ -13,14 +15,15 @@ import os
 import sys
 import warnings
 
-# the package's own folder (this file's) and the task suite's: frames there are not the user's
+# the package's own folder (this file's), its plugins' and the frameworks that call them (a
+# dm_control environment's step): frames there are not the user's
 _OURS = os.path.dirname(os.path.abspath(__file__)) + os.sep
-_PLUGIN = os.sep + "physhand_dmc" + os.sep
+_CALLERS = tuple(os.sep + name + os.sep for name in ("physhand_dmc", "physhand_myosuite", "dm_control"))
 
 
 def _ours(filename: str) -> bool:
     path = os.path.abspath(filename)
-    return path.startswith(_OURS) or _PLUGIN in path
+    return path.startswith(_OURS) or any(name in path for name in _CALLERS)
 
 
 def warn_user(message: str, category: type[Warning] = RuntimeWarning) -> None:

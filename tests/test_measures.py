@@ -126,6 +126,45 @@ def _corner_poke(device):
     return solver, state
 
 
+def _open_box(device):
+    """The open hand at rest with a 3 cm mesh box whose bottom face is cut away (signed by its
+    winding number, closed over the hole), pressed 4 mm into the back of the hand opening first: the
+    skin crosses the hole, where phi jumps from the rim's distance outside to the walls' inside."""
+    wp.init()
+    asset = ph.load_asset()
+    _, model, data = open_hand_scene("hand_only", "open")
+    cfg = Config(device=device)
+    objects = Objects(device, 1)
+    solver = Solver(make_model(asset, cfg), cfg, objects=objects)
+    state = solver.make_state(*mount_pose(model, data))
+    skin = state.x.numpy()[: asset.n_skin].astype(float)
+    top = skin[np.argmax(skin[:, 2])]
+    box = trimesh.creation.box((0.03, 0.03, 0.03))
+    keep = box.face_normals[:, 2] > -0.5  # (the bottom's two triangles cut away)
+    objects.add(GeomType.MESH, None, pos=top + [0.0, 0.0, 0.015 - 0.004], vertices=box.vertices,
+                faces=box.faces[keep], name="open box")
+    return solver, state
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_corner_bound_is_off_for_a_mesh_signed_by_its_winding_number(device, monkeypatch):
+    """An open mesh signed by its winding number is not 1-Lipschitz across its holes (phi jumps from
+    the rim's distance outside to the walls' inside), so the corner bound must not leave any sample
+    out there: the rows are the same with the bound on and off."""
+    solver, state = _open_box(device)
+    contact = solver.contact
+    rows = {}
+    for margin in (0.0, metrics.SKIP_MARGIN):
+        monkeypatch.setattr(metrics, "SKIP_MARGIN", margin)
+        for culled in (False, True):
+            contact.cull_measure = culled
+            rows[margin, culled] = contact.measure_worlds(state, order=5, objects_side=False)[0][:3]
+    for culled in (False, True):
+        off, on = rows[0.0, culled], rows[metrics.SKIP_MARGIN, culled]
+        assert off[0] > 0, "nothing inside: the test would compare nothing"
+        assert on[0] == off[0] and on[2] == off[2] and on[1] == pytest.approx(off[1], rel=1e-5), (culled, on, off)
+
+
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("case", ["pressed", "corner"])
 def test_samples_left_out_by_the_corner_bound_change_no_row(device, case, monkeypatch):
@@ -157,3 +196,23 @@ def test_samples_left_out_by_the_corner_bound_change_no_row(device, case, monkey
                 assert np.array_equal(on, off), (case, culled, order, on, off)
             else:  # (the triangles add their sums in the atomics' order)
                 assert on[0] == off[0] and on[2] == off[2] and on[1] == pytest.approx(off[1], rel=1e-5)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_triangle_with_a_nonfinite_corner_counts_nothing(device, monkeypatch):
+    """A skin vertex that turned non-finite makes every lattice sample of its triangles NaN, so those
+    triangles count nothing, with the corner bound on and off, as every sample asked one by one."""
+    solver, state = _pressed(device)
+    contact = solver.contact
+    before = contact.measure_worlds(state, objects_side=False)[0][:3]
+    pts, depth = contact.penetrating_samples(state, 5)
+    x = state.x.numpy()
+    inside = np.argmin(np.linalg.norm(x[: contact.model.n_skin] - pts[np.argmax(depth)], axis=1))
+    x[inside] = np.nan  # the vertex nearest the deepest sample
+    state.x.assign(x)
+    rows = []
+    for margin in (0.0, metrics.SKIP_MARGIN):
+        monkeypatch.setattr(metrics, "SKIP_MARGIN", margin)
+        rows.append(contact.measure_worlds(state, objects_side=False)[0][:3])
+    _, depth_nan = contact.penetrating_samples(state, 5)
+    assert rows[0][0] == rows[1][0] == len(depth_nan) < before[0], (rows, len(depth_nan), before)
