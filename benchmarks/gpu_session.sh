@@ -938,6 +938,10 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
       step softhand_on_$r 120 python3 benchmarks/softhand_frame.py --device cuda --out "$OUT/softhand_frame_cuda_s49m_on_$r.json"
     done
     ;;
+  s49_n)  # after the second review: the skin measure's tests on CUDA (the winding-number mesh, the NaN corner)
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_measures.py \
+      tests/test_batch.py -k "cuda or corner or culled or winding or nonfinite or frame_metrics"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
