@@ -239,9 +239,9 @@ class BatchedHands:
                              "raising would stop every world for one")
         import warp as wp
 
-        from physhand_mj.solver import fused
+        from physhand_mj.solver import fused_choice
 
-        if fused.cuda_auto(self.config, asset, self.worlds, wp.get_device(self.config.device)):
+        if fused_choice.cuda_auto(self.config, asset, self.worlds, wp.get_device(self.config.device)):
             # Config.fused_substep=None on CUDA: a block per world in shared memory from 0.3 worlds per SM
             self.config = dataclasses.replace(self.config, fused_substep=True)
         if spacing is None:  # the object side's queries apart by 1 m (the solve stays at the origin)

@@ -289,7 +289,7 @@ class Config:
         plus 4 per thread on CUDA (the embedded hand: 207,504 B; an H100/H200 block: 227 KB;
         Warp's CPU arena: 256 KB). None (default): on the CPU where those hold and
         ``jacobi_gather`` is not True; on CUDA for a BatchedHands of at least 0.3 worlds per SM
-        (H100: 40; solver/fused.py ``cuda_auto``); True: always (ValueError where it cannot
+        (H100: 40; solver/fused_choice.py ``cuda_auto``); True: always (ValueError where it cannot
         run); False: never. How a group's corrections are summed per vertex:
         ``physhand_mj.solver.fused.SUM`` ("scatter" or "gather", docs/solver.md).
     """

@@ -191,45 +191,44 @@ def test_a_staged_upload_is_taken_only_with_the_rows_it_was_staged_with(setup):
     pos_b, quat_b = bone_poses_at(model, data, q, ids)
     rows_b = solver.pose_rows(pos_b + hands.offsets[0], quat_b)
     assert solver.stage_pose_rows(state, rows_a) is None  # (no frame in flight: nothing to stage)
-    solver.set_body_pose_rows(state, rows_a)
-    solver.launch(state)
-    token = solver.stage_pose_rows(state, rows_a)  # (a frame in flight)
-    assert token is not None
-    solver.finish(state)
-    solver.set_body_pose_rows(state, rows_b)  # not the staged rows
-    solver.launch(state, staged=token)
-    solver.finish(state)
-    assert np.array_equal(state.body_pose.numpy()[1], rows_b)
-    solver.set_body_pose_rows(state, rows_a)
-    solver.launch(state)
-    token = solver.stage_pose_rows(state, rows_b)
-    solver.finish(state)
-    solver.set_body_pose_rows(state, rows_b)  # the staged rows: the buffer as staged, [the end before, rows_b]
-    solver.launch(state, staged=token)
-    solver.finish(state)
-    assert np.array_equal(state.body_pose.numpy()[0], rows_a) and np.array_equal(state.body_pose.numpy()[1], rows_b)
+
+    def pair(rows, stage, then):
+        """A frame set to ``rows``; while it runs ``stage()`` stages and returns a token; the next
+        frame set to ``then`` and launched with that token. Returns the token and the uploaded
+        [start, end] rows of the second frame."""
+        solver.set_body_pose_rows(state, rows)
+        solver.launch(state)
+        token = stage()
+        solver.finish(state)
+        solver.set_body_pose_rows(state, then)
+        solver.launch(state, staged=token)
+        solver.finish(state)
+        return token, state.body_pose.numpy()
+
+    token, up = pair(rows_a, lambda: solver.stage_pose_rows(state, rows_a), rows_b)  # not the staged rows
+    assert token is not None and np.array_equal(up[1], rows_b)
+    _, up = pair(rows_a, lambda: solver.stage_pose_rows(state, rows_b), rows_b)  # the staged rows
+    assert np.array_equal(up[0], rows_a) and np.array_equal(up[1], rows_b)  # (the buffer as staged)
     # the staged buffer is what goes up (a mark written into it after staging arrives; refilling would lose it)
-    solver.set_body_pose_rows(state, rows_a)
-    solver.launch(state)
-    token = solver.stage_pose_rows(state, rows_b)
     mark = rows_b.copy()
     mark[0, 0] += 0.25
-    solver._pose_pins[token[1]].numpy()[1] = mark
-    solver.finish(state)
-    solver.set_body_pose_rows(state, rows_b)
-    solver.launch(state, staged=token)
-    solver.finish(state)
-    assert np.array_equal(state.body_pose.numpy()[1], mark)
+
+    def marked():
+        token = solver.stage_pose_rows(state, rows_b)
+        solver._pose_pins[token[1]].numpy()[1] = mark
+        return token
+
+    _, up = pair(rows_a, marked, rows_b)
+    assert np.array_equal(up[1], mark)
+
     # only the last token staged counts: staging again (other rows) voids the first
-    solver.set_body_pose_rows(state, rows_a)
-    solver.launch(state)
-    first = solver.stage_pose_rows(state, rows_b)
-    solver.stage_pose_rows(state, rows_a)
-    solver.finish(state)
-    solver.set_body_pose_rows(state, rows_b)
-    solver.launch(state, staged=first)
-    solver.finish(state)
-    assert np.array_equal(state.body_pose.numpy()[1], rows_b)
+    def twice():
+        first = solver.stage_pose_rows(state, rows_b)
+        solver.stage_pose_rows(state, rows_a)
+        return first
+
+    _, up = pair(rows_a, twice, rows_b)
+    assert np.array_equal(up[1], rows_b)
 
 
 def test_a_pipelined_batch_warns_of_a_fast_bone_as_step_does(setup):

@@ -11,7 +11,7 @@ import physhand_mj as ph
 from physhand_mj.batch import BatchedHands
 from physhand_mj.types import GeomType
 from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
-from physhand_mj.solver import Solver, make_model
+from physhand_mj.solver import Solver, fused_choice, make_model
 from physhand_mj.types import Config, Layer, Scheme
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -155,42 +155,40 @@ class _H100:
 
 def test_cuda_batches_take_the_fused_substep_from_a_third_of_a_world_per_sm(setup):
     """On CUDA ``fused_substep=None`` takes the fused substep for a batch of at least 0.3 worlds
-    per SM (fused.CUDA_AUTO_WAVES; H100: 40), not below, not where the config or a block's shared
+    per SM (fused_choice.CUDA_AUTO_WAVES; H100: 40), not below, not where the config or a block's shared
     memory rules it out, and never on the CPU (which decides per solver, above)."""
     from physhand_mj.solver import fused
 
     asset, h100 = setup[0], _H100()
-    assert fused.asset_shared_bytes(asset, h100) == 207_504 + 4 * fused.BLOCK_DIM
+    assert fused_choice.asset_shared_bytes(asset, h100) == 207_504 + 4 * fused.BLOCK_DIM
     cfg = Config()
-    assert not fused.cuda_auto(cfg, asset, 39, h100)
-    assert fused.cuda_auto(cfg, asset, 40, h100) and fused.cuda_auto(cfg, asset, 4096, h100)
+    assert not fused_choice.cuda_auto(cfg, asset, 39, h100)
+    assert fused_choice.cuda_auto(cfg, asset, 40, h100) and fused_choice.cuda_auto(cfg, asset, 4096, h100)
     for kw in (dict(jacobi_gather=True), dict(iterations=2), dict(scheme=Scheme.COLORED), dict(region_sleep=True),
                dict(fused_substep=False)):
-        assert not fused.cuda_auto(Config(**kw), asset, 4096, h100), kw
-    assert fused.cuda_auto(Config(scheme="jacobi"), asset, 4096, h100)  # (a scheme given by name)
+        assert not fused_choice.cuda_auto(Config(**kw), asset, 4096, h100), kw
+    assert fused_choice.cuda_auto(Config(scheme="jacobi"), asset, 4096, h100)  # (a scheme given by name)
     small = _H100()
     small.max_shared_memory_per_block = 100_000  # (a card whose block cannot hold a world)
-    assert not fused.cuda_auto(cfg, asset, 4096, small)
-    assert not fused.cuda_auto(cfg, asset, 4096, wp.get_device("cpu"))
+    assert not fused_choice.cuda_auto(cfg, asset, 4096, small)
+    assert not fused_choice.cuda_auto(cfg, asset, 4096, wp.get_device("cpu"))
     fused_sum = fused.SUM
     try:  # (only the measured kernel: the by-vertex sum ran slower than the gathers)
         fused.SUM = "gather"
-        assert not fused.cuda_auto(cfg, asset, 4096, h100)
+        assert not fused_choice.cuda_auto(cfg, asset, 4096, h100)
     finally:
         fused.SUM = fused_sum
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="needs CUDA")
 def test_a_large_cuda_batch_runs_the_fused_substep_by_default(setup):
-    """A BatchedHands of fused.CUDA_AUTO_WAVES worlds per SM on the GPU resolves ``fused_substep=None``
+    """A BatchedHands of fused_choice.CUDA_AUTO_WAVES worlds per SM on the GPU resolves ``fused_substep=None``
     to the fused substep (no per-vertex gather slots built), and a small batch (2 worlds) keeps the gathers."""
     import math
 
     asset, mount = setup[0], setup[1]
     sms = wp.get_device("cuda").sm_count
-    from physhand_mj.solver import fused
-
-    big = BatchedHands(asset, math.ceil(fused.CUDA_AUTO_WAVES * sms), Config(device="cuda"), *mount)
+    big = BatchedHands(asset, math.ceil(fused_choice.CUDA_AUTO_WAVES * sms), Config(device="cuda"), *mount)
     assert big.solver.fused_substep and big.config.fused_substep is True
     assert not big.solver.model.gather_off
     big.close()
@@ -246,7 +244,7 @@ def test_a_body_too_large_for_a_block_falls_back_or_is_refused(setup, monkeypatc
     cpu = wp.get_device("cpu")
     for flag, expect in ((None, None), (False, None)):
         cfg = Config(device="cpu", fused_substep=flag)
-        assert fused.choose(make_model(asset, cfg), cfg.validate(), cpu) is expect
+        assert fused_choice.choose(make_model(asset, cfg), cfg.validate(), cpu) is expect
     cfg = Config(device="cpu", fused_substep=True)
     with pytest.raises(ValueError, match="fused_substep.*207504 bytes"):
         Solver(make_model(asset, cfg), cfg)

@@ -19,17 +19,23 @@ from physhand_mj.types import Config, GeomType
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
 
 
-def _pressed(device):
-    """The open hand at rest with a 2 cm sphere sunk 6 mm into the back of the hand and a 3 cm mesh
-    box sunk 4 mm into the palm (no step: the measure sees the deep start as it is)."""
+def _open_hand(device, capacity):
+    """The open hand at rest (a solver, its state, room for ``capacity`` objects, the skin's
+    positions) for the cases below to place objects into."""
     wp.init()
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
     cfg = Config(device=device)
-    objects = Objects(device, 2)
+    objects = Objects(device, capacity)
     solver = Solver(make_model(asset, cfg), cfg, objects=objects)
     state = solver.make_state(*mount_pose(model, data))
-    skin = state.x.numpy()[: asset.n_skin].astype(float)
+    return solver, state, objects, state.x.numpy()[: asset.n_skin].astype(float)
+
+
+def _pressed(device):
+    """The open hand at rest with a 2 cm sphere sunk 6 mm into the back of the hand and a 3 cm mesh
+    box sunk 4 mm into the palm (no step: the measure sees the deep start as it is)."""
+    solver, state, objects, skin = _open_hand(device, 2)
     top, bottom = skin[np.argmax(skin[:, 2])], skin[np.argmin(skin[:, 2])]
     objects.add(GeomType.SPHERE, (0.02,), pos=top + [0.0, 0.0, 0.02 - 0.006], name="ball")
     box = trimesh.creation.box((0.03, 0.03, 0.03))
@@ -107,14 +113,7 @@ def test_check_points_measured_in_pieces_equal_the_whole(monkeypatch):
 def _corner_poke(device):
     """The open hand at rest with a 3 cm mesh cube standing on a corner, that corner 1 mm into the
     back of the hand (a sharp feature inside a triangle's interior: its corners outside)."""
-    wp.init()
-    asset = ph.load_asset()
-    _, model, data = open_hand_scene("hand_only", "open")
-    cfg = Config(device=device)
-    objects = Objects(device, 1)
-    solver = Solver(make_model(asset, cfg), cfg, objects=objects)
-    state = solver.make_state(*mount_pose(model, data))
-    skin = state.x.numpy()[: asset.n_skin].astype(float)
+    solver, state, objects, skin = _open_hand(device, 1)
     top = skin[np.argmax(skin[:, 2])]
     cube = trimesh.creation.box((0.03, 0.03, 0.03))
     axis = np.array([1.0, 1.0, 1.0]) / np.sqrt(3.0)  # the (1, 1, 1) diagonal turned onto -z
@@ -130,14 +129,7 @@ def _open_box(device):
     """The open hand at rest with a 3 cm mesh box whose bottom face is cut away (signed by its
     winding number, closed over the hole), pressed 4 mm into the back of the hand opening first: the
     skin crosses the hole, where phi jumps from the rim's distance outside to the walls' inside."""
-    wp.init()
-    asset = ph.load_asset()
-    _, model, data = open_hand_scene("hand_only", "open")
-    cfg = Config(device=device)
-    objects = Objects(device, 1)
-    solver = Solver(make_model(asset, cfg), cfg, objects=objects)
-    state = solver.make_state(*mount_pose(model, data))
-    skin = state.x.numpy()[: asset.n_skin].astype(float)
+    solver, state, objects, skin = _open_hand(device, 1)
     top = skin[np.argmax(skin[:, 2])]
     box = trimesh.creation.box((0.03, 0.03, 0.03))
     keep = box.face_normals[:, 2] > -0.5  # (the bottom's two triangles cut away)
@@ -146,23 +138,40 @@ def _open_box(device):
     return solver, state
 
 
+def _rows_by_margin(monkeypatch, contact, state, orders) -> dict:
+    """The skin measure's row (count, depth sum, deepest) by (SKIP_MARGIN off / on, culled layout or
+    not, lattice order)."""
+    rows = {}
+    for margin in (0.0, metrics.SKIP_MARGIN):
+        monkeypatch.setattr(metrics, "SKIP_MARGIN", margin)
+        for culled in (False, True):
+            contact.cull_measure = culled
+            for order in orders:
+                rows[margin, culled, order] = contact.measure_worlds(state, order=order, objects_side=False)[0][:3]
+    return rows
+
+
+def _assert_same_rows(rows: dict, device, orders, what) -> None:
+    """The bound on and off give the same rows: bit for bit on the CPU, on CUDA the counts and the
+    deepest (the triangles add their sums in the atomics' order), and something inside to compare."""
+    for culled in (False, True):
+        for order in orders:
+            off, on = rows[0.0, culled, order], rows[metrics.SKIP_MARGIN, culled, order]
+            assert off[0] > 0, (what, order, "nothing inside: the test would compare nothing")
+            if device == "cpu":
+                assert np.array_equal(on, off), (what, culled, order, on, off)
+            else:
+                assert on[0] == off[0] and on[2] == off[2] and on[1] == pytest.approx(off[1], rel=1e-5)
+
+
 @pytest.mark.parametrize("device", DEVICES)
 def test_the_corner_bound_is_off_for_a_mesh_signed_by_its_winding_number(device, monkeypatch):
     """An open mesh signed by its winding number is not 1-Lipschitz across its holes (phi jumps from
     the rim's distance outside to the walls' inside), so the corner bound must not leave any sample
     out there: the rows are the same with the bound on and off."""
     solver, state = _open_box(device)
-    contact = solver.contact
-    rows = {}
-    for margin in (0.0, metrics.SKIP_MARGIN):
-        monkeypatch.setattr(metrics, "SKIP_MARGIN", margin)
-        for culled in (False, True):
-            contact.cull_measure = culled
-            rows[margin, culled] = contact.measure_worlds(state, order=5, objects_side=False)[0][:3]
-    for culled in (False, True):
-        off, on = rows[0.0, culled], rows[metrics.SKIP_MARGIN, culled]
-        assert off[0] > 0, "nothing inside: the test would compare nothing"
-        assert on[0] == off[0] and on[2] == off[2] and on[1] == pytest.approx(off[1], rel=1e-5), (culled, on, off)
+    rows = _rows_by_margin(monkeypatch, solver.contact, state, orders=(5,))
+    _assert_same_rows(rows, device, (5,), "open box")
 
 
 @pytest.mark.parametrize("device", DEVICES)
@@ -176,26 +185,13 @@ def test_samples_left_out_by_the_corner_bound_change_no_row(device, case, monkey
     by one without any bound (Contact.penetrating_samples)."""
     solver, state = (_pressed if case == "pressed" else _corner_poke)(device)
     contact = solver.contact
-    rows = {}
-    for margin in (0.0, metrics.SKIP_MARGIN):
-        monkeypatch.setattr(metrics, "SKIP_MARGIN", margin)
-        for culled in (False, True):
-            contact.cull_measure = culled
-            for order in (5, 9):
-                rows[margin, culled, order] = contact.measure_worlds(state, order=order, objects_side=False)[0][:3]
+    rows = _rows_by_margin(monkeypatch, contact, state, orders=(5, 9))
     for order in (5, 9):  # a reference that skips nothing: every lattice sample's phi (lattice_phi, world_phi)
         pts, depth = contact.penetrating_samples(state, order)
         ref = rows[metrics.SKIP_MARGIN, True, order]
         assert ref[0] == len(depth) and ref[2] == np.float32(depth.max()), (case, order, ref, len(depth))
         assert ref[1] == pytest.approx(depth.sum(), rel=1e-5)
-    for culled in (False, True):
-        for order in (5, 9):
-            off, on = rows[0.0, culled, order], rows[metrics.SKIP_MARGIN, culled, order]
-            assert off[0] > 0, (case, order, "nothing inside: the test would compare nothing")
-            if device == "cpu":
-                assert np.array_equal(on, off), (case, culled, order, on, off)
-            else:  # (the triangles add their sums in the atomics' order)
-                assert on[0] == off[0] and on[2] == off[2] and on[1] == pytest.approx(off[1], rel=1e-5)
+    _assert_same_rows(rows, device, (5, 9), case)
 
 
 @pytest.mark.parametrize("device", DEVICES)

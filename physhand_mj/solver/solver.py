@@ -26,10 +26,12 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.solver import fused as fused_launch
+from physhand_mj.solver import fused_choice
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
 from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
+from physhand_mj.solver.poses import PoseInput
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
@@ -76,7 +78,7 @@ class SolverError(RuntimeError):
     """The solver met a state it cannot continue from (non-finite input or state under RAISE)."""
 
 
-class Solver(Sleeping):
+class Solver(PoseInput, Sleeping):
     """XPBD solver for one layered body. With ``objects`` (a :class:`~physhand_mj.contact.Objects`)
     and ``config.contact`` not NONE, each substep also runs the skin-object contact correction
     (Algorithm 1 line 6, placed by ``config.contact_placement``) and ``step`` reports penetration."""
@@ -110,19 +112,11 @@ class Solver(Sleeping):
         self._inv_h2 = 1.0 / (h * h)
         self._damp = math.exp(-self.config.damping * h)
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
-        # the bone poses' upload buffers ([frame start, frame end] rows), one per frame in turn: a frame
-        # in flight copies from one while the next frame's poses go into the other (stage_pose_rows)
-        self._pose_pins = [wp.empty((2, model.n_bodies), dtype=wp.transform, device="cpu", pinned=self.device.is_cuda)
-                           for _ in range(2)]
-        self._pin = 0  # the buffer the next launch uploads from
-        self._rows_set = None  # the rows set_body_pose_rows last took (a staged upload names them)
-        self._staged = None  # the last stage_pose_rows token (launch takes only that one)
+        self._init_poses(model.n_bodies, self.device.is_cuda)  # (poses.py)
         self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
-        self._warned_fast = False
-        self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
         self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
-        self._fused = fused_launch.choose(model, self.config, self.device)  # Config.fused_substep
+        self._fused = fused_choice.choose(model, self.config, self.device)  # Config.fused_substep
         # per-region sleeping (physhand_mj/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
@@ -159,92 +153,6 @@ class Solver(Sleeping):
         st.pose_host[0] = st.pose_host[1]
         return st
 
-    def set_body_poses(self, state: State, pos: np.ndarray, quat: np.ndarray) -> None:
-        """Bone poses at the end of the next frame: pos (B, 3) m, quat (B, 4) w x y z, in the
-        solver's world frame, ordered as ``model.body_names``. The skeleton moves there during the
-        frame (interpolated per substep)."""
-        self._not_in_flight(state)
-        self.pose_rows(pos, quat, out=state.pose_host[1])  # (written in place: batches, W x the bones a frame)
-        state.pose_fresh = True
-        self._rows_set = None
-
-    def _not_in_flight(self, state: State) -> None:
-        """The next frame's poses may not be written while this state's frame is in flight: its
-        ``finish`` still reads that frame's end poses (the sleep test)."""
-        if self._in_flight is not None and self._in_flight[0] is state:
-            raise RuntimeError("a frame of this state is in flight (Solver.launch): Solver.finish(state) before "
-                               "setting the next frame's poses")
-
-    def pose_rows(self, pos: np.ndarray, quat: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`set_body_poses`' checks and conversion without a state: (B, 7) float32 rows [p, q x y z
-        w], the quaternions normed, into ``out`` when given. (BatchedHands.submit checks the next
-        frame's poses while the device runs this one, then :meth:`set_body_pose_rows`.)"""
-        pos = np.asarray(pos, dtype=np.float64)
-        quat = np.asarray(quat, dtype=np.float64)
-        b = self.model.n_bodies
-        if pos.shape != (b, 3) or quat.shape != (b, 4):
-            raise ValueError(f"bone poses must be ({b}, 3) positions and ({b}, 4) quaternions, "
-                             f"got {pos.shape} and {quat.shape}")
-        # (batches: W x the bones every frame, in series with the GPU: one sum each instead of a mask,
-        # the squared norms in one pass; the exact test only to name the bones)
-        n2 = np.einsum("ij,ij->i", quat, quat)
-        with np.errstate(over="ignore"):  # (a huge finite sum only sends it to the exact test)
-            finite = np.isfinite(pos.sum()) and np.isfinite(n2.sum())
-        if not finite:
-            if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
-                bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
-                    ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
-                raise SolverError(f"non-finite pose for bones {bad}: fix the MuJoCo state (qpos) first")
-            n2 = None  # (finite but huge: the sums overflowed)
-        norm = (np.sqrt(n2) if n2 is not None else np.linalg.norm(quat, axis=1))[:, None]
-        if np.any(norm < 1e-9):
-            raise SolverError("a bone quaternion has zero length")
-        end = out if out is not None else np.empty((b, 7), np.float32)  # [p, q x y z w]
-        end[:, :3] = pos
-        np.divide(quat[:, 1:], norm, out=end[:, 3:6], casting="unsafe")
-        np.divide(quat[:, :1], norm, out=end[:, 6:], casting="unsafe")
-        return end
-
-    def set_body_pose_rows(self, state: State, rows: np.ndarray) -> None:
-        """The next frame's end poses as :meth:`pose_rows` made them (checked and normed)."""
-        self._not_in_flight(state)
-        if np.shape(rows) != state.pose_host[1].shape:
-            raise ValueError(f"pose rows must be {state.pose_host[1].shape} (Solver.pose_rows), got {np.shape(rows)}")
-        state.pose_host[1] = rows
-        state.pose_fresh = True
-        self._rows_set = rows
-
-    def stage_pose_rows(self, state: State, rows: np.ndarray):
-        """While a frame of ``state`` is in flight, fill the next frame's upload buffer with its start
-        (the frame in flight's end) and ``rows`` (its end, :meth:`pose_rows`), so that the host copy
-        leaves the time between that frame's end and the next one's launch. Returns a token for
-        :meth:`launch` (``staged=``), which takes the buffer as it is only if this is the last token
-        staged and :meth:`set_body_pose_rows` was given this very ``rows`` array after :meth:`finish`,
-        and fills the buffer itself otherwise; ``rows`` must not change in between (the buffer holds
-        their copy). None (nothing to stage) when no frame of ``state`` is in flight or per-region
-        sleeping is on. (BatchedHands.submit: fresh rows each frame, staged once.)"""
-        self._staged = None
-        if self._in_flight is None or self._in_flight[0] is not state or self.regions is not None:
-            return None
-        if np.shape(rows) != state.pose_host[1].shape:
-            raise ValueError(f"pose rows must be {state.pose_host[1].shape} (Solver.pose_rows), got {np.shape(rows)}")
-        buf = self._pose_pins[self._pin].numpy()  # (the frame in flight uploads from the other one)
-        buf[0] = state.pose_host[0]  # (launch moved the frame in flight's end there; finish leaves it)
-        buf[1] = rows
-        # (the fast-motion check's largest bone move too, for launch)
-        self._staged = (state, self._pin, rows, self._bone_jump(buf[0], buf[1]) if self._checks_jump() else None)
-        return self._staged
-
-    def _checks_jump(self) -> bool:
-        """Whether :meth:`launch` checks how far a bone moves in the frame (contact, the warning not given)."""
-        return self.contact is not None and self.warn_fast_motion and not self._warned_fast and bool(self.model.n_bodies)
-
-    @staticmethod
-    def _bone_jump(p0: np.ndarray, p1: np.ndarray) -> float:
-        """The largest distance a bone's origin moves from pose rows ``p0`` to ``p1`` (m)."""
-        d = p1[:, :3] - p0[:, :3]
-        return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
-
     # -- the frame -------------------------------------------------------------------------------
     def step(self, state: State) -> dict:
         """Advance one frame (``config.frame_dt``). Returns the frame's guard counts
@@ -264,37 +172,10 @@ class Solver(Sleeping):
         changed. One frame in flight at a time. ``staged``: :meth:`stage_pose_rows`' token."""
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
-        # the upload buffer as stage_pose_rows filled it: for this state, these rows, nothing set since
-        staged = (staged if staged is not None and staged is self._staged and staged[0] is state
-                  and staged[1] == self._pin and staged[2] is self._rows_set and state.pose_fresh
-                  and self.regions is None else None)
-        self._staged = None
-        # bone poses (start, end of the frame) go up once per frame; without a new pose the bones stay
-        if not state.pose_fresh:
-            state.pose_host[1] = state.pose_host[0]
-        elif self._checks_jump():
-            jump = staged[3] if staged is not None and staged[3] is not None else self._bone_jump(
-                state.pose_host[0], state.pose_host[1])
-            if jump > self.config.contact_frame_margin - self.config.contact_margin:
-                from physhand_mj.warn import warn_user
-
-                self._warned_fast = True
-                warn_user(f"a bone moved {jump * 1e3:.1f} mm in one frame, more than "
-                          f"Config.contact_frame_margin - contact_margin "
-                          f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
-                          f"contacts may be missed; raise contact_frame_margin or use shorter frames")
+        pin, frame_poses = self._frame_poses_in(state, staged)  # (poses.py: the frame's poses, their upload buffer)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
         rigid = self._bones_still(state) if self._settled(state) else None
-        pin = self._pose_pins[self._pin]
-        buf = pin.numpy()
-        if staged is None:
-            buf[:] = state.pose_host  # (else stage_pose_rows filled it while the frame before ran)
-        self._pin ^= 1
-        self._rows_set = None
-        # (the start from the upload buffer, as pose_host[0] is overwritten below: the buffer is filled
-        # again two frames on, after this frame's finish; the end stays until the next set_body_poses)
-        frame_poses = (buf[0], state.pose_host[1])
         if self.regions is not None:
             self.regions.before_frame(*frame_poses)
         wp.copy(state.body_pose, pin)
