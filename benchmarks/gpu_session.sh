@@ -942,6 +942,10 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_measures.py \
       tests/test_batch.py -k "cuda or corner or culled or winding or nonfinite or frame_metrics"
     ;;
+  s49_o)  # after the split (solver/poses.py, solver/fused_choice.py): the pipeline's and the choice's CUDA tests
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or staged or choices" \
+      tests/test_fused.py tests/test_batch_pipeline.py tests/test_batch.py
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
