@@ -946,6 +946,17 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or staged or choices" \
       tests/test_fused.py tests/test_batch_pipeline.py tests/test_batch.py
     ;;
+  s50_a)  # (2026-11-28) Config.contact_linear: its CUDA test; the demo's full frame with the default contact,
+    # contact_every=2, and contact_every=2 with the planes between stages, alternated twice
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_linear.py -k cuda
+    for r in 1 2; do
+      step demo_default_$r 120 python3 benchmarks/softhand_frame.py --device cuda --out "$OUT/softhand_s50_default_$r.json"
+      step demo_every2_$r 120 python3 benchmarks/softhand_frame.py --device cuda --config '{"contact_every": 2}' \
+        --out "$OUT/softhand_s50_every2_$r.json"
+      step demo_linear_$r 120 python3 benchmarks/softhand_frame.py --device cuda \
+        --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/softhand_s50_linear_$r.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

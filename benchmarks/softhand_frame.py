@@ -22,12 +22,12 @@ from physhand_mj.types import Strategy
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run(device: str, frames: int, contact: Strategy) -> dict:
+def run(device: str, frames: int, contact: Strategy, **config) -> dict:
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    hand = ph.SoftHand(model, data, ph.Config(device=device, contact=contact))
+    hand = ph.SoftHand(model, data, ph.Config(device=device, contact=contact, **config))
     mj = 0.0
     for f in range(frames):
         t = time.perf_counter()
@@ -35,7 +35,7 @@ def run(device: str, frames: int, contact: Strategy) -> dict:
         mj += time.perf_counter() - t
         hand.step()
     m = hand.metrics()
-    return dict(contact=contact.name.lower(), ms_mujoco=round(mj / frames * 1e3, 3), ms_sync=round(m["ms_sync"], 3),
+    return dict(contact=contact.name.lower(), config=config, ms_mujoco=round(mj / frames * 1e3, 3), ms_sync=round(m["ms_sync"], 3),
                 ms_solver=round(m["ms_solver"], 3), ms_writeback=round(m["ms_writeback"], 3),
                 ms_total=round(mj / frames * 1e3 + m["ms_per_frame"], 3),
                 penetration_count=m["penetration_count"], penetration_max_um=round(m["penetration_max_um"], 3),
@@ -49,13 +49,18 @@ def main():
     p.add_argument("--frames", type=int, default=80)
     p.add_argument("--skip-margin", type=float, default=None,
                    help="physhand_mj.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
+    p.add_argument("--config", default="{}", help="Config fields as JSON for both rows (e.g. "
+                   "'{\"contact_every\": 2, \"contact_linear\": true}')")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/softhand_frame_<device>.json)")
     args = p.parse_args()
     if args.skip_margin is not None:
         from physhand_mj import metrics
 
         metrics.SKIP_MARGIN = args.skip_margin
-    rows = [run(args.device, args.frames, s) for s in (Strategy.NONE, Strategy.MULTIRES)]
+    config = json.loads(args.config)
+    if not isinstance(config, dict):
+        p.error("--config takes a JSON object of Config fields")
+    rows = [run(args.device, args.frames, s, **config) for s in (Strategy.NONE, Strategy.MULTIRES)]
     for r in rows:
         print(json.dumps(r), flush=True)
     dev = device_name(args.device if args.device != "cuda" else "cuda:0")

@@ -142,7 +142,10 @@ class Config:
         substeps (count; always in the frame's last substep, so the frame ends corrected; 1 = every
         substep, Algorithm 1): fewer stages a frame, the skin between them follows the solver alone
         (docs/activity.md: every=2 saves a quarter of the H100 demo frame and leaves residue in 13
-        of the hard cases' 600 held frames, none at 1); contact_pass_tol: in every contact stage but
+        of the hard cases' 600 held frames, none at 1); contact_linear: with contact_every > 1, a
+        substep without a stage holds the skin against the planes the last stage linearised the
+        SDF to at its triangles' decision points (contact/linear.py: one query-free pass of Eq. 9;
+        not with fused_stage); contact_pass_tol: in every contact stage but
         the frame's last, a pass runs only when the pass before it moved some vertex by more than
         this (m; 0: by anything, every stage runs until a pass moves nothing); the frame's last stage
         always runs to the end, so what a frame ends with is cleared as before; passes that only
@@ -319,6 +322,7 @@ class Config:
     contact_placement: Placement = Placement.AFTER
     contact_passes: int = 8
     contact_every: int = 1
+    contact_linear: bool = False
     contact_pass_tol: float = 0.0
     contact_margin: float = 5.0e-4
     contact_frame_margin: float = 1.0e-2
@@ -400,6 +404,11 @@ class Config:
                              f"{self.fused_substep!r}")
         if not isinstance(self.fused_stage, (bool, np.bool_)):
             raise ValueError(f"Config.fused_stage must be True or False, got {self.fused_stage!r}")
+        if not isinstance(self.contact_linear, (bool, np.bool_)):
+            raise ValueError(f"Config.contact_linear must be True or False, got {self.contact_linear!r}")
+        if self.contact_linear and self.fused_stage:
+            raise ValueError("Config.contact_linear holds the skin between recorded contact stages: set "
+                             "fused_stage=False with it")
         if not (self.tiled_features is None or isinstance(self.tiled_features, (bool, np.bool_))):
             raise ValueError(f"Config.tiled_features must be None (blocks for one hand, a thread per feature for "
                              f"batches), True or False, got {self.tiled_features!r}")

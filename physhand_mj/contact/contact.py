@@ -18,6 +18,7 @@ from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, featur
                                           near_features, stage_features, stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import ObjectPoints
+from physhand_mj.contact.linear import LinearHold
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project, multires_kernel
@@ -80,7 +81,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
+class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearHold):
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -219,6 +220,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
         self._pass_move_host = (wp.zeros(self.pass_move.shape[0], dtype=float, device="cpu", pinned=True) if cuda
                                 else self.pass_move)
         self._feat_host = wp.zeros(1, dtype=int, device="cpu", pinned=wp.get_device(d).is_cuda)
+        self._make_planes_buffers()  # (Config.contact_linear: linear.py)
 
     # -- recording into the solver's frame --------------------------------------------------------
     def wants(self, stage: str) -> bool:
@@ -377,6 +379,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace):
                 lst, prev, flag = box["r"]
             else:
                 lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
+        self.record_make_planes(launch, ops, state)  # (Config.contact_linear: linear.py)
 
     def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and

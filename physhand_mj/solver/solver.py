@@ -376,6 +376,7 @@ class Solver(PoseInput, Sleeping):
                [state.body_sub, state.guard])
         if self.contact is not None:
             contact = self.contact
+            contact.record_frame_planes(launch)  # (Config.contact_linear, every frame: contact/linear.py)
             if self.activity.gate_ahead:  # CUDA: the broadphase runs ahead of the frame's graph (step)
                 pre = self._pre[key] = [contact.counters.zero_]
 
@@ -403,8 +404,11 @@ class Solver(PoseInput, Sleeping):
             # Config.contact_every: the contact stages of this substep (the last substep always has them)
             staged = s < cfg.substeps and (cfg.substeps - 1 - s) % cfg.contact_every == 0
             before = contact is not None and staged and contact.wants("before")
+            # Config.contact_linear: a substep without a stage holds the skin on the last stage's planes
+            hold = contact is not None and not staged and s < cfg.substeps and contact.holds
+            hold_after = hold and contact.wants("after")
             # the fused substep also makes the substep's start, unless a contact stage comes between
-            fold = self._fused is not None and s < cfg.substeps and not before
+            fold = self._fused is not None and s < cfg.substeps and not before and not (hold and not hold_after)
             # a frame launch that also ends the frame (fused.FOLD_END): no last advance, no inverted-tet count
             if not fold and not (s == cfg.substeps and end_folded):
                 # end substep s-1 (velocity update) and begin substep s (prediction) in one launch
@@ -419,6 +423,8 @@ class Solver(PoseInput, Sleeping):
                 break
             if before:
                 gated(lambda sub: contact.record(launch, sub, state, gated), 1)
+            elif hold and not hold_after:
+                gated(lambda sub: contact.record_hold(launch, sub, state), 1)
             # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
             whole = self._fused is not None and self._fused.frame_launch and self.contact is None
             if self._fused is not None and (s == 0 or not whole):  # the three groups, each averaged, in one launch
@@ -449,12 +455,14 @@ class Solver(PoseInput, Sleeping):
                                    count=order[1] if order else None)
                     if jacobi:
                         pending = row
-            if contact is not None and ((staged and contact.wants("after")) or cfg.substep_metrics):
+            if contact is not None and ((staged and contact.wants("after")) or cfg.substep_metrics or hold_after):
                 if pending >= 0:  # the substep's positions must be final before contact / metrics
                     apply(pending)
                     pending = -1
                 if staged and contact.wants("after"):
                     gated(lambda sub: contact.record(launch, sub, state, gated), 1)
+                elif hold_after:
+                    gated(lambda sub: contact.record_hold(launch, sub, state), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
                 if pending >= 0:
                     apply(pending)

@@ -1,0 +1,227 @@
+"""The contact held between stages (``Config.contact_linear``): a mixin of
+:class:`~physhand_mj.contact.contact.Contact`.
+
+With ``Config.contact_every`` k > 1 the contact stage (broadphase, multires decision points, Eq. 9,
+the feature push) runs every k-th substep only, and between two stages the flesh and the bones can
+press the skin back into an object it was lifted off: the next stage must undo it, and on the hard
+cases one stage could not (docs/activity.md: 13 of 600 held frames with up to 0.5 mm left at k = 2,
+255 with up to 9 mm at k = 5).
+
+Here every stage ends by linearising, for each of its active skin triangles whose decision point is
+within ``contact_margin`` of an object, that point's constraint (Eq. 8, phi(x*) >= offset) about
+where the stage left it: phi(x*) ~ g . x* + c, with x* the same barycentric point of the triangle,
+g the unit SDF gradient there and c the offset that makes the plane exact at x*, both kept in the
+geom's frame (so an object that moves between frames carries its planes). A substep without a stage
+then runs one pass of Eq. 9 against these planes only (:func:`hold_planes`, one query-free launch
+plus the averaged apply: no SDF, no BVH, no lattice), in the stage's own placement.
+
+The planes are a first-order model of the object near where the skin touched it: exact for a plane
+or a box face, conservative on a convex surface (its tangent plane lies outside it), and the next
+stage re-queries the exact SDF. The frame's last substep always runs a full stage (contact_every
+counts back from it), so what a frame ends with is checked as before. Planes made by the last stage
+of a frame also hold the next frame's first substeps (its objects' new poses applied); a frame whose
+contact did not run (nothing near) leaves none for the next. A plane whose point lies more than
+``HOLD_MAX_DEPTH`` behind it (the skin moved far since) is not applied. A triangle whose stage took
+the side-aware exit (query.project) makes no plane: its correction is not along the gradient.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from physhand_mj.contact.broadphase import world_geoms
+from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth_weight, side_floor, world_phi_grad
+
+wp.set_module_options({"enable_backward": False})
+
+HOLD_MAX_DEPTH = wp.constant(2.0e-3)  # m: a plane's point further behind it than this is left to the next stage
+
+
+@wp.func
+def barycentric(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
+    """(w_a, w_b, w_c) of p's projection onto triangle abc's plane (a degenerate triangle: (1, 0, 0))."""
+    e0 = b - a
+    e1 = c - a
+    ep = p - a
+    d00 = wp.dot(e0, e0)
+    d01 = wp.dot(e0, e1)
+    d11 = wp.dot(e1, e1)
+    d20 = wp.dot(ep, e0)
+    d21 = wp.dot(ep, e1)
+    den = d00 * d11 - d01 * d01
+    if den <= 1.0e-30:
+        return wp.vec3(1.0, 0.0, 0.0)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    # clamped into the triangle (a decision point is a point of it; rounding can leave it just outside)
+    r = wp.vec3(wp.max(1.0 - v - w, 0.0), wp.max(v, 0.0), wp.max(w, 0.0))
+    return r * (1.0 / wp.max(r[0] + r[1] + r[2], 1.0e-12))
+
+
+@wp.kernel
+def make_planes(
+    faces: wp.array2d(dtype=int),
+    active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    decision: wp.array(dtype=wp.vec4),
+    eval_x: wp.array2d(dtype=wp.vec3),
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
+    inv_pose: wp.array(dtype=wp.transform),
+    radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.vec2ul),
+    geom_count: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
+    margin: float,
+    side_aware: int,
+    x: wp.array(dtype=wp.vec3),
+    plane_tri: wp.array(dtype=int),
+    plane_bary: wp.array(dtype=wp.vec3),
+    plane_geom: wp.array(dtype=int),
+    plane_eq: wp.array(dtype=wp.vec4),
+    plane_state: wp.array(dtype=int),
+):
+    """For each of the stage's active triangles (``active[:active_count]``): its decision point
+    (``decision``, taken on the vertices ``eval_x``) as barycentric weights, the point at those weights
+    on the triangle as it is now, phi and its gradient there; within ``margin``, a plane [g, c] in the
+    closest geom's frame (phi ~ g . q + c for a point q in that frame) appended to the plane list.
+    Thread 0 marks the list as made in this frame (``plane_state[1]``); the caller zeroes its length
+    (``plane_state[0]``) first."""
+    k = wp.tid()
+    if k == 0:
+        plane_state[1] = 1
+    if k >= active_count[0]:
+        return
+    t = active[k]
+    i0 = faces[t, 0]
+    i1 = faces[t, 1]
+    i2 = faces[t, 2]
+    dec = decision[t]
+    w = barycentric(wp.vec3(dec[0], dec[1], dec[2]), eval_x[t, 0], eval_x[t, 1], eval_x[t, 2])
+    a = x[i0]
+    b = x[i1]
+    c = x[i2]
+    p = a * w[0] + b * w[1] + c * w[2]
+    base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
+    d, g, arg = world_phi_grad(p, gtype, size, inv_pose, radius, mesh, base, end - base, active_mask[k])
+    if d >= margin:
+        return
+    if side_aware != 0 and -d > side_floor(gtype[arg], size[arg]):
+        nt = wp.normalize(wp.cross(b - a, c - a))
+        if wp.dot(g, nt) > SIDE_COS:  # (query.project's side-aware exit: not along the gradient)
+            return
+    ti = inv_pose[arg]
+    gl = wp.quat_rotate(wp.transform_get_rotation(ti), g)  # the gradient in the geom's frame
+    ql = wp.transform_point(ti, p)
+    slot = wp.atomic_add(plane_state, 0, 1)
+    plane_tri[slot] = t
+    plane_bary[slot] = w
+    plane_geom[slot] = arg
+    plane_eq[slot] = wp.vec4(gl[0], gl[1], gl[2], d - wp.dot(gl, ql))
+
+
+@wp.kernel
+def hold_planes(
+    faces: wp.array2d(dtype=int),
+    plane_tri: wp.array(dtype=int),
+    plane_bary: wp.array(dtype=wp.vec3),
+    plane_geom: wp.array(dtype=int),
+    plane_eq: wp.array(dtype=wp.vec4),
+    plane_state: wp.array(dtype=int),
+    inv_pose: wp.array(dtype=wp.transform),
+    geom_obj: wp.array(dtype=int),
+    offset: float,
+    x: wp.array(dtype=wp.vec3),
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+    vertex_obj: wp.array(dtype=int),
+):
+    """One pass of Eq. 9 against the planes :func:`make_planes` left (this frame's, or the last
+    frame's when that frame made some: ``plane_state`` [length, made this frame, made last frame]):
+    the plane's point on the triangle as it is now, phi there by the plane, and below offset / 2 the
+    triangle's vertices corrected along the plane's normal (query.project's correction and depth
+    weight), into the pass's accumulators (apply_contact averages them)."""
+    k = wp.tid()
+    if k >= plane_state[0] or (plane_state[1] == 0 and plane_state[2] == 0):
+        return
+    t = plane_tri[k]
+    i0 = faces[t, 0]
+    i1 = faces[t, 1]
+    i2 = faces[t, 2]
+    w = plane_bary[k]
+    p = x[i0] * w[0] + x[i1] * w[1] + x[i2] * w[2]
+    g = plane_geom[k]
+    ti = inv_pose[g]
+    e = plane_eq[k]
+    gl = wp.vec3(e[0], e[1], e[2])
+    d = wp.dot(gl, wp.transform_point(ti, p)) + e[3]
+    if d >= 0.5 * offset or d < -HOLD_MAX_DEPTH:
+        return
+    corr = wp.quat_rotate_inv(wp.transform_get_rotation(ti), gl) * (offset - d)
+    wt = depth_weight(-d)
+    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geom_obj[g], delta, hits, touched, touched_count, vertex_obj)
+
+
+@wp.kernel
+def roll_planes(plane_state: wp.array(dtype=int)):
+    """At a frame's start: the planes made last frame may hold this frame's first substeps; none made yet."""
+    plane_state[2] = plane_state[1]
+    plane_state[1] = 0
+
+
+class LinearHold:
+    """``Config.contact_linear``'s half of :class:`~physhand_mj.contact.contact.Contact` (which owns
+    the model, the objects, the stage's lists and accumulators these methods use)."""
+
+    def _make_planes_buffers(self) -> None:
+        """The plane list (a slot per skin triangle) where the config asks for it, else empty arrays."""
+        n, d = (max(self.n_tris, 1) if self.holds else 0), self.model.device
+        self.plane_tri = wp.zeros(n, dtype=int, device=d)
+        self.plane_bary = wp.zeros(n, dtype=wp.vec3, device=d)
+        self.plane_geom = wp.zeros(n, dtype=int, device=d)
+        self.plane_eq = wp.zeros(n, dtype=wp.vec4, device=d)
+        self.plane_state = wp.zeros(3, dtype=int, device=d)  # [length, made this frame, made last frame]
+        self._plane_len = self.plane_state[0:1]
+
+    @property
+    def holds(self) -> bool:
+        """Whether substeps without a contact stage hold the skin on the last stage's planes."""
+        cfg = self.config
+        return bool(cfg.contact_linear and cfg.contact_every > 1 and self.n_tris and not self.fused)
+
+    def record_frame_planes(self, launch) -> None:
+        """Every frame, contact or not: last frame's planes become the previous ones (roll_planes)."""
+        if self.holds:
+            launch(roll_planes, 1, [self.plane_state], [])
+
+    def record_make_planes(self, launch, ops: list, state) -> None:
+        """After a stage's last pass: its planes (make_planes), replacing the list."""
+        if not self.holds:
+            return
+        m, o, cfg = self.model, self.objects, self.config
+        ops.append(self._plane_len.zero_)
+        launch(make_planes, self.n_tris,
+               [m.skin_faces, self.active, self.active_mask, self.active_count, self.decision, self.eval_x,
+                o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, self.tris_per_world,
+                self.geoms_per_world, cfg.contact_margin, int(self.closed_skin and cfg.side_aware), state.x],
+               [self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state],
+               count=self.active_count, min_dim=1)
+
+    def record_hold(self, launch, ops: list, state) -> None:
+        """A substep without a stage: one pass of Eq. 9 against the planes, applied."""
+        if not self.holds:
+            return
+        m, o, cfg = self.model, self.objects, self.config
+        stamp = self._slot
+        count = self._counter()
+        launch(hold_planes, self.n_tris,
+               [m.skin_faces, self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state,
+                o.inv_pose, o.obj, cfg.contact_offset, state.x],
+               [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._plane_len)
+        shift, shifted = self._apply_shift(state)
+        launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
+               [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
