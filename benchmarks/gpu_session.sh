@@ -956,6 +956,8 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
       step demo_linear_$r 120 python3 benchmarks/softhand_frame.py --device cuda \
         --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/softhand_s50_linear_$r.json"
     done
+    step asleep 120 python3 benchmarks/asleep_frame.py --device cuda --frames 2000 --profile \
+      --out "$OUT/asleep_frame_cuda_s50a.json"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \

@@ -20,6 +20,7 @@ class PoseInput:
         # the upload buffers ([frame start, frame end] rows), one per frame in turn: a frame in flight
         # copies from one while the next frame's poses go into the other (stage_pose_rows)
         self._pose_pins = [wp.empty((2, n_bodies), dtype=wp.transform, device="cpu", pinned=pinned) for _ in range(2)]
+        self._pose_pins_np = [p.numpy() for p in self._pose_pins]  # (their numpy views, made once: ~10 us each)
         self._pin = 0  # the buffer the next launch uploads from
         self._rows_set = None  # the rows set_body_pose_rows last took (a staged upload names them)
         self._staged = None  # the last stage_pose_rows token (launch takes only that one)
@@ -102,7 +103,7 @@ class PoseInput:
         if self._in_flight is None or self._in_flight[0] is not state or self.regions is not None:
             return None
         self._check_rows(state, rows)
-        buf = self._pose_pins[self._pin].numpy()  # (the frame in flight uploads from the other one)
+        buf = self._pose_pins_np[self._pin]  # (the frame in flight uploads from the other one)
         buf[0] = state.pose_host[0]  # (launch moved the frame in flight's end there; finish leaves it)
         buf[1] = rows
         # (the fast-motion check's largest bone move too, for launch)
@@ -143,7 +144,7 @@ class PoseInput:
                           f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
                           f"contacts may be missed; raise contact_frame_margin or use shorter frames")
         pin = self._pose_pins[self._pin]
-        buf = pin.numpy()
+        buf = self._pose_pins_np[self._pin]
         if staged is None:
             buf[:] = state.pose_host  # (else stage_pose_rows filled it while the frame before ran)
         self._pin ^= 1

@@ -123,13 +123,18 @@ class Sleeping:
         state.sleep_box = np.where(pick == 1, hi, lo)
         self._alone_key = None  # a new box: test it afresh (an old key could name a freed box's id)
 
-    def _launch_sleep(self, state: State, key) -> None:
+    def _launch_sleep(self, state: State, key, upload=None) -> None:
         """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
-        (CUDA: one captured graph). :meth:`_finish_sleep` reports it (Solver.launch / finish)."""
+        (CUDA: one captured graph, which with ``upload`` (a pose buffer Solver.launch left) also
+        uploads the frame's poses first, and copies the guard back). :meth:`_finish_sleep` reports
+        it (Solver.launch / finish)."""
+        pin = -1 if upload is None else next(i for i, p in enumerate(self._pose_pins) if p is upload)
+        frame_key, key = key, key + (pin,)  # (the frame's key names its broadphase ahead; one graph per buffer)
         ops = self._sleep_ops.get(key)
         if ops is None:
             m, d = self.model, self.device
-            ops = [state.guard.zero_]
+            ops = [] if upload is None else [lambda: wp.copy(state.body_pose, upload)]
+            ops.append(state.guard.zero_)
             if self.contact is not None:
                 self.contact.begin_frame(ops)
                 ops.append(self.contact.counters.zero_)  # (CUDA: also when the broadphase did not run ahead)
@@ -139,13 +144,15 @@ class Sleeping:
                             record_cmd=True)
             ops.append(cmd.launch)
             ops += self._tail  # (Solver.set_frame_tail)
+            ops.append(lambda: wp.copy(self._guard_host, state.guard))
             self._sleep_ops[key] = ops
         ahead = self.activity.gate_ahead and state.sleep_box is None  # (CUDA: the broadphase ran ahead)
         self._replay(ops, key + ("asleep",))
-        wp.copy(self._guard_host, state.guard)
         if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
             self.contact.copy_metrics()
-        self._sleep_launched = (key, len(ops), ahead)
+            self._asleep_summary = None
+        # (ops_run counts the frame's launches and memsets as before: not the pose and guard copies)
+        self._sleep_launched = (frame_key, len(ops) - 1 - int(upload is not None), ahead)
 
     def _finish_sleep(self, state: State) -> dict:
         key, n_ops, ahead = self._sleep_launched
@@ -158,12 +165,16 @@ class Sleeping:
         near = self.activity.objects_near if self.contact is not None else 0
         self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
                                   features_listed=0, ops_run=n_ops + ahead, contact_ops_run=ahead)
-        self._read_guard_worlds(self._guard_host.numpy())
-        out = {"nonfinite": int(self._guard_host.numpy()[0]), "inverted": 0}
+        g = self._guard_np
+        self._read_guard_worlds(g)
+        out = {"nonfinite": int(g[0]), "inverted": 0}
         if self.contact is not None:
             if self.config.skin_tether > 0:
                 out["tethered"] = 0
-            self._contact_summary(out)
+            if self._asleep_summary is None:  # (the host rows stay as they were: the same summary)
+                self._asleep_summary = {}
+                self._contact_summary(self._asleep_summary)
+            out.update(self._asleep_summary)
         out.update(self.last_activity)
         if self.regions is not None:  # (the regions' own state waits under the whole hand's sleep)
             out.update(self.regions.report(whole_hand=True))

@@ -114,6 +114,8 @@ class Solver(PoseInput, Sleeping):
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
         self._init_poses(model.n_bodies, self.device.is_cuda)  # (poses.py)
         self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
+        self._guard_np = self._guard_host.numpy()  # (its numpy view, made once)
+        self._asleep_summary = None  # (sleep.py: an asleep frame's contact summary while the host rows stay)
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
         self._fused = fused_choice.choose(model, self.config, self.device)  # Config.fused_substep
@@ -178,18 +180,23 @@ class Solver(PoseInput, Sleeping):
         rigid = self._bones_still(state) if self._settled(state) else None
         if self.regions is not None:
             self.regions.before_frame(*frame_poses)
-        wp.copy(state.body_pose, pin)
+        # a frame that may sleep on CUDA graphs uploads its poses inside its graph (sleep.py); else now
+        upload = pin if rigid and self.regions is None and self._capturable() else None
+        if upload is None:
+            wp.copy(state.body_pose, pin)
         if self.regions is not None:
             self.regions.apply(state)
         try:
-            self._queue_frame(state, rigid, frame_poses)
+            self._queue_frame(state, rigid, frame_poses, upload)
         finally:  # (after the frame is queued: the host copy is off the device's critical path)
             state.pose_host[0] = state.pose_host[1]
             state.pose_fresh = False
 
-    def _queue_frame(self, state: State, rigid, frame_poses) -> None:
+    def _queue_frame(self, state: State, rigid, frame_poses, upload=None) -> None:
         """:meth:`launch`'s decisions and launches, after the pose upload (``rigid``: the sleep
-        test's bone conditions; ``frame_poses``: the frame's start and end poses on the host)."""
+        test's bone conditions; ``frame_poses``: the frame's start and end poses on the host;
+        ``upload``: the pose buffer not yet uploaded, which a sleeping frame's graph copies and any
+        other frame copies before its first launch)."""
         key = (id(state), id(self.contact))
         ops = self._ops.get(key)
         self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
@@ -201,9 +208,11 @@ class Solver(PoseInput, Sleeping):
                 self.contact.finish_recording(self.activity.passes_gated)
         act = self.activity
         if not first and rigid and self._asleep_and_alone(state, frame_poses):
-            self._launch_sleep(state, key)  # (CUDA: no broadphase ahead, no extra sync)
+            self._launch_sleep(state, key, upload)  # (CUDA: no broadphase ahead, no extra sync)
             self._in_flight = (state, None, rigid, frame_poses)
             return
+        if upload is not None:  # (before the broadphase ahead or the frame)
+            wp.copy(state.body_pose, upload)
         if act.gate_ahead:  # the frame broadphase ahead of the frame: its count picks the graph
             for op in self._pre[key]:
                 op()
@@ -237,7 +246,8 @@ class Solver(PoseInput, Sleeping):
         if ops is None:  # a sleeping frame
             return self._finish_sleep(state)
         wp.synchronize_device(self.device)  # the frame's host sync (on CUDA with contact: its second)
-        g = self._guard_host.numpy()
+        g = self._guard_np
+        self._asleep_summary = None
         self._read_guard_worlds(g)
         state.time += self.config.frame_dt
         state.frames += 1
