@@ -959,6 +959,19 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step asleep 120 python3 benchmarks/asleep_frame.py --device cuda --frames 2000 --profile \
       --out "$OUT/asleep_frame_cuda_s50a.json"
     ;;
+  s50_b)  # the asleep frame's host trims: the CUDA tests of sleeping, the pipeline and the planes; the asleep
+    # frame by the commit before (.base/, carried) and this code, alternated twice
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k cuda tests/test_sleep.py \
+      tests/test_batch_pipeline.py tests/test_linear.py tests/test_activity.py
+    for r in 1 2; do
+      step asleep_base_$r 100 env PYTHONPATH=$PWD/.base:$PYTHONPATH python3 benchmarks/asleep_frame.py --device cuda \
+        --frames 3000 --out "$OUT/asleep_frame_cuda_s50b_base_$r.json"
+      step asleep_new_$r 100 python3 benchmarks/asleep_frame.py --device cuda --frames 3000 \
+        --out "$OUT/asleep_frame_cuda_s50b_new_$r.json"
+    done
+    step asleep_profile 100 python3 benchmarks/asleep_frame.py --device cuda --frames 2000 --profile \
+      --out "$OUT/asleep_frame_cuda_s50b_profile.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
