@@ -48,7 +48,10 @@ def main():
         t = time.perf_counter()
         frame()
         ms[i] = (time.perf_counter() - t) * 1e3
+    import physhand_mj
+
     row = dict(device=device_name(a.device if a.device != "cuda" else "cuda:0"), frames=a.frames,
+               package=str(Path(physhand_mj.__file__).parent.relative_to(ROOT)),
                ms_median=round(float(np.median(ms)), 4), ms_mean=round(float(ms.mean()), 4),
                ms_p90=round(float(np.percentile(ms, 90)), 4), ms_p99=round(float(np.percentile(ms, 99)), 4))
     if a.profile:
