@@ -121,8 +121,8 @@ def test_no_planes_outlive_a_frame_without_contact(scene):  # noqa: F811
 
 
 def test_the_option_costs_nothing_where_it_cannot_act(scene):  # noqa: F811
-    """contact_every=1 (a stage every substep): no plane buffers, no plane kernel recorded, the
-    skin the same bits as without the option."""
+    """contact_every=1 (a stage every substep): nothing to hold, no plane buffers, the skin the same
+    bits as without the option."""
     runs = []
     for linear in (False, True):
         solver, state, _, _, _ = _pressed(scene, frames=2, contact_linear=linear)
