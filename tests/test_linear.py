@@ -7,26 +7,58 @@ import pytest
 import warp as wp
 
 from activity_helpers import _solver, _step, scene  # noqa: F401  (scene: a module fixture)
-from physhand_mj.contact.linear import hold_planes
+from physhand_mj.contact.linear import hold_planes, roll_planes
 from physhand_mj.contact.query import apply_contact
 from physhand_mj.types import Config, GeomType
 
 HALF = np.array([0.02, 0.02, 0.005])  # m, the box's half extents
 PRESS = 0.002  # m, its bottom face below the back of the hand's highest skin point
+TILT = 0.15  # rad, the box turned about x (so that a plane's frame shows: world and geom frames differ)
 
 
-def _box_sdf(p: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Exact signed distance (m) of points p (N, 3) to the axis-aligned box at ``centre``."""
-    q = np.abs(p - centre) - HALF
+def _quat_x(angle: float) -> tuple:
+    return (float(np.cos(angle / 2)), float(np.sin(angle / 2)), 0.0, 0.0)  # w x y z
+
+
+def _rot_x(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _box_sdf(p: np.ndarray, centre: np.ndarray, angle: float = TILT) -> np.ndarray:
+    """Exact signed distance (m) of points p (N, 3) to the box at ``centre`` turned ``angle`` about x."""
+    q = np.abs((p - centre) @ _rot_x(angle)) - HALF  # R^T (p - c), row-wise
     return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
 
 
 def _pressed(scene, frames=2, **config):  # noqa: F811
     solver, state, objects, top = _solver(scene, GeomType.BOX, tuple(HALF), **config)
-    centre = top + [0.0, 0.0, HALF[2] - PRESS]
-    objects.set_pose(0, centre, (1.0, 0.0, 0.0, 0.0))
+    centre = top + _rot_x(TILT) @ [0.0, 0.0, HALF[2] - PRESS]
+    objects.set_pose(0, centre, _quat_x(TILT))
     outs = [_step(solver, state, scene[2]) for _ in range(frames)]
     return solver, state, objects, centre, outs
+
+
+def _hold_once(solver, state, plane_state=None) -> int:
+    """One hold pass (hold_planes + apply_contact) launched here on the contact's planes (or with the
+    flags ``plane_state``); returns how many vertices it corrected."""
+    c, o, m = solver.contact, solver.contact.objects, solver.model
+    count = wp.zeros(1, dtype=int, device="cpu")
+    flags = c.plane_state if plane_state is None else plane_state
+    wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.plane_tri, c.plane_bary, c.plane_geom, c.plane_eq,
+                                             flags, o.inv_pose, o.obj, solver.config.contact_offset, state.x],
+              outputs=[c.delta, c.hits, c.touched, count, c.vertex_obj], device="cpu")
+    shift, shifted = c._apply_shift(state)
+    wp.launch(apply_contact, m.n_vertices, inputs=[c.touched, count, 10_000, c.delta, c.hits, shift],
+              outputs=[state.x, c.push, c.moved, c.disp, c.pass_move, shifted], device="cpu")
+    return int(count.numpy()[0])
+
+
+def _next_frame_flags(solver) -> wp.array:
+    """The planes' flags as the next frame's start leaves them (roll_planes on a copy)."""
+    flags = wp.clone(solver.contact.plane_state)
+    wp.launch(roll_planes, 1, inputs=[flags], device="cpu")
+    return flags
 
 
 def _planes(contact):
@@ -52,7 +84,8 @@ def test_the_planes_are_the_box_faces_at_their_points(scene):  # noqa: F811
     assert np.allclose(bary.sum(axis=1), 1.0, atol=1e-5) and np.all(bary >= 0.0)
     p = _plane_points(solver, state, tri, bary)
     exact = _box_sdf(p, centre)
-    by_plane = np.einsum("nd,nd->n", eq[:, :3].astype(np.float64), p - centre) + eq[:, 3]
+    local = (p - centre) @ _rot_x(TILT)  # the planes live in the box's frame
+    by_plane = np.einsum("nd,nd->n", eq[:, :3].astype(np.float64), local) + eq[:, 3]
     assert np.abs(by_plane - exact).max() < 1.0e-6, np.abs(by_plane - exact).max()
     assert np.all(exact < Config().contact_margin)
     g = eq[:, :3]
@@ -61,26 +94,18 @@ def test_the_planes_are_the_box_faces_at_their_points(scene):  # noqa: F811
 
 
 def test_the_hold_follows_the_box_when_it_moves(scene):  # noqa: F811
-    """The planes live in the box's frame: lowered by 0.3 mm into the skin after a frame, one hold
-    pass lifts the skin so that no plane point is inside the box by its exact SDF, where they were
-    ~0.3 mm inside before it."""
+    """The planes live in the box's frame: lowered 0.3 mm into the skin and turned 0.02 rad more
+    after a frame, one hold pass lifts the skin so that no plane point is inside the box by its
+    exact SDF, where they were ~0.3 mm inside before it."""
     solver, state, objects, centre, _ = _pressed(scene, contact_every=2, contact_linear=True)
-    c = solver.contact
-    tri, bary, _, _ = _planes(c)
-    moved = centre - [0.0, 0.0, 3.0e-4]  # (the box sits on the back of the hand: down is into the skin)
-    objects.set_pose(0, moved, (1.0, 0.0, 0.0, 0.0))
-    before = _box_sdf(_plane_points(solver, state, tri, bary), moved)
+    tri, bary, _, _ = _planes(solver.contact)
+    turn = TILT + 0.02
+    moved = centre - _rot_x(turn) @ [0.0, 0.0, 3.0e-4]  # (the box sits on the back of the hand: into the skin)
+    objects.set_pose(0, moved, _quat_x(turn))
+    before = _box_sdf(_plane_points(solver, state, tri, bary), moved, turn)
     assert before.min() < -2.5e-4
-    count = wp.zeros(1, dtype=int, device="cpu")
-    o, m = c.objects, solver.model
-    wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.plane_tri, c.plane_bary, c.plane_geom, c.plane_eq,
-                                             c.plane_state, o.inv_pose, o.obj, solver.config.contact_offset, state.x],
-              outputs=[c.delta, c.hits, c.touched, count, c.vertex_obj], device="cpu")
-    assert count.numpy()[0] > 0
-    shift, shifted = c._apply_shift(state)
-    wp.launch(apply_contact, m.n_vertices, inputs=[c.touched, count, 10_000, c.delta, c.hits, shift],
-              outputs=[state.x, c.push, c.moved, c.disp, c.pass_move, shifted], device="cpu")
-    after = _box_sdf(_plane_points(solver, state, tri, bary), moved)
+    assert _hold_once(solver, state) > 0
+    after = _box_sdf(_plane_points(solver, state, tri, bary), moved, turn)
     assert after.min() > -1.0e-6, after.min()
 
 
@@ -105,19 +130,40 @@ def test_holding_keeps_the_skin_out_between_stages(scene, device):  # noqa: F811
     assert depth[True] < 0.25 * depth[False], depth
 
 
-def test_no_planes_outlive_a_frame_without_contact(scene):  # noqa: F811
-    """A frame whose contact did not run (the box 1 m away) makes no planes, so the frame after it
-    holds nothing before its first stage; with the box back the frames end clean."""
+def test_no_planes_outlive_a_frame_without_contact_a_wake_or_another_state(scene):  # noqa: F811
+    """The next frame's first substeps hold on a frame's planes (with the box lowered 0.5 mm a hold
+    moves the skin), but not after a frame whose contact did not run (the box 1 m away), nor after
+    Solver.wake, nor for another state of the solver; with the box back, 1 mm aside, frames end clean."""
     solver, state, objects, centre, _ = _pressed(scene, contact_every=2, contact_linear=True)
-    c = solver.contact
-    assert c.plane_state.numpy()[1] == 1
+    lowered = centre - _rot_x(TILT) @ [0.0, 0.0, 5.0e-4]
+
+    def holds_next_frame():
+        objects.set_pose(0, lowered, _quat_x(TILT))
+        x = state.x.numpy().copy()
+        n = _hold_once(solver, state, _next_frame_flags(solver))
+        state.x.assign(x)  # (the probe leaves the skin as it was)
+        objects.set_pose(0, centre, _quat_x(TILT))
+        return n
+
+    assert holds_next_frame() > 0
     objects.set_pose(0, (1.0, 1.0, 1.0), (1.0, 0.0, 0.0, 0.0))
     out = _step(solver, state, scene[2])
-    assert out["triangles_tested"] == 0 and c.plane_state.numpy()[1] == 0
-    objects.set_pose(0, centre, (1.0, 0.0, 0.0, 0.0))
+    assert out["triangles_tested"] == 0 and holds_next_frame() == 0
+    objects.set_pose(0, centre + [0.001, 0.0, 0.0], _quat_x(TILT))
     for _ in range(2):
         out = _step(solver, state, scene[2])
-    assert out["penetration_count"] == 0 and c.plane_state.numpy()[1] == 1
+    assert out["penetration_count"] == 0 and holds_next_frame() > 0
+    solver.wake(state)
+    assert holds_next_frame() == 0
+    _step(solver, state, scene[2])
+    assert holds_next_frame() > 0
+    other = solver.make_state(*scene[1])
+    _step(solver, other, scene[2])  # (its frame makes planes of its own skin)
+    assert holds_next_frame() > 0 and solver.contact._planes_of is other
+    solver.contact.forget_planes(state)  # (what Solver.launch does first for a frame of ``state``)
+    assert holds_next_frame() == 0 and solver.contact._planes_of is state
+    solver.contact.forget_planes(state)  # (the same state again: nothing dropped)
+    assert solver.contact.plane_state.numpy().tolist() == [0, 0, 0]
 
 
 def test_the_option_costs_nothing_where_it_cannot_act(scene):  # noqa: F811
@@ -136,3 +182,22 @@ def test_config_checks():
         Config(contact_linear="yes").validate()
     with pytest.raises(ValueError, match="fused_stage=False"):
         Config(contact_linear=True, fused_stage=True).validate()
+
+
+def test_no_planes_outlive_sleep(scene):  # noqa: F811
+    """A hand may fall asleep on the frame right after one that made planes (CUDA: the broadphase run
+    ahead finds nothing near); its sleeping frames drop them, so it holds on none when it wakes. Here
+    the planes of a pressing frame are put back by hand before an asleep frame."""
+    solver, state, objects, centre, _ = _pressed(scene, frames=2, contact_every=2, contact_linear=True)
+    made = solver.contact.plane_state.numpy().copy()
+    assert made[0] > 0 and made[1] == 1
+    objects.set_pose(0, (1.0, 1.0, 1.0), (1.0, 0.0, 0.0, 0.0))
+    for _ in range(400):
+        if _step(solver, state, scene[2])["asleep"]:
+            break
+    else:
+        raise AssertionError("the hand did not fall asleep")
+    solver.contact.plane_state.assign(made)  # (as if the frame before this one had made them)
+    assert _step(solver, state, scene[2])["asleep"]
+    objects.set_pose(0, centre - _rot_x(TILT) @ [0.0, 0.0, 5.0e-4], _quat_x(TILT))
+    assert _hold_once(solver, state, _next_frame_flags(solver)) == 0

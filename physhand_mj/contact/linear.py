@@ -13,14 +13,18 @@ where the stage left it: phi(x*) ~ g . x* + c, with x* the same barycentric poin
 g the unit SDF gradient there and c the offset that makes the plane exact at x*, both kept in the
 geom's frame (so an object that moves between frames carries its planes). A substep without a stage
 then runs one pass of Eq. 9 against these planes only (:func:`hold_planes`, one query-free launch
-plus the averaged apply: no SDF, no BVH, no lattice), in the stage's own placement.
+plus the averaged apply: no SDF, no BVH, no lattice), after the substep's solve (before it with
+``Placement.BEFORE``). A triangle the stage left out of its first pass as far keeps the weights of its
+last decision point (its plane is exact where it is made all the same).
 
 The planes are a first-order model of the object near where the skin touched it: exact for a plane
 or a box face, conservative on a convex surface (its tangent plane lies outside it), and the next
 stage re-queries the exact SDF. The frame's last substep always runs a full stage (contact_every
 counts back from it), so what a frame ends with is checked as before. Planes made by the last stage
 of a frame also hold the next frame's first substeps (its objects' new poses applied); a frame whose
-contact did not run (nothing near) leaves none for the next. A plane whose point lies more than
+contact did not run (nothing near, or the hand asleep) leaves none for the next, and none survive
+``Solver.wake`` (``SoftHand.reset`` calls it) or a frame of another state. ``roll_planes`` counts
+among a frame's ops, not its contact ops. A plane whose point lies more than
 ``HOLD_MAX_DEPTH`` behind it (the skin moved far since) is not applied. A triangle whose stage took
 the side-aware exit (query.project) makes no plane: its correction is not along the gradient.
 """
@@ -186,6 +190,14 @@ class LinearHold:
         self.plane_eq = wp.zeros(n, dtype=wp.vec4, device=d)
         self.plane_state = wp.zeros(3, dtype=int, device=d)  # [length, made this frame, made last frame]
         self._plane_len = self.plane_state[0:1]
+
+    def forget_planes(self, state=None) -> None:
+        """Drop the planes (a hand woken or reset, or another state stepped with this contact); with
+        ``state``, only when the planes were made for another one."""
+        if not self.holds or (state is not None and getattr(self, "_planes_of", None) is state):
+            return
+        self.plane_state.zero_()
+        self._planes_of = state
 
     @property
     def holds(self) -> bool:

@@ -138,6 +138,8 @@ class Sleeping:
             if self.contact is not None:
                 self.contact.begin_frame(ops)
                 ops.append(self.contact.counters.zero_)  # (CUDA: also when the broadphase did not run ahead)
+                if self.contact.holds:  # (Config.contact_linear: no plane outlives a frame without contact)
+                    ops.append(self.contact.plane_state.zero_)
             cmd = wp.launch(integrate.carry_asleep, m.n_vertices,
                             inputs=[m.vertex_carrier, m.vertex_world, state.body_pose, float(self.config.frame_dt)],
                             outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
@@ -151,8 +153,10 @@ class Sleeping:
         if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
             self.contact.copy_metrics()
             self._asleep_summary = None
-        # (ops_run counts the frame's launches and memsets as before: not the pose and guard copies)
-        self._sleep_launched = (frame_key, len(ops) - 1 - int(upload is not None), ahead)
+        # (ops_run counts the frame's launches and memsets as before: not the pose upload and guard copy
+        # the graph took over, nor the planes' reset)
+        extra = 1 + int(upload is not None) + int(self.contact is not None and self.contact.holds)
+        self._sleep_launched = (frame_key, len(ops) - extra, ahead)
 
     def _finish_sleep(self, state: State) -> dict:
         key, n_ops, ahead = self._sleep_launched
@@ -187,6 +191,8 @@ class Sleeping:
         state.sleep_onset = state.sleep_box = None
         if self.regions is not None:
             self.regions.wake_all()
+        if self.contact is not None:  # (Config.contact_linear: a woken or reset hand holds on no old plane)
+            self.contact.forget_planes()
 
     def _settled(self, state: State) -> bool:
         return self.config.sleep_speed > 0 and state.still >= self.config.sleep_frames

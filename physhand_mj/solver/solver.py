@@ -175,6 +175,8 @@ class Solver(PoseInput, Sleeping):
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
         pin, frame_poses = self._frame_poses_in(state, staged)  # (poses.py: the frame's poses, their upload buffer)
+        if self.contact is not None:  # (Config.contact_linear: planes made for another state are dropped)
+            self.contact.forget_planes(state)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
         rigid = self._bones_still(state) if self._settled(state) else None
