@@ -7,6 +7,8 @@ import pytest
 import warp as wp
 
 from activity_helpers import _solver, _step, scene  # noqa: F401  (scene: a module fixture)
+from test_batch import _beside_serial, setup  # noqa: F401  (setup: a module fixture)
+from physhand_mj.hand_mjcf import bone_poses_at
 from physhand_mj.contact.linear import hold_planes, roll_planes
 from physhand_mj.contact.query import apply_contact
 from physhand_mj.types import Config, GeomType
@@ -201,3 +203,41 @@ def test_no_planes_outlive_sleep(scene):  # noqa: F811
     assert _step(solver, state, scene[2])["asleep"]
     objects.set_pose(0, centre - _rot_x(TILT) @ [0.0, 0.0, 5.0e-4], _quat_x(TILT))
     assert _hold_once(solver, state, _next_frame_flags(solver)) == 0
+
+
+def test_batched_worlds_hold_as_their_serial_runs(setup):  # noqa: F811
+    """Two batched worlds with contact_linear (world 1's sphere 2 mm into the back of its hand, world
+    0's 10 cm away) end every frame as two serial solvers do, bit for bit: the planes of a batch are
+    per world (its triangles, its geoms); world 1 made some and nothing penetrates."""
+    from physhand_mj.batch import BatchedHands
+
+    asset, model, data, ids, mount = setup
+    poses = bone_poses_at(model, data, model.key("open").qpos, ids)
+    cfg = Config(device="cpu", contact_every=2, contact_linear=True)
+    batch = BatchedHands(asset, 2, cfg, *mount, objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]]
+    out, serial = _beside_serial(batch, asset, cfg, mount, poses, where,
+                                 dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0)), serial_worlds=2)
+    assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
+    c = batch.solver.contact
+    tri = c.plane_tri.numpy()[: int(c.plane_state.numpy()[0])]
+    assert len(tri) > 0 and np.all(tri >= c.tris_per_world)  # world 1's triangles only
+    assert serial[1][0].contact.plane_state.numpy()[0] == len(tri)
+    for w, (_, st) in enumerate(serial):
+        np.testing.assert_array_equal(batch.positions(w), st.x.numpy())
+
+
+def test_the_hold_before_the_solve(scene):  # noqa: F811
+    """Placement.BEFORE (the stage before the substep's solve, whose frames end with what the last
+    solve did) holds before the solve too: planes are made, the hold changes the skin (a run without
+    it ends elsewhere), nothing turns non-finite."""
+    runs = []
+    for linear in (False, True):
+        solver, state, _, _, outs = _pressed(scene, frames=3, contact_every=2, contact_linear=linear,
+                                             contact_placement="before")
+        assert outs[-1]["nonfinite"] == 0 and np.isfinite(state.x.numpy()).all()
+        runs.append(state.x.numpy().copy())
+    assert solver.contact.plane_state.numpy()[0] > 0
+    assert np.abs(runs[0] - runs[1]).max() > 1.0e-6
