@@ -165,7 +165,7 @@ def test_no_planes_outlive_a_frame_without_contact_a_wake_or_another_state(scene
     solver.contact.forget_planes(state)  # (what Solver.launch does first for a frame of ``state``)
     assert holds_next_frame() == 0 and solver.contact._planes_of is state
     solver.contact.forget_planes(state)  # (the same state again: nothing dropped)
-    assert solver.contact.plane_state.numpy().tolist() == [0, 0, 0]
+    assert solver.contact.plane_state.numpy().tolist() == [0, 0, 0, 0]
 
 
 def test_the_option_costs_nothing_where_it_cannot_act(scene):  # noqa: F811
@@ -241,3 +241,46 @@ def test_the_hold_before_the_solve(scene):  # noqa: F811
         runs.append(state.x.numpy().copy())
     assert solver.contact.plane_state.numpy()[0] > 0
     assert np.abs(runs[0] - runs[1]).max() > 1.0e-6
+
+
+def test_the_feature_points_are_held_too(scene):  # noqa: F811
+    """A cube's corner 1 mm into the back of the hand, then lowered 0.3 mm: 7 of its points are
+    inside the skin by the independent measures (order 9, the object's points). One hold on the
+    decision points' planes alone leaves one of them inside (~56 um); with the kept feature points
+    pushed first and last (the stage's order) none is, nor any skin sample."""
+    from physhand_mj.metrics import summarize
+
+    h = 0.005  # m, the cube's half edge
+    angle, axis = np.arccos(1.0 / np.sqrt(3.0)), np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)
+    quat = (float(np.cos(angle / 2)), *(axis * np.sin(angle / 2)))  # (1, 1, 1) to +z: the (-1, -1, -1) corner down
+    solver, state, objects, top = _solver(scene, GeomType.BOX, (h, h, h), contact_every=2, contact_linear=True)
+    centre = top + [0.0, 0.0, h * np.sqrt(3.0) - 0.001]
+    objects.set_pose(0, centre, quat)
+    for _ in range(3):
+        out = _step(solver, state, scene[2])
+    c = solver.contact
+    assert out["penetration_count"] == 0 and c.plane_state.numpy()[3] > 0  # feature points kept
+    objects.set_pose(0, centre - [0.0, 0.0, 3.0e-4], quat)
+    x0 = state.x.numpy().copy()
+
+    def measured():
+        return summarize(c.measure(state, order=9))
+
+    assert measured()["object_in_skin_count"] > 3
+
+    def hold(features: bool):
+        state.x.assign(x0)
+        kept, slot = c.fplane_pt, c._slot
+        if not features:
+            c.fplane_pt = None
+        ops = []
+        c.record_hold(lambda k, dim, inputs, outputs, **kw: ops.append(
+            lambda: wp.launch(k, dim, inputs=inputs, outputs=outputs, device="cpu")), ops, state)
+        for op in ops:
+            op()
+        c.fplane_pt, c._slot = kept, slot
+        return measured()
+
+    planes_only, both = hold(False), hold(True)
+    assert planes_only["object_in_skin_count"] > 0, planes_only
+    assert both["object_in_skin_count"] == 0 and both["penetration_count"] == 0, both

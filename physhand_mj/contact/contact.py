@@ -379,7 +379,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                 lst, prev, flag = box["r"]
             else:
                 lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
-        self.record_make_planes(launch, ops, state)  # (Config.contact_linear: linear.py)
+        self.record_make_planes(launch, ops, state, feat_count)  # (Config.contact_linear: linear.py)
 
     def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and

@@ -34,6 +34,8 @@ from __future__ import annotations
 import warp as wp
 
 from physhand_mj.contact.broadphase import world_geoms
+from physhand_mj.contact.features import push_feature
+from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth_weight, side_floor, world_phi_grad
 
 wp.set_module_options({"enable_backward": False})
@@ -171,6 +173,70 @@ def hold_planes(
 
 
 @wp.kernel
+def make_feature_planes(
+    skin: wp.uint64,
+    feat: wp.array(dtype=int),
+    feat_count: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    margin: float,
+    fplane_pt: wp.array(dtype=int),
+    fplane_face: wp.array(dtype=int),
+    fplane_uv: wp.array(dtype=wp.vec2),
+    plane_state: wp.array(dtype=int),
+):
+    """For each of the stage's listed object feature points (``feat[:feat_count]``) within ``margin``
+    of the skin as the stage left it: the skin's closest point (face, u, v) on the skin's BVH, kept
+    with the point (its geom carries it) for :func:`hold_features`; the caller zeroes
+    ``plane_state[3]`` (the list's length) first."""
+    k = wp.tid()
+    if k >= feat_count[0]:
+        return
+    i = feat[k]
+    q = wp.mesh_query_point_no_sign(skin, object_point(i, pts, pts_geom, pose), margin)
+    if not q.result:
+        return
+    slot = wp.atomic_add(plane_state, 3, 1)
+    fplane_pt[slot] = i
+    fplane_face[slot] = q.face
+    fplane_uv[slot] = wp.vec2(q.u, q.v)
+
+
+@wp.kernel
+def hold_features(
+    faces: wp.array2d(dtype=int),
+    fplane_pt: wp.array(dtype=int),
+    fplane_face: wp.array(dtype=int),
+    fplane_uv: wp.array(dtype=wp.vec2),
+    plane_state: wp.array(dtype=int),
+    pts: wp.array(dtype=wp.vec3),
+    pts_geom: wp.array(dtype=int),
+    pose: wp.array(dtype=wp.transform),
+    geom_obj: wp.array(dtype=int),
+    offset: float,
+    max_step: float,
+    x: wp.array(dtype=wp.vec3),
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+    vertex_obj: wp.array(dtype=int),
+):
+    """The feature push (features.push_feature) of every kept feature point against the skin point
+    it was closest to when kept: its triangle pushed along the inward normal until the point is
+    ``offset`` outside the triangle's plane as it is now (at most ``max_step``), into the pass's
+    accumulators (``plane_state`` as in :func:`hold_planes`)."""
+    k = wp.tid()
+    if k >= plane_state[3] or (plane_state[1] == 0 and plane_state[2] == 0):
+        return
+    i = fplane_pt[k]
+    uv = fplane_uv[k]
+    push_feature(object_point(i, pts, pts_geom, pose), fplane_face[k], uv[0], uv[1], -1.0, geom_obj[pts_geom[i]],
+                 faces, offset, max_step, x, delta, hits, touched, touched_count, vertex_obj)
+
+
+@wp.kernel
 def roll_planes(plane_state: wp.array(dtype=int)):
     """At a frame's start: the planes made last frame may hold this frame's first substeps; none made yet."""
     plane_state[2] = plane_state[1]
@@ -188,8 +254,11 @@ class LinearHold:
         self.plane_bary = wp.zeros(n, dtype=wp.vec3, device=d)
         self.plane_geom = wp.zeros(n, dtype=int, device=d)
         self.plane_eq = wp.zeros(n, dtype=wp.vec4, device=d)
-        self.plane_state = wp.zeros(3, dtype=int, device=d)  # [length, made this frame, made last frame]
+        # [length, made this frame, made last frame, feature points kept]
+        self.plane_state = wp.zeros(4, dtype=int, device=d)
         self._plane_len = self.plane_state[0:1]
+        self._fplane_len = self.plane_state[3:4]
+        self.fplane_pt = self.fplane_face = self.fplane_uv = None  # (sized at the first recording: the objects final)
 
     def forget_planes(self, state=None) -> None:
         """Drop the planes (a hand woken or reset, or another state stepped with this contact); with
@@ -210,11 +279,28 @@ class LinearHold:
         if self.holds:
             launch(roll_planes, 1, [self.plane_state], [])
 
-    def record_make_planes(self, launch, ops: list, state) -> None:
-        """After a stage's last pass: its planes (make_planes), replacing the list."""
+    def _feature_planes(self) -> bool:
+        """Whether the stages' feature points are kept too (the features' push on: contact.feat made)."""
+        return self.feat is not None and self.query_shift is None
+
+    def record_make_planes(self, launch, ops: list, state, feat_count=None) -> None:
+        """After a stage's last pass: its planes (make_planes) and, with the feature push, its feature
+        points near the skin (make_feature_planes, on the skin's BVH refit first), replacing the lists."""
         if not self.holds:
             return
         m, o, cfg = self.model, self.objects, self.config
+        if self._feature_planes() and feat_count is not None:
+            if self.fplane_pt is None:
+                nf, d = self.points.n_features, m.device
+                self.fplane_pt = wp.zeros(nf, dtype=int, device=d)
+                self.fplane_face = wp.zeros(nf, dtype=int, device=d)
+                self.fplane_uv = wp.zeros(nf, dtype=wp.vec2, device=d)
+            vol = self.volume(state, winding=False)
+            ops += [self._fplane_len.zero_, *vol.refit_ops()]
+            launch(make_feature_planes, self.points.n_features,
+                   [vol.mesh.id, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
+                    cfg.contact_margin], [self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state],
+                   count=feat_count)
         ops.append(self._plane_len.zero_)
         launch(make_planes, self.n_tris,
                [m.skin_faces, self.active, self.active_mask, self.active_count, self.decision, self.eval_x,
@@ -228,12 +314,28 @@ class LinearHold:
         if not self.holds:
             return
         m, o, cfg = self.model, self.objects, self.config
+        shift, shifted = self._apply_shift(state)
+
+        def features():  # the kept feature points, applied (as a stage's feature push is)
+            if self.fplane_pt is None:
+                return
+            stamp = self._slot
+            count = self._counter()
+            launch(hold_features, self.points.n_features,
+                   [m.skin_faces, self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state,
+                    self.points.pts, self.points.geom, o.pose, o.obj, cfg.feature_offset, cfg.contact_margin,
+                    state.x], [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._fplane_len)
+            launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
+                   [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
+
+        features()
         stamp = self._slot
         count = self._counter()
         launch(hold_planes, self.n_tris,
                [m.skin_faces, self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state,
                 o.inv_pose, o.obj, cfg.contact_offset, state.x],
                [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._plane_len)
-        shift, shifted = self._apply_shift(state)
         launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
+        if cfg.feature_last:  # (and once more after the planes, as a stage ends: Config.feature_last)
+            features()
