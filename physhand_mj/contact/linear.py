@@ -17,6 +17,12 @@ plus the averaged apply: no SDF, no BVH, no lattice), after the substep's solve 
 ``Placement.BEFORE``). A triangle the stage left out of its first pass as far keeps the weights of its
 last decision point (its plane is exact where it is made all the same).
 
+The object's side is held too (with the feature push on): each stage also keeps its listed feature
+points (corners, tips, sharp edges) within ``contact_margin`` of the skin, each with its closest skin
+point (triangle and barycentric weights, on the skin's BVH refit after the stage), and a substep
+without a stage pushes them before the planes and, with ``Config.feature_last``, after them
+(:func:`hold_features`: features.push_feature against that triangle as it is now).
+
 The planes are a first-order model of the object near where the skin touched it: exact for a plane
 or a box face, conservative on a convex surface (its tangent plane lies outside it), and the next
 stage re-queries the exact SDF. The frame's last substep always runs a full stage (contact_every
