@@ -972,6 +972,23 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step asleep_profile 100 python3 benchmarks/asleep_frame.py --device cuda --frames 2000 --profile \
       --out "$OUT/asleep_frame_cuda_s50b_profile.json"
     ;;
+  s50_c)  # contact_linear with the feature points held too, and the review's fixes: the CUDA tests of the planes,
+    # sleeping and the pipeline; the demo's full frame (default, every 2 and 3 with the hold) and three HOI grasps at
+    # W = 1 (default, every 2 with the hold), alternated twice
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k cuda tests/test_linear.py \
+      tests/test_sleep.py tests/test_batch_pipeline.py
+    for r in 1 2; do
+      step demo_default_$r 120 python3 benchmarks/softhand_frame.py --device cuda --out "$OUT/softhand_s50c_default_$r.json"
+      step demo_linear2_$r 120 python3 benchmarks/softhand_frame.py --device cuda \
+        --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/softhand_s50c_linear2_$r.json"
+      step demo_linear3_$r 120 python3 benchmarks/softhand_frame.py --device cuda \
+        --config '{"contact_every": 3, "contact_linear": true}' --out "$OUT/softhand_s50c_linear3_$r.json"
+      step hoi_default_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box,bowl --worlds 1 \
+        --frames 30 --out "$OUT/batch_hoi_s50c_default_$r.json"
+      step hoi_linear2_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box,bowl --worlds 1 \
+        --frames 30 --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/batch_hoi_s50c_linear2_$r.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
