@@ -47,6 +47,7 @@ from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth
 wp.set_module_options({"enable_backward": False})
 
 HOLD_MAX_DEPTH = wp.constant(2.0e-3)  # m: a plane's point further behind it than this is left to the next stage
+HOLD_PASSES = 2  # hold passes a substep without a stage runs (each: the features, the planes, the features)
 
 
 @wp.func
@@ -334,14 +335,15 @@ class LinearHold:
             launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
                    [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
 
-        features()
-        stamp = self._slot
-        count = self._counter()
-        launch(hold_planes, self.n_tris,
-               [m.skin_faces, self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state,
-                o.inv_pose, o.obj, cfg.contact_offset, state.x],
-               [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._plane_len)
-        launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
-               [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
+        for _ in range(HOLD_PASSES):
+            features()
+            stamp = self._slot
+            count = self._counter()
+            launch(hold_planes, self.n_tris,
+                   [m.skin_faces, self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state,
+                    o.inv_pose, o.obj, cfg.contact_offset, state.x],
+                   [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._plane_len)
+            launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
+                   [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
         if cfg.feature_last:  # (and once more after the planes, as a stage ends: Config.feature_last)
             features()
