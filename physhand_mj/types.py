@@ -144,8 +144,9 @@ class Config:
         (docs/activity.md: every=2 saves a quarter of the H100 demo frame and leaves residue in 13
         of the hard cases' 600 held frames, none at 1); contact_linear: with contact_every > 1, a
         substep without a stage holds the skin against the planes the last stage linearised the
-        SDF to at its triangles' decision points (contact/linear.py: one query-free pass of Eq. 9;
-        not with fused_stage); contact_pass_tol: in every contact stage but
+        SDF to at its triangles' decision points, and against the object feature points it kept
+        (contact/linear.py: two query-free hold passes; contact_every=2 with it keeps the hard
+        cases at 0 of 600, docs/activity.md; not with fused_stage); contact_pass_tol: in every contact stage but
         the frame's last, a pass runs only when the pass before it moved some vertex by more than
         this (m; 0: by anything, every stage runs until a pass moves nothing); the frame's last stage
         always runs to the end, so what a frame ends with is cleared as before; passes that only
