@@ -58,6 +58,8 @@ class SweepPoint:
     passes: int = 8  # Config.contact_passes
     substeps: int = 10
     iterations: int = 1
+    every: int = 1  # Config.contact_every (a contact stage every this many substeps)
+    linear: bool = False  # Config.contact_linear (the skin held between stages)
 
     @property
     def name(self) -> str:
@@ -65,7 +67,8 @@ class SweepPoint:
         feat = "+feat+side" if self.features and self.side_aware else "+feat" if self.features else \
             "+side" if self.side_aware else ""
         it = f" it{self.iterations}" if self.iterations != 1 else ""
-        return f"{strat}{feat} p{self.passes} s{self.substeps}{it}"
+        every = f" e{self.every}{'+hold' if self.linear else ''}" if self.every != 1 else ""
+        return f"{strat}{feat} p{self.passes} s{self.substeps}{it}{every}"
 
     def config(self, device: str):
         """The Config of this setting (everything else at its default)."""
@@ -73,7 +76,8 @@ class SweepPoint:
 
         return Config(device=device, contact=Strategy[self.contact.upper()], multires_samples=self.samples,
                       multires_rounds=self.rounds, feature_contact=self.features, side_aware=self.side_aware,
-                      contact_passes=self.passes, substeps=self.substeps, iterations=self.iterations).validate()
+                      contact_passes=self.passes, substeps=self.substeps, iterations=self.iterations,
+                      contact_every=self.every, contact_linear=self.linear).validate()
 
     def is_default(self) -> bool:
         """True when this setting is ``Config()``'s."""
@@ -83,6 +87,7 @@ class SweepPoint:
         return (self.contact == c.contact.name.lower() and self.features == c.feature_contact
                 and self.side_aware == c.side_aware and self.passes == c.contact_passes
                 and self.substeps == c.substeps and self.iterations == c.iterations
+                and self.every == c.contact_every and self.linear == c.contact_linear
                 and (self.contact != "multires" or (self.samples, self.rounds) == (c.multires_samples,
                                                                                    c.multires_rounds)))
 
@@ -105,7 +110,9 @@ def sweep_points(quick: bool = False) -> list[SweepPoint]:
             P(features=False, side_aware=False, passes=4, substeps=5), P(substeps=5, iterations=2),
             # around the cheap accurate corner the first run found (8 passes, 5 substeps)
             P("vertex", substeps=5), P("opt", substeps=5), P(samples=16, rounds=2, substeps=5),
-            P(samples=10, rounds=3, substeps=5), P("opt", substeps=5, iterations=2)]
+            P(samples=10, rounds=3, substeps=5), P("opt", substeps=5, iterations=2),
+            # half the contact stages, the skin held between them (Config.contact_linear, 2026-11-28)
+            P(every=2), P(every=2, linear=True), P("opt", every=2, linear=True), P(every=3, linear=True)]
     return pts
 
 
@@ -195,7 +202,7 @@ def _cone_run(pt: SweepPoint, device: str, frames: int, hold_frames: int) -> dic
 
 
 ROW_COLUMNS = ["point", "workload", "contact", "samples", "rounds", "features", "side_aware", "passes", "substeps",
-               "iterations", "frames", "ms_per_frame", "skin5_count", "skin5_max_um", "skin9_count", "skin9_max_um",
+               "iterations", "every", "linear", "frames", "ms_per_frame", "skin5_count", "skin5_max_um", "skin9_count", "skin9_max_um",
                "object_count", "object_max_um", "hold_skin_max_um", "hold_object_max_um", "hold_count", "finite",
                "device"]
 
@@ -281,7 +288,7 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
 
 
 POINT_COLUMNS = ["point", "contact", "samples", "rounds", "features", "side_aware", "passes", "substeps", "iterations",
-                 "ms_per_frame", "skin_um", "object_um", "skin_count", "object_count", "finite", "default",
+                 "every", "linear", "ms_per_frame", "skin_um", "object_um", "skin_count", "object_count", "finite", "default",
                  "pareto_skin", "pareto_object", "pareto_both"]
 
 
