@@ -67,7 +67,7 @@ class SweepPoint:
         feat = "+feat+side" if self.features and self.side_aware else "+feat" if self.features else \
             "+side" if self.side_aware else ""
         it = f" it{self.iterations}" if self.iterations != 1 else ""
-        every = f" e{self.every}{'+hold' if self.linear else ''}" if self.every != 1 else ""
+        every = (f" e{self.every}" if self.every != 1 else "") + ("+hold" if self.linear else "")
         return f"{strat}{feat} p{self.passes} s{self.substeps}{it}{every}"
 
     def config(self, device: str):

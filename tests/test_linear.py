@@ -270,15 +270,17 @@ def test_the_feature_points_are_held_too(scene):  # noqa: F811
 
     def hold(features: bool):
         state.x.assign(x0)
-        kept, slot = c.fplane_pt, c._slot
+        c.counters.zero_()  # (the frame's lists are read; the hold's touched counts start from zero)
+        slot, feat = c._slot, c.feat
         if not features:
-            c.fplane_pt = None
+            c.feat = None  # (no feature list: the hold keeps no feature points)
         ops = []
         c.record_hold(lambda k, dim, inputs, outputs, **kw: ops.append(
             lambda: wp.launch(k, dim, inputs=inputs, outputs=outputs, device="cpu")), ops, state)
         for op in ops:
             op()
-        c.fplane_pt, c._slot = kept, slot
+        c.feat, c._slot = feat, slot
+        assert np.isfinite(state.x.numpy()).all()
         return measured()
 
     planes_only, both = hold(False), hold(True)

@@ -18,7 +18,7 @@ from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, featur
                                           near_features, stage_features, stage_features_scan, stage_features_tiled)
 from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
 from physhand_mj.contact.inside import ObjectPoints
-from physhand_mj.contact.linear import LinearHold
+from physhand_mj.contact.linear import HOLD_SLOTS, LinearHold
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project, multires_kernel
@@ -114,7 +114,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
         # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices, and after
         # the last pass the final feature push's touched vertices (Config.feature_last)]
-        self.counters = wp.zeros(1 + stages * (2 + 3 * config.contact_passes), dtype=int, device=d)
+        # (Config.contact_linear: and what the holds of the substeps without a stage take, linear.py)
+        holds = config.substeps * HOLD_SLOTS if config.contact_linear and config.contact_every > 1 else 0
+        self.counters = wp.zeros(1 + stages * (2 + 3 * config.contact_passes) + holds, dtype=int, device=d)
         self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
         self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
         self.cand_count = self.counters[0:1]
@@ -301,6 +303,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                         self.far_angle], count=self.feat_count)
 
     def _counter(self):
+        if self._slot >= self.counters.shape[0]:
+            raise RuntimeError(f"contact: the frame's {self.counters.shape[0]} counter slots are all taken "
+                               "(a recording that takes more than Contact.__init__ sized them for)")
         c = self.counters[self._slot: self._slot + 1]
         self._slot += 1
         return c

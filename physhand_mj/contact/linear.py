@@ -21,7 +21,9 @@ The object's side is held too (with the feature push on): each stage also keeps 
 points (corners, tips, sharp edges) within ``contact_margin`` of the skin, each with its closest skin
 point (triangle and barycentric weights, on the skin's BVH refit after the stage), and a substep
 without a stage pushes them before the planes and, with ``Config.feature_last``, after them
-(:func:`hold_features`: features.push_feature against that triangle as it is now).
+(:func:`hold_features`: features.push_feature against that triangle as it is now, a point behind
+its plane counting as inside). Batched worlds queried apart (BatchedHands with objects) hold their
+planes, not their feature points.
 
 The planes are a first-order model of the object near where the skin touched it: exact for a plane
 or a box face, conservative on a convex surface (its tangent plane lies outside it), and the next
@@ -47,7 +49,12 @@ from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth
 wp.set_module_options({"enable_backward": False})
 
 HOLD_MAX_DEPTH = wp.constant(2.0e-3)  # m: a plane's point further behind it than this is left to the next stage
-HOLD_PASSES = 2  # hold passes a substep without a stage runs (each: the features, the planes, the features)
+# hold passes a substep without a stage runs, each the kept feature points' push then the planes (and the
+# feature points once more after the last with Config.feature_last): one left 2 of the hard cases' 600
+# held frames with up to 9 um at contact_every=2 (a 1 mm plate's edge at the palm), two none
+HOLD_PASSES = 2
+# slots of Contact.counters a hold takes at most (a touched count per applied push)
+HOLD_SLOTS = 2 * HOLD_PASSES + 1
 
 
 @wp.func
@@ -223,6 +230,7 @@ def hold_features(
     geom_obj: wp.array(dtype=int),
     offset: float,
     max_step: float,
+    reach: float,
     x: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
     hits: wp.array(dtype=float),
@@ -231,16 +239,29 @@ def hold_features(
     vertex_obj: wp.array(dtype=int),
 ):
     """The feature push (features.push_feature) of every kept feature point against the skin point
-    it was closest to when kept: its triangle pushed along the inward normal until the point is
-    ``offset`` outside the triangle's plane as it is now (at most ``max_step``), into the pass's
-    accumulators (``plane_state`` as in :func:`hold_planes`)."""
+    it was closest to when kept, where that point is still within ``reach`` (m) of it: a point
+    behind the triangle's plane as it is now counts as inside, else outside (then pushed only when
+    closer than offset / 2, as a stage would); the triangle pushed along its inward normal until the
+    point is ``offset`` outside its plane (at most ``max_step``), into the pass's accumulators
+    (``plane_state`` as in :func:`hold_planes`)."""
     k = wp.tid()
     if k >= plane_state[3] or (plane_state[1] == 0 and plane_state[2] == 0):
         return
     i = fplane_pt[k]
     uv = fplane_uv[k]
-    push_feature(object_point(i, pts, pts_geom, pose), fplane_face[k], uv[0], uv[1], -1.0, geom_obj[pts_geom[i]],
-                 faces, offset, max_step, x, delta, hits, touched, touched_count, vertex_obj)
+    f = fplane_face[k]
+    p = object_point(i, pts, pts_geom, pose)
+    w2 = 1.0 - uv[0] - uv[1]
+    c = x[faces[f, 0]] * uv[0] + x[faces[f, 1]] * uv[1] + x[faces[f, 2]] * w2
+    if wp.length(p - c) > reach:  # (the skin or the object moved on since: the next stage's)
+        return
+    # inside: behind the kept triangle's plane as it is now (the stage's rule where its winding agrees)
+    n = wp.cross(x[faces[f, 1]] - x[faces[f, 0]], x[faces[f, 2]] - x[faces[f, 0]])
+    sign = float(1.0)
+    if wp.dot(p - c, n) < 0.0:
+        sign = -1.0
+    push_feature(p, f, uv[0], uv[1], sign, geom_obj[pts_geom[i]], faces, offset, max_step, x, delta, hits, touched,
+                 touched_count, vertex_obj)
 
 
 @wp.kernel
@@ -287,8 +308,17 @@ class LinearHold:
             launch(roll_planes, 1, [self.plane_state], [])
 
     def _feature_planes(self) -> bool:
-        """Whether the stages' feature points are kept too (the features' push on: contact.feat made)."""
-        return self.feat is not None and self.query_shift is None
+        """Whether the stages' feature points are kept too: the features' push on (contact.feat made
+        by the frame's lists, recorded before any stage or hold) and the worlds not queried apart
+        (batches with objects: their feature points are not held, only the planes)."""
+        if self.feat is None or self.query_shift is not None:
+            return False
+        if self.fplane_pt is None:  # (made at the frame's first recording: the objects are final)
+            nf, d = self.points.n_features, self.model.device
+            self.fplane_pt = wp.zeros(nf, dtype=int, device=d)
+            self.fplane_face = wp.zeros(nf, dtype=int, device=d)
+            self.fplane_uv = wp.zeros(nf, dtype=wp.vec2, device=d)
+        return True
 
     def record_make_planes(self, launch, ops: list, state, feat_count=None) -> None:
         """After a stage's last pass: its planes (make_planes) and, with the feature push, its feature
@@ -296,12 +326,7 @@ class LinearHold:
         if not self.holds:
             return
         m, o, cfg = self.model, self.objects, self.config
-        if self._feature_planes() and feat_count is not None:
-            if self.fplane_pt is None:
-                nf, d = self.points.n_features, m.device
-                self.fplane_pt = wp.zeros(nf, dtype=int, device=d)
-                self.fplane_face = wp.zeros(nf, dtype=int, device=d)
-                self.fplane_uv = wp.zeros(nf, dtype=wp.vec2, device=d)
+        if feat_count is not None and self._feature_planes():
             vol = self.volume(state, winding=False)
             ops += [self._fplane_len.zero_, *vol.refit_ops()]
             launch(make_feature_planes, self.points.n_features,
@@ -317,21 +342,24 @@ class LinearHold:
                count=self.active_count, min_dim=1)
 
     def record_hold(self, launch, ops: list, state) -> None:
-        """A substep without a stage: one pass of Eq. 9 against the planes, applied."""
+        """A substep without a stage: HOLD_PASSES passes of [the kept feature points' push, Eq. 9
+        against the planes], each applied, then (Config.feature_last) the feature points once more."""
         if not self.holds:
             return
         m, o, cfg = self.model, self.objects, self.config
         shift, shifted = self._apply_shift(state)
+        with_features = self._feature_planes()
 
         def features():  # the kept feature points, applied (as a stage's feature push is)
-            if self.fplane_pt is None:
+            if not with_features:
                 return
             stamp = self._slot
             count = self._counter()
             launch(hold_features, self.points.n_features,
                    [m.skin_faces, self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state,
                     self.points.pts, self.points.geom, o.pose, o.obj, cfg.feature_offset, cfg.contact_margin,
-                    state.x], [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._fplane_len)
+                    cfg.contact_margin, state.x], [self.delta, self.hits, self.touched, count, self.vertex_obj],
+                   count=self._fplane_len)
             launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
                    [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
 
