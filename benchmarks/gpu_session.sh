@@ -1004,6 +1004,23 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
     step hard_linear2 300 python3 benchmarks/hard_contact_hold.py --device cuda --frames 40 \
       --configs '{"contact_every": 2, "contact_linear": true}' --out "$OUT/hard_contact_hold_cuda_linear2.json"
     ;;
+  s50_e)  # contact_linear after the second review (the first hold of a frame pushes the feature points; the
+    # side rule; the counters): its CUDA tests, the hard cases default and every=2 with the hold, the demo and
+    # three HOI grasps at W = 1, alternated twice
+    step pytest_cuda 200 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or feature_points or sleep" \
+      tests/test_linear.py
+    step hard_ab 300 python3 benchmarks/hard_contact_hold.py --device cuda --frames 40 \
+      --configs '{}' '{"contact_every": 2, "contact_linear": true}' --out "$OUT/hard_contact_hold_cuda_s50e_ab.json"
+    for r in 1 2; do
+      step demo_default_$r 120 python3 benchmarks/softhand_frame.py --device cuda --out "$OUT/softhand_s50e_default_$r.json"
+      step demo_linear2_$r 120 python3 benchmarks/softhand_frame.py --device cuda \
+        --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/softhand_s50e_linear2_$r.json"
+      step hoi_default_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box,bowl --worlds 1 \
+        --frames 30 --out "$OUT/batch_hoi_s50e_default_$r.json"
+      step hoi_linear2_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box,bowl --worlds 1 \
+        --frames 30 --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/batch_hoi_s50e_linear2_$r.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
