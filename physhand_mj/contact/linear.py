@@ -5,16 +5,16 @@ With ``Config.contact_every`` k > 1 the contact stage (broadphase, multires deci
 the feature push) runs every k-th substep only, and between two stages the flesh and the bones can
 press the skin back into an object it was lifted off: the next stage must undo it, and on the hard
 cases one stage could not (docs/activity.md: 13 of 600 held frames with up to 0.5 mm left at k = 2,
-255 with up to 9 mm at k = 5).
+255 with up to 9 mm at k = 5; with this hold 0 at k = 2, on the CPU and the H100).
 
 Here every stage ends by linearising, for each of its active skin triangles whose decision point is
 within ``contact_margin`` of an object, that point's constraint (Eq. 8, phi(x*) >= offset) about
 where the stage left it: phi(x*) ~ g . x* + c, with x* the same barycentric point of the triangle,
 g the unit SDF gradient there and c the offset that makes the plane exact at x*, both kept in the
 geom's frame (so an object that moves between frames carries its planes). A substep without a stage
-then runs one pass of Eq. 9 against these planes only (:func:`hold_planes`, one query-free launch
-plus the averaged apply: no SDF, no BVH, no lattice), after the substep's solve (before it with
-``Placement.BEFORE``). A triangle the stage left out of its first pass as far keeps the weights of its
+then runs ``HOLD_PASSES`` passes of Eq. 9 against these planes only (:func:`hold_planes`, a
+query-free launch plus the averaged apply: no SDF, no BVH, no lattice), after the substep's solve
+(before it with ``Placement.BEFORE``). A triangle the stage left out of its first pass as far keeps the weights of its
 last decision point (its plane is exact where it is made all the same).
 
 The object's side is held too (with the feature push on): each stage also keeps its listed feature
