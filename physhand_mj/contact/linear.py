@@ -42,6 +42,7 @@ from __future__ import annotations
 import warp as wp
 
 from physhand_mj.contact.broadphase import world_geoms
+from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.contact.features import push_feature
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth_weight, side_floor, world_phi_grad
@@ -55,27 +56,6 @@ HOLD_MAX_DEPTH = wp.constant(2.0e-3)  # m: a plane's point further behind it tha
 HOLD_PASSES = 2
 # slots of Contact.counters a hold takes at most (a touched count per applied push)
 HOLD_SLOTS = 2 * HOLD_PASSES + 1
-
-
-@wp.func
-def barycentric(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
-    """(w_a, w_b, w_c) of p's projection onto triangle abc's plane (a degenerate triangle: (1, 0, 0))."""
-    e0 = b - a
-    e1 = c - a
-    ep = p - a
-    d00 = wp.dot(e0, e0)
-    d01 = wp.dot(e0, e1)
-    d11 = wp.dot(e1, e1)
-    d20 = wp.dot(ep, e0)
-    d21 = wp.dot(ep, e1)
-    den = d00 * d11 - d01 * d01
-    if den <= 1.0e-30:
-        return wp.vec3(1.0, 0.0, 0.0)
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    # clamped into the triangle (a decision point is a point of it; rounding can leave it just outside)
-    r = wp.vec3(wp.max(1.0 - v - w, 0.0), wp.max(v, 0.0), wp.max(w, 0.0))
-    return r * (1.0 / wp.max(r[0] + r[1] + r[2], 1.0e-12))
 
 
 @wp.kernel
@@ -119,7 +99,9 @@ def make_planes(
     i1 = faces[t, 1]
     i2 = faces[t, 2]
     dec = decision[t]
-    w = barycentric(wp.vec3(dec[0], dec[1], dec[2]), eval_x[t, 0], eval_x[t, 1], eval_x[t, 2])
+    # the decision point's weights: the triangle's point closest to it (it is one of its points)
+    bc = closest_on_triangle(eval_x[t, 0], eval_x[t, 1], eval_x[t, 2], wp.vec3(dec[0], dec[1], dec[2]))
+    w = wp.vec3(bc[0], bc[1], 1.0 - bc[0] - bc[1])
     a = x[i0]
     b = x[i1]
     c = x[i2]
@@ -328,7 +310,7 @@ class LinearHold:
         m, o, cfg = self.model, self.objects, self.config
         if feat_count is not None and self._feature_planes():
             vol = self.volume(state, winding=False)
-            ops += [self._fplane_len.zero_, *vol.refit_ops()]
+            ops += [self._fplane_len.zero_, self._refit_op(vol, feat_count)]  # (the CPU: only with features listed)
             launch(make_feature_planes, self.points.n_features,
                    [vol.mesh.id, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
                     cfg.contact_margin], [self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state],
@@ -348,30 +330,19 @@ class LinearHold:
             return
         m, o, cfg = self.model, self.objects, self.config
         shift, shifted = self._apply_shift(state)
-        with_features = self._feature_planes()
-
-        def features():  # the kept feature points, applied (as a stage's feature push is)
-            if not with_features:
-                return
-            stamp = self._slot
-            count = self._counter()
-            launch(hold_features, self.points.n_features,
-                   [m.skin_faces, self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state,
-                    self.points.pts, self.points.geom, o.pose, o.obj, cfg.feature_offset, cfg.contact_margin,
-                    cfg.contact_margin, state.x], [self.delta, self.hits, self.touched, count, self.vertex_obj],
-                   count=self._fplane_len)
-            launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
-                   [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
-
-        for _ in range(HOLD_PASSES):
-            features()
-            stamp = self._slot
-            count = self._counter()
-            launch(hold_planes, self.n_tris,
+        common = [self.delta, self.hits, self.touched]  # (a push's accumulators, then its touched count)
+        pushes = [(hold_planes, self.n_tris, self._plane_len,
                    [m.skin_faces, self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state,
-                    o.inv_pose, o.obj, cfg.contact_offset, state.x],
-                   [self.delta, self.hits, self.touched, count, self.vertex_obj], count=self._plane_len)
+                    o.inv_pose, o.obj, cfg.contact_offset, state.x])]
+        if self._feature_planes():  # the kept feature points, before the planes (as a stage's push is)
+            pushes.insert(0, (hold_features, self.points.n_features, self._fplane_len,
+                              [m.skin_faces, self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state,
+                               self.points.pts, self.points.geom, o.pose, o.obj, cfg.feature_offset,
+                               cfg.contact_margin, cfg.contact_margin, state.x]))
+        order = pushes * HOLD_PASSES + (pushes[:1] if len(pushes) == 2 and cfg.feature_last else [])
+        for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
+            stamp = self._slot
+            count = self._counter()
+            launch(kernel, dim, inputs, [*common, count, self.vertex_obj], count=length)
             launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
                    [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
-        if cfg.feature_last:  # (and once more after the planes, as a stage ends: Config.feature_last)
-            features()
