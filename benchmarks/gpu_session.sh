@@ -1021,6 +1021,70 @@ print(r, file=__import__('sys').stderr); k = max(r, key=r.get); print(k[1:].repl
         --frames 30 --config '{"contact_every": 2, "contact_linear": true}' --out "$OUT/batch_hoi_s50e_linear2_$r.json"
     done
     ;;
+  s51_a)  # (2026-11-28, second session) where a contact pass's ~50 us goes on the demo's held grasp: each kernel's
+    # GPU time without graphs (Warp's timing), the graph's nodes traced by Nsight Systems (their durations and the
+    # gaps between them), registers and durations at boost clocks by Nsight Compute
+    step tools 10 bash -c 'command -v nsys ncu; ls -d /usr/local/cuda*/bin/nsys /opt/nvidia/nsight-systems* 2>/dev/null;
+      nvidia-smi --query-gpu=name,clocks.sm,clocks.max.sm --format=csv'
+    step prof_held 200 python3 benchmarks/frame_profile.py --device cuda --quick --warmup 45 --frames 20
+    NSYS=$(command -v nsys || ls /usr/local/cuda*/bin/nsys /opt/nvidia/nsight-systems/*/bin/nsys 2>/dev/null | head -1)
+    if [ -n "$NSYS" ]; then
+      step nsys_held 200 "$NSYS" profile --cuda-graph-trace=node -t cuda -f true -o "$OUT/held" python3 -c \
+        "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 20, warmup=45)"
+      step nsys_stats 100 "$NSYS" stats --report cuda_gpu_trace --format csv -o "$OUT/held" "$OUT/held.nsys-rep"
+      rm -f "$OUT/held.sqlite"
+    fi
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    step ncu_held 300 "$NCU" --clock-control none --cache-control none --launch-skip 13000 --launch-count 400 --csv \
+      --metrics gpu__time_duration.sum,launch__registers_per_thread,launch__grid_size,launch__block_size,launch__occupancy_limit_registers \
+      python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
+    cp "$OUT/logs/ncu_held.log" "$OUT/ncu_held.csv"
+    ;;
+  s51_b)  # Nsight Compute's full set on the held grasp's two per-pass kernels (stall reasons, spills, SASS hot spots)
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    for k in decide_and_project_tiled feature_contact_tiled; do
+      step "ncu_$k" 200 "$NCU" --set full -k "regex:$k" --launch-skip 3700 --launch-count 2 -f -o "$OUT/$k" \
+        python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 1, graph=False, warmup=47)"
+      "$NCU" -i "$OUT/$k.ncu-rep" --page details --print-details all > "$OUT/${k}_details.txt" 2>&1
+      "$NCU" -i "$OUT/$k.ncu-rep" --page source --csv --print-source sass > "$OUT/${k}_sass.csv" 2>&1
+      head -c 1500 "$OUT/${k}_details.txt"
+    done
+    ;;
+  s51_c)  # the tiled list kernels walking their lists themselves (solver.tiled_blocks): their CUDA tests; the demo's
+    # full frame and three HOI grasps at W = 1 by the commit before (.base/, carried) and this code, alternated twice;
+    # the decision-point and feature kernels' durations by Nsight Compute (boost clocks) after
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "tiled or cuda" tests/test_contact.py \
+      tests/test_stage.py tests/test_hard_contact.py
+    for r in 1 2; do
+      step demo_base_$r 120 env PYTHONPATH=$PWD/.base:$PYTHONPATH python3 benchmarks/softhand_frame.py --device cuda \
+        --out "$OUT/softhand_s51c_base_$r.json"
+      step demo_new_$r 120 python3 benchmarks/softhand_frame.py --device cuda --out "$OUT/softhand_s51c_new_$r.json"
+      step hoi_base_$r 150 env PYTHONPATH=$PWD/.base:$PYTHONPATH python3 benchmarks/batch_hoi.py --device cuda \
+        --scenes apple,box,bowl --worlds 1 --frames 30 --out "$OUT/batch_hoi_s51c_base_$r.json"
+      step hoi_new_$r 150 python3 benchmarks/batch_hoi.py --device cuda --scenes apple,box,bowl --worlds 1 --frames 30 \
+        --out "$OUT/batch_hoi_s51c_new_$r.json"
+    done
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    step ncu_held 300 "$NCU" --clock-control none --cache-control none --launch-skip 13000 --launch-count 400 --csv \
+      --metrics gpu__time_duration.sum,launch__registers_per_thread,launch__grid_size,launch__block_size \
+      python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
+    cp "$OUT/logs/ncu_held.log" "$OUT/ncu_held_s51c.csv"
+    ;;
+  s51_d)  # the tiled kernels' blocks per SM now that they walk their lists themselves: (decision points, feature
+    # kernels) at (8, 8) as shipped, (4, 4), (2, 2), (8, 2); the demo's held grasp and three HOI grasps at W = 1, twice
+    for r in 1 2; do
+      for tw in "8 8" "4 4" "2 2" "8 2"; do
+        set -- $tw
+        step "held_${1}_${2}_$r" 100 python3 benchmarks/frame_profile.py --device cuda --quick --warmup 45 --frames 20 \
+          --tiled-blocks $1 --wide-blocks $2
+        step "hoi_${1}_${2}_$r" 100 python3 -c "import runpy, sys; import physhand_mj.solver.solver as s
+s.TILED_BLOCKS_PER_SM, s.WIDE_BLOCKS_PER_SM = $1, $2
+sys.argv = ['batch_hoi.py', '--device', 'cuda', '--scenes', 'apple,box,bowl', '--worlds', '1', '--frames', '30',
+            '--out', '$OUT/batch_hoi_s51d_${1}_${2}_$r.json']
+runpy.run_path('benchmarks/batch_hoi.py', run_name='__main__')"
+      done
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -7,6 +7,7 @@ import trimesh
 import warp as wp
 
 import physhand_mj as ph
+import physhand_mj.contact.contact as contact_mod
 from physhand_mj.contact import Contact, Objects
 from physhand_mj.contact.closest import closest_signed, closest_signed_tiled
 from physhand_mj.contact.inside import object_point
@@ -306,24 +307,32 @@ def test_compound_object_is_the_union_of_its_geoms():
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
-def test_tiled_cuda_multires_matches_the_per_thread_kernel():
-    """The CUDA block-per-triangle multires kernel makes the per-thread kernel's decisions."""
+def test_tiled_cuda_multires_matches_the_per_thread_kernel(monkeypatch):
+    """The CUDA block-per-triangle multires kernel makes the per-thread kernel's decisions, and so
+    does it with fewer blocks than triangles, each walking the list."""
     from physhand_mj.bodies import sheet
 
     body = sheet(20, 20, 0.004, height=0.027)
     x = body.positions + np.random.default_rng(1).normal(scale=0.001, size=body.positions.shape) * [0, 0, 1]
     out = {}
-    for tiled in (False, True):
-        cfg = ph.Config(device="cuda", tiled_contact=tiled, contact_passes=1)
+    for tiled in (False, True, "strided"):
+        if tiled == "strided":  # 7 blocks walking the list (entries b, b + 7, ...): solver.tiled_blocks' stride
+            monkeypatch.setattr(contact_mod, "tiled_blocks", lambda device, n, block_dim: 7)
+        cfg = ph.Config(device="cuda", tiled_contact=bool(tiled), contact_passes=1)
         objs = Objects("cuda", 1)
         objs.add(GeomType.SPHERE, [0.03], name="ball")
         solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
-        assert solver.contact.tiled == tiled
+        assert solver.contact.tiled == bool(tiled)
         state = solver.make_state()
         state.x.assign(x.astype(np.float32))
         decision = solver.contact.run_stage(state)
         out[tiled] = (decision, state.x.numpy().copy())
+        if tiled == "strided":
+            assert solver.contact.stage_active_count > 7 * 3  # (each block took several triangles)
     (d0, x0), (d1, x1) = out[False], out[True]
+    d2, x2 = out["strided"]
+    assert np.array_equal(d1, d2)  # the same decision points and depths, entry by entry
+    assert np.abs(x1 - x2).max() < 1e-6  # (Eq. 9's sums: the atomics' order differs)
     inside = d0[:, 3] < 0
     assert inside.sum() > 50 and np.array_equal(inside, d1[:, 3] < 0)
     assert np.abs(d0[:, 3] - d1[:, 3]).max() < 1e-6
@@ -378,10 +387,11 @@ def _feature_query_tiled(tris: wp.array(dtype=int), tri_count: wp.array(dtype=in
             out[k, 2] = sign
 
 
-def _feature_pass(c, state, feats, tiled: bool):
+def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     """One pass's feature corrections (features.py) of the listed features ``feats`` on ``state``:
     the per-vertex mean correction (n_vertices, 3) and weights, by the BVH kernel or the tiled one
-    (one thread per block on the CPU); the skin is not moved."""
+    (one thread per block on the CPU; ``blocks`` of them walking the list, default one per entry);
+    the skin is not moved."""
     from physhand_mj.contact.features import feature_contact, feature_contact_tiled
 
     m, o, cfg, d = c.model, c.objects, c.config, "cpu"
@@ -394,8 +404,9 @@ def _feature_pass(c, state, feats, tiled: bool):
     no = wp.zeros(1, dtype=int, device=d)
     off = [0, no, no, no, no, wp.zeros(1, dtype=float, device=d)]
     if tiled:
-        wp.launch(feature_contact_tiled, (len(feats), 1),
-                  [m.skin_faces, c.cand, c.cand_count, lst, lst_count, c.points.pts, c.points.geom, o.pose, o.obj,
+        nb = blocks or len(feats)
+        wp.launch(feature_contact_tiled, (nb, 1),
+                  [m.skin_faces, c.cand, c.cand_count, lst, lst_count, nb, c.points.pts, c.points.geom, o.pose, o.obj,
                    cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
                    state.x, *off],
                   [delta, hits, touched, count, vobj], device=d, block_dim=1)
@@ -456,6 +467,10 @@ def test_tiled_feature_query_matches_the_bvh_query():
     (d0, h0), (d1, h1) = (_feature_pass(c, state, feats, t) for t in (False, True))
     assert np.array_equal(h0 > 0, h1 > 0) and (h0 > 0).sum() > 10
     assert np.allclose(h0, h1, rtol=1e-5) and np.abs(d0 - d1).max() < 1e-9, np.abs(d0 - d1).max()
+    # 7 blocks walking the list (entries b, b + 7, ...: solver.tiled_blocks' stride) push as one per entry
+    d2, h2 = _feature_pass(c, state, feats, True, blocks=7)
+    assert np.array_equal(h1 > 0, h2 > 0)
+    assert np.allclose(h1, h2, rtol=1e-5) and np.abs(d1 - d2).max() < 1e-9, np.abs(d1 - d2).max()
 
 
 def test_tiled_features_hold_the_hard_case_on_the_cpu(monkeypatch):

@@ -47,11 +47,12 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     push = [o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x]
     if kind == "tiled":
         wp.launch(F.stage_features_tiled, (c.points.n_features, 1),
-                  [m.skin_faces, state.x, c.cand, c.cand_count, c.feat, c.feat_count, c.points.pts, c.points.geom,
+                  [m.skin_faces, state.x, c.cand, c.cand_count, c.feat, c.feat_count, c.points.n_features, c.points.pts, c.points.geom,
                    o.pose, cfg.contact_frame_margin, cfg.contact_margin, c.feature_eps, *wind, *push],
                   [stage, stage_count, *fused], device=d, block_dim=1)
         wp.launch(F.feature_contact_tiled, (c.points.n_features, 1),
-                  [m.skin_faces, c.cand, c.cand_count, stage, stage_count, c.points.pts, c.points.geom, o.pose, o.obj,
+                  [m.skin_faces, c.cand, c.cand_count, stage, stage_count, c.points.n_features, c.points.pts, c.points.geom,
+                   o.pose, o.obj,
                    cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
                    state.x, *wind], list(alone), device=d, block_dim=1)
     else:

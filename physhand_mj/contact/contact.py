@@ -29,7 +29,7 @@ from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
 from physhand_mj.contact.stage import STAGE_LANES, record_stage
 from physhand_mj.types import Config, GeomType, Model, Placement, Strategy
-from physhand_mj.solver.solver import launch_options
+from physhand_mj.solver.solver import launch_options, tiled_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -354,8 +354,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             skin = None
             ops += self.volume(state, winding=False).sync_ops()
             self._first_push = self.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
-            launch(stage_features_tiled, (self.points.n_features, self.feature_lanes),
-                   [m.skin_faces, self._query_x(state), self.cand, self.cand_count, self.feat, self.feat_count,
+            nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
+            launch(stage_features_tiled, (nb, self.feature_lanes),
+                   [m.skin_faces, self._query_x(state), self.cand, self.cand_count, self.feat, self.feat_count, nb,
                     self.points.pts, self.points.geom, self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
                     *self._winding_args(), o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x],
                    [self.feat_stage, feat_count, self.delta, self.hits, self.touched, self._first_push, self.vertex_obj],
@@ -401,9 +402,10 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             moved_slots.append(slot)
             self._tally_touched(launch, p, feat_touched)
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
-            launch(decide_and_project_tiled, (self.n_tris, TILE_LANES),
+            nb = tiled_blocks(m.device, self.n_tris, TILE_LANES)
+            launch(decide_and_project_tiled, (nb, TILE_LANES),
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
-                    self.tris_per_world, self.geoms_per_world, *lst,
+                    self.tris_per_world, self.geoms_per_world, *lst, nb,
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                    block_dim=TILE_LANES)
         elif self._sample_lanes() is not None:  # a lane per lattice sample (query_lanes.py)
@@ -507,8 +509,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     *self._winding_args()[1:]],
                    [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
         elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
-            launch(feature_contact_tiled, (self.points.n_features, self.feature_lanes),
-                   [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, self.points.pts,
+            nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
+            launch(feature_contact_tiled, (nb, self.feature_lanes),
+                   [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, nb, self.points.pts,
                     self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
                     cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
                     *self._winding_args()],

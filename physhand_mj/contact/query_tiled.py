@@ -31,8 +31,10 @@ def lattice_uv(idx: int, order: int):
     return float(i) * inv, float(rem) * inv
 
 
-@wp.kernel
-def decide_and_project_tiled(
+@wp.func
+def decide_tiled_entry(
+    k: int,
+    lane: int,
     # Model:
     faces: wp.array2d(dtype=int),
     # Objects:
@@ -48,7 +50,6 @@ def decide_and_project_tiled(
     # Contact in:
     active: wp.array(dtype=int),
     active_mask: wp.array(dtype=int),
-    active_count: wp.array(dtype=int),
     samples: int,
     rounds: int,
     offset: float,
@@ -66,13 +67,8 @@ def decide_and_project_tiled(
     touched: wp.array(dtype=int),
     touched_count: wp.array(dtype=int),
 ):
-    """:func:`decide_and_project` for MULTIRES on CUDA with a block of TILE_LANES threads per active
-    triangle: each lane queries one lattice sample, block reductions pick the three lowest, lane 0
-    projects. Same samples, rounds, early-out, bound and Eq. 9 as the per-thread kernel; the serial
-    chain per triangle shrinks from samples x rounds queries to rounds x (1 query + 3 reductions)."""
-    k, lane = wp.tid()
-    if k >= active_count[0]:
-        return  # uniform over the block: k is the block's triangle
+    """Entry ``k`` of the list (triangle active[k]) for lane ``lane`` of its block: the kernel's
+    body (every lane of the block calls it, the tile reductions need them all)."""
     t = active[k]
     near = active_mask[k]
     i0 = faces[t, 0]
@@ -150,3 +146,56 @@ def decide_and_project_tiled(
         nt = wp.normalize(wp.cross(b - a, c - a))
         project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
                 touched, touched_count, vertex_obj)
+
+
+@wp.kernel
+def decide_and_project_tiled(
+    # Model:
+    faces: wp.array2d(dtype=int),
+    # Objects:
+    gtype: wp.array(dtype=int),
+    size: wp.array(dtype=wp.vec3),
+    inv_pose: wp.array(dtype=wp.transform),
+    radius: wp.array(dtype=float),
+    mesh: wp.array(dtype=wp.vec2ul),
+    geom_count: wp.array(dtype=int),
+    geom_obj: wp.array(dtype=int),
+    tris_per_world: int,
+    geoms_per_world: int,
+    # Contact in:
+    active: wp.array(dtype=int),
+    active_mask: wp.array(dtype=int),
+    active_count: wp.array(dtype=int),
+    stride: int,
+    samples: int,
+    rounds: int,
+    offset: float,
+    side_aware: int,
+    # State in:
+    x: wp.array(dtype=wp.vec3),
+    # Contact out:
+    delta: wp.array(dtype=wp.vec3),
+    hits: wp.array(dtype=float),
+    decision: wp.array(dtype=wp.vec4),
+    vertex_obj: wp.array(dtype=int),
+    bound: wp.array(dtype=float),
+    bound_mask: wp.array(dtype=int),
+    eval_x: wp.array2d(dtype=wp.vec3),
+    touched: wp.array(dtype=int),
+    touched_count: wp.array(dtype=int),
+):
+    """:func:`decide_and_project` for MULTIRES on CUDA with a block of TILE_LANES threads per active
+    triangle: each lane queries one lattice sample, block reductions pick the three lowest, lane 0
+    projects. Same samples, rounds, early-out, bound and Eq. 9 as the per-thread kernel; the serial
+    chain per triangle shrinks from samples x rounds queries to rounds x (1 query + 3 reductions).
+    Launched with ``stride`` blocks (solver.tiled_blocks): block b takes entries b, b + stride, ...
+    of the list and a block past its end reads the count and leaves (Warp's own grid-stride loop
+    over every slot cost the held grasp's launch ~9 idle rounds a block, docs/activity.md)."""
+    blk, lane = wp.tid()
+    k = blk
+    n = active_count[0]
+    while k < n:  # (uniform over the block: k is the block's triangle)
+        decide_tiled_entry(k, lane, faces, gtype, size, inv_pose, radius, mesh, geom_count, geom_obj, tris_per_world,
+                           geoms_per_world, active, active_mask, samples, rounds, offset, side_aware, x, delta, hits,
+                           decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count)
+        k += stride

@@ -60,6 +60,17 @@ def list_launch_blocks(device, block_dim: int | None = None) -> int:
     return per_sm * d.sm_count if d.is_cuda and per_sm > 0 else 0
 
 
+def tiled_blocks(device, n: int, block_dim: int) -> int:
+    """Blocks of a tiled launch over a list of at most ``n`` entries whose kernel walks the list
+    itself (its ``stride`` argument: block b takes entries b, b + stride, ... up to the count on the
+    device): ``n``, on CUDA at most :func:`list_launch_blocks`. A block past the list's end reads
+    the count and leaves; Warp's own grid-stride loop (``max_blocks`` over a launch of ``n``
+    blocks) made every block walk all ``n`` slots, ~9 idle rounds a block on the held grasp's
+    decision points, three quarters of that launch (Nsight Compute, docs/activity.md)."""
+    cap = list_launch_blocks(device, block_dim)
+    return max(1, min(int(n), cap) if cap else int(n))
+
+
 def launch_options(device, count=None, block_dim: int | None = None) -> dict:
     """``wp.launch`` keywords of a recorded launch: ``block_dim`` for a tiled kernel, and on CUDA
     ``max_blocks`` (:func:`list_launch_blocks`) when it walks a device-side list (``count`` given, or
