@@ -42,6 +42,7 @@ BLOCK_DIMS = {
     "physhand_mj.contact.query_tiled": (32,),  # query_tiled.TILE_LANES
     "physhand_mj.contact.features": (128,),  # features.FEATURE_LANES
     "physhand_mj.contact.winding": (128,),
+    "physhand_mj.contact.patches_tiled": (512,),  # patches_tiled.PATCH_LANES
 }
 
 

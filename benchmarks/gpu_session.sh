@@ -1085,6 +1085,57 @@ runpy.run_path('benchmarks/batch_hoi.py', run_name='__main__')"
       done
     done
     ;;
+  s51_e)  # feature_patches_tiled with 512 lanes walking its list: the CUDA tests of the patches; every kernel's duration
+    # on the held grasp (boost clocks); Nsight Compute's full set on the decision points and near_features; the demo
+    # and the seven HOI grasps at W = 1 by the commit before the session (.base/) and this code, alternated twice
+    step pytest_cuda 300 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or tiled" tests/test_winding.py \
+      tests/test_feature_slack.py tests/test_contact.py
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    step ncu_held 300 "$NCU" --clock-control none --cache-control none --launch-skip 13000 --launch-count 400 --csv \
+      --metrics gpu__time_duration.sum,launch__registers_per_thread,launch__grid_size,launch__block_size \
+      python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
+    cp "$OUT/logs/ncu_held.log" "$OUT/ncu_held_s51e.csv"
+    for k in decide_and_project_tiled near_features; do
+      step "ncu_$k" 200 "$NCU" --set full -k "regex:$k" --launch-skip 3700 --launch-count 1 -f -o "$OUT/$k" \
+        python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 1, graph=False, warmup=47)"
+      "$NCU" -i "$OUT/$k.ncu-rep" --page details --print-details all > "$OUT/${k}_details.txt" 2>&1
+      "$NCU" -i "$OUT/$k.ncu-rep" --page source --csv --print-source sass > "$OUT/${k}_sass.csv" 2>&1
+      rm -f "$OUT/$k.ncu-rep"
+    done
+    for r in 1 2; do
+      for v in base new; do
+        pp=$PYTHONPATH; [ $v = base ] && pp=$PWD/.base:$PYTHONPATH
+        step demo_${v}_$r 120 env PYTHONPATH=$pp python3 benchmarks/softhand_frame.py --device cuda \
+          --out "$OUT/softhand_s51e_${v}_$r.json"
+        step hoi_${v}_$r 200 env PYTHONPATH=$pp python3 benchmarks/batch_hoi.py --device cuda --worlds 1 --frames 40 \
+          --out "$OUT/batch_hoi_s51e_${v}_$r.json"
+      done
+    done
+    ;;
+  s51_f)  # the held hard cases (24 x 25 held frames, both families of measures) by the commit before the session
+    # (.base/ with its own copy of the benchmark: hard_contact_hold.py puts its repository first on sys.path) and this
+    # code; near_features' block size (features.NEAR_BLOCK) by its duration on the held grasp
+    cp -r benchmarks .base/
+    step hard_base 280 python3 .base/benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s51f_base.json"
+    step hard_new 280 python3 benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s51f_new.json"
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    for b in 256 64 32; do
+      step "ncu_near_$b" 120 "$NCU" --clock-control none --cache-control none -k regex:near_features --launch-skip 44 \
+        --launch-count 6 --csv --metrics gpu__time_duration.sum python3 -c "import sys; sys.path.insert(0, 'benchmarks')
+import physhand_mj.contact.features as F; F.NEAR_BLOCK = $b
+import frame_profile as f; f.run('cuda', 3, graph=False, warmup=47)"
+      grep -h near_features "$OUT/logs/ncu_near_$b.log" | grep gpu__time | cut -d, -f15 | tr '\n' ' '; echo
+    done
+    ;;
+  s51_g)  # the held hard cases again (one held frame of s51_f's run of this code had an object point 357 um in the skin,
+    # the mesh cone started 4 mm deep at the palm; the commit before had a 2.6 um flicker): base twice, this code three times
+    cp -r benchmarks .base/
+    for r in 1 2 3; do
+      [ $r -lt 3 ] && step hard_base_$r 120 python3 .base/benchmarks/hard_contact_hold.py --device cuda \
+        --out "$OUT/hard_contact_hold_cuda_s51g_base_$r.json"
+      step hard_new_$r 120 python3 benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s51g_new_$r.json"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

@@ -143,7 +143,7 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         pseudo_wrong += int((near & (o[:, 0] != truth)).sum())
     assert checked > 100 and pseudo_wrong > 0 and tiled_checked > 100, (checked, pseudo_wrong, tiled_checked)
     if device == "cpu":  # CUDA's patches (feature_patches_tiled, a block over every skin triangle) against the BVH's
-        from physhand_mj.contact.winding import feature_patches_tiled
+        from physhand_mj.contact.patches_tiled import feature_patches_tiled
 
         n = int(c.feat_count.numpy()[0])
         x_start = state.x.numpy().copy()
@@ -153,7 +153,7 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         used, pool = wp.zeros(1, dtype=int, device="cpu"), wp.zeros_like(c.patch_pool)
         slot, start, length = (wp.zeros_like(a) for a in (c.feat_slot, c.patch_start, c.patch_len))
         fill, far = wp.zeros_like(c.patch_len), wp.zeros_like(c.far_angle)
-        wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.feat, c.feat_count, pts.pts, pts.geom,
+        wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.feat, c.feat_count, n, pts.pts, pts.geom,
                                                   c.objects.pose, c.config.contact_frame_margin, c.feat_dist, c.slack,
                                                   c.tris_per_world, c.geoms_per_world],
                   [used, pool, slot, start, length, fill, far], device="cpu", block_dim=1)

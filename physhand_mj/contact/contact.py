@@ -16,7 +16,8 @@ import warp as wp
 from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, feature_contact, feature_contact_scan, feature_contact_tiled,
                                           near_features, stage_features, stage_features_scan, stage_features_tiled)
-from physhand_mj.contact.winding import feature_patches, feature_patches_tiled
+from physhand_mj.contact.patches_tiled import PATCH_LANES, feature_patches_tiled
+from physhand_mj.contact.winding import feature_patches
 from physhand_mj.contact.inside import ObjectPoints
 from physhand_mj.contact.linear import HOLD_SLOTS, LinearHold
 from physhand_mj.contact.measures import ContactMeasures
@@ -286,12 +287,14 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
                 ops += [self.patch_used.zero_, self.patch_fill.zero_]
-                launch(feature_patches_tiled, (pts.n_features, self.feature_lanes),
-                       [m.skin_faces, self._query_x(state), self.feat, self.feat_count, pts.pts, pts.geom, qpose,
+                lanes = PATCH_LANES if self.feature_lanes > 1 else 1
+                nb = tiled_blocks(m.device, pts.n_features, lanes)
+                launch(feature_patches_tiled, (nb, lanes),
+                       [m.skin_faces, self._query_x(state), self.feat, self.feat_count, nb, pts.pts, pts.geom, qpose,
                         cfg.contact_frame_margin, self.feat_dist, self.slack, self.tris_per_world,
                         self.geoms_per_world],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
-                        self.patch_fill, self.far_angle], block_dim=self.feature_lanes)
+                        self.patch_fill, self.far_angle], block_dim=lanes)
             elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
                 volw = self.volume(state, winding=True)
                 ops += [self._refit_op(volw), self.patch_used.zero_]
