@@ -1136,6 +1136,29 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=47)"
       step hard_new_$r 120 python3 benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s51g_new_$r.json"
     done
     ;;
+  s51_h)  # the tiled kernels' blocks per SM by their own durations (Nsight Compute, the held grasp, 400 launches):
+    # (decision points, feature kernels) at (8, 8) as shipped, (2, 2) and (1, 1)
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    for b in 8 2 1; do
+      step "ncu_blocks_$b" 150 "$NCU" --clock-control none --cache-control none --launch-skip 13000 --launch-count 400 --csv \
+        --metrics gpu__time_duration.sum python3 -c "import sys; sys.path.insert(0, 'benchmarks')
+import physhand_mj.solver.solver as s; s.TILED_BLOCKS_PER_SM = s.WIDE_BLOCKS_PER_SM = $b
+import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
+      cp "$OUT/logs/ncu_blocks_$b.log" "$OUT/ncu_blocks_$b.csv"
+    done
+    ;;
+  s51_i)  # how often the deep-start mesh cone at the palm (s51_f's 357 um held frame) and the plate at the palm (the
+    # commit before's 2.6 um) keep residue in a held frame: 20 runs each by the commit before (.base/) and this code
+    cp -r benchmarks .base/
+    for c in mesh_cone plate; do
+      for v in base new; do
+        b=benchmarks; [ $v = base ] && b=.base/benchmarks
+        step "rep_${c}_$v" 140 python3 $b/case_repeats.py --device cuda --case $c --site palm --start -0.004 \
+          --repeats 20 --out "$OUT/case_repeats_cuda_s51i_${c}_$v.json"
+        tail -n 1 "$OUT/logs/rep_${c}_$v.log" | cut -c1-400
+      done
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
