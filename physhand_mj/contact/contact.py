@@ -185,6 +185,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.tiled_features = bool(cuda and (tf is None or tf))
         self.feature_scan = bool(cuda and tf is None and w >= FEATURE_SCAN_WORLDS and config.feature_winding)
         self.feature_lanes = FEATURE_LANES if cuda else 1
+        self.patch_lanes = PATCH_LANES if cuda else 1  # (feature_patches_tiled's block)
         # Config.fused_stage: a stage in one launch (contact/stage.py), one hand with multires
         self.fused = bool(config.fused_stage and w == 1 and config.contact == Strategy.MULTIRES)
         self.stage_lanes = STAGE_LANES if cuda else 1
@@ -287,7 +288,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
                 ops += [self.patch_used.zero_, self.patch_fill.zero_]
-                lanes = PATCH_LANES if self.feature_lanes > 1 else 1
+                lanes = self.patch_lanes
                 nb = tiled_blocks(m.device, pts.n_features, lanes)
                 launch(feature_patches_tiled, (nb, lanes),
                        [m.skin_faces, self._query_x(state), self.feat, self.feat_count, nb, pts.pts, pts.geom, qpose,

@@ -354,8 +354,8 @@ def stage_features_tiled(
     touched_count: wp.array(dtype=int),
     vertex_obj: wp.array(dtype=int),
 ):
-    """:func:`stage_features` with a block per listed feature (launch (n, FEATURE_LANES) with
-    block_dim FEATURE_LANES on CUDA; (n, 1) on the CPU): the closest point by :func:`closest_tiled`
+    """:func:`stage_features` with a block per listed feature (launch (stride, FEATURE_LANES) with
+    block_dim FEATURE_LANES on CUDA; (stride, 1) on the CPU): the closest point by :func:`closest_tiled`
     (the feature's patch, or the skin triangles ``tris``: the frame's broadphase list). The stage's
     first pass sees the skin its list is made on, so the same closest point also gives that pass's
     push (:func:`feature_contact_tiled`'s, into ``delta`` ... ``vertex_obj``) in this launch: a
