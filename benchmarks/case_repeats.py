@@ -1,9 +1,11 @@
 """One hard contact case run many times: how often its held frames keep residue, by both families of
-measures (on CUDA the atomics sum in no fixed order, so runs of one case differ; on the CPU every run
-is the same).
+measures. On CUDA the atomics sum in no fixed order, so runs of one case differ by themselves; on the
+CPU every run is the same, and ``--perturb`` moves run k's ``Config.contact_offset`` by a relative
+k x perturb (1e-4: 0.4 nm on the default 4 um), which sends the chaotic held contact down another
+path of the same physics: the CPU's rate of such frames, not one path's luck.
 
     python benchmarks/case_repeats.py [--device cuda] [--case mesh_cone] [--site palm] [--start -0.004]
-                                      [--repeats 20] [--frames 40] [--config JSON] [--out PATH]
+                                      [--repeats 20] [--frames 40] [--perturb 0] [--config JSON] [--out PATH]
 
 The case is benchmarks/hard_contact_hold.py's (``cases.press_case`` pressed 4 mm over 15 frames from
 ``--start`` m, then held). Per run: the held frames with anything inside (skin samples on the
@@ -37,6 +39,8 @@ def main() -> None:
     ap.add_argument("--start", type=float, default=-0.004, help="start offset (m; negative: inside the skin)")
     ap.add_argument("--repeats", type=int, default=20, help="runs of the case (count)")
     ap.add_argument("--frames", type=int, default=40, help="5 ms frames a run (held from 15 on)")
+    ap.add_argument("--perturb", type=float, default=0.0, help="run k's contact_offset x (1 + k x this) (relative; "
+                    "0: every run the same Config)")
     ap.add_argument("--config", default="{}", help="Config fields as JSON")
     ap.add_argument("--out", default=None, help="JSON path (none: print only)")
     a = ap.parse_args()
@@ -45,9 +49,10 @@ def main() -> None:
     asset = ph.load_asset()
     over = json.loads(a.config)
     runs = []
+    offset = over.pop("contact_offset", ph.Config().contact_offset)
     for k in range(a.repeats):
-        r = run_case(press_case(a.case, site=a.site, depth=0.004, start=a.start), ph.Config(device=a.device, **over),
-                     frames=a.frames, asset=asset)
+        cfg = ph.Config(device=a.device, contact_offset=offset * (1.0 + k * a.perturb), **over)
+        r = run_case(press_case(a.case, site=a.site, depth=0.004, start=a.start), cfg, frames=a.frames, asset=asset)
         h = slice(PRESS_FRAMES, a.frames)
         skin = np.maximum(np.asarray(r["skin_max_um"][h]), np.asarray(r["dense_max_um"][h]))
         obj = np.maximum(np.asarray(r["obj_max_um"][h]), np.asarray(r["check_max_um"][h]))
@@ -58,7 +63,8 @@ def main() -> None:
         print(json.dumps(dict(run=k, **row)), flush=True)
     dirty = [r for r in runs if r["held_with_residue"]]
     summary = dict(device=device_name(a.device if a.device != "cuda" else "cuda:0"), case=a.case, site=a.site,
-                   start_m=a.start, config=over, repeats=a.repeats, held_frames_a_run=a.frames - PRESS_FRAMES,
+                   start_m=a.start, config=dict(over, contact_offset=offset), perturb=a.perturb, repeats=a.repeats,
+                   held_frames_a_run=a.frames - PRESS_FRAMES,
                    runs_with_residue=len(dirty), held_frames_with_residue=sum(r["held_with_residue"] for r in runs),
                    worst_um=max((r["worst_um"] for r in runs), default=0.0),
                    runs_dirty_at_end=sum(not r["clean_at_end"] for r in runs))
