@@ -5,8 +5,8 @@ fit a block of 512 threads' shared memory."""
 
 import warp as wp
 
-from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.closest import solid_angle
+from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.winding import patch_radius, within
 
 wp.set_module_options({"enable_backward": False})  # forward only
