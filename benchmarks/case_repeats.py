@@ -27,8 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import physhand_mj as ph  # noqa: E402
 from physhand_mj.bench import device_name  # noqa: E402
 from physhand_mj.cases import press_case, run_case  # noqa: E402
-
-PRESS_FRAMES = 15  # press_case's: the object holds still from here on
+from hard_contact_hold import PRESS_FRAMES, held_residue, path_config  # noqa: E402  (benchmarks/: the script's folder)
 
 
 def main() -> None:
@@ -49,13 +48,11 @@ def main() -> None:
     asset = ph.load_asset()
     over = json.loads(a.config)
     runs = []
-    offset = over.pop("contact_offset", ph.Config().contact_offset)
+    offset = path_config(a.device, over, 0, a.perturb).contact_offset
     for k in range(a.repeats):
-        cfg = ph.Config(device=a.device, contact_offset=offset * (1.0 + k * a.perturb), **over)
+        cfg = path_config(a.device, over, k, a.perturb)
         r = run_case(press_case(a.case, site=a.site, depth=0.004, start=a.start), cfg, frames=a.frames, asset=asset)
-        h = slice(PRESS_FRAMES, a.frames)
-        skin = np.maximum(np.asarray(r["skin_max_um"][h]), np.asarray(r["dense_max_um"][h]))
-        obj = np.maximum(np.asarray(r["obj_max_um"][h]), np.asarray(r["check_max_um"][h]))
+        skin, obj = held_residue(r, a.frames)
         bad = (skin > 0) | (obj > 0)
         row = dict(held_with_residue=int(bad.sum()), worst_um=round(float(max(skin.max(), obj.max())), 2),
                    clean_at_end=bool(skin[-1] == 0 and obj[-1] == 0), median_ms=round(float(np.median(r["ms"][1:])), 3))

@@ -38,18 +38,31 @@ KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")
 PRESS_FRAMES = 15  # press_case's: the object holds still from here on
 
 
+def path_config(device: str, over: dict, path: int, perturb: float):
+    """Config(device, **over) on path ``path``: contact_offset x (1 + path x perturb)."""
+    over = dict(over)
+    offset = over.pop("contact_offset", ph.Config().contact_offset)
+    return ph.Config(device=device, contact_offset=offset * (1.0 + path * perturb), **over)
+
+
+def held_residue(r: dict, frames: int) -> tuple:
+    """(skin, obj): per held frame of run_case's rows ``r``, the deepest skin sample inside (order 5
+    or 9, um) and the deepest object point inside the skin (the contact's or the denser check
+    points, um)."""
+    h = slice(PRESS_FRAMES, frames)
+    skin = np.maximum(np.asarray(r["skin_max_um"][h]), np.asarray(r["dense_max_um"][h]))
+    obj = np.maximum(np.asarray(r["obj_max_um"][h]), np.asarray(r["check_max_um"][h]))
+    return skin, obj
+
+
 def run_variant(asset, device: str, frames: int, over: dict, progress=None, paths: int = 1,
                 perturb: float = 1e-4) -> dict:
     held = total = skin_frames = obj_frames = dirty_end = dirty_runs = 0
     worst, ms, cases = 0.0, [], []
-    over = dict(over)
-    offset = over.pop("contact_offset", ph.Config().contact_offset)
     for path, kind, site, start in itertools.product(range(paths), KINDS, ("fingertip", "palm"), (0.002, -0.004)):
-        cfg = ph.Config(device=device, contact_offset=offset * (1.0 + path * perturb), **over)
+        cfg = path_config(device, over, path, perturb)
         r = run_case(press_case(kind, site=site, depth=0.004, start=start), cfg, frames=frames, asset=asset)
-        h = slice(PRESS_FRAMES, frames)
-        skin = np.maximum(np.asarray(r["skin_max_um"][h]), np.asarray(r["dense_max_um"][h]))
-        obj = np.maximum(np.asarray(r["obj_max_um"][h]), np.asarray(r["check_max_um"][h]))
+        skin, obj = held_residue(r, frames)
         bad = (skin > 0) | (obj > 0)
         held += int(bad.sum())
         total += len(skin)
@@ -64,7 +77,7 @@ def run_variant(asset, device: str, frames: int, over: dict, progress=None, path
                               skin_um=np.round(skin, 1).tolist(), object_um=np.round(obj, 1).tolist()))
         if progress:
             progress()
-    return dict(config=dict(over, contact_offset=offset), paths=paths, perturb=perturb if paths > 1 else 0.0,
+    return dict(config=dict(over, contact_offset=path_config(device, over, 0, perturb).contact_offset), paths=paths, perturb=perturb if paths > 1 else 0.0,
                 held_frames=total, held_with_residue=held, runs=paths * len(KINDS) * 4,
                 runs_with_residue=dirty_runs, skin_frames=skin_frames, object_frames=obj_frames,
                 worst_um=round(worst, 2), cases_dirty_at_end=dirty_end, median_ms=round(float(np.median(ms)), 2),
