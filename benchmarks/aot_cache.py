@@ -47,14 +47,17 @@ BLOCK_DIMS = {
 
 
 # kernels made at run time that a device run uses (Config.multires_registers' caps, with
-# Config.multires_block_dim's blocks)
+# Config.multires_block_dim's blocks); made_kernels adds the others in modules of their own
 MADE = ((128, 256), (168, 256), (128, 128), (96, 128), (80, 128), (64, 128))
 
 
 def made_kernels() -> list:
+    """Kernels in modules of their own: the capped multires kernels, and the tiled multires kernel
+    without the mesh branch (query_tiled.tiled_kernel_for, blocks of TILE_LANES)."""
     from physhand_mj.contact.query import multires_kernel
+    from physhand_mj.contact.query_tiled import decide_and_project_tiled_analytic
 
-    return [multires_kernel(r, b) for r, b in MADE]
+    return [multires_kernel(r, b) for r, b in MADE] + [decide_and_project_tiled_analytic]
 
 
 def decision_modules_with_lineinfo() -> list:

@@ -11,7 +11,7 @@ import physhand_mj.contact.contact as contact_mod
 from physhand_mj.contact import Contact, Objects
 from physhand_mj.contact.closest import closest_signed, closest_signed_tiled
 from physhand_mj.contact.inside import object_point
-from physhand_mj.contact.sdf import geom_sdf_grad
+from physhand_mj.contact.sdf import geom_sdf, geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic
 from physhand_mj.types import GeomType, Placement, Strategy
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -103,6 +103,43 @@ def test_sdf_values_and_gradients_match_numpy(gtype, device):
     assert smooth.sum() > 0.8 * len(p)
     err = np.abs(grad[smooth] - fd[smooth]).max()
     assert err < GRAD_TOL, f"{gtype.name}: gradient off by {err:.2e}"
+
+
+@wp.kernel
+def _eval_both(gtype: int, size: wp.vec3, mesh: wp.vec2ul, p: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=float)):
+    i = wp.tid()
+    d, g = geom_sdf_grad(gtype, p[i], size, mesh)
+    da, ga = geom_sdf_grad_analytic(gtype, p[i], size, mesh)
+    out[i, 0] = d - da
+    out[i, 1] = wp.length(g - ga)
+    out[i, 2] = geom_sdf(gtype, p[i], size, mesh) - geom_sdf_analytic(gtype, p[i], size, mesh)
+    out[i, 3] = geom_sdf_analytic(gtype, p[i], size, mesh)
+    out[i, 4] = da
+
+
+def test_the_sdfs_without_the_mesh_branch_equal_the_full_ones():
+    """sdf.geom_sdf_funcs(False), compiled into the CUDA decision points' kernel for scenes without
+    a mesh geom: every analytic geom's phi and gradient bit for bit as the full functions give them,
+    and a mesh geom reads FAR (where the full functions find it)."""
+    from physhand_mj.contact.sdf import FAR
+
+    rng = np.random.default_rng(3)
+    p = wp.array(_points(rng).astype(np.float32), dtype=wp.vec3)
+    cases = [(t, REFS[t][0], 0) for t in REFS] + [(GeomType.ELLIPSOID, (0.03, 0.02, 0.01), 0)]
+    box = trimesh.creation.box((0.02, 0.02, 0.02))
+    objs = Objects("cpu", 1)
+    objs.add(GeomType.MESH, None, vertices=box.vertices, faces=box.faces, name="block")
+    cases.append((GeomType.MESH, objs._host["size"][0], objs._host["mesh"][0]))
+    for gtype, size, mesh in cases:
+        out = wp.zeros((p.shape[0], 5), dtype=float)
+        wp.launch(_eval_both, p.shape[0], inputs=[int(gtype), wp.vec3(*size), wp.vec2ul(*[int(m) for m in np.resize(mesh, 2)]), p],
+                  outputs=[out])
+        o = out.numpy()
+        if gtype == GeomType.MESH:
+            assert np.all(o[:, 3] == FAR) and np.all(o[:, 4] == FAR)
+            assert np.abs(o[:, 2]).min() > 1.0  # the full function measured the box (|phi| < 0.2 m)
+        else:
+            assert np.all(o[:, :3] == 0), gtype.name
 
 
 def test_ellipsoid_sign_surface_and_sphere_case():
@@ -339,6 +376,64 @@ def test_tiled_cuda_multires_matches_the_per_thread_kernel(monkeypatch):
     # near-tied samples can pick a different x* of the same depth, whose gradient differs a little
     moved = np.abs(x0 - x.astype(np.float32)).max()
     assert moved > 1e-4 and np.abs(x0 - x1).max() < 0.05 * moved, (np.abs(x0 - x1).max(), moved)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_an_analytic_scene_takes_the_tiled_kernel_without_the_mesh_branch(monkeypatch, device):
+    """Without a mesh geom, CUDA's multires runs query_tiled's kernel compiled without the MESH branch
+    (no spills): the full kernel's decisions; a mesh geom added after the solver recorded its frames
+    makes it record them again with the full kernel, which then pushes the skin out of the mesh (the
+    kernel without the branch reads a mesh as FAR and would leave it inside). On the CPU the tiled
+    kernels are forced (Warp runs tile kernels there too)."""
+    from physhand_mj.bodies import sheet
+    from physhand_mj.contact import query_tiled
+
+    chosen = []
+    real = contact_mod.tiled_kernel_for
+
+    def spy(has_mesh):
+        chosen.append(real(has_mesh))
+        return chosen[-1]
+
+    body = sheet(20, 20, 0.004, height=0.027)
+    x = (body.positions + np.random.default_rng(1).normal(scale=0.001, size=body.positions.shape) * [0, 0, 1]).astype(np.float32)
+    out = {}
+    for full in (False, True):
+        monkeypatch.setattr(contact_mod, "tiled_kernel_for", (lambda has_mesh: real(True)) if full else spy)
+        cfg = ph.Config(device=device, contact_passes=1)
+        objs = Objects(device, 1)
+        objs.add(GeomType.SPHERE, [0.03], name="ball")
+        solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
+        solver.contact.tiled = True  # (CUDA's default for one hand)
+        state = solver.make_state()
+        state.x.assign(x)
+        out[full] = (solver.contact.run_stage(state), state.x.numpy().copy())
+    assert chosen and all(k is query_tiled.decide_and_project_tiled_analytic for k in chosen)
+    (d0, x0), (d1, x1) = out[False], out[True]
+    inside = d0[:, 3] < 0
+    assert inside.sum() > 50 and np.array_equal(inside, d1[:, 3] < 0)
+    assert np.abs(d0 - d1).max() < 1e-7  # the same decision points and depths
+    assert np.abs(x0 - x1).max() < 1e-6 and np.abs(x0 - x).max() > 1e-4  # (Eq. 9's atomics sum in no fixed order)
+
+    monkeypatch.setattr(contact_mod, "tiled_kernel_for", spy)
+    chosen.clear()
+    cfg = ph.Config(device=device)
+    objs = Objects(device, 2)
+    objs.add(GeomType.SPHERE, [0.03], pos=(-0.02, -0.02, 0.0), name="ball")
+    solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
+    solver.contact.tiled = True
+    state = solver.make_state()
+    solver.step(state)
+    assert chosen and all(k is query_tiled.decide_and_project_tiled_analytic for k in chosen)
+    box = trimesh.creation.box((0.02, 0.02, 0.02))
+    objs.add(GeomType.MESH, None, pos=(0.025, 0.025, 0.027 - 0.0095), vertices=box.vertices, faces=box.faces,
+             name="block")  # its top 0.5 mm above the sheet
+    before = solver.contact.measure(state)
+    chosen.clear()
+    solver.step(state)
+    after = solver.contact.measure(state)
+    assert chosen and all(k is query_tiled.decide_and_project_tiled for k in chosen)  # recorded again
+    assert before[0] > 10 and after[0] == 0, (before[:3], after[:3])
 
 
 def test_a_solver_with_an_empty_objects_container_steps():

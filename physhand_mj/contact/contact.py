@@ -27,9 +27,9 @@ from physhand_mj.contact.query_lanes import SampleLanes
 from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
-from physhand_mj.contact.query_tiled import TILE_LANES, decide_and_project_tiled
+from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
 from physhand_mj.contact.stage import STAGE_LANES, record_stage
-from physhand_mj.types import Config, GeomType, Model, Placement, Strategy
+from physhand_mj.types import Config, Model, Placement, Strategy
 from physhand_mj.solver.solver import launch_options, tiled_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
@@ -407,7 +407,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             self._tally_touched(launch, p, feat_touched)
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
             nb = tiled_blocks(m.device, self.n_tris, TILE_LANES)
-            launch(decide_and_project_tiled, (nb, TILE_LANES),
+            launch(tiled_kernel_for(self._has_mesh()), (nb, TILE_LANES),
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                     self.tris_per_world, self.geoms_per_world, *lst, nb,
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
@@ -449,7 +449,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         return lst, tuple(moved_slots), flag
 
     def _has_mesh(self) -> bool:
-        return bool(np.any(self.objects._host["gtype"] == int(GeomType.MESH)))
+        return self.objects.n_mesh > 0
 
     def _sample_lanes(self):
         """The pass's SampleLanes (made on first use) where Config.sample_lanes asks for them (multires,

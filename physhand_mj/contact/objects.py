@@ -397,6 +397,7 @@ class Objects:
                           pose=np.zeros((c, 7), np.float32), radius=np.zeros(c, np.float32),
                           mesh=np.zeros((c, 2), np.uint64), obj=np.zeros(c, np.int32))
         self._pose_buf = wp.empty(2 * c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
+        self.n_mesh = 0  # MESH geoms added (kernels compiled without the mesh branch serve scenes without: query_tiled.py)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -449,6 +450,7 @@ class Objects:
         if oname not in self.object_names:
             self.object_names.append(oname)
         h["gtype"][i] = int(gtype)
+        self.n_mesh += gtype == GeomType.MESH
         h["size"][i] = size
         h["mesh"][i] = mesh_id
         h["obj"][i] = self.object_names.index(oname)

@@ -32,8 +32,8 @@ Strategies (``Strategy``):
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
-from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_grad,
-                                     mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids,
+from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_analytic,
+                                     geom_sdf_grad, geom_sdf_grad_analytic, mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids,
                                      sdf_mesh_near)
 from physhand_mj.types import Strategy
 
@@ -42,66 +42,6 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 VERTEX = wp.constant(int(Strategy.VERTEX))
 OPT = wp.constant(int(Strategy.OPT))
 MULTIRES = wp.constant(int(Strategy.MULTIRES))
-
-
-@wp.func
-def world_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
-    """min over the geoms [base, base + count) (one world's: batched worlds) of phi at world point
-    p (m). Only geoms whose bit is set in ``mask`` count: bit j is geom base + j (the broadphase's
-    world-relative list for this triangle; -1 = all); geoms base + 31 on share bit 30 and are always
-    tried. Geoms whose bounding sphere is farther than the best value so far are skipped
-    (phi >= |q| - R for p at q in the geom frame)."""
-    best = float(FAR)
-    for j in range(count):
-        if (j < 31 and ((mask >> j) & 1) == 0):
-            continue
-        g = base + j
-        q = wp.transform_point(inv_pose[g], p)
-        if wp.length(q) - radius[g] < best:
-            best = wp.min(best, geom_sdf(gtype[g], q, size[g], mesh[g]))
-    return best
-
-
-@wp.func
-def world_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                   inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
-    """(phi, unit world gradient, geom index) of the closest geom of [base, base + count) at world
-    point p (``mask`` as in :func:`world_phi`; the index is global)."""
-    best = float(FAR)
-    grad = wp.vec3(0.0, 0.0, 1.0)
-    arg = int(base)
-    for j in range(count):
-        if (j < 31 and ((mask >> j) & 1) == 0):
-            continue
-        g = base + j
-        ti = inv_pose[g]
-        q = wp.transform_point(ti, p)
-        if wp.length(q) - radius[g] < best:
-            d, n = geom_sdf_grad(gtype[g], q, size[g], mesh[g])
-            if d < best:
-                best = d
-                grad = wp.quat_rotate_inv(wp.transform_get_rotation(ti), n)
-                arg = g
-    return best, grad, arg
-
-
-@wp.func
-def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
-    """:func:`world_phi` over geoms [0, count) (one world, or a world's (W, k) view row)."""
-    return world_phi(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
-
-
-@wp.func
-def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                   inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
-    """:func:`world_phi_grad` over geoms [0, count)."""
-    return world_phi_grad(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
 
 
 @wp.func
@@ -181,17 +121,6 @@ def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
     return gtype[g], inv_pose[g], size[g], mesh[g]
 
 
-@wp.func
-def phi_at(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.vec2ul,
-           gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-           radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), base: int, n_geoms: int, near: int):
-    """phi (m) at world point p: the one geom near the triangle (``single``, its data from
-    :func:`geom_data`) or, with ``single`` < 0, the lowest over its world's geoms in ``near``."""
-    if single < 0:
-        return world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-    return geom_sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
-
-
 SIDE_COS = wp.constant(0.6)  # cos of the angle beyond which Eq. 9 would push the skin out through the object
 SIDE_DEPTH = wp.constant(5.0e-4)  # m: shallower decision points take Eq. 9 (a box's edges tilt the gradient)
 SIDE_FRAC = wp.constant(0.1)  # ... or shallower than this fraction of a thinner geom's half-thickness (side_floor)
@@ -220,43 +149,122 @@ def side_floor(gtype: int, size: wp.vec3):
     return wp.min(SIDE_DEPTH, SIDE_FRAC * half)
 
 
-@wp.func
-def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
-            near: int, base: int, n_geoms: int,
-            gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-            radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_obj: wp.array(dtype=int),
-            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
-            touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
-    """Eq. 9 for a triangle (vertices i0, i1, i2, outward unit normal nt) whose decision point is
-    best_p: the correction that puts x* ``offset`` outside the surface along the gradient there,
-    added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
+def phi_funcs(with_mesh: bool):
+    """(:func:`world_phi`, :func:`world_phi_grad`, :func:`phi_at`, :func:`project`) over the geom
+    SDFs with the MESH branch (``with_mesh``) or without it (sdf.geom_sdf_funcs: for the kernels of
+    scenes with analytic geoms only, query_tiled.py)."""
+    sdf, sdf_grad = (geom_sdf, geom_sdf_grad) if with_mesh else (geom_sdf_analytic, geom_sdf_grad_analytic)
 
-    Side-aware: where the gradient points out of the hand (dot(grad, nt) > SIDE_COS) at a decision
-    point deeper than :func:`side_floor` (0.5 mm, less in thin geoms: shallow contact at a box's edge
-    tilts the gradient) the object's nearest surface lies beyond the skin, on the far side of an
-    object the skin has passed more than half way into (a thin wall, a capsule past its axis, a deep
-    start); Eq. 9 would put the skin on the object's far side and the object inside the hand. The
-    triangle then leaves the object the way it came, into the hand along -nt (``side_aware``: the
-    skin is closed, so it has an inside): by sphere tracing from x* (inside an SDF a step of |phi|
-    never passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
-    d, g, arg = world_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-    corr = g * (offset - d)
-    if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > side_floor(gtype[arg], size[arg]):
-        t = float(0.0)
-        exited = int(0)
-        for k in range(MARCH_STEPS):
-            dd = world_phi(best_p - nt * t, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-            if dd >= offset:
-                exited = 1
-                break
-            t += wp.max(offset - dd, MARCH_MIN)
-            if t > 2.0 * (offset - d) + 5.0e-4:
-                break
-        if exited == 0:
-            return
-        corr = -nt * t
-    w = depth_weight(-d)
-    accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geom_obj[arg], delta, hits, touched, touched_count, vertex_obj)
+    @wp.func
+    def world_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+                  inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                  mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
+        """min over the geoms [base, base + count) (one world's: batched worlds) of phi at world point
+        p (m). Only geoms whose bit is set in ``mask`` count: bit j is geom base + j (the broadphase's
+        world-relative list for this triangle; -1 = all); geoms base + 31 on share bit 30 and are always
+        tried. Geoms whose bounding sphere is farther than the best value so far are skipped
+        (phi >= |q| - R for p at q in the geom frame)."""
+        best = float(FAR)
+        for j in range(count):
+            if (j < 31 and ((mask >> j) & 1) == 0):
+                continue
+            g = base + j
+            q = wp.transform_point(inv_pose[g], p)
+            if wp.length(q) - radius[g] < best:
+                best = wp.min(best, sdf(gtype[g], q, size[g], mesh[g]))
+        return best
+
+    @wp.func
+    def world_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+                       inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                       mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
+        """(phi, unit world gradient, geom index) of the closest geom of [base, base + count) at world
+        point p (``mask`` as in :func:`world_phi`; the index is global)."""
+        best = float(FAR)
+        grad = wp.vec3(0.0, 0.0, 1.0)
+        arg = int(base)
+        for j in range(count):
+            if (j < 31 and ((mask >> j) & 1) == 0):
+                continue
+            g = base + j
+            ti = inv_pose[g]
+            q = wp.transform_point(ti, p)
+            if wp.length(q) - radius[g] < best:
+                d, n = sdf_grad(gtype[g], q, size[g], mesh[g])
+                if d < best:
+                    best = d
+                    grad = wp.quat_rotate_inv(wp.transform_get_rotation(ti), n)
+                    arg = g
+        return best, grad, arg
+
+    @wp.func
+    def phi_at(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.vec2ul,
+               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
+               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), base: int, n_geoms: int, near: int):
+        """phi (m) at world point p: the one geom near the triangle (``single``, its data from
+        :func:`geom_data`) or, with ``single`` < 0, the lowest over its world's geoms in ``near``."""
+        if single < 0:
+            return world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+        return sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
+
+    @wp.func
+    def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
+                near: int, base: int, n_geoms: int,
+                gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
+                radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_obj: wp.array(dtype=int),
+                delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
+                touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
+        """Eq. 9 for a triangle (vertices i0, i1, i2, outward unit normal nt) whose decision point is
+        best_p: the correction that puts x* ``offset`` outside the surface along the gradient there,
+        added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
+
+        Side-aware: where the gradient points out of the hand (dot(grad, nt) > SIDE_COS) at a decision
+        point deeper than :func:`side_floor` (0.5 mm, less in thin geoms: shallow contact at a box's edge
+        tilts the gradient) the object's nearest surface lies beyond the skin, on the far side of an
+        object the skin has passed more than half way into (a thin wall, a capsule past its axis, a deep
+        start); Eq. 9 would put the skin on the object's far side and the object inside the hand. The
+        triangle then leaves the object the way it came, into the hand along -nt (``side_aware``: the
+        skin is closed, so it has an inside): by sphere tracing from x* (inside an SDF a step of |phi|
+        never passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
+        d, g, arg = world_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+        corr = g * (offset - d)
+        if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > side_floor(gtype[arg], size[arg]):
+            t = float(0.0)
+            exited = int(0)
+            for k in range(MARCH_STEPS):
+                dd = world_phi(best_p - nt * t, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                if dd >= offset:
+                    exited = 1
+                    break
+                t += wp.max(offset - dd, MARCH_MIN)
+                if t > 2.0 * (offset - d) + 5.0e-4:
+                    break
+            if exited == 0:
+                return
+            corr = -nt * t
+        w = depth_weight(-d)
+        accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geom_obj[arg], delta, hits, touched, touched_count, vertex_obj)
+
+    return world_phi, world_phi_grad, phi_at, project
+
+
+world_phi, world_phi_grad, phi_at, project = phi_funcs(True)
+
+
+@wp.func
+def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+              inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+              mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
+    """:func:`world_phi` over geoms [0, count) (one world, or a world's (W, k) view row)."""
+    return world_phi(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
+
+
+@wp.func
+def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
+                   inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
+                   mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
+    """:func:`world_phi_grad` over geoms [0, count)."""
+    return world_phi_grad(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
 
 
 @wp.func

@@ -498,101 +498,114 @@ def sdf_mesh_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids
 
 
 @wp.func
-def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
-    """phi (m) of geom ``gtype`` of ``size`` at local point ``p``; FAR for NONE / no mesh hit."""
-    if gtype == PLANE:
-        return p[2]
-    if gtype == SPHERE:
-        return sdf_sphere(p, size[0])
-    if gtype == CAPSULE:
-        return sdf_capsule(p, size[0], size[1])
-    if gtype == BOX:
-        return sdf_box(p, size)
-    if gtype == CYLINDER:
-        return sdf_cylinder(p, size[0], size[1])
-    if gtype == ELLIPSOID:
-        return sdf_ellipsoid(p, size)
-    if gtype == CONE:
-        d, g = sdf_cone_grad(p, size[0], size[1])
-        return d
-    if gtype == MESH:
-        if mesh[1] != wp.uint64(0):  # the grid's lower bound where it proves p far outside (module docstring)
-            dc, s = grid_node(mesh[1], p)
-            lb = grid_lower(dc, s)
-            if lb > GRID_BAND:
-                return lb
-        d, g = sdf_mesh_grad(p, size, mesh)
-        return d
-    return FAR
-
-
-@wp.func
-def _fd_gradient(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
-    h = FD_STEP
-    gx = geom_sdf(gtype, p + wp.vec3(h, 0.0, 0.0), size, mesh) - geom_sdf(gtype, p - wp.vec3(h, 0.0, 0.0), size, mesh)
-    gy = geom_sdf(gtype, p + wp.vec3(0.0, h, 0.0), size, mesh) - geom_sdf(gtype, p - wp.vec3(0.0, h, 0.0), size, mesh)
-    gz = geom_sdf(gtype, p + wp.vec3(0.0, 0.0, h), size, mesh) - geom_sdf(gtype, p - wp.vec3(0.0, 0.0, h), size, mesh)
-    g = wp.vec3(gx, gy, gz)
-    n = wp.length(g)
-    if n < 1.0e-12:
-        return wp.vec3(0.0, 0.0, 1.0)
-    return g / n
-
-
-@wp.func
 def _axis_sign(x: float):
     if x < 0.0:
         return -1.0
     return 1.0
 
 
-@wp.func
-def geom_sdf_grad(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
-    """(phi, unit gradient) at local point ``p``; the gradient is in the geom's local frame."""
-    up = wp.vec3(0.0, 0.0, 1.0)
-    if gtype == PLANE:
-        return p[2], up
-    if gtype == SPHERE:
-        n = wp.length(p)
+def geom_sdf_funcs(with_mesh: bool):
+    """(:func:`geom_sdf`, :func:`geom_sdf_grad`) compiled with the MESH branch (``with_mesh``) or
+    without it: a kernel for scenes of analytic geoms only (a mesh geom then reads FAR, as NONE does)
+    leaves out the BVH walk's registers and stack (the CUDA decision points' kernel: 255 registers
+    and a 640 B spill frame with it, 114 and none without; query_tiled.py). The same code otherwise,
+    so the same answers for every other geom type."""
+
+    @wp.func
+    def geom_sdf(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
+        """phi (m) of geom ``gtype`` of ``size`` at local point ``p``; FAR for NONE / no mesh hit."""
+        if gtype == PLANE:
+            return p[2]
+        if gtype == SPHERE:
+            return sdf_sphere(p, size[0])
+        if gtype == CAPSULE:
+            return sdf_capsule(p, size[0], size[1])
+        if gtype == BOX:
+            return sdf_box(p, size)
+        if gtype == CYLINDER:
+            return sdf_cylinder(p, size[0], size[1])
+        if gtype == ELLIPSOID:
+            return sdf_ellipsoid(p, size)
+        if gtype == CONE:
+            d, g = sdf_cone_grad(p, size[0], size[1])
+            return d
+        if wp.static(with_mesh):
+            if gtype == MESH:
+                if mesh[1] != wp.uint64(0):  # the grid's lower bound where it proves p far outside (module docstring)
+                    dc, s = grid_node(mesh[1], p)
+                    lb = grid_lower(dc, s)
+                    if lb > GRID_BAND:
+                        return lb
+                d, g = sdf_mesh_grad(p, size, mesh)
+                return d
+        return FAR
+
+    @wp.func
+    def _fd_gradient(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
+        h = FD_STEP
+        gx = geom_sdf(gtype, p + wp.vec3(h, 0.0, 0.0), size, mesh) - geom_sdf(gtype, p - wp.vec3(h, 0.0, 0.0), size, mesh)
+        gy = geom_sdf(gtype, p + wp.vec3(0.0, h, 0.0), size, mesh) - geom_sdf(gtype, p - wp.vec3(0.0, h, 0.0), size, mesh)
+        gz = geom_sdf(gtype, p + wp.vec3(0.0, 0.0, h), size, mesh) - geom_sdf(gtype, p - wp.vec3(0.0, 0.0, h), size, mesh)
+        g = wp.vec3(gx, gy, gz)
+        n = wp.length(g)
         if n < 1.0e-12:
-            return -size[0], up
-        return n - size[0], p / n
-    if gtype == CAPSULE:
-        q = p - wp.vec3(0.0, 0.0, wp.clamp(p[2], -size[1], size[1]))
-        n = wp.length(q)
-        if n < 1.0e-12:
-            return -size[0], wp.vec3(1.0, 0.0, 0.0)
-        return n - size[0], q / n
-    if gtype == BOX:
-        q = wp.vec3(wp.abs(p[0]) - size[0], wp.abs(p[1]) - size[1], wp.abs(p[2]) - size[2])
-        s = wp.vec3(_axis_sign(p[0]), _axis_sign(p[1]), _axis_sign(p[2]))
-        if q[0] > 0.0 or q[1] > 0.0 or q[2] > 0.0:
-            o = wp.vec3(wp.max(q[0], 0.0), wp.max(q[1], 0.0), wp.max(q[2], 0.0))
-            n = wp.length(o)
-            return n, wp.cw_mul(o / n, s)
-        if q[0] >= q[1] and q[0] >= q[2]:
-            return q[0], wp.vec3(s[0], 0.0, 0.0)
-        if q[1] >= q[2]:
-            return q[1], wp.vec3(0.0, s[1], 0.0)
-        return q[2], wp.vec3(0.0, 0.0, s[2])
-    if gtype == CYLINDER:
-        rho = wp.sqrt(p[0] * p[0] + p[1] * p[1])
-        radial = wp.vec3(1.0, 0.0, 0.0)
-        if rho > 1.0e-12:
-            radial = wp.vec3(p[0] / rho, p[1] / rho, 0.0)
-        axial = wp.vec3(0.0, 0.0, _axis_sign(p[2]))
-        dx = rho - size[0]
-        dz = wp.abs(p[2]) - size[1]
-        if dx > 0.0 and dz > 0.0:
-            n = wp.sqrt(dx * dx + dz * dz)
-            return n, (radial * dx + axial * dz) / n
-        if dx >= dz:
-            return dx, radial
-        return dz, axial
-    if gtype == MESH:
-        return sdf_mesh_grad(p, size, mesh)
-    if gtype == CONE:
-        return sdf_cone_grad(p, size[0], size[1])
-    if gtype == ELLIPSOID:
-        return geom_sdf(gtype, p, size, mesh), _fd_gradient(gtype, p, size, mesh)
-    return FAR, up
+            return wp.vec3(0.0, 0.0, 1.0)
+        return g / n
+
+    @wp.func
+    def geom_sdf_grad(gtype: int, p: wp.vec3, size: wp.vec3, mesh: wp.vec2ul):
+        """(phi, unit gradient) at local point ``p``; the gradient is in the geom's local frame."""
+        up = wp.vec3(0.0, 0.0, 1.0)
+        if gtype == PLANE:
+            return p[2], up
+        if gtype == SPHERE:
+            n = wp.length(p)
+            if n < 1.0e-12:
+                return -size[0], up
+            return n - size[0], p / n
+        if gtype == CAPSULE:
+            q = p - wp.vec3(0.0, 0.0, wp.clamp(p[2], -size[1], size[1]))
+            n = wp.length(q)
+            if n < 1.0e-12:
+                return -size[0], wp.vec3(1.0, 0.0, 0.0)
+            return n - size[0], q / n
+        if gtype == BOX:
+            q = wp.vec3(wp.abs(p[0]) - size[0], wp.abs(p[1]) - size[1], wp.abs(p[2]) - size[2])
+            s = wp.vec3(_axis_sign(p[0]), _axis_sign(p[1]), _axis_sign(p[2]))
+            if q[0] > 0.0 or q[1] > 0.0 or q[2] > 0.0:
+                o = wp.vec3(wp.max(q[0], 0.0), wp.max(q[1], 0.0), wp.max(q[2], 0.0))
+                n = wp.length(o)
+                return n, wp.cw_mul(o / n, s)
+            if q[0] >= q[1] and q[0] >= q[2]:
+                return q[0], wp.vec3(s[0], 0.0, 0.0)
+            if q[1] >= q[2]:
+                return q[1], wp.vec3(0.0, s[1], 0.0)
+            return q[2], wp.vec3(0.0, 0.0, s[2])
+        if gtype == CYLINDER:
+            rho = wp.sqrt(p[0] * p[0] + p[1] * p[1])
+            radial = wp.vec3(1.0, 0.0, 0.0)
+            if rho > 1.0e-12:
+                radial = wp.vec3(p[0] / rho, p[1] / rho, 0.0)
+            axial = wp.vec3(0.0, 0.0, _axis_sign(p[2]))
+            dx = rho - size[0]
+            dz = wp.abs(p[2]) - size[1]
+            if dx > 0.0 and dz > 0.0:
+                n = wp.sqrt(dx * dx + dz * dz)
+                return n, (radial * dx + axial * dz) / n
+            if dx >= dz:
+                return dx, radial
+            return dz, axial
+        if wp.static(with_mesh):
+            if gtype == MESH:
+                return sdf_mesh_grad(p, size, mesh)
+        if gtype == CONE:
+            return sdf_cone_grad(p, size[0], size[1])
+        if gtype == ELLIPSOID:
+            return geom_sdf(gtype, p, size, mesh), _fd_gradient(gtype, p, size, mesh)
+        return FAR, up
+
+    return geom_sdf, geom_sdf_grad
+
+
+geom_sdf, geom_sdf_grad = geom_sdf_funcs(True)
+geom_sdf_analytic, geom_sdf_grad_analytic = geom_sdf_funcs(False)  # (MESH reads FAR)

@@ -114,6 +114,7 @@ class Solver(PoseInput, Sleeping):
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
+        self._recorded_geoms = 0  # the objects' geoms when the frames were recorded (_queue_frame)
         self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
         self._in_flight = None  # (state, ops or None asleep, rigid, frame poses) between launch and finish
         self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
@@ -211,6 +212,10 @@ class Solver(PoseInput, Sleeping):
         ``upload``: the pose buffer not yet uploaded, which a sleeping frame's graph copies and any
         other frame copies before its first launch)."""
         key = (id(state), id(self.contact))
+        geoms = len(self.contact.objects) if self.contact is not None else 0
+        if geoms != self._recorded_geoms:  # a geom added since the frames were recorded: record again (which
+            self._forget_recordings()  # kernels a frame launches depends on them: query_tiled.tiled_kernel_for)
+            self._recorded_geoms = geoms
         ops = self._ops.get(key)
         self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
         first = ops is None
@@ -520,6 +525,10 @@ class Solver(PoseInput, Sleeping):
         SoftHand's skin write-back (writeback.py), which then needs no launches or sync of its own.
         Frames recorded before are recorded again (kernels stay compiled)."""
         self._tail = list(ops)
+        self._forget_recordings()
+
+    def _forget_recordings(self) -> None:
+        """Drop every recorded frame and graph: the next frame records again (kernels stay compiled)."""
         self._ops.clear()
         self._sleep_ops.clear()
         self._graphs.clear()
