@@ -1159,6 +1159,39 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
       done
     done
     ;;
+  s52_a)  # (2026-11-28, third session) the tiled multires kernel without the mesh branch for scenes of analytic
+    # geoms (query_tiled.tiled_kernel_for): the CUDA tests it touches, and test_linear's (not run on CUDA since the
+    # tiled kernels walk their lists); the decision points' durations on the held grasp (boost clocks) by the commit
+    # before (.base/) and this code
+    step pytest_cuda 330 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "tiled or cuda or analytic" \
+      tests/test_contact.py tests/test_stage.py tests/test_hard_contact.py tests/test_linear.py tests/test_multires_kernel.py
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    for v in base new; do
+      pp=$PYTHONPATH; [ $v = base ] && pp=$PWD/.base:$PYTHONPATH
+      step ncu_held_$v 120 env PYTHONPATH=$pp "$NCU" --clock-control none --cache-control none -k regex:decide_and_project \
+        --launch-skip 1750 --launch-count 150 --csv --metrics gpu__time_duration.sum,launch__registers_per_thread \
+        python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
+      cp "$OUT/logs/ncu_held_$v.log" "$OUT/ncu_decide_s52a_$v.csv"
+    done
+    ;;
+  s52_b)  # the demo's full frame and the analytic HOI grasps at W = 1 (the bowl, a mesh, as the control) by the
+    # commit before (.base/) and this code, alternated twice
+    for r in 1 2; do
+      for v in base new; do
+        pp=$PYTHONPATH; [ $v = base ] && pp=$PWD/.base:$PYTHONPATH
+        step demo_${v}_$r 100 env PYTHONPATH=$pp python3 benchmarks/softhand_frame.py --device cuda \
+          --out "$OUT/softhand_s52b_${v}_$r.json"
+        step hoi_${v}_$r 150 env PYTHONPATH=$pp python3 benchmarks/batch_hoi.py --device cuda \
+          --scenes apple,box,glass1,bowl --worlds 1 --frames 30 --out "$OUT/batch_hoi_s52b_${v}_$r.json"
+      done
+    done
+    ;;
+  s52_c)  # the held hard cases (24 x 25 held frames, both families of measures; the analytic ones now take the kernel
+    # without the mesh branch) by the commit before (.base/) and this code
+    cp -r benchmarks .base/
+    step hard_base 250 python3 .base/benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s52c_base.json"
+    step hard_new 250 python3 benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s52c_new.json"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
