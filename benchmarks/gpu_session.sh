@@ -1161,17 +1161,22 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
     ;;
   s52_a)  # (2026-11-28, third session) the tiled multires kernel without the mesh branch for scenes of analytic
     # geoms (query_tiled.tiled_kernel_for): the CUDA tests it touches, and test_linear's (not run on CUDA since the
-    # tiled kernels walk their lists); the decision points' durations on the held grasp (boost clocks) by the commit
-    # before (.base/) and this code
+    # tiled kernels walk their lists)
     step pytest_cuda 330 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "tiled or cuda or analytic" \
       tests/test_contact.py tests/test_stage.py tests/test_hard_contact.py tests/test_linear.py tests/test_multires_kernel.py
+    ;;
+  s52_d)  # the decision points' durations on the held grasp (boost clocks) by the commit before (.base/; run from
+    # there: python3 -c puts the working folder first on sys.path, which made s52_a's "base" this code) and this
+    # code, twice each
     NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
-    for v in base new; do
-      pp=$PYTHONPATH; [ $v = base ] && pp=$PWD/.base:$PYTHONPATH
-      step ncu_held_$v 120 env PYTHONPATH=$pp "$NCU" --clock-control none --cache-control none -k regex:decide_and_project \
-        --launch-skip 1750 --launch-count 150 --csv --metrics gpu__time_duration.sum,launch__registers_per_thread \
-        python3 -c "import sys; sys.path.insert(0, 'benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
-      cp "$OUT/logs/ncu_held_$v.log" "$OUT/ncu_decide_s52a_$v.csv"
+    for r in 1 2; do
+      for v in base new; do
+        d=.; [ $v = base ] && d=.base
+        step ncu_held_${v}_$r 120 bash -c "cd $d && '$NCU' --clock-control none --cache-control none -k regex:decide_and_project \
+          --launch-skip 1750 --launch-count 150 --csv --metrics gpu__time_duration.sum,launch__registers_per_thread \
+          python3 -c \"import sys; sys.path.insert(0, '$PWD/benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)\""
+        cp "$OUT/logs/ncu_held_${v}_$r.log" "$OUT/ncu_decide_s52d_${v}_$r.csv"
+      done
     done
     ;;
   s52_b)  # the demo's full frame and the analytic HOI grasps at W = 1 (the bowl, a mesh, as the control) by the
@@ -1191,6 +1196,12 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
     cp -r benchmarks .base/
     step hard_base 250 python3 .base/benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s52c_base.json"
     step hard_new 250 python3 benchmarks/hard_contact_hold.py --device cuda --out "$OUT/hard_contact_hold_cuda_s52c_new.json"
+    ;;
+  s52_e)  # every CUDA test of the default run after the SDF functions became factories (sdf.geom_sdf_funcs,
+    # query.phi_funcs): the tests whose names ask for CUDA, the tiled kernels or a GPU
+    step pytest_cuda 540 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or tiled or analytic or gpu" \
+      tests --ignore=tests/stress --ignore=tests/test_ray_gpus.py --ignore=tests/test_myosuite.py
+    cp "$OUT/logs/pytest_cuda.log" "$OUT/pytest_cuda_s52e.log"
     ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
