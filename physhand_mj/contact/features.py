@@ -270,56 +270,6 @@ def feature_contact(
 FEATURE_LANES = 128  # threads per listed feature in the CUDA tiled kernels (lanes stride the triangle list)
 
 
-@wp.func
-def stage_features_entry(
-    k: int,
-    lane: int,
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    tris: wp.array(dtype=int),
-    tri_count: wp.array(dtype=int),
-    cand: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    margin: float,
-    keep: float,
-    eps: float,
-    winding: int,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    geom_obj: wp.array(dtype=int),
-    offset: float,
-    max_step: float,
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=int),
-    out_count: wp.array(dtype=int),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """Entry ``k`` of the list for lane ``lane`` of its block (every lane calls it: the block
-    reductions need them all): the kernel's body."""
-    i = cand[k]
-    p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
-                                         patch_start, patch_len, far_angle)
-    if lane != 0 or not found:
-        return
-    c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
-    if sign * wp.length(p - c) < keep:
-        out[wp.atomic_add(out_count, 0, 1)] = i
-        f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
-                     touched_count, vertex_obj)
-
-
 @wp.kernel
 def stage_features_tiled(
     faces: wp.array2d(dtype=int),
@@ -364,55 +314,19 @@ def stage_features_tiled(
     blk, lane = wp.tid()
     k = blk
     n = cand_count[0]
-    while k < n:  # (uniform over the block: k is the block's feature)
-        stage_features_entry(k, lane, faces, x, tris, tri_count, cand, pts, pts_geom, pose, margin, keep, eps,
-                             winding, slot, pool, patch_start, patch_len, far_angle, geom_obj, offset, max_step,
-                             pose0, x0, out, out_count, delta, hits, touched, touched_count, vertex_obj)
+    while k < n:  # (uniform over the block: k is the block's feature; every lane reaches the block reductions)
+        i = cand[k]
+        p = object_point(i, pts, pts_geom, pose)
+        found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
+                                             patch_start, patch_len, far_angle)
+        if lane == 0 and found:
+            c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
+            if sign * wp.length(p - c) < keep:
+                out[wp.atomic_add(out_count, 0, 1)] = i
+                f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+                push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits,
+                             touched, touched_count, vertex_obj)
         k += stride
-
-
-@wp.func
-def feature_contact_entry(
-    k: int,
-    lane: int,
-    faces: wp.array2d(dtype=int),
-    tris: wp.array(dtype=int),
-    tri_count: wp.array(dtype=int),
-    cand: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    geom_obj: wp.array(dtype=int),
-    margin: float,
-    offset: float,
-    max_step: float,
-    eps: float,
-    x: wp.array(dtype=wp.vec3),
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    winding: int,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """Entry ``k`` of the list for lane ``lane`` of its block (every lane calls it: the block
-    reductions need them all): the kernel's body."""
-    i = cand[k]
-    p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
-                                         patch_start, patch_len, far_angle)
-    if lane != 0 or not found:
-        return
-    f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-    push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
-                 touched_count, vertex_obj)
 
 
 @wp.kernel
@@ -453,10 +367,15 @@ def feature_contact_tiled(
     blk, lane = wp.tid()
     k = blk
     n = cand_count[0]
-    while k < n:  # (uniform over the block: k is the block's feature)
-        feature_contact_entry(k, lane, faces, tris, tri_count, cand, pts, pts_geom, pose, geom_obj, margin,
-                              offset, max_step, eps, x, pose0, x0, winding, slot, pool, patch_start, patch_len,
-                              far_angle, delta, hits, touched, touched_count, vertex_obj)
+    while k < n:  # (uniform over the block: k is the block's feature; every lane reaches the block reductions)
+        i = cand[k]
+        p = object_point(i, pts, pts_geom, pose)
+        found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
+                                             patch_start, patch_len, far_angle)
+        if lane == 0 and found:
+            f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+            push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits,
+                         touched, touched_count, vertex_obj)
         k += stride
 
 

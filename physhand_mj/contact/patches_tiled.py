@@ -17,76 +17,6 @@ PATCH_LANES = 512  # threads per listed feature in feature_patches_tiled (CUDA; 
 # ~110 us a frame on the held grasp, the frame's longest launch; docs/activity.md)
 
 
-@wp.func
-def feature_patch_entry(
-    k: int,
-    lane: int,
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    feat: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    radius: float,
-    feat_dist: wp.array(dtype=float),
-    slack: wp.array(dtype=float),
-    tris_per_world: int,
-    geoms_per_world: int,
-    pool_count: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    slot: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    patch_fill: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-):
-    """Entry ``k`` of the feature list for lane ``lane`` of its block (every lane calls it: the
-    block reductions need them all): :func:`feature_patches_tiled`'s body."""
-    i = feat[k]
-    p = object_point(i, pts, pts_geom, pose)
-    lanes = wp.block_dim()
-    world = pts_geom[i] // geoms_per_world
-    first = world * tris_per_world
-    r = patch_radius(radius, feat_dist[k], slack[world])
-    total = float(0.0)
-    near = float(0.0)
-    cnt = int(0)
-    j = first + lane
-    while j < first + tris_per_world:
-        t = j
-        j += lanes
-        a = x[faces[t, 0]]
-        b = x[faces[t, 1]]
-        c = x[faces[t, 2]]
-        w = solid_angle(a - p, b - p, c - p)
-        total += w
-        if within(p, t, faces, x, r):
-            near += w
-            cnt += 1
-    n = wp.tile_sum(wp.tile(cnt))[0]
-    far = wp.tile_sum(wp.tile(total))[0] - wp.tile_sum(wp.tile(near))[0]
-    mine = int(-1)
-    if lane == 0:
-        mine = wp.atomic_add(pool_count, 0, n)
-    start = wp.tile_max(wp.tile(mine))[0]
-    if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
-        if lane == 0:
-            slot[i] = k
-            patch_len[k] = -1
-        return
-    j = first + lane
-    while j < first + tris_per_world:
-        t = j
-        j += lanes
-        if within(p, t, faces, x, r):
-            pool[start + wp.atomic_add(patch_fill, k, 1)] = t
-    if lane == 0:
-        slot[i] = k
-        patch_start[k] = start
-        patch_len[k] = n
-        far_angle[k] = far
-
-
 @wp.kernel
 def feature_patches_tiled(
     faces: wp.array2d(dtype=int),
@@ -116,10 +46,50 @@ def feature_patches_tiled(
     (in no fixed order; ``patch_fill`` zeroed per frame). On the CPU (block_dim 1) one thread scans
     them all."""
     blk, lane = wp.tid()
+    lanes = wp.block_dim()
     k = blk
-    n = feat_count[0]
-    while k < n:  # (uniform over the block: k is the block's feature)
-        feature_patch_entry(k, lane, faces, x, feat, pts, pts_geom, pose, radius, feat_dist, slack,
-                            tris_per_world, geoms_per_world, pool_count, pool, slot, patch_start, patch_len,
-                            patch_fill, far_angle)
+    n_feat = feat_count[0]
+    while k < n_feat:  # (uniform over the block: k is the block's feature; every lane reaches the block reductions)
+        i = feat[k]
+        p = object_point(i, pts, pts_geom, pose)
+        world = pts_geom[i] // geoms_per_world
+        first = world * tris_per_world
+        r = patch_radius(radius, feat_dist[k], slack[world])
+        total = float(0.0)
+        near = float(0.0)
+        cnt = int(0)
+        j = first + lane
+        while j < first + tris_per_world:
+            t = j
+            j += lanes
+            a = x[faces[t, 0]]
+            b = x[faces[t, 1]]
+            c = x[faces[t, 2]]
+            w = solid_angle(a - p, b - p, c - p)
+            total += w
+            if within(p, t, faces, x, r):
+                near += w
+                cnt += 1
+        n = wp.tile_sum(wp.tile(cnt))[0]
+        far = wp.tile_sum(wp.tile(total))[0] - wp.tile_sum(wp.tile(near))[0]
+        mine = int(-1)
+        if lane == 0:
+            mine = wp.atomic_add(pool_count, 0, n)
+        start = wp.tile_max(wp.tile(mine))[0]
+        if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
+            if lane == 0:
+                slot[i] = k
+                patch_len[k] = -1
+        else:
+            j = first + lane
+            while j < first + tris_per_world:
+                t = j
+                j += lanes
+                if within(p, t, faces, x, r):
+                    pool[start + wp.atomic_add(patch_fill, k, 1)] = t
+            if lane == 0:
+                slot[i] = k
+                patch_start[k] = start
+                patch_len[k] = n
+                far_angle[k] = far
         k += stride

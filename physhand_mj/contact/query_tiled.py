@@ -36,122 +36,6 @@ def tiled_kernel(with_mesh: bool):
     without it (:func:`tiled_kernel_for`)."""
     _, _, phi_at, project = phi_funcs(with_mesh)
 
-    @wp.func
-    def decide_tiled_entry(
-        k: int,
-        lane: int,
-        # Model:
-        faces: wp.array2d(dtype=int),
-        # Objects:
-        gtype: wp.array(dtype=int),
-        size: wp.array(dtype=wp.vec3),
-        inv_pose: wp.array(dtype=wp.transform),
-        radius: wp.array(dtype=float),
-        mesh: wp.array(dtype=wp.vec2ul),
-        geom_count: wp.array(dtype=int),
-        geom_obj: wp.array(dtype=int),
-        tris_per_world: int,
-        geoms_per_world: int,
-        # Contact in:
-        active: wp.array(dtype=int),
-        active_mask: wp.array(dtype=int),
-        samples: int,
-        rounds: int,
-        offset: float,
-        side_aware: int,
-        # State in:
-        x: wp.array(dtype=wp.vec3),
-        # Contact out:
-        delta: wp.array(dtype=wp.vec3),
-        hits: wp.array(dtype=float),
-        decision: wp.array(dtype=wp.vec4),
-        vertex_obj: wp.array(dtype=int),
-        bound: wp.array(dtype=float),
-        bound_mask: wp.array(dtype=int),
-        eval_x: wp.array2d(dtype=wp.vec3),
-        touched: wp.array(dtype=int),
-        touched_count: wp.array(dtype=int),
-    ):
-        """Entry ``k`` of the list (triangle active[k]) for lane ``lane`` of its block: the kernel's
-        body (every lane of the block calls it, the tile reductions need them all)."""
-        t = active[k]
-        near = active_mask[k]
-        i0 = faces[t, 0]
-        i1 = faces[t, 1]
-        i2 = faces[t, 2]
-        a = x[i0]
-        b = x[i1]
-        c = x[i2]
-        base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
-        n_geoms = end - base
-        single = only_geom(near, base, n_geoms)
-        s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
-        order = lattice_order(samples)
-        n_lat = (order + 1) * (order + 2) / 2
-        best = float(FAR)
-        best_p = a
-        certified = float(-FAR)
-        ta = a
-        tb = b
-        tc = c
-        for r in range(rounds):
-            d = float(FAR)
-            if lane < n_lat:
-                u, v = lattice_uv(lane, order)
-                d = phi_at(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
-                             gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-            elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
-                d = phi_at((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
-                             gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-            # the three lowest samples (indices j0, j1, j2), ascending
-            j0 = wp.tile_argmin(wp.tile(d))[0]
-            d0 = wp.tile_min(wp.tile(d))[0]
-            e = d
-            if lane == j0:
-                e = float(FAR)
-            j1 = wp.tile_argmin(wp.tile(e))[0]
-            if lane == j1:
-                e = float(FAR)
-            j2 = wp.tile_argmin(wp.tile(e))[0]
-            q0 = (ta + tb + tc) * (1.0 / 3.0)
-            q1 = q0
-            q2 = q0
-            if j0 < n_lat:
-                u, v = lattice_uv(j0, order)
-                q0 = ta * (1.0 - u - v) + tb * u + tc * v
-            if j1 < n_lat:
-                u, v = lattice_uv(j1, order)
-                q1 = ta * (1.0 - u - v) + tb * u + tc * v
-            if j2 < n_lat:
-                u, v = lattice_uv(j2, order)
-                q2 = ta * (1.0 - u - v) + tb * u + tc * v
-            if d0 < best:
-                best = d0
-                best_p = q0
-            if r == 0:
-                longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
-                h = longest / float(order) * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
-                if d0 > h:
-                    certified = d0 - h
-                    break
-            ta = q0
-            tb = q1
-            tc = q2
-        if lane != 0:
-            return
-        eval_x[t, 0] = a
-        eval_x[t, 1] = b
-        eval_x[t, 2] = c
-        bound_mask[t] = near
-        decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
-        bound[t] = best
-        if certified > -FAR:
-            bound[t] = certified
-        if best < 0.5 * offset:
-            nt = wp.normalize(wp.cross(b - a, c - a))
-            project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
-                    touched, touched_count, vertex_obj)
-
     def decide_and_project_tiled(
         # Model:
         faces: wp.array2d(dtype=int),
@@ -197,10 +81,83 @@ def tiled_kernel(with_mesh: bool):
         blk, lane = wp.tid()
         k = blk
         n = active_count[0]
-        while k < n:  # (uniform over the block: k is the block's triangle)
-            decide_tiled_entry(k, lane, faces, gtype, size, inv_pose, radius, mesh, geom_count, geom_obj, tris_per_world,
-                               geoms_per_world, active, active_mask, samples, rounds, offset, side_aware, x, delta, hits,
-                               decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count)
+        while k < n:  # (uniform over the block: k is the block's triangle; every lane reaches the block reductions)
+            t = active[k]
+            near = active_mask[k]
+            i0 = faces[t, 0]
+            i1 = faces[t, 1]
+            i2 = faces[t, 2]
+            a = x[i0]
+            b = x[i1]
+            c = x[i2]
+            base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
+            n_geoms = end - base
+            single = only_geom(near, base, n_geoms)
+            s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
+            order = lattice_order(samples)
+            n_lat = (order + 1) * (order + 2) / 2
+            best = float(FAR)
+            best_p = a
+            certified = float(-FAR)
+            ta = a
+            tb = b
+            tc = c
+            for r in range(rounds):
+                d = float(FAR)
+                if lane < n_lat:
+                    u, v = lattice_uv(lane, order)
+                    d = phi_at(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
+                                 gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
+                    d = phi_at((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
+                                 gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                # the three lowest samples (indices j0, j1, j2), ascending
+                j0 = wp.tile_argmin(wp.tile(d))[0]
+                d0 = wp.tile_min(wp.tile(d))[0]
+                e = d
+                if lane == j0:
+                    e = float(FAR)
+                j1 = wp.tile_argmin(wp.tile(e))[0]
+                if lane == j1:
+                    e = float(FAR)
+                j2 = wp.tile_argmin(wp.tile(e))[0]
+                q0 = (ta + tb + tc) * (1.0 / 3.0)
+                q1 = q0
+                q2 = q0
+                if j0 < n_lat:
+                    u, v = lattice_uv(j0, order)
+                    q0 = ta * (1.0 - u - v) + tb * u + tc * v
+                if j1 < n_lat:
+                    u, v = lattice_uv(j1, order)
+                    q1 = ta * (1.0 - u - v) + tb * u + tc * v
+                if j2 < n_lat:
+                    u, v = lattice_uv(j2, order)
+                    q2 = ta * (1.0 - u - v) + tb * u + tc * v
+                if d0 < best:
+                    best = d0
+                    best_p = q0
+                if r == 0:
+                    longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+                    h = longest / float(order) * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
+                    if d0 > h:
+                        certified = d0 - h
+                        break
+                ta = q0
+                tb = q1
+                tc = q2
+            if lane == 0:
+                eval_x[t, 0] = a
+                eval_x[t, 1] = b
+                eval_x[t, 2] = c
+                bound_mask[t] = near
+                decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
+                bound[t] = best
+                if certified > -FAR:
+                    bound[t] = certified
+                if best < 0.5 * offset:
+                    nt = wp.normalize(wp.cross(b - a, c - a))
+                    project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
+                            touched, touched_count, vertex_obj)
             k += stride
 
     if with_mesh:
