@@ -1203,6 +1203,20 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
       tests --ignore=tests/stress --ignore=tests/test_ray_gpus.py --ignore=tests/test_myosuite.py --continue-on-collection-errors
     cp "$OUT/logs/pytest_cuda.log" "$OUT/pytest_cuda_s52e.log"
     ;;
+  s52_f)  # the four tiled list kernels with their bodies inline (no per-entry @wp.func): their CUDA tests, and
+    # every kernel's duration on the held grasp (boost clocks, 400 launches) by the commit before (.base/, run from
+    # there) and this code
+    step pytest_cuda 330 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "tiled or cuda or analytic" \
+      tests/test_contact.py tests/test_stage.py tests/test_winding.py tests/test_feature_slack.py
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    for v in base new; do
+      d=.; [ $v = base ] && d=.base
+      step ncu_held_$v 150 bash -c "cd $d && '$NCU' --clock-control none --cache-control none --launch-skip 13000 \
+        --launch-count 400 --csv --metrics gpu__time_duration.sum,launch__registers_per_thread python3 -c \
+        \"import sys; sys.path.insert(0, '$PWD/benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)\""
+      cp "$OUT/logs/ncu_held_$v.log" "$OUT/ncu_held_s52f_$v.csv"
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
