@@ -1217,6 +1217,18 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
       cp "$OUT/logs/ncu_held_$v.log" "$OUT/ncu_held_s52f_$v.csv"
     done
     ;;
+  s52_g)  # s52_f's kernel durations again, twice each, alternated (the feature kernels read 5-8 % longer inline once)
+    NCU=$(command -v ncu || ls /usr/local/cuda*/bin/ncu /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+    for r in 1 2; do
+      for v in new base; do
+        d=.; [ $v = base ] && d=.base
+        step ncu_held_${v}_$r 150 bash -c "cd $d && '$NCU' --clock-control none --cache-control none --launch-skip 13000 \
+          --launch-count 400 --csv --metrics gpu__time_duration.sum,launch__registers_per_thread python3 -c \
+          \"import sys; sys.path.insert(0, '$PWD/benchmarks'); import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)\""
+        cp "$OUT/logs/ncu_held_${v}_$r.log" "$OUT/ncu_held_s52g_${v}_$r.csv"
+      done
+    done
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
