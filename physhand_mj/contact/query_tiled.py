@@ -7,6 +7,8 @@ from samples x rounds queries to rounds x (1 query + 3 reductions); the samples,
 bound and projection are the per-thread kernel's.
 """
 
+import functools
+
 import warp as wp
 
 from physhand_mj.contact.broadphase import world_geoms
@@ -31,6 +33,7 @@ def lattice_uv(idx: int, order: int):
     return float(i) * inv, float(rem) * inv
 
 
+@functools.cache  # (one kernel a flag: a second one in the same module would change its hash)
 def tiled_kernel(with_mesh: bool):
     """:func:`decide_and_project_tiled` over the geom SDFs with the MESH branch (``with_mesh``) or
     without it (:func:`tiled_kernel_for`)."""
@@ -160,6 +163,8 @@ def tiled_kernel(with_mesh: bool):
                             touched, touched_count, vertex_obj)
             k += stride
 
+    # the kernels' own names (Nsight Compute, cpu_op_split.py), not the factory's
+    decide_and_project_tiled.__qualname__ = "decide_and_project_tiled" + ("" if with_mesh else "_analytic")
     if with_mesh:
         return wp.kernel(decide_and_project_tiled)
     k = wp.kernel(decide_and_project_tiled, module=f"{__name__}_analytic", enable_backward=False)
@@ -175,6 +180,6 @@ def tiled_kernel_for(has_mesh: bool):
     """The CUDA multires kernel for a scene with a mesh geom or without: without, the kernel
     compiled without the MESH branch (sdf.geom_sdf_funcs), 114 registers a thread and no spills on
     sm_90 against 255 and a 640 B spill frame (`python benchmarks/aot_cache.py --resources decide`).
-    The same answers for every analytic geom; a mesh geom added later reads FAR in it, so a contact
-    that chose it records its frame again when one is (Contact.kernels_stale)."""
+    The same answers for every analytic geom; a mesh geom would read FAR in it, so the solver records
+    its frames again when a geom is added after they were recorded (Solver._recorded_geoms)."""
     return decide_and_project_tiled if has_mesh else decide_and_project_tiled_analytic
