@@ -1229,6 +1229,13 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
       done
     done
     ;;
+  s52_h)  # the session's last code (the two tiled kernels under their own names): the CUDA tests of the contact's
+    # kernels once more
+    step pytest_cuda 420 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "tiled or cuda or analytic" \
+      tests/test_contact.py tests/test_stage.py tests/test_winding.py tests/test_feature_slack.py tests/test_hard_contact.py \
+      tests/test_linear.py tests/test_multires_kernel.py
+    cp "$OUT/logs/pytest_cuda.log" "$OUT/pytest_cuda_s52h.log"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
