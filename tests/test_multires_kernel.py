@@ -63,7 +63,9 @@ def test_the_specialised_kernel_gives_the_generic_kernels_skins(monkeypatch):
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
 def test_the_capped_kernel_chosen_on_cuda_presses_as_the_generic_kernel(monkeypatch):
     """On CUDA the default (None) picks the capped kernel for this batch (a mesh object); its skins
-    match the generic kernel's within 2 um (CUDA's float atomics sum in no fixed order)."""
+    match the generic kernel's within 20 um after 3 frames (CUDA's float atomics sum in no fixed order:
+    2 um held in two H200 runs and missed in a third by 2.7 um; a kernel that pressed otherwise would
+    be off by up to the press, over 1 mm)."""
     import physhand_mj.contact.contact as contact_mod
 
     made = []
@@ -78,7 +80,7 @@ def test_the_capped_kernel_chosen_on_cuda_presses_as_the_generic_kernel(monkeypa
     _, capped, out2 = _pressed_batch("cuda")
     assert made and set(made) == {(contact_mod.AUTO_MULTIRES_REGISTERS, 256)}
     assert np.abs(generic - before).max() > 1e-3, "nothing pressed the hands: the test would compare nothing"
-    assert np.abs(capped - generic).max() < 2e-6
+    assert np.abs(capped - generic).max() < 2e-5
     assert out["penetration_count"] == out2["penetration_count"] == 0
 
 
