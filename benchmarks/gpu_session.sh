@@ -1236,6 +1236,16 @@ import frame_profile as f; f.run('cuda', 3, graph=False, warmup=45)"
       tests/test_linear.py tests/test_multires_kernel.py
     cp "$OUT/logs/pytest_cuda.log" "$OUT/pytest_cuda_s52h.log"
     ;;
+  s52_i)  # how far two CUDA runs of test_multires_kernel's pressed batch differ (s52_h: the capped kernel 2.66 um from
+    # the generic one against a 2 um tolerance): the generic kernel against itself and the capped one, three times
+    step spread 200 python3 -c "import sys; sys.path.insert(0, 'tests'); import numpy as np
+from test_multires_kernel import _pressed_batch
+for r in range(3):
+    _, g1, _ = _pressed_batch('cuda', multires_registers=0)
+    _, g2, _ = _pressed_batch('cuda', multires_registers=0)
+    _, c, _ = _pressed_batch('cuda')
+    print('generic vs generic %.2f um, capped vs generic %.2f um' % (np.abs(g1 - g2).max() * 1e6, np.abs(c - g1).max() * 1e6), flush=True)"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
