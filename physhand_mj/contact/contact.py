@@ -503,12 +503,14 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             ops.append(self._refit_op(self.volume(state, winding=False), feat_count))
         slot = self._slot
         feat_touched = self._counter()
+        # the stage's last push (Config.feature_last: pass p == contact_passes) to its own, smaller stand-off
+        off = cfg.feature_last_offset if p == cfg.contact_passes else cfg.feature_offset
         if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
         elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
             launch(feature_contact_scan, self.points.n_features,
                    [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
-                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
+                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, off,
                     cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
                     *self._winding_args()[1:]],
                    [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
@@ -516,7 +518,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
             launch(feature_contact_tiled, (nb, self.feature_lanes),
                    [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, nb, self.points.pts,
-                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset,
+                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, off,
                     cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
                     *self._winding_args()],
                    [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
@@ -524,7 +526,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         else:
             launch(feature_contact, self.points.n_features,
                    [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
-                    self._qp, o.obj, cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin,
+                    self._qp, o.obj, cfg.contact_frame_margin, off, cfg.contact_margin,
                     self.near_query, self._query_x(state), o.pose, state.x, *self._winding_args(),
                     self._side()],
                    [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],

@@ -239,6 +239,7 @@ def contact_stage(
     offset: float,
     side_aware: int,
     feature_offset: float,
+    feature_last_offset: float,
     eps: float,
     winding: int,
     feat_slot: wp.array(dtype=int),
@@ -328,7 +329,7 @@ def contact_stage(
         grid_sync(bar, BARRIER_SPINS)
         if s_last >= 0:  # the last feature push (Config.feature_last)
             feature_phase(lane, lanes, feat_stage, n_stage, 0, margin, feat_stage, feat_stage_counts, faces, cand,
-                          n_cand, pts, pts_geom, pose, geom_obj, frame_margin, feature_offset, margin, eps, x,
+                          n_cand, pts, pts_geom, pose, geom_obj, frame_margin, feature_last_offset, margin, eps, x,
                           winding, feat_slot, pool, patch_start, patch_len, far_angle, delta, hits, touched,
                           counters[s_last: s_last + 1], vertex_obj)
             grid_sync(bar, BARRIER_SPINS)
@@ -389,7 +390,7 @@ def record_stage(contact, launch, state) -> None:
             contact.cand, contact.cand_mask, contact.feat if feats else dummy, contact.feat_count, pts.pts, pts.geom,
             contact._slot_array(slots), stage, cfg.contact_passes, cfg.contact_margin, cfg.contact_frame_margin,
             cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(contact.closed_skin and cfg.side_aware),
-            cfg.feature_offset, contact.feature_eps, *wind, total],
+            cfg.feature_offset, cfg.feature_last_offset, contact.feature_eps, *wind, total],
            [state.x, contact.counters, contact.active, contact.active_mask, contact.pass_list, contact.pass_mask,
             contact.feat_stage if feats else dummy, contact.feat_stage_counts, contact.bound, contact.bound_mask,
             contact.eval_x, contact.decision, contact.delta, contact.hits, contact.touched, contact.vertex_obj,
