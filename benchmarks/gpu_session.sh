@@ -1246,6 +1246,20 @@ for r in range(3):
     _, c, _ = _pressed_batch('cuda')
     print('generic vs generic %.2f um, capped vs generic %.2f um' % (np.abs(g1 - g2).max() * 1e6, np.abs(c - g1).max() * 1e6), flush=True)"
     ;;
+  s52_j)  # Config.feature_last_offset (None: feature_offset's 60 um, as before; 6 um measured better on the CPU's
+    # paths): the held hard cases and 20 runs of the plate started 4 mm deep in the palm with both; the CUDA tests of
+    # the hard cases and the fused stage (which takes the offset too)
+    step hard 200 python3 benchmarks/hard_contact_hold.py --device cuda --configs '{}' '{"feature_last_offset": 6e-6}' \
+      --out "$OUT/hard_contact_hold_cuda_s52j.json"
+    for v in 60 6; do
+      c='{}'; [ $v = 6 ] && c='{"feature_last_offset": 6e-6}'
+      step "rep_plate_$v" 150 python3 benchmarks/case_repeats.py --device cuda --case plate --site palm --start -0.004 \
+        --repeats 20 --config "$c" --out "$OUT/case_repeats_cuda_s52j_plate_last$v.json"
+      tail -n 1 "$OUT/logs/rep_plate_$v.log" | cut -c1-400
+    done
+    step pytest_cuda 240 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or fused or last" \
+      tests/test_hard_contact.py tests/test_stage.py
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json

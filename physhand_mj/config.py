@@ -88,12 +88,13 @@ class Config:
         and 8 passes could end with Eq. 9 having moved the skin back over a corner); with it and
         the two settings above 0 of 600 held hard-case frames left anything inside the skin on the
         CPU and an H100, 26 and 18 without the three (docs/contact.md, held frames);
-        feature_last_offset: how far outside the skin that last push puts a feature point (m; 6 um:
-        the passes before it keep feature_offset's stand-off, and a last push to the full 60 um
-        dragged skin vertices shared with the other face of a 1 mm plate's edge over that face's
-        points: on the CPU, over 31 paths of the plate started 4 mm deep in the palm, 8 kept a held
-        frame with residue at 60 um and 1 at 6 um, and the 24 hard cases on four paths 4 of 96 runs
-        against 0; docs/contact.md, held frames over many paths);
+        feature_last_offset: how far outside the skin that last push puts a feature point (m; None:
+        feature_offset, as before the option). A smaller last push drags less of the skin shared
+        with a thin object's other face: on the CPU, over 31 paths of the 1 mm plate started 4 mm
+        deep in the palm, 8 kept a held frame with residue at 60 um and 1 at 6 um, and the 24 hard
+        cases on four paths 4 of 96 runs against 0; but the knife held 20 mm through the fingertip
+        kept 1-2 tets inverted after it left on 1 of 9 paths at 6 um (0 of 9 at 60 um), so the
+        default stays (docs/contact.md, held frames over many paths);
         feature_slack: the least motion of the skin within one frame that the object's feature
         points are listed and their patches (the local winding number's, contact/winding.py) sized
         for (m, > 0; 4 mm: a held grasp's skin jitters up to 1.5 mm a frame at single vertices): a
@@ -248,7 +249,7 @@ class Config:
     contact_frame_margin: float = 1.0e-2
     contact_offset: float = 4.0e-6
     feature_offset: float = 6.0e-5
-    feature_last_offset: float = 6.0e-6
+    feature_last_offset: float | None = None
     feature_spacing: float = 2.5e-4
     feature_slack: float = 4.0e-3
     feature_list_share: float = 0.5
@@ -345,7 +346,8 @@ class Config:
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
         nonneg("feature_offset")
-        nonneg("feature_last_offset")
+        if self.feature_last_offset is not None:
+            nonneg("feature_last_offset")
         if not (isinstance(self.feature_slack, (int, float)) and not isinstance(self.feature_slack, bool)
                 and math.isfinite(self.feature_slack) and self.feature_slack > 0):
             raise ValueError(f"Config.feature_slack must be a distance > 0 in m (e.g. 4e-3), got {self.feature_slack!r}")

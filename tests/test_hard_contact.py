@@ -200,15 +200,17 @@ def test_the_last_feature_push_has_its_counter_slot_and_moves_the_skin(asset, pa
 def test_the_last_push_takes_its_own_offset_and_nothing_else_does(asset):
     """Config.feature_last_offset is the stand-off of the stage's last feature push only: on a knife
     edge starting 4 mm deep with one pass a stage (so the last push acts in every stage) the skin
-    differs between 6 and 60 um; without the last push (feature_last=False) the value changes nothing,
-    bit for bit."""
+    differs between 6 and 60 um, and None is feature_offset's 60 um bit for bit; without the last push
+    (feature_last=False) the value changes nothing, bit for bit."""
     def skin(**kw):
         r = run_case(press_case("knife", site="fingertip", depth=0.004, start=-0.004),
                      ph.Config(device="cpu", contact_passes=1, **kw), frames=1, asset=asset)
         assert r["finite"]
         return np.asarray(r["skin"])
 
-    assert np.abs(skin(feature_last_offset=6e-6) - skin(feature_last_offset=6e-5)).max() > 1.0e-6
+    at60 = skin(feature_last_offset=6e-5)
+    assert np.abs(skin(feature_last_offset=6e-6) - at60).max() > 1.0e-6
+    np.testing.assert_array_equal(skin(), at60)  # (the default: None)
     np.testing.assert_array_equal(skin(feature_last=False, feature_last_offset=6e-6),
                                   skin(feature_last=False, feature_last_offset=6e-5))
     for bad in (-1e-6, float("nan")):

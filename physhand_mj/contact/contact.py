@@ -141,6 +141,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
         self.lanes = None  # query_lanes.SampleLanes, made on the first pass that takes them
+        # the stand-off of a stage's last feature push (Config.feature_last_offset; None: feature_offset)
+        self.last_push_offset = float(config.feature_offset if config.feature_last_offset is None
+                                      else config.feature_last_offset)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -504,7 +507,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         slot = self._slot
         feat_touched = self._counter()
         # the stage's last push (Config.feature_last: pass p == contact_passes) to its own, smaller stand-off
-        off = cfg.feature_last_offset if p == cfg.contact_passes else cfg.feature_offset
+        off = self.last_push_offset if p == cfg.contact_passes else cfg.feature_offset
         if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
         elif self.feature_scan:  # CUDA batches: a thread per feature over its patch

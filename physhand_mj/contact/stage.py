@@ -390,7 +390,7 @@ def record_stage(contact, launch, state) -> None:
             contact.cand, contact.cand_mask, contact.feat if feats else dummy, contact.feat_count, pts.pts, pts.geom,
             contact._slot_array(slots), stage, cfg.contact_passes, cfg.contact_margin, cfg.contact_frame_margin,
             cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(contact.closed_skin and cfg.side_aware),
-            cfg.feature_offset, cfg.feature_last_offset, contact.feature_eps, *wind, total],
+            cfg.feature_offset, contact.last_push_offset, contact.feature_eps, *wind, total],
            [state.x, contact.counters, contact.active, contact.active_mask, contact.pass_list, contact.pass_mask,
             contact.feat_stage if feats else dummy, contact.feat_stage_counts, contact.bound, contact.bound_mask,
             contact.eval_x, contact.decision, contact.delta, contact.hits, contact.touched, contact.vertex_obj,
