@@ -1260,6 +1260,22 @@ for r in range(3):
     step pytest_cuda 240 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or fused or last" \
       tests/test_hard_contact.py tests/test_stage.py
     ;;
+  s52_k)  # the stress suite's knife held 20 mm through the fingertip, then pulled out (test_object_starting_20_mm_inside):
+    # tets left inverted after it left, six CUDA runs each with feature_last_offset None (60 um) and 6 um (on the CPU's
+    # path 6 um left 1-2, on 8 other CPU paths none)
+    step knife20 250 python3 -c "import sys; sys.path[:0] = ['tests/stress', 'tests']
+import numpy as np, physhand_mj as ph
+from stress_harness import HandScene, Stress, press_schedule
+from physhand_mj.cases import press_case
+scene = HandScene()
+for r in range(6):
+    for v in (None, 6e-6):
+        run = Stress(scene, ph.Config(device='cuda', feature_last_offset=v), press_case('knife', site='fingertip', start=-0.02))
+        for d in [0.02] * 12 + press_schedule(0.02, 0.02, 0, 0, 8, 6):
+            run.frame(depth=d)
+        inv = np.asarray(run.rows['inverted'])
+        print(r, v, 'inverted after it left', inv[20:].tolist(), 'held max', int(inv[2:12].max()), flush=True)"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
