@@ -94,7 +94,7 @@ class Config:
         deep in the palm, 8 kept a held frame with residue at 60 um and 1 at 6 um, and the 24 hard
         cases on four paths 4 of 96 runs against 0; but the knife held 20 mm through the fingertip
         kept 1-2 tets inverted after it left on 1 of 9 paths at 6 um (0 of 9 at 60 um), so the
-        default stays (docs/contact.md, held frames over many paths);
+        default stays (docs/contact.md, the last push's stand-off);
         feature_slack: the least motion of the skin within one frame that the object's feature
         points are listed and their patches (the local winding number's, contact/winding.py) sized
         for (m, > 0; 4 mm: a held grasp's skin jitters up to 1.5 mm a frame at single vertices): a
@@ -346,8 +346,10 @@ class Config:
         nonneg("contact_frame_margin")
         nonneg("contact_offset")
         nonneg("feature_offset")
-        if self.feature_last_offset is not None:
-            nonneg("feature_last_offset")
+        v = self.feature_last_offset
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0):
+            raise ValueError(f"Config.feature_last_offset must be None (feature_offset's stand-off) or a distance "
+                             f">= 0 in m (e.g. 6e-6), got {v!r}")
         if not (isinstance(self.feature_slack, (int, float)) and not isinstance(self.feature_slack, bool)
                 and math.isfinite(self.feature_slack) and self.feature_slack > 0):
             raise ValueError(f"Config.feature_slack must be a distance > 0 in m (e.g. 4e-3), got {self.feature_slack!r}")

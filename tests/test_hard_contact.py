@@ -213,7 +213,7 @@ def test_the_last_push_takes_its_own_offset_and_nothing_else_does(asset):
     np.testing.assert_array_equal(skin(), at60)  # (the default: None)
     np.testing.assert_array_equal(skin(feature_last=False, feature_last_offset=6e-6),
                                   skin(feature_last=False, feature_last_offset=6e-5))
-    for bad in (-1e-6, float("nan")):
+    for bad in (-1e-6, float("nan"), True, "6e-6"):
         with pytest.raises(ValueError, match="feature_last_offset"):
             ph.Config(feature_last_offset=bad).validate()
 

@@ -141,9 +141,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
         self.lanes = None  # query_lanes.SampleLanes, made on the first pass that takes them
-        # the stand-off of a stage's last feature push (Config.feature_last_offset; None: feature_offset)
-        self.last_push_offset = float(config.feature_offset if config.feature_last_offset is None
-                                      else config.feature_last_offset)
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -450,6 +447,13 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                    [*lst, flag],
                    count=self.active_count, min_dim=1)
         return lst, tuple(moved_slots), flag
+
+    @property
+    def last_push_offset(self) -> float:
+        """The stand-off (m) of a stage's last feature push: Config.feature_last_offset, or
+        feature_offset where that is None (read when a stage is recorded, as feature_offset is)."""
+        cfg = self.config
+        return float(cfg.feature_offset if cfg.feature_last_offset is None else cfg.feature_last_offset)
 
     def _has_mesh(self) -> bool:
         return self.objects.n_mesh > 0
