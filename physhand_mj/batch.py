@@ -313,10 +313,7 @@ class BatchedHands:
         if self._launched:  # (the frame in flight ends before its arrays go; its report with them)
             wp.synchronize_device(self.solver.device)
         s = self.solver
-        s._graphs.clear()
-        s._ops.clear()
-        s._sleep_ops.clear()
-        s._pre.clear()
+        s._forget_recordings()
         s.last_graph = None
         self.solver = self.state = self.objects = None
         del s

@@ -407,7 +407,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             self._tally_touched(launch, p, feat_touched)
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
             nb = tiled_blocks(m.device, self.n_tris, TILE_LANES)
-            launch(tiled_kernel_for(self._has_mesh()), (nb, TILE_LANES),
+            launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES),
                    [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
                     self.tris_per_world, self.geoms_per_world, *lst, nb,
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
@@ -417,7 +417,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                               cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x, outs)
         else:
             decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
-            regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, self._has_mesh())
+            regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, o.has_mesh)
             block = None
             if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
                 block = int(cfg.multires_block_dim)
@@ -454,9 +454,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         feature_offset where that is None (read when a stage is recorded, as feature_offset is)."""
         cfg = self.config
         return float(cfg.feature_offset if cfg.feature_last_offset is None else cfg.feature_last_offset)
-
-    def _has_mesh(self) -> bool:
-        return self.objects.n_mesh > 0
 
     def _sample_lanes(self):
         """The pass's SampleLanes (made on first use) where Config.sample_lanes asks for them (multires,

@@ -397,10 +397,15 @@ class Objects:
                           pose=np.zeros((c, 7), np.float32), radius=np.zeros(c, np.float32),
                           mesh=np.zeros((c, 2), np.uint64), obj=np.zeros(c, np.int32))
         self._pose_buf = wp.empty(2 * c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
-        self.n_mesh = 0  # MESH geoms added (kernels compiled without the mesh branch serve scenes without: query_tiled.py)
 
     def __len__(self) -> int:
         return len(self.names)
+
+    @property
+    def has_mesh(self) -> bool:
+        """Whether a MESH geom was added (scenes without one take kernels compiled without the mesh
+        branch: query_tiled.tiled_kernel_for)."""
+        return bool(np.any(self._host["gtype"][: len(self.names)] == int(GeomType.MESH)))
 
     def add(self, gtype: GeomType, size, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), *,
             name: str = "", obj: str | None = None, vertices=None, faces=None, mesh_range: float = 1.0,
@@ -450,7 +455,6 @@ class Objects:
         if oname not in self.object_names:
             self.object_names.append(oname)
         h["gtype"][i] = int(gtype)
-        self.n_mesh += gtype == GeomType.MESH
         h["size"][i] = size
         h["mesh"][i] = mesh_id
         h["obj"][i] = self.object_names.index(oname)
