@@ -12,7 +12,7 @@ frames compile and record), both penetration measures at the end (order-9 skin s
 points), and the largest skin difference from the run without a grid (um; 0 = bit for bit). Then,
 on 200k points (half within 2 mm of the bowl's surface, half anywhere on its grid): the share the
 grid answers, the largest gap between its lower bound and the exact distance (um), whether every
-point below sdf.GRID_BAND equals the exact query, and us per query each way. One JSON document.
+point below sdf_mesh.GRID_BAND equals the exact query, and us per query each way. One JSON document.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ import physhand_mj as ph
 from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
 from physhand_mj.contact.objects import GRID_PAD
-from physhand_mj.contact.sdf import GRID_BAND, geom_sdf
+from physhand_mj.contact.sdf import geom_sdf
+from physhand_mj.contact.sdf_mesh import GRID_BAND
 from physhand_mj.types import GeomType
 
 ROOT = Path(__file__).resolve().parents[1]

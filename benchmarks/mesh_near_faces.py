@@ -1,12 +1,12 @@
 """The decision points' mesh query: a BVH walk per lattice sample against the faces near the triangle
-(sdf.mesh_near_faces, then sdf.sdf_mesh_near per sample; query.py's multires on a pseudo-normal mesh).
+(sdf_mesh.mesh_near_faces, then sdf_mesh.sdf_mesh_near per sample; query.py's multires on a pseudo-normal mesh).
 
 Skin-sized triangles (corners ~1.2 mm about their centre) about points 2 mm inside to 4 mm outside
 random surface points of each mesh; each triangle is sampled on the order-5 lattice twice (multires's
 two rounds: 42 samples), once with Warp's BVH query per sample (``geom_sdf``, no grid) and once over
 the triangle's near faces. Reports ms per launch of N triangles each way (median of ``--repeats``
 interleaved launches, compilation excluded), the share of triangles whose near faces fit the
-capacity (sdf.MESH_NEAR_CAP; the rest take the BVH), the median / 90th percentile / largest count of
+capacity (sdf_mesh.MESH_NEAR_CAP; the rest take the BVH), the median / 90th percentile / largest count of
 near faces, whether every sample's phi equals the BVH query's (bit for bit but at exact ties), and
 whether ``Objects.add`` marks the mesh for the contact's decision points to take the near faces
 (objects.near_faces_pay; unmarked meshes keep the BVH walk per sample).
@@ -30,8 +30,9 @@ import physhand_mj as ph
 from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, geom_sdf, mesh_near_dist, mesh_near_faces,
-                                     mesh_near_first, mesh_near_ids, sdf_mesh_near)
+from physhand_mj.contact.sdf import geom_sdf
+from physhand_mj.contact.sdf_mesh import (MESH_NEAR_CAP, MESH_SIGN_PSEUDO_NEAR, mesh_near_dist, mesh_near_faces,
+                                          mesh_near_first, mesh_near_ids, sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 ROOT = Path(__file__).resolve().parents[1]

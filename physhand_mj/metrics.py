@@ -129,7 +129,7 @@ def penetration_samples(
     # mesh within its query range (FAR) bounds nothing
     bound = skip_margin > 0.0
     for g in range(n):
-        if wtype[g] == MESH and wsize[g][1] > 0.5 and wsize[g][1] < 1.5:  # (sdf.MESH_SIGN_WINDING)
+        if wtype[g] == MESH and wsize[g][1] > 0.5 and wsize[g][1] < 1.5:  # (sdf_mesh.MESH_SIGN_WINDING)
             bound = False
     ba = wp.where(da < 0.5 * FAR, da, -FAR)
     bb = wp.where(db < 0.5 * FAR, db, -FAR)

@@ -1,5 +1,5 @@
-"""The decision points' mesh query over a skin triangle's near faces (sdf.mesh_near_faces,
-sdf.mesh_near_closest, sdf_mesh_near; docs/contact.md, "The decision points' near faces"): the BVH
+"""The decision points' mesh query over a skin triangle's near faces (sdf_mesh.mesh_near_faces,
+sdf_mesh.mesh_near_closest, sdf_mesh_near; docs/contact.md, "The decision points' near faces"): the BVH
 query's phi at every lattice sample, the pruned loop's answers equal to the plain loop's, its skip
 bound on thin faces, and a contact run the same with and without the search."""
 
@@ -11,9 +11,10 @@ import warp as wp
 from mesh_shapes import CONVEX, bowl_mesh, small_triangles, star_prism
 from physhand_mj.contact import Objects
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, face_rounding, geom_sdf, mesh_face_closest,
-                                     mesh_near_closest, mesh_near_faces, mesh_near_first, mesh_near_ids,
-                                     sdf_mesh_near)
+from physhand_mj.contact.sdf import geom_sdf
+from physhand_mj.contact.sdf_mesh import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, face_rounding, mesh_face_closest,
+                                          mesh_near_closest, mesh_near_faces, mesh_near_first, mesh_near_ids,
+                                          sdf_mesh_near)
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -41,7 +42,7 @@ def _lattice_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, i: int, j: int, order: in
 def _near_lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), order: int,
                   exact: wp.array2d(dtype=float), near: wp.array2d(dtype=float), n_near: wp.array(dtype=int)):
     """Every point of an order-``order`` lattice on triangle t: the BVH query (geom_sdf, no grid) and
-    the query over the triangle's near faces (sdf.mesh_near_faces / sdf_mesh_near, as query.py's
+    the query over the triangle's near faces (sdf_mesh.mesh_near_faces / sdf_mesh_near, as query.py's
     decision points ask); n_near[t]: how many faces (-1: too many, the BVH then)."""
     t = wp.tid()
     a, b, c, m, ids, dist, n = _listed(tri, t, mesh, size[0])
@@ -59,13 +60,13 @@ def _near_lattice(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), 
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("shape", ["bowl", "wedge30_knife", "cone30_tip", "star", "hull40"])
 def test_near_faces_answer_every_sample_as_the_bvh_does(shape, device):
-    """The decision points' mesh query (sdf.mesh_near_faces, then sdf_mesh_near per lattice sample):
+    """The decision points' mesh query (sdf_mesh.mesh_near_faces, then sdf_mesh_near per lattice sample):
     the faces within d(m) + 2 r of a triangle's centroid hold every sample's closest face, and Warp's
     own leaf test over them returns the BVH query's phi (bit for bit but at exact ties), inside and outside, at knife
     edges, cone tips, a star's notches and the HOI bowl; a dense mesh overflows the capacity and
     falls back to the BVH, and Objects.add marks only meshes whose near faces are few
     (objects.near_faces_pay) for the decision points' search."""
-    from physhand_mj.contact.sdf import MESH_NEAR_CAP
+    from physhand_mj.contact.sdf_mesh import MESH_NEAR_CAP
     if shape == "bowl":
         mesh = bowl_mesh()
     elif shape == "star":
@@ -135,7 +136,7 @@ def _plain_near(p: wp.vec3, size: wp.vec3, mesh: wp.uint64, ids: mesh_near_ids, 
 def _pruned_and_plain(size: wp.vec3, mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), order: int,
                       pruned: wp.array2d(dtype=wp.vec4), plain: wp.array2d(dtype=wp.vec4), n_near: wp.array(dtype=int)):
     """(face, u, v, squared distance) of every order-``order`` lattice sample of triangle t by
-    sdf.mesh_near_closest and by the plain loop."""
+    sdf_mesh.mesh_near_closest and by the plain loop."""
     t = wp.tid()
     a, b, c, m, ids, dist, n = _listed(tri, t, mesh, size[0])
     n_near[t] = n
@@ -169,13 +170,13 @@ def diagonal_triangles(mesh, n_per_edge=40, seed=5, spread=1.2e-3):
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("shape", ["bowl", "box", "star", "needle"])
 def test_pruned_near_faces_answer_as_the_plain_loop(shape, device):
-    """sdf.mesh_near_closest tests the face nearest the triangle's centre first and skips the faces its
+    """sdf_mesh.mesh_near_closest tests the face nearest the triangle's centre first and skips the faces its
     distance bound proves farther than the best so far: the same face, barycentrics and distance as
     testing every listed face in order, bit for bit, on the order-9 lattice, inside and outside;
     ties included (points over a box's face diagonals, equally close to its two triangles), and thin
     faces, whose closest points round worst (a needle of 10 x 0.15 x 0.15 cm at 0.3 m from the
     origin: faces of aspect 0.015). Fails with the bound's |p - m| left out, and on the needle with
-    the faces' rounding allowance (sdf.face_rounding) left out."""
+    the faces' rounding allowance (sdf_mesh.face_rounding) left out."""
     if shape == "bowl":
         mesh = bowl_mesh()
     elif shape == "star":
@@ -210,9 +211,9 @@ def test_pruned_near_faces_answer_as_the_plain_loop(shape, device):
 @wp.kernel
 def _skip_bound(mesh: wp.uint64, ms: wp.array(dtype=wp.vec3), ps: wp.array(dtype=wp.vec3),
                 gap: wp.array(dtype=float), gap_raw: wp.array(dtype=float)):
-    """How far the computed distance of p to face i falls short of the bound sdf.mesh_near_closest
+    """How far the computed distance of p to face i falls short of the bound sdf_mesh.mesh_near_closest
     skips by (the listed lower distance from m less |p - m| and its slack), with and without the
-    face's rounding allowance (sdf.face_rounding); 0 where the bound holds."""
+    face's rounding allowance (sdf_mesh.face_rounding); 0 where the bound holds."""
     i = wp.tid()
     m = ms[i]
     p = ps[i]
@@ -229,7 +230,7 @@ def test_the_near_faces_skip_bound_holds_on_thin_faces(device):
     """d(p) >= d(m) - |p - m| holds in exact arithmetic; in float32 the closest point of a thin face
     rounds by much more than its coordinates' size suggests. On 100,000 random faces 5-15 cm long of
     aspect ratio 1 to 0.005, up to 1 m from the origin, with m up to 1 cm off and p up to 3 mm from
-    m (half of them along the face normal towards the face): the skip's bound with sdf.face_rounding
+    m (half of them along the face normal towards the face): the skip's bound with sdf_mesh.face_rounding
     holds for every one, and without it fails for some (so the allowance is needed)."""
     rng = np.random.default_rng(11)
     n = 100_000

@@ -15,8 +15,8 @@ import warp as wp
 
 from mesh_shapes import CONVEX, cone, near_features, star_prism
 from physhand_mj.contact import Objects
-from physhand_mj.contact.sdf import (MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, geom_sdf, geom_sdf_grad,
-                                      grid_node)
+from physhand_mj.contact.sdf import geom_sdf, geom_sdf_grad
+from physhand_mj.contact.sdf_mesh import MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, grid_node
 from physhand_mj.types import GeomType
 
 DEVICES = ["cpu"] + (["cuda"] if wp.is_cuda_available() else [])
@@ -37,7 +37,7 @@ def _eval(size: wp.vec3, mesh: wp.vec2ul, p: wp.array(dtype=wp.vec3),
 def mesh_sdf(mesh, points, device="cpu", grid=False, **kw):
     """(phi, grad, sign method) of ``mesh`` added to an ``Objects``, at ``points`` (geom frame): the
     exact BVH query everywhere, or with ``grid`` the query the contact runs (the mesh's distance grid
-    answering the points it proves farther than sdf.GRID_BAND outside)."""
+    answering the points it proves farther than sdf_mesh.GRID_BAND outside)."""
     objs = Objects(device, 1)
     objs.add(GeomType.MESH, None, vertices=mesh.vertices, faces=mesh.faces, name="m", mesh_range=1.0, **kw)
     n = len(points)
@@ -326,12 +326,12 @@ def test_mesh_half_thickness_finds_walls_and_shells_only(shape, half_mm):
 @pytest.mark.parametrize("device", DEVICES)
 def test_the_distance_grid_answers_only_far_points_with_a_lower_bound(shape, device):
     """objects.mesh_grid: the query the contact runs equals the exact BVH query bit for bit wherever
-    that is below sdf.GRID_BAND (inside, on and near the surface); farther out it may answer a lower
+    that is below sdf_mesh.GRID_BAND (inside, on and near the surface); farther out it may answer a lower
     bound (never above the exact distance, never below the band, within the grid's node diagonal)
     without the BVH walk, which it does for most far points; off the grid (more than GRID_PAD out of
     the mesh's box) it answers GRID_PAD, again a lower bound."""
     from physhand_mj.contact.objects import GRID_PAD
-    from physhand_mj.contact.sdf import GRID_BAND
+    from physhand_mj.contact.sdf_mesh import GRID_BAND
 
     mesh = CONVEX[shape]()
     rng = np.random.default_rng(11)

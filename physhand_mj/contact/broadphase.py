@@ -20,7 +20,8 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import GRID_OFF, MESH, geom_sdf, grid_lower, grid_node
+from physhand_mj.contact.sdf import MESH, geom_sdf
+from physhand_mj.contact.sdf_mesh import GRID_OFF, grid_lower, grid_node
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 

@@ -13,9 +13,9 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound
-from physhand_mj.contact.sdf import (FEATURES_PER_FACE, GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO, MESH_SIGN_PSEUDO_NEAR,
-                                     MESH_SIGN_WINDING, WINDING_ACCURACY, mesh_near_faces, pseudo_normal_table,
-                                     sdf_mesh_grad)
+from physhand_mj.contact.sdf_mesh import (FEATURES_PER_FACE, GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO,
+                                          MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, WINDING_ACCURACY, mesh_near_faces,
+                                          pseudo_normal_table, sdf_mesh_grad)
 from physhand_mj.types import GeomType
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -88,14 +88,14 @@ def _winding_above(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), threshold: 
     above[i] = wp.where(hit.result and hit.sign < 0.0, 1, 0)
 
 
-# a pseudo-normal-signed mesh carries its faces' feature normals (sdf.pseudo_normal_table): the same
+# a pseudo-normal-signed mesh carries its faces' feature normals (sdf_mesh.pseudo_normal_table): the same
 # bits as the walk each query made before; False builds meshes without (the walk per query), for timings
 PSEUDO_NORMAL_TABLE = True
 
 
 def _warp_mesh(v: np.ndarray, f: np.ndarray, device: str, winding: bool) -> wp.Mesh:
     """The ``wp.Mesh`` of (v, f); a pseudo-normal-signed one (not ``winding``) carries its faces'
-    feature normals (``sdf.pseudo_normal_table``) in its ``velocities``, which nothing else uses:
+    feature normals (``sdf_mesh.pseudo_normal_table``) in its ``velocities``, which nothing else uses:
     the sign's edge and vertex cases then read one entry instead of walking the BVH. The table is
     made once, for these points: an object mesh is rigid (its pose moves it), and a mesh whose
     points were changed afterwards would need the table filled again."""
@@ -105,7 +105,7 @@ def _warp_mesh(v: np.ndarray, f: np.ndarray, device: str, winding: bool) -> wp.M
     mesh = wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
                    indices=wp.array(np.asarray(f, np.int32).ravel(), dtype=wp.int32, device=device),
                    velocities=table, support_winding_number=winding)
-    if table is not None:  # filled by the walk itself (sdf.mesh_feature_normal), on this mesh's own BVH
+    if table is not None:  # filled by the walk itself (sdf_mesh.mesh_feature_normal), on this mesh's own BVH
         wp.launch(pseudo_normal_table, len(table), inputs=[mesh.id], outputs=[table], device=device)
     return mesh
 
@@ -238,7 +238,7 @@ def mesh_half_thickness(mesh: wp.Mesh, samples: int = THICKNESS_SAMPLES) -> floa
 NEAR_FACES_PROBES = 256  # skin-sized triangles about a closed mesh's surface that near_faces_pay tries (count)
 NEAR_FACES_SPREAD = 1.2e-3  # m: their corners' spread about their centre (the hand's skin triangles' size)
 NEAR_FACES_MEDIAN = 10  # faces: the median count near a probe up to which a triangle's near faces pay
-NEAR_FACES_SHARE = 0.75  # ... and the share of probes that must find them under sdf.MESH_NEAR_CAP
+NEAR_FACES_SHARE = 0.75  # ... and the share of probes that must find them under sdf_mesh.MESH_NEAR_CAP
 
 
 @wp.kernel
@@ -251,7 +251,7 @@ def _near_faces_count(mesh: wp.uint64, tri: wp.array(dtype=wp.vec3), count: wp.a
 
 def near_faces_pay(mesh: wp.Mesh, seed: int = 0) -> bool:
     """Whether the decision points should search a skin triangle's near faces on ``mesh`` (a closed,
-    pseudo-normal-signed mesh) instead of walking the BVH per sample (sdf.mesh_near_faces; the same
+    pseudo-normal-signed mesh) instead of walking the BVH per sample (sdf_mesh.mesh_near_faces; the same
     phi either way): :data:`NEAR_FACES_PROBES` triangles of the skin's size about points 2 mm inside
     to 4 mm outside its surface must find at most :data:`NEAR_FACES_MEDIAN` faces near (median) and
     fit the capacity in :data:`NEAR_FACES_SHARE` of cases. On benchmarks/mesh_near_faces.py: the HOI
@@ -301,11 +301,11 @@ def _grid_values(mesh: wp.uint64, size: wp.vec3, origin: wp.vec3, h: float, ny: 
 def mesh_grid(mesh: wp.Mesh, sign: int, spacing: float = MESH_GRID):
     """The exact signed distance (m) of ``mesh`` (sign method ``sign``) at the nodes of a regular grid
     over its box grown by GRID_PAD, as a ``wp.Volume`` (node (i, j, k) at the box corner + spacing x
-    (i, j, k); background sdf.GRID_OFF off the grid, which sdf.grid_lower reads as "farther than
+    (i, j, k); background sdf_mesh.GRID_OFF off the grid, which sdf_mesh.grid_lower reads as "farther than
     GRID_PAD from the mesh's box"), or None for ``spacing`` <= 0 and for meshes signed by the
     winding number (open or overlapping: their inside is not bounded by faces alone). The spacing grows past
     ``spacing`` where the grid would hold more than GRID_MAX_NODES nodes. sdf.geom_sdf (values only) uses it
-    only to answer points provably farther than sdf.GRID_BAND outside the mesh (a lower bound of the
+    only to answer points provably farther than sdf_mesh.GRID_BAND outside the mesh (a lower bound of the
     distance, exact decisions below that band): it skips the BVH query there, which the broadphase
     and the metrics ask for most of their points. Costs one exact query per node once (about 1 us
     each on a CPU) and 4 bytes per node."""
@@ -415,7 +415,7 @@ class Objects:
         its distance query looks; ``mesh_sign`` is "auto" (see :func:`prepare_mesh`) or "winding"
         (force the winding-number sign, e.g. for a mesh that passes through itself);
         ``mesh_grid_spacing`` (m) the node spacing of its distance grid (:func:`mesh_grid`; 0: none,
-        every query walks the BVH; the answers below sdf.GRID_BAND are the same). ``obj`` groups
+        every query walks the BVH; the answers below sdf_mesh.GRID_BAND are the same). ``obj`` groups
         geoms into one object (default: the geom's name)."""
         try:
             gtype = GeomType(gtype)

@@ -32,9 +32,9 @@ Strategies (``Strategy``):
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
-from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf, geom_sdf_analytic,
-                                     geom_sdf_grad, geom_sdf_grad_analytic, mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids,
-                                     sdf_mesh_near)
+from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf,
+                                     geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic)
+from physhand_mj.contact.sdf_mesh import mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids, sdf_mesh_near
 from physhand_mj.types import Strategy
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -377,13 +377,13 @@ def decide_triangle(
         certified = float(-FAR)
         # one mesh near (pseudo-normal sign, few faces near a skin triangle: Objects.add marks it; exact
         # ids): its faces near the triangle, found once, answer every sample of both rounds
-        # (sdf.mesh_near_faces; n_near = -1: the BVH per sample)
+        # (sdf_mesh.mesh_near_faces; n_near = -1: the BVH per sample)
         near_ids = mesh_near_ids()
         near_d = mesh_near_dist()
         lm = wp.vec3(0.0)
         n_near = int(-1)
         near_first = int(0)
-        if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf.MESH_SIGN_PSEUDO_NEAR
+        if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf_mesh.MESH_SIGN_PSEUDO_NEAR
             la = wp.transform_point(s_inv, a)
             lb = wp.transform_point(s_inv, b)
             lc = wp.transform_point(s_inv, c)

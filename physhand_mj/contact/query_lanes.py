@@ -35,8 +35,8 @@ import warp as wp
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.query import (MULTIRES, decide_triangle, geom_data, keep_three_lowest, only_geom, phi_at,
                                        project)
-from physhand_mj.contact.sdf import (FAR, MESH, mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids,
-                                     sdf_mesh_near)
+from physhand_mj.contact.sdf import FAR, MESH
+from physhand_mj.contact.sdf_mesh import mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids, sdf_mesh_near
 
 wp.set_module_options({"enable_backward": False})
 
