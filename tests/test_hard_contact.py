@@ -36,7 +36,7 @@ def asset():
                                                ("capsule", GeomType.CAPSULE, (0.003, 0.01, 0.0)),
                                                ("ellipsoid", GeomType.ELLIPSOID, (0.01, 0.02, 0.005))])
 def test_surface_points_lie_on_the_analytic_surface(kind, gtype, size):
-    from tests.test_contact import evaluate
+    from tests.test_sdf import evaluate
 
     pts, kinds = primitive_points(gtype, size)
     phi, _ = evaluate(gtype, size, pts)

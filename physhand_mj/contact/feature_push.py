@@ -1,0 +1,75 @@
+"""The object's side of a contact pass: one feature push (contact/features.py) recorded for the pass's
+path (the CPU's BVH walk after a skin refit, CUDA's block per feature, CUDA batches' thread per
+feature over its patch) and applied at once; a mixin of :class:`~physhand_mj.contact.contact.Contact`,
+whose arrays it reads (``feat_stage``, the patches, ``delta`` ... ``vertex_obj``)."""
+
+from __future__ import annotations
+
+from physhand_mj.contact.features import feature_contact, feature_contact_scan, feature_contact_tiled
+from physhand_mj.contact.query import apply_contact
+from physhand_mj.solver.solver import tiled_blocks
+
+
+class FeaturePush:
+    """Contact's feature push: :meth:`_record_features` and the arguments its kernels share."""
+
+    @property
+    def last_push_offset(self) -> float:
+        """The stand-off (m) of a stage's last feature push: Config.feature_last_offset, or
+        feature_offset where that is None (read when a stage is recorded, as feature_offset is)."""
+        cfg = self.config
+        return float(cfg.feature_offset if cfg.feature_last_offset is None else cfg.feature_last_offset)
+
+    def _record_features(self, launch, ops, state, p, skin, feat_count, stamp) -> tuple:
+        """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
+        as it is now, applied at once; returns the counter slot of the vertices it moved and that
+        counter."""
+        m, o, cfg = self.model, self.objects, self.config
+        if p and not self.tiled_features:  # (pass 0 sees the skin its stage's list was made on; CUDA's
+            # scans read the skin's shifted copy, which apply_contact keeps current: no refit there)
+            ops.append(self._refit_op(self.volume(state, winding=False), feat_count))
+        slot = self._slot
+        feat_touched = self._counter()
+        # the stage's last push (Config.feature_last: pass p == contact_passes) to its own, smaller stand-off
+        off = self.last_push_offset if p == cfg.contact_passes else cfg.feature_offset
+        if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
+            assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
+        elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
+            launch(feature_contact_scan, self.points.n_features,
+                   [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
+                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, off,
+                    cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
+                    *self._winding_args()[1:]],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
+        elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
+            nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
+            launch(feature_contact_tiled, (nb, self.feature_lanes),
+                   [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, nb, self.points.pts,
+                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, off,
+                    cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
+                    *self._winding_args()],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                   block_dim=self.feature_lanes)
+        else:
+            launch(feature_contact, self.points.n_features,
+                   [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
+                    self._qp, o.obj, cfg.contact_frame_margin, off, cfg.contact_margin,
+                    self.near_query, self._query_x(state), o.pose, state.x, *self._winding_args(),
+                    self._side()],
+                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                   count=feat_count)
+        shift, shifted = self._apply_shift(state)
+        launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits, shift],
+               [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=feat_touched)
+        return slot, feat_touched
+
+    def _winding_args(self) -> list:
+        """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
+        length, far angle]; off: the feature list's arrays stand in (never read)."""
+        if self.config.feature_winding:
+            return [1, self.feat_slot, self.patch_pool, self.patch_start, self.patch_len, self.far_angle]
+        return [0, self.feat, self.feat, self.feat, self.feat, self.feat_stage_float]
+
+    def _side(self):
+        """The CPU's per-stage sides of the listed features (features.stage_features)."""
+        return self.feat_side if self.config.feature_winding else self.feat_stage_float
