@@ -1276,6 +1276,12 @@ for r in range(6):
         inv = np.asarray(run.rows['inverted'])
         print(r, v, 'inverted after it left', inv[20:].tolist(), 'held max', int(inv[2:12].max()), flush=True)"
     ;;
+  s52_l)  # after the final read's splits (contact/sdf_mesh.py, tests/test_sdf.py, contact/feature_push.py): the CUDA
+    # tests of the SDFs, the mesh distances, the tiled kernels and the feature push
+    step pytest_cuda 230 python3 -m pytest -q -p no:cacheprovider -o addopts="" -k "cuda or tiled or analytic" \
+      tests/test_sdf.py tests/test_mesh_sdf.py tests/test_mesh_near_faces.py tests/test_contact.py tests/test_multires_kernel.py
+    cp "$OUT/logs/pytest_cuda.log" "$OUT/pytest_cuda_s52l.log"
+    ;;
   s38_c)  # the solver alone at W = 4,096 (the 50,000) and the CUDA tests of the lists, the patches and the batches
     step solver_4096 150 python3 benchmarks/fused_variants.py --device cuda --worlds 4096 --frames 6 --variants frame \
       --out docs/benchmarks/fused_variants_cuda_s38.json
