@@ -1,4 +1,4 @@
-"""What a frame costs when only the effects the scene calls for run (physhand_mj/activity.py).
+"""What a frame costs when only the effects the scene calls for run (physhand_mj/solver/activity.py).
 
 Solver frames (set_body_poses + step, one host sync) of the embedded hand, open pose, palm down:
   none        the solver without objects (the full solver frame: the reference)
@@ -84,7 +84,7 @@ def _glass_case(device, contact):
 
 def profile(frame, solver, state, frames=5) -> dict:
     """CPU: ms per frame of every recorded op, grouped by kernel name (memsets/refits as 'other')."""
-    from physhand_mj.activity import _Gate
+    from physhand_mj.solver.activity import _Gate
 
     acc = defaultdict(float)
     ops = solver._ops[(id(state), id(solver.contact))]

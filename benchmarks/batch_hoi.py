@@ -246,7 +246,7 @@ def main() -> None:
                    help="build the decision-point kernels with line info (Nsight Compute's source view; "
                         "aot_cache.decision_modules_with_lineinfo)")
     p.add_argument("--skip-margin", type=float, default=None,
-                   help="physhand_mj.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
+                   help="physhand_mj.contact.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
     p.add_argument("--profile-measure", action="store_true",
                    help="CUDA: the GPU time of BatchedHands.penetration() (both measures, as a rollout's log takes "
                         "them every frame) kernel by kernel, and its wall time, over 3 calls")
@@ -258,7 +258,7 @@ def main() -> None:
 
         decision_modules_with_lineinfo()
     if a.skip_margin is not None:
-        from physhand_mj import metrics
+        from physhand_mj.contact import metrics
 
         metrics.SKIP_MARGIN = a.skip_margin
     wp.init()

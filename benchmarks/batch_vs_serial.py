@@ -29,7 +29,7 @@ def main():
     from physhand_mj.batch import BatchedHands
     from physhand_mj.contact import Objects
     from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
-    from physhand_mj.metrics import summarize
+    from physhand_mj.contact.metrics import summarize
     from physhand_mj.solver import Solver, make_model
     from physhand_mj.types import Config, GeomType
 

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import physhand_mj as ph  # noqa: E402
 from physhand_mj.bench import device_name  # noqa: E402
-from physhand_mj.cases import press_case, run_case  # noqa: E402
+from physhand_mj.bench.cases import press_case, run_case  # noqa: E402
 from hard_contact_hold import PRESS_FRAMES, held_residue, path_config  # noqa: E402  (benchmarks/: the script's folder)
 
 

@@ -20,7 +20,7 @@ import trimesh
 import physhand_mj as ph
 from physhand_mj.bench import device_name
 from physhand_mj.contact import Objects
-from physhand_mj.solver.model import quat_to_mat
+from physhand_mj.rotations import quat_to_mat
 from physhand_mj.types import GeomType, Strategy
 
 ROOT = Path(__file__).resolve().parents[1]

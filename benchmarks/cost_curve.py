@@ -39,7 +39,7 @@ def _pad(asset, hand, site):
     """World position and outward normal of the skin vertex at ``site`` (cases.site_point's) now."""
     import trimesh
 
-    from physhand_mj.cases import site_point
+    from physhand_mj.bench.cases import site_point
 
     p0, _ = site_point(asset, site)
     i = int(np.argmin(np.linalg.norm(asset.skin_vertices - p0, axis=1)))

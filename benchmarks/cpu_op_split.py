@@ -25,7 +25,7 @@ from collections import defaultdict
 import mujoco
 
 import physhand_mj as ph
-from physhand_mj.activity import _Gate
+from physhand_mj.solver.activity import _Gate
 from physhand_mj.solver.solver import _ListLaunch
 
 

@@ -54,7 +54,7 @@ def _local_sign(c, state, pts):
     x = state.x.numpy().astype(float)
     faces = c.model.skin_faces.numpy()
     pose = c.objects._host["pose"][pts.geom_host].astype(float)
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
     world = np.einsum("kij,kj->ki", rot, pts.pts_host) + pose[:, :3]
@@ -74,7 +74,7 @@ def _local_sign(c, state, pts):
 def main():
     from activity_frame import _glass_case
 
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=10, help="5 ms frames of the demo (count)")

@@ -56,7 +56,7 @@ def part_cone(device):
     try:
         from physhand_mj.bench import bench_cone
     except ImportError:
-        from physhand_mj.benchmarking import bench_cone
+        from physhand_mj.bench import bench_cone
     summary, log = bench_cone("multires", device=device, steps=30)
     keep = ("penetration_count_final", "penetration_count_max", "penetration_count_mean", "penetration_avg_um_final",
             "penetration_max_um_final", "penetration_max_um_all", "finite")
@@ -67,9 +67,9 @@ def part_cone(device):
 def part_hard(device):
     import physhand_mj as ph
     try:
-        from physhand_mj.cases import press_case, run_case
+        from physhand_mj.bench.cases import press_case, run_case
     except ImportError:
-        from physhand_mj.benchmarking.cases import press_case, run_case
+        from physhand_mj.cases import press_case, run_case
     from tqdm import tqdm
 
     asset, out = ph.load_asset(), {}

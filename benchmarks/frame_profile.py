@@ -30,7 +30,7 @@ import warp as wp
 import physhand_mj as ph
 import physhand_mj.contact.inside as inside
 import physhand_mj.contact.contact as contact_mod
-import physhand_mj.solver.solver as solver_mod
+import physhand_mj.launch as solver_mod
 
 
 def run(device: str, frames: int, graph: bool = True, profile: bool = False, warmup: int = 3, **config) -> dict:
@@ -75,11 +75,11 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=3, help="untimed frames first (count; the hand closes on the "
                     "glass over the first ~40 frames and holds it after)")
     ap.add_argument("--list-blocks", type=int, default=None, help="blocks per SM of the list-walking CUDA "
-                    "launches (physhand_mj.solver.solver.LIST_BLOCKS_PER_SM; 0: uncapped)")
+                    "launches (physhand_mj.launch.LIST_BLOCKS_PER_SM; 0: uncapped)")
     ap.add_argument("--tiled-blocks", type=int, default=None, help="blocks per SM of the tiled list-walking CUDA "
-                    "launches (physhand_mj.solver.solver.TILED_BLOCKS_PER_SM; 0: uncapped)")
+                    "launches (physhand_mj.launch.TILED_BLOCKS_PER_SM; 0: uncapped)")
     ap.add_argument("--wide-blocks", type=int, default=None, help="blocks per SM of the tiled list-walking CUDA "
-                    "launches wider than a warp (the feature kernels; solver.WIDE_BLOCKS_PER_SM; 0: uncapped)")
+                    "launches wider than a warp (the feature kernels; launch.WIDE_BLOCKS_PER_SM; 0: uncapped)")
     ap.add_argument("--feature-lanes", type=int, default=None, help="threads per listed feature in the CUDA "
                     "tiled feature kernels (physhand_mj.contact.contact.FEATURE_LANES; count)")
     ap.add_argument("--quick", action="store_true", help="the profile and the LBVH/SAH pair only")

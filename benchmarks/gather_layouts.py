@@ -3,7 +3,7 @@ other layouts, one launch at a time: which reads the slots fastest.
 
 Each movable vertex sums the correction slots its constraints wrote (~7-15 per group, 12 bytes each,
 scattered over the family's corner-major slot blocks). Variants, all on the tiled model of a batch
-of ``--worlds`` hands (batch.tile_model_arrays), the slots filled with random corrections:
+of ``--worlds`` hands (solver.worlds.tile_model_arrays), the slots filled with random corrections:
 
 - ``thread``: a thread per vertex walking its CSR row (``apply_jacobi`` with one lane: the kernel
   as it was);
@@ -50,7 +50,7 @@ def gather_perm(lanes: int, perm: wp.array(dtype=int), vertex_count: wp.array2d(
 
 def main() -> None:
     import physhand_mj as ph
-    from physhand_mj.batch import tile_model_arrays
+    from physhand_mj.solver.worlds import tile_model_arrays
     from physhand_mj.bench import device_name
     from physhand_mj.solver import integrate
     from physhand_mj.solver.model import model_arrays, morton_code

@@ -1266,7 +1266,7 @@ for r in range(3):
     step knife20 250 python3 -c "import sys; sys.path[:0] = ['tests/stress', 'tests']
 import numpy as np, physhand_mj as ph
 from stress_harness import HandScene, Stress, press_schedule
-from physhand_mj.cases import press_case
+from physhand_mj.bench.cases import press_case
 scene = HandScene()
 for r in range(6):
     for v in (None, 6e-6):

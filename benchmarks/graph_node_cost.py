@@ -4,7 +4,7 @@ Captures graphs of N nodes of one kind and times their replay (median of repeats
 capture excluded), as microseconds per node:
 - ``empty``: a kernel of one thread that does nothing;
 - ``list_idle``: a list-walking kernel of 20,960 threads whose list is empty (every thread reads the
-  count and returns), with and without the launch cap (physhand_mj.solver.solver.LIST_BLOCKS_PER_SM);
+  count and returns), with and without the launch cap (physhand_mj.launch.LIST_BLOCKS_PER_SM);
 - ``tiled_idle``: a block of 32 threads per entry of an empty 20,960-entry list;
 - ``list_work``: the same kernel walking a 300-entry list (an atomic add per entry);
 - ``cond_off`` / ``cond_on``: a conditional node (``wp.capture_if``) around one empty kernel, with its

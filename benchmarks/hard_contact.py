@@ -1,4 +1,4 @@
-"""Hard contact cases measured both ways, per strategy (issue 11; physhand_mj/cases.py).
+"""Hard contact cases measured both ways, per strategy (issue 11; physhand_mj/bench/cases.py).
 
     python benchmarks/hard_contact.py [--device cpu|cuda] [--frames 14] [--out docs/benchmarks/hard_contact_cpu.json]
 
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import physhand_mj as ph  # noqa: E402
 from physhand_mj.bench import device_name  # noqa: E402
-from physhand_mj.cases import press_case, run_case  # noqa: E402
+from physhand_mj.bench.cases import press_case, run_case  # noqa: E402
 from physhand_mj.types import Strategy  # noqa: E402
 
 KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")

@@ -23,10 +23,10 @@ import physhand_mj as ph  # noqa: E402  (picks the GL backend before mujoco load
 import mujoco  # noqa: E402
 import trimesh  # noqa: E402
 
-from physhand_mj.cases import press_case, run_case, site_point  # noqa: E402
-from physhand_mj.metrics import summarize  # noqa: E402
+from physhand_mj.bench.cases import press_case, run_case, site_point  # noqa: E402
+from physhand_mj.contact.metrics import summarize  # noqa: E402
 from physhand_mj.render import look_at_camera, make_renderer, mesh_scene_spec, write_png  # noqa: E402
-from physhand_mj.solver.model import quat_to_mat  # noqa: E402
+from physhand_mj.rotations import quat_to_mat  # noqa: E402
 from physhand_mj.types import GeomType  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import physhand_mj as ph  # noqa: E402
 from physhand_mj.bench import device_name  # noqa: E402
-from physhand_mj.cases import press_case, run_case  # noqa: E402
+from physhand_mj.bench.cases import press_case, run_case  # noqa: E402
 
 KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")
 PRESS_FRAMES = 15  # press_case's: the object holds still from here on

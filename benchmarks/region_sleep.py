@@ -1,4 +1,4 @@
-"""Per-region sleeping (Config.region_sleep, physhand_mj/regions.py): what it saves and how far it moves the skin.
+"""Per-region sleeping (Config.region_sleep, physhand_mj/solver/regions.py): what it saves and how far it moves the skin.
 
 The open hand (hand_only) settles under gravity for ``--settle`` frames with its bones still, then its
 index finger bends (MCP flexion, 0.3 rad amplitude, 0.1 rad per frame phase) for ``--frames`` frames;

@@ -48,13 +48,13 @@ def main():
     p.add_argument("--device", default="cpu")
     p.add_argument("--frames", type=int, default=80)
     p.add_argument("--skip-margin", type=float, default=None,
-                   help="physhand_mj.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
+                   help="physhand_mj.contact.metrics.SKIP_MARGIN (m) for the run: the skin measure's corner bound (0: off)")
     p.add_argument("--config", default="{}", help="Config fields as JSON for both rows (e.g. "
                    "'{\"contact_every\": 2, \"contact_linear\": true}')")
     p.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/softhand_frame_<device>.json)")
     args = p.parse_args()
     if args.skip_margin is not None:
-        from physhand_mj import metrics
+        from physhand_mj.contact import metrics
 
         metrics.SKIP_MARGIN = args.skip_margin
     config = json.loads(args.config)

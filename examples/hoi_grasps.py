@@ -9,7 +9,6 @@ Success looks like: one line per scene with the initial penetration (mm deep) an
 penetrating samples in magenta) and final.png (deformed skin).
 """
 
-import sys
 from pathlib import Path
 
 import physhand_mj as ph

@@ -21,7 +21,7 @@ from physhand_mj.render import make_renderer, write_png
 
 def palm_point(asset, mount_pos, mount_quat):
     """World position of the palm skin over the middle finger's metacarpal head, for a mount pose."""
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     n = np.asarray(asset.meta["palm_normal"])
     names = list(asset.body_names)
@@ -39,7 +39,7 @@ def build_scene(asset, radius=0.03, gap=0.01):
     scene.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.5, 0.5, 0.01])
     hand = mujoco.MjSpec.from_file(str(ph.HAND_XML))  # mjcf/hand/myohand.xml: bones, proxies, skin mesh, actuators
     mount = hand.body("hand_mount")
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     palm = palm_point(asset, np.array(mount.pos), np.array(mount.quat))
     skin = asset.skin_vertices @ quat_to_mat(np.array(mount.quat)).T + np.array(mount.pos)

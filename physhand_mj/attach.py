@@ -164,7 +164,7 @@ def rest_frame_offset(model, bone_ids, asset, fit: bool = True, iterations: int 
     (their ids into ``bone_ids``), ``qpos0_mm``, ``qpos0_deg`` and ``fitted``."""
     import mujoco
 
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     ids = np.asarray(bone_ids)
     data = mujoco.MjData(model)
@@ -249,7 +249,7 @@ def add_skin(spec, naming="auto", asset=None, *, prefix: str = "", check_frames:
     import mujoco
 
     from physhand_mj.asset import load_asset
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     asset = asset if asset is not None else load_asset()
     model = spec.compile()

@@ -25,27 +25,16 @@ import dataclasses
 
 import numpy as np
 
+from physhand_mj.solver.model import vertex_world
+from physhand_mj.solver.worlds import check_worlds
 from physhand_mj.types import GeomType, Layer
-
-
-def vertex_world(n: int, n_skin: int, worlds: int) -> np.ndarray:
-    """World of every vertex of a replicated body of ``n`` vertices (``n_skin`` skin) holding
-    ``worlds`` copies: the skins first, world by world, then the rest, world by world."""
-    ns, per = n_skin // worlds, (n - n_skin) // worlds
-    i = np.arange(n)
-    return np.where(i < n_skin, i // max(ns, 1), (i - n_skin) // max(per, 1))
-
-
-def _check_worlds(worlds) -> None:
-    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
-        raise ValueError(f"worlds must be an integer >= 1, got {worlds!r}")
 
 
 def replicate_asset(asset, worlds: int):
     """``worlds`` disconnected copies of ``asset`` as one asset: all skins first (world 0's, then
     world 1's, ...), then each world's other vertices; every index array remapped, bodies
     ``name#w``. World w's skin is vertices [w n_skin, (w + 1) n_skin)."""
-    _check_worlds(worlds)
+    check_worlds(worlds)
     n, ns, nb = asset.n_vertices, asset.n_skin, len(asset.body_names)
     if not np.all(asset.layer[:ns] == Layer.SKIN):
         raise ValueError("asset: skin vertices must come first (layer SKIN for vertices [0, n_skin))")
@@ -82,125 +71,6 @@ def replicate_asset(asset, worlds: int):
     )
 
 
-def _tile_checks(a: dict, worlds) -> int:
-    """Whether one world's model arrays ``a`` tile into ``worlds`` worlds (ValueError naming the
-    fix); returns W."""
-    _check_worlds(worlds)
-    if any(len(r) > 1 for r in a["colors"].values()):
-        raise ValueError("tile_model_arrays tiles Jacobi arrays only: the colored scheme's colours span "
-                         "the whole body (build its batch from replicate_asset)")
-    W = int(worlds)
-    n = int(a["n_vertices"])
-    from physhand_mj.solver.gather import GATHER_LANES
-
-    # (the Jacobi apply launches max(GATHER_LANES) threads a vertex)
-    per_world = max([max(GATHER_LANES) * (n + 1)] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
-    if W * per_world >= 2**31:  # vertex, constraint and slot indices are int32 on the device
-        raise ValueError(f"{W} worlds exceed the device's int32 indices ({W} x {per_world} >= 2^31): "
-                         f"use at most {(2**31 - 1) // per_world} worlds per batch")
-    return W
-
-
-def slot_shifts(a: dict, group, slots, worlds: int) -> tuple[np.ndarray, np.ndarray, dict]:
-    """One world's gather slot ids ``slots`` of Jacobi group ``group`` (solver/gather.py) in the
-    W-world layout: world 0's slot of each entry and how far one world moves it (one world's slot
-    base + l C + j, corner l of row j of C rows, is W base + l W C + w C + j in world w), and the
-    families' W-world slot bases."""
-    W = int(worlds)
-    slots = np.asarray(slots, np.int64)
-    first, step, bases = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64), {}
-    for name in group:
-        base, rows, size = a["slot_base"][name], len(a[f"{name}_ids"]), np.asarray(a[f"{name}_ids"]).size
-        f = (slots >= base) & (slots < base + size)
-        r = slots[f] - base
-        first[f] = W * base + (r // max(rows, 1)) * W * rows + r % max(rows, 1)
-        step[f] = rows
-        bases[name] = W * base
-    return first, step, bases
-
-
-def tile_model_arrays(a: dict, worlds: int) -> dict:
-    """One world's host model arrays (``solver.model.model_arrays``) tiled into ``worlds`` worlds laid
-    out as :func:`replicate_asset` lays them out (all skins first, world by world, then each world's
-    other vertices; bodies ``name#w``), every constraint family world by world. Each world's arrays
-    are the single hand's, so a world's model is the serial model exactly (its nearest-vertex
-    choices and rest angles included), and the cost is a copy: no per-world rebuild."""
-    W = _tile_checks(a, worlds)
-    n, ns, nb = int(a["n_vertices"]), int(a["n_skin"]), len(a["body_names"])
-    w = np.arange(W)
-
-    def per_vertex(v):  # (n, ...) -> (W n, ...): skins first, then the rest, world by world
-        v = np.asarray(v)
-        return np.concatenate([np.tile(v[:ns], (W,) + (1,) * (v.ndim - 1)),
-                               np.tile(v[ns:], (W,) + (1,) * (v.ndim - 1))])
-
-    def bodies(v):  # (ns,) body indices per skin vertex -> world by world, shifted by w nb (-1 stays)
-        v = np.asarray(v)
-        t = np.tile(v, W)
-        return np.where(t >= 0, t + np.repeat(w * nb, len(v)), -1).astype(v.dtype)
-
-    wv = vertex_world(W * n, W * ns, W)
-
-    def vertex_bodies(v):
-        v = np.asarray(v)
-        t = per_vertex(v)
-        return np.where(t >= 0, t + wv * nb, -1).astype(v.dtype)
-
-    def ids(v):  # (C, k) vertex ids -> (W C, k), world by world (int32, as the model stores them)
-        v = np.asarray(v, np.int32)
-        skin = v < ns
-        first = np.where(skin, v, v - ns + W * ns).astype(np.int32)  # world 0's ids
-        step = np.where(skin, ns, n - ns).astype(np.int32)  # how far one world moves each
-        out = np.empty((W,) + v.shape, np.int32)
-        out[0] = first
-        for k in range(1, W):  # one add per world, in place (10 x faster than a broadcast product)
-            np.add(out[k - 1], step, out=out[k])
-        return out.reshape((-1,) + v.shape[1:])
-
-    def tiled(v):
-        v = np.asarray(v)
-        return np.tile(v, (W,) + (1,) * (v.ndim - 1))
-
-    # the stored dtypes (solver.model.upload_model) before tiling: each element is cast once, not W times
-    a = dict(a, **{k: np.asarray(a[k], np.float32) for k in (
-        "rest_x", "inv_mass", "body_local", "skin_local", "edge_rest", "edge_alpha", "tet_rest6v", "tet_alpha",
-        "dih_rest", "vertex_count")})
-    sizes = {name: np.asarray(a[f"{name}_ids"]).size for name in ("edge", "tet", "dih")}
-    counts = np.asarray(a["vertex_count"])
-    out = dict(
-        a, n_vertices=W * n, n_skin=W * ns, worlds=W,
-        body_names=tuple(f"{b}#{k}" for k in range(W) for b in a["body_names"]),
-        rest_x=per_vertex(a["rest_x"]), inv_mass=per_vertex(a["inv_mass"]),
-        vertex_body=vertex_bodies(a["vertex_body"]), body_local=per_vertex(a["body_local"]),
-        vertex_carrier=vertex_bodies(a["vertex_carrier"]),
-        vertex_world=wv.astype(np.int32),
-        skin_body=bodies(a["skin_body"]), skin_local=tiled(a["skin_local"]),
-        edge_ids=ids(a["edge_ids"]), edge_rest=tiled(a["edge_rest"]), edge_alpha=tiled(a["edge_alpha"]),
-        edge_is_att=tiled(a["edge_is_att"]),
-        tet_ids=ids(a["tet_ids"]), tet_rest6v=tiled(a["tet_rest6v"]), tet_alpha=tiled(a["tet_alpha"]),
-        dih_ids=ids(a["dih_ids"]), dih_rest=tiled(a["dih_rest"]),
-        skin_faces=ids(a["skin_faces"]), guard_tets=ids(a["guard_tets"]),
-        vertex_count=np.concatenate([np.tile(counts[:, :ns], (1, W)), np.tile(counts[:, ns:], (1, W))], axis=1),
-        colors={name: ([(0, W * len(a[f"{name}_ids"]))] if sizes[name] else []) for name in sizes},
-        body_rest_pos=tiled(a["body_rest_pos"]), body_rest_quat=tiled(a["body_rest_quat"]),
-        gather_off=[], gather_slot=[], slot_base={},
-    )
-    from physhand_mj.solver.model import JACOBI_GROUPS
-
-    for group, off, slots in zip(JACOBI_GROUPS, a["gather_off"], a["gather_slot"]):  # solver/gather.py
-        # one world's slot base + l C + j (corner l of row j, C rows) is W base + l W C + w C + j in world w
-        off = np.asarray(off, np.int64)
-        first, step, bases = slot_shifts(a, group, slots, W)
-        out["slot_base"].update(bases)
-        parts = [first[off[lo]:off[hi]] + k * step[off[lo]:off[hi]] for lo, hi in ((0, ns), (ns, n)) for k in range(W)]
-        out["gather_slot"].append(np.concatenate(parts).astype(np.int32))
-        cnt = per_vertex(np.diff(off))
-        toff = np.zeros(W * n + 1, np.int64)
-        np.cumsum(cnt, out=toff[1:])
-        out["gather_off"].append(toff.astype(np.int32))
-    return out
-
-
 class BatchedHands:
     """W hands of one asset in one solver: ``step(pos, quat)`` with bone poses (W, B, 3) m and
     (W, B, 4) w x y z per world advances all W by one frame.
@@ -228,7 +98,7 @@ class BatchedHands:
         from physhand_mj.solver import Solver
         from physhand_mj.types import Config
 
-        _check_worlds(worlds)
+        check_worlds(worlds)
         self.asset, self.worlds = asset, int(worlds)
         self.config = config if config is not None else Config()
         from physhand_mj.types import NonFinite
@@ -338,10 +208,10 @@ class BatchedHands:
         cfg = self.config.validate()
         if cfg.scheme != Scheme.JACOBI:
             return make_model(self.replicated, cfg)
-        from physhand_mj.batch_tile import tile_model
+        from physhand_mj.solver.worlds import tile_model
 
         # one world's arrays, tiled by kernels on the device (the same arrays as tile_model_arrays +
-        # upload_model, without the W-wide host copies: batch_tile.py)
+        # upload_model, without the W-wide host copies: solver/worlds.py)
         return tile_model(model_arrays(self.asset, cfg, batch=self.worlds > 1), self.worlds, cfg)
 
     @property
@@ -356,8 +226,8 @@ class BatchedHands:
         one hand), in its frame."""
         import warp as wp
 
-        from physhand_mj.solver.model import quat_to_mat
-        from physhand_mj.solver.solver import _compose_quat
+        from physhand_mj.rotations import quat_to_mat
+        from physhand_mj.rotations import compose_quat
 
         m = self.solver.model
         rot = quat_to_mat(quat).reshape(self.worlds, 3, 3)
@@ -366,7 +236,7 @@ class BatchedHands:
             getattr(self.state, name).assign(wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu"))
         bw = np.repeat(np.arange(self.worlds), self.n_bodies)
         bp = np.einsum("nij,nj->ni", rot[bw], m.body_rest_pos) + pos[bw]
-        bq = np.concatenate([_compose_quat(quat[w], m.body_rest_quat[w * self.n_bodies:(w + 1) * self.n_bodies])
+        bq = np.concatenate([compose_quat(quat[w], m.body_rest_quat[w * self.n_bodies:(w + 1) * self.n_bodies])
                              for w in range(self.worlds)])
         self.solver.set_body_poses(self.state, bp, bq)
         self.state.pose_host[0] = self.state.pose_host[1]
@@ -378,7 +248,7 @@ class BatchedHands:
         undeformed posed skin, its penetrations included)."""
         self._alive()
         self._complete()  # (a submitted frame first: its report stays for submit / wait)
-        from physhand_mj.coupling import _nlerp
+        from physhand_mj.rotations import nlerp
         from physhand_mj.solver import Solver
 
         pos, quat = self._check_poses(pos, quat)
@@ -390,7 +260,7 @@ class BatchedHands:
         target = pos.reshape(-1, 3) + self.body_shift
         for k in range(frames):
             a = (k + 1) / frames
-            settler.set_body_poses(self.state, (1 - a) * rest_pos + a * target, _nlerp(rest_quat, quat.reshape(-1, 4), a))
+            settler.set_body_poses(self.state, (1 - a) * rest_pos + a * target, nlerp(rest_quat, quat.reshape(-1, 4), a))
             settler.step(self.state)
 
     def set_object_poses(self, object_pos, object_quat) -> None:
@@ -513,7 +383,7 @@ class BatchedHands:
         return g, rows, over
 
     def _world_rows(self, g, rows, over) -> list[dict]:
-        from physhand_mj.metrics import summarize_rows
+        from physhand_mj.contact.metrics import summarize_rows
 
         out = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
                for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(),
@@ -530,7 +400,7 @@ class BatchedHands:
         ``SoftHand.penetration`` gives them for one hand (counts, um)."""
         self._alive()
         self._complete()  # (a submitted frame first: its report stays for submit / wait)
-        from physhand_mj.metrics import summarize_rows
+        from physhand_mj.contact.metrics import summarize_rows
 
         c = self.solver.contact
         rows = c.measure_worlds(self.state, order=order) if c is not None else np.zeros((self.worlds, 6))

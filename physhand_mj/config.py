@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from physhand_mj.enums import NonFinite, Placement, Scheme, Strategy, _enum_field
+from physhand_mj.enums import NonFinite, Placement, Scheme, Strategy, enum_field
 
 
 @dataclass
@@ -182,7 +182,7 @@ class Config:
         launches (docs/activity.md). Needs the GPU's SMs to itself (a stage that could not run all
         its blocks at once raises SolverError). Batches and the other strategies keep the recorded stage.
       skip_idle: run the contact work only when an object is within contact_frame_margin of the
-        skin (physhand_mj/activity.py: with none near, no contact kernel runs; results are the
+        skin (physhand_mj/solver/activity.py: with none near, no contact kernel runs; results are the
         same either way); False runs every recorded contact launch every frame (for comparisons).
       sleep_speed: the hand falls asleep after ``sleep_frames`` frames (count) in which no soft
         vertex ended faster than this (m/s; 0: never sleep), when no object is within
@@ -193,12 +193,12 @@ class Config:
         again) when an object comes near, a bone moves relative to the others by more than
         ``sleep_bone_motion`` since it fell asleep, the first bone turns by more than 2 degrees
         (gravity turns in the hand) or its velocity changes by more than ``sleep_speed``
-        (physhand_mj/activity.py).
+        (physhand_mj/solver/activity.py).
       region_sleep: parts of the hand (the palm, the thumb, each finger) sleep alone under the same
         tests, each on its own bones, vertices and skin box: asleep, a region's soft vertices ride
         their carrier bones rigidly (kinematic, as the skeleton) and constraints among them return
         at once; it wakes when one of its bones moves relative to the first bone or an object comes
-        within contact_frame_margin (physhand_mj/regions.py). One world; off by default.
+        within contact_frame_margin (physhand_mj/solver/regions.py). One world; off by default.
       fused_substep: a substep's three Jacobi groups (edges, tets, dihedrals, each averaged) in one
         launch with a block per world holding the world's positions and corrections in shared
         memory (physhand_mj/solver/fused.py) instead of five launches through global memory. Same
@@ -389,10 +389,10 @@ class Config:
                       f"substeps {self.substeps}) are longer than {MAX_STABLE_SUBSTEP * 1e3:g} ms: the flesh sags "
                       f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
                       f">= {need} (or leave Config.max_substep at its default, which does)")
-        self.contact = _enum_field(Strategy, self.contact, "contact")
-        self.contact_placement = _enum_field(Placement, self.contact_placement, "contact_placement")
-        self.scheme = _enum_field(Scheme, self.scheme, "scheme")
-        self.nonfinite = _enum_field(NonFinite, self.nonfinite, "nonfinite")
+        self.contact = enum_field(Strategy, self.contact, "contact")
+        self.contact_placement = enum_field(Placement, self.contact_placement, "contact_placement")
+        self.scheme = enum_field(Scheme, self.scheme, "scheme")
+        self.nonfinite = enum_field(NonFinite, self.nonfinite, "nonfinite")
         if self.fused_substep and (self.scheme != Scheme.JACOBI or self.iterations != 1 or self.region_sleep):
             raise ValueError("Config.fused_substep needs scheme=JACOBI, iterations=1 and region_sleep=False, got "
                              f"scheme={self.scheme.name}, iterations={self.iterations}, region_sleep={self.region_sleep}")

@@ -25,7 +25,7 @@ from physhand_mj.contact import Objects
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
 from physhand_mj.hand_mjcf import SKIN_GEOM, body_ids, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
-from physhand_mj.solver.model import quat_to_mat
+from physhand_mj.rotations import nlerp, quat_to_mat
 from physhand_mj.types import Config, GeomType
 from physhand_mj.writeback import SkinWriter
 
@@ -114,7 +114,7 @@ class SoftHand:
         try:
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames
-                settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+                settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, nlerp(rest_quat, quat, a))
                 settler.step(self.state)
         finally:
             self.solver.warn_fast_motion = self.solver.warn_feature_slack = True
@@ -249,7 +249,7 @@ class SoftHand:
         try:
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames
-                self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, _nlerp(rest_quat, quat, a))
+                self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, nlerp(rest_quat, quat, a))
                 self._last = self.solver.step(self.state)
         finally:
             self.solver.warn_fast_motion, self.solver.warn_feature_slack = warn
@@ -312,7 +312,7 @@ class SoftHand:
         objects; the paper's metric is order 5, checks use 9 or more) and object_in_skin_count /
         _max_um / _avg_um (object surface points inside the closed skin; ``check``: the denser
         points of ``Contact.check_points``, none of which the contact's feature push uses)."""
-        from physhand_mj.metrics import summarize
+        from physhand_mj.contact.metrics import summarize
 
         if self.solver.contact is None:
             return summarize(np.zeros(6))
@@ -325,7 +325,7 @@ class SoftHand:
         inside objects, ``penetration_*``; object surface points inside the skin, ``object_in_skin_*``,
         evaluated now unless Config.object_metrics evaluated it in the frame), the guard counts,
         finite flag, the mean time per frame of each stage (ms), and what the last frame ran
-        (physhand_mj/activity.py): ``objects_near`` (objects in the work set; -1 on CUDA, where the
+        (physhand_mj/solver/activity.py): ``objects_near`` (objects in the work set; -1 on CUDA, where the
         host does not decide it), ``triangles_frame`` / ``triangles_stage`` (the frame's and the
         stages' broadphase lists), ``triangles_tested`` (triangles the contact passes queried),
         ``features_listed``, ``ops_run`` / ``contact_ops_run`` (recorded launches, memsets and refits
@@ -334,7 +334,7 @@ class SoftHand:
         contact: the slack its feature lists allowed for, its skin's largest move, whether that move
         reached half the slack: Config.feature_slack); with Config.region_sleep also
         ``regions_asleep`` (names), ``vertices_asleep`` and ``constraints_solved``
-        (physhand_mj/regions.py)."""
+        (physhand_mj/solver/regions.py)."""
         tm = self._timing
         n = max(tm["frames"], 1)
         out = dict(penetration_count=0, penetration_max_um=0.0, penetration_avg_um=0.0, object_in_skin_count=0,
@@ -342,7 +342,7 @@ class SoftHand:
         out.update(self._last)
         cfg = self.config
         if self.solver.contact is not None and not (cfg.object_metrics and cfg.frame_metrics) and tm["frames"]:
-            from physhand_mj.metrics import summarize  # on demand what the frame did not measure (Config.
+            from physhand_mj.contact.metrics import summarize  # on demand what the frame did not measure (Config.
             # object_metrics, frame_metrics)
 
             row = self.solver.contact.measure(self.state, objects_side=not cfg.object_metrics)
@@ -432,10 +432,3 @@ def vertex_areas(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     f = np.asarray(faces)
     a = 0.5 * np.linalg.norm(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]), axis=1)
     return np.bincount(f.ravel(), np.repeat(a / 3.0, 3), minlength=len(x))
-
-
-def _nlerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
-    dot = np.sum(q0 * q1, axis=1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    q = (1 - a) * q0 + a * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)

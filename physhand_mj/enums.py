@@ -77,7 +77,7 @@ class NonFinite(enum.IntEnum):
     RAISE = 1  # raise SolverError after the frame (state left at the last finite positions)
 
 
-def _enum_field(cls, value, name: str):
+def enum_field(cls, value, name: str):
     """``value`` as a member of ``cls``: the member, its int value or its name (any case); a clear
     ValueError naming the Config field and its choices otherwise."""
     if isinstance(value, str) and value.upper() in cls.__members__:

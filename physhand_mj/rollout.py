@@ -18,7 +18,7 @@ Times exclude the first frame, which compiles the contact kernels. ``object_in_s
 ``_max_um``: the second measure (object surface points inside the closed skin), on the last row
 of each frame (and row 0), evaluated after the frame's timing; empty on the other rows.
 ``objects_near`` / ``triangles_tested`` / ``features_listed`` / ``ops_run``: what the frame ran
-(physhand_mj/activity.py: objects in the work set, triangles the contact passes queried, object
+(physhand_mj/solver/activity.py: objects in the work set, triangles the contact passes queried, object
 feature points listed, recorded ops run), on the last row of each frame.
 ``feature_slack_exceeded``: 1 where a skin vertex moved far enough in the frame, near enough to an
 object's feature point, that the point's list or patch could have missed a skin triangle
@@ -37,7 +37,7 @@ import numpy as np
 LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_max_um", "penetration_avg_um",
                "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um",
                "objects_near", "triangles_tested", "features_listed", "ops_run", "feature_slack_exceeded"]
-ACTIVITY = LOG_COLUMNS[-5:]  # what ran in the frame (physhand_mj/activity.py), on its last row
+ACTIVITY = LOG_COLUMNS[-5:]  # what ran in the frame (physhand_mj/solver/activity.py), on its last row
 
 
 def load_scene(scene, keyframe: str | None = None, model=None):
@@ -220,7 +220,7 @@ def summary_row(scene, key, times, substeps: int, contact: str, start: dict, las
     """A rollout's summary: ``times`` the frames' wall times (s; the first, which compiles, is not
     counted), ``start`` / ``last`` the measures before the first and after the last frame;
     ``object_frame``: the frame ``last``'s object-side values come from (default: the last)."""
-    from physhand_mj.bench import device_name
+    from physhand_mj.launch import device_name
 
     timed = times[1:] if len(times) > 1 else times
     d = device

@@ -14,10 +14,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from physhand_mj.config import MAX_STABLE_SUBSTEP, PRESETS, Config
-from physhand_mj.enums import GeomType, Layer, NonFinite, Placement, Scheme, Strategy, _enum_field
+from physhand_mj.enums import GeomType, Layer, NonFinite, Placement, Scheme, Strategy
 
 __all__ = ["MAX_STABLE_SUBSTEP", "PRESETS", "Config", "GeomType", "Layer", "NonFinite", "Placement", "Scheme",
-           "Strategy", "_enum_field", "Model", "State"]
+           "Strategy", "Model", "State", "SolverError"]
+
+
+class SolverError(RuntimeError):
+    """The solver met a state it cannot continue from (non-finite input or state under RAISE)."""
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from physhand_mj.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, pareto_front, summarize_points,
+from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, pareto_front, summarize_points,
                                   sweep_points)
 from physhand_mj.cli import main
 
@@ -80,7 +80,7 @@ def test_the_cone_experiment_is_a_sweep_workload():
     """cone:paper runs the paper's sheet on a cone under a setting: vertex (6 queries) leaves the cone
     tip through the sheet, multires ends the paper's order-5 metric at zero; an open sheet has no
     inside, so no object point is counted."""
-    from physhand_mj.accuracy import SweepPoint, check_workloads, run_sweep
+    from physhand_mj.bench.accuracy import SweepPoint, check_workloads, run_sweep
 
     rows = run_sweep([SweepPoint("vertex", features=False, side_aware=False), SweepPoint()], ["cone:paper"],
                      device="cpu", frames=20)
@@ -111,7 +111,7 @@ def test_config_presets_are_the_recommended_sweep_points():
     point the sweep measured (so its figures there are the preset's), and a bad name says the choices."""
     import dataclasses
 
-    from physhand_mj.accuracy import sweep_points
+    from physhand_mj.bench.accuracy import sweep_points
     from physhand_mj.types import Config
 
     by_name = {p.name: p for p in sweep_points()}

@@ -1,4 +1,4 @@
-"""Only the effects a scene calls for (physhand_mj/activity.py): with no object near the hand no
+"""Only the effects a scene calls for (physhand_mj/solver/activity.py): with no object near the hand no
 contact kernel runs, objects enter and leave the work set through the broadphase, skipping changes
 no result, and switching an effect off removes exactly its launches (sleeping: test_sleep.py)."""
 
@@ -7,7 +7,7 @@ import pytest
 
 import physhand_mj as ph
 from activity_helpers import FAR, R, _solver, _step, scene  # noqa: F401 (scene: a fixture)
-from physhand_mj.activity import _Gate
+from physhand_mj.solver.activity import _Gate
 from physhand_mj.types import Config, GeomType
 
 

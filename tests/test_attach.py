@@ -71,7 +71,7 @@ def _actuator_of(model, joint: int) -> int:
 
 
 def _rot(data, b0, asset):
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     return data.xmat[b0].reshape(3, 3) @ quat_to_mat(np.asarray(asset.body_rest_quat[0], float)).T
 

@@ -37,7 +37,7 @@ def test_replicated_asset_layout(setup):
     assert vb.max() == 3 * len(asset.body_names) - 1
     # every vertex's carrier bone and every skin vertex's tether bone lie in its own world (the
     # worlds share rest positions: nearest-vertex ties must not cross them)
-    from physhand_mj.batch import vertex_world
+    from physhand_mj.solver.model import vertex_world
 
     m = make_model(rep, Config(device="cpu"))
     nb = len(asset.body_names)
@@ -52,12 +52,12 @@ def test_replicated_asset_layout(setup):
 
 
 def test_tiled_model_is_the_replicated_assets_model(setup):
-    """BatchedHands builds its model from one world's arrays tiled (batch.tile_model_arrays), not
+    """BatchedHands builds its model from one world's arrays tiled (solver.worlds.tile_model_arrays), not
     from the replicated asset: every per-vertex array equals the replicated build's, every
     constraint family holds the same constraints per world (the edge family lists each world's
     edges and attachments together: the order within a world is kept), and the gather lists sum
     the same slots per vertex (solver/gather.py)."""
-    from physhand_mj.batch import tile_model_arrays
+    from physhand_mj.solver.worlds import tile_model_arrays
     from physhand_mj.solver.model import model_arrays
 
     asset = setup[0]
@@ -111,13 +111,13 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
 @pytest.mark.parametrize("device", ["cpu"] + (["cuda"] if wp.is_cuda_available() else []))
 @pytest.mark.parametrize("gather", [False, True], ids=["atomics", "gather"])
 def test_model_tiled_on_the_device_equals_the_host_tiling(setup, gather, device):
-    """batch_tile.tile_model (one world uploaded, W copies written by kernels; what BatchedHands
+    """solver.worlds.tile_model (one world uploaded, W copies written by kernels; what BatchedHands
     uses) gives the Model of upload_model(tile_model_arrays(...)) field by field, every array equal
     in dtype, shape and value."""
     import dataclasses
 
-    from physhand_mj.batch import tile_model_arrays
-    from physhand_mj.batch_tile import tile_model
+    from physhand_mj.solver.worlds import tile_model_arrays
+    from physhand_mj.solver.worlds import tile_model
     from physhand_mj.solver.model import model_arrays, upload_model
 
     cfg = Config(device=device, jacobi_gather=gather).validate()
@@ -216,7 +216,7 @@ def test_batched_worlds_with_their_own_objects(setup):
     assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
     # checked by measures the contact does not use: an order-9 skin lattice and the spheres' surface
     # points inside the closed skin of every world
-    from physhand_mj.metrics import summarize
+    from physhand_mj.contact.metrics import summarize
 
     dense = summarize(batch.solver.contact.measure(batch.state, order=9))
     assert dense["penetration_count"] == 0 and dense["object_in_skin_count"] == 0, dense
@@ -238,7 +238,7 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
     feature over its patch (both forced on the CPU)."""
     import trimesh
 
-    from physhand_mj.metrics import summarize
+    from physhand_mj.contact.metrics import summarize
     from physhand_mj.types import GeomType
 
     asset, model, data, ids, mount = setup
@@ -576,7 +576,7 @@ def test_summarize_rows_is_summarize_row_by_row():
     (one row) give what a row summarized one Python value at a time gives: the same keys, values and
     types, for 3- and 6-column rows, with zero counts and counts on the float32 halves (rounded to
     even, as round() does)."""
-    from physhand_mj.metrics import summarize, summarize_rows
+    from physhand_mj.contact.metrics import summarize, summarize_rows
 
     rng = np.random.default_rng(1)
     for cols in (3, 6):

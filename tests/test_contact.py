@@ -160,7 +160,7 @@ def test_tiled_cuda_multires_matches_the_per_thread_kernel(monkeypatch):
     x = body.positions + np.random.default_rng(1).normal(scale=0.001, size=body.positions.shape) * [0, 0, 1]
     out = {}
     for tiled in (False, True, "strided"):
-        if tiled == "strided":  # 7 blocks walking the list (entries b, b + 7, ...): solver.tiled_blocks' stride
+        if tiled == "strided":  # 7 blocks walking the list (entries b, b + 7, ...): launch.tiled_blocks' stride
             monkeypatch.setattr(contact_mod, "tiled_blocks", lambda device, n, block_dim: 7)
         cfg = ph.Config(device="cuda", tiled_contact=bool(tiled), contact_passes=1)
         objs = Objects("cuda", 1)
@@ -331,7 +331,7 @@ def test_tiled_feature_query_matches_the_bvh_query():
     inside the skin), the BVH query's closest distance (within 1e-7 m: the same triangle, or another
     at the same distance where the closest point is a shared edge or corner) and sign; one pass's
     corrections agree where the triangle is the same."""
-    from physhand_mj.cases import press_case, run_case, site_point
+    from physhand_mj.bench.cases import press_case, run_case, site_point
 
     asset = ph.load_asset()
     r = run_case(press_case("knife", site="palm", depth=0.004, start=-0.004), ph.Config(device="cpu"), frames=2,
@@ -369,7 +369,7 @@ def test_tiled_feature_query_matches_the_bvh_query():
     (d0, h0), (d1, h1) = (_feature_pass(c, state, feats, t) for t in (False, True))
     assert np.array_equal(h0 > 0, h1 > 0) and (h0 > 0).sum() > 10
     assert np.allclose(h0, h1, rtol=1e-5) and np.abs(d0 - d1).max() < 1e-9, np.abs(d0 - d1).max()
-    # 7 blocks walking the list (entries b, b + 7, ...: solver.tiled_blocks' stride) push as one per entry
+    # 7 blocks walking the list (entries b, b + 7, ...: launch.tiled_blocks' stride) push as one per entry
     d2, h2 = _feature_pass(c, state, feats, True, blocks=7)
     assert np.array_equal(h1 > 0, h2 > 0)
     assert np.allclose(h1, h2, rtol=1e-5) and np.abs(d1 - d2).max() < 1e-9, np.abs(d1 - d2).max()
@@ -379,7 +379,7 @@ def test_tiled_features_hold_the_hard_case_on_the_cpu(monkeypatch):
     """The tiled feature path recorded into the solver's frame (forced on the CPU, where a block is
     one thread: CUDA's launches and arguments, no BVH refit per stage and pass) ends the knife
     starting 4 mm deep at the fingertip at zero by both measures, like the BVH path."""
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     init = Contact.__init__
 
@@ -409,7 +409,7 @@ def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
     forced there against the BVH one: up to 2.9 mm at one vertex of the knife in the palm, 99% of
     the vertices within 0.27 mm, the final largest displacements within 0.2 mm); and on the final
     state the tiled query (FEATURE_LANES lanes) agrees with the BVH query for every listed feature."""
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
     from physhand_mj.contact.features import FEATURE_LANES
 
     asset = ph.load_asset()

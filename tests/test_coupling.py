@@ -66,7 +66,7 @@ def test_skeleton_vertices_follow_their_bodies(glass_grasp):
     asset = hand.asset
     skel = np.flatnonzero(asset.layer == ph.Layer.SKELETON)
     b = asset.vertex_body[skel]
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
     local = np.einsum("kji,kj->ki", quat_to_mat(asset.body_rest_quat)[b], asset.positions[skel] - asset.body_rest_pos[b])
     bones = hand.bones[b]
     want = np.einsum("kij,kj->ki", data.xmat[bones].reshape(-1, 3, 3), local) + data.xpos[bones]
@@ -210,7 +210,7 @@ def _palm_press(depth):
     lateral = np.linalg.norm((skin - c) - np.outer((skin - c) @ n, n), axis=1)
     s = skin[lateral < 0.01][np.argmax((skin[lateral < 0.01] - c) @ n)]
     pos, quat = ph.mount_pose(model0, data0)
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
     rot = quat_to_mat(quat)
     centre = rot @ s + pos + rot @ n * (0.02 - depth)
     body = spec.worldbody.add_body(name="ball", pos=centre)

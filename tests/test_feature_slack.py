@@ -9,7 +9,7 @@ import pytest
 import warp as wp
 
 import physhand_mj as ph
-from physhand_mj.cases import press_case, run_case
+from physhand_mj.bench.cases import press_case, run_case
 from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.contact.slack import UNLISTED, certify_features, next_slack, skin_motion, skin_reach
 from physhand_mj.contact.inside import object_point

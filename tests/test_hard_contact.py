@@ -2,7 +2,7 @@
 edges, thin plates, objects embedded past their axis, coarse meshes; at a fingertip and the palm.
 
 Each case runs the embedded hand (rest pose, bones still) with one object made here (analytic
-geoms and trimesh meshes), pressed 4 mm into the rest skin or starting there (physhand_mj.cases).
+geoms and trimesh meshes), pressed 4 mm into the rest skin or starting there (physhand_mj.bench.cases).
 Checked at the end and over the last frames: skin samples on the metric's order-5 lattice AND on an
 order-9 lattice (samples no strategy queries) inside the object, the object's corners, edge
 points and surface samples inside the closed skin (winding number), AND a 4x denser set of edge
@@ -14,7 +14,7 @@ import pytest
 import warp as wp
 
 import physhand_mj as ph
-from physhand_mj.cases import press_case, run_case
+from physhand_mj.bench.cases import press_case, run_case
 from physhand_mj.contact import Objects
 from physhand_mj.contact.surface import PointKind, mesh_points, primitive_points
 from physhand_mj.solver import Solver, make_model
@@ -280,7 +280,7 @@ def test_bone_inside_the_object_stays_stable_and_reported(asset):
     """A sphere (r 12 mm) 20 mm into the palm holds metacarpal bone inside it: no penetration-free
     skin exists. The solver stays finite, the skin within Config.skin_tether (25 mm) of its bones, no
     tet stays inverted, and the remaining penetration is reported by both measures without growing."""
-    from physhand_mj.cases import Case
+    from physhand_mj.bench.cases import Case
 
     case = Case("bone", GeomType.SPHERE, (0.012, 0.0, 0.0), lead=0.012, site="palm", depth=0.02, start=-0.02)
     cfg = ph.Config(device="cpu")

@@ -248,7 +248,7 @@ def test_the_feature_points_are_held_too(scene):  # noqa: F811
     inside the skin by the independent measures (order 9, the object's points). One hold on the
     decision points' planes alone leaves one of them inside (~56 um); with the kept feature points
     pushed first and last (the stage's order) none is, nor any skin sample."""
-    from physhand_mj.metrics import summarize
+    from physhand_mj.contact.metrics import summarize
 
     h = 0.005  # m, the cube's half edge
     angle, axis = np.arccos(1.0 / np.sqrt(3.0)), np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)

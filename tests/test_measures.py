@@ -1,4 +1,4 @@
-"""The skin measure's two layouts (physhand_mj/metrics.py): the triangles near an object culled into a
+"""The skin measure's two layouts (physhand_mj/contact/metrics.py): the triangles near an object culled into a
 list and measured a thread each (batched worlds' layout, forced here on one hand) give the one-kernel
 measure's rows, on a hand pressed deep into a
 sphere and into a mesh (the bowl's kind of object) at once."""
@@ -11,8 +11,8 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.contact import Objects
 from physhand_mj.hand_mjcf import mount_pose, open_hand_scene
-from physhand_mj import metrics
-from physhand_mj.metrics import penetration_samples
+from physhand_mj.contact import metrics
+from physhand_mj.contact.metrics import penetration_samples
 from physhand_mj.solver import Solver, make_model
 from physhand_mj.types import Config, GeomType
 

@@ -274,7 +274,7 @@ def test_a_contact_run_is_the_same_with_and_without_the_near_faces(monkeypatch):
     the 24-section cone mesh, whose tip fans too many faces, is left unmarked."""
     import physhand_mj as ph
     import physhand_mj.contact.objects as objects_mod
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     asset = ph.load_asset()
     cases = (("knife", "fingertip", 0.002), ("coarse", "palm", -0.004))

@@ -304,7 +304,7 @@ def test_meshes_without_an_inside_are_refused_with_the_fix():
 def test_mesh_half_thickness_finds_walls_and_shells_only(shape, half_mm):
     """objects.mesh_half_thickness, the side-aware exit's floor for meshes (query.side_floor reads
     it from size[2]): against the analytic thickness of a plate, a shell and a sphere; 0 for a wedge."""
-    from physhand_mj.cases import _wedge
+    from physhand_mj.bench.cases import wedge
 
     if shape == "plate":
         m = trimesh.creation.box(extents=(0.024, 0.024, 0.001))
@@ -315,7 +315,7 @@ def test_mesh_half_thickness_finds_walls_and_shells_only(shape, half_mm):
     elif shape == "sphere":
         m = trimesh.creation.icosphere(4, 0.010)
     else:
-        m = trimesh.Trimesh(*_wedge())
+        m = trimesh.Trimesh(*wedge())
     objs = Objects("cpu", 1)
     objs.add(GeomType.MESH, None, vertices=m.vertices, faces=m.faces, name=shape, mesh_range=0.05)
     half = float(objs.size.numpy()[0, 2]) * 1e3
@@ -424,7 +424,7 @@ def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():
     starting 4 mm deep at the fingertip end with the same skin, bit for bit (measured on all 16 mesh
     hard cases: docs/contact.md; the knife 20 mm through the fingertip: tests/stress)."""
     import physhand_mj as ph
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     asset = ph.load_asset()
     for kind, site, depth, start, frames in (("mesh_cone", "palm", 0.004, 0.002, 6),

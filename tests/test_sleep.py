@@ -1,4 +1,4 @@
-"""Sleeping (physhand_mj/solver/sleep.py, physhand_mj/regions.py): a still hand with no object near
+"""Sleeping (physhand_mj/solver/sleep.py, physhand_mj/solver/regions.py): a still hand with no object near
 rides its bones from its last solved shape and wakes without a visible jump when a bone moves or an
 object approaches; regions of the hand sleep alone (docs/activity.md)."""
 
@@ -24,7 +24,7 @@ def _until_asleep(solver, state, poses, limit=500):
 def _moved(poses, rot, shift, about):
     """Bone poses (pos (B, 3), quat (B, 4) w x y z) moved as one rigid body: rotated by ``rot``
     (3 x 3) about ``about`` and shifted by ``shift`` (m)."""
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     pos, quat = poses
     mats = quat_to_mat(quat)
@@ -137,7 +137,7 @@ def test_a_sleeping_hand_wakes_when_gravity_turns_in_it_or_a_finger_creeps(scene
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not wp.is_cuda_available(), reason="no CUDA device"))])
 def test_regions_sleep_alone_ride_their_bones_and_wake_to_match_an_awake_run(scene, device):
-    """Config.region_sleep (physhand_mj/regions.py), gravity off so the open hand is settled at once:
+    """Config.region_sleep (physhand_mj/solver/regions.py), gravity off so the open hand is settled at once:
     every region falls asleep; the index then bends and wakes itself and its neighbours (middle
     finger, palm) while the thumb, ring and little fingers sleep on, riding their still bones (their
     skin does not move by a bit while the awake flesh next to it does); then the ring and little

@@ -141,7 +141,7 @@ def test_skeleton_follows_its_bones_exactly(hand):
     q = model.key("pinch").qpos.copy()
     solver, state, _, _ = _run_hand(hand, 3, lambda f: q)
     pos, quat = ph.bone_poses_at(model, data, q, ids)
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
     skel = np.flatnonzero(asset.layer == ph.Layer.SKELETON)
     b = asset.vertex_body[skel]
     rest_rot = quat_to_mat(asset.body_rest_quat)

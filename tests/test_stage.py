@@ -19,7 +19,7 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     than the contact left it, the push equals the pass kernel's (feature_contact_tiled / _scan) over
     the list it made (the per-vertex mean and weights, the touched vertices), and the list holds
     every point that pass pushes."""
-    from physhand_mj.cases import press_case, run_case, site_point
+    from physhand_mj.bench.cases import press_case, run_case, site_point
     from physhand_mj.contact import features as F
 
     asset = ph.load_asset()
@@ -80,7 +80,7 @@ def test_a_fused_stage_is_the_recorded_stage_bit_for_bit(monkeypatch, kind, site
     4 mm deep and every counter of the last frame (lists, touched vertices per pass, passes that ran)
     equal the recorded stage's with the same feature kernels (CUDA's, forced), bit for bit; also
     without the object's features (no feature list: the stage's Eq. 9 alone)."""
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     init = Contact.__init__
 
@@ -112,7 +112,7 @@ def test_a_stuck_grid_barrier_is_raised_not_hidden():
     """A fused stage on CUDA runs a block per SM with grid barriers (stage.grid_sync); a block that
     never arrives makes the others give up and flag it. The frame then raises SolverError naming the
     fix instead of returning a half-done contact (the flag set by hand here: the CPU runs one thread)."""
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), ph.Config(device="cpu", fused_stage=True),
                  frames=2, asset=ph.load_asset())

@@ -178,7 +178,7 @@ def _solid_angle_sum(tri):
 
 def _object_points_world(c, idx):
     """World positions (k, 3) of the contact's object points ``idx`` and their geoms."""
-    from physhand_mj.solver.model import quat_to_mat
+    from physhand_mj.rotations import quat_to_mat
 
     pts = c.points
     pose = c.objects._host["pose"][pts.geom_host[idx]].astype(float)
@@ -317,7 +317,7 @@ def test_a_deep_start_lists_nearly_every_point_and_every_patch_fits():
     held them all packed)."""
     import warnings
 
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=".*PATCH_POOL_MAX.*")

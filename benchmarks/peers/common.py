@@ -1,6 +1,6 @@
 """What every peer run shares: the soft body, the pressed object and its path, and both measures.
 
-The work is :func:`physhand_mj.cases.run_case`'s: an object (a :class:`physhand_mj.cases.Case`)
+The work is :func:`physhand_mj.bench.cases.run_case`'s: an object (a :class:`physhand_mj.bench.cases.Case`)
 placed against a skin point of a body at rest, its +z axis along the skin's inward normal, moved
 from ``start`` m outside the skin to ``depth`` m into the rest skin over ``press_frames`` 5 ms
 frames, then held; the body's skeleton layer does not move. :func:`object_path` gives that path
@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import physhand_mj as ph  # noqa: E402
-from physhand_mj.cases import Case, _rot_z_to, press_case, site_point  # noqa: E402
+from physhand_mj.bench.cases import Case, rot_z_to, press_case, site_point  # noqa: E402
 from physhand_mj.types import GeomType, Layer  # noqa: E402
 
 FRAME_DT = 0.005  # s: one frame, as physhand_mj's Config.frame_dt
@@ -66,7 +66,7 @@ def object_path(asset, case: Case, frames: int):
     """The object's pose at the end of each frame: pos (frames, 3) m, quat (4,) w x y z (fixed),
     and its pose at frame 0's start, as run_case moves it."""
     p0, n = contact_frame(asset, case)
-    quat = _quat_mul(_rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
+    quat = _quat_mul(rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
     if case.lay:
         quat = _quat_mul(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
 
@@ -110,7 +110,7 @@ class Measure:
         self.n = asset.n_vertices
 
     def __call__(self, x, pos, quat) -> dict:
-        from physhand_mj.metrics import summarize
+        from physhand_mj.contact.metrics import summarize
 
         x = np.asarray(x, np.float32).reshape(-1, 3)
         if len(x) != self.n:

@@ -101,7 +101,7 @@ def main():
         runs.append(dict(object=case.name, site=case.site, solver=f"mujoco_warp flex ({a.variant}, {a.solver})",
                          **summary(rows, ms, skip=1)))
     if a.physhand:  # the same work for physhand_mj on the same device (cases.run_case: its own ms timing)
-        from physhand_mj.cases import run_case
+        from physhand_mj.bench.cases import run_case
 
         for case in cases(a.depth, a.start, a.press_frames):
             r = run_case(case, ph.Config(device=a.device), frames=a.frames, check_order=9, asset=asset)

@@ -32,7 +32,7 @@ from common import Measure, cases, object_path, ph  # noqa: E402
 from mujoco_flex import RADIUS, YOUNG, FlexRun  # noqa: E402
 
 from physhand_mj.bench import device_name  # noqa: E402
-from physhand_mj.cases import run_case  # noqa: E402
+from physhand_mj.bench.cases import run_case  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "benchmarks" / "peers_cpu.json"

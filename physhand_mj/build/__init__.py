@@ -115,7 +115,7 @@ def build_myohand(asset_path: str | Path, mjcf_path: str | Path | None = None, *
     steps.set_postfix_str("bones + TetGen")
     pose = {n: (src.rest_xpos[n], _wxyz(Rotation.from_matrix(src.rest_xmat[n]).as_quat())) for n in mh.HAND_BODIES}
     tip = skin.vertices @ src.finger_axis
-    palm_normal = _palm_normal(src)
+    palm_normal = mh.palm_normal(src)
     meta = dict(name="myohand", source="MyoHand bones and kinematic chain from myo-sim (Apache-2.0)",
                 myo_sim_version=_version("myo-sim"), mujoco_version=_version("mujoco"),
                 thickness_m=th, grid_spacing_m=spacing, hand_length_mm=float(tip.max() * 1e3),
@@ -131,7 +131,7 @@ def build_myohand(asset_path: str | Path, mjcf_path: str | Path | None = None, *
         steps.set_postfix_str("MJCF")
         from physhand_mj.build.mjcf import write_hand_mjcf
 
-        mount_quat = _mount_quat(src.finger_axis, palm_normal)
+        mount_quat = mh.mount_quat(src.finger_axis, palm_normal)
         write_hand_mjcf(src, asset, mjcf_path, mount_quat=mount_quat)
         from physhand_mj.build.scenes import write_hand_only_scene
 
@@ -155,26 +155,3 @@ def _version(dist: str) -> str:
         return version(dist)
     except PackageNotFoundError:
         return "unknown"
-
-
-def _palm_normal(src) -> np.ndarray:
-    """Unit vector out of the palm: the way fingertips move when the fingers flex (hand frame)."""
-    # Flexion moves the tip towards the palm: compare the middle-finger tip at rest and flexed.
-    from physhand_mj.build import myohand as mh
-
-    flexed = mh.load_myohand({**src.rest_qpos, "mcp3_flexion_r": 0.6})
-    d = flexed.bones_rest["distph3_r"].vertices.mean(0) - src.bones_rest["distph3_r"].vertices.mean(0)
-    d -= src.finger_axis * (d @ src.finger_axis)
-    return d / np.linalg.norm(d)
-
-
-def _mount_quat(finger_axis: np.ndarray, palm_normal: np.ndarray) -> np.ndarray:
-    """Mount orientation that points the fingers along world +x with the palm facing down (-z)."""
-    from scipy.spatial.transform import Rotation
-
-    x = finger_axis
-    n = np.asarray(palm_normal, dtype=float)
-    n = n - x * (n @ x)
-    n /= np.linalg.norm(n)
-    hand = np.stack([x, np.cross(-n, x), -n], axis=1)  # columns: hand-frame images of world x, y, z
-    return _wxyz(Rotation.from_matrix(hand.T).as_quat())

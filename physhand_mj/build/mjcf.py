@@ -204,12 +204,11 @@ def main() -> None:
     """Regenerate ``mjcf/hand/myohand.xml`` from the embedded asset and myo-sim's chain without
     rebuilding the asset (``physhand build-hand`` rebuilds both): ``python -m physhand_mj.build.mjcf``."""
     from physhand_mj.asset import load_asset
-    from physhand_mj.build import _mount_quat, _palm_normal
-    from physhand_mj.build.myohand import load_myohand
+    from physhand_mj.build.myohand import load_myohand, mount_quat, palm_normal
     from physhand_mj.hand_mjcf import HAND_XML
 
     src = load_myohand()
-    write_hand_mjcf(src, load_asset(), HAND_XML, mount_quat=_mount_quat(src.finger_axis, _palm_normal(src)))
+    write_hand_mjcf(src, load_asset(), HAND_XML, mount_quat=mount_quat(src.finger_axis, palm_normal(src)))
     print(HAND_XML)
 
 

@@ -149,3 +149,26 @@ def load_myohand(rest_qpos: dict[str, float] | None = None) -> HandSource:
     return HandSource(bodies=bodies, root_pos=root_pos, root_quat=root_quat, rest_qpos=rest,
                       rest_xpos=rest_xpos, rest_xmat=rest_xmat, bones_rest=bones,
                       forearm_axis=forearm_axis, finger_axis=finger_axis)
+
+
+def palm_normal(src) -> np.ndarray:
+    """Unit vector out of the palm: the way fingertips move when the fingers flex (hand frame)."""
+    # Flexion moves the tip towards the palm: compare the middle-finger tip at rest and flexed.
+    flexed = load_myohand({**src.rest_qpos, "mcp3_flexion_r": 0.6})
+    d = flexed.bones_rest["distph3_r"].vertices.mean(0) - src.bones_rest["distph3_r"].vertices.mean(0)
+    d -= src.finger_axis * (d @ src.finger_axis)
+    return d / np.linalg.norm(d)
+
+
+def mount_quat(finger_axis: np.ndarray, palm_normal: np.ndarray) -> np.ndarray:
+    """Mount orientation that points the fingers along world +x with the palm facing down (-z)."""
+    from scipy.spatial.transform import Rotation
+
+    x = finger_axis
+    n = np.asarray(palm_normal, dtype=float)
+    n = n - x * (n @ x)
+    n /= np.linalg.norm(n)
+    hand = np.stack([x, np.cross(-n, x), -n], axis=1)  # columns: hand-frame images of world x, y, z
+    q = Rotation.from_matrix(hand.T).as_quat()  # x y z w
+    return np.array([q[3], q[0], q[1], q[2]])
+

@@ -31,7 +31,7 @@ from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
 from physhand_mj.contact.stage import STAGE_LANES, record_stage
 from physhand_mj.types import Config, Model, Placement, Strategy
-from physhand_mj.solver.solver import launch_options, tiled_blocks
+from physhand_mj.launch import launch_options, tiled_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -237,7 +237,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         """Once per frame, before the substeps: the frame's broadphase over all skin triangles with
         ``contact_frame_margin``; each stage then tests only this list. ``gated(record, 1)``
         (the solver's) records what follows the broadphase into a block run only when its list is
-        not empty (physhand_mj/activity.py); the caller zeroes ``counters`` first. ``launch_pre``
+        not empty (physhand_mj/solver/activity.py); the caller zeroes ``counters`` first. ``launch_pre``
         records the broadphase elsewhere (CUDA: ahead of the frame's graph, Solver.step)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:

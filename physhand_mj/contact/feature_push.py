@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from physhand_mj.contact.features import feature_contact, feature_contact_scan, feature_contact_tiled
 from physhand_mj.contact.query import apply_contact
-from physhand_mj.solver.solver import tiled_blocks
+from physhand_mj.launch import tiled_blocks
 
 
 class FeaturePush:

@@ -310,7 +310,7 @@ def stage_features_tiled(
     first pass sees the skin its list is made on, so the same closest point also gives that pass's
     push (:func:`feature_contact_tiled`'s, into ``delta`` ... ``vertex_obj``) in this launch: a
     point it pushes (inside, or closer than offset / 2 outside) is always kept (keep >= offset / 2).
-    Launched with ``stride`` blocks (solver.tiled_blocks), block b taking entries b, b + stride, ..."""
+    Launched with ``stride`` blocks (launch.tiled_blocks), block b taking entries b, b + stride, ..."""
     blk, lane = wp.tid()
     k = blk
     n = cand_count[0]
@@ -363,7 +363,7 @@ def feature_contact_tiled(
     """:func:`feature_contact` with a block per listed feature (launched as
     :func:`stage_features_tiled`): the closest point by :func:`closest_tiled`, then lane 0 applies
     the same correction (:func:`push_feature`).
-    Launched with ``stride`` blocks (solver.tiled_blocks), block b taking entries b, b + stride, ..."""
+    Launched with ``stride`` blocks (launch.tiled_blocks), block b taking entries b, b + stride, ..."""
     blk, lane = wp.tid()
     k = blk
     n = cand_count[0]

@@ -11,8 +11,8 @@ import warp as wp
 
 from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, object_points_inside,
                                         object_points_inside_reuse, reset_patches, skin_patches)
-from physhand_mj import metrics
-from physhand_mj.metrics import lattice_phi, penetration_cull, penetration_samples, reduce_worlds
+from physhand_mj.contact import metrics
+from physhand_mj.contact.metrics import lattice_phi, penetration_cull, penetration_samples, reduce_worlds
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -211,7 +211,7 @@ class ContactMeasures:
         depth = pts.depth.numpy()[: len(pts)].astype(float)
         hit = np.flatnonzero(depth > 0)
         pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
-        from physhand_mj.solver.model import quat_to_mat
+        from physhand_mj.rotations import quat_to_mat
 
         rot = quat_to_mat(np.concatenate([pose[:, 6:], pose[:, 3:6]], axis=1)).reshape(-1, 3, 3)
         world = np.einsum("kij,kj->ki", rot, pts.pts_host[hit]) + pose[:, :3]

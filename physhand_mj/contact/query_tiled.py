@@ -78,7 +78,7 @@ def tiled_kernel(with_mesh: bool):
         triangle: each lane queries one lattice sample, block reductions pick the three lowest, lane 0
         projects. Same samples, rounds, early-out, bound and Eq. 9 as the per-thread kernel; the serial
         chain per triangle shrinks from samples x rounds queries to rounds x (1 query + 3 reductions).
-        Launched with ``stride`` blocks (solver.tiled_blocks): block b takes entries b, b + stride, ...
+        Launched with ``stride`` blocks (launch.tiled_blocks): block b takes entries b, b + stride, ...
         of the list and a block past its end reads the count and leaves (Warp's own grid-stride loop
         over every slot cost the held grasp's launch ~9 idle rounds a block, docs/activity.md)."""
         blk, lane = wp.tid()

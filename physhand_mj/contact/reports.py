@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.solver.solver import SolverError
+from physhand_mj.types import SolverError
 
 
 class ContactReports:

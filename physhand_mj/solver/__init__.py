@@ -22,6 +22,7 @@ update's guard (integrate.advance).
 """
 
 from physhand_mj.solver.model import make_model
-from physhand_mj.solver.solver import Solver, SolverError
+from physhand_mj.solver.solver import Solver
+from physhand_mj.types import SolverError
 
 __all__ = ["Solver", "SolverError", "make_model"]

@@ -39,7 +39,7 @@ def solve_edges(
     delta: wp.array(dtype=wp.vec3),
     slots: wp.array(dtype=wp.vec3),
     slot_base: int,
-    # Per-region sleeping (physhand_mj/regions.py; empty when off): the constraints to solve,
+    # Per-region sleeping (physhand_mj/solver/regions.py; empty when off): the constraints to solve,
     # order[0: order_count[0]] (the others have every vertex asleep or on a bone)
     order: wp.array(dtype=int),
     order_count: wp.array(dtype=int),

@@ -47,7 +47,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.batch_tile import shifted_id
+from physhand_mj.solver.worlds import shifted_id
 from physhand_mj.solver.edge import edge_correction
 from physhand_mj.solver.fused_gather import dihedrals_of_vertex, edges_of_vertex, tets_of_vertex, vertex_entries
 from physhand_mj.solver.fused_tile import (add2, add2_fixed, add_corners, add_corners_fixed, apply_group,
@@ -404,7 +404,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
 class FusedSubstep:
     """One world's constraint arrays (one-world vertex ids) for :func:`substep_kernel`, taken from
     a (possibly W-world) :class:`~physhand_mj.types.Model` whose families are stored world by world
-    (batch_tile.py's layout: rows [0, C) are world 0's)."""
+    (solver/worlds.py's layout: rows [0, C) are world 0's)."""
 
     def __init__(self, m, device):
         W = int(m.worlds)

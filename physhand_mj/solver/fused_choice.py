@@ -26,10 +26,11 @@ CUDA_AUTO_WAVES = 0.3
 def config_allows(config) -> bool:
     """Whether ``config`` lets the fused substep run (the Jacobi scheme, one iteration, no region
     sleep, ``jacobi_gather`` not True); a scheme given by name counts as its enum."""
-    from physhand_mj.types import Scheme, _enum_field
+    from physhand_mj.enums import enum_field
+    from physhand_mj.types import Scheme
 
     try:
-        scheme = _enum_field(Scheme, config.scheme, "scheme")
+        scheme = enum_field(Scheme, config.scheme, "scheme")
     except ValueError:
         return False  # (validate() names it)
     return scheme == Scheme.JACOBI and config.iterations == 1 and not config.region_sleep and not config.jacobi_gather

@@ -123,7 +123,7 @@ def advance(
     gather_off: wp.array(dtype=int),
     gather_slot: wp.array(dtype=int),
     slots: wp.array(dtype=wp.vec3),
-    # Per-region sleeping (physhand_mj/regions.py; empty when off):
+    # Per-region sleeping (physhand_mj/solver/regions.py; empty when off):
     vertex_region: wp.array(dtype=int),
     region_fast: wp.array(dtype=int),
 ):

@@ -8,6 +8,7 @@ import warp as wp
 from physhand_mj.solver.attach import attachment_pairs
 from physhand_mj.solver.coloring import color_ranges, greedy_colors
 from physhand_mj.solver.gather import gather_lists
+from physhand_mj.rotations import quat_to_mat
 from physhand_mj.types import Config, Layer, Model, Scheme
 
 FAMILIES = ("edge", "tet", "dih")  # projection order within an iteration (edge includes Eq. 4)
@@ -18,22 +19,13 @@ FAMILIES = ("edge", "tet", "dih")  # projection order within an iteration (edge 
 JACOBI_GROUPS = (("edge",), ("tet",), ("dih",))
 
 
-def quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """(..., 4) MuJoCo quaternions (w, x, y, z) -> (..., 3, 3) rotation matrices."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.sqrt((q * q).sum(axis=-1, keepdims=True))
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    m = np.empty(q.shape[:-1] + (3, 3))  # filled in place: the per-frame sleep tests call this
-    m[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    m[..., 0, 1] = 2 * (x * y - z * w)
-    m[..., 0, 2] = 2 * (x * z + y * w)
-    m[..., 1, 0] = 2 * (x * y + z * w)
-    m[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    m[..., 1, 2] = 2 * (y * z - x * w)
-    m[..., 2, 0] = 2 * (x * z - y * w)
-    m[..., 2, 1] = 2 * (y * z + x * w)
-    m[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return m
+
+def vertex_world(n: int, n_skin: int, worlds: int) -> np.ndarray:
+    """World of every vertex of a replicated body of ``n`` vertices (``n_skin`` skin) holding
+    ``worlds`` copies: the skins first, world by world, then the rest, world by world."""
+    ns, per = n_skin // worlds, (n - n_skin) // worlds
+    i = np.arange(n)
+    return np.where(i < n_skin, i // max(ns, 1), (i - n_skin) // max(per, 1))
 
 
 def signed_dihedral(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -135,7 +127,6 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     worlds = int(asset.meta.get("worlds", 1)) if isinstance(asset.meta, dict) else 1
     world = np.zeros(n, np.int32)
     if worlds > 1:
-        from physhand_mj.batch import vertex_world
 
         world = vertex_world(n, int(asset.n_skin), worlds).astype(np.int32)
 

@@ -60,7 +60,7 @@ class PoseInput:
             finite = np.isfinite(pos.sum()) and np.isfinite(n2.sum())
         if not finite:
             if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
-                from physhand_mj.solver.solver import SolverError
+                from physhand_mj.types import SolverError
 
                 bad = sorted({self.model.body_names[i] for i in np.flatnonzero(
                     ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1)))})
@@ -68,7 +68,7 @@ class PoseInput:
             n2 = None  # (finite but huge: the sums overflowed)
         norm = (np.sqrt(n2) if n2 is not None else np.linalg.norm(quat, axis=1))[:, None]
         if np.any(norm < 1e-9):
-            from physhand_mj.solver.solver import SolverError
+            from physhand_mj.types import SolverError
 
             raise SolverError("a bone quaternion has zero length")
         end = out if out is not None else np.empty((b, 7), np.float32)  # [p, q x y z w]

@@ -1,4 +1,4 @@
-"""Whole-hand sleeping, a mixin of :class:`~physhand_mj.solver.solver.Solver` (physhand_mj/activity.py
+"""Whole-hand sleeping, a mixin of :class:`~physhand_mj.solver.solver.Solver` (physhand_mj/solver/activity.py
 has the concept and its measurements): the bone tests on the host (a hand moving as one rigid body,
 no object near), the sleeping frame (one launch carries every vertex with its bone), the CUDA
 host-side box test that skips the broadphase run ahead, and waking.
@@ -12,20 +12,13 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.solver import integrate
-from physhand_mj.solver.model import quat_to_mat
+from physhand_mj.rotations import pose_turn, quat_to_mat
 from physhand_mj.types import State
 
 SLEEP_TURN = math.radians(2.0)  # rad: the first bone's turn since the hand fell asleep that wakes it
 # m, the sleeping skin's box (Solver._asleep_and_alone) is grown by this: its bones may drift up to
 # Config.sleep_bone_motion (10 um at a 0.1 m lever) from one rigid motion before the hand wakes
 SLEEP_BOX_SLACK = 1.0e-3
-
-
-def _turn(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle (rad) between two orientations given as poses [p, q x y z w]."""
-    d = abs(float(np.dot(a[3:].astype(np.float64), b[3:].astype(np.float64))))
-    d /= max(float(np.linalg.norm(a[3:]) * np.linalg.norm(b[3:])), 1e-30)
-    return 2.0 * math.acos(min(d, 1.0))
 
 
 def frame_rigid(start: np.ndarray, end: np.ndarray, tol: float) -> bool:
@@ -87,7 +80,7 @@ class Sleeping:
         against the world box around those two (activity.objects_near, the CPU's level-0 test).
         False sends the frame down the usual path (broadphase ahead, then sleep or not). One world.
         """
-        from physhand_mj.activity import objects_near
+        from physhand_mj.solver.activity import objects_near
 
         box = state.sleep_box
         if box is None or self.contact is None or not self.activity.gate_ahead or not self._settled(state):
@@ -217,7 +210,7 @@ class Sleeping:
         onset, vel0 = state.sleep_onset
         moved = not np.array_equal(onset, p1)  # bones where they fell asleep (a still hand): no turn, no drift
         if np.linalg.norm(vel - vel0) > cfg.sleep_speed or (moved and (
-                bone_motion(onset, p1) > cfg.sleep_bone_motion or _turn(onset[0], p1[0]) > SLEEP_TURN)):
+                bone_motion(onset, p1) > cfg.sleep_bone_motion or pose_turn(onset[0], p1[0]) > SLEEP_TURN)):
             state.still = 0
             state.sleep_onset = state.sleep_box = None
             return False

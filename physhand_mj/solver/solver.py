@@ -30,63 +30,16 @@ from physhand_mj.solver import fused_choice
 from physhand_mj.solver import integrate
 from physhand_mj.solver.edge import solve_edges
 from physhand_mj.solver.gather import GATHER_LANES
-from physhand_mj.solver.model import JACOBI_GROUPS, quat_to_mat
+from physhand_mj.rotations import compose_quat, quat_to_mat
+from physhand_mj.solver.model import JACOBI_GROUPS
 from physhand_mj.solver.poses import PoseInput
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
-from physhand_mj.types import Config, Model, NonFinite, Scheme, State, Strategy
-
-# CUDA launches that walk a list whose length lives on the device (``count``; the tiled kernels' block
-# per entry) are sized for the longest list (every skin triangle, every object feature point) and
-# their threads past the list return at once; they run with at most this many blocks per SM, the
-# kernels' grid-stride loop (Warp's default) walking the rest. A single hand's lists hold a few
-# hundred to a few thousand entries of 10-20 thousand slots. Idle blocks are not free: on an H100 a
-# graph node of 20,960 idle 32-thread blocks takes 13.9 us, capped at 8 per SM 6.3 us, against 1.5 us
-# for 20,960 idle threads in 256-thread blocks (benchmarks/graph_node_cost.py, docs/activity.md).
-# 0: no cap.
-# Tiled kernels (a block per entry) of one warp (the decision points' 32 lanes) and of wider blocks
-# (the feature kernels' 128 lanes) are capped apart.
-LIST_BLOCKS_PER_SM = 8
-TILED_BLOCKS_PER_SM = 8
-WIDE_BLOCKS_PER_SM = 8
-
-
-def list_launch_blocks(device, block_dim: int | None = None) -> int:
-    """``max_blocks`` for a list-walking launch on ``device`` (``block_dim``: a tiled launch, a
-    block of that many threads per entry); 0: as many as the launch asks."""
-    d = wp.get_device(device)
-    per_sm = LIST_BLOCKS_PER_SM if block_dim is None else TILED_BLOCKS_PER_SM if block_dim <= 32 else WIDE_BLOCKS_PER_SM
-    return per_sm * d.sm_count if d.is_cuda and per_sm > 0 else 0
-
-
-def tiled_blocks(device, n: int, block_dim: int) -> int:
-    """Blocks of a tiled launch over a list of at most ``n`` entries whose kernel walks the list
-    itself (its ``stride`` argument: block b takes entries b, b + stride, ... up to the count on the
-    device): ``n``, on CUDA at most :func:`list_launch_blocks`. A block past the list's end reads
-    the count and leaves; Warp's own grid-stride loop (``max_blocks`` over a launch of ``n``
-    blocks) made every block walk all ``n`` slots, ~9 idle rounds a block on the held grasp's
-    decision points, three quarters of that launch (Nsight Compute, docs/activity.md)."""
-    cap = list_launch_blocks(device, block_dim)
-    return max(1, min(int(n), cap) if cap else int(n))
-
-
-def launch_options(device, count=None, block_dim: int | None = None) -> dict:
-    """``wp.launch`` keywords of a recorded launch: ``block_dim`` for a tiled kernel, and on CUDA
-    ``max_blocks`` (:func:`list_launch_blocks`) when it walks a device-side list (``count`` given, or
-    tiled: a block per entry)."""
-    kw = {} if block_dim is None else dict(block_dim=block_dim)
-    if count is not None or block_dim is not None:
-        cap = list_launch_blocks(device, block_dim)
-        if cap:
-            kw["max_blocks"] = cap
-    return kw
+from physhand_mj.launch import launch_options
+from physhand_mj.types import Config, Model, NonFinite, Scheme, SolverError, State, Strategy
 
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
-
-
-class SolverError(RuntimeError):
-    """The solver met a state it cannot continue from (non-finite input or state under RAISE)."""
 
 
 class Solver(PoseInput, Sleeping):
@@ -105,7 +58,7 @@ class Solver(PoseInput, Sleeping):
             from physhand_mj.contact import Contact
 
             self.contact = Contact(model, objects, self.config)
-        from physhand_mj.activity import Activity
+        from physhand_mj.solver.activity import Activity
 
         self.activity = Activity(self)  # what runs each frame (gated contact blocks, the work set)
         self.last_activity: dict = {}
@@ -131,10 +84,10 @@ class Solver(PoseInput, Sleeping):
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
         self._fused = fused_choice.choose(model, self.config, self.device)  # Config.fused_substep
-        # per-region sleeping (physhand_mj/regions.py; one world)
+        # per-region sleeping (physhand_mj/solver/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
-            from physhand_mj.regions import RegionSleep
+            from physhand_mj.solver.regions import RegionSleep
 
             self.regions = RegionSleep(self)
 
@@ -146,7 +99,7 @@ class Solver(PoseInput, Sleeping):
         pos = np.asarray(pos, float)
         x = m.rest_x.numpy().astype(np.float64) @ rot.T + pos
         bp = m.body_rest_pos @ rot.T + pos
-        bq = _compose_quat(np.asarray(quat, float), m.body_rest_quat)
+        bq = compose_quat(np.asarray(quat, float), m.body_rest_quat)
         d = self.device
         n = m.n_vertices
         st = State(
@@ -298,7 +251,7 @@ class Solver(PoseInput, Sleeping):
 
     def _contact_summary(self, out: dict) -> None:
         """The frame's penetration summary (its metrics row, read at the frame's sync) into ``out``."""
-        from physhand_mj.metrics import summarize  # contact imports the solver's types: no cycle here
+        from physhand_mj.contact.metrics import summarize  # contact imports the solver's types: no cycle here
 
         rows = self.contact.read_metrics(synchronize=False)
         both = summarize(rows[-1])  # (the frame measured only what Config.frame_metrics / object_metrics ask)
@@ -548,11 +501,3 @@ class _ListLaunch:
                 self.cmd.set_dim(n)
                 self.dim = n
             self.cmd.launch()
-
-
-def _compose_quat(q: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Hamilton product q * r for (4,) q and (B, 4) r, w x y z."""
-    w1, x1, y1, z1 = q
-    w2, x2, y2, z2 = np.moveaxis(np.asarray(r, float), -1, 0)
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)

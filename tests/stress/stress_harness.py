@@ -20,7 +20,7 @@ Checks (each frame):
 
 The hand sits in ``hand_only`` at its mount pose (the world frame of MuJoCo), so bone poses come
 straight from MuJoCo's kinematics (``bone_poses_at``); objects are placed by the site and normal of
-physhand_mj.cases, carried into the world frame by the mount pose.
+physhand_mj.bench.cases, carried into the world frame by the mount pose.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ import numpy as np
 import warp as wp
 
 import physhand_mj as ph
-from physhand_mj.cases import Case, _rot_z_to, site_point
+from physhand_mj.bench.cases import Case, rot_z_to, site_point
 from physhand_mj.contact.sdf import geom_sdf
-from physhand_mj.solver.model import quat_to_mat
-from physhand_mj.solver.solver import _compose_quat
+from physhand_mj.rotations import quat_to_mat
+from physhand_mj.rotations import compose_quat
 from physhand_mj.types import GeomType
 
 
@@ -91,11 +91,11 @@ class Stress:
 
             p0, n0 = site_point(asset, case.site)
             self.site = int(np.argmin(np.linalg.norm(asset.skin_vertices - p0, axis=1)))
-            q = _compose_quat(_rot_z_to(-n0), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
+            q = compose_quat(rot_z_to(-n0), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
             if case.lay:
-                q = _compose_quat(q, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
+                q = compose_quat(q, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
             p_w, n_w = scene.to_world(p0, n0)
-            q_w = _compose_quat(np.asarray(scene.mount[1], float), q)
+            q_w = compose_quat(np.asarray(scene.mount[1], float), q)
             objs = Objects(str(self.config.device or "cpu"), 1)
             if case.gtype == GeomType.MESH:
                 objs.add(GeomType.MESH, None, p_w, q_w, name=case.name, vertices=case.vertices, faces=case.faces,
@@ -119,7 +119,7 @@ class Stress:
             t, rot, qb = self._bone_pose(rest)
             self._p_local = rot.T @ (p_w - t)
             self._n_local = rot.T @ n_w
-            self._q_local = _compose_quat(qb * [1, -1, -1, -1], q_w[None])[0]
+            self._q_local = compose_quat(qb * [1, -1, -1, -1], q_w[None])[0]
             self.bone_pose = rest
             self.object_pose(-case.start)
             objs.set_poses(self.pos[None], self.quat[None])
@@ -143,7 +143,7 @@ class Stress:
         p0, n = rot @ self._p_local + t, rot @ self._n_local
         self.n = n
         self.pos = p0 - n * depth + n * self.case.lead
-        self.quat = _compose_quat(qb, self._q_local[None])[0]
+        self.quat = compose_quat(qb, self._q_local[None])[0]
         return self.pos
 
     def _volume(self, x):

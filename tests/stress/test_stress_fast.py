@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import physhand_mj as ph
-from physhand_mj.cases import Case, press_case, site_point
+from physhand_mj.bench.cases import Case, press_case, site_point
 from physhand_mj.types import GeomType
 from stress_harness import Stress, press_schedule
 

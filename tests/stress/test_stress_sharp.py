@@ -1,6 +1,6 @@
 """Sharp tips, knife edges and thin walls pressed into the palm and the fingertips (issue 14).
 
-Each run: the embedded hand at rest in hand_only, one object (physhand_mj.cases) pressed from 2 mm
+Each run: the embedded hand at rest in hand_only, one object (physhand_mj.bench.cases) pressed from 2 mm
 outside to ``depth`` into the rest skin over 8 frames (or starting there), held 10 frames, pulled
 20 mm out over 4 frames and left away 6 frames; default Config (multires, the object's features,
 side-aware exits, the 25 mm tether). Asserted every frame: positions finite, no skin vertex over 25
@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 import physhand_mj as ph
-from physhand_mj.cases import Case, press_case
+from physhand_mj.bench.cases import Case, press_case
 from physhand_mj.types import GeomType
 from stress_harness import Stress, press_schedule
 

@@ -24,7 +24,7 @@ from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
 import physhand_mj as ph
-from physhand_mj.cases import Case, press_case
+from physhand_mj.bench.cases import Case, press_case
 from physhand_mj.types import GeomType
 from stress_harness import Stress, press_schedule
 

@@ -1,6 +1,8 @@
-"""A batch's model tiled on the device: one world's arrays uploaded once, W copies made by kernels.
+"""W worlds in one model (batching as data the model carries): the checks, the layout, and one
+world's model tiled into W, on the host (:func:`tile_model_arrays`) or on the device (:func:`tile_model`:
+one world's arrays uploaded once, W copies made by kernels).
 
-:func:`physhand_mj.batch.tile_model_arrays` tiles one world's host arrays into the W-world layout in
+:func:`tile_model_arrays` tiles one world's host arrays into the W-world layout in
 numpy (every index array shifted world by world, per-vertex arrays skins first) and
 :func:`~physhand_mj.solver.model.upload_model` copies the result to the device: at W = 1024 that is
 several GB written by one host thread and then sent over the bus. :func:`tile_model` uploads one
@@ -22,6 +24,10 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+
+from physhand_mj.solver.gather import GATHER_LANES
+from physhand_mj.solver.model import FAMILIES, JACOBI_GROUPS, upload_model, vertex_world
+from physhand_mj.types import Model
 
 wp.set_module_options({"enable_backward": False})
 
@@ -142,11 +148,7 @@ def tile_model(a: dict, worlds: int, cfg):
     (:func:`~physhand_mj.solver.model.model_arrays`), tiled on ``cfg.device``: the Model of
     ``upload_model(tile_model_arrays(a, worlds), cfg)``, array for array, without the W-wide host
     arrays. Same checks (the colored scheme, int32 indices)."""
-    from physhand_mj.batch import _tile_checks, slot_shifts
-    from physhand_mj.solver.model import FAMILIES, JACOBI_GROUPS, upload_model
-    from physhand_mj.types import Model
-
-    W = _tile_checks(a, worlds)
+    W = tile_checks(a, worlds)
     one = upload_model(a, cfg)  # one world, on the device
     dev = wp.get_device(cfg.device)
     n, ns, nb = int(a["n_vertices"]), int(a["n_skin"]), len(a["body_names"])
@@ -204,3 +206,123 @@ def tile_model(a: dict, worlds: int, cfg):
         vertex_world=launch(tile_vertex_world, W * n, [n, ns, W], wp.empty(W * n, dtype=int, device=dev)),
         worlds=W, gather_off=gather_off, gather_slot=gather_slot, slot_base=slot_base, n_slots=int(n_slots),
     )
+
+
+def check_worlds(worlds) -> None:
+    if not (isinstance(worlds, (int, np.integer)) and worlds >= 1):
+        raise ValueError(f"worlds must be an integer >= 1, got {worlds!r}")
+
+
+def tile_checks(a: dict, worlds) -> int:
+    """Whether one world's model arrays ``a`` tile into ``worlds`` worlds (ValueError naming the
+    fix); returns W."""
+    check_worlds(worlds)
+    if any(len(r) > 1 for r in a["colors"].values()):
+        raise ValueError("tile_model_arrays tiles Jacobi arrays only: the colored scheme's colours span "
+                         "the whole body (build its batch from replicate_asset)")
+    W = int(worlds)
+    n = int(a["n_vertices"])
+    # (the Jacobi apply launches max(GATHER_LANES) threads a vertex)
+    per_world = max([max(GATHER_LANES) * (n + 1)] + [np.asarray(a[f"{f}_ids"]).size for f in ("edge", "tet", "dih")])
+    if W * per_world >= 2**31:  # vertex, constraint and slot indices are int32 on the device
+        raise ValueError(f"{W} worlds exceed the device's int32 indices ({W} x {per_world} >= 2^31): "
+                         f"use at most {(2**31 - 1) // per_world} worlds per batch")
+    return W
+
+
+def slot_shifts(a: dict, group, slots, worlds: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """One world's gather slot ids ``slots`` of Jacobi group ``group`` (solver/gather.py) in the
+    W-world layout: world 0's slot of each entry and how far one world moves it (one world's slot
+    base + l C + j, corner l of row j of C rows, is W base + l W C + w C + j in world w), and the
+    families' W-world slot bases."""
+    W = int(worlds)
+    slots = np.asarray(slots, np.int64)
+    first, step, bases = np.zeros(len(slots), np.int64), np.zeros(len(slots), np.int64), {}
+    for name in group:
+        base, rows, size = a["slot_base"][name], len(a[f"{name}_ids"]), np.asarray(a[f"{name}_ids"]).size
+        f = (slots >= base) & (slots < base + size)
+        r = slots[f] - base
+        first[f] = W * base + (r // max(rows, 1)) * W * rows + r % max(rows, 1)
+        step[f] = rows
+        bases[name] = W * base
+    return first, step, bases
+
+
+def tile_model_arrays(a: dict, worlds: int) -> dict:
+    """One world's host model arrays (``solver.model.model_arrays``) tiled into ``worlds`` worlds laid
+    out as :func:`replicate_asset` lays them out (all skins first, world by world, then each world's
+    other vertices; bodies ``name#w``), every constraint family world by world. Each world's arrays
+    are the single hand's, so a world's model is the serial model exactly (its nearest-vertex
+    choices and rest angles included), and the cost is a copy: no per-world rebuild."""
+    W = tile_checks(a, worlds)
+    n, ns, nb = int(a["n_vertices"]), int(a["n_skin"]), len(a["body_names"])
+    w = np.arange(W)
+
+    def per_vertex(v):  # (n, ...) -> (W n, ...): skins first, then the rest, world by world
+        v = np.asarray(v)
+        return np.concatenate([np.tile(v[:ns], (W,) + (1,) * (v.ndim - 1)),
+                               np.tile(v[ns:], (W,) + (1,) * (v.ndim - 1))])
+
+    def bodies(v):  # (ns,) body indices per skin vertex -> world by world, shifted by w nb (-1 stays)
+        v = np.asarray(v)
+        t = np.tile(v, W)
+        return np.where(t >= 0, t + np.repeat(w * nb, len(v)), -1).astype(v.dtype)
+
+    wv = vertex_world(W * n, W * ns, W)
+
+    def vertex_bodies(v):
+        v = np.asarray(v)
+        t = per_vertex(v)
+        return np.where(t >= 0, t + wv * nb, -1).astype(v.dtype)
+
+    def ids(v):  # (C, k) vertex ids -> (W C, k), world by world (int32, as the model stores them)
+        v = np.asarray(v, np.int32)
+        skin = v < ns
+        first = np.where(skin, v, v - ns + W * ns).astype(np.int32)  # world 0's ids
+        step = np.where(skin, ns, n - ns).astype(np.int32)  # how far one world moves each
+        out = np.empty((W,) + v.shape, np.int32)
+        out[0] = first
+        for k in range(1, W):  # one add per world, in place (10 x faster than a broadcast product)
+            np.add(out[k - 1], step, out=out[k])
+        return out.reshape((-1,) + v.shape[1:])
+
+    def tiled(v):
+        v = np.asarray(v)
+        return np.tile(v, (W,) + (1,) * (v.ndim - 1))
+
+    # the stored dtypes (solver.model.upload_model) before tiling: each element is cast once, not W times
+    a = dict(a, **{k: np.asarray(a[k], np.float32) for k in (
+        "rest_x", "inv_mass", "body_local", "skin_local", "edge_rest", "edge_alpha", "tet_rest6v", "tet_alpha",
+        "dih_rest", "vertex_count")})
+    sizes = {name: np.asarray(a[f"{name}_ids"]).size for name in ("edge", "tet", "dih")}
+    counts = np.asarray(a["vertex_count"])
+    out = dict(
+        a, n_vertices=W * n, n_skin=W * ns, worlds=W,
+        body_names=tuple(f"{b}#{k}" for k in range(W) for b in a["body_names"]),
+        rest_x=per_vertex(a["rest_x"]), inv_mass=per_vertex(a["inv_mass"]),
+        vertex_body=vertex_bodies(a["vertex_body"]), body_local=per_vertex(a["body_local"]),
+        vertex_carrier=vertex_bodies(a["vertex_carrier"]),
+        vertex_world=wv.astype(np.int32),
+        skin_body=bodies(a["skin_body"]), skin_local=tiled(a["skin_local"]),
+        edge_ids=ids(a["edge_ids"]), edge_rest=tiled(a["edge_rest"]), edge_alpha=tiled(a["edge_alpha"]),
+        edge_is_att=tiled(a["edge_is_att"]),
+        tet_ids=ids(a["tet_ids"]), tet_rest6v=tiled(a["tet_rest6v"]), tet_alpha=tiled(a["tet_alpha"]),
+        dih_ids=ids(a["dih_ids"]), dih_rest=tiled(a["dih_rest"]),
+        skin_faces=ids(a["skin_faces"]), guard_tets=ids(a["guard_tets"]),
+        vertex_count=np.concatenate([np.tile(counts[:, :ns], (1, W)), np.tile(counts[:, ns:], (1, W))], axis=1),
+        colors={name: ([(0, W * len(a[f"{name}_ids"]))] if sizes[name] else []) for name in sizes},
+        body_rest_pos=tiled(a["body_rest_pos"]), body_rest_quat=tiled(a["body_rest_quat"]),
+        gather_off=[], gather_slot=[], slot_base={},
+    )
+    for group, off, slots in zip(JACOBI_GROUPS, a["gather_off"], a["gather_slot"]):  # solver/gather.py
+        # one world's slot base + l C + j (corner l of row j, C rows) is W base + l W C + w C + j in world w
+        off = np.asarray(off, np.int64)
+        first, step, bases = slot_shifts(a, group, slots, W)
+        out["slot_base"].update(bases)
+        parts = [first[off[lo]:off[hi]] + k * step[off[lo]:off[hi]] for lo, hi in ((0, ns), (ns, n)) for k in range(W)]
+        out["gather_slot"].append(np.concatenate(parts).astype(np.int32))
+        cnt = per_vertex(np.diff(off))
+        toff = np.zeros(W * n + 1, np.int64)
+        np.cumsum(cnt, out=toff[1:])
+        out["gather_off"].append(toff.astype(np.int32))
+    return out

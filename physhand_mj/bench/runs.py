@@ -7,32 +7,15 @@ second captures the CUDA graph on GPUs), synchronised with the device every fram
 from __future__ import annotations
 
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
+from physhand_mj.bench.cases import CONE, SHEET
+from physhand_mj.launch import device_name
+
 CACHE = Path(os.environ.get("PHYSHAND_CACHE", Path.home() / ".cache" / "physhand_mj"))
-
-
-def device_name(device: str) -> str:
-    """A human name for a Warp device: the GPU model, or the CPU model and core count."""
-    import warp as wp
-
-    d = wp.get_device(device)
-    if d.is_cuda:
-        return f"{d.alias} ({d.name})"
-    model = platform.processor() or "cpu"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"cpu ({model}, {os.cpu_count()} cores, Warp CPU kernels single-threaded)"
-
 
 def hand_asset(resolution: int | None = None, asset_path: str | Path | None = None):
     """The embedded hand, an asset file, or the MyoHand rebuilt with ``resolution`` skin vertices
@@ -119,8 +102,6 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
     )
 
 
-CONE = dict(radius=0.06, height=0.10)  # m: the analytic cone, tip at the origin
-SHEET = dict(nx=50, ny=48, spacing=0.005, height=0.005)  # 2,400 vertices, 5 mm apart, 5 mm above the tip
 
 
 def bench_cone(contact: str = "multires", device: str = "cpu", steps: int = 30, substeps: int = 10,
@@ -187,7 +168,7 @@ def _queries(cfg) -> int:
 
 def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False, frames: int | None = None,
                    repeats: int | None = None, workloads=None, progress=None) -> dict:
-    """What accuracy costs in time (physhand_mj/accuracy.py): every swept contact setting on the HOI
+    """What accuracy costs in time (physhand_mj/bench/accuracy.py): every swept contact setting on the HOI
     grasps and hard cases; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
     ``.json`` (the rows, one row per setting with its Pareto flags, the device) and ``.png`` (the
     Pareto fronts). ``quick``: 2 settings, 2 workloads, 2 frames, 1 repeat (a smoke run)."""
@@ -196,7 +177,7 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
 
     import warp as wp
 
-    from physhand_mj import accuracy as acc
+    from physhand_mj.bench import accuracy as acc
 
     wp.init()
     if device.startswith("cuda") and not wp.is_cuda_available():

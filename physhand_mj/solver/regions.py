@@ -184,7 +184,7 @@ class RegionSleep:
 
     def boxes(self, poses: np.ndarray) -> np.ndarray:
         """(R, 2, 3) m: each region's skin bound for bone poses (B, 7) [p, q x y z w]."""
-        from physhand_mj.solver.model import quat_to_mat
+        from physhand_mj.rotations import quat_to_mat
 
         rot = quat_to_mat(poses[:, [6, 3, 4, 5]].astype(np.float64))
         centre = np.einsum("bij,bj->bi", rot, self._centre_local) + poses[:, :3]
@@ -200,7 +200,8 @@ class RegionSleep:
     def before_frame(self, p0: np.ndarray, p1: np.ndarray) -> None:
         """Wake the regions this frame's bone motion (poses (B, 7) at its start and end) or a near
         object calls for, and put to sleep those that have been still long enough."""
-        from physhand_mj.solver.sleep import SLEEP_TURN, _turn, bone_motions
+        from physhand_mj.rotations import pose_turn
+        from physhand_mj.solver.sleep import SLEEP_TURN, bone_motions
 
         cfg = self.solver.config
         tol = cfg.sleep_bone_motion
@@ -221,7 +222,7 @@ class RegionSleep:
                 near_bones = np.concatenate([self.bones[q] for q in np.flatnonzero(self.neighbours[r])])
                 since = bone_motions(onset, p1)[near_bones].max(initial=0.0)
                 if (self._moved[r] > tol or since > tol or self.near[r] or np.linalg.norm(vel - vel0) > cfg.sleep_speed
-                        or _turn(onset[0], p1[0]) > SLEEP_TURN):
+                        or pose_turn(onset[0], p1[0]) > SLEEP_TURN):
                     self.asleep[r] = False
                     self.still[r] = 0
                     self.onset[r] = None
@@ -256,7 +257,7 @@ class RegionSleep:
     def after_frame(self, poses: np.ndarray) -> None:
         """After the frame's sync: count still frames per region (bones, vertex speeds, objects near
         its skin bound at the frame's end bone ``poses`` (B, 7))."""
-        from physhand_mj.activity import objects_near
+        from physhand_mj.solver.activity import objects_near
 
         cfg = self.solver.config
         fast = self._fast_host.numpy()

@@ -18,13 +18,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from physhand_mj.solver.solver import _compose_quat
+from physhand_mj.rotations import compose_quat
 from physhand_mj.types import GeomType
+
+# the paper's cone experiment (section 4.2): physhand bench cone and the accuracy sweep's cone:paper
+CONE = dict(radius=0.06, height=0.10)  # m: the analytic cone, tip at the origin
+SHEET = dict(nx=50, ny=48, spacing=0.005, height=0.005)  # 2,400 vertices, 5 mm apart, 5 mm above the tip
+
 
 SITES = ("fingertip", "palm")
 
 
-def _rot_z_to(n: np.ndarray) -> np.ndarray:
+def rot_z_to(n: np.ndarray) -> np.ndarray:
     """Quaternion (w x y z) rotating +z onto unit vector n."""
     z = np.array([0.0, 0.0, 1.0])
     n = n / np.linalg.norm(n)
@@ -81,7 +86,7 @@ class Case:
     lay: bool = False  # turn the geom's z axis across the normal (a capsule lying on the skin)
 
 
-def _wedge(angle_deg=30.0, length=0.02, height=0.012):
+def wedge(angle_deg=30.0, length=0.02, height=0.012):
     """A knife edge: a triangular prism, its edge along x at z = 0 (the lead), opening toward -z."""
     half = height * np.tan(np.radians(angle_deg) / 2)
     prof = np.array([[0.0, 0.0], [-half, -height], [half, -height]])  # (y, z)
@@ -91,7 +96,7 @@ def _wedge(angle_deg=30.0, length=0.02, height=0.012):
     return m.vertices.copy(), m.faces.copy()  # outward-wound
 
 
-def _cone_mesh(angle_deg=30.0, height=0.015, sections=24):
+def cone_mesh(angle_deg=30.0, height=0.015, sections=24):
     import trimesh
 
     r = height * np.tan(np.radians(angle_deg) / 2)
@@ -113,10 +118,10 @@ def press_case(kind: str, site: str = "fingertip", depth: float = 0.003, start: 
     if kind == "cone_tip":
         return Case(kind, GeomType.CONE, (0.004, 0.012, 0.0), site=site, depth=depth, start=start)
     if kind == "mesh_cone":
-        v, f = _cone_mesh()
+        v, f = cone_mesh()
         return Case(kind, GeomType.MESH, vertices=v, faces=f, site=site, depth=depth, start=start)
     if kind == "knife":
-        v, f = _wedge()
+        v, f = wedge()
         return Case(kind, GeomType.MESH, vertices=v, faces=f, site=site, depth=depth, start=start)
     if kind == "plate":
         return Case(kind, GeomType.BOX, (0.012, 0.0005, 0.008), lead=0.008, site=site, depth=depth, start=start,
@@ -147,15 +152,15 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
 
     import physhand_mj as ph
     from physhand_mj.contact import Objects
-    from physhand_mj.metrics import summarize
+    from physhand_mj.contact.metrics import summarize
     from physhand_mj.solver import Solver, make_model
 
     asset = asset if asset is not None else ph.load_asset()
     cfg = config.validate()
     p0, n = site_point(asset, case.site)
-    quat = _compose_quat(_rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
+    quat = compose_quat(rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
     if case.lay:  # a quarter turn about the geom x axis: its z axis lies across the normal
-        quat = _compose_quat(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
+        quat = compose_quat(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
     objs = Objects(str(cfg.device or "cpu"), 1)
 
     def place(depth_now):

@@ -10,9 +10,9 @@ workload:
 
 - ``hoi:<scene>``: a generated HOI grasp (docs/hoi.md) from its keyframe, the hand settled without
   contact first (as ``physhand rollout`` does), then ``frames`` frames of ``SoftHand.step``;
-- ``case:<kind>@<site>``: a hard case (physhand_mj/cases.py) pressed 4 mm into the rest skin from
+- ``case:<kind>@<site>``: a hard case (physhand_mj/bench/cases.py) pressed 4 mm into the rest skin from
   2 mm outside over 15 frames, then held; ``Solver.step`` alone;
-- ``cone:paper``: the paper's cone experiment (section 4.2; physhand_mj.bench.bench_cone's sheet and
+- ``cone:paper``: the paper's cone experiment (section 4.2; physhand_mj.bench.runs.bench_cone's sheet and
   cone): a 2,400-vertex open sheet falls on an analytic cone; ``Solver.step``; an open sheet has no
   inside, so only the skin side is measured (the object features and side-aware exits need a closed
   skin and do not run: a setting's feature knobs make no difference here).
@@ -158,7 +158,7 @@ def _hoi_run(scene: str, pt: SweepPoint, device: str, frames: int, hold_frames: 
 
 
 def _case_run(kind: str, site: str, pt: SweepPoint, device: str, frames: int, hold_frames: int, asset) -> dict:
-    from physhand_mj.cases import press_case, run_case
+    from physhand_mj.bench.cases import press_case, run_case
 
     r = run_case(press_case(kind, site=site, depth=0.004, start=0.002), pt.config(device), frames=frames,
                  asset=asset)
@@ -169,13 +169,13 @@ def _case_run(kind: str, site: str, pt: SweepPoint, device: str, frames: int, ho
 
 def _cone_run(pt: SweepPoint, device: str, frames: int, hold_frames: int) -> dict:
     """The paper's cone experiment under setting ``pt`` (the sheet's own material, as
-    physhand_mj.bench.bench_cone builds it; the setting's strategy, passes, substeps, iterations)."""
+    physhand_mj.bench.runs.bench_cone builds it; the setting's strategy, passes, substeps, iterations)."""
     from dataclasses import replace
 
-    from physhand_mj.bench import CONE, SHEET
+    from physhand_mj.bench.cases import CONE, SHEET
     from physhand_mj.bodies import sheet
     from physhand_mj.contact import Objects
-    from physhand_mj.metrics import summarize
+    from physhand_mj.contact.metrics import summarize
     from physhand_mj.solver import Solver, make_model
     from physhand_mj.types import GeomType
 
@@ -210,7 +210,7 @@ ROW_COLUMNS = ["point", "workload", "contact", "samples", "rounds", "features", 
 def check_workloads(workloads) -> None:
     """Raise ValueError naming the first workload that is not hoi:SCENE or case:KIND@SITE."""
     import physhand_mj as ph
-    from physhand_mj.cases import SITES, press_case
+    from physhand_mj.bench.cases import SITES, press_case
 
     for w in workloads:
         kind, _, spec = w.partition(":")
