@@ -32,12 +32,12 @@ def _solver_case(device, objects_at, skip_idle=True, radius=0.02, sleep=False):
     from physhand_mj.contact import Objects
     from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
     from physhand_mj.solver import Solver, make_model
-    from physhand_mj.types import Config, GeomType
+    from physhand_mj.types import Config, Execution, GeomType
 
     asset = ph.load_asset()
     _, model, data = open_hand_scene("hand_only", "open")
     poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
-    cfg = Config(device=device, skip_idle=skip_idle, **({} if sleep else {"sleep_speed": 0.0}))
+    cfg = Config(device=device, **({} if sleep else {"sleep_speed": 0.0}), execution=Execution(skip_idle=skip_idle))
     objects = None
     if objects_at is not None:
         objects = Objects(device, 1)

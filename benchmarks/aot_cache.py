@@ -64,10 +64,10 @@ def decision_modules_with_lineinfo() -> list:
     """The decision-point kernels' modules with line info on, for Nsight Compute's source view
     (``batch_hoi.py --lineinfo`` sets the same): contact.query's (the generic kernel), contact.query_lanes'
     and the capped multires kernel's (128 registers, blocks of 256). Returns their Warp modules."""
-    from physhand_mj.contact import query, query_lanes
+    from physhand_mj.contact import query
 
     mods = []
-    for m in (query, query_lanes):
+    for m in (query,):
         wp.set_module_options({"lineinfo": True}, module=m)
         mods.append(wp.get_module(m.__name__))
     k = query.multires_kernel(128, 256)

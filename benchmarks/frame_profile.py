@@ -38,7 +38,7 @@ def run(device: str, frames: int, graph: bool = True, profile: bool = False, war
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    hand = ph.SoftHand(model, data, ph.Config(device=device, cuda_graph=graph, **config), settle_frames=2)
+    hand = ph.SoftHand(model, data, ph.Config(device=device, **config, execution=ph.Execution(cuda_graph=graph)), settle_frames=2)
     for _ in range(warmup):
         mujoco.mj_step(model, data)
         hand.step()

@@ -35,7 +35,7 @@ def main() -> None:
     from physhand_mj.batch import BatchedHands
     from physhand_mj.bench import device_name
     from physhand_mj.solver import fused
-    from physhand_mj.types import Config
+    from physhand_mj.types import Config, Execution
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from batch_throughput import bending_poses, hand_only_setup
@@ -58,7 +58,7 @@ def main() -> None:
     for w in [int(s) for s in a.worlds.split(",")]:
         poses = bending_poses(model, data, ids, w)
 
-        runs = {name: BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, fused_substep=flag), *mount)
+        runs = {name: BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, execution=Execution(fused_substep=flag)), *mount)
                 for name, flag in (("five_launch", False), ("fused", True))}
         inputs = [poses(f) for f in range(2 + a.frames)]  # (bone poses from MuJoCo: not timed)
         times = {name: [] for name in runs}

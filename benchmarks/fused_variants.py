@@ -62,7 +62,7 @@ def main() -> None:
     from physhand_mj.batch import BatchedHands
     from physhand_mj.bench import device_name
     from physhand_mj.solver import fused
-    from physhand_mj.types import Config
+    from physhand_mj.types import Config, Execution
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from batch_throughput import bending_poses, hand_only_setup
@@ -96,7 +96,7 @@ def main() -> None:
             for k, v in zip(switches, VARIANTS[name]):
                 setattr(fused, k, v)
             try:
-                runs[name] = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, fused_substep=True), *mount)
+                runs[name] = BatchedHands(asset, w, Config(device=a.device, sleep_speed=0.0, execution=Execution(fused_substep=True)), *mount)
                 runs[name].step(*inputs[0])  # (its kernel built and its frame recorded with these switches)
             finally:
                 for k, v in zip(switches, saved):

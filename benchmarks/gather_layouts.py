@@ -62,7 +62,7 @@ def main() -> None:
     a = p.parse_args()
     wp.init()
     d = a.device
-    cfg = ph.Config(device=d, jacobi_gather=True)
+    cfg = ph.Config(device=d, execution=ph.Execution(jacobi_gather=True))
     one = model_arrays(ph.load_asset(), cfg, batch=True)
     m = tile_model_arrays(one, a.worlds)
     n = m["n_vertices"]

@@ -42,7 +42,7 @@ def path_config(device: str, over: dict, path: int, perturb: float):
     """Config(device, **over) on path ``path``: contact_offset x (1 + path x perturb)."""
     over = dict(over)
     offset = over.pop("contact_offset", ph.Config().contact_offset)
-    return ph.Config(device=device, contact_offset=offset * (1.0 + path * perturb), **over)
+    return ph.Config(device=device, **over, tuning=ph.Tuning(contact_offset=offset * (1.0 + path * perturb)))
 
 
 def held_residue(r: dict, frames: int) -> tuple:

@@ -29,7 +29,7 @@ def run(device: str, gather: bool, frames: int):
 
     asset, model, data = ph.open_hand_scene("hand_only", "open")
     bones = ph.body_ids(model, asset.body_names)
-    config = ph.Config(device=device, jacobi_gather=gather, sleep_speed=0.0)
+    config = ph.Config(device=device, sleep_speed=0.0, execution=ph.Execution(jacobi_gather=gather))
     solver = ph.Solver(ph.make_model(asset, config), config)
     state = solver.make_state(*ph.mount_pose(model, data))
     for k in range(8):

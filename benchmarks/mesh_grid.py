@@ -49,7 +49,7 @@ def run_scene(device: str, spacing: float, frames: int, extra: dict | None = Non
     mujoco.mj_resetDataKeyframe(model, data, model.key("grasp").id)
     mujoco.mj_forward(model, data)
     t0 = time.perf_counter()
-    hand = ph.SoftHand(model, data, ph.Config(device=device, mesh_grid=spacing, **(extra or {})))
+    hand = ph.SoftHand(model, data, ph.Config(device=device, **(extra or {}), execution=ph.Execution(mesh_grid=spacing)))
     setup = time.perf_counter() - t0
     ms = []
     for _ in range(frames):

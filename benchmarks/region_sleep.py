@@ -48,7 +48,7 @@ def main() -> None:
     # region sleep on; off (the default whole-hand sleep only, which does not act while a finger
     # bends); nothing ever sleeps (the reference of the difference)
     for name, regions, speed in (("regions", True, 3e-3), ("default", False, 3e-3), ("never", False, 0.0)):
-        cfg = ph.Config(device=a.device, region_sleep=regions, sleep_speed=speed, sleep_frames=10)
+        cfg = ph.Config(device=a.device, region_sleep=regions, sleep_speed=speed, tuning=ph.Tuning(sleep_frames=10))
         solver = Solver(make_model(asset, cfg), cfg)
         host = [0.0]
         if solver.regions is not None:  # the region decisions' host time (numpy, per frame)

@@ -31,10 +31,11 @@ from physhand_mj.hand_mjcf import (  # noqa: E402
     HAND_XML, body_ids, bone_poses_at, mount_pose, open_hand_scene, rest_skin_world, scene_path, set_skin_vertices)
 from physhand_mj.render import RenderUnavailable  # noqa: E402
 from physhand_mj.solver import Solver, SolverError, make_model  # noqa: E402
-from physhand_mj.types import Config, Layer, Model, NonFinite, Placement, Scheme, State, Strategy  # noqa: E402
+from physhand_mj.types import (Config, Execution, Layer, Model, NonFinite, Placement, Scheme, Settings, State,  # noqa: E402
+                               Strategy, Tuning)
 
 __version__ = "0.1.0"
-__all__ = ["add_skin", "SkinAttachment", "BatchedHands", "replicate_asset", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "HandAsset", "Layer", "Model",
+__all__ = ["add_skin", "SkinAttachment", "BatchedHands", "replicate_asset", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "Execution", "Settings", "Tuning", "HandAsset", "Layer", "Model",
            "NonFinite", "Placement", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
            "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",
            "set_skin_vertices", "soft_body", "Strategy"]

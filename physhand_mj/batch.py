@@ -100,7 +100,7 @@ class BatchedHands:
 
         check_worlds(worlds)
         self.asset, self.worlds = asset, int(worlds)
-        self.config = config if config is not None else Config()
+        self.config = (config if config is not None else Config()).validate()
         from physhand_mj.types import NonFinite
 
         if NonFinite(self.config.nonfinite) != NonFinite.RECOVER:

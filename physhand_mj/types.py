@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from physhand_mj.config import MAX_STABLE_SUBSTEP, PRESETS, Config
+from physhand_mj.config import MAX_STABLE_SUBSTEP, PRESETS, Config, Execution, Settings, Tuning
 from physhand_mj.enums import GeomType, Layer, NonFinite, Placement, Scheme, Strategy
 
-__all__ = ["MAX_STABLE_SUBSTEP", "PRESETS", "Config", "GeomType", "Layer", "NonFinite", "Placement", "Scheme",
+__all__ = ["MAX_STABLE_SUBSTEP", "PRESETS", "Config", "Execution", "Settings", "Tuning", "GeomType", "Layer", "NonFinite", "Placement", "Scheme",
            "Strategy", "Model", "State", "SolverError"]
 
 

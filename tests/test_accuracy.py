@@ -118,7 +118,7 @@ def test_config_presets_are_the_recommended_sweep_points():
     want = {"default": "multires 21x2+feat+side p8 s10", "interactive": "multires 21x2+feat+side p8 s5",
             "dataset": "opt+feat+side p8 s10", "robot_pads": "opt+feat+side p8 s5"}
     for preset, point in want.items():
-        a = dataclasses.asdict(Config.preset(preset, device="cpu"))
+        a = dataclasses.asdict(Config.preset(preset, device="cpu").validate())
         b = dataclasses.asdict(by_name[point].config("cpu").validate())
         assert a == b, (preset, {k: (a[k], b[k]) for k in a if a[k] != b[k]})
     assert Config.preset("interactive", substeps=7).substeps == 7  # overrides win

@@ -5,6 +5,7 @@ no result, and switching an effect off removes exactly its launches (sleeping: t
 import numpy as np
 import pytest
 
+from physhand_mj.config import Tuning
 import physhand_mj as ph
 from activity_helpers import FAR, R, _solver, _step, scene  # noqa: F401 (scene: a fixture)
 from physhand_mj.solver.activity import _Gate
@@ -206,7 +207,7 @@ def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
     assert all(o["penetration_count"] == 0 for o in o3)
     assert np.array_equal(x5, x6), float(np.abs(x5 - x6).max())  # ungated: not applied
     with pytest.raises(ValueError, match="contact_pass_tol"):
-        Config(contact_pass_tol=-1e-4).validate()
+        Config(tuning=Tuning(contact_pass_tol=-1e-4)).validate()
 
 def _recorded(solver, state, poses):
     _step(solver, state, poses)

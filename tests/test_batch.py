@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from physhand_mj.config import Execution, Tuning
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands, replicate_asset
 from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
@@ -62,12 +63,12 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
 
     asset = setup[0]
     W = 3
-    cfg = Config(device="cpu", jacobi_gather=True).validate()
+    cfg = Config(device="cpu", execution=Execution(jacobi_gather=True)).validate()
     t = tile_model_arrays(model_arrays(asset, cfg), W)
     r = model_arrays(replicate_asset(asset, W), cfg)
     with pytest.raises(ValueError, match="colored"):  # its colours span the body: not tileable
-        tile_model_arrays(model_arrays(asset, Config(device="cpu", scheme=ph.Scheme.COLORED).validate()), W)
-    t_atomic = tile_model_arrays(model_arrays(asset, Config(device="cpu", jacobi_gather=False).validate()), W)
+        tile_model_arrays(model_arrays(asset, Config(device="cpu", tuning=Tuning(scheme=ph.Scheme.COLORED)).validate()), W)
+    t_atomic = tile_model_arrays(model_arrays(asset, Config(device="cpu", execution=Execution(jacobi_gather=False)).validate()), W)
     f32 = ("rest_x", "inv_mass", "body_local", "skin_local", "vertex_count")
     for k in ("vertex_body", "vertex_carrier", "vertex_world", "skin_body", "skin_faces", "guard_tets",
               "tet_ids", "dih_ids", "body_rest_pos", "body_rest_quat") + f32:
@@ -120,7 +121,7 @@ def test_model_tiled_on_the_device_equals_the_host_tiling(setup, gather, device)
     from physhand_mj.solver.worlds import tile_model
     from physhand_mj.solver.model import model_arrays, upload_model
 
-    cfg = Config(device=device, jacobi_gather=gather).validate()
+    cfg = Config(device=device, execution=Execution(jacobi_gather=gather)).validate()
     a = model_arrays(setup[0], cfg, batch=True)
     ref, got = upload_model(tile_model_arrays(a, 3), cfg), tile_model(a, 3, cfg)
     assert bool(got.gather_off) == gather
@@ -151,7 +152,7 @@ def test_batched_worlds_equal_serial_runs(setup, gather):
     q1 = q0.copy()
     q1[model.jnt_qposadr[model.joint("mcp2_flexion_r").id]] += 0.6
     open_, bent = (bone_poses_at(model, data, q, ids) for q in (q0, q1))
-    cfg = Config(device="cpu", jacobi_gather=gather)
+    cfg = Config(device="cpu", execution=Execution(jacobi_gather=gather))
     batch = BatchedHands(asset, 2, cfg, *mount)
     serial = []
     for _ in range(2):
@@ -525,7 +526,7 @@ def test_kernel_choices_follow_the_batch(setup):
     lone = BatchedHands(asset, 1, Config(device="cuda"), objects=ball)  # a batch of one is one hand
     assert not lone.solver.model.gather_off and lone.solver.contact.tiled
     assert lone.solver.contact.tiled_features and not lone.solver.contact.feature_scan  # a block per feature
-    forced = BatchedHands(asset, 2, Config(device="cuda", tiled_contact=True, jacobi_gather=False), objects=ball)
+    forced = BatchedHands(asset, 2, Config(device="cuda", execution=Execution(tiled_contact=True, jacobi_gather=False)), objects=ball)
     assert not forced.solver.model.gather_off and forced.solver.contact.tiled
     from physhand_mj.contact import Objects
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from physhand_mj.config import Tuning
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands
 from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
@@ -132,7 +133,7 @@ def test_a_pipelined_batch_falls_asleep_and_wakes_when_step_does(setup):
     moved = pos.copy()
     moved[1, 5:] += [0.0, 0.0, 2e-3]  # world 1's later bones 2 mm up: the hand must wake
     plan = [(pos, quat)] * 75 + [(moved, quat)] * 2  # (asleep from frame ~70 with these settings)
-    cfg = Config(device="cpu", sleep_speed=0.02, sleep_frames=3)
+    cfg = Config(device="cpu", sleep_speed=0.02, tuning=Tuning(sleep_frames=3))
     a = BatchedHands(asset, 2, cfg, *mount)
     b = BatchedHands(asset, 2, cfg, *mount)
     by_step = [a.step(p, q)["asleep"] for p, q in plan]

@@ -162,7 +162,7 @@ def test_tiled_cuda_multires_matches_the_per_thread_kernel(monkeypatch):
     for tiled in (False, True, "strided"):
         if tiled == "strided":  # 7 blocks walking the list (entries b, b + 7, ...): launch.tiled_blocks' stride
             monkeypatch.setattr(contact_mod, "tiled_blocks", lambda device, n, block_dim: 7)
-        cfg = ph.Config(device="cuda", tiled_contact=bool(tiled), contact_passes=1)
+        cfg = ph.Config(device="cuda", contact_passes=1, execution=ph.Execution(tiled_contact=bool(tiled)))
         objs = Objects("cuda", 1)
         objs.add(GeomType.SPHERE, [0.03], name="ball")
         solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
@@ -416,7 +416,7 @@ def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
     out = {}
     for tiled in (False, True):
         r = run_case(press_case(kind, site=site, depth=0.004, start=start),
-                     ph.Config(device="cuda", tiled_features=tiled), frames=14, asset=asset)
+                     ph.Config(device="cuda", execution=ph.Execution(tiled_features=tiled)), frames=14, asset=asset)
         c = r["solver"].contact
         assert c.tiled_features == tiled and (c.feature_lanes == FEATURE_LANES)
         msg = {k: r[k][-4:].tolist() for k in ("skin_count", "dense_count", "dense_max_um", "obj_count", "obj_max_um")}

@@ -4,29 +4,12 @@ GPU machine (an H100, sm_90) fails here, before a device session spends its time
 import pytest
 import warp as wp
 
-from physhand_mj.contact import stage
-
 
 def _nvrtc_archs():
     wp.init()
     from warp._src.context import runtime
 
     return getattr(runtime, "nvrtc_supported_archs", None) or set()
-
-
-@pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")
-def test_the_one_block_contact_stage_builds_for_an_h100(tmp_path):
-    """contact/stage.py's kernel (Config.fused_stage) builds to sm_90 machine code with its
-    STAGE_LANES threads a block: at 512 ptxas refused it (66 KB of static shared memory, the BVH
-    traversal stacks of its mesh queries, against 48 KB), which a device session met as Warp's
-    'CUDA kernel build failed with error code 6'."""
-    old = dict(stage.contact_stage.module.options)
-    wp.set_module_options({"block_dim": stage.STAGE_LANES}, stage)
-    try:
-        out = wp.compile_aot_module(stage, arch=90, module_dir=tmp_path, use_ptx=False)
-    finally:
-        wp.set_module_options({"block_dim": old["block_dim"]}, stage)
-    assert out and all(p.exists() and p.stat().st_size > 0 for p in out)
 
 
 @pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")

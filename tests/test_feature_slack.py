@@ -10,6 +10,7 @@ import warp as wp
 
 import physhand_mj as ph
 from physhand_mj.bench.cases import press_case, run_case
+from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.contact.slack import UNLISTED, certify_features, next_slack, skin_motion, skin_reach
 from physhand_mj.contact.inside import object_point
@@ -101,11 +102,11 @@ def asset():
 
 
 @pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize("slack,share", [(4.0e-3, 0.5), (4.0e-3, 1.0), (1.0e-2, 0.5)])
-def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, slack, share, device):
+@pytest.mark.parametrize("slack", [4.0e-3, 1.0e-2])
+def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, slack, device):
     """A knife edge pressed 4 mm into the fingertip (frames 1-12 of the hard case; its edge's points
     are the features). At the last frame's start the listed points are exactly the feature points
-    within min(margin, contact_margin + share x slack) of the skin (Config.feature_list_share: 0.5,
+    within min(margin, contact_margin + share x slack) of the skin (config.FEATURE_LIST_SHARE: 0.5,
     the default, and 1.0, the lists before it; and those within the margin the pseudo
     normals put inside), each patch holds exactly the triangles
     within min(margin, d + slack) of its point; at the frame's end (the skin moved less than half
@@ -113,7 +114,7 @@ def test_lists_and_patches_match_brute_force_at_both_ends_of_the_frame(asset, sl
     unlisted feature point is within contact_margin of the skin. With the slack at the frame margin
     every feature point within the margin is listed with a patch of that radius (the lists before
     the slack). On CUDA the patches are a block's over every skin triangle (feature_patches_tiled)."""
-    _check_lists(asset, slack, device, share)
+    _check_lists(asset, slack, device)
 
 
 def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
@@ -138,8 +139,8 @@ def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
     assert used[0] == length.sum() and used[1] == length[top].sum() and used[2] == 0
 
 
-def _check_lists(asset, slack, device, share=0.5):
-    cfg = ph.Config(device=device, feature_slack=slack, feature_list_share=share)
+def _check_lists(asset, slack, device):
+    cfg = ph.Config(device=device, tuning=ph.Tuning(feature_slack=slack))
     r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), cfg, frames=12, check_order=5,
                  asset=asset)
     solver, state = r["solver"], r["state"]
@@ -159,7 +160,7 @@ def _check_lists(asset, slack, device, share=0.5):
     is_feature[c.points.feature.numpy()] = True
     # the frame's start: the skin the lists were made on
     x0 = c.x_start
-    reach = min(cfg.contact_frame_margin, cfg.contact_margin + cfg.feature_list_share * used)
+    reach = min(cfg.contact_frame_margin, cfg.contact_margin + FEATURE_LIST_SHARE * used)
     if used >= cfg.contact_frame_margin - 1e-9:  # (a slack at the margin lists every point within it)
         reach = cfg.contact_frame_margin
     d0, _ = _brute_force(c, x0, np.zeros(c.points.pts.shape[0]))
@@ -171,7 +172,7 @@ def _check_lists(asset, slack, device, share=0.5):
     # the band past the list's reach, within keep + slack: measured for the frame's check, not listed
     band = is_feature & ~np.isin(np.arange(len(d0)), feat) & (d0 <= min(cfg.contact_frame_margin,
                                                                          cfg.contact_margin + used) - 1e-7)
-    assert band.any() == (share < 1.0 and slack < cfg.contact_frame_margin)
+    assert band.any() == (FEATURE_LIST_SHARE < 1.0 and slack < cfg.contact_frame_margin)
     np.testing.assert_allclose(c.pt_dist.numpy()[band], d0[band], atol=1e-6)
     assert np.all(c.pt_face.numpy()[band] == -1)
     assert len(got) < int(np.count_nonzero(is_feature)) or slack >= cfg.contact_frame_margin
@@ -221,7 +222,7 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     0.4 mm of it fails. A capped patch of a point 8 mm inside with an 8 mm slack needs less move than
     the fast list's threshold: it fails with no fast vertex at all (8 mm outside: it passes). More
     fast vertices than the list holds fail the world. An unlisted point 3.2 mm from B, measured
-    (past the lists' keep + s / 2, Config.feature_list_share), needs a 2.7 mm move of B's vertex
+    (past the lists' keep + s / 2, config.FEATURE_LIST_SHARE), needs a 2.7 mm move of B's vertex
     towards it; not measured (taken as keep + s away) or listed, more. B swept through that point,
     ending far from it, fails (its vertices' ways passed through the point); so does a listed
     point's closest triangle passing through it (the point may now be inside)."""
@@ -299,7 +300,7 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
     # more fast vertices than the list holds (cap 1): the world fails, the next slack from its largest move
     r, nxt, n = check({3: (0, 0, 30e-3), 4: (0, 0, 30e-3)}, x0=far, cap=1)
     assert r[2] == 1 and n == 2 and nxt == pytest.approx(1e-2)
-    # Config.feature_list_share: a point 3.2 mm above B and one of B's vertices rising towards it. Not
+    # config.FEATURE_LIST_SHARE: a point 3.2 mm above B and one of B's vertices rising towards it. Not
     # measured (beyond the lists' reach, taken as keep + s away), a 2.9 mm move passes; measured in
     # the band past the lists' keep + s / 2 (pt_face -1: 3.2 mm), it needs 2.7 mm: 2.5 mm passes, 2.9
     # mm fails; the point listed 3.2 mm from B (face 1) needs 3.2 + 4 - 0.5 mm: 2.9 mm passes
@@ -360,15 +361,11 @@ def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset
 
 def test_feature_slack_must_be_a_distance():
     with pytest.raises(ValueError, match="feature_slack"):
-        ph.Config(feature_slack=-1e-3).validate()
+        ph.Config(tuning=ph.Tuning(feature_slack=-1e-3)).validate()
     with pytest.raises(ValueError, match="feature_slack"):
-        ph.Config(feature_slack=float("nan")).validate()
+        ph.Config(tuning=ph.Tuning(feature_slack=float("nan"))).validate()
     with pytest.raises(ValueError, match="feature_slack"):  # (0: every vertex fast, every frame flagged)
-        ph.Config(feature_slack=0.0).validate()
-    for share in (0.4, 1.5, float("nan"), True):  # (under half the slack a listed point's check fails unasked)
-        with pytest.raises(ValueError, match="feature_list_share"):
-            ph.Config(feature_list_share=share).validate()
-    ph.Config(feature_list_share=np.float64(0.75)).validate()
+        ph.Config(tuning=ph.Tuning(feature_slack=0.0)).validate()
 
 
 def test_the_slack_changes_no_push_on_the_cpu(asset):
@@ -376,17 +373,15 @@ def test_the_slack_changes_no_push_on_the_cpu(asset):
     changes which points are listed and the patches their winding numbers sum over. A cone tip
     started 4 mm deep in the fingertip (its skin jitters up to ~3 mm a frame around the tip, some
     frames flagged): the skin after 16 frames with the 4 mm slack equals the run listing at the frame
-    margin (the lists before the slack) to 1 um, and neither leaves anything inside; so does the run
-    listing within the whole slack (Config.feature_list_share 1, the default's half before)."""
+    margin (the lists before the slack) to 1 um, and neither leaves anything inside."""
     runs = {}
-    for slack, share in ((4.0e-3, 0.5), (1.0e-2, 0.5), (4.0e-3, 1.0)):
+    for slack in (4.0e-3, 1.0e-2):
         r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=-0.004),
-                     ph.Config(device="cpu", feature_slack=slack, feature_list_share=share), frames=16,
+                     ph.Config(device="cpu", tuning=ph.Tuning(feature_slack=slack)), frames=16,
                      check_order=5, asset=asset)
         assert r["skin_count"][-1] == 0 and r["obj_count"][-1] == 0 and r["check_count"][-1] == 0
-        runs[slack, share] = r["skin"]
-    np.testing.assert_allclose(runs[4.0e-3, 0.5], runs[1.0e-2, 0.5], atol=1e-6)
-    np.testing.assert_allclose(runs[4.0e-3, 0.5], runs[4.0e-3, 1.0], atol=1e-6)
+        runs[slack] = r["skin"]
+    np.testing.assert_allclose(runs[4.0e-3], runs[1.0e-2], atol=1e-6)
 
 
 def test_band_points_in_batched_worlds(asset):
@@ -412,7 +407,7 @@ def test_band_points_in_batched_worlds(asset):
     is_feature[c.points.feature.numpy()] = True
     listed = np.zeros(len(d0), bool)
     listed[c.feat.numpy()[: int(c.feat_count.numpy()[0])]] = True
-    lim = cfg.contact_margin + cfg.feature_list_share * used[world]
+    lim = cfg.contact_margin + FEATURE_LIST_SHARE * used[world]
     ask = cfg.contact_margin + used[world]
     edge = (np.abs(d0 - lim) < 1e-7) | (np.abs(d0 - ask) < 1e-7)  # (float rounding at the cuts)
     inside = _pseudo_inside(c, _cpu_arr(x0), cfg.contact_frame_margin)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from physhand_mj.config import Execution, Tuning
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands
 from physhand_mj.types import GeomType
@@ -57,8 +58,8 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device, sum_, monke
     asset, mount, open_, bent = setup
     # (jacobi_gather off: on CUDA a batch gathers by default and then stores its tets in Morton
     # order, so the tet multipliers would come in another row order than the fused run's)
-    ref, ref_out = _run(asset, mount, open_, bent, Config(device=device, fused_substep=False, jacobi_gather=False))
-    fz, fz_out = _run(asset, mount, open_, bent, Config(device=device, fused_substep=True))
+    ref, ref_out = _run(asset, mount, open_, bent, Config(device=device, execution=Execution(fused_substep=False, jacobi_gather=False)))
+    fz, fz_out = _run(asset, mount, open_, bent, Config(device=device, execution=Execution(fused_substep=True)))
     assert fz.solver._fused is not None and ref.solver._fused is None
     assert fz_out["ops_run"] < ref_out["ops_run"] - 3 * Config().substeps, (fz_out["ops_run"], ref_out["ops_run"])
     for w in range(2):
@@ -79,7 +80,7 @@ def test_fused_substep_equals_the_five_launch_substep(setup, device, sum_, monke
             assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max(), name
     if device != "cpu":  # (CUDA's five-launch reference adds in the atomics' order; the gather and the
         # fixed-point scatter, ACCUM "auto" on CUDA, add in no order that shows)
-        again, _ = _run(asset, mount, open_, bent, Config(device=device, fused_substep=True))
+        again, _ = _run(asset, mount, open_, bent, Config(device=device, execution=Execution(fused_substep=True)))
         for w in range(2):
             assert np.array_equal(again.positions(w), fz.positions(w)), f"world {w}: the {sum_} did not repeat"
     moved = np.abs(fz.positions(1) - fz.positions(0)).max()
@@ -95,7 +96,7 @@ def test_fused_substep_with_contact_and_one_hand(setup, placement):
     asset, mount, open_, bent = setup
     skins = []
     for fused in (False, None):  # None: the CPU's default, fused
-        cfg = Config(device="cpu", fused_substep=fused)
+        cfg = Config(device="cpu", execution=Execution(fused_substep=fused))
         solver = Solver(make_model(asset, cfg), cfg)
         assert (solver._fused is None) == (fused is False)
         state = solver.make_state(*mount)
@@ -107,7 +108,7 @@ def test_fused_substep_with_contact_and_one_hand(setup, placement):
     ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
     runs = []
     for fused in (False, True):
-        batch = BatchedHands(asset, 2, Config(device="cpu", fused_substep=fused, contact_placement=placement), *mount,
+        batch = BatchedHands(asset, 2, Config(device="cpu", tuning=Tuning(contact_placement=placement), execution=Execution(fused_substep=fused)), *mount,
                              objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
         skin = batch.skin(0)
         top = skin[np.argmax(skin[:, 2])].astype(float)
@@ -167,7 +168,7 @@ def test_cuda_batches_take_the_fused_substep_from_a_third_of_a_world_per_sm(setu
     for kw in (dict(jacobi_gather=True), dict(iterations=2), dict(scheme=Scheme.COLORED), dict(region_sleep=True),
                dict(fused_substep=False)):
         assert not fused_choice.cuda_auto(Config(**kw), asset, 4096, h100), kw
-    assert fused_choice.cuda_auto(Config(scheme="jacobi"), asset, 4096, h100)  # (a scheme given by name)
+    assert fused_choice.cuda_auto(Config(tuning=Tuning(scheme="jacobi")), asset, 4096, h100)  # (a scheme given by name)
     small = _H100()
     small.max_shared_memory_per_block = 100_000  # (a card whose block cannot hold a world)
     assert not fused_choice.cuda_auto(cfg, asset, 4096, small)
@@ -213,7 +214,7 @@ def test_fused_kernel_compiles_for_hopper_and_fits_a_block(setup, tmp_path, sum_
     monkeypatch.setattr(fused, "ACCUM", accum)  # (the CPU's "auto" is float)
     monkeypatch.setattr(fused, "MASS", mass)
     asset = setup[0]
-    cfg = Config(device="cpu", fused_substep=True)
+    cfg = Config(device="cpu", execution=Execution(fused_substep=True))
     fz = fused.FusedSubstep(make_model(asset, cfg), "cpu")
     assert fz.fixed == (accum == "fixed" and sum_ == "scatter") and fz.row_mass == (mass == "row")
     assert fz.n == asset.n_vertices and fz.n_soft == int((np.asarray(asset.layer) != Layer.SKELETON).sum())
@@ -243,12 +244,12 @@ def test_a_body_too_large_for_a_block_falls_back_or_is_refused(setup, monkeypatc
     monkeypatch.setattr(fused, "CPU_ARENA", 200_000)  # below the embedded hand's 207,504 bytes
     cpu = wp.get_device("cpu")
     for flag, expect in ((None, None), (False, None)):
-        cfg = Config(device="cpu", fused_substep=flag)
+        cfg = Config(device="cpu", execution=Execution(fused_substep=flag))
         assert fused_choice.choose(make_model(asset, cfg), cfg.validate(), cpu) is expect
-    cfg = Config(device="cpu", fused_substep=True)
+    cfg = Config(device="cpu", execution=Execution(fused_substep=True))
     with pytest.raises(ValueError, match="fused_substep.*207504 bytes"):
         Solver(make_model(asset, cfg), cfg)
-    cfg = Config(device="cpu", scheme="jacobi", fused_substep=True)  # (a scheme given by name)
+    cfg = Config(device="cpu", tuning=Tuning(scheme="jacobi"), execution=Execution(fused_substep=True))  # (a scheme given by name)
     assert cfg.validate().scheme == Scheme.JACOBI
 
 
@@ -269,8 +270,8 @@ def test_fused_substep_with_blocks_of_many_lanes_on_the_cpu(setup, monkeypatch, 
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     monkeypatch.setattr(fused, "BLOCK_DIM", 64)  # (its own kernel: the 1,024-thread one stays one lane)
     monkeypatch.setattr(fused, "SUM", sum_)
-    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
-    fz, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
+    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=False)), frames=4)
+    fz, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=True)), frames=4)
     tol = 0.0 if sum_ == "gather" else 1e-6  # (by vertex: the same order whatever the lanes)
     for w in range(2):
         diff = np.abs(fz.positions(w) - ref.positions(w)).max()
@@ -305,9 +306,9 @@ def test_fused_substep_in_strided_order(setup, monkeypatch, lanes):
             pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
         monkeypatch.setattr(fused, "BLOCK_DIM", 64)
-    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
+    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=False)), frames=4)
     monkeypatch.setattr(fused, "ORDER", "strided")
-    fz, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
+    fz, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=True)), frames=4)
     assert fz.solver._fused._strided is not None  # (the permuted families ran)
     for w in range(2):
         diff = np.abs(fz.positions(w) - ref.positions(w)).max()
@@ -330,7 +331,7 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
     asset, mount, open_, bent = setup
     if lanes > 1 and not hasattr(wp.config, "enable_cpu_blocks"):
         pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
-    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=False), frames=4)
+    ref, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=False)), frames=4)
     monkeypatch.setattr(fused, "ACCUM", "fixed")
     block = fused.BLOCK_DIM  # (the one-lane run's kernel: the default block's)
 
@@ -342,7 +343,7 @@ def test_fixed_point_sum_is_the_same_bits_in_any_order(setup, monkeypatch, lanes
         if hasattr(wp.config, "enable_cpu_blocks"):
             monkeypatch.setattr(wp.config, "enable_cpu_blocks", k > 1)
         monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else block)
-        batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=True), frames=4)
+        batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=True)), frames=4)
         fz = batch.solver._fused
         assert fz.fixed and fz.row_mass == (mass == "row") and fz.frame_launch == frame
         assert fz._vec_ok() == (loads and mass == "row") and fz.pin == loads  # (what the kernel got)
@@ -368,7 +369,7 @@ def test_fixed_point_bound_keeps_every_vertex_sum_in_int32(setup):
     correction (10 cm in one substep)."""
     from physhand_mj.solver import fused
 
-    cfg = Config(device="cpu", fused_substep=True)
+    cfg = Config(device="cpu", execution=Execution(fused_substep=True))
     fz = fused.FusedSubstep(make_model(setup[0], cfg), "cpu")
     counts = fz.vertex_count.numpy()
     for g, ids in enumerate((fz.edge_ids, fz.tet_ids, fz.dih_ids)):
@@ -424,7 +425,7 @@ def test_a_frame_launch_ends_the_frame_and_counts_inverted_tets(setup):
     asset, mount, open_, bent = setup
     runs = []
     for fz in (False, True):
-        batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", fused_substep=fz, jacobi_gather=False), frames=2)
+        batch, _ = _run(asset, mount, open_, bent, Config(device="cpu", execution=Execution(fused_substep=fz, jacobi_gather=False)), frames=2)
         m = batch.solver.model
         x = batch.state.x.numpy()
         flip = (m.vertex_world.numpy() == 1) & (m.inv_mass.numpy() > 0.0)
@@ -455,7 +456,7 @@ def test_the_folded_frame_end_is_the_unfolded_one(setup, device, monkeypatch):
     for on in (False, True):
         monkeypatch.setattr(fused, "FOLD_END", on)
         monkeypatch.setattr(fused, "SKIP_BONES", on)
-        batch, _ = _run(asset, mount, open_, bent, Config(device=device, fused_substep=True), frames=3)
+        batch, _ = _run(asset, mount, open_, bent, Config(device=device, execution=Execution(fused_substep=True)), frames=3)
         assert batch.solver._fused.fold_end == on and batch.solver._fused.skip_bones == on
         m = batch.solver.model
         x = batch.state.x.numpy()

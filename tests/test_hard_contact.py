@@ -146,7 +146,7 @@ def test_a_pressed_tip_ends_feature_offset_outside_the_skin(asset, offset, spaci
     away, pushes the same skin triangle and the two averaged pushes leave the tip between the
     surface and the offset (measured 31.9 um): outside, but not at the offset."""
     r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=0.002),
-                 ph.Config(device="cpu", feature_offset=offset, feature_spacing=spacing), frames=14, asset=asset)
+                 ph.Config(device="cpu", tuning=ph.Tuning(feature_offset=offset, feature_spacing=spacing)), frames=14, asset=asset)
     c, state = r["solver"].contact, r["state"]
     vol = c.volume(state)
     for op in vol.ops():
@@ -187,7 +187,7 @@ def test_the_last_feature_push_has_its_counter_slot_and_moves_the_skin(asset, pa
     skins = {}
     for last in (True, False):
         r = run_case(press_case("knife", site="fingertip", depth=0.004, start=-0.004),
-                     ph.Config(device="cpu", contact_passes=passes, feature_last=last), frames=1, asset=asset)
+                     ph.Config(device="cpu", contact_passes=passes, tuning=ph.Tuning(feature_last=last)), frames=1, asset=asset)
         c = r["solver"].contact
         stages = r["solver"].config.substeps
         assert c._slot == c.counters.shape[0] - (0 if last else stages), (last, c._slot, c.counters.shape[0])
@@ -215,7 +215,7 @@ def test_the_last_push_takes_its_own_offset_and_nothing_else_does(asset):
                                   skin(feature_last=False, feature_last_offset=6e-5))
     for bad in (-1e-6, float("nan"), True, "6e-6"):
         with pytest.raises(ValueError, match="feature_last_offset"):
-            ph.Config(feature_last_offset=bad).validate()
+            ph.Config(tuning=ph.Tuning(feature_last_offset=bad)).validate()
 
 
 @pytest.mark.parametrize("spacing", [2.5e-4, 5.0e-4, 3.3e-4])
@@ -248,15 +248,13 @@ def test_no_check_point_is_a_feature_point(spacing):
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device")
-@pytest.mark.parametrize("fused", [False, True])
 @pytest.mark.parametrize("kind, site, start", [("knife", "fingertip", 0.002), ("mesh_cone", "palm", -0.004)])
-def test_hard_case_on_cuda(asset, kind, site, start, fused):
+def test_hard_case_on_cuda(asset, kind, site, start):
     """The default contact (features, side-aware exits, tether) captured in a CUDA graph ends these
     cases at zero by both measures, like the CPU (the skin's BVH refits inside the graph). CUDA's
     atomics sum in no fixed order, so runs differ: over the last frames before the end a point may
-    flicker (H100: the mesh cone, one point at 4.9 um in one of four frames), bounded at 10 um.
-    Also with each stage in one launch (Config.fused_stage)."""
-    r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device="cuda", fused_stage=fused),
+    flicker (H100: the mesh cone, one point at 4.9 um in one of four frames), bounded at 10 um."""
+    r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device="cuda"),
                  frames=14,
                  asset=asset)
     msg = {k: r[k][-HOLD:].tolist() for k in MEASURES}
@@ -296,7 +294,7 @@ def test_the_object_side_sees_what_the_skin_side_misses(asset):
     """Without the feature contact, multires leaves a knife edge inside the skin that its own
     metric (skin samples) under-reports: the second measure is needed and the check can fail."""
     r = run_case(press_case("knife", site="palm", depth=0.004, start=-0.004),
-                 ph.Config(device="cpu", feature_contact=False, side_aware=False), frames=6, asset=asset)
+                 ph.Config(device="cpu", feature_contact=False, tuning=ph.Tuning(side_aware=False)), frames=6, asset=asset)
     assert r["obj_count"][-1] > 10 and r["obj_max_um"][-1] > 300, (r["obj_count"][-1], r["obj_max_um"][-1])
 
 
@@ -309,7 +307,7 @@ def test_reused_outside_answers_equal_asking_every_point(asset, kind, site, star
     could have reached since; frame by frame, while the object presses in and the skin moves, its
     counts and depths (the contact's points and the denser check points) equal asking every point."""
     case = press_case(kind, site=site, depth=0.004 if kind == "knife" else 0.02, start=start)
-    runs = {reuse: run_case(case, ph.Config(device="cpu", reuse_outside=reuse, **extra), frames=6, asset=asset)
+    runs = {reuse: run_case(case, ph.Config(device="cpu", **extra, execution=ph.Execution(reuse_outside=reuse)), frames=6, asset=asset)
             for reuse in (False, True)}
     for k in ("obj_count", "obj_max_um", "check_count", "check_max_um"):
         assert np.array_equal(runs[False][k], runs[True][k]), (k, runs[False][k], runs[True][k])
@@ -393,7 +391,7 @@ def test_reuse_bound_sees_a_hinged_face_and_a_turning_object():
 
 def test_vertex_baseline_is_reported_beside_multires(asset):
     r = run_case(press_case("cone_tip", site="fingertip", depth=0.004, start=0.002),
-                 ph.Config(device="cpu", contact=Strategy.VERTEX, feature_contact=False, side_aware=False), frames=14,
+                 ph.Config(device="cpu", contact=Strategy.VERTEX, feature_contact=False, tuning=ph.Tuning(side_aware=False)), frames=14,
                  asset=asset)
     assert r["obj_count"][-1] > 0 and r["skin_count"][-1] > 0, (r["obj_count"][-1], r["skin_count"][-1])
 

@@ -182,8 +182,6 @@ def test_the_option_costs_nothing_where_it_cannot_act(scene):  # noqa: F811
 def test_config_checks():
     with pytest.raises(ValueError, match="contact_linear"):
         Config(contact_linear="yes").validate()
-    with pytest.raises(ValueError, match="fused_stage=False"):
-        Config(contact_linear=True, fused_stage=True).validate()
 
 
 def test_no_planes_outlive_sleep(scene):  # noqa: F811

@@ -430,10 +430,10 @@ def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():
     for kind, site, depth, start, frames in (("mesh_cone", "palm", 0.004, 0.002, 6),
                                              ("coarse", "fingertip", 0.004, -0.004, 6)):
         skins = [run_case(press_case(kind, site=site, depth=depth, start=start),
-                          ph.Config(device="cpu", mesh_grid=g), frames=frames, asset=asset)["skin"] for g in (0.0, 2e-3)]
+                          ph.Config(device="cpu", execution=ph.Execution(mesh_grid=g)), frames=frames, asset=asset)["skin"] for g in (0.0, 2e-3)]
         np.testing.assert_array_equal(skins[0], skins[1])
     with pytest.raises(ValueError, match="mesh_grid"):
-        ph.Config(mesh_grid=-1e-3).validate()
+        ph.Config(execution=ph.Execution(mesh_grid=-1e-3)).validate()
 
 
 def test_object_points_of_repeated_geoms_are_each_the_points_of_one_geom_alone():

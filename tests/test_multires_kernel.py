@@ -8,6 +8,7 @@ import trimesh
 
 import warp as wp
 
+from physhand_mj.config import Execution
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands
 from physhand_mj.contact.query import decide_and_project, multires_kernel
@@ -88,13 +89,13 @@ def test_the_capped_kernel_chosen_on_cuda_presses_as_the_generic_kernel(monkeypa
 @pytest.mark.parametrize("bad", [-1, 16, 256, 1.5, True, "128"])
 def test_bad_register_caps_are_refused(bad):
     with pytest.raises(ValueError, match="multires_registers"):
-        Config(multires_registers=bad).validate()
+        Config(execution=Execution(multires_registers=bad)).validate()
 
 
 @pytest.mark.parametrize("bad", [0, 16, 48, 2048, 64.0, True])
 def test_bad_block_sizes_are_refused(bad):
     with pytest.raises(ValueError, match="multires_block_dim"):
-        Config(multires_block_dim=bad).validate()
+        Config(execution=Execution(multires_block_dim=bad)).validate()
 
 
 def test_the_register_cap_is_chosen_for_mesh_batches_on_cuda():
@@ -106,6 +107,6 @@ def test_the_register_cap_is_chosen_for_mesh_batches_on_cuda():
     assert multires_registers_for(auto, True, 1024, False) == 0  # analytic objects only: the generic kernel
     assert multires_registers_for(auto, True, 1, True) == 0  # one hand (the tiled kernel's run)
     assert multires_registers_for(auto, False, 1024, True) == 0  # the CPU
-    assert multires_registers_for(Config(multires_registers=96), False, 1, False) == 96  # set: as set
-    assert multires_registers_for(Config(multires_registers=0), True, 1024, True) == 0
+    assert multires_registers_for(Config(execution=Execution(multires_registers=96)), False, 1, False) == 96  # set: as set
+    assert multires_registers_for(Config(execution=Execution(multires_registers=0)), True, 1024, True) == 0
     assert multires_registers_for(Config(contact=ph.Strategy.VERTEX), True, 1024, True) == 0

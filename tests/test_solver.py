@@ -204,7 +204,7 @@ def test_results_are_deterministic_on_cpu(hand):
 
 
 def test_colouring_separates_movable_vertices(asset):
-    model = ph.make_model(asset, ph.Config(device="cpu", scheme=ph.Scheme.COLORED))
+    model = ph.make_model(asset, ph.Config(device="cpu", tuning=ph.Tuning(scheme=ph.Scheme.COLORED)))
     movable = model.inv_mass.numpy() > 0
     for name, ids in (("edge", model.edge_ids), ("tet", model.tet_ids), ("dih", model.dih_ids)):
         ids = ids.numpy()
@@ -271,7 +271,7 @@ def test_jacobi_gather_repeats_and_matches_the_atomics(hand, device):
     else:
         assert np.abs(xs["gather"] - xs["atomics"]).max() < 5e-6
     with pytest.raises(ValueError, match="jacobi_gather"):
-        ph.Config(jacobi_gather="yes").validate()
+        ph.Config(execution=ph.Execution(jacobi_gather="yes")).validate()
 
 
 # -- guards and errors ----------------------------------------------------------------------------

@@ -287,7 +287,7 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     mujoco.mj_resetDataKeyframe(model, data, model.key("grasp").id)
     # (the lists at the frame margin, as every world's first frame with contact makes them: the pool's
     # worst case; Config.feature_slack cuts later frames' lists to ~1/4 of this)
-    hand = ph.SoftHand(model, data, ph.Config(device="cpu", feature_slack=1e-2))
+    hand = ph.SoftHand(model, data, ph.Config(device="cpu", tuning=ph.Tuning(feature_slack=1e-2)))
     c = hand.solver.contact
     worlds = 4096
     pool = min(max(c.points.n_features * worlds * contact_mod.PATCH_POOL_PER_FEATURE, contact_mod.PATCH_POOL_MIN),

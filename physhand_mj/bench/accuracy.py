@@ -33,6 +33,8 @@ frames. :func:`pareto_front` keeps the settings no other setting beats on time a
 
 from __future__ import annotations
 
+import dataclasses
+
 import time
 from dataclasses import asdict, dataclass
 
@@ -72,18 +74,19 @@ class SweepPoint:
 
     def config(self, device: str):
         """The Config of this setting (everything else at its default)."""
-        from physhand_mj.types import Config, Strategy
+        from physhand_mj.types import Config, Strategy, Tuning
 
-        return Config(device=device, contact=Strategy[self.contact.upper()], multires_samples=self.samples,
-                      multires_rounds=self.rounds, feature_contact=self.features, side_aware=self.side_aware,
+        return Config(device=device, contact=Strategy[self.contact.upper()], feature_contact=self.features,
                       contact_passes=self.passes, substeps=self.substeps, iterations=self.iterations,
-                      contact_every=self.every, contact_linear=self.linear).validate()
+                      contact_every=self.every, contact_linear=self.linear,
+                      tuning=Tuning(multires_samples=self.samples, multires_rounds=self.rounds,
+                                    side_aware=self.side_aware)).validate()
 
     def is_default(self) -> bool:
         """True when this setting is ``Config()``'s."""
         from physhand_mj.types import Config
 
-        c = Config()
+        c = Config().validate()
         return (self.contact == c.contact.name.lower() and self.features == c.feature_contact
                 and self.side_aware == c.side_aware and self.passes == c.contact_passes
                 and self.substeps == c.substeps and self.iterations == c.iterations
@@ -139,8 +142,7 @@ def _hoi_run(scene: str, pt: SweepPoint, device: str, frames: int, hold_frames: 
     from physhand_mj.rollout import load_scene
 
     model, data, _ = load_scene(ph.scene_path(f"hoi_{scene}"), "grasp")
-    cfg = pt.config(device)
-    cfg.frame_dt = float(model.opt.timestep)
+    cfg = dataclasses.replace(pt.config(device), frame_dt=float(model.opt.timestep))
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
     ms, hold, finite = [], [], True
     for f in range(frames):

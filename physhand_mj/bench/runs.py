@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from physhand_mj.config import Tuning
 from physhand_mj.bench.cases import CONE, SHEET
 from physhand_mj.launch import device_name
 
@@ -126,8 +127,7 @@ def bench_cone(contact: str = "multires", device: str = "cpu", steps: int = 30, 
     except KeyError:
         raise ValueError(f"--contact must be vertex, opt or multires, got {contact!r}") from None
     body = sheet(**SHEET)
-    cfg = Config(device=device, substeps=substeps, contact=strategy, volumes=False, attachment=False,
-                 edge_compliance_skin=1.0e-6, smooth_compliance=10.0, damping=0.0, substep_metrics=True, **config)
+    cfg = Config(device=device, substeps=substeps, contact=strategy, edge_compliance_skin=1.0e-6, smooth_compliance=10.0, damping=0.0, substep_metrics=True, **config, tuning=Tuning(volumes=False, attachment=False))
     objects = Objects(str(wp.get_device(device)), 1)
     objects.add(GeomType.CONE, [CONE["radius"], CONE["height"]], name="cone")
     solver = Solver(make_model(body, cfg), cfg, objects=objects)

@@ -24,12 +24,11 @@ from physhand_mj.contact.linear import HOLD_SLOTS, LinearHold
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.query import apply_contact, decide_and_project, multires_kernel
-from physhand_mj.contact.query_lanes import SampleLanes
 from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
-from physhand_mj.contact.stage import STAGE_LANES, record_stage
+from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.types import Config, Model, Placement, Strategy
 from physhand_mj.launch import launch_options, tiled_blocks
 
@@ -141,7 +140,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
-        self.lanes = None  # query_lanes.SampleLanes, made on the first pass that takes them
         self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
         self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
@@ -187,18 +185,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.feature_scan = bool(cuda and tf is None and w >= FEATURE_SCAN_WORLDS and config.feature_winding)
         self.feature_lanes = FEATURE_LANES if cuda else 1
         self.patch_lanes = PATCH_LANES if cuda else 1  # (feature_patches_tiled's block)
-        # Config.fused_stage: a stage in one launch (contact/stage.py), one hand with multires
-        self.fused = bool(config.fused_stage and w == 1 and config.contact == Strategy.MULTIRES)
-        self.stage_lanes = STAGE_LANES if cuda else 1
-        # blocks of a fused stage: one per SM on CUDA (all resident at once: the stage's grid barriers
-        # need it), one thread on the CPU; the barrier's [arrived, generation, stuck] and the host's
-        # copy of stuck
-        self.stage_blocks = wp.get_device(d).sm_count if cuda else 1
-        self.stage_barrier = self._stuck = self._stuck_host = None
-        if self.fused:
-            self.stage_barrier = wp.zeros(4, dtype=int, device=d)
-            self._stuck = self.stage_barrier[2:3]  # (the view copied every frame, made once)
-            self._stuck_host = wp.zeros(1, dtype=int, device="cpu", pinned=cuda)
         self._patch_used_host = wp.zeros(3, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
@@ -284,7 +270,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     *vol.refit_ops()]
             launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin, cfg.contact_margin, self.slack,
-                                                   float(cfg.feature_list_share), self.geoms_per_world],
+                                                   FEATURE_LIST_SHARE, self.geoms_per_world],
                    [self.feat, self.feat_count, self.feat_dist, self.pt_dist, self.pt_face, self.world_listed])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
@@ -323,9 +309,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         skin: activity.py level 2)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
-            return
-        if self.fused:
-            record_stage(self, launch, state)
             return
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
@@ -413,9 +396,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     self.tris_per_world, self.geoms_per_world, *lst, nb,
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                    block_dim=TILE_LANES)
-        elif self._sample_lanes() is not None:  # a lane per lattice sample (query_lanes.py)
-            self.lanes.record(launch, m.skin_faces, o, self.tris_per_world, self.geoms_per_world, lst,
-                              cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x, outs)
         else:
             decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
             regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, o.has_mesh)
@@ -448,16 +428,6 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                    [*lst, flag],
                    count=self.active_count, min_dim=1)
         return lst, tuple(moved_slots), flag
-
-    def _sample_lanes(self):
-        """The pass's SampleLanes (made on first use) where Config.sample_lanes asks for them (multires,
-        not the tiled kernel), else None."""
-        cfg, m = self.config, self.model
-        if not (cfg.sample_lanes and cfg.contact == Strategy.MULTIRES):
-            return None
-        if self.lanes is None:
-            self.lanes = SampleLanes(self.n_tris, cfg.multires_samples, cfg.multires_rounds, m.device)
-        return self.lanes
 
     def _moved_enough(self, stamp: int, stage: int):
         """Config.contact_pass_tol's host test of a pass (the CPU's level-2 gate; CUDA's keep_moved

@@ -282,7 +282,7 @@ class LinearHold:
     def holds(self) -> bool:
         """Whether substeps without a contact stage hold the skin on the last stage's planes."""
         cfg = self.config
-        return bool(cfg.contact_linear and cfg.contact_every > 1 and self.n_tris and not self.fused)
+        return bool(cfg.contact_linear and cfg.contact_every > 1 and self.n_tris)
 
     def record_frame_planes(self, launch) -> None:
         """Every frame, contact or not: last frame's planes become the previous ones (roll_planes)."""

@@ -1,6 +1,6 @@
 """The contact's host-side reports of a frame, a mixin of :class:`~physhand_mj.contact.contact.Contact`:
 the device-to-host copies the frame's one sync waits for, and what they say (the stages' list
-lengths, the listed feature points, a fused stage that stopped early). The buffers are Contact's.
+lengths, the listed feature points). The buffers are Contact's.
 """
 
 from __future__ import annotations
@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from physhand_mj.types import SolverError
 
 
 class ContactReports:
@@ -22,8 +21,6 @@ class ContactReports:
         wp.copy(self._counters_host, self.counters)
         if len(self.pass_move) and self._pass_move_host is not self.pass_move:  # (CUDA: the ops report's)
             wp.copy(self._pass_move_host, self.pass_move)
-        if self.fused:
-            wp.copy(self._stuck_host, self._stuck)
         if self.world_stage is not None:
             wp.copy(self._world_stage_host, self.world_stage)
         if self.feat is not None:
@@ -31,16 +28,6 @@ class ContactReports:
             if self.config.feature_winding:
                 wp.copy(self._patch_used_host, self.patch_used)
             wp.copy(self._slack_host, self.slack_report)  # (slack.py's report)
-
-    def raise_if_stuck(self) -> None:
-        """After the frame's sync: raise when a fused stage's grid barrier gave up waiting for a block
-        (stage.grid_sync: its blocks were not resident at once, e.g. another kernel held SMs), since
-        that frame's contact did not run to the end."""
-        if self.fused and self._stuck_host.numpy()[0]:
-            self.stage_barrier.zero_()
-            raise SolverError("contact: a fused stage's blocks did not all run at once (Config.fused_stage needs the "
-                               "GPU's SMs to itself for a stage: no other kernel running beside it); this frame's "
-                               "contact stopped early; use fused_stage=False")
 
     def features_listed(self) -> int:
         """Object feature points in the last frame's list (after the frame's sync); warns once when

@@ -226,7 +226,6 @@ class Solver(PoseInput, Sleeping):
         if self.contact is not None and self.config.skin_tether > 0:
             out["tethered"] = int(g[2])
         if self.contact is not None:
-            self.contact.raise_if_stuck()
             self._contact_summary(out)
             self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)

@@ -21,7 +21,7 @@ from dm_control.rl import control
 from dm_control.suite import base
 from dm_env import specs
 
-from physhand_mj import Config
+from physhand_mj import Config, Settings
 
 
 def check_positive(name: str, value, unit: str) -> float:
@@ -40,7 +40,7 @@ def solver_config(config, timestep: float) -> Config:
     """The soft hand's Config: a frame is one MuJoCo step (``frame_dt`` = the model's timestep)."""
     if config is None:
         config = Config(frame_dt=timestep)
-    if not isinstance(config, Config):
+    if not isinstance(config, (Config, Settings)):
         raise TypeError(f"config must be a physhand_mj.Config, got {type(config).__name__}")
     if abs(config.frame_dt - timestep) > 1e-12:
         raise ValueError(f"Config.frame_dt ({config.frame_dt} s) must equal the domain's MuJoCo timestep "

@@ -99,7 +99,7 @@ def test_the_distance_grid_changes_nothing_in_a_deep_start(scene):
     and tested, and the skin differed by 1.7 mm (flesh volume -2.1 % against -1.8 % at frame 1)."""
     runs = []
     for g in (0.0, 2e-3):
-        run = Stress(scene, ph.Config(device="cpu", mesh_grid=g), press_case("knife", site="fingertip", start=-0.02))
+        run = Stress(scene, ph.Config(device="cpu", execution=ph.Execution(mesh_grid=g)), press_case("knife", site="fingertip", start=-0.02))
         for _ in range(2):
             run.frame(depth=0.02, measure=False)
         runs.append(run.state.x.numpy())
