@@ -292,7 +292,7 @@ def test_view_without_display_says_so(monkeypatch, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "display" in err
     assert main(["view", "missing_scene.xml"]) == 1
-    assert "no scene file" in capsys.readouterr().err
+    assert "scene file not found" in capsys.readouterr().err
 
 
 def test_pads_asset_is_built_by_the_same_builder():
