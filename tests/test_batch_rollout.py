@@ -74,7 +74,8 @@ def test_logs_and_skins_equal_the_serial_ones(runs):
         # counters.csv: a row per frame; the feature lists' check per world (the box has feature points,
         # the apples none)
         counters = read_csv(tmp / "batched" / run / "counters.csv")
-        assert list(counters[0]) == COUNTER_COLUMNS and [r["step"] for r in counters] == [str(s + 1) for s in range(STEPS)]
+        assert list(counters[0]) == COUNTER_COLUMNS
+        assert [r["step"] for r in counters] == [str(s + 1) for s in range(STEPS)]
         flags = {r["feature_slack_exceeded"] for r in counters}
         assert flags <= {"0", "1"} and flags if run == "hoi_box-grasp" else flags == {""}, (run, flags)
         sa = trimesh.load(tmp / "serial" / run / "skin_final.ply", process=False).vertices

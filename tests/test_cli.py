@@ -31,8 +31,8 @@ def test_a_missing_cuda_device_is_one_line_for_every_command(command, tmp_path):
     r = _physhand(*command, "--device", "cuda", cwd=tmp_path)
     lines = _own_lines(r.stderr)
     assert r.returncode == 1 and r.stdout == "" and "Traceback" not in r.stderr, r.stderr
-    assert lines == [f"physhand {command[0]}: error: --device cuda: no CUDA device is visible to Warp on this machine"], \
-        r.stderr
+    want = f"physhand {command[0]}: error: --device cuda: no CUDA device is visible to Warp on this machine"
+    assert lines == [want], r.stderr
 
 
 def test_an_unknown_device_names_the_devices_there(capsys):
