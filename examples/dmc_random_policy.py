@@ -64,3 +64,6 @@ if __name__ == "__main__":
     dom, tsk = (args[1], args[2]) if len(args) >= 3 else ("hand_hold", "apple")
     r = main(out, dom, tsk)
     print(r["picture"], r["video"] or "")
+    # free the render context now: left to dm_control's exit hook it is freed after Python has shut
+    # down the thread it must be freed on (tracebacks at exit)
+    r["env"].physics.free()

@@ -34,7 +34,13 @@ from physhand_mj.solver import Solver, SolverError, make_model  # noqa: E402
 from physhand_mj.types import (Config, Execution, Layer, Model, NonFinite, Placement, Scheme, Settings, State,  # noqa: E402
                                Strategy, Tuning)
 
-__version__ = "0.1.0"
+try:  # the installed distribution's version (pyproject.toml); a source tree never installed has none
+    from importlib.metadata import PackageNotFoundError as _NotInstalled
+    from importlib.metadata import version as _dist_version
+
+    __version__ = _dist_version("physhand_mj")
+except _NotInstalled:
+    __version__ = "0+unknown"
 __all__ = ["add_skin", "SkinAttachment", "BatchedHands", "replicate_asset", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "Execution", "Settings", "Tuning", "HandAsset", "Layer", "Model",
            "NonFinite", "Placement", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at",
            "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",

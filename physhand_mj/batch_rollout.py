@@ -13,15 +13,16 @@ on an H100 host, a few percent of a batch: benchmarks/mujoco_side.py, docs/scale
 are pipelined (:meth:`~physhand_mj.batch.BatchedHands.submit`): MuJoCo's next step and the last
 frame's log rows run on the host while the device runs a frame. Each run then
 writes what the serial
-:func:`~physhand_mj.rollout.rollout` writes (``log.csv``, ``skin_final.ply``, its summary row, its
-JSON line), from per-world measures: every world is measured against its own objects.
+:func:`~physhand_mj.rollout.rollout` writes (``log.csv``, ``counters.csv``, ``skin_final.ply``, its
+summary row, its JSON line), from per-world measures: every world is measured against its own objects.
 
 Differences from the serial run, by construction: worlds holding objects are solved 1 m apart
 (float32 rounds positions at that scale: the skins agree with the serial ones to tens of um, see
 docs/scale.md); ``ms_frame`` / ``ms_per_frame`` are the host's time in the batch frame's submit
 and in waiting for it, divided by W (the cost of one hand-frame: on the CPU the whole frame, which
 runs inside submit; on a GPU what the host work meanwhile did not hide); ``objects_near``,
-``triangles_tested``, ``features_listed`` and ``ops_run`` count what the batch frame ran for all its worlds.
+``triangles_tested``, ``features_listed`` and ``ops_run`` (counters.csv) count what the batch frame ran
+for all its worlds.
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ class _Run:
         self.specs = [geom_spec(self.model, self.data, g) for g in self.geoms]
         self.times: list[float] = []
         self.error: str | None = None
-        self.file = self.log = None
+        self.file = self.log = None  # log.csv
+        self.cfile = self.counters = None  # counters.csv
 
     def signature(self) -> tuple:
         """What a batch must share: the frame (time step) and the objects' geoms."""
@@ -264,6 +266,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
 
     from physhand_mj.batch import BatchedHands
     from physhand_mj.coupling import rest_placement
+    from physhand_mj.rollout import COUNTER_COLUMNS, counter_row
     from physhand_mj.solver import SolverError
 
     W = len(runs)
@@ -294,6 +297,10 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         r.log.writerow(LOG_COLUMNS)
         r.log.writerow(start_row(r.data, start))
         r.file.flush()
+        r.cfile = open(r.out / "counters.csv", "w", newline="")
+        r.counters = csv.writer(r.cfile)
+        r.counters.writerow(COUNTER_COLUMNS)
+        r.cfile.flush()
     first = runs[0].index + 1
     bar = tqdm(total=steps, desc=f"batch of {W} (runs {first}-{runs[-1].index + 1} of {total})", unit="frame",
                file=sys.stderr, disable=not progress, leave=False)
@@ -328,8 +335,10 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         for w, world in logged:
             r = runs[w]
             r.log.writerows(frame_rows(step, _At(times[w]), cfg, None if subrows is None else subrows[w][:-1],
-                                       None if counts is None else counts[w], dt, both and both[w], world))
+                                       None if counts is None else counts[w], dt, both and both[w]))
+            r.counters.writerow(counter_row(step, world))
             r.file.flush()
+            r.cfile.flush()
             r.times.append(dt)
 
     # Pipelined (BatchedHands.submit): MuJoCo steps frame k + 1 and the log rows of frame k - 1 are
@@ -401,8 +410,9 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     finally:
         bar.close()
         for r in runs:
-            if r.file is not None:
-                r.file.close()
+            for f in (r.file, r.cfile):
+                if f is not None:
+                    f.close()
     d = str(hands.solver.device)
     skins = hands.skins()  # (one copy from the device for the batch)
     for w, r in enumerate(runs):

@@ -21,30 +21,31 @@ def _demo(args) -> dict:
     import physhand_mj as ph
     from physhand_mj import figures
     from physhand_mj.coupling import SoftHand
-    from physhand_mj.render import make_renderer, write_png
+    from physhand_mj.render import write_png
 
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    writer = None
     if args.video:
         try:
             import imageio.v2 as imageio
         except ImportError as e:
             raise ImportError("--video needs the video extra: pip install -e '.[video]'") from e
-        writer = imageio.get_writer(out / "demo.mp4", fps=50, codec="libx264", quality=7, macro_block_size=8)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    t0 = time.perf_counter()
-    hand = SoftHand(model, data, ph.Config(device=args.device))
-    setup_s = time.perf_counter() - t0
-    renderer = make_renderer(model, 960, 720)
-    camera = figures.contact_camera(hand.skin_vertices)
-    vmax = None  # colour scale of the pressure heat map: each frame's 95th percentile
+    renderer = _working_renderer(model, data, 960, 720)  # before any simulation (or kernel compilation)
+    writer = None
     try:
+        if args.video:
+            writer = imageio.get_writer(out / "demo.mp4", fps=50, codec="libx264", quality=7, macro_block_size=8)
+        t0 = time.perf_counter()
+        hand = SoftHand(model, data, ph.Config(device=args.device))
+        setup_s = time.perf_counter() - t0
+        camera = figures.contact_camera(hand.skin_vertices)
+        vmax = None  # colour scale of the pressure heat map: each frame's 95th percentile
         for f in tqdm(range(args.frames), desc="demo", unit="frame", file=sys.stderr, disable=args.frames < 20):
             mujoco.mj_step(model, data)
             hand.step()
@@ -58,12 +59,47 @@ def _demo(args) -> dict:
     m = hand.metrics()
     objects = {k: dict(contact_vertices=len(v["vertices"]), area_cm2=round(v["area_m2"] * 1e4, 2),
                        force_n=round(v["force_n"], 3)) for k, v in hand.contacts()["objects"].items() if len(v["vertices"])}
+    # the reference for inverted_tets: the same bone pose without the objects (settled from rest over
+    # 20 frames, no contact; ~0.4 s on a CPU). The curled fingers' joint creases invert some tets by
+    # themselves (docs/limitations.md); the rest are pressed inverted by the objects and recover when
+    # they let go.
+    free = SoftHand(model, data, ph.Config(device=args.device), object_geoms=[], writeback=False)
+    free.step()
     return dict(command="demo", picture=str(png), video=str(out / "demo.mp4") if writer is not None else None,
                 scene="grasp_glass", keyframe="approach", frames=args.frames,
                 penetration_count=m["penetration_count"], penetration_max_um=round(m["penetration_max_um"], 3),
                 penetration_avg_um=round(m["penetration_avg_um"], 3), ms_per_frame=round(m["ms_per_frame"], 2),
-                finite=m["finite"], inverted_tets=m["inverted"], objects=objects,
+                finite=m["finite"], inverted_tets=m["inverted"],
+                inverted_tets_without_contact=free.metrics()["inverted"], objects=objects,
                 device=str(hand.solver.device), setup_s=round(setup_s, 2))
+
+
+def _working_renderer(model, data, width: int, height: int):
+    """``make_renderer``, and one frame rendered: some GL backends fail only when they first draw.
+    RenderUnavailable in one line (the backend's own warnings, e.g. GLFW's "DISPLAY is missing",
+    folded into it) where they cannot draw."""
+    import os
+    import warnings
+
+    from physhand_mj.render import RenderUnavailable, make_renderer
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            renderer = make_renderer(model, width, height)
+            try:
+                renderer.update_scene(data)
+                renderer.render()
+            except Exception as e:
+                renderer.close()
+                raise RenderUnavailable(f"MUJOCO_GL={os.environ.get('MUJOCO_GL', 'unset')} cannot draw "
+                                        f"offscreen: {e}") from e
+        except RenderUnavailable as e:
+            said = "; ".join(dict.fromkeys(" ".join(str(w.message).split()) for w in caught))
+            raise RenderUnavailable(f"{e}; the backend warned: {said}" if said else str(e)) from None
+    for w in caught:  # (a backend that works: its warnings as they were)
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return renderer
 
 
 def _build_from_files(args) -> dict:
@@ -161,9 +197,9 @@ def _view(args) -> dict:
 
     import physhand_mj as ph
 
-    path = Path(args.scene)
+    path = _scene_arg(args.scene)
     if not path.is_file():
-        raise FileNotFoundError(f"no scene file {path}")
+        raise FileNotFoundError(f"scene file not found: {path}{_bundled_hint()}")
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
         raise ValueError("no display (DISPLAY is unset): the viewer needs a desktop session; "
                          "use `physhand demo` or SoftHand with mujoco.Renderer for pictures")
@@ -190,12 +226,50 @@ def _view(args) -> dict:
         "penetration_count", "penetration_max_um", "ms_per_frame")})
 
 
+def _scene_arg(arg: str) -> Path:
+    """A scene argument as a path: a path that exists wins; else a bundled scene's name (``hoi_apple``
+    or ``hoi_apple.xml``, as ``physhand_mj.scene_path`` knows it); else the path as given."""
+    from physhand_mj.hand_mjcf import SCENES_DIR
+
+    path = Path(arg)
+    if path.exists() or path.parent != Path(".") or path.suffix.lower() not in ("", ".xml"):
+        return path
+    bundled = SCENES_DIR / f"{path.stem}.xml"
+    return bundled if bundled.is_file() else path
+
+
+def _bundled_hint() -> str:
+    """The not-found message's tail: the bundled scene names, which the scene argument also takes."""
+    from physhand_mj.hand_mjcf import SCENES_DIR
+
+    return f" (nor a bundled scene: {', '.join(sorted(p.stem for p in SCENES_DIR.glob('*.xml')))})"
+
+
+def _check_device(args) -> None:
+    """A command's ``--device``, checked before it loads anything: one line naming what is there."""
+    device = getattr(args, "device", None)
+    if device is None or getattr(args, "ray", None) is not None:  # (Warp's default; Ray: the cluster's devices)
+        return
+    import warp as wp
+
+    wp.init()
+    if str(device).startswith("cuda") and not wp.is_cuda_available():
+        raise ValueError(f"--device {device}: no CUDA device is visible to Warp on this machine")
+    try:
+        wp.get_device(device)
+    except (RuntimeError, ValueError) as e:
+        raise ValueError(f"--device {device}: {e}; Warp's devices here: "
+                         f"{', '.join(str(d) for d in wp.get_devices())}") from None
+
+
 def _rollout(args):
     from physhand_mj.rollout import batch_targets, check_measure_every, rollout, rollout_batch
 
     kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device,
               measure_every=args.measure_every)
-    src = Path(args.scene)
+    src = _scene_arg(args.scene)
+    if not src.exists():
+        raise FileNotFoundError(f"scene file not found: {src}{_bundled_hint()}")
     check_measure_every(args.measure_every)
     if args.workers is not None and args.ray is None:
         raise ValueError("--workers needs --ray (the serial batch runs one rollout at a time)")
@@ -230,7 +304,10 @@ def main(argv: list[str] | None = None) -> int:
     from physhand_mj.asset import DEFAULT_ASSET
     from physhand_mj.hand_mjcf import HAND_XML
 
+    from physhand_mj import __version__
+
     parser = argparse.ArgumentParser(prog="physhand", description="PhysHand soft hand for MuJoCo")
+    parser.add_argument("--version", action="version", version=f"physhand_mj {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="the soft hand closes on a glass; writes DIR/demo.png (and demo.mp4)")
     p.add_argument("--out", default="demo_out", help="output directory (default: demo_out)")
@@ -249,12 +326,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--model", type=Path, help="other input: MJCF whose bodies (at qpos0) carry the bones")
     p.set_defaults(run=_build_hand)
     p = sub.add_parser("view", help="MuJoCo's passive viewer with the soft skin updated live")
-    p.add_argument("scene", help="scene MJCF that includes the hand (e.g. mjcf/scenes/grasp_glass.xml)")
+    p.add_argument("scene", help="scene MJCF that includes the hand (e.g. mjcf/scenes/grasp_glass.xml), or a "
+                                 "bundled scene's name (grasp_glass)")
     p.add_argument("--keyframe", default=None, help="keyframe to start from (name)")
     p.set_defaults(run=_view)
     p = sub.add_parser("rollout", help="offline rollout of a scene keyframe with a per-substep penetration log")
-    p.add_argument("scene", help="scene MJCF that includes the hand, or a folder of scenes, or a list file "
-                                 "(lines: SCENE.xml [KEYFRAME]) for a batch")
+    p.add_argument("scene", help="scene MJCF that includes the hand (or a bundled scene's name: hoi_apple), or a "
+                                 "folder of scenes, or a list file (lines: SCENE.xml [KEYFRAME]) for a batch")
     p.add_argument("--keyframe", default=None, help="keyframe to start from (name; default: the scene's first; "
                                                     "a folder batch: all)")
     p.add_argument("--steps", type=int, default=36, help="5 ms frames to run (count, default 36)")
@@ -322,6 +400,7 @@ def main(argv: list[str] | None = None) -> int:
     from physhand_mj.solver import SolverError
 
     try:
+        _check_device(args)
         result = args.run(args)
     except (AssetError, RenderUnavailable, FileNotFoundError, ValueError, ImportError, SolverError) as e:
         print(f"physhand {args.command}: error: {e}".replace("\n", " "), file=sys.stderr)

@@ -60,8 +60,9 @@ class SoftHand:
       settle_contact: whether the skin already collides while settling (False: the first ``step``
         starts from the undeformed posed skin, penetrations included, as offline rollouts of grasp
         poses want).
-    Raises ValueError for a model without the hand, missing bone bodies, unsupported object geoms
-    (height fields, SDF plugins: filter them out), SolverError for non-finite bone poses.
+    Raises ValueError for a model without the hand, missing bone bodies, an ``object_*`` entry that
+    names nothing outside the hand, unsupported object geoms (height fields, SDF plugins: filter
+    them out), SolverError for non-finite bone poses.
     """
 
     def __init__(self, model, data, config: Config | None = None, *, asset=None, prefix: str = "",
@@ -357,22 +358,36 @@ class SoftHand:
 def select_object_geoms(model, bones, skin_geom: int, names=None, bodies=None, groups=None) -> list[int]:
     """The geoms the skin collides with: every geom outside the hand (the trees of the ``bones``'
     bodies) but the skin geom, restricted to geom ``names`` (or ids), ``bodies`` and geom ``groups``
-    when given. Raises ValueError for a geom type the skin cannot collide with."""
+    when given. Raises ValueError for an entry of ``names`` / ``bodies`` / ``groups`` that matches no
+    geom outside the hand (a misspelt name would otherwise turn contact off without a word), and for
+    a geom type the skin cannot collide with."""
     m = model
     rootid = m.body_rootid.tolist()
     roots = {rootid[int(b)] for b in bones}
     hand = {b for b in range(m.nbody) if rootid[b] in roots and b != 0}
-    out = []
     body_of = m.geom_bodyid.tolist()  # (plain lists and mj_id2name: no per-geom accessor objects)
-    for g in range(m.ngeom):
-        if g == skin_geom or body_of[g] in hand:
-            continue
-        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or ""
+    cand = [(g, mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "",
+             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, body_of[g]) or "", int(m.geom_group[g]))
+            for g in range(m.ngeom) if g != skin_geom and body_of[g] not in hand]
+    # a lone name or number is a list of one (else "bal" in "ball" would match a substring)
+    names, bodies, groups = ([x] if isinstance(x, (str, int, np.integer)) else x for x in (names, bodies, groups))
+    for arg, noun, nouns, given, col in (("object_geoms", "geom", "geoms", names, 1),
+                                         ("object_bodies", "body", "bodies", bodies, 2),
+                                         ("object_groups", "geom group", "geom groups", groups, 3)):
+        have = {c[col] for c in cand} | ({c[0] for c in cand} if col == 1 else set())  # (geoms: ids too)
+        unknown = [x for x in (given or ()) if x not in have]
+        if unknown:
+            listed = sorted({str(c[col]) for c in cand if c[col] != ""})
+            more = f", ... ({len(listed)} in all)" if len(listed) > 8 else ""
+            raise ValueError(f"{arg}: no {noun} {', '.join(map(repr, unknown))} outside the hand; the model's "
+                             f"{nouns} outside the hand: {', '.join(listed[:8]) or 'none'}{more}")
+    out = []
+    for g, name, body, group in cand:
         if names is not None and name not in names and g not in names:  # names or ids (unnamed geoms)
             continue
-        if bodies is not None and (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, body_of[g]) or "") not in bodies:
+        if bodies is not None and body not in bodies:
             continue
-        if groups is not None and int(m.geom_group[g]) not in groups:
+        if groups is not None and group not in groups:
             continue
         if int(m.geom_type[g]) not in MJ_GEOM_TYPES:
             kind = mujoco.mjtGeom(int(m.geom_type[g])).name

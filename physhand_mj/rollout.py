@@ -6,23 +6,25 @@ The hand settles from its rest pose into the keyframe's pose *without* contact (
 starts from the undeformed posed skin, with the grasp's penetrations), then MuJoCo steps and the
 soft hand runs ``steps`` frames with contact. Written to ``out``:
 
-- ``log.csv``: one row per substep (step, substep, time_s, penetration_count, penetration_max_um,
-  penetration_avg_um, contacts, active_triangles, ms_frame), flushed every frame, so an interrupted
-  run keeps what it logged; row (0, 0) is the settled skin before any contact.
+- ``log.csv`` (:data:`LOG_COLUMNS`): the user's figures, one row per substep, each the state at
+  the substep's end, flushed every frame, so an interrupted run keeps what it logged; row (0, 0) is
+  the settled skin before any contact.
+- ``counters.csv`` (:data:`COUNTER_COLUMNS`): what each frame ran, one row per frame, for profiling.
 - ``skin_final.ply``: the final skin, world frame, metres.
 
 ``contacts`` counts the skin vertices the substep's contact stage corrected in its first pass
 (those in contact at its start); ``active_triangles`` the triangles its broadphase kept;
 ``ms_frame`` the wall time of the frame the substep belongs to (hand.step: sync, solver, write-back).
 Times exclude the first frame, which compiles the contact kernels. ``object_in_skin_count`` /
-``_max_um``: the second measure (object surface points inside the closed skin), on the last row
-of each frame (and row 0), evaluated after the frame's timing; empty on the other rows.
-``objects_near`` / ``triangles_tested`` / ``features_listed`` / ``ops_run``: what the frame ran
+``_max_um``: the second measure (object surface points inside the closed skin), taken at the end
+of a frame, so on its last row (and row 0) and empty on the other rows and on frames it skips
+(``measure_every``); evaluated after the frame's timing.
+``counters.csv``: ``objects_near`` / ``triangles_tested`` / ``features_listed`` / ``ops_run``
 (physhand_mj/solver/activity.py: objects in the work set, triangles the contact passes queried, object
-feature points listed, recorded ops run), on the last row of each frame.
-``feature_slack_exceeded``: 1 where a skin vertex moved far enough in the frame, near enough to an
-object's feature point, that the point's list or patch could have missed a skin triangle
-(Config.feature_slack, physhand_mj/contact/slack.py), else 0; empty without feature points.
+feature points listed, recorded ops run) and ``feature_slack_exceeded``: 1 where a skin vertex moved
+far enough in the frame, near enough to an object's feature point, that the point's list or patch
+could have missed a skin triangle (Config.tuning.feature_slack, physhand_mj/contact/slack.py), else 0;
+empty without feature points.
 """
 
 from __future__ import annotations
@@ -35,9 +37,9 @@ from pathlib import Path
 import numpy as np
 
 LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_max_um", "penetration_avg_um",
-               "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um",
-               "objects_near", "triangles_tested", "features_listed", "ops_run", "feature_slack_exceeded"]
-ACTIVITY = LOG_COLUMNS[-5:]  # what ran in the frame (physhand_mj/solver/activity.py), on its last row
+               "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um"]
+COUNTER_COLUMNS = ["step", "objects_near", "triangles_tested", "features_listed", "ops_run",
+                   "feature_slack_exceeded"]  # counters.csv: what a frame ran (physhand_mj/solver/activity.py)
 
 
 def load_scene(scene, keyframe: str | None = None, model=None):
@@ -95,7 +97,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     hand = ph.SoftHand(model, data, cfg, settle_contact=False, **(hand_kwargs or {}))
     out = Path(out) if out is not None else Path("rollout_out")
     out.mkdir(parents=True, exist_ok=True)
-    log_path, skin_path = out / "log.csv", out / "skin_final.ply"
+    log_path, skin_path, counters_path = out / "log.csv", out / "skin_final.ply", out / "counters.csv"
     start = hand.penetration()
     if on_start is not None:
         on_start(hand, model, data)
@@ -103,11 +105,13 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     interrupted = False
     last = dict(start)
     obj_frame = 0  # the frame the object-side values in last come from
-    with open(log_path, "w", newline="") as f:
-        log = csv.writer(f)
+    with open(log_path, "w", newline="") as f, open(counters_path, "w", newline="") as fc:
+        log, counters = csv.writer(f), csv.writer(fc)
         log.writerow(LOG_COLUMNS)
         log.writerow(start_row(data, start))
+        counters.writerow(COUNTER_COLUMNS)
         f.flush()
+        fc.flush()
         bar = tqdm(total=steps, desc=f"rollout {Path(scene).stem}", unit="frame", disable=not progress, leave=False)
         try:
             for step in range(1, steps + 1):
@@ -119,8 +123,10 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 rows = getattr(hand.solver, "substep_metrics", None)
                 counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
                 # a frame's rows go out together: an interrupted log holds whole frames
-                log.writerows(frame_rows(step, data, cfg, rows, counts, dt, both, res))
+                log.writerows(frame_rows(step, data, cfg, rows, counts, dt, both))
+                counters.writerow(counter_row(step, res))
                 f.flush()
+                fc.flush()
                 times.append(dt)
                 last, obj_frame = carry_object_side(res, both, last, step, obj_frame)
                 bar.update(1)
@@ -194,15 +200,20 @@ def start_row(data, start: dict) -> list:
     """The log's row (0, 0): the settled skin before any contact, both measures."""
     return [0, 0, round(float(data.time), 6), start["penetration_count"], _um(start["penetration_max_um"]),
             _um(start["penetration_avg_um"]), 0, 0, 0.0, start["object_in_skin_count"],
-            _um(start["object_in_skin_max_um"]), "", "", "", ""]
+            _um(start["object_in_skin_max_um"])]
 
 
-def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: dict) -> list:
+def counter_row(step: int, res: dict) -> list:
+    """A frame's counters.csv row: what the frame ran, from ``res`` (``Solver.step``'s dict)."""
+    return [step, *(res.get(k, "") for k in COUNTER_COLUMNS[1:])]
+
+
+def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict) -> list:
     """A frame's log rows, one per substep: ``rows`` (substeps, >= 3) the substeps' metrics rows
     (count, sum depth m, max depth m; None: no contact), ``counts`` (stages, 2) the contact stages'
-    [active triangles, corrected vertices] (None: no contact), ``dt`` the frame's wall time (s),
-    ``both`` the frame end's two measures (summarized; None: not measured, its cells empty) and
-    ``res`` what the frame ran."""
+    [active triangles, corrected vertices] (None: no contact), ``dt`` the frame's wall time (s) and
+    ``both`` the frame end's two measures (summarized; None: not measured, its cells empty), whose
+    object side goes on the frame's last row: it is the state at the frame's end."""
     lines = []
     for s in range(cfg.substeps):
         cnt, total, deepest = rows[s][:3] if rows is not None else (0.0, 0.0, 0.0)
@@ -210,8 +221,8 @@ def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict, res: d
         act, con = (int(counts[s, 0]), int(counts[s, 1])) if counts is not None and s < len(counts) else (0, 0)
         lines.append([step, s + 1, round(float(data.time) - cfg.frame_dt + (s + 1) * cfg.substep_dt, 6), n,
                       _um(deepest * 1e6), _um(total / n * 1e6 if n else 0.0), con, act, round(dt * 1e3, 3),
-                      *(((both["object_in_skin_count"], _um(both["object_in_skin_max_um"])) if both else ("", ""))
-                        + tuple(res.get(k, "") for k in ACTIVITY) if s + 1 == cfg.substeps else ("",) * 7)])
+                      *((both["object_in_skin_count"], _um(both["object_in_skin_max_um"]))
+                        if both and s + 1 == cfg.substeps else ("", ""))])
     return lines
 
 

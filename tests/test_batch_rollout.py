@@ -15,7 +15,7 @@ import trimesh
 import physhand_mj as ph
 from rollout_helpers import apple_b, read_csv
 from physhand_mj.batch_rollout import rollout_batched
-from physhand_mj.rollout import LOG_COLUMNS, SUMMARY_COLUMNS, rollout_batch
+from physhand_mj.rollout import COUNTER_COLUMNS, LOG_COLUMNS, SUMMARY_COLUMNS, rollout_batch
 
 APPLE, BOX = ph.scene_path("hoi_apple"), ph.scene_path("hoi_box")
 STEPS = 3
@@ -71,8 +71,12 @@ def test_logs_and_skins_equal_the_serial_ones(runs):
             assert (da == db == "") or abs(float(da) - float(db)) <= OBJECT_DEPTH_UM, (da, db)
             assert {c: ra[c] for c in LOG_COLUMNS if c not in skip | {"object_in_skin_max_um"}} == \
                 {c: rb[c] for c in LOG_COLUMNS if c not in skip | {"object_in_skin_max_um"}}
-        # the feature lists' check per world (the box has feature points, the apples none), equal as well
-        flags = {r["feature_slack_exceeded"] for r in b[1:] if r["substep"] == "10"}
+        # counters.csv: a row per frame; the feature lists' check per world (the box has feature points,
+        # the apples none)
+        counters = read_csv(tmp / "batched" / run / "counters.csv")
+        assert list(counters[0]) == COUNTER_COLUMNS
+        assert [r["step"] for r in counters] == [str(s + 1) for s in range(STEPS)]
+        flags = {r["feature_slack_exceeded"] for r in counters}
         assert flags <= {"0", "1"} and flags if run == "hoi_box-grasp" else flags == {""}, (run, flags)
         sa = trimesh.load(tmp / "serial" / run / "skin_final.ply", process=False).vertices
         sb = trimesh.load(tmp / "batched" / run / "skin_final.ply", process=False).vertices

@@ -250,6 +250,30 @@ def test_unsupported_object_geom_is_refused_with_the_fix():
     SoftHand(model, data, settle_frames=0, object_geoms=["floor"])  # filtered out: fine
 
 
+@pytest.mark.parametrize("kw, want", [
+    (dict(object_geoms=["glass", "bal"]), "object_geoms: no geom 'bal' outside the hand; the model's geoms outside "
+                                          "the hand: floor, glass"),
+    (dict(object_geoms=[999]), "object_geoms: no geom 999 outside the hand"),
+    (dict(object_bodies=["glas"]), "object_bodies: no body 'glas' outside the hand; the model's bodies outside the "
+                                   "hand: glass, world"),
+    (dict(object_groups=[4]), "object_groups: no geom group 4 outside the hand; the model's geom groups outside the "
+                              "hand: 0"),
+    (dict(object_geoms=["2proxph_r_bone"]), "no geom '2proxph_r_bone' outside the hand"),  # a hand geom is no object
+])
+def test_object_names_that_match_nothing_are_refused_in_one_line(kw, want):
+    """A misspelt object name would turn contact off without a word: it raises, naming what exists."""
+    model, data = _scene()
+    with pytest.raises(ValueError) as e:
+        SoftHand(model, data, ph.Config(device="cpu"), settle_frames=0, **kw)
+    assert want in str(e.value) and "\n" not in str(e.value), str(e.value)
+
+
+def test_a_lone_object_name_is_one_name_not_its_letters():
+    model, data = _scene()
+    glass = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "glass")
+    assert SoftHand(model, data, ph.Config(device="cpu"), settle_frames=0, object_geoms="glass").object_geoms == [glass]
+
+
 def test_non_finite_pose_is_reported():
     model, data = _scene("hand_only", "open")
     hand = SoftHand(model, data, ph.Config(device="cpu"), settle_frames=0)
@@ -268,7 +292,7 @@ def test_view_without_display_says_so(monkeypatch, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "display" in err
     assert main(["view", "missing_scene.xml"]) == 1
-    assert "no scene file" in capsys.readouterr().err
+    assert "scene file not found" in capsys.readouterr().err
 
 
 def test_pads_asset_is_built_by_the_same_builder():

@@ -14,3 +14,16 @@ def test_example(path, tmp_path):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     mod.test_final(tmp_path)
+
+
+def test_dmc_example_exits_without_tracebacks(tmp_path):
+    """Run as a script, the dm_control example frees its render context before exit: dm_control's own
+    exit hook, run after Python shut down the thread the context lives on, prints tracebacks."""
+    import subprocess
+    import sys
+
+    path = Path(__file__).parents[1] / "examples" / "dmc_random_policy.py"
+    r = subprocess.run([sys.executable, str(path), str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr[-2000:]
+    assert (tmp_path / "dmc_hand_hold_apple.png").exists()

@@ -72,7 +72,7 @@ def test_run_folders_hold_the_same_files(both):
     ser, par = both["tmp"] / "serial", both["tmp"] / "ray"
     assert sorted(p.name for p in par.iterdir()) == sorted(p.name for p in ser.iterdir())
     for run in ("hoi_apple-grasp", "hoi_box-grasp"):
-        assert sorted(p.name for p in (par / run).iterdir()) == ["log.csv", "skin_final.ply"]
+        assert sorted(p.name for p in (par / run).iterdir()) == ["counters.csv", "log.csv", "skin_final.ply"]
         a, b = read_csv(ser / run / "log.csv"), read_csv(par / run / "log.csv")
         assert len(a) == 1 + STEPS * 10 and _untimed(a, a[0]) == _untimed(b, a[0])
         assert (ser / run / "skin_final.ply").read_bytes() == (par / run / "skin_final.ply").read_bytes()
@@ -89,7 +89,7 @@ def test_a_worker_on_another_node_ships_its_files(local_ray, tmp_path):
                                                           "another-node", os.getcwd(), dict(steps=1, device="cpu"))
     row = _collect(ray, ref, (APPLE, "grasp"), tmp_path / "run", tmp_path / "run", 0)
     assert not (tmp_path / "unused").exists() and row["steps"] == 1 and row["scene"] == str(APPLE), row
-    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["counters.csv", "log.csv", "skin_final.ply"]
     assert len(read_csv(row["log"])) == 1 + 10 and row["skin"] == str(tmp_path / "run" / "skin_final.ply")
 
 
@@ -245,7 +245,7 @@ def test_a_batch_task_on_another_node_ships_its_files(local_ray, tmp_path):
                                                             "another-node", os.getcwd(), 2, dict(steps=1, device="cpu"))
     rows = _collect_group(ray, ref, [(APPLE, "grasp")], [tmp_path / "run"], [tmp_path / "run"], 0)
     assert not (tmp_path / "unused").exists() and rows[0]["steps"] == 1 and rows[0]["scene"] == str(APPLE), rows
-    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["log.csv", "skin_final.ply"]
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["counters.csv", "log.csv", "skin_final.ply"]
     assert rows[0]["log"] == str(tmp_path / "run" / "log.csv") and len(read_csv(rows[0]["log"])) == 1 + 10
 
 

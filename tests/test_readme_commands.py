@@ -16,6 +16,8 @@ def test_physhand_demo_writes_picture(tmp_path):
     line = json.loads(r.stdout.strip().splitlines()[-1])
     png = tmp_path / "demo.png"
     assert line["picture"] == str(png)
+    # the inverted-tet count comes with its reference: the same pose without the glass (joint creases)
+    assert 0 <= line["inverted_tets_without_contact"] < line["inverted_tets"], line
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     # not a blank frame: decode rows and check the image has structure

@@ -6,13 +6,14 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
 import physhand_mj as ph
-from physhand_mj.rollout import LOG_COLUMNS, rollout
+from physhand_mj.rollout import COUNTER_COLUMNS, LOG_COLUMNS, rollout
 from rollout_helpers import read_csv
 
 APPLE = ph.scene_path("hoi_apple")
@@ -44,6 +45,12 @@ def test_log_is_complete_and_matches_the_summary(apple_runs):
     t = np.array([float(r["time_s"]) for r in rows[1:]])
     assert np.allclose(np.diff(t), 0.0005, atol=1e-6)
     assert int(rows[1]["contacts"]) > 0 and int(rows[1]["active_triangles"]) >= int(rows[1]["contacts"]) // 3
+    # the object side is the state at a frame's end: on its last row only
+    assert all((r["object_in_skin_count"] != "") == (r["substep"] in ("0", "10")) for r in rows), rows
+    # what each frame ran, a row per frame, in counters.csv (not in the user's log)
+    counters = read_csv(Path(res["log"]).with_name("counters.csv"))
+    assert list(counters[0]) == COUNTER_COLUMNS and [int(r["step"]) for r in counters] == list(range(1, 7))
+    assert all(int(r["ops_run"]) > 0 and int(r["triangles_tested"]) >= 0 for r in counters), counters
     skin = trimesh.load(res["skin"], process=False)
     assert skin.vertices.shape == (ph.load_asset().n_skin, 3)
 
