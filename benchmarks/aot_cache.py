@@ -46,8 +46,8 @@ BLOCK_DIMS = {
 }
 
 
-# kernels made at run time that a device run uses (Config.multires_registers' caps, with
-# Config.multires_block_dim's blocks); made_kernels adds the others in modules of their own
+# kernels made at run time that a device run uses (Config.execution.multires_registers' caps, with
+# Config.execution.multires_block_dim's blocks); made_kernels adds the others in modules of their own
 MADE = ((128, 256), (168, 256), (128, 128), (96, 128), (80, 128), (64, 128))
 
 

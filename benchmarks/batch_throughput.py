@@ -20,6 +20,7 @@ batch's setup time (``BatchedHands(...)``: one world's model tiled W times, the 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -126,8 +127,8 @@ def kernel_split(hands, poses, ball, frames: int, counts: dict | None = None) ->
     import warp as wp
 
     solver = hands.solver
-    saved = solver.config.cuda_graph
-    solver.config.cuda_graph = False
+    saved = solver.config
+    solver.config = dataclasses.replace(saved, cuda_graph=False)
     solver._graphs.clear()
     try:
         hands.step(*poses(100), *ball)
@@ -142,7 +143,7 @@ def kernel_split(hands, poses, ball, frames: int, counts: dict | None = None) ->
             agg[r.name] += r.elapsed
             num[r.name] += 1
     finally:
-        solver.config.cuda_graph = saved
+        solver.config = saved
         solver._graphs.clear()
     top = sorted(agg.items(), key=lambda kv: -kv[1])[:24]
     if counts is not None:
@@ -237,7 +238,7 @@ def main() -> None:
                         "(BatchedHands.step) and/or submit (BatchedHands.submit, pipelined)")
     p.add_argument("--repeats", type=int, default=1, help="timed blocks of --frames frames per mode")
     p.add_argument("--fused-block", type=int, default=0,
-                   help="with Config.fused_substep: threads per world's block (solver/fused.py BLOCK_DIM)")
+                   help="with Config.execution.fused_substep: threads per world's block (solver/fused.py BLOCK_DIM)")
     a = p.parse_args()
     extra = json.loads(a.config)
     if a.fused_block:

@@ -1,6 +1,6 @@
 """One hard contact case run many times: how often its held frames keep residue, by both families of
 measures. On CUDA the atomics sum in no fixed order, so runs of one case differ by themselves; on the
-CPU every run is the same, and ``--perturb`` moves run k's ``Config.contact_offset`` by a relative
+CPU every run is the same, and ``--perturb`` moves run k's ``Config.tuning.contact_offset`` by a relative
 k x perturb (1e-4: 0.4 nm on the default 4 um), which sends the chaotic held contact down another
 path of the same physics: the CPU's rate of such frames, not one path's luck.
 

@@ -1,4 +1,4 @@
-"""Per frame, what an HOI grasp's object feature lists hold in a batch (Config.feature_slack,
+"""Per frame, what an HOI grasp's object feature lists hold in a batch (Config.tuning.feature_slack,
 Config.feature_list_share): the points listed, each contact stage's list, the slack the next frame
 lists with, the worlds the frame's check flagged, and the frame's wall time.
 

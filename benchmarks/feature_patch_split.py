@@ -120,7 +120,7 @@ def main() -> None:
         hands.step(*args)
     c, state = hands.solver.contact, hands.state
     if c is None or c.feat is None or not c.config.feature_winding:
-        raise SystemExit("no feature points with the local winding number (Config.feature_winding): nothing to split")
+        raise SystemExit("no feature points with the local winding number (Config.tuning.feature_winding): nothing to split")
     pts, m, cfg = c.points, c.model, c.config
     vol, volw = c.volume(state, winding=False), c.volume(state, winding=True)
     qpose = c._qp

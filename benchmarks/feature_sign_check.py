@@ -100,7 +100,7 @@ def main():
         near = (np.abs(o[:, 1]) > 0) & (np.abs(o[:, 1]) < 2e-3)
         bad = near & (np.sign(o[:, 0]) != np.sign(o[:, 1]))
         push = bad & (o[:, 0] < 0) & (o[:, 2] > 0)
-        # the local winding number the contact decides with (Config.feature_winding): the patch's solid
+        # the local winding number the contact decides with (Config.tuning.feature_winding): the patch's solid
         # angles now plus the far angle from the frame's start, against the full winding number
         local = _local_sign(c, state, pts)
         listed = np.flatnonzero(pts.kind_host != 0)

@@ -1,4 +1,4 @@
-"""The fused substep (Config.fused_substep, physhand_mj/solver/fused.py) against the five-launch substep,
+"""The fused substep (Config.execution.fused_substep, physhand_mj/solver/fused.py) against the five-launch substep,
 interleaved frame by frame in one process so that a shared host's drift hits both alike.
 
 W worlds of the embedded hand (BatchedHands; W = 1 is one hand), open pose, each world's index

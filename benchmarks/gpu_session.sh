@@ -16,7 +16,7 @@
 #   peers    Newton VBD/XPBD and MuJoCo Warp flex (compiled side by side first), batch throughput,
 #            and the kernel cache of all three packages back as $OUT/warp_cache.tar.xz
 #   accuracy physhand bench accuracy (20 frames as on the CPU, 1 repeat)
-#   fused    Config.fused_substep (solver/fused.py): its CUDA tests, its block size at W = 1024, then
+#   fused    Config.execution.fused_substep (solver/fused.py): its CUDA tests, its block size at W = 1024, then
 #            default and fused side by side for W = 1 .. 4096 without contact and 1 .. 1024 with a sphere
 #            (too long for one call on a fresh machine: fused_a then fused_b, run 2026-11-26)
 #   order    fused.ORDER "asset" against "strided" (the next lever for the fused kernel, not yet run)
@@ -32,7 +32,7 @@
 #   final_bench, final2   the shipped kernel against the old one, solver only and two HOI grasps at W = 4,096
 #   s36_tests, s36_bench   (2026-11-27, second session) the CUDA tests on the last session's fixes; the shipped
 #            kernel against the old one; the box's kernel split
-#   s36_slack_tests, s36_slack_bench, s36_slack_bench2   Config.feature_slack: its CUDA tests, the box with and
+#   s36_slack_tests, s36_slack_bench, s36_slack_bench2   Config.tuning.feature_slack: its CUDA tests, the box with and
 #            without it (bench2's three grasps at W = 4,096 ran past their 150 s limits on a fresh machine)
 #   s37_a, s37_b, s37_tests   (2026-11-27, third session) feature_patches in one BVH walk with a coarse w_0:
 #            its split (feature_patch_split.py), the box's kernel and host split, the box and the other grasps
@@ -316,11 +316,11 @@ case $phase in
     step box_profile 240 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 4 --profile \
       --out docs/benchmarks/batch_hoi_cuda_box_profile.json
     ;;
-  s36_slack_tests)  # Config.feature_slack: its CUDA tests and the CUDA tests of the feature path
+  s36_slack_tests)  # Config.tuning.feature_slack: its CUDA tests and the CUDA tests of the feature path
     step pytest_slack 560 python3 -m pytest -q -p no:cacheprovider -o addopts="" tests/test_feature_slack.py \
       tests/test_winding.py tests/test_hard_contact.py::test_hard_case_on_cuda tests/test_batch.py
     ;;
-  s36_slack_bench)  # Config.feature_slack on the HOI batches: the box with and without it, its split; three grasps
+  s36_slack_bench)  # Config.tuning.feature_slack on the HOI batches: the box with and without it, its split; three grasps
     step nvidia 10 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,power.limit,temperature.gpu \
       --format=csv
     step box_1024 150 python3 benchmarks/batch_hoi.py --device cuda --scenes box --worlds 1024 --frames 10 \
@@ -479,7 +479,7 @@ print('true' if r['tiled'] > r['thread'] else 'false')" 2>/dev/null || echo fals
     step grid_old 150 bash -c "cd old_s41 && PYTHONPATH=/tmp/site:\$PWD:\$PWD/plugins python3 benchmarks/mesh_grid.py \
       --device cuda --frames 30 --spacings 0.002 --out /tmp/mesh_grid_cuda_s41_old.json && cp /tmp/mesh_grid_cuda_s41_old.json $OUT/"
     ;;
-  s42_a)  # the per-thread multires kernel specialised and capped (Config.multires_registers; the generic one:
+  s42_a)  # the per-thread multires kernel specialised and capped (Config.execution.multires_registers; the generic one:
     # 255 registers and a 2,064-byte local frame a thread on sm_90, so 8 warps an SM): the bowl at W = 1,024 with
     # 0 / 128 / 168, then one hand on the bowl (SoftHand.step) with 0 and 128, alternated; the fastest batch
     # setting is left in /tmp/s42_best for s42_b
@@ -1246,7 +1246,7 @@ for r in range(3):
     _, c, _ = _pressed_batch('cuda')
     print('generic vs generic %.2f um, capped vs generic %.2f um' % (np.abs(g1 - g2).max() * 1e6, np.abs(c - g1).max() * 1e6), flush=True)"
     ;;
-  s52_j)  # Config.feature_last_offset (None: feature_offset's 60 um, as before; 6 um measured better on the CPU's
+  s52_j)  # Config.tuning.feature_last_offset (None: feature_offset's 60 um, as before; 6 um measured better on the CPU's
     # paths): the held hard cases and 20 runs of the plate started 4 mm deep in the palm with both; the CUDA tests of
     # the hard cases and the fused stage (which takes the offset too)
     step hard 200 python3 benchmarks/hard_contact_hold.py --device cuda --configs '{}' '{"feature_last_offset": 6e-6}' \

@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PAPER = {"feature_contact": False, "side_aware": False, "skin_tether": 0.0}  # the paper's contact, no tether
 METHODS = (("vertex", "vertex", PAPER), ("opt", "opt", PAPER), ("multires", "multires", PAPER), ("default", "multires", {}))
 # asked by name only (--methods default,pseudo): the default with the feature push's side from the
-# pseudo normals alone (Config.feature_winding off), for the local winding number's cost in one run
+# pseudo normals alone (Config.tuning.feature_winding off), for the local winding number's cost in one run
 EXTRA = (("pseudo", "multires", {"feature_winding": False}),)
 
 

@@ -1,4 +1,4 @@
-"""Jacobi corrections by float atomics against the per-vertex gather (``Config.jacobi_gather``,
+"""Jacobi corrections by float atomics against the per-vertex gather (``Config.execution.jacobi_gather``,
 physhand_mj/solver/gather.py): one hand's solver frame, time and agreement.
 
 The hand closes from ``open`` to ``power`` over 8 frames of 5 ms (10 substeps), then holds; the

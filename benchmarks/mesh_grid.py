@@ -1,4 +1,4 @@
-"""What the mesh distance grid (contact/objects.mesh_grid, Config.mesh_grid) saves, and that it
+"""What the mesh distance grid (contact/objects.mesh_grid, Config.execution.mesh_grid) saves, and that it
 changes nothing: the HOI bowl (a 1,408-face mesh) grasped by SoftHand with each grid spacing, and
 the grid's answers against the exact BVH query at points around the bowl.
 

@@ -112,7 +112,7 @@ class BatchedHands:
         from physhand_mj.solver import fused_choice
 
         if fused_choice.cuda_auto(self.config, asset, self.worlds, wp.get_device(self.config.device)):
-            # Config.fused_substep=None on CUDA: a block per world in shared memory from 0.3 worlds per SM
+            # Config.execution.fused_substep=None on CUDA: a block per world in shared memory from 0.3 worlds per SM
             self.config = dataclasses.replace(self.config, fused_substep=True)
         if spacing is None:  # the object side's queries apart by 1 m (the solve stays at the origin)
             spacing = 1.0
@@ -388,7 +388,7 @@ class BatchedHands:
         out = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
                for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(),
                                              summarize_rows(rows))]
-        if over is not None:  # this world's feature lists' check (Config.feature_slack), where it has feature points
+        if over is not None:  # this world's feature lists' check (Config.tuning.feature_slack), where it has feature points
             for row, o in zip(out, over):
                 row["feature_slack_exceeded"] = o
         return out

@@ -207,6 +207,25 @@ class Config:
         return self.validate().substep_dt
 
     @classmethod
+    def from_dict(cls, options: dict) -> "Config":
+        """A Config from a dict of options, as JSON files and scripts write them: each key a Config,
+        :class:`Tuning` or :class:`Execution` field (flat), or ``"tuning"`` / ``"execution"`` holding
+        a dict or an instance of the group. An unknown key raises ValueError naming it."""
+        own, groups = {}, {"tuning": {}, "execution": {}}
+        for key, value in dict(options).items():
+            if key in ("tuning", "execution"):
+                groups[key].update(dataclasses.asdict(value) if dataclasses.is_dataclass(value) else dict(value))
+            elif key in _TUNING:
+                groups["tuning"][key] = value
+            elif key in _EXECUTION:
+                groups["execution"][key] = value
+            elif key in _OWN:
+                own[key] = value
+            else:
+                raise ValueError(f"unknown Config option {key!r}: see docs/config.md for the options")
+        return cls(**own, tuning=Tuning(**groups["tuning"]), execution=Execution(**groups["execution"]))
+
+    @classmethod
     def preset(cls, name: str, **overrides) -> "Config":
         """A named setting of the accuracy sweep's recommendation table (docs/accuracy.md), with
         ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: half the
@@ -220,6 +239,11 @@ class Config:
         return config
 
 
+_TUNING = {f.name for f in dataclasses.fields(Tuning)}
+_EXECUTION = {f.name for f in dataclasses.fields(Execution)}
+_OWN = {f.name for f in dataclasses.fields(Config)} - {"tuning", "execution"}
+
+
 def _settings_fields():
     own = [f for f in dataclasses.fields(Config) if f.name not in ("tuning", "execution")]
     out = []
@@ -231,6 +255,12 @@ def _settings_fields():
     return out
 
 
+def _qual(name: str) -> str:
+    """The option's name as a user writes it: ``Config.x``, ``Config.tuning.x`` or ``Config.execution.x``."""
+    group = "tuning." if name in _TUNING else "execution." if name in _EXECUTION else ""
+    return f"Config.{group}{name}"
+
+
 def _check(s) -> None:
     """Raise ValueError naming the option to fix; normalise enums and the substep count in place
     (on the new Settings only)."""
@@ -240,23 +270,23 @@ def _check(s) -> None:
     def pos(name):
         v = getattr(s, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ValueError(f"Config.{name} must be a finite number > 0, got {v!r}")
+            raise ValueError(f"{_qual(name)} must be a finite number > 0, got {v!r}")
 
     def nonneg(name):
         v = getattr(s, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise ValueError(f"Config.{name} must be a finite number >= 0, got {v!r}")
+            raise ValueError(f"{_qual(name)} must be a finite number >= 0, got {v!r}")
 
     def flag(name, none_ok=False, hint=""):
         v = getattr(s, name)
         if not ((none_ok and v is None) or isinstance(v, (bool, np.bool_))):
-            raise ValueError(f"Config.{name} must be {'None' + hint + ', ' if none_ok else ''}True or False, got {v!r}")
+            raise ValueError(f"{_qual(name)} must be {'None' + hint + ', ' if none_ok else ''}True or False, got {v!r}")
 
     pos("frame_dt")
     for name in ("substeps", "iterations", "contact_passes", "contact_every", "multires_rounds", "opt_queries"):
         v = getattr(s, name)
         if not (isinstance(v, (int, np.integer)) and v >= 1):
-            raise ValueError(f"Config.{name} must be an integer >= 1, got {v!r}")
+            raise ValueError(f"{_qual(name)} must be an integer >= 1, got {v!r}")
     g = np.asarray(s.gravity, dtype=float)
     if g.shape != (3,) or not np.all(np.isfinite(g)):
         raise ValueError(f"Config.gravity must be 3 finite numbers (m/s^2), got {s.gravity!r}")
@@ -264,16 +294,16 @@ def _check(s) -> None:
                  "attach_compliance", "smooth_compliance"):
         nonneg(name)
     if not (0.0 < s.relaxation < 2.0):
-        raise ValueError(f"Config.relaxation must lie in (0, 2), got {s.relaxation!r}")
+        raise ValueError(f"Config.tuning.relaxation must lie in (0, 2), got {s.relaxation!r}")
     flag("tiled_contact", True, " (one hand: tiled)")
     r = s.multires_registers
     if r is not None and not (isinstance(r, (int, np.integer)) and not isinstance(r, bool)
                               and (r == 0 or 32 <= r <= 255)):
-        raise ValueError(f"Config.multires_registers must be None (chosen per run), 0 (the generic kernel) or an "
+        raise ValueError(f"Config.execution.multires_registers must be None (chosen per run), 0 (the generic kernel) or an "
                          f"integer from 32 to 255 (registers a thread), got {r!r}")
     b = s.multires_block_dim
     if not (isinstance(b, (int, np.integer)) and not isinstance(b, bool) and 32 <= b <= 1024 and b % 32 == 0):
-        raise ValueError(f"Config.multires_block_dim must be a multiple of 32 from 32 to 1024 (threads a block), "
+        raise ValueError(f"Config.execution.multires_block_dim must be a multiple of 32 from 32 to 1024 (threads a block), "
                          f"got {b!r}")
     flag("region_sleep")
     flag("fused_substep", True, " (the CPU's and large CUDA batches' default)")
@@ -282,21 +312,21 @@ def _check(s) -> None:
     flag("reuse_outside")
     flag("jacobi_gather", True, " (on CUDA)")
     if not (isinstance(s.multires_samples, (int, np.integer)) and s.multires_samples >= 3):
-        raise ValueError(f"Config.multires_samples must be an integer >= 3, got {s.multires_samples!r}")
+        raise ValueError(f"Config.tuning.multires_samples must be an integer >= 3, got {s.multires_samples!r}")
     for name in ("contact_margin", "contact_pass_tol", "skin_tether", "contact_frame_margin", "contact_offset",
                  "feature_offset", "mesh_grid", "sleep_speed", "sleep_bone_motion"):
         nonneg(name)
     v = s.feature_last_offset
     if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0):
-        raise ValueError(f"Config.feature_last_offset must be None (feature_offset's stand-off) or a distance "
+        raise ValueError(f"Config.tuning.feature_last_offset must be None (feature_offset's stand-off) or a distance "
                          f">= 0 in m (e.g. 6e-6), got {v!r}")
     for name, example in (("feature_slack", "4e-3"), ("feature_spacing", "2.5e-4")):
         v = getattr(s, name)
         if not (isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
                 and math.isfinite(v) and v > 0):
-            raise ValueError(f"Config.{name} must be a distance > 0 in m (e.g. {example}), got {v!r}")
+            raise ValueError(f"{_qual(name)} must be a distance > 0 in m (e.g. {example}), got {v!r}")
     if not (isinstance(s.sleep_frames, int) and s.sleep_frames >= 1):
-        raise ValueError(f"Config.sleep_frames must be an integer >= 1, got {s.sleep_frames!r}")
+        raise ValueError(f"Config.tuning.sleep_frames must be an integer >= 1, got {s.sleep_frames!r}")
     if s.contact_frame_margin < s.contact_margin:
         raise ValueError(f"Config.contact_frame_margin ({s.contact_frame_margin} m) must be at least "
                          f"Config.tuning.contact_margin ({s.contact_margin} m)")
@@ -319,8 +349,8 @@ def _check(s) -> None:
                   f"and inverts under gravity alone and does not recover (docs/stability.md); use substeps "
                   f">= {need} (or leave Config.max_substep at its default, which does)")
     put("contact", enum_field(Strategy, s.contact, "contact"))
-    put("contact_placement", enum_field(Placement, s.contact_placement, "contact_placement"))
-    put("scheme", enum_field(Scheme, s.scheme, "scheme"))
+    put("contact_placement", enum_field(Placement, s.contact_placement, "tuning.contact_placement"))
+    put("scheme", enum_field(Scheme, s.scheme, "tuning.scheme"))
     put("nonfinite", enum_field(NonFinite, s.nonfinite, "nonfinite"))
     if s.fused_substep and (s.scheme != Scheme.JACOBI or s.iterations != 1 or s.region_sleep):
         raise ValueError("Config.execution.fused_substep needs tuning.scheme=JACOBI, iterations=1 and "

@@ -333,7 +333,7 @@ class SoftHand:
         run; with no object near no contact op runs); with object feature points,
         ``feature_slack_mm``, ``skin_motion_mm`` and ``feature_slack_exceeded`` (the last frame with
         contact: the slack its feature lists allowed for, its skin's largest move, whether that move
-        reached half the slack: Config.feature_slack); with Config.region_sleep also
+        reached half the slack: Config.tuning.feature_slack); with Config.region_sleep also
         ``regions_asleep`` (names), ``vertices_asleep`` and ``constraints_solved``
         (physhand_mj/solver/regions.py)."""
         tm = self._timing

@@ -24,7 +24,7 @@ class Scheme(enum.IntEnum):
     """How constraint projections run in parallel (see docs/solver.md for the measurements).
 
     JACOBI: every constraint of a family at once from the same positions; corrections are summed per
-      vertex, averaged over the vertex's constraint count and scaled by ``Config.relaxation``.
+      vertex, averaged over the vertex's constraint count and scaled by ``Config.tuning.relaxation``.
       Few launches (one per family), so it suits GPUs and CUDA graphs.
     COLORED: graph-coloured Gauss-Seidel; constraints of one colour share no movable vertex, so each
       colour is projected in place, in sequence (one launch per colour).

@@ -48,7 +48,7 @@ class Model:
       vertex_world: (N,) int, the world of each vertex (batched worlds, physhand_mj/batch.py: the
         asset replicated ``worlds`` times; all 0 for one hand).
       gather_off / gather_slot: per Jacobi group, (N + 1,) int CSR offsets and the slot ids of each
-        movable vertex's corrections (``Config.jacobi_gather``, solver/gather.py; empty lists on the
+        movable vertex's corrections (``Config.execution.jacobi_gather``, solver/gather.py; empty lists on the
         atomic path); slot_base: per family, its slots' offset within its group; n_slots: the
         largest group's slot count (``State.corr``'s length).
     Host data: ``colors``: per family, the [start, end) ranges of its colours when the scheme is
@@ -99,7 +99,7 @@ class State:
     start of the substep (Algorithm 1, x^i); x_safe: (N,) vec3 positions at the end of the last frame
 (the non-finite guard's fallback); delta: (N,) vec3 Jacobi correction accumulator; corr:
     (Model.n_slots,) vec3, the constraints' own correction slots when the solver gathers
-    (Config.jacobi_gather, solver/gather.py; empty otherwise);
+    (Config.execution.jacobi_gather, solver/gather.py; empty otherwise);
     lam_edge/lam_tet/lam_dih: Lagrange multipliers per constraint (Algorithm 1, line 11);
     body_pose: (2, B) transforms of the bones at the start / end of the frame (uploaded each frame
     from pose_host, (2, B, 7) float32 numpy: position, quaternion x y z w);
@@ -128,4 +128,4 @@ class State:
     still: int = 0  # frames in a row that ended settled (the sleep test, activity.py)
     sleep_onset: object = None  # asleep: (bone poses (B, 7) when it fell asleep, first bone's velocity m/s)
     sleep_box: object = None  # asleep on CUDA: the sleeping skin's box corners in the first bone's frame (8, 3) m
-    corr: object = None  # the constraints' correction slots (Config.jacobi_gather); set by Solver.make_state
+    corr: object = None  # the constraints' correction slots (Config.execution.jacobi_gather); set by Solver.make_state

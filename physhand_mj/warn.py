@@ -30,7 +30,9 @@ def warn_user(message: str, category: type[Warning] = RuntimeWarning) -> None:
     """``warnings.warn(message, category)`` attributed to the first frame outside the package (the
     last frame of the stack if every frame is the package's)."""
     level, frame = 2, sys._getframe(1)  # (level 1 is this function; 2 its caller)
-    while frame.f_back is not None and _ours(frame.f_code.co_filename):
+    # (a dataclass's generated __init__, which runs Settings' checks, has no file: "<string>")
+    while frame.f_back is not None and (_ours(frame.f_code.co_filename)
+                                        or (frame.f_code.co_filename.startswith("<") and frame.f_code.co_name == "__init__")):
         frame = frame.f_back
         level += 1
     warnings.warn(message, category, stacklevel=level)

@@ -25,7 +25,7 @@ def scene():
 
 def _solver(scene, gtype=GeomType.SPHERE, size=(R, 0.0, 0.0), **config):
     asset, mount, poses = scene
-    cfg = Config(**{"device": "cpu", **config})
+    cfg = Config.from_dict({"device": "cpu", **config}).validate()
     objects = Objects(cfg.device, 1)
     objects.add(gtype, size, pos=FAR, name="ball")
     solver = Solver(make_model(asset, cfg), cfg, objects=objects)

@@ -169,7 +169,7 @@ def test_conditional_contact_passes_change_no_result(scene):
 
 
 def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
-    """Config.contact_pass_tol: in every stage but the frame's last, a pass runs only when the pass
+    """Config.tuning.contact_pass_tol: in every stage but the frame's last, a pass runs only when the pass
     before it moved some vertex by more than the tolerance. With 1 m no stage but the last runs more
     than its first pass (their later passes' lists stay empty), the last stage still runs until a
     pass moves nothing, so every frame of a box pressing into the hand ends with no skin sample in
@@ -226,7 +226,7 @@ def _without(names, drop):
     ("substep metrics", dict(substep_metrics=True), ("penetration_samples",)),
 ])
 def test_switching_an_effect_off_removes_exactly_its_launches(scene, effect, config, kernels):
-    # the smoothness's own launches are the five-launch substep's (Config.fused_substep=False); the
+    # the smoothness's own launches are the five-launch substep's (Config.execution.fused_substep=False); the
     # fused substep (the CPU's default) has one launch either way and walks no dihedral (below)
     extra = dict(fused_substep=False) if effect == "smoothness" else {}
     base_s, base_st, *_ = _solver(scene, **extra)

@@ -1,13 +1,15 @@
 """Batched worlds (physhand_mj/batch.py): W hands in one solver step equal W serial runs, world by
 world; the replicated asset keeps every world's skin first and its constraints inside the world."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import warp as wp
 
-from physhand_mj.config import Execution, Tuning
 import physhand_mj as ph
 from physhand_mj.batch import BatchedHands, replicate_asset
+from physhand_mj.config import Execution, Tuning
 from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
 from physhand_mj.solver import Solver, make_model
 from physhand_mj.types import Config, Layer
@@ -58,8 +60,8 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
     constraint family holds the same constraints per world (the edge family lists each world's
     edges and attachments together: the order within a world is kept), and the gather lists sum
     the same slots per vertex (solver/gather.py)."""
-    from physhand_mj.solver.worlds import tile_model_arrays
     from physhand_mj.solver.model import model_arrays
+    from physhand_mj.solver.worlds import tile_model_arrays
 
     asset = setup[0]
     W = 3
@@ -117,9 +119,8 @@ def test_model_tiled_on_the_device_equals_the_host_tiling(setup, gather, device)
     in dtype, shape and value."""
     import dataclasses
 
-    from physhand_mj.solver.worlds import tile_model_arrays
-    from physhand_mj.solver.worlds import tile_model
     from physhand_mj.solver.model import model_arrays, upload_model
+    from physhand_mj.solver.worlds import tile_model, tile_model_arrays
 
     cfg = Config(device=device, execution=Execution(jacobi_gather=gather)).validate()
     a = model_arrays(setup[0], cfg, batch=True)
@@ -146,7 +147,7 @@ def test_model_tiled_on_the_device_equals_the_host_tiling(setup, gather, device)
 def test_batched_worlds_equal_serial_runs(setup, gather):
     """Two worlds, one holding the hand open, one bending the index finger: each equals its own
     serial solver's run (bit for bit on the CPU: the same constraints in the same order), with the
-    Jacobi corrections added by atomics or gathered per vertex (Config.jacobi_gather)."""
+    Jacobi corrections added by atomics or gathered per vertex (Config.execution.jacobi_gather)."""
     asset, model, data, ids, mount = setup
     q0 = model.key("open").qpos.copy()
     q1 = q0.copy()
@@ -384,7 +385,7 @@ def test_a_batch_without_frame_metrics_measures_on_demand(setup, device):
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not wp.is_cuda_available(), reason="no CUDA device"))])
 def test_reused_outside_answers_per_world(setup, device):
-    """Config.reuse_outside in a batch: each world's skin patches and objects bound its own points.
+    """Config.execution.reuse_outside in a batch: each world's skin patches and objects bound its own points.
     Frame by frame the hands close towards a pinch (their skins move, the balls held away), then
     the measure runs with world 1's ball (r 12 mm) put 1 mm further into its skin each frame and
     world 0's coming closer without touching: both worlds' object-side counts and depths equal
@@ -407,9 +408,9 @@ def test_reused_outside_answers_per_world(setup, device):
         batch.set_object_poses(np.stack([top + [0.0, 0.0, 0.03 - 0.002 * f],
                                          top + [0.0, 0.0, 0.012 - 0.001 * f]])[:, None], ident)
         kept = c.measure_worlds(batch.state)
-        c.config.reuse_outside = False
+        c.config = dataclasses.replace(c.config, reuse_outside=False)
         every = c.measure_worlds(batch.state)
-        c.config.reuse_outside = True
+        c.config = dataclasses.replace(c.config, reuse_outside=True)
         # counts and maxima exactly; the depth sums within float rounding (CUDA's atomics add in any order)
         np.testing.assert_array_equal(kept[:, [0, 2, 3, 5]], every[:, [0, 2, 3, 5]])
         np.testing.assert_allclose(kept[:, [1, 4]], every[:, [1, 4]], rtol=1e-6)
@@ -508,7 +509,7 @@ def test_kernel_choices_follow_the_batch(setup):
     asset = setup[0]
     for bad in (dict(tiled_contact="yes"), dict(jacobi_gather=1.0), dict(tiled_features=0)):
         with pytest.raises(ValueError, match=list(bad)[0]):
-            Config(**bad).validate()
+            Config.from_dict(bad).validate()
     cpu = BatchedHands(asset, 2, Config(device="cpu"))  # the CPU keeps the atomics (cheaper there)
     assert not cpu.solver.model.gather_off and cpu.solver.model.n_slots == 0
     if not wp.is_cuda_available():

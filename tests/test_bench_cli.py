@@ -17,7 +17,7 @@ def test_bench_solver_prints_the_contract_fields(capsys):
     assert out["substeps"] == 10 and out["frame_dt_s"] == 0.005
     assert out["vertices"] == 10480 and out["ms_per_frame"] > 0
     assert out["nonfinite"] == 0 and out["inverted"] == 0
-    # the CPU fuses a substep's start and constraint groups into one launch (Config.fused_substep's
+    # the CPU fuses a substep's start and constraint groups into one launch (Config.execution.fused_substep's
     # default), and with no contact stage a frame's substeps and its end into one (fused.FRAME_LAUNCH,
     # FOLD_END: the last substep's velocities and the inverted-tet count inside it): the frame's bone
     # poses, then that launch

@@ -30,7 +30,7 @@ def test_settings_are_flat_frozen_and_checked_when_replaced():
     assert (s.feature_offset, s.cuda_graph, s.contact_passes) == (5e-5, False, 8)
     with pytest.raises(dataclasses.FrozenInstanceError):
         s.substeps = 3
-    with pytest.raises(ValueError, match="Config.feature_offset must be a finite number >= 0"):
+    with pytest.raises(ValueError, match="Config.tuning.feature_offset must be a finite number >= 0"):
         dataclasses.replace(s, feature_offset=-1.0)
     with pytest.raises(ValueError, match="Config.tuning must be a physhand_mj.Tuning"):
         ph.Config(tuning={"feature_offset": 1e-5}).validate()

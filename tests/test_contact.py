@@ -95,7 +95,7 @@ def test_broadphase_skips_far_triangles():
     from physhand_mj.bodies import sheet
 
     body = sheet(30, 30, 0.005, height=0.0)
-    cfg = ph.Config(device="cpu", contact_passes=1)  # active_count then holds the broadphase's list
+    cfg = ph.Config(device="cpu", contact_passes=1).validate()  # active_count then holds the broadphase's list
     objs = Objects("cpu", 1)
     objs.add(GeomType.SPHERE, [0.01], pos=(0.05, 0.05, 0.0105), name="ball")  # over one corner region
     solver = ph.Solver(ph.make_model(body, cfg), cfg, objects=objs)
@@ -302,7 +302,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     touched, count, vobj = wp.zeros(n, dtype=int, device=d), wp.zeros(1, dtype=int, device=d), wp.full(n, -1, dtype=int, device=d)
     lst = wp.array(np.asarray(feats, np.int32), dtype=int, device=d)
     lst_count = wp.array([len(feats)], dtype=int, device=d)
-    # the pseudo-normal sign on both paths (Config.feature_winding's inputs off)
+    # the pseudo-normal sign on both paths (Config.tuning.feature_winding's inputs off)
     no = wp.zeros(1, dtype=int, device=d)
     off = [0, no, no, no, no, wp.zeros(1, dtype=float, device=d)]
     if tiled:
@@ -325,7 +325,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
 
 
 def test_tiled_feature_query_matches_the_bvh_query():
-    """features.py's block-per-feature query (CUDA's Config.tiled_features; on the CPU a block is one
+    """features.py's block-per-feature query (CUDA's Config.execution.tiled_features; on the CPU a block is one
     thread, which scans the whole list) over the frame's broadphase list of skin triangles finds,
     for every listed feature of the knife 1.5 mm deeper in the palm than the contact left it (many
     inside the skin), the BVH query's closest distance (within 1e-7 m: the same triangle, or another
@@ -401,7 +401,7 @@ def test_tiled_features_hold_the_hard_case_on_the_cpu(monkeypatch):
 @pytest.mark.parametrize("kind, site, start", [("cone_tip", "fingertip", 0.002), ("mesh_cone", "palm", -0.004),
                                                ("coarse", "palm", -0.004)])
 def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
-    """CUDA (graph captured): the block-per-feature kernels (Config.tiled_features, a block of
+    """CUDA (graph captured): the block-per-feature kernels (Config.execution.tiled_features, a block of
     FEATURE_LANES threads per feature over the frame's triangle list, no BVH refit per pass) and the
     BVH path both end the hard cases at zero by both measures (tests/test_hard_contact.py's bounds)
     with the skins close: a feature whose closest skin point is a shared vertex or edge may be

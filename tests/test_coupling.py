@@ -105,7 +105,7 @@ def _close_on(kind, **config):
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    hand = SoftHand(model, data, ph.Config(device="cpu", **config), object_bodies=["glass"])
+    hand = SoftHand(model, data, ph.Config.from_dict(dict(device="cpu", **config)), object_bodies=["glass"])
     free = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=[])
     for _ in range(50):
         mujoco.mj_step(model, data)

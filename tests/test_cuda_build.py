@@ -14,7 +14,7 @@ def _nvrtc_archs():
 
 @pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")
 def test_the_feature_kernels_build_for_an_h100(tmp_path):
-    """contact/features.py (the object side's lists and pushes), contact/slack.py (Config.feature_slack's
+    """contact/features.py (the object side's lists and pushes), contact/slack.py (Config.tuning.feature_slack's
     frame check: skin_motion, skin_reach, certify_features, next_slack) and contact/winding.py (the
     patches, sized per point) build to sm_90 machine code."""
     from physhand_mj.contact import features, slack, winding

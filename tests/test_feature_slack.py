@@ -1,4 +1,4 @@
-"""Config.feature_slack (contact/slack.py): the object's feature points are listed, and their
+"""Config.tuning.feature_slack (contact/slack.py): the object's feature points are listed, and their
 patches sized, for the skin's motion in a frame, not for the whole frame margin. Checked against
 brute force on the skin at the frame's start (which points are listed, which triangles their patches
 hold) and at its end (the patch still holds the closest skin triangle; no unlisted point came near
@@ -140,7 +140,7 @@ def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
 
 
 def _check_lists(asset, slack, device):
-    cfg = ph.Config(device=device, tuning=ph.Tuning(feature_slack=slack))
+    cfg = ph.Config(device=device, tuning=ph.Tuning(feature_slack=slack)).validate()
     r = run_case(press_case("knife", site="fingertip", depth=0.004, start=0.002), cfg, frames=12, check_order=5,
                  asset=asset)
     solver, state = r["solver"], r["state"]
@@ -334,9 +334,9 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
 def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):
     """A plate starting 4 mm inside the palm: the first frame lists with the frame margin, the next
     with 2.5 x the largest move near the points in the first (at least
-    Config.feature_slack); a flagged frame warns once where the lists were cut short, not at the
+    Config.tuning.feature_slack); a flagged frame warns once where the lists were cut short, not at the
     margin."""
-    cfg = ph.Config(device="cpu")
+    cfg = ph.Config(device="cpu").validate()
     r = run_case(press_case("plate", site="palm", depth=0.004, start=-0.004), cfg, frames=1, check_order=5,
                  asset=asset)
     solver = r["solver"]

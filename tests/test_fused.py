@@ -1,4 +1,4 @@
-"""Config.fused_substep (physhand_mj/solver/fused.py): a substep's three Jacobi groups in one
+"""Config.execution.fused_substep (physhand_mj/solver/fused.py): a substep's three Jacobi groups in one
 shared-memory launch per world give the five-launch solver's positions: bit for bit on the CPU
 (one lane per block, the constraints in the atomic path's order), within float rounding of the
 sum's order on CUDA."""
@@ -131,7 +131,7 @@ def test_fused_substep_refuses_what_it_cannot_run(bad):
     kw = dict(fused_substep=True)
     kw.update(bad)
     with pytest.raises(ValueError, match="fused_substep"):
-        Config(device="cpu", **kw).validate()
+        Config.from_dict(dict(device="cpu", **kw)).validate()
 
 
 @pytest.mark.parametrize("kw", [dict(iterations=2), dict(scheme=Scheme.COLORED), dict(jacobi_gather=True),
@@ -140,7 +140,7 @@ def test_default_falls_back_where_the_fused_substep_cannot_run(setup, kw):
     """``fused_substep=None`` (the default) fuses on the CPU only where it can: otherwise the
     five-launch substep, with no error."""
     asset = setup[0]
-    cfg = Config(device="cpu", **kw)
+    cfg = Config.from_dict(dict(device="cpu", **kw))
     solver = Solver(make_model(asset, cfg), cfg)
     assert solver._fused is None
     default = Config(device="cpu")
@@ -162,13 +162,13 @@ def test_cuda_batches_take_the_fused_substep_from_a_third_of_a_world_per_sm(setu
 
     asset, h100 = setup[0], _H100()
     assert fused_choice.asset_shared_bytes(asset, h100) == 207_504 + 4 * fused.BLOCK_DIM
-    cfg = Config()
+    cfg = Config().validate()
     assert not fused_choice.cuda_auto(cfg, asset, 39, h100)
     assert fused_choice.cuda_auto(cfg, asset, 40, h100) and fused_choice.cuda_auto(cfg, asset, 4096, h100)
     for kw in (dict(jacobi_gather=True), dict(iterations=2), dict(scheme=Scheme.COLORED), dict(region_sleep=True),
                dict(fused_substep=False)):
-        assert not fused_choice.cuda_auto(Config(**kw), asset, 4096, h100), kw
-    assert fused_choice.cuda_auto(Config(tuning=Tuning(scheme="jacobi")), asset, 4096, h100)  # (a scheme given by name)
+        assert not fused_choice.cuda_auto(Config.from_dict(kw).validate(), asset, 4096, h100), kw
+    assert fused_choice.cuda_auto(Config(tuning=Tuning(scheme="jacobi")).validate(), asset, 4096, h100)  # (a scheme by name)
     small = _H100()
     small.max_shared_memory_per_block = 100_000  # (a card whose block cannot hold a world)
     assert not fused_choice.cuda_auto(cfg, asset, 4096, small)

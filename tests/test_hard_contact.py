@@ -100,7 +100,7 @@ MEASURES = ("skin_count", "dense_count", "dense_max_um", "obj_count", "obj_max_u
 def test_hard_case_ends_without_penetration_by_both_measures(asset, kind, site, start):
     """The default contact: zero by the order-5 metric, an order-9 lattice, the object's points and
     the denser check points over the last frames; the skin settled within DISP_BOUND_MM of rest,
-    never beyond the tether. (With features ending 1 um out instead of Config.feature_offset's 60 um
+    never beyond the tether. (With features ending 1 um out instead of Config.tuning.feature_offset's 60 um
     the check found up to 26 um in 7 of these 11 over the last frames: docs/contact.md.)"""
     r = run_case(press_case(kind, site=site, depth=0.004, start=start), ph.Config(device="cpu"), frames=14,
                  asset=asset)
@@ -139,7 +139,7 @@ def _signed_distance(mesh: wp.uint64, p: wp.array(dtype=wp.vec3), out: wp.array(
 
 @pytest.mark.parametrize("offset, spacing", [(1.0e-6, 5.0e-4), (6.0e-5, 5.0e-4), (6.0e-5, 2.5e-4)])
 def test_a_pressed_tip_ends_feature_offset_outside_the_skin(asset, offset, spacing):
-    """Config.feature_offset is where a feature point ends: the analytic cone's tip pressed 4 mm into
+    """Config.tuning.feature_offset is where a feature point ends: the analytic cone's tip pressed 4 mm into
     the fingertip ends that far outside the closed skin (winding-number sign, exact closest point;
     measured 1.0 and 60.0 um) when its nearest other feature (the slant's first point, half a
     ``feature_spacing`` away) is 0.25 mm off. At the default 0.25 mm spacing that point, 0.125 mm
@@ -179,7 +179,7 @@ def test_check_points_are_denser_and_share_no_edge_point_with_the_features(asset
 
 @pytest.mark.parametrize("passes", [1, 8])
 def test_the_last_feature_push_has_its_counter_slot_and_moves_the_skin(asset, passes):
-    """Config.feature_last adds one feature push (and one counter slot) per stage after the last
+    """Config.tuning.feature_last adds one feature push (and one counter slot) per stage after the last
     pass: the frame's counters are used up exactly with it and one slot per stage short without it;
     on a knife edge starting 4 mm deep with one pass a stage (Eq. 9 has the last word then) the push
     changes the skin (with 8 passes this first frame settles before the last pass, which the CPU then
@@ -198,13 +198,13 @@ def test_the_last_feature_push_has_its_counter_slot_and_moves_the_skin(asset, pa
 
 
 def test_the_last_push_takes_its_own_offset_and_nothing_else_does(asset):
-    """Config.feature_last_offset is the stand-off of the stage's last feature push only: on a knife
+    """Config.tuning.feature_last_offset is the stand-off of the stage's last feature push only: on a knife
     edge starting 4 mm deep with one pass a stage (so the last push acts in every stage) the skin
     differs between 6 and 60 um, and None is feature_offset's 60 um bit for bit; without the last push
     (feature_last=False) the value changes nothing, bit for bit."""
     def skin(**kw):
         r = run_case(press_case("knife", site="fingertip", depth=0.004, start=-0.004),
-                     ph.Config(device="cpu", contact_passes=1, **kw), frames=1, asset=asset)
+                     ph.Config.from_dict(dict(device="cpu", contact_passes=1, **kw)), frames=1, asset=asset)
         assert r["finite"]
         return np.asarray(r["skin"])
 
@@ -303,11 +303,11 @@ def test_the_object_side_sees_what_the_skin_side_misses(asset):
     ("bone", "palm", -0.02, dict(feature_contact=False)),  # the lead 20 mm deep: no penetration-free skin
 ])
 def test_reused_outside_answers_equal_asking_every_point(asset, kind, site, start, extra):
-    """Config.reuse_outside: the object-side measure asks again only points the skin and their object
+    """Config.execution.reuse_outside: the object-side measure asks again only points the skin and their object
     could have reached since; frame by frame, while the object presses in and the skin moves, its
     counts and depths (the contact's points and the denser check points) equal asking every point."""
     case = press_case(kind, site=site, depth=0.004 if kind == "knife" else 0.02, start=start)
-    runs = {reuse: run_case(case, ph.Config(device="cpu", **extra, execution=ph.Execution(reuse_outside=reuse)), frames=6, asset=asset)
+    runs = {reuse: run_case(case, ph.Config.from_dict(dict(device="cpu", **extra, reuse_outside=reuse)), frames=6, asset=asset)
             for reuse in (False, True)}
     for k in ("obj_count", "obj_max_um", "check_count", "check_max_um"):
         assert np.array_equal(runs[False][k], runs[True][k]), (k, runs[False][k], runs[True][k])

@@ -89,7 +89,7 @@ def test_the_planes_are_the_box_faces_at_their_points(scene):  # noqa: F811
     local = (p - centre) @ _rot_x(TILT)  # the planes live in the box's frame
     by_plane = np.einsum("nd,nd->n", eq[:, :3].astype(np.float64), local) + eq[:, 3]
     assert np.abs(by_plane - exact).max() < 1.0e-6, np.abs(by_plane - exact).max()
-    assert np.all(exact < Config().contact_margin)
+    assert np.all(exact < Config().validate().contact_margin)
     g = eq[:, :3]
     assert np.allclose(np.linalg.norm(g, axis=1), 1.0, atol=1e-5)
     assert np.mean(g[:, 2] < -0.9999) > 0.9  # most on the bottom face, pressing on the back of the hand

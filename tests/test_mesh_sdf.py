@@ -420,7 +420,7 @@ def test_the_grids_bounds_list_the_triangles_the_exact_distance_lists(device):
 
 
 def test_a_contact_run_is_the_same_with_and_without_the_distance_grid():
-    """Config.mesh_grid changes only the cost: a mesh cone pressed into the palm, a coarse mesh
+    """Config.execution.mesh_grid changes only the cost: a mesh cone pressed into the palm, a coarse mesh
     starting 4 mm deep at the fingertip end with the same skin, bit for bit (measured on all 16 mesh
     hard cases: docs/contact.md; the knife 20 mm through the fingertip: tests/stress)."""
     import physhand_mj as ph

@@ -1,4 +1,4 @@
-"""Config.multires_registers: the per-thread multires kernel specialised to MULTIRES (and capped in
+"""Config.execution.multires_registers: the per-thread multires kernel specialised to MULTIRES (and capped in
 registers on CUDA) takes the generic kernel's code path, so a batch pressed by a sphere and by a mesh
 ends with the same skins bit for bit on the CPU; bad values are refused with the fix."""
 
@@ -24,7 +24,7 @@ def _pressed_batch(device="cpu", **config):
     _, model, data = open_hand_scene("hand_only", "open")
     poses = bone_poses_at(model, data, model.key("open").qpos, body_ids(model, asset.body_names))
     box = trimesh.creation.box((0.03, 0.03, 0.03))
-    batch = BatchedHands(asset, 2, Config(device=device, **config), *mount_pose(model, data),
+    batch = BatchedHands(asset, 2, Config.from_dict(dict(device=device, **config)), *mount_pose(model, data),
                          objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball"),
                                   dict(gtype=GeomType.MESH, size=None, vertices=box.vertices, faces=box.faces,
                                        name="block")])
@@ -101,12 +101,12 @@ def test_bad_block_sizes_are_refused(bad):
 def test_the_register_cap_is_chosen_for_mesh_batches_on_cuda():
     from physhand_mj.contact.contact import AUTO_MULTIRES_REGISTERS, multires_registers_for
 
-    auto = Config()
+    auto = Config().validate()
     assert auto.multires_registers is None
     assert multires_registers_for(auto, True, 1024, True) == AUTO_MULTIRES_REGISTERS  # a CUDA batch with a mesh
     assert multires_registers_for(auto, True, 1024, False) == 0  # analytic objects only: the generic kernel
     assert multires_registers_for(auto, True, 1, True) == 0  # one hand (the tiled kernel's run)
     assert multires_registers_for(auto, False, 1024, True) == 0  # the CPU
-    assert multires_registers_for(Config(execution=Execution(multires_registers=96)), False, 1, False) == 96  # set: as set
-    assert multires_registers_for(Config(execution=Execution(multires_registers=0)), True, 1024, True) == 0
-    assert multires_registers_for(Config(contact=ph.Strategy.VERTEX), True, 1024, True) == 0
+    assert multires_registers_for(Config(execution=Execution(multires_registers=96)).validate(), False, 1, False) == 96  # set: as set
+    assert multires_registers_for(Config(execution=Execution(multires_registers=0)).validate(), True, 1024, True) == 0
+    assert multires_registers_for(Config(contact=ph.Strategy.VERTEX).validate(), True, 1024, True) == 0

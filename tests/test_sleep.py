@@ -218,7 +218,7 @@ def test_a_region_near_an_object_stays_awake(scene):
 
 
 def test_a_region_wakes_when_a_neighbour_creeps(scene):
-    """Config.region_sleep: the middle finger bending slower than Config.sleep_bone_motion per frame
+    """Config.region_sleep: the middle finger bending slower than Config.tuning.sleep_bone_motion per frame
     (5e-5 rad a frame at its MCP: ~9 um at the fingertip) still wakes its neighbours (index, ring,
     palm) within a few frames: their motion since they fell asleep counts the neighbour's bones too,
     not only the per-frame step (found in review: they stayed frozen against it, 0.4-0.6 mm off

@@ -19,7 +19,7 @@ def _set_positions(state, x):
 
 
 def _free_solver(body, device, **kw):
-    cfg = ph.Config(device=device, gravity=(0.0, 0.0, 0.0), damping=0.0, **kw)
+    cfg = ph.Config.from_dict(dict(device=device, gravity=(0.0, 0.0, 0.0), damping=0.0, **kw))
     solver = ph.Solver(ph.make_model(body, cfg), cfg)
     return solver, solver.make_state()
 
@@ -119,7 +119,7 @@ def hand():
 def _run_hand(hand, frames, qpos_at=None, device="cpu", **kw):
     """The hand palm down (hand_only scene) for ``frames`` frames; bones at ``qpos_at(frame)``."""
     asset, model, data, ids = hand
-    cfg = ph.Config(device=device, **kw)
+    cfg = ph.Config.from_dict(dict(device=device, **kw))
     solver = ph.Solver(ph.make_model(asset, cfg), cfg)
     q_open = model.key("open").qpos.copy()
     poses = ph.bone_poses_at(model, data, q_open, ids)
@@ -252,7 +252,7 @@ def test_gather_lists_name_each_vertex_slots_in_order():
 
 @pytest.mark.parametrize("device", DEVICES)
 def test_jacobi_gather_repeats_and_matches_the_atomics(hand, device):
-    """Config.jacobi_gather: the constraints' corrections summed per vertex in a fixed order. On the
+    """Config.execution.jacobi_gather: the constraints' corrections summed per vertex in a fixed order. On the
     CPU that is the atomic result bit for bit (threads run in order there); on CUDA two runs repeat
     bit for bit and stay within float rounding of the atomic run."""
     asset, model, _, _ = hand
@@ -320,8 +320,8 @@ def test_bad_bone_poses_are_rejected(hand):
                                          ("volume_compliance", float("nan")), ("relaxation", 2.5),
                                          ("contact", "nne"), ("contact", 7), ("scheme", "gauss")])
 def test_config_errors_name_the_option(field, value):
-    with pytest.raises(ValueError, match=f"Config.{field}"):
-        ph.Config(**{field: value}).validate()
+    with pytest.raises(ValueError, match=rf"Config\.(tuning\.|execution\.)?{field}"):
+        ph.Config.from_dict({field: value}).validate()
 
 
 def test_config_enums_take_members_numbers_and_names():

@@ -79,7 +79,7 @@ def _feature_sides_tiled(tris: wp.array(dtype=int), tri_count: wp.array(dtype=in
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not wp.is_cuda_available(), reason="no CUDA device"))])
 def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device):
-    """The feature push's inside test (Config.feature_winding, features.py: the solid angles of the
+    """The feature push's inside test (Config.tuning.feature_winding, features.py: the solid angles of the
     skin triangles within contact_frame_margin of a feature point, summed on the skin as it is now,
     plus the rest's from the frame's start) against the full generalised winding number (every skin
     triangle's solid angle, numpy): the same side for every listed feature point at the end of each
@@ -286,7 +286,7 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("grasp").id)
     # (the lists at the frame margin, as every world's first frame with contact makes them: the pool's
-    # worst case; Config.feature_slack cuts later frames' lists to ~1/4 of this)
+    # worst case; Config.tuning.feature_slack cuts later frames' lists to ~1/4 of this)
     hand = ph.SoftHand(model, data, ph.Config(device="cpu", tuning=ph.Tuning(feature_slack=1e-2)))
     c = hand.solver.contact
     worlds = 4096

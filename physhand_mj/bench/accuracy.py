@@ -56,7 +56,7 @@ class SweepPoint:
     samples: int = 21  # multires samples per round
     rounds: int = 2  # multires rounds
     features: bool = True  # Config.feature_contact
-    side_aware: bool = True  # Config.side_aware
+    side_aware: bool = True  # Config.tuning.side_aware
     passes: int = 8  # Config.contact_passes
     substeps: int = 10
     iterations: int = 1

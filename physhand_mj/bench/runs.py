@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-from physhand_mj.config import Tuning
 from physhand_mj.bench.cases import CONE, SHEET
 from physhand_mj.launch import device_name
 
@@ -63,7 +62,7 @@ def bench_solver(device: str = "cpu", frames: int = 100, resolution: int | None 
     asset = hand_asset(resolution, asset_path)
     _, model, data = open_hand_scene("hand_only", "open")  # MuJoCo bones: the same for every resolution
     ids = body_ids(model, asset.body_names)
-    cfg = Config(device=device, **{"sleep_speed": 0.0, **config})  # the awake solver's cost (a still hand sleeps)
+    cfg = Config.from_dict({"device": device, "sleep_speed": 0.0, **config}).validate()  # awake: a still hand sleeps
     t0 = time.perf_counter()
     solver = Solver(make_model(asset, cfg), cfg)
     state = solver.make_state(*mount_pose(model, data))
@@ -127,7 +126,10 @@ def bench_cone(contact: str = "multires", device: str = "cpu", steps: int = 30, 
     except KeyError:
         raise ValueError(f"--contact must be vertex, opt or multires, got {contact!r}") from None
     body = sheet(**SHEET)
-    cfg = Config(device=device, substeps=substeps, contact=strategy, edge_compliance_skin=1.0e-6, smooth_compliance=10.0, damping=0.0, substep_metrics=True, **config, tuning=Tuning(volumes=False, attachment=False))
+    # the paper's sheet: edges and smoothness only (no tets, no bones)
+    cfg = Config.from_dict(dict(device=device, substeps=substeps, contact=strategy, edge_compliance_skin=1.0e-6,
+                                smooth_compliance=10.0, damping=0.0, substep_metrics=True, volumes=False,
+                                attachment=False, **config)).validate()
     objects = Objects(str(wp.get_device(device)), 1)
     objects.add(GeomType.CONE, [CONE["radius"], CONE["height"]], name="cone")
     solver = Solver(make_model(body, cfg), cfg, objects=objects)

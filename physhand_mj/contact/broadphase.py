@@ -8,7 +8,7 @@ atomic counter, each with the bit mask of the geoms it can reach.
 
 Two levels: once per frame over all triangles with ``Config.contact_frame_margin`` (m: covers the
 skin's and the objects' motion within the frame), then every substep over that frame list only
-with ``Config.contact_margin`` (m: covers the motion within one contact stage). Between the passes
+with ``Config.tuning.contact_margin`` (m: covers the motion within one contact stage). Between the passes
 of one stage, :func:`keep_moved` keeps only triangles a pass moved: a triangle none of whose
 vertices moved has the same decision point as before, which did not penetrate; nor does one whose
 lowest phi exceeds how far its vertices moved (1-Lipschitz again), within a stage
@@ -163,7 +163,7 @@ def keep_moved(
     that displacement m stays positive (the bound drops by m and the triangle is skipped).
     Thread 0 also sets ``flag[0]`` to 1 when one of ``counters`` at ``flag_slots`` (the last pass's
     touched vertices) is not zero, else 0: whether the next pass runs at all (activity.py level 2, a
-    conditional graph node on CUDA); with Config.contact_pass_tol (``pass_move`` not empty) also
+    conditional graph node on CUDA); with Config.tuning.contact_pass_tol (``pass_move`` not empty) also
     only when the last pass's largest move pass_move[stamp] exceeds its stage's ``stage_tol``
     (0 in the frame's last stage), and a pass that will not run gets an empty list. Launch at least
     one thread."""

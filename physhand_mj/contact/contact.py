@@ -29,7 +29,7 @@ from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
 from physhand_mj.config import FEATURE_LIST_SHARE
-from physhand_mj.types import Config, Model, Placement, Strategy
+from physhand_mj.types import Config, Model, Placement, Settings, Strategy
 from physhand_mj.launch import launch_options, tiled_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
@@ -49,19 +49,19 @@ PATCH_POOL_PER_FEATURE = 2 * PATCH_SLOT
 PATCH_POOL_MIN = 1 << 15
 PATCH_POOL_MAX = 1 << 30
 
-# batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.tiled_features
+# batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.execution.tiled_features
 # None): the HOI box grasp on an H100 (benchmarks/batch_hoi.py), hand-frames/s with a block per feature
 # against a thread: W = 16 1,349 / 627, W = 64 1,830 / 1,827, W = 256 1,907 / 3,302, W = 1024 1,859 / 3,745
 FEATURE_SCAN_WORLDS = 64
 
 
 
-AUTO_MULTIRES_REGISTERS = 128  # Config.multires_registers = None: the cap for a CUDA batch with a mesh object
+AUTO_MULTIRES_REGISTERS = 128  # Config.execution.multires_registers = None: the cap for a CUDA batch with a mesh object
 
 
-def multires_registers_for(config: Config, cuda: bool, worlds: int, has_mesh: bool) -> int:
+def multires_registers_for(config: Settings, cuda: bool, worlds: int, has_mesh: bool) -> int:
     """The register cap of the per-thread multires kernel (0: the generic kernel) for a run on a
-    CUDA device or not, of ``worlds`` worlds, with a mesh object or not: Config.multires_registers
+    CUDA device or not, of ``worlds`` worlds, with a mesh object or not: Config.execution.multires_registers
     where set; None picks AUTO_MULTIRES_REGISTERS for a CUDA batch with a mesh object (the bowl:
     1.11-1.13 x the batch's throughput on an H100) and 0 otherwise (the analytic grasps ran 4-24 %
     slower capped; one hand runs the tiled kernel, where the cap does not apply)."""
@@ -114,7 +114,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                                           pinned=wp.get_device(d).is_cuda) if w > 1 else None
         # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
         # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices, and after
-        # the last pass the final feature push's touched vertices (Config.feature_last)]
+        # the last pass the final feature push's touched vertices (Config.tuning.feature_last)]
         # (Config.contact_linear: and what the holds of the substeps without a stage take, linear.py)
         holds = config.substeps * HOLD_SLOTS if config.contact_linear and config.contact_every > 1 else 0
         self.counters = wp.zeros(1 + stages * (2 + 3 * config.contact_passes) + holds, dtype=int, device=d)
@@ -136,7 +136,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self._slot = 1
         # CUDA multires runs the tiled kernel when a block holds the lattice (and the centroid), by
         # default for one hand only: its launch has a block per skin triangle, which batched worlds
-        # fill with idle blocks (Config.tiled_contact)
+        # fill with idle blocks (Config.execution.tiled_contact)
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
@@ -153,7 +153,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                                       pinned=wp.get_device(d).is_cuda)
         self._points = None  # ObjectPoints, built at the first recording (objects are final then)
         self._check_points = None  # the denser check set (check_points), built on first use
-        self._reuse_memory = {}  # Config.reuse_outside's per (points, skin volume) memory (measures.py)
+        self._reuse_memory = {}  # Config.execution.reuse_outside's per (points, skin volume) memory (measures.py)
         self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         # (batched worlds: world 0's faces, which name world 0's skin vertices; every world is a copy,
@@ -199,7 +199,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         # per later pass of a frame: 1 when the pass before it moved a vertex (set by keep_moved, read by
         # the pass's conditional graph node on CUDA, activity.py level 2; zeroed per frame)
         self.pass_flags = wp.zeros(max(stages * config.contact_passes, 1), dtype=wp.int32, device=d)
-        # Config.contact_pass_tol: per pass (by its stamp, a counter slot) its largest vertex move, m
+        # Config.tuning.contact_pass_tol: per pass (by its stamp, a counter slot) its largest vertex move, m
         # (zeroed per frame), and per stage the tolerance its passes stop at (0 in the frame's last
         # stage: set by finish_recording); both empty when the tolerance is 0 (no work, no flag change)
         tol = config.contact_pass_tol > 0
@@ -263,7 +263,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
                     self.far_angle = wp.zeros(n, dtype=float, device=m.device)
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
-                self._make_slack(pts.pts.shape[0])  # Config.feature_slack's buffers (slack.py)
+                self._make_slack(pts.pts.shape[0])  # Config.tuning.feature_slack's buffers (slack.py)
             vol = self.volume(state, winding=False)
             qpose = self._query_pose(launch)
             ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self._slack_start_ops(state),
@@ -368,7 +368,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                 box: dict = {}
                 gate = gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin,
                                                                              feat_count)), 2, prev, flag)
-                if gate is not None and len(self.pass_move):  # (Config.contact_pass_tol: the CPU's host test)
+                if gate is not None and len(self.pass_move):  # (Config.tuning.contact_pass_tol: the CPU's host test)
                     gate.moved_enough = self._moved_enough(prev[0], stage)
                 lst, prev, flag = box["r"]
             else:
@@ -397,7 +397,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
                    block_dim=TILE_LANES)
         else:
-            decide = decide_and_project  # (Config.multires_registers: a copy specialised to multires)
+            decide = decide_and_project  # (Config.execution.multires_registers: a copy specialised to multires)
             regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, o.has_mesh)
             block = None
             if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
@@ -430,14 +430,14 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         return lst, tuple(moved_slots), flag
 
     def _moved_enough(self, stamp: int, stage: int):
-        """Config.contact_pass_tol's host test of a pass (the CPU's level-2 gate; CUDA's keep_moved
+        """Config.tuning.contact_pass_tol's host test of a pass (the CPU's level-2 gate; CUDA's keep_moved
         sets the device flag the same way): did the pass ``stamp`` move some vertex by more than its
         stage's tolerance?"""
         move = self._pass_move_host.numpy()  # (the CPU: a view; CUDA: the frame's copy, for reports)
         return lambda: self._stage_tol_host[stage] <= 0.0 or move[stamp] > self._stage_tol_host[stage]
 
     def finish_recording(self, passes_gated: bool | None = None) -> None:
-        """After a frame (or a stage) is recorded: Config.contact_pass_tol for every stage but the
+        """After a frame (or a stage) is recorded: Config.tuning.contact_pass_tol for every stage but the
         last recorded one, which runs its passes to the end; none where a pass cannot be skipped whole
         (``passes_gated`` False: Activity.passes_gated; a pass's feature push runs outside its list,
         so an emptied list alone would apply half a pass; None: as the solver's frame last said)."""
@@ -472,7 +472,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]
-        if len(self.pass_move):  # (Config.contact_pass_tol)
+        if len(self.pass_move):  # (Config.tuning.contact_pass_tol)
             ops.append(self.pass_move.zero_)
         if self.world_stage is not None:
             ops.append(self.world_stage.zero_)

@@ -15,7 +15,7 @@ class FeaturePush:
 
     @property
     def last_push_offset(self) -> float:
-        """The stand-off (m) of a stage's last feature push: Config.feature_last_offset, or
+        """The stand-off (m) of a stage's last feature push: Config.tuning.feature_last_offset, or
         feature_offset where that is None (read when a stage is recorded, as feature_offset is)."""
         cfg = self.config
         return float(cfg.feature_offset if cfg.feature_last_offset is None else cfg.feature_last_offset)
@@ -30,7 +30,7 @@ class FeaturePush:
             ops.append(self._refit_op(self.volume(state, winding=False), feat_count))
         slot = self._slot
         feat_touched = self._counter()
-        # the stage's last push (Config.feature_last: pass p == contact_passes) to its own, smaller stand-off
+        # the stage's last push (Config.tuning.feature_last: pass p == contact_passes) to its own, smaller stand-off
         off = self.last_push_offset if p == cfg.contact_passes else cfg.feature_offset
         if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"

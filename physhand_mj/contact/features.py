@@ -13,7 +13,7 @@ which moves q onto p + offset n (the minimum-norm correction of the three vertic
 pushes the skin into the hand, away from the object, whichever side of the object the skin is on.
 In practice n is the triangle's inward normal (a push along p - q, tangential at an edge of the
 triangle, would slide the skin along the object), and one pass moves q at most ``max_step``
-(Config.contact_margin), so a feature that starts deep inside is worked out over passes and
+(Config.tuning.contact_margin), so a feature that starts deep inside is worked out over passes and
 substeps instead of throwing the skin across the hand.
 Every contact pass applies these corrections (the depth-weighted mean per vertex, query.apply_contact)
 and then Eq. 9's: one after the other, as Gauss-Seidel, since one mean of both let a rim's push and
@@ -22,12 +22,12 @@ Eq. 9 undo each other.
 Work lists, so cost follows the features near the hand: once per frame the features within
 ``Config.contact_frame_margin`` of the skin are listed (a BVH query over the skin, refitted then);
 every contact stage keeps of that list the features inside the skin or less than
-``Config.contact_margin`` outside it (one signed query each: a pass moves the skin at most that far,
+``Config.tuning.contact_margin`` outside it (one signed query each: a pass moves the skin at most that far,
 the same bound as the stage broadphase of triangles), and its passes test only those, refitting the
 skin's BVH before each (no winding data: ~0.1 ms for 10k triangles on a CPU). Signs come from the
 skin's pseudo normals (the skin is closed and consistently wound), confirmed by a local winding number.
 
-How far the lists reach (``Config.feature_slack``, since 2026-11-27): :mod:`physhand_mj.contact.slack`.
+How far the lists reach (``Config.tuning.feature_slack``, since 2026-11-27): :mod:`physhand_mj.contact.slack`.
 """
 
 import warp as wp
@@ -61,7 +61,7 @@ def near_features(
     world_count: wp.array(dtype=int),
 ):
     """Append the feature points (indices into ``pts``) within ``keep`` (m) plus ``share`` of their
-    world's ``slack`` s (m, the skin's motion a frame allows for: Config.feature_slack; the share:
+    world's ``slack`` s (m, the skin's motion a frame allows for: Config.tuning.feature_slack; the share:
     Config.feature_list_share) of the skin, and those farther but within ``margin`` (m) that the
     skin's pseudo normals put inside it (a deep point is pushed however far the slack is), with
     their distance to the skin (``out_dist``, m, in list order; by point ``pt_dist``, signed by the

@@ -279,7 +279,7 @@ def object_points_inside_reuse(
     slack: wp.array(dtype=float),
 ):
     """:func:`object_points_inside`, asking again only the points whose answer could have changed
-    (``Config.reuse_outside``). ``slack[i]`` (m) is a lower bound of point i's distance to the skin
+    (``Config.execution.reuse_outside``). ``slack[i]`` (m) is a lower bound of point i's distance to the skin
     (0: ask it). Since it was taken, each skin patch P of the point's world (skin_patches: every
     skin triangle belongs to one patch, whose box holds its corners now, and its points moved no
     farther than its corners, at most ``motion[P]``) stayed at least max(slack, its box's distance

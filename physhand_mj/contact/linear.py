@@ -20,7 +20,7 @@ last decision point (its plane is exact where it is made all the same).
 The object's side is held too (with the feature push on): each stage also keeps its listed feature
 points (corners, tips, sharp edges) within ``contact_margin`` of the skin, each with its closest skin
 point (triangle and barycentric weights, on the skin's BVH refit after the stage), and a substep
-without a stage pushes them before the planes and, with ``Config.feature_last``, after them
+without a stage pushes them before the planes and, with ``Config.tuning.feature_last``, after them
 (:func:`hold_features`: features.push_feature against that triangle as it is now, a point behind
 its plane counting as inside). Batched worlds queried apart (BatchedHands with objects) hold their
 planes, not their feature points.
@@ -51,7 +51,7 @@ wp.set_module_options({"enable_backward": False})
 
 HOLD_MAX_DEPTH = wp.constant(2.0e-3)  # m: a plane's point further behind it than this is left to the next stage
 # hold passes a substep without a stage runs, each the kept feature points' push then the planes (and the
-# feature points once more after the last with Config.feature_last): one left 2 of the hard cases' 600
+# feature points once more after the last with Config.tuning.feature_last): one left 2 of the hard cases' 600
 # held frames with up to 9 um at contact_every=2 (a 1 mm plate's edge at the palm), two none
 HOLD_PASSES = 2
 # slots of Contact.counters a hold takes at most (a touched count per applied push)
@@ -325,7 +325,7 @@ class LinearHold:
 
     def record_hold(self, launch, ops: list, state) -> None:
         """A substep without a stage: HOLD_PASSES passes of [the kept feature points' push, Eq. 9
-        against the planes], each applied, then (Config.feature_last) the feature points once more."""
+        against the planes], each applied, then (Config.tuning.feature_last) the feature points once more."""
         if not self.holds:
             return
         m, o, cfg = self.model, self.objects, self.config

@@ -17,7 +17,7 @@ from physhand_mj.contact.metrics import lattice_phi, penetration_cull, penetrati
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
 # the independent check's object points (Contact.check_points): each edge piece that holds a feature
-# point (Config.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
+# point (Config.tuning.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
 # a feature point; surface rings of revolution shifted half a step off the cone's slant line), the
 # surface every CHECK_SURFACE_SPACING m (half the measure's 1 mm)
 CHECK_EDGE_SUBDIVIDE = 4  # check points: each feature point's piece of edge cut in 4 (even: none coincides)
@@ -35,7 +35,7 @@ class ContactMeasures:
     @property
     def check_points(self) -> ObjectPoints:
         """A denser set of object surface points that the contact never uses: edges every
-        Config.feature_spacing / CHECK_EDGE_SUBDIVIDE (each piece that holds a feature point at its
+        Config.tuning.feature_spacing / CHECK_EDGE_SUBDIVIDE (each piece that holds a feature point at its
         midpoint cut in 4: none of their points), the surface every CHECK_SURFACE_SPACING. The
         independent check of the second measure (the feature push works on :attr:`points`' corners and edges, so a
         measure on those same points would share the method's own samples)."""
@@ -50,7 +50,7 @@ class ContactMeasures:
         metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2; unless not
         ``skin_side``) and, with ``objects_side``, object surface points inside the closed skin (columns
         3-5; ``points``, default :attr:`points`; ``reuse``: ask only what could have changed since the
-        last measure of the same points, default Config.reuse_outside). ``obj`` >= 0: that object only."""
+        last measure of the same points, default Config.execution.reuse_outside). ``obj`` >= 0: that object only."""
         m, o = self.model, self.objects
         out = self.metrics if out is None else out
         if not self.n_tris:
@@ -68,7 +68,7 @@ class ContactMeasures:
                 launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
                                                         obj, row, self.geoms_per_world, per], [out, pts.depth])
                 return
-            r = self._reuse(pts, vol, qpose)  # (Config.reuse_outside: ask only what could have changed)
+            r = self._reuse(pts, vol, qpose)  # (Config.execution.reuse_outside: ask only what could have changed)
             bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
             launch(reset_patches, r.motion.shape[0], [], [r.motion, r.lower, r.upper])
             launch(skin_patches, m.skin_faces.shape[0], [vol.points, r.prev_x, m.skin_faces,
@@ -253,7 +253,7 @@ class ContactMeasures:
 
 
 class _Reuse:
-    """Config.reuse_outside's memory for one set of object points against one skin volume: each
+    """Config.execution.reuse_outside's memory for one set of object points against one skin volume: each
     point's slack (m, 0: ask it), the skin points and the geom poses when last measured, and per skin
     patch (a world's skin triangles whose first corner is on one bone) its motion since and its box
     (inside.object_points_inside_reuse)."""

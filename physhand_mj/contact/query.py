@@ -483,7 +483,7 @@ def decide_and_project(
     touched_count: wp.array(dtype=int),
 ):
     """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
-    (Config.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
+    (Config.tuning.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
     corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
     the vertices' first hits of the pass appended to ``touched``, and the object touched into
     ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
@@ -507,8 +507,8 @@ _MULTIRES_KERNELS: dict = {}
 def multires_kernel(max_registers: int, block_dim: int = 256):
     """:func:`decide_and_project` specialised to MULTIRES (the strategy a constant, so the other
     strategies' inlined queries and their local arrays drop out) and capped at ``max_registers``
-    registers a thread on CUDA (Config.multires_registers; ignored on the CPU), compiled for blocks of
-    ``block_dim`` threads (Config.multires_block_dim: Warp's mesh queries keep their BVH stacks in
+    registers a thread on CUDA (Config.execution.multires_registers; ignored on the CPU), compiled for blocks of
+    ``block_dim`` threads (Config.execution.multires_block_dim: Warp's mesh queries keep their BVH stacks in
     shared memory, 32 ints a thread of the block). The same code path, so the same answers. One
     kernel per (cap, block), made on first use."""
     key = (int(max_registers), int(block_dim))
@@ -576,7 +576,7 @@ def apply_contact(
     """For each touched vertex i: x_i += (depth-weighted mean of its Eq. 9 corrections); push_i
     accumulates |correction| over the frame (the contact report's force estimate); moved_i = stamp
     (this pass's number) and disp_i = |correction| (summed if this pass already moved i), for the
-    next pass's list; the accumulators are cleared. ``pass_move`` (Config.contact_pass_tol > 0; else
+    next pass's list; the accumulators are cleared. ``pass_move`` (Config.tuning.contact_pass_tol > 0; else
     empty): pass_move[stamp] = the pass's largest disp_i. Batched worlds queried apart (``shifted``
     not empty: the object side's copy of the skin, Contact.set_query_offsets): shifted_i = x_i +
     shift_i for a skin vertex, so the copy stays current between passes without a full copy."""

@@ -1,6 +1,6 @@
 """The CUDA multires kernel: a block per active skin triangle, a lane per lattice sample.
 
-:func:`decide_and_project_tiled` is query.decide_and_project's MULTIRES for CUDA (Config.tiled_contact):
+:func:`decide_and_project_tiled` is query.decide_and_project's MULTIRES for CUDA (Config.execution.tiled_contact):
 each of the block's TILE_LANES lanes queries one sample of Algorithm 2's lattice, block reductions
 pick the three lowest, lane 0 projects (Eq. 9, query.project). The serial chain per triangle shrinks
 from samples x rounds queries to rounds x (1 query + 3 reductions); the samples, rounds, early-out,

@@ -1,6 +1,6 @@
-"""How far the object's feature lists reach, and the frame's check of it (``Config.feature_slack``).
+"""How far the object's feature lists reach, and the frame's check of it (``Config.tuning.feature_slack``).
 
-How far the lists reach (``Config.feature_slack``, since 2026-11-27). Within a frame the objects stay
+How far the lists reach (``Config.tuning.feature_slack``, since 2026-11-27). Within a frame the objects stay
 where the frame put them and only the skin moves. A feature point d from the skin at the frame's
 start (``near_features`` measures d) is listed when d <= s / 2 + contact_margin, s its world's
 slack (``Config.feature_list_share`` s: a half by default since 2026-11-27's fourth session, the whole
@@ -16,7 +16,7 @@ inside, and its path (start to end, straight) passed near enough to the point fo
 triangles to do so. A world with such a point is reported (``feature_slack_exceeded``). The next
 frame's slack is 2.5 x the largest move near the points (their closest triangles', and the fast
 vertices' that started near enough to matter: ``next_slack``), at least SLACK_DECAY x this frame's
-and Config.feature_slack, at most contact_frame_margin. Every world lists with
+and Config.tuning.feature_slack, at most contact_frame_margin. Every world lists with
 contact_frame_margin until it has listed a point; a world that lists none keeps its slack. The
 moves are the frame's end positions against its start, not the paths between.
 
@@ -218,7 +218,7 @@ def next_slack(
     frame or one with more fast vertices than ``cap``, whose moves were not all seen), at least
     SLACK_DECAY x this frame's (a move under half the slack was not measured) and ``least``, at most
     ``most`` (m). A world that listed no point and failed none keeps its slack (so a frame whose
-    contact block runs with nothing near changes nothing: Config.skip_idle gives the same lists)."""
+    contact block runs with nothing near changes nothing: Config.execution.skip_idle gives the same lists)."""
     w = wp.tid()
     s = slack[w]
     m = near_motion[w]
@@ -290,7 +290,7 @@ class FeatureSlack:
                [self.slack, self.slack_report])
 
     def feature_motion(self, ran: bool = True, warn: bool = True) -> dict:
-        """The last frame, worst world (after the frame's sync; Config.feature_slack, this module):
+        """The last frame, worst world (after the frame's sync; Config.tuning.feature_slack, this module):
         ``feature_slack_mm``, the slack its feature lists were made with (m -> mm), ``skin_motion_mm``,
         the skin's largest move in it, and ``feature_slack_exceeded``, the worlds in which a skin
         vertex moved far enough, near enough to a feature point, that the point's list or patch could
@@ -314,9 +314,9 @@ class FeatureSlack:
             self._slack_warned = True
             w = int(np.flatnonzero(r[:, 2])[0])
             warn_user(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
-                      f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.feature_slack): a "
+                      f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.tuning.feature_slack): a "
                       f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
-                      f"lists allow for more; raise Config.feature_slack (m) for hands that move this fast")
+                      f"lists allow for more; raise Config.tuning.feature_slack (m) for hands that move this fast")
         return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
                     skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 

@@ -1,13 +1,13 @@
 """The local winding number of the object's side: is a feature point inside the closed skin?
 
-The local winding number (``Config.feature_winding``). Pseudo normals are exact on a closed surface
+The local winding number (``Config.tuning.feature_winding``). Pseudo normals are exact on a closed surface
 that does not fold, but a grasp squeezes skin triangles until some turn over (their normal points
 into the hand), and a feature point in front of such a triangle is taken as inside although it is
 outside: a spurious push. The generalised winding number w(p) = sum of the triangles' solid angles
 / 4 pi (Jacobson et al. 2013) has no such failure, but its BVH data cost a refit per pass. Split the
 closed skin into the triangles near p (its *patch*: every skin triangle within d + s of p at the frame's
 start, d its distance to the skin then and s its world's slack, at most ``contact_frame_margin``:
-Config.feature_slack, slack.py) and the rest:
+Config.tuning.feature_slack, slack.py) and the rest:
 
     w(p) = (Omega_patch(p) + Omega_far(p)) / 4 pi,   Omega_far = 4 pi w_0(p) - Omega_patch,0(p)
 
@@ -90,7 +90,7 @@ def frame_winding(skin_w: wp.uint64, p: wp.vec3, dist: float, margin: float):
 @wp.func
 def patch_radius(most: float, dist: float, slack: float):
     """The patch radius (m) of a feature point ``dist`` from the skin at the frame's start in a world
-    listed with ``slack`` (Config.feature_slack, slack.py): dist + slack, at most ``most``."""
+    listed with ``slack`` (Config.tuning.feature_slack, slack.py): dist + slack, at most ``most``."""
     return wp.min(most, dist + slack)
 
 
@@ -209,7 +209,7 @@ def closest_scan(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(d
                  slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
                  patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
     """:func:`closest_tiled` by one thread over feature point ``i``'s patch (batched worlds on CUDA:
-    a thread per listed feature, Config.tiled_features None): the same closest point and the local
+    a thread per listed feature, Config.execution.tiled_features None): the same closest point and the local
     winding number's sign (not found where the patch did not fit the pool: Contact warns)."""
     k = slot[i]
     n = patch_len[k]

@@ -74,7 +74,7 @@ class Activity:
     def passes_gated(self) -> bool:
         """Whether a contact pass can be skipped whole (level 2): on the CPU's host test or CUDA's
         conditional nodes; not with gating off (``skip_idle=False``) or CUDA without conditional nodes,
-        where every pass runs (Config.contact_pass_tol is then not applied: Contact.finish_recording)."""
+        where every pass runs (Config.tuning.contact_pass_tol is then not applied: Contact.finish_recording)."""
         return bool(self.enabled and (self.conditional or not (self.device.is_cuda or self.gate_ahead)))
 
     # -- recording -------------------------------------------------------------------------------
@@ -142,7 +142,7 @@ class _Gate:
                 op.top = False
 
     cond = None  # level 2 under Activity.conditional: the device flag capture_if reads
-    moved_enough = None  # level 2 with Config.contact_pass_tol: did the last pass move enough? (the CPU's
+    moved_enough = None  # level 2 with Config.tuning.contact_pass_tol: did the last pass move enough? (the CPU's
     # gate asks it; on CUDA keep_moved sets the conditional node's flag alike and this counts the ops run)
 
     def __call__(self):

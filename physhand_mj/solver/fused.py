@@ -1,4 +1,4 @@
-"""A substep's three Jacobi groups in one launch, a block per world in shared memory (``Config.fused_substep``).
+"""A substep's three Jacobi groups in one launch, a block per world in shared memory (``Config.execution.fused_substep``).
 
 The default Jacobi substep is five launches over the whole batch (edges, apply, tets, apply,
 dihedrals; the last apply rides in ``advance``), and on the GPU each writes every constraint's
@@ -66,7 +66,7 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 # 39,898-40,557, 704 39,818, 768 38,188, 896 33,437, 1,024 27,037 (benchmarks/fused_variants.py --block;
 # docs/benchmarks/fused_variants_cuda_block*_4096.json). The float-sum kernel had been fastest at 1,024.
 BLOCK_DIM = 640
-CUDA_BLOCK = 640  # the block Config.fused_substep=None takes on CUDA (cuda_auto)
+CUDA_BLOCK = 640  # the block Config.execution.fused_substep=None takes on CUDA (cuda_auto)
 # How a group's corrections are summed per vertex: "scatter" (each constraint once, its corners
 # added into the shared accumulator with shared-memory atomics: the CPU's default) or "gather"
 # (each movable vertex recomputes its constraints in constraint order: no atomics, repeatable bit
@@ -424,7 +424,7 @@ class FusedSubstep:
         soft = np.flatnonzero(inv1 > 0.0)
         n_soft = int(soft.max()) + 1 if soft.size else 0
         if soft.size != n_soft:
-            raise ValueError("Config.fused_substep needs each world's movable vertices first (skin, flesh, then "
+            raise ValueError("Config.execution.fused_substep needs each world's movable vertices first (skin, flesh, then "
                              "the skeleton); this body interleaves them")
 
         def to_local(ids):

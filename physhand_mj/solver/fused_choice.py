@@ -1,4 +1,4 @@
-"""When the fused substep runs (``Config.fused_substep``; the kernel and its host side: solver/fused.py):
+"""When the fused substep runs (``Config.execution.fused_substep``; the kernel and its host side: solver/fused.py):
 what a config allows, where CUDA batches take it by default (``cuda_auto``, from ``CUDA_AUTO_WAVES``
 worlds per SM), and the solver's choice (``choose``). The kernel's switches are read from
 solver/fused.py when asked, so a benchmark that changes them (``fused.SUM``, ``fused.BLOCK_DIM``)
@@ -11,7 +11,7 @@ import warp as wp
 
 from physhand_mj.solver import fused
 
-# CUDA: Config.fused_substep=None picks the fused substep for a batch of at least this many worlds
+# CUDA: Config.execution.fused_substep=None picks the fused substep for a batch of at least this many worlds
 # per SM. A block holds one world and an SM one block (207 KB of shared memory), so a batch runs in
 # ceil(W / SMs) waves; since the fixed-point sum (2026-11-27) a wave takes ~2.4-3.3 ms a frame on an
 # H100, and from a quarter of the SMs on it beats the gathers' five launches, which grow with W. H100,
@@ -47,7 +47,7 @@ def asset_shared_bytes(asset, device) -> int:
 
 
 def cuda_auto(config, asset, worlds: int, device) -> bool:
-    """Whether ``Config.fused_substep=None`` takes the fused substep for a batch of ``worlds``
+    """Whether ``Config.execution.fused_substep=None`` takes the fused substep for a batch of ``worlds``
     worlds of ``asset`` on ``device``: CUDA, at least ``CUDA_AUTO_WAVES`` worlds per SM, a config
     that allows it, a world that fits a block's shared memory, and the measured kernel (``SUM``
     "scatter" at ``BLOCK_DIM`` ``CUDA_BLOCK``: the gather sum was slower than the gathers)."""
@@ -57,7 +57,7 @@ def cuda_auto(config, asset, worlds: int, device) -> bool:
 
 
 def choose(model, config, device) -> fused.FusedSubstep | None:
-    """The solver's fused substep per ``Config.fused_substep``: True builds it (ValueError naming the
+    """The solver's fused substep per ``Config.execution.fused_substep``: True builds it (ValueError naming the
     option where it cannot run: the Config's own checks, a body whose movable vertices do not come
     first, a world larger than a block's shared memory); None builds it on the CPU where it can run
     (:func:`config_allows`, a world that fits; on CUDA a batch resolves None itself: :func:`cuda_auto`);
@@ -78,6 +78,6 @@ def choose(model, config, device) -> fused.FusedSubstep | None:
     fz = fused.FusedSubstep(model, device)
     ok, limit = fz.fits(device)
     if not ok:
-        raise ValueError(f"Config.fused_substep: a world needs {fz.shared_bytes(device)} bytes of shared memory, "
+        raise ValueError(f"Config.execution.fused_substep: a world needs {fz.shared_bytes(device)} bytes of shared memory, "
                          f"{device} allows {limit} a block; set fused_substep=False (or None)")
     return fz

@@ -1,4 +1,4 @@
-"""Jacobi corrections gathered per vertex instead of added with atomics (``Config.jacobi_gather``).
+"""Jacobi corrections gathered per vertex instead of added with atomics (``Config.execution.jacobi_gather``).
 
 A constraint of k vertices writes its k position corrections into its own k *slots* of a buffer
 (``State.corr``: slot ``base + l C + j`` for corner l of constraint j of a family of C
@@ -20,7 +20,7 @@ gather sums the same values in a fixed order: CUDA runs repeat bit for bit, a ba
 runs threads in order, so the atomics added the corrections of each vertex in this order too,
 starting from a zeroed ``delta``, as the gather starts from zero). One hand alone gains nothing
 (0.45 against 0.42 ms a frame on an H100: launch-bound), and the CPU pays 10-20 %, so by default
-only batches of several worlds on CUDA gather (``Config.jacobi_gather``).
+only batches of several worlds on CUDA gather (``Config.execution.jacobi_gather``).
 
 Kinematic (skeleton) vertices get no slots in the lists: their corrections are zero (w = 0) and
 nothing applies them.

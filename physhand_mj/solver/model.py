@@ -68,7 +68,7 @@ def make_model(asset, config: Config | None = None) -> Model:
 def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     """:func:`make_model`'s arrays on the host (numpy), before the upload: :func:`upload_model`
     turns them into the Model; batched worlds tile one world's (physhand_mj/batch.py; ``batch``:
-    the arrays are for a batch of several worlds, where ``Config.jacobi_gather=None`` gathers on
+    the arrays are for a batch of several worlds, where ``Config.execution.jacobi_gather=None`` gathers on
     CUDA)."""
     device = wp.get_device(cfg.device)
     x = np.asarray(asset.positions, dtype=np.float64)
@@ -132,7 +132,7 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
 
     # Jacobi without atomics (solver/gather.py): per group, each movable vertex's correction slots
     gather_off, gather_slot, slot_base = [], [], {}
-    # (Config.fused_substep sums in shared memory: no slots)
+    # (Config.execution.fused_substep sums in shared memory: no slots)
     gather = cfg.jacobi_gather if cfg.jacobi_gather is not None else (batch and device.is_cuda and not cfg.fused_substep)
     if cfg.scheme == Scheme.JACOBI and gather:
         # tets in space-filling-curve order of their rest centroids (per world): neighbouring threads

@@ -5,11 +5,11 @@ of it is still: the fingers of a hand pressing a button with its index, the thum
 its fingers. The soft vertices are split into regions by the bone that carries them at rest
 (``Model.vertex_carrier``): the palm (carpals, metacarpals 2-5, the forearm stub), the thumb (first
 metacarpal and its phalanges) and each finger (its three phalanges). A region falls asleep after
-``Config.sleep_frames`` frames in which
+``Config.tuning.sleep_frames`` frames in which
 
 - its bones and those of the regions it shares a constraint with (a finger's neighbours: the palm and
   the fingers beside it, whose motion pulls on the web between them) moved relative to the first
-  bone by at most ``Config.sleep_bone_motion`` (m per frame, the whole-hand test's measure,
+  bone by at most ``Config.tuning.sleep_bone_motion`` (m per frame, the whole-hand test's measure,
   :func:`physhand_mj.solver.sleep.bone_motions`),
 - none of its soft vertices moved faster than ``Config.sleep_speed`` relative to its carrier bone
   (the whole-hand test's, counted per region by ``integrate.advance``), and

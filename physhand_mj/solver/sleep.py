@@ -17,7 +17,7 @@ from physhand_mj.types import State
 
 SLEEP_TURN = math.radians(2.0)  # rad: the first bone's turn since the hand fell asleep that wakes it
 # m, the sleeping skin's box (Solver._asleep_and_alone) is grown by this: its bones may drift up to
-# Config.sleep_bone_motion (10 um at a 0.1 m lever) from one rigid motion before the hand wakes
+# Config.tuning.sleep_bone_motion (10 um at a 0.1 m lever) from one rigid motion before the hand wakes
 SLEEP_BOX_SLACK = 1.0e-3
 
 
@@ -58,7 +58,7 @@ class Sleeping:
     config, the activity gates, the contact and the frame replay these methods use)."""
 
     def _may_sleep(self, state: State) -> bool:
-        """Settled for Config.sleep_frames frames and no object near (this frame's test: the CPU's
+        """Settled for Config.tuning.sleep_frames frames and no object near (this frame's test: the CPU's
         host box test, or the frame broadphase run ahead on CUDA; no objects at all: nothing near)."""
         cfg, act = self.config, self.activity
         if cfg.sleep_speed <= 0 or state.still < cfg.sleep_frames:
@@ -73,7 +73,7 @@ class Sleeping:
         """CUDA, a hand that slept last frame and may sleep on: is every object farther than
         Config.contact_frame_margin from its skin? Decided on the host, without the frame broadphase
         run ahead and its sync. Asleep, the bones move as one rigid body (within
-        Config.sleep_bone_motion of it since the hand fell asleep, else it wakes) and the skin rides
+        Config.tuning.sleep_bone_motion of it since the hand fell asleep, else it wakes) and the skin rides
         with them, so the sleeping skin's box in the first bone's frame (taken once when it fell
         asleep, ``State.sleep_box``, grown by SLEEP_BOX_SLACK), placed at the frame's start and end
         poses of that bone, bounds the skin all frame; the objects' bounding spheres are tested
@@ -179,7 +179,7 @@ class Sleeping:
         return out
 
     def wake(self, state: State) -> None:
-        """Forget that ``state`` had settled (it sleeps again after Config.sleep_frames still frames)."""
+        """Forget that ``state`` had settled (it sleeps again after Config.tuning.sleep_frames still frames)."""
         state.still = 0
         state.sleep_onset = state.sleep_box = None
         if self.regions is not None:
@@ -192,7 +192,7 @@ class Sleeping:
 
     def _bones_still(self, state: State) -> bool:
         """The sleep test's bone conditions for this frame (poses on the host, before the upload):
-        no bone moves relative to the others by more than Config.sleep_bone_motion in the frame, and,
+        no bone moves relative to the others by more than Config.tuning.sleep_bone_motion in the frame, and,
         while asleep, since it fell asleep; nor has the first bone turned by more than SLEEP_TURN
         (gravity turns in the hand) or changed its velocity by more than Config.sleep_speed. Falling
         short of any resets the settle count (the hand must settle again)."""

@@ -11,7 +11,7 @@
         v <- (x - x^i) / h                                     advance: finish   (lines 14-15) + guard
 
 ``advance`` finishes one substep and predicts the next in the same per-vertex launch, so a Jacobi
-substep is 6 launches: advance, edges, apply, tets, apply, dihedrals; with ``Config.fused_substep``
+substep is 6 launches: advance, edges, apply, tets, apply, dihedrals; with ``Config.execution.fused_substep``
 (the CPU's default) 1: the substep's start and its three groups in one launch per world in shared
 memory (solver/fused.py; advance stays a launch of its own where a contact stage comes between).
 
@@ -83,7 +83,7 @@ class Solver(PoseInput, Sleeping):
         self._asleep_summary = None  # (sleep.py: an asleep frame's contact summary while the host rows stay)
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
-        self._fused = fused_choice.choose(model, self.config, self.device)  # Config.fused_substep
+        self._fused = fused_choice.choose(model, self.config, self.device)  # Config.execution.fused_substep
         # per-region sleeping (physhand_mj/solver/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
@@ -285,7 +285,7 @@ class Solver(PoseInput, Sleeping):
 
     @property
     def fused_substep(self) -> bool:
-        """Whether a substep's constraint groups run as one launch per world (``Config.fused_substep``
+        """Whether a substep's constraint groups run as one launch per world (``Config.execution.fused_substep``
         resolved for this body and device: solver/fused.py)."""
         return self._fused is not None
 
@@ -338,7 +338,7 @@ class Solver(PoseInput, Sleeping):
             "dih": (solve_dihedrals, m.dih_ids, m.dih_rest, m.dih_alpha),
         }
         jacobi = int(cfg.scheme == Scheme.JACOBI)
-        gather = bool(m.gather_off)  # Config.jacobi_gather: corrections in slots, summed per vertex
+        gather = bool(m.gather_off)  # Config.execution.jacobi_gather: corrections in slots, summed per vertex
         no_int = wp.empty(0, dtype=int, device=d)
         no_vec = wp.empty(0, dtype=wp.vec3, device=d)
 

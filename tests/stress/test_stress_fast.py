@@ -93,7 +93,7 @@ def test_object_starting_20_mm_inside(scene, margins, kind, site):
 
 def test_the_distance_grid_changes_nothing_in_a_deep_start(scene):
     """The knife edge 20 mm through the fingertip, 2 frames, with and without the mesh's distance grid
-    (Config.mesh_grid): the same skin, bit for bit. This is the case that showed the broadphase must
+    (Config.execution.mesh_grid): the same skin, bit for bit. This is the case that showed the broadphase must
     ask the exact distance again where the grid's lower bound keeps a triangle: with the bound alone
     its stage lists grew, triangles outside the exact lists were pushed into contact within a stage
     and tested, and the skin differed by 1.7 mm (flesh volume -2.1 % against -1.8 % at frame 1)."""

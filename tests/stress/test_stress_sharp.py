@@ -85,7 +85,7 @@ THIN = [
     # the same wall as a 12-triangle mesh, its floor from objects.mesh_half_thickness (0.05 mm): with
     # the fixed floor it tunnels (432-1,043 samples 0.5 mm deep, object points to 3.8 mm, frames 0-15);
     # with it and features ending 1 um out the skin crossed for 4 frames of the hold (45-73 samples up
-    # to 492 um, points to 586 um); with features 60 um out (Config.feature_offset) it holds
+    # to 492 um, points to 586 um); with features 60 um out (Config.tuning.feature_offset) it holds
     ("wall_mesh", "palm", 0.0008, 0.0008, 50.0),
 ]
 
