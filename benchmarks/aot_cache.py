@@ -12,7 +12,7 @@ substep's, one per model size and block) are not covered: a device run adds them
                                    [--out .devc/warp_cache.tar.xz] [--resources [PATTERN]] [--lineinfo]
 
 Writes a tar.xz of ``<warp version>/wp_<module>_<hash>/...`` to unpack into ``~/.cache/warp`` on the
-device (``benchmarks/gpu_session.sh``'s recipe), merged with the entries of ``--merge`` (kept where
+device (``benchmarks/gpu_run.sh`` does), merged with the entries of ``--merge`` (kept where
 this run did not make the same folder). ``--resources`` also prints each kernel's registers and local
 frame a thread (read from the cubin's ``.nv.info``: no CUDA tools needed), for kernels whose name
 holds PATTERN: how many threads an SM can hold (65,536 registers an SM on sm_90) and what spills.

@@ -199,14 +199,6 @@ def _laps(into: dict, tag: str):
     return lap
 
 
-def _with_modules() -> str:
-    """The command's start: ``python``, or under benchmarks/with_modules.py that and its switches."""
-    import os
-
-    switches = os.environ.get("PHYSHAND_WITH_MODULES", "")
-    return f"python benchmarks/with_modules.py {switches} -- " if switches else "python "
-
-
 def main() -> None:
     if "--curves" in sys.argv[1:]:  # python benchmarks/batch_hoi.py --curves [JSON]
         args = [a for a in sys.argv[1:] if a != "--curves"]
@@ -268,7 +260,7 @@ def main() -> None:
     def save(rows, complete: bool):  # after every row: a run cut by a time limit keeps the rows it made
         out_path.parent.mkdir(parents=True, exist_ok=True)
         out_path.write_text(json.dumps(dict(device=dev, frames=a.frames, config=extra, complete=complete,
-                                            command=_with_modules() + "benchmarks/batch_hoi.py "
+                                            command="python benchmarks/batch_hoi.py "
                                             + " ".join(sys.argv[1:]),
                                             rows=rows), indent=1))
 

@@ -16,8 +16,7 @@ cases' per-frame depths); writes docs/benchmarks/hard_contact_hold_<device>.json
 The held contact is chaotic: a CPU run is one path of it (every run the same), a CUDA run another
 each time (its atomics sum in no fixed order). ``--paths K`` runs every case K times per variant,
 path k with ``contact_offset`` x (1 + k x ``--perturb``) (k = 0: the variant as given; 1e-4 moves
-the default 4 um offset by 0.4 nm a path), and counts over all of them (benchmarks/case_repeats.py:
-one case, many paths; docs/contact.md, "Held frames over many paths").
+the default 4 um offset by 0.4 nm a path), and counts over all of them (docs/contact.md, "Held frames over many paths").
 """
 
 import argparse

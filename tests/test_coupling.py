@@ -120,7 +120,7 @@ def test_the_demo_grasp_is_clean_by_every_measure():
     strategy samples it), no contact feature point inside the skin, and the denser check points
     (none of them a point the contact pushes) within 25 um: between two feature points (0.25 mm
     apart) the skin can rest on the glass's rim edge a little inside it (CPU: up to 12.3 um in this
-    test's 60 frames; benchmarks/demo_residue.py, 80 frames: 3 frames, up to 7.5 um). Before the scene's closing targets stopped at the glass
+    test's 60 frames; benchmarks/demo_residue.py, removed; in git history at a33bd78, 80 frames: 3 frames, up to 7.5 um). Before the scene's closing targets stopped at the glass
     (2026-11-25) MuJoCo drove the thumb's bone into it and 33 of 80 frames had order-5 residue."""
     model, data = _scene()
     hand = SoftHand(model, data, ph.Config(device="cpu"))

@@ -65,8 +65,8 @@ def test_the_specialised_kernel_gives_the_generic_kernels_skins(monkeypatch):
 def test_the_capped_kernel_chosen_on_cuda_presses_as_the_generic_kernel(monkeypatch):
     """On CUDA the default (None) picks the capped kernel for this batch (a mesh object); its skins
     match the generic kernel's within 20 um after 3 frames (CUDA's float atomics sum in no fixed order:
-    on an H200 the generic kernel against itself differed by 0.34-2.66 um over three runs, gpu_session.sh
-    s52_i, docs/benchmarks/multires_spread_cuda_s52i.log, so the 2 um this test first asked for failed
+    on an H200 the generic kernel against itself differed by 0.34-2.66 um over three runs,
+    docs/benchmarks/multires_spread_cuda_s52i.log, so the 2 um this test first asked for failed
     once; a kernel that pressed otherwise would be off by up to the press, over 1 mm)."""
     import physhand_mj.contact.contact as contact_mod
 
