@@ -2,6 +2,7 @@
 
     python benchmarks/fingerprint.py [--device cpu|cuda] [--parts solver,cone,hard,hoi,batch] --out FP.json
     python benchmarks/fingerprint.py --compare BEFORE.json AFTER.json
+    python benchmarks/fingerprint.py --arrays A.npz ...; --compare A.npz B.npz   (the positions, on CUDA)
 
 Each part records the figures a docs page reports and a SHA-256 of the final positions (float32
 bytes), so "identical" means bit for bit:
@@ -31,8 +32,14 @@ KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")
 HOI = ("apple", "bowl", "box", "glass1", "glass2", "phone", "toothpaste")
 
 
-def digest(x) -> str:
-    return hashlib.sha256(np.ascontiguousarray(np.asarray(x, dtype=np.float32)).tobytes()).hexdigest()[:16]
+SAVED: dict | None = None  # --arrays: the positions behind each digest, to measure a difference on CUDA
+
+
+def digest(x, key: str | None = None) -> str:
+    a = np.ascontiguousarray(np.asarray(x, dtype=np.float32))
+    if SAVED is not None and key is not None:
+        SAVED[key] = a
+    return hashlib.sha256(a.tobytes()).hexdigest()[:16]
 
 
 def part_solver(device):
@@ -48,7 +55,7 @@ def part_solver(device):
         solver.set_body_poses(state, *ph.bone_poses_at(model, data, q0 + (frame + 1) / 50 * (q1 - q0), bones))
         solver.step(state)
     x = state.x.numpy()
-    return dict(x=digest(x), x_sum=float(np.sum(x, dtype=np.float64)))
+    return dict(x=digest(x, "solver"), x_sum=float(np.sum(x, dtype=np.float64)))
 
 
 def part_cone(device):
@@ -80,7 +87,7 @@ def part_hard(device):
         out[f"{kind}/{site}/{start * 1e3:+.0f}mm"] = dict(
             {k: float(r[k][-1]) for k in ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "obj_count",
                                           "obj_max_um", "check_count", "check_max_um")},
-            finite=bool(r["finite"]), skin=digest(r["skin"]))
+            finite=bool(r["finite"]), skin=digest(r["skin"], f"hard/{kind}/{site}/{start * 1e3:+.0f}mm"))
     return out
 
 
@@ -98,7 +105,7 @@ def part_hoi(device):
             skin = trimesh.load(s["skin"], process=False).vertices
             out[name] = {k: s[k] for k in ("penetration_count", "penetration_max_um", "penetration_avg_um",
                                            "object_in_skin_count", "object_in_skin_max_um", "initial_penetration_count",
-                                           "initial_object_in_skin_count", "finite")} | {"skin": digest(skin)}
+                                           "initial_object_in_skin_count", "finite")} | {"skin": digest(skin, f"hoi/{name}")}
     return out
 
 
@@ -130,7 +137,7 @@ def part_batch(device):
         for s, st in serial:
             s.set_body_poses(st, *poses)
             s.step(st)
-    return {f"world{w}": dict(batch=digest(batch.positions(w)), serial=digest(serial[w][1].x.numpy()),
+    return {f"world{w}": dict(batch=digest(batch.positions(w), f"batch/{w}"), serial=digest(serial[w][1].x.numpy(), f"serial/{w}"),
                               max_diff_um=float(np.abs(batch.positions(w) - serial[w][1].x.numpy()).max() * 1e6))
             for w in range(W)}
 
@@ -160,9 +167,18 @@ def main():
     ap.add_argument("--parts", default="solver,cone,batch,hard,hoi")
     ap.add_argument("--out", default=None)
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
+    ap.add_argument("--arrays", default=None, help="also save the positions behind the digests (.npz); with "
+                    "--compare A.npz B.npz: the largest position difference per entry (um)")
     a = ap.parse_args()
+    if a.compare and a.compare[0].endswith(".npz"):
+        x, y = np.load(a.compare[0]), np.load(a.compare[1])
+        worst = {k: float(np.abs(x[k].astype(float) - y[k]).max() * 1e6) for k in sorted(set(x) & set(y))}
+        print(json.dumps(dict(max_diff_um=worst, largest=max(worst.values(), default=0.0)), indent=1))
+        return
     if a.compare:
         sys.exit(compare(*a.compare))
+    global SAVED
+    SAVED = {} if a.arrays else None
     parts = {}
     for p in a.parts.split(","):
         print(f"fingerprint: {p}", file=sys.stderr)
@@ -171,6 +187,8 @@ def main():
     text = json.dumps(res, indent=1)
     if a.out:
         Path(a.out).write_text(text)
+    if a.arrays:
+        np.savez_compressed(a.arrays, **SAVED)
     print(text)
 
 

@@ -107,6 +107,8 @@ class _Blind:
 
 
 def test_demo_draws_one_frame_before_building_the_hand(tmp_path, monkeypatch, capsys):
+    import physhand_mj.figures  # noqa: F401  (imported first: it binds make_renderer at import, unpatched)
+
     built = []
     monkeypatch.setattr("physhand_mj.render.make_renderer", lambda *a, **k: built.append("renderer") or _Blind())
     monkeypatch.setattr("physhand_mj.coupling.SoftHand.__init__", lambda *a, **k: built.append("hand"))
