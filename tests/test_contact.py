@@ -294,7 +294,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     the per-vertex mean correction (n_vertices, 3) and weights, by the BVH kernel or the tiled one
     (one thread per block on the CPU; ``blocks`` of them walking the list, default one per entry);
     the skin is not moved."""
-    from physhand_mj.contact.features import feature_contact, feature_contact_tiled
+    from physhand_mj.contact.features import feature_contact, feature_contact_tiled, feature_inputs
 
     m, o, cfg, d = c.model, c.objects, c.config, "cpu"
     n = m.n_vertices
@@ -305,21 +305,20 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     # the pseudo-normal sign on both paths (Config.tuning.feature_winding's inputs off)
     no = wp.zeros(1, dtype=int, device=d)
     off = [0, no, no, no, no, wp.zeros(1, dtype=float, device=d)]
+    kw = dict(tris=c.cand, tri_count=c.cand_count, geom_obj=o.obj, near=c.near_query, eps=c.feature_eps,
+              offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=off,
+              side=off[-1], push=(delta, hits, touched, count, vobj))
     if tiled:
         nb = blocks or len(feats)
         wp.launch(feature_contact_tiled, (nb, 1),
-                  [m.skin_faces, c.cand, c.cand_count, lst, lst_count, nb, c.points.pts, c.points.geom, o.pose, o.obj,
-                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
-                   state.x, *off],
-                  [delta, hits, touched, count, vobj], device=d, block_dim=1)
+                  feature_inputs(m.skin_faces, state.x, lst, lst_count, c.points.pts, c.points.geom, o.pose,
+                                 cfg.contact_frame_margin, stride=nb, **kw), device=d, block_dim=1)
     else:
         skin = c.volume(state, winding=False).mesh
         skin.refit()
         wp.launch(feature_contact, len(feats),
-                  [skin.id, m.skin_faces, lst, lst_count, c.points.pts, c.points.geom, o.pose, o.obj,
-                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.near_query, state.x, o.pose,
-                   state.x, *off, off[-1]],
-                  [delta, hits, touched, count, vobj], device=d)
+                  feature_inputs(m.skin_faces, state.x, lst, lst_count, c.points.pts, c.points.geom, o.pose,
+                                 cfg.contact_frame_margin, skin=skin.id, **kw), device=d)
     h = hits.numpy().astype(float)
     return delta.numpy().astype(float) / np.maximum(h, 1e-300)[:, None], h
 

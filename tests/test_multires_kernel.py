@@ -51,7 +51,7 @@ def test_the_specialised_kernel_gives_the_generic_kernels_skins(monkeypatch):
     monkeypatch.setattr(contact_mod, "multires_kernel", spy)
     before, generic, out = _pressed_batch()
     assert not made  # the default: the generic kernel
-    _, special, out2 = _pressed_batch(multires_registers=128, multires_block_dim=64)
+    _, special, out2 = _pressed_batch(execution=Execution(multires_registers=128, multires_block_dim=64))
     assert made and set(made) == {(128, 64)}  # every pass recorded the specialised kernel
     assert np.abs(generic - before).max() > 1e-3, "nothing pressed the hands: the test would compare nothing"
     assert out["triangles_tested"] == out2["triangles_tested"] > 0
@@ -77,7 +77,7 @@ def test_the_capped_kernel_chosen_on_cuda_presses_as_the_generic_kernel(monkeypa
         return multires_kernel(registers, block_dim)
 
     monkeypatch.setattr(contact_mod, "multires_kernel", spy)
-    before, generic, out = _pressed_batch("cuda", multires_registers=0)
+    before, generic, out = _pressed_batch("cuda", execution=Execution(multires_registers=0))
     assert not made
     _, capped, out2 = _pressed_batch("cuda")
     assert made and set(made) == {(contact_mod.AUTO_MULTIRES_REGISTERS, 256)}

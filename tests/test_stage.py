@@ -42,26 +42,18 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     wind = c._winding_args()
     fused, alone = outputs(), outputs()
     stage, stage_count = wp.zeros(k, dtype=int, device=d), wp.zeros(1, dtype=int, device=d)
-    push = [o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x]
-    if kind == "tiled":
-        wp.launch(F.stage_features_tiled, (c.points.n_features, 1),
-                  [m.skin_faces, state.x, c.cand, c.cand_count, c.feat, c.feat_count, c.points.n_features, c.points.pts, c.points.geom,
-                   o.pose, cfg.contact_frame_margin, cfg.contact_margin, c.feature_eps, *wind, *push],
-                  [stage, stage_count, *fused], device=d, block_dim=1)
-        wp.launch(F.feature_contact_tiled, (c.points.n_features, 1),
-                  [m.skin_faces, c.cand, c.cand_count, stage, stage_count, c.points.n_features, c.points.pts, c.points.geom,
-                   o.pose, o.obj,
-                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
-                   state.x, *wind], list(alone), device=d, block_dim=1)
-    else:
-        wp.launch(F.stage_features_scan, c.points.n_features,
-                  [m.skin_faces, state.x, c.feat, c.feat_count, c.points.pts, c.points.geom, o.pose,
-                   cfg.contact_frame_margin, cfg.contact_margin, c.feature_eps, *wind[1:], *push],
-                  [stage, stage_count, *fused], device=d)
-        wp.launch(F.feature_contact_scan, c.points.n_features,
-                  [m.skin_faces, stage, stage_count, c.points.pts, c.points.geom, o.pose, o.obj,
-                   cfg.contact_frame_margin, cfg.feature_offset, cfg.contact_margin, c.feature_eps, state.x, o.pose,
-                   state.x, *wind[1:]], list(alone), device=d)
+
+    def inputs(cand, cand_count, push, out=None, out_count=None):
+        return F.feature_inputs(m.skin_faces, state.x, cand, cand_count, c.points.pts, c.points.geom, o.pose,
+                                cfg.contact_frame_margin, tris=c.cand, tri_count=c.cand_count,
+                                stride=c.points.n_features, geom_obj=o.obj, keep=cfg.contact_margin,
+                                eps=c.feature_eps, offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose,
+                                x0=state.x, winding=wind, out=out, out_count=out_count, push=push)
+
+    dim, kw = ((c.points.n_features, 1), dict(block_dim=1)) if kind == "tiled" else (c.points.n_features, {})
+    wp.launch(F.feature_kernel(kind, True), dim, inputs(c.feat, c.feat_count, fused, stage, stage_count), device=d,
+              **kw)
+    wp.launch(F.feature_kernel(kind, False), dim, inputs(stage, stage_count, alone), device=d, **kw)
     assert np.array_equal(state.x.numpy(), x0)  # neither moves the skin
     (d0, h0, t0, n0, v0), (d1, h1, t1, n1, v1) = ([a.numpy() for a in out] for out in (fused, alone))
     assert int(stage_count.numpy()[0]) > 20 and int(n0[0]) > 10  # points kept, vertices pushed

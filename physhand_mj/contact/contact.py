@@ -23,7 +23,7 @@ from physhand_mj.contact.inside import ObjectPoints
 from physhand_mj.contact.linear import HOLD_SLOTS, LinearHold
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
-from physhand_mj.contact.query import apply_contact, decide_and_project, multires_kernel
+from physhand_mj.contact.query import apply_contact, decide_and_project, decide_inputs, multires_kernel
 from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.reports import ContactReports
 from physhand_mj.contact.slack import FeatureSlack
@@ -331,11 +331,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             ops += self.volume(state, winding=False).sync_ops()
             self._first_push = self.counters[self._slot + 1: self._slot + 2]  # (as the tiled path's, below)
             launch(stage_features_scan, self.points.n_features,
-                   [m.skin_faces, self._query_x(state), self.feat, self.feat_count, self.points.pts, self.points.geom,
-                    self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
-                    *self._winding_args()[1:], o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x],
-                   [self.feat_stage, feat_count, self.delta, self.hits, self.touched, self._first_push,
-                    self.vertex_obj])
+                   self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
+                                        out=self.feat_stage, out_count=feat_count), [])
         elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
             # with its first pass's feature push (into that pass's counter slot, taken by _record_features)
             feat_count = self.feat_stage_counts[stage: stage + 1]
@@ -344,10 +341,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             self._first_push = self.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
             launch(stage_features_tiled, (nb, self.feature_lanes),
-                   [m.skin_faces, self._query_x(state), self.cand, self.cand_count, self.feat, self.feat_count, nb,
-                    self.points.pts, self.points.geom, self._qp, cfg.contact_frame_margin, cfg.contact_margin, self.feature_eps,
-                    *self._winding_args(), o.obj, cfg.feature_offset, cfg.contact_margin, o.pose, state.x],
-                   [self.feat_stage, feat_count, self.delta, self.hits, self.touched, self._first_push, self.vertex_obj],
+                   self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
+                                        stride=nb, out=self.feat_stage, out_count=feat_count), [],
                    block_dim=self.feature_lanes)
         elif self.feat is not None:  # the stage's features (features.py)
             feat_count = self.feat_stage_counts[stage: stage + 1]
@@ -355,9 +350,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             skin = vol.mesh
             ops.append(self._refit_op(vol))
             launch(stage_features, self.points.n_features,
-                   [skin.id, self.feat, self.feat_count, self.points.pts, self.points.geom, self._qp,
-                    cfg.contact_frame_margin, cfg.contact_margin, self.near_query, m.skin_faces, self._query_x(state),
-                    *self._winding_args()], [self.feat_stage, feat_count, self._side()],
+                   self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, None, skin=skin,
+                                        out=self.feat_stage, out_count=feat_count), [],
                    count=self.feat_count)
         else:
             skin = feat_count = None
@@ -389,26 +383,22 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             slot, feat_touched = self._record_features(launch, ops, state, p, skin, feat_count, stamp)
             moved_slots.append(slot)
             self._tally_touched(launch, p, feat_touched)
+        def decide(stride):  # the decision points' inputs (query.decide_inputs)
+            return decide_inputs(m.skin_faces, o, self.tris_per_world, self.geoms_per_world, lst, stride,
+                                 int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
+                                 cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x)
+
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
             nb = tiled_blocks(m.device, self.n_tris, TILE_LANES)
-            launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES),
-                   [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
-                    self.tris_per_world, self.geoms_per_world, *lst, nb,
-                    cfg.multires_samples, cfg.multires_rounds, cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs,
-                   block_dim=TILE_LANES)
+            launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES), decide(nb), outs, block_dim=TILE_LANES)
         else:
-            decide = decide_and_project  # (Config.execution.multires_registers: a copy specialised to multires)
+            kernel = decide_and_project  # (Config.execution.multires_registers: a copy specialised to multires)
             regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, o.has_mesh)
             block = None
             if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
                 block = int(cfg.multires_block_dim)
-                decide = multires_kernel(regs, block)
-            launch(decide, self.n_tris,
-                   [m.skin_faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj,
-                    self.tris_per_world, self.geoms_per_world, *lst,
-                    int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
-                    cfg.contact_offset, int(self.closed_skin and cfg.side_aware), state.x], outs, count=lst[2],
-                   block_dim=block)
+                kernel = multires_kernel(regs, block)
+            launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
         shift, shifted = self._apply_shift(state)
         launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=self.touched_count)

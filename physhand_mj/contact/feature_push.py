@@ -5,7 +5,7 @@ whose arrays it reads (``feat_stage``, the patches, ``delta`` ... ``vertex_obj``
 
 from __future__ import annotations
 
-from physhand_mj.contact.features import feature_contact, feature_contact_scan, feature_contact_tiled
+from physhand_mj.contact.features import feature_contact, feature_contact_scan, feature_contact_tiled, feature_inputs
 from physhand_mj.contact.query import apply_contact
 from physhand_mj.launch import tiled_blocks
 
@@ -36,32 +36,35 @@ class FeaturePush:
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
         elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
             launch(feature_contact_scan, self.points.n_features,
-                   [m.skin_faces, self.feat_stage, feat_count, self.points.pts,
-                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, off,
-                    cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
-                    *self._winding_args()[1:]],
-                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj])
+                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched), [])
         elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
             launch(feature_contact_tiled, (nb, self.feature_lanes),
-                   [m.skin_faces, self.cand, self.cand_count, self.feat_stage, feat_count, nb, self.points.pts,
-                    self.points.geom, self._qp, o.obj, cfg.contact_frame_margin, off,
-                    cfg.contact_margin, self.feature_eps, self._query_x(state), o.pose, state.x,
-                    *self._winding_args()],
-                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, stride=nb), [],
                    block_dim=self.feature_lanes)
         else:
             launch(feature_contact, self.points.n_features,
-                   [skin.id, m.skin_faces, self.feat_stage, feat_count, self.points.pts, self.points.geom,
-                    self._qp, o.obj, cfg.contact_frame_margin, off, cfg.contact_margin,
-                    self.near_query, self._query_x(state), o.pose, state.x, *self._winding_args(),
-                    self._side()],
-                   [self.delta, self.hits, self.touched, feat_touched, self.vertex_obj],
+                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, skin=skin), [],
                    count=feat_count)
         shift, shifted = self._apply_shift(state)
         launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
+
+    def _feature_inputs(self, state, cand, cand_count, offset: float, touched_count, skin=None, stride: int = 0,
+                        out=None, out_count=None) -> list:
+        """A feature kernel's arguments (features.feature_inputs) over the features ``cand`` (the
+        frame's list, or a stage's) on ``state``'s skin: pushed to ``offset`` (m) with the vertices
+        counted in ``touched_count``; ``skin`` the refitted skin volume (the BVH search), ``stride``
+        the tiled launch's blocks, ``out``/``out_count`` a stage's list."""
+        m, o, cfg = self.model, self.objects, self.config
+        return feature_inputs(m.skin_faces, self._query_x(state), cand, cand_count, self.points.pts, self.points.geom,
+                              self._qp, cfg.contact_frame_margin, skin=skin.id if skin is not None else 0,
+                              tris=self.cand, tri_count=self.cand_count, stride=stride, geom_obj=o.obj,
+                              keep=cfg.contact_margin, near=self.near_query, eps=self.feature_eps, offset=offset,
+                              max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=self._winding_args(),
+                              side=self._side(), out=out, out_count=out_count,
+                              push=(self.delta, self.hits, self.touched, touched_count, self.vertex_obj))
 
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,

@@ -30,6 +30,8 @@ skin's pseudo normals (the skin is closed and consistently wound), confirmed by 
 How far the lists reach (``Config.tuning.feature_slack``, since 2026-11-27): :mod:`physhand_mj.contact.slack`.
 """
 
+import functools
+
 import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle, closest_signed
@@ -103,49 +105,6 @@ def near_features(
         wp.atomic_add(world_count, pts_geom[i] // geoms_per_world, 1)
 
 
-@wp.kernel
-def stage_features(
-    skin: wp.uint64,
-    cand: wp.array(dtype=int),
-    cand_count: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    margin: float,
-    keep: float,
-    near: float,
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    winding: int,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    out: wp.array(dtype=int),
-    out_count: wp.array(dtype=int),
-    side: wp.array(dtype=float),
-):
-    """Of the frame's listed features, append those inside the skin or less than ``keep`` (m)
-    outside it (the stage's list). With ``winding`` (the CPU's local winding number, module
-    docstring) a kept point the pseudo normal takes as inside gets its side checked once per stage:
-    ``side[slot[i]]`` -1 inside, +1 outside, 0 not checked (the pseudo normal took it as outside)."""
-    k = wp.tid()
-    if k >= cand_count[0]:
-        return
-    i = cand[k]
-    p = object_point(i, pts, pts_geom, pose)
-    q = closest_signed(skin, p, near, margin)
-    if q.result:
-        if q.sign * wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v)) < keep:
-            out[wp.atomic_add(out_count, 0, 1)] = i
-            if winding != 0:
-                sd = float(0.0)
-                if q.sign < 0.0:
-                    sd = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle, q.sign)
-                side[slot[i]] = sd
-
-
 @wp.func
 def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, faces: wp.array2d(dtype=int),
                  offset: float, max_step: float, x: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3),
@@ -201,62 +160,6 @@ def at_origin(i: int, p: wp.vec3, f: int, u: float, v: float, pts: wp.array(dtyp
     return f, 1.0 - min_v - min_w, min_v, p0
 
 
-@wp.kernel
-def feature_contact(
-    skin: wp.uint64,
-    faces: wp.array2d(dtype=int),
-    cand: wp.array(dtype=int),
-    cand_count: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    geom_obj: wp.array(dtype=int),
-    margin: float,
-    offset: float,
-    max_step: float,
-    near: float,
-    x: wp.array(dtype=wp.vec3),
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    winding: int,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    side: wp.array(dtype=float),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """For each listed feature point inside the skin (or closer than offset / 2 outside it): the
-    correction of the module docstring on its closest skin triangle, into ``delta``/``hits``. With
-    ``winding`` a point the pseudo normal takes as inside takes its side from the local winding
-    number (module docstring; ``x`` the skin as the queries see it): the stage's check
-    (``side``, :func:`stage_features`) where it made one, else one now (kept for the stage)."""
-    k = wp.tid()
-    if k >= cand_count[0]:
-        return
-    i = cand[k]
-    g = pts_geom[i]
-    p = object_point(i, pts, pts_geom, pose)
-    q = closest_signed(skin, p, near, margin)
-    if not q.result:
-        return
-    sign = q.sign
-    if winding != 0 and sign < 0.0:
-        ks = slot[i]
-        sign = side[ks]
-        if sign == 0.0:  # taken as outside when the stage began: check now, for the rest of the stage
-            sign = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle, q.sign)
-            side[ks] = sign
-    f, u, v, p0 = at_origin(i, p, q.face, q.u, q.v, pts, pts_geom, pose0, faces, x0)
-    push_feature(p0, f, u, v, sign, geom_obj[g], faces, offset, max_step, x0, delta, hits, touched,
-                 touched_count, vertex_obj)
-
-
 # -- CUDA: a block per feature ---------------------------------------------------------------------
 # One thread walking the skin's BVH per feature is latency-bound on a GPU (a pass tests ~100
 # features: 80 launches of feature_contact took 8.8 ms of an 18 ms demo frame on an H100, plus a
@@ -270,205 +173,178 @@ def feature_contact(
 FEATURE_LANES = 128  # threads per listed feature in the CUDA tiled kernels (lanes stride the triangle list)
 
 
-@wp.kernel
-def stage_features_tiled(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    tris: wp.array(dtype=int),
-    tri_count: wp.array(dtype=int),
-    cand: wp.array(dtype=int),
-    cand_count: wp.array(dtype=int),
-    stride: int,
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    margin: float,
-    keep: float,
-    eps: float,
-    winding: int,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    geom_obj: wp.array(dtype=int),
-    offset: float,
-    max_step: float,
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=int),
-    out_count: wp.array(dtype=int),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """:func:`stage_features` with a block per listed feature (launch (stride, FEATURE_LANES) with
-    block_dim FEATURE_LANES on CUDA; (stride, 1) on the CPU): the closest point by :func:`closest_tiled`
-    (the feature's patch, or the skin triangles ``tris``: the frame's broadphase list). The stage's
-    first pass sees the skin its list is made on, so the same closest point also gives that pass's
-    push (:func:`feature_contact_tiled`'s, into ``delta`` ... ``vertex_obj``) in this launch: a
-    point it pushes (inside, or closer than offset / 2 outside) is always kept (keep >= offset / 2).
-    Launched with ``stride`` blocks (launch.tiled_blocks), block b taking entries b, b + stride, ..."""
-    blk, lane = wp.tid()
-    k = blk
-    n = cand_count[0]
-    while k < n:  # (uniform over the block: k is the block's feature; every lane reaches the block reductions)
-        i = cand[k]
-        p = object_point(i, pts, pts_geom, pose)
-        found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
-                                             patch_start, patch_len, far_angle)
-        if lane == 0 and found:
-            c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
-            if sign * wp.length(p - c) < keep:
-                out[wp.atomic_add(out_count, 0, 1)] = i
-                f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-                push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits,
-                             touched, touched_count, vertex_obj)
-        k += stride
-
-
-@wp.kernel
-def feature_contact_tiled(
-    faces: wp.array2d(dtype=int),
-    tris: wp.array(dtype=int),
-    tri_count: wp.array(dtype=int),
-    cand: wp.array(dtype=int),
-    cand_count: wp.array(dtype=int),
-    stride: int,
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    geom_obj: wp.array(dtype=int),
-    margin: float,
-    offset: float,
-    max_step: float,
-    eps: float,
-    x: wp.array(dtype=wp.vec3),
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    winding: int,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """:func:`feature_contact` with a block per listed feature (launched as
-    :func:`stage_features_tiled`): the closest point by :func:`closest_tiled`, then lane 0 applies
-    the same correction (:func:`push_feature`).
-    Launched with ``stride`` blocks (launch.tiled_blocks), block b taking entries b, b + stride, ..."""
-    blk, lane = wp.tid()
-    k = blk
-    n = cand_count[0]
-    while k < n:  # (uniform over the block: k is the block's feature; every lane reaches the block reductions)
-        i = cand[k]
-        p = object_point(i, pts, pts_geom, pose)
-        found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot, pool,
-                                             patch_start, patch_len, far_angle)
-        if lane == 0 and found:
-            f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-            push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits,
-                         touched, touched_count, vertex_obj)
-        k += stride
-
-
 # -- CUDA batches: a thread per listed feature over its patch ---------------------------------------
 # A block per feature fills a batch's launch with idle and reduction-bound blocks (the HOI box at W =
 # 256: 140k listed features, feature_contact_tiled 55 ms of a 135 ms frame on an H100); one thread
 # scanning the feature's ~170 patch triangles has the parallelism of the batch's features.
 
-
-@wp.kernel
-def stage_features_scan(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    cand: wp.array(dtype=int),
-    cand_count: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    margin: float,
-    keep: float,
-    eps: float,
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    geom_obj: wp.array(dtype=int),
-    offset: float,
-    max_step: float,
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=int),
-    out_count: wp.array(dtype=int),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """:func:`stage_features_tiled` with a thread per listed feature (:func:`closest_scan`), with
-    the stage's first feature push likewise."""
-    k = wp.tid()
-    if k >= cand_count[0]:
-        return
-    i = cand[k]
-    p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len, far_angle)
-    if not found:
-        return
-    c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
-    if sign * wp.length(p - c) < keep:
-        out[wp.atomic_add(out_count, 0, 1)] = i
-        f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
-                     touched_count, vertex_obj)
+SEARCHES = ("bvh", "tiled", "scan")
 
 
-@wp.kernel
-def feature_contact_scan(
-    faces: wp.array2d(dtype=int),
-    cand: wp.array(dtype=int),
-    cand_count: wp.array(dtype=int),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    geom_obj: wp.array(dtype=int),
-    margin: float,
-    offset: float,
-    max_step: float,
-    eps: float,
-    x: wp.array(dtype=wp.vec3),
-    pose0: wp.array(dtype=wp.transform),
-    x0: wp.array(dtype=wp.vec3),
-    slot: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
-):
-    """:func:`feature_contact_tiled` with a thread per listed feature (:func:`closest_scan`)."""
-    k = wp.tid()
-    if k >= cand_count[0]:
-        return
-    i = cand[k]
-    p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len, far_angle)
-    if not found:
-        return
-    f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-    push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta, hits, touched,
-                 touched_count, vertex_obj)
+@functools.cache  # (one kernel per (search, stage), made once: Warp hashes the module's kernels)
+def feature_kernel(search: str, stage: bool):
+    """The feature kernel that finds each listed feature's closest skin point by ``search`` and,
+    with ``stage``, lists the stage's features (:func:`stage_features` ...), else pushes (:func:`feature_contact` ...):
+
+    - "bvh": the skin's BVH (``skin``, refitted; ``near``), a thread per feature (the CPU);
+    - "tiled": a block of FEATURE_LANES lanes per feature (:func:`closest_tiled`: its patch with
+      ``winding``, else the frame's triangle list ``tris``), launched (stride, FEATURE_LANES) with
+      block_dim FEATURE_LANES on CUDA, (stride, 1) on the CPU, block b taking entries b, b + stride,
+      ... (launch.tiled_blocks);
+    - "scan": a thread per feature over its patch (:func:`closest_scan`; CUDA batches).
+
+    Every variant takes the same arguments (:func:`feature_inputs`); the ones its search does not
+    read may be None (0 for ``skin``)."""
+    if search not in SEARCHES:
+        raise ValueError(f"feature_kernel: search must be one of {SEARCHES}, got {search!r}")
+    BVH = search == "bvh"
+    TILED = search == "tiled"
+    SCAN = search == "scan"
+    # a BVH stage only lists (and takes the sides of) its features; the others push them as the
+    # stage's first pass would in the same launch (its skin is the one the list is made on)
+    STAGE = bool(stage)
+    PUSH = not STAGE or not BVH
+
+    def kernel(
+        # Skin:
+        skin: wp.uint64,
+        faces: wp.array2d(dtype=int),
+        x: wp.array(dtype=wp.vec3),
+        tris: wp.array(dtype=int),
+        tri_count: wp.array(dtype=int),
+        # The list walked:
+        cand: wp.array(dtype=int),
+        cand_count: wp.array(dtype=int),
+        stride: int,
+        # Objects:
+        pts: wp.array(dtype=wp.vec3),
+        pts_geom: wp.array(dtype=int),
+        pose: wp.array(dtype=wp.transform),
+        geom_obj: wp.array(dtype=int),
+        # Contact in:
+        margin: float,
+        keep: float,
+        near: float,
+        eps: float,
+        offset: float,
+        max_step: float,
+        pose0: wp.array(dtype=wp.transform),
+        x0: wp.array(dtype=wp.vec3),
+        winding: int,
+        slot: wp.array(dtype=int),
+        pool: wp.array(dtype=int),
+        patch_start: wp.array(dtype=int),
+        patch_len: wp.array(dtype=int),
+        far_angle: wp.array(dtype=float),
+        side: wp.array(dtype=float),
+        # Contact out:
+        out: wp.array(dtype=int),
+        out_count: wp.array(dtype=int),
+        delta: wp.array(dtype=wp.vec3),
+        hits: wp.array(dtype=float),
+        touched: wp.array(dtype=int),
+        touched_count: wp.array(dtype=int),
+        vertex_obj: wp.array(dtype=int),
+    ):
+        if wp.static(TILED):
+            blk, lane = wp.tid()
+            k = blk
+            n = cand_count[0]
+            step = stride
+        else:  # (a thread per entry: Warp's grid-stride loop walks the list)
+            k = wp.tid()
+            lane = int(0)
+            n = wp.min(k + 1, cand_count[0])
+            step = int(1)
+        while k < n:  # (tiled: uniform over the block, k is the block's feature; every lane reaches the block reductions)
+            i = cand[k]
+            p = object_point(i, pts, pts_geom, pose)
+            if wp.static(BVH):
+                q = closest_signed(skin, p, near, margin)
+                found = q.result
+                f = q.face
+                u = q.u
+                v = q.v
+                sign = q.sign
+            elif wp.static(TILED):
+                found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot,
+                                                     pool, patch_start, patch_len, far_angle)
+            else:
+                found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len,
+                                                    far_angle)
+            if lane == 0 and found:
+                push = True
+                if wp.static(STAGE):  # the stage's list: inside the skin or less than keep outside it
+                    c = wp.vec3(0.0)
+                    if wp.static(BVH):
+                        c = wp.mesh_eval_position(skin, f, u, v)
+                    else:
+                        c = x[faces[f, 0]] * u + x[faces[f, 1]] * v + x[faces[f, 2]] * (1.0 - u - v)
+                    push = sign * wp.length(p - c) < keep
+                    if push:
+                        out[wp.atomic_add(out_count, 0, 1)] = i
+                        if wp.static(BVH and STAGE):  # the side of a point the pseudo normal takes as inside
+                            if winding != 0:
+                                sd = float(0.0)
+                                if sign < 0.0:
+                                    sd = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle,
+                                                      sign)
+                                side[slot[i]] = sd
+                elif wp.static(BVH):  # the stage's side where it took one, else one now (kept for the stage)
+                    if winding != 0 and sign < 0.0:
+                        ks = slot[i]
+                        s0 = sign
+                        sign = side[ks]
+                        if sign == 0.0:  # taken as outside when the stage began
+                            sign = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle, s0)
+                            side[ks] = sign
+                if wp.static(PUSH):
+                    if push:
+                        f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+                        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta,
+                                     hits, touched, touched_count, vertex_obj)
+            k += step
+
+    # the kernels' own names (profiles, tests), not the factory's
+    kernel.__name__ = kernel.__qualname__ = ("stage_features" if STAGE else "feature_contact") + (
+        "" if BVH else "_" + search)
+    return wp.kernel(kernel)
+
+
+def feature_inputs(faces, x, cand, cand_count, pts, pts_geom, pose, margin: float, *, skin=0, tris=None,
+                   tri_count=None, stride: int = 0, geom_obj=None, keep: float = 0.0, near: float = 0.0,
+                   eps: float = 0.0, offset: float = 0.0, max_step: float = 0.0, pose0=None, x0=None,
+                   winding=(0, None, None, None, None, None), side=None, out=None, out_count=None,
+                   push=(None, None, None, None, None)) -> list:
+    """The arguments of a :func:`feature_kernel` launch in its order; ``winding``: (on, slot, pool,
+    patch_start, patch_len, far_angle); ``push``: (delta, hits, touched, touched_count,
+    vertex_obj). What the variant does not read may stay None."""
+    return [skin, faces, x, tris, tri_count, cand, cand_count, stride, pts, pts_geom, pose, geom_obj, margin, keep,
+            near, eps, offset, max_step, pose0, x0, *winding, side, out, out_count, *push]
+
+
+stage_features = feature_kernel("bvh", True)
+"""Of the frame's listed features, append those inside the skin or less than ``keep`` (m) outside it
+(the stage's list). With ``winding`` (the CPU's local winding number, module docstring) a kept point
+the pseudo normal takes as inside gets its side checked once per stage: ``side[slot[i]]`` -1 inside,
++1 outside, 0 not checked (the pseudo normal took it as outside)."""
+feature_contact = feature_kernel("bvh", False)
+"""For each listed feature point inside the skin (or closer than offset / 2 outside it): the
+correction of the module docstring on its closest skin triangle, into ``delta``/``hits``. With
+``winding`` a point the pseudo normal takes as inside takes its side from the local winding number
+(module docstring; ``x`` the skin as the queries see it): the stage's check (``side``,
+:func:`stage_features`) where it made one, else one now (kept for the stage)."""
+stage_features_tiled = feature_kernel("tiled", True)
+""":func:`stage_features` with a block per listed feature: the closest point by :func:`closest_tiled`
+(the feature's patch, or the skin triangles ``tris``: the frame's broadphase list). The stage's first
+pass sees the skin its list is made on, so the same closest point also gives that pass's push
+(:func:`feature_contact_tiled`'s, into ``delta`` ... ``vertex_obj``) in this launch: a point it pushes
+(inside, or closer than offset / 2 outside) is always kept (keep >= offset / 2)."""
+feature_contact_tiled = feature_kernel("tiled", False)
+""":func:`feature_contact` with a block per listed feature: the closest point by :func:`closest_tiled`,
+then lane 0 applies the same correction (:func:`push_feature`)."""
+stage_features_scan = feature_kernel("scan", True)
+""":func:`stage_features_tiled` with a thread per listed feature (:func:`closest_scan`), with the
+stage's first feature push likewise."""
+feature_contact_scan = feature_kernel("scan", False)
+""":func:`feature_contact_tiled` with a thread per listed feature (:func:`closest_scan`)."""

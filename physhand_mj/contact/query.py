@@ -29,6 +29,8 @@ Strategies (``Strategy``):
   ``multires_rounds`` times; the lowest sample seen is x*.
 """
 
+import functools
+
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
@@ -149,6 +151,7 @@ def side_floor(gtype: int, size: wp.vec3):
     return wp.min(SIDE_DEPTH, SIDE_FRAC * half)
 
 
+@functools.cache  # (the same funcs for every kernel of a flag)
 def phi_funcs(with_mesh: bool):
     """(:func:`world_phi`, :func:`world_phi_grad`, :func:`phi_at`, :func:`project`) over the geom
     SDFs with the MESH branch (``with_mesh``) or without it (sdf.geom_sdf_funcs: for the kernels of
@@ -268,276 +271,327 @@ def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=
 
 
 @wp.func
-def decide_triangle(
-    t: int,
-    near: int,
-    # Model:
-    faces: wp.array2d(dtype=int),
-    # Objects:
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
-    geom_obj: wp.array(dtype=int),
-    tris_per_world: int,
-    geoms_per_world: int,
-    # Contact in:
-    strategy: int,
-    samples: int,
-    rounds: int,
-    opt_queries: int,
-    offset: float,
-    side_aware: int,
-    # State in:
-    x: wp.array(dtype=wp.vec3),
-    # Contact out:
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    decision: wp.array(dtype=wp.vec4),
-    vertex_obj: wp.array(dtype=int),
-    bound: wp.array(dtype=float),
-    bound_mask: wp.array(dtype=int),
-    eval_x: wp.array2d(dtype=wp.vec3),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-):
-    """:func:`decide_and_project` for skin triangle ``t`` whose broadphase mask is ``near``."""
-    i0 = faces[t, 0]
-    i1 = faces[t, 1]
-    i2 = faces[t, 2]
-    a = x[i0]
-    b = x[i1]
-    c = x[i2]
-    eval_x[t, 0] = a
-    eval_x[t, 1] = b
-    eval_x[t, 2] = c
-    bound_mask[t] = near
-    base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
-    n_geoms = end - base
-    single = only_geom(near, base, n_geoms)  # one geom near this triangle (the common case)
-    s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
-    best = float(FAR)
-    best_p = a
-    if strategy != MULTIRES:
-        mc, rc = triangle_bound(a, b, c)
-        dc = phi_at(mc, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-        if dc > rc:  # no point of the triangle is inside an object
-            decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
-            bound[t] = dc - rc
-            return
-    if strategy == VERTEX:
-        for q in range(6):
-            p = a
-            if q == 1:
-                p = b
-            elif q == 2:
-                p = c
-            elif q == 3:
-                p = (a + b) * 0.5
-            elif q == 4:
-                p = (b + c) * 0.5
-            elif q == 5:
-                p = (c + a) * 0.5
-            d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-            if d < best:
-                best = d
-                best_p = p
-    elif strategy == OPT:
-        w0 = float(1.0 / 3.0)
-        w1 = float(1.0 / 3.0)
-        w2 = float(1.0 / 3.0)
-        for q in range(opt_queries):
-            p = a * w0 + b * w1 + c * w2
-            d, g, arg = world_phi_grad(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
-            if d < best:
-                best = d
-                best_p = p
-            # Frank-Wolfe: the simplex vertex minimising the linearised phi, step 2 / (q + 2)
-            ga = wp.dot(g, a)
-            gb = wp.dot(g, b)
-            gc = wp.dot(g, c)
-            gamma = 2.0 / (float(q) + 2.0)
-            w0 = w0 * (1.0 - gamma)
-            w1 = w1 * (1.0 - gamma)
-            w2 = w2 * (1.0 - gamma)
-            if ga <= gb and ga <= gc:
-                w0 += gamma
-            elif gb <= gc:
-                w1 += gamma
-            else:
-                w2 += gamma
-    else:
-        order = lattice_order(samples)
-        inv = 1.0 / float(order)
-        ta = a
-        tb = b
-        tc = c
-        certified = float(-FAR)
-        # one mesh near (pseudo-normal sign, few faces near a skin triangle: Objects.add marks it; exact
-        # ids): its faces near the triangle, found once, answer every sample of both rounds
-        # (sdf_mesh.mesh_near_faces; n_near = -1: the BVH per sample)
-        near_ids = mesh_near_ids()
-        near_d = mesh_near_dist()
-        lm = wp.vec3(0.0)
-        n_near = int(-1)
-        near_first = int(0)
-        if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf_mesh.MESH_SIGN_PSEUDO_NEAR
-            la = wp.transform_point(s_inv, a)
-            lb = wp.transform_point(s_inv, b)
-            lc = wp.transform_point(s_inv, c)
-            lm, lr = triangle_bound(la, lb, lc)
-            near_ids, near_d, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
-            near_first = mesh_near_first(near_d, n_near)
-        for r in range(rounds):
-            # the three lowest samples of this round, ascending
-            d0 = float(FAR)
-            d1 = float(FAR)
-            d2 = float(FAR)
-            p0 = ta
-            p1 = tb
-            p2 = tc
-            n = int(0)
-            for i in range(order + 1):
-                for j in range(order + 1 - i):
-                    u = float(i) * inv
-                    v = float(j) * inv
-                    p = ta * (1.0 - u - v) + tb * u + tc * v
+def lattice_uv(idx: int, order: int):
+    """Barycentric (u, v) of sample ``idx`` of the order-``order`` lattice, in the order of the
+    per-thread loops (i over u, then j over v)."""
+    rem = int(idx)
+    i = int(0)
+    while rem >= order + 1 - i:
+        rem -= order + 1 - i
+        i += 1
+    inv = 1.0 / float(order)
+    return float(i) * inv, float(rem) * inv
+
+
+def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
+    """The Python function of the decision-point kernel, for ``wp.kernel`` (its callers give each
+    variant its module and options): :func:`decide_and_project` (``tiled`` False, ``multires``
+    False), :func:`multires_kernel`'s copy (the strategy a constant MULTIRES: the other strategies'
+    inlined queries and their local arrays drop out) and query_tiled's CUDA kernel (``tiled``: a
+    block of query_tiled.TILE_LANES lanes per triangle, a lane per lattice sample, block reductions
+    pick the three lowest, lane 0 projects; MULTIRES only, without Algorithm 2's one-mesh shortcut).
+    ``with_mesh``: the geom SDFs with the MESH branch (:func:`phi_funcs`). Every variant takes the
+    same arguments: ``stride`` is read by the tiled one only, ``strategy`` and ``opt_queries`` by
+    the per-thread generic one."""
+    _, grad_fn, phi_fn, project_fn = phi_funcs(with_mesh)
+    TILED = bool(tiled)
+    ANY = not tiled and not multires  # the strategy an argument
+
+    def decide_and_project(
+        # Model:
+        faces: wp.array2d(dtype=int),
+        # Objects:
+        gtype: wp.array(dtype=int),
+        size: wp.array(dtype=wp.vec3),
+        inv_pose: wp.array(dtype=wp.transform),
+        radius: wp.array(dtype=float),
+        mesh: wp.array(dtype=wp.vec2ul),
+        geom_count: wp.array(dtype=int),
+        geom_obj: wp.array(dtype=int),
+        tris_per_world: int,
+        geoms_per_world: int,
+        # Contact in:
+        active: wp.array(dtype=int),
+        active_mask: wp.array(dtype=int),
+        active_count: wp.array(dtype=int),
+        stride: int,
+        strategy: int,
+        samples: int,
+        rounds: int,
+        opt_queries: int,
+        offset: float,
+        side_aware: int,
+        # State in:
+        x: wp.array(dtype=wp.vec3),
+        # Contact out:
+        delta: wp.array(dtype=wp.vec3),
+        hits: wp.array(dtype=float),
+        decision: wp.array(dtype=wp.vec4),
+        vertex_obj: wp.array(dtype=int),
+        bound: wp.array(dtype=float),
+        bound_mask: wp.array(dtype=int),
+        eval_x: wp.array2d(dtype=wp.vec3),
+        touched: wp.array(dtype=int),
+        touched_count: wp.array(dtype=int),
+    ):
+        if wp.static(TILED):
+            blk, lane = wp.tid()
+            k = blk
+            n = active_count[0]
+            step = stride
+        else:  # (a thread per entry: Warp's grid-stride loop walks the list)
+            k = wp.tid()
+            lane = int(0)
+            n = wp.min(k + 1, active_count[0])
+            step = int(1)
+        while k < n:  # (tiled: uniform over the block, k is the block's triangle; every lane reaches the block reductions)
+            t = active[k]
+            near = active_mask[k]
+            i0 = faces[t, 0]
+            i1 = faces[t, 1]
+            i2 = faces[t, 2]
+            a = x[i0]
+            b = x[i1]
+            c = x[i2]
+            if lane == 0:
+                eval_x[t, 0] = a
+                eval_x[t, 1] = b
+                eval_x[t, 2] = c
+                bound_mask[t] = near
+            base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
+            n_geoms = end - base
+            single = only_geom(near, base, n_geoms)  # one geom near this triangle (the common case)
+            s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
+            best = float(FAR)
+            best_p = a
+            certified = float(-FAR)
+            multires_now = True
+            if wp.static(ANY):
+                multires_now = strategy == MULTIRES
+                if strategy != MULTIRES:
+                    mc, rc = triangle_bound(a, b, c)
+                    dc = phi_fn(mc, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
+                                n_geoms, near)
+                    if dc > rc:  # no point of the triangle is inside an object
+                        decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
+                        bound[t] = dc - rc
+                        return
+                if strategy == VERTEX:
+                    for q in range(6):
+                        p = a
+                        if q == 1:
+                            p = b
+                        elif q == 2:
+                            p = c
+                        elif q == 3:
+                            p = (a + b) * 0.5
+                        elif q == 4:
+                            p = (b + c) * 0.5
+                        elif q == 5:
+                            p = (c + a) * 0.5
+                        d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
+                                   n_geoms, near)
+                        if d < best:
+                            best = d
+                            best_p = p
+                elif strategy == OPT:
+                    w0 = float(1.0 / 3.0)
+                    w1 = float(1.0 / 3.0)
+                    w2 = float(1.0 / 3.0)
+                    for q in range(opt_queries):
+                        p = a * w0 + b * w1 + c * w2
+                        d, g, arg = grad_fn(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                        if d < best:
+                            best = d
+                            best_p = p
+                        # Frank-Wolfe: the simplex vertex minimising the linearised phi, step 2 / (q + 2)
+                        ga = wp.dot(g, a)
+                        gb = wp.dot(g, b)
+                        gc = wp.dot(g, c)
+                        gamma = 2.0 / (float(q) + 2.0)
+                        w0 = w0 * (1.0 - gamma)
+                        w1 = w1 * (1.0 - gamma)
+                        w2 = w2 * (1.0 - gamma)
+                        if ga <= gb and ga <= gc:
+                            w0 += gamma
+                        elif gb <= gc:
+                            w1 += gamma
+                        else:
+                            w2 += gamma
+            if wp.static(TILED):  # (MULTIRES only)
+                order = lattice_order(samples)
+                n_lat = (order + 1) * (order + 2) / 2
+                ta = a
+                tb = b
+                tc = c
+                for r in range(rounds):
                     d = float(FAR)
-                    if n_near >= 0:
-                        d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near,
-                                          near_first, lm)
-                    else:
-                        d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh,
-                                   base, n_geoms, near)
-                    n += 1
-                    d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
-            if n < samples:  # spend a leftover query on the centroid
-                p = (ta + tb + tc) * (1.0 / 3.0)
-                d = float(FAR)
-                if n_near >= 0:
-                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d, n_near,
-                                      near_first, lm)
-                else:
-                    d = phi_at(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
-                               n_geoms, near)
-                d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
-            if d0 < best:
-                best = d0
-                best_p = p0
-            if r == 0:
-                longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
-                h = longest * inv * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
-                if d0 > h:
-                    certified = d0 - h
-                    break
-            ta = p0
-            tb = p1
-            tc = p2
-    decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
-    bound[t] = best
-    if strategy == MULTIRES and certified > -FAR:
-        bound[t] = certified
-    if best < 0.5 * offset:
-        nt = wp.normalize(wp.cross(b - a, c - a))
-        project(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose, radius, mesh, geom_obj, delta, hits,
-                touched, touched_count, vertex_obj)
+                    if lane < n_lat:
+                        u, v = lattice_uv(lane, order)
+                        d = phi_fn(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
+                                   gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                    elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
+                        d = phi_fn((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
+                                   gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                    # the three lowest samples (indices j0, j1, j2), ascending
+                    j0 = wp.tile_argmin(wp.tile(d))[0]
+                    d0 = wp.tile_min(wp.tile(d))[0]
+                    e = d
+                    if lane == j0:
+                        e = float(FAR)
+                    j1 = wp.tile_argmin(wp.tile(e))[0]
+                    if lane == j1:
+                        e = float(FAR)
+                    j2 = wp.tile_argmin(wp.tile(e))[0]
+                    q0 = (ta + tb + tc) * (1.0 / 3.0)
+                    q1 = q0
+                    q2 = q0
+                    if j0 < n_lat:
+                        u, v = lattice_uv(j0, order)
+                        q0 = ta * (1.0 - u - v) + tb * u + tc * v
+                    if j1 < n_lat:
+                        u, v = lattice_uv(j1, order)
+                        q1 = ta * (1.0 - u - v) + tb * u + tc * v
+                    if j2 < n_lat:
+                        u, v = lattice_uv(j2, order)
+                        q2 = ta * (1.0 - u - v) + tb * u + tc * v
+                    if d0 < best:
+                        best = d0
+                        best_p = q0
+                    if r == 0:
+                        longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+                        h = longest / float(order) * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
+                        if d0 > h:
+                            certified = d0 - h
+                            break
+                    ta = q0
+                    tb = q1
+                    tc = q2
+            else:
+                if multires_now:
+                    order = lattice_order(samples)
+                    inv = 1.0 / float(order)
+                    ta = a
+                    tb = b
+                    tc = c
+                    # one mesh near (pseudo-normal sign, few faces near a skin triangle: Objects.add marks it; exact
+                    # ids): its faces near the triangle, found once, answer every sample of both rounds
+                    # (sdf_mesh.mesh_near_faces; n_near = -1: the BVH per sample)
+                    near_ids = mesh_near_ids()
+                    near_d = mesh_near_dist()
+                    lm = wp.vec3(0.0)
+                    n_near = int(-1)
+                    near_first = int(0)
+                    if s_type == MESH and s_size[1] > 1.5 and s_mesh[1] == wp.uint64(0):  # sdf_mesh.MESH_SIGN_PSEUDO_NEAR
+                        la = wp.transform_point(s_inv, a)
+                        lb = wp.transform_point(s_inv, b)
+                        lc = wp.transform_point(s_inv, c)
+                        lm, lr = triangle_bound(la, lb, lc)
+                        near_ids, near_d, n_near = mesh_near_faces(s_mesh[0], lm, lr, s_size[0])
+                        near_first = mesh_near_first(near_d, n_near)
+                    for r in range(rounds):
+                        # the three lowest samples of this round, ascending
+                        d0 = float(FAR)
+                        d1 = float(FAR)
+                        d2 = float(FAR)
+                        p0 = ta
+                        p1 = tb
+                        p2 = tc
+                        count = int(0)
+                        for i in range(order + 1):
+                            for j in range(order + 1 - i):
+                                u = float(i) * inv
+                                v = float(j) * inv
+                                p = ta * (1.0 - u - v) + tb * u + tc * v
+                                d = float(FAR)
+                                if n_near >= 0:
+                                    d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d,
+                                                      n_near, near_first, lm)
+                                else:
+                                    d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius,
+                                               mesh, base, n_geoms, near)
+                                count += 1
+                                d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
+                        if count < samples:  # spend a leftover query on the centroid
+                            p = (ta + tb + tc) * (1.0 / 3.0)
+                            d = float(FAR)
+                            if n_near >= 0:
+                                d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d,
+                                                  n_near, near_first, lm)
+                            else:
+                                d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh,
+                                           base, n_geoms, near)
+                            d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
+                        if d0 < best:
+                            best = d0
+                            best_p = p0
+                        if r == 0:
+                            longest = wp.max(wp.length(b - a), wp.max(wp.length(c - b), wp.length(a - c)))
+                            h = longest * inv * 0.5773503  # every point is within longest / (L sqrt 3) of a sample
+                            if d0 > h:
+                                certified = d0 - h
+                                break
+                        ta = p0
+                        tb = p1
+                        tc = p2
+            if lane == 0:
+                decision[t] = wp.vec4(best_p[0], best_p[1], best_p[2], best)
+                bound[t] = best
+                if certified > -FAR:  # (MULTIRES's certified bound of a triangle left early)
+                    bound[t] = certified
+                if best < 0.5 * offset:
+                    nt = wp.normalize(wp.cross(b - a, c - a))
+                    project_fn(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose,
+                               radius, mesh, geom_obj, delta, hits, touched, touched_count, vertex_obj)
+            k += step
+
+    decide_and_project.__qualname__ = "decide_and_project"  # (the kernel's key: profiles, tests)
+    return decide_and_project
 
 
-@wp.kernel
-def decide_and_project(
-    # Model:
-    faces: wp.array2d(dtype=int),
-    # Objects:
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
-    geom_obj: wp.array(dtype=int),
-    tris_per_world: int,
-    geoms_per_world: int,
-    # Contact in:
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
-    active_count: wp.array(dtype=int),
-    strategy: int,
-    samples: int,
-    rounds: int,
-    opt_queries: int,
-    offset: float,
-    side_aware: int,
-    # State in:
-    x: wp.array(dtype=wp.vec3),
-    # Contact out:
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    decision: wp.array(dtype=wp.vec4),
-    vertex_obj: wp.array(dtype=int),
-    bound: wp.array(dtype=float),
-    bound_mask: wp.array(dtype=int),
-    eval_x: wp.array2d(dtype=wp.vec3),
-    touched: wp.array(dtype=int),
-    touched_count: wp.array(dtype=int),
-):
-    """One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
-    (Config.tuning.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
-    corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
-    the vertices' first hits of the pass appended to ``touched``, and the object touched into
-    ``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
-    point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
-    for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
-    geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
-    world's geoms [w k, (w + 1) k), w = t // ``tris_per_world``, k = ``geoms_per_world``
-    (broadphase.world_geoms), and its mask's bits are relative to w k; one world passes its
-    triangle count and the geom capacity (w = 0, all geoms: as before batching)."""
-    k = wp.tid()
-    if k >= active_count[0]:
-        return
-    decide_triangle(active[k], active_mask[k], faces, gtype, size, inv_pose, radius, mesh, geom_count, geom_obj,
-                    tris_per_world, geoms_per_world, strategy, samples, rounds, opt_queries, offset, side_aware, x,
-                    delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched, touched_count)
-
+decide_and_project = wp.kernel(decide_source(False, False))
+""" One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
+(Config.tuning.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
+corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
+the vertices' first hits of the pass appended to ``touched``, and the object touched into
+``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
+point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
+for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
+geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
+world's geoms [w k, (w + 1) k), w = t // ``tris_per_world``, k = ``geoms_per_world``
+(broadphase.world_geoms), and its mask's bits are relative to w k; one world passes its
+triangle count and the geom capacity (w = 0, all geoms: as before batching). Arguments:
+:func:`decide_inputs`."""
 
 _MULTIRES_KERNELS: dict = {}
 
 
 def multires_kernel(max_registers: int, block_dim: int = 256):
-    """:func:`decide_and_project` specialised to MULTIRES (the strategy a constant, so the other
-    strategies' inlined queries and their local arrays drop out) and capped at ``max_registers``
-    registers a thread on CUDA (Config.execution.multires_registers; ignored on the CPU), compiled for blocks of
-    ``block_dim`` threads (Config.execution.multires_block_dim: Warp's mesh queries keep their BVH stacks in
-    shared memory, 32 ints a thread of the block). The same code path, so the same answers. One
-    kernel per (cap, block), made on first use."""
+    """:func:`decide_and_project` specialised to MULTIRES (:func:`decide_source`) and capped at
+    ``max_registers`` registers a thread on CUDA (Config.execution.multires_registers; ignored on the CPU),
+    compiled for blocks of ``block_dim`` threads (Config.execution.multires_block_dim: Warp's mesh queries keep
+    their BVH stacks in shared memory, 32 ints a thread of the block). The same code path, so the
+    same answers. One kernel per (cap, block), made on first use."""
     key = (int(max_registers), int(block_dim))
     if key not in _MULTIRES_KERNELS:
-
-        def decide_and_project_multires(
-            faces: wp.array2d(dtype=int), gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-            inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul),
-            geom_count: wp.array(dtype=int), geom_obj: wp.array(dtype=int), tris_per_world: int,
-            geoms_per_world: int, active: wp.array(dtype=int), active_mask: wp.array(dtype=int),
-            active_count: wp.array(dtype=int), strategy: int, samples: int, rounds: int, opt_queries: int,
-            offset: float, side_aware: int, x: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3),
-            hits: wp.array(dtype=float), decision: wp.array(dtype=wp.vec4), vertex_obj: wp.array(dtype=int),
-            bound: wp.array(dtype=float), bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3),
-            touched: wp.array(dtype=int), touched_count: wp.array(dtype=int)):
-            k = wp.tid()
-            if k >= active_count[0]:
-                return
-            decide_triangle(active[k], active_mask[k], faces, gtype, size, inv_pose, radius, mesh, geom_count,
-                            geom_obj, tris_per_world, geoms_per_world, MULTIRES, samples, rounds, opt_queries, offset,
-                            side_aware, x, delta, hits, decision, vertex_obj, bound, bound_mask, eval_x, touched,
-                            touched_count)
-
+        fn = decide_source(False, True)
+        fn.__name__ = fn.__qualname__ = "decide_and_project_multires"
         # a module of its own per (cap, block): Warp's "unique" modules are shared by equal code
-        k = wp.kernel(decide_and_project_multires, module=f"{__name__}.multires_r{key[0]}_b{key[1]}",
-                      enable_backward=False, cuda_max_registers=key[0])
+        k = wp.kernel(fn, module=f"{__name__}.multires_r{key[0]}_b{key[1]}", enable_backward=False,
+                      cuda_max_registers=key[0])
         k.module.options["block_dim"] = key[1]
         _MULTIRES_KERNELS[key] = k
     return _MULTIRES_KERNELS[key]
+
+
+def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst, stride: int, strategy: int,
+                  samples: int, rounds: int, opt_queries: int, offset: float, side_aware: int, x) -> list:
+    """The inputs of a decision-point launch (:func:`decide_source`'s kernels) before its outputs:
+    the skin ``faces``, the ``objects``' geoms (their exact mesh ids), the list ``lst`` (active,
+    mask, count) and the strategy's settings."""
+    o = objects
+    return [faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj, tris_per_world,
+            geoms_per_world, *lst, stride, strategy, samples, rounds, opt_queries, offset, side_aware, x]
 
 
 @wp.func

@@ -14,9 +14,10 @@ For constraint j with gradient g_i at vertex i (Algorithm 1 of the paper):
 ``dx_i`` is added with ``wp.atomic_add(delta, i, dx_i)``. The scheme decides what ``delta`` is: the
 Jacobi accumulator (averaged and applied by integrate.apply_jacobi), or the position array ``x``
 itself for coloured Gauss-Seidel, where no two constraints of a colour share a movable vertex, so the
-add is an in-place update. Kinematic vertices have w = 0 and receive zero. The kernels spell the
-update out instead of calling a shared ``wp.func`` that takes arrays: on Warp's CPU backend such
-calls made the tet kernel 1.8x slower (measured).
+add is an in-place update. Kinematic vertices have w = 0 and receive zero. The three kernels are
+made from one definition (solver/xpbd.py's ``constraint_kernel``, the family's correction and dlam's
+``multiplier_step`` inlined); no shared ``wp.func`` takes arrays: on Warp's CPU backend such calls
+made the tet kernel 1.8x slower (measured).
 A constraint with A <= 1e-20 is degenerate and skipped; a non-finite result is caught by the velocity
 update's guard (integrate.advance).
 """

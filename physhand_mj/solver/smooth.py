@@ -8,7 +8,7 @@ dihedral-angle gradient (Bridson et al. 2003). |theta| is the paper's arccos(n0 
 
 import warp as wp
 
-from physhand_mj.solver.gather import constraint_at, idle, scatter
+from physhand_mj.solver.xpbd import constraint_kernel, multiplier_step
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -90,58 +90,10 @@ def dihedral_correction(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3, w0: 
     z = wp.vec3(0.0)
     if a <= 1.0e-20:
         return 0, 0.0, z, z, z, z
-    dlam = -(c + at * lam_j) / a
+    dlam = multiplier_step(c, at, lam_j, a)
     return 1, dlam, g0 * (w0 * dlam), g1 * (w1 * dlam), g2 * (w2 * dlam), g3 * (w3 * dlam)
 
 
-@wp.kernel
-def solve_dihedrals(
-    # Model:
-    inv_mass: wp.array(dtype=float),
-    ids: wp.array2d(dtype=int),
-    rest: wp.array(dtype=float),
-    alpha: float,
-    # Solver in:
-    inv_h2: float,
-    start: int,
-    reset: int,
-    # State in/out:
-    x: wp.array(dtype=wp.vec3),
-    lam: wp.array(dtype=float),
-    delta: wp.array(dtype=wp.vec3),
-    slots: wp.array(dtype=wp.vec3),
-    slot_base: int,
-    # Per-region sleeping (physhand_mj/solver/regions.py; empty when off): the constraints to solve,
-    # order[0: order_count[0]] (the others have every vertex asleep or on a bone)
-    order: wp.array(dtype=int),
-    order_count: wp.array(dtype=int),
-):
-    """C_smo = theta(x_e0, x_e1, x_o0, x_o1) - phi (Eq. 6, signed angle as in the module doc)."""
-    t = wp.tid()
-    j = constraint_at(t, start, order, order_count)
-    if j < 0:
-        return
-    ie0 = ids[j, 0]
-    ie1 = ids[j, 1]
-    io0 = ids[j, 2]
-    io1 = ids[j, 3]
-    w0 = inv_mass[ie0]
-    w1 = inv_mass[ie1]
-    w2 = inv_mass[io0]
-    w3 = inv_mass[io1]
-    s = slot_base + j  # corner l's slot: s + l C (solver/gather.py; unused by the atomic path)
-    nc = ids.shape[0]
-    if w0 == 0.0 and w1 == 0.0 and w2 == 0.0 and w3 == 0.0:  # every vertex kinematic: nothing moves
-        idle(lam, j, reset, slots, s, nc, 4)
-        return
-    at = alpha * inv_h2
-    lam_j = wp.where(reset != 0, 0.0, lam[j])  # Algorithm 1 line 4: lambda <- 0 each substep
-    moves, dlam, d0, d1, d2, d3 = dihedral_correction(x[ie0], x[ie1], x[io0], x[io1], w0, w1, w2, w3, rest[j], at, lam_j)
-    if moves == 0:
-        idle(lam, j, reset, slots, s, nc, 4)
-        return
-    lam[j] = lam_j + dlam
-    scatter(delta, slots, s + 0 * nc, ie0, d0)
-    scatter(delta, slots, s + 1 * nc, ie1, d1)
-    scatter(delta, slots, s + 2 * nc, io0, d2)
-    scatter(delta, slots, s + 3 * nc, io1, d3)
+solve_dihedrals = constraint_kernel(dihedral_correction, 4, False, "solve_dihedrals", __name__)
+"""C_smo = theta(x_e0, x_e1, x_o0, x_o1) - phi (Eq. 6, signed angle as in the module doc; one
+compliance ``alpha`` for every pair: solver/xpbd.py)."""
