@@ -114,7 +114,8 @@ class Solver(PoseInput, Sleeping):
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
-        self._recorded_geoms = 0  # the objects' geoms when the frames were recorded (_queue_frame)
+        # the objects' geoms and the contact's buffer replacements when the frames were recorded (_queue_frame)
+        self._recorded_geoms = (0, 0)
         self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
         self._in_flight = None  # (state, ops or None asleep, rigid, frame poses) between launch and finish
         self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
@@ -212,10 +213,11 @@ class Solver(PoseInput, Sleeping):
         ``upload``: the pose buffer not yet uploaded, which a sleeping frame's graph copies and any
         other frame copies before its first launch)."""
         key = (id(state), id(self.contact))
-        geoms = len(self.contact.objects) if self.contact is not None else 0
-        if geoms != self._recorded_geoms:  # a geom added since the frames were recorded: record again (which
-            self._forget_recordings()  # kernels a frame launches depends on them: query_tiled.tiled_kernel_for)
-            self._recorded_geoms = geoms
+        c = self.contact
+        geoms = (len(c.objects), c.reallocations) if c is not None else (0, 0)
+        if geoms != self._recorded_geoms:  # a geom added since the frames were recorded (which kernels a frame
+            self._forget_recordings()  # launches depends on them: query_tiled.tiled_kernel_for), or a buffer
+            self._recorded_geoms = geoms  # the frames read replaced (a grown patch pool): record again
         ops = self._ops.get(key)
         self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
         first = ops is None
