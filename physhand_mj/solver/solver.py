@@ -600,14 +600,19 @@ def load_modules(device, modules: dict, workers: int | None = None) -> None:
     launched with}; each as its launches would load it (``wp.force_load``). ``workers``: threads
     (None: as said)."""
 
+    cuda = wp.get_device(device).is_cuda
+
     def load(module):
         for block_dim in modules[module]:
+            if block_dim is None:  # (the variant a launch without one loads: 1 on the CPU, and on CUDA the
+                block_dim = module.options["block_dim"] if cuda else 1  # module's, 256: none sets another)
             wp.force_load(device=device, modules=[module], block_dim=block_dim, max_workers=0)
 
-    # (CUDA only: Warp's CPU builds contend; on a 2-core host two modules side by side took 1.4-1.7 x
-    # the wall time and 1.3 x the CPU time of one after the other, the demo's nine 1.4-1.7 x)
+    # (CUDA only: Warp's CPU builds contend: on a 2-core host the solver's two modules side by side
+    # took 1.2-2.2 x the wall time and 1.3 x the CPU time of one after the other, the grasp demo's
+    # first frame (nine modules) 1.4-1.7 x the wall time)
     if workers is None:
-        workers = (os.cpu_count() or 1) if wp.get_device(device).is_cuda else 1
+        workers = (os.cpu_count() or 1) if cuda else 1
     workers = min(len(modules), workers)
     if workers <= 1:
         for module in modules:
