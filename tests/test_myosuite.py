@@ -132,3 +132,30 @@ def test_bad_inputs_give_clear_errors():
 
         with pytest.raises(ValueError, match="lacks the hand's bone bodies"):
             pm.SoftSkin(gymnasium.make("myoElbowPose1D6MRandom-v0"))
+
+
+def test_a_reorient_episode_warns_nothing_and_patches_every_listed_point():
+    """myoHandReorientID-v0, one hand with the 20 mm frame margin of 2 m/s at 10 ms: the feature
+    points' patches need more than half the 256 entries a point the pool had at the 10 mm margin
+    (past what it was sure to hold; 211 patches did not fit, with a warning to use fewer worlds),
+    the pool sized for the margin holds every one from the first frame on; the lists at the margin
+    (max_speed) leave no frame outrun: reset and steps raise no RuntimeWarning."""
+    from physhand_mj.contact import contact as contact_mod
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (MyoSuite's and MuJoCo's own)
+        warnings.simplefilter("error", RuntimeWarning)
+        env = pm.make("myoHandReorientID-v0")
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        c = env.hand.solver.contact
+        need = 0
+        for _ in range(STEPS):
+            env.step(env.action_space.sample())
+            used = c._patch_used_host.numpy()
+            n = int(c.feat_count.numpy()[0])
+            assert n > 500 and used[2] == 0 and 2 * used[0] <= c.patch_pool.shape[0], (n, used)
+            assert np.all(c.patch_len.numpy()[:n] >= 0)
+            need = max(need, int(used[0]))
+    assert c.reallocations == 0
+    assert 2 * need > c.points.n_features * contact_mod.PATCH_POOL_PER_FEATURE, need

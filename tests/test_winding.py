@@ -2,6 +2,8 @@
 winding numbers, and the local winding number against the full one where Warp's pseudo normals
 are wrong (the demo's squeezed skin), on the CPU and CUDA, with CUDA's patches against the BVH's."""
 
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
@@ -246,7 +248,8 @@ def test_inside_depth_and_frame_winding_equal_warps_sign_queries(asset, device):
 def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monkeypatch):
     """The pool's bound (PATCH_POOL_MAX): the features whose patches do not fit get patch_len -1 (they
     keep the pseudo-normal sign, one hand), the others keep theirs, the frame stays finite, and the
-    overflow is reported once as a warning that names the bound and what to change."""
+    overflow is reported once as a warning that says what to change through the API (no source
+    constant to edit)."""
     import mujoco
 
     from physhand_mj.contact import contact as contact_mod
@@ -255,13 +258,15 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
-    with pytest.warns(RuntimeWarning, match="PATCH_POOL_MAX"):  # (from the hand's first frames on)
+    with pytest.warns(RuntimeWarning, match="contact_frame_margin") as rec:  # (from the hand's first frames on)
         hand = ph.SoftHand(model, data, ph.Config(device="cpu"))
         c = hand.solver.contact
         for _ in range(8):
             mujoco.mj_step(model, data)
             hand.step()
             c.features_listed()
+    msg = [str(w.message) for w in rec if "patches" in str(w.message)]
+    assert len(msg) == 1 and "BatchedHands" in msg[0] and ".py" not in msg[0] and "PATCH" not in msg[0], msg
     assert c.patch_pool.shape[0] == 512
     n = int(c.feat_count.numpy()[0])
     lens = c.patch_len.numpy()[:n]
@@ -269,6 +274,41 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
     assert lens[lens > 0].sum() <= 512
     assert c.patch_used.numpy()[2] == np.count_nonzero(lens < 0)  # (the failures are counted, and warned of)
     assert np.all(np.isfinite(hand.state.x.numpy()))
+
+
+def test_a_patch_pool_too_small_for_the_scene_grows(monkeypatch):
+    """A pool made for 8 entries per feature point (the demo's grasp lists ~170 points with up to
+    ~270 triangles each): the first frame's patches overflow it (81 points without a patch), and it
+    grows to twice their need, without a warning; the solver records its frames again (they read
+    the new pool), and from then on every listed point's patch fits."""
+    import mujoco
+
+    from physhand_mj.contact import contact as contact_mod
+
+    monkeypatch.setattr(contact_mod, "PATCH_POOL_PER_FEATURE", 8)
+    monkeypatch.setattr(contact_mod, "PATCH_POOL_MIN", 64)
+    model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        hand = ph.SoftHand(model, data, ph.Config(device="cpu"), settle_frames=1)
+        c = hand.solver.contact
+        first = c.patch_pool.shape[0]
+        assert first == 8 * c.points.n_features and c.reallocations == 0
+        grew = []
+        for frame in range(6):
+            mujoco.mj_step(model, data)
+            hand.step()
+            used = c._patch_used_host.numpy()
+            n = int(c.feat_count.numpy()[0])
+            assert n > 100 and 2 * used[0] <= c.patch_pool.shape[0], (frame, n, used)
+            if c.reallocations > len(grew):
+                grew.append(frame)
+            elif grew:  # (a frame after the pool grew: recorded again, every patch in it)
+                assert hand.solver._recorded_geoms[1] == c.reallocations
+                assert used[2] == 0 and np.all(c.patch_len.numpy()[:n] >= 0), (frame, used)
+    assert grew == [0] and c.patch_pool.shape[0] >= 4 * first, (grew, c.patch_pool.shape[0], first)
 
 
 def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
@@ -290,8 +330,7 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     hand = ph.SoftHand(model, data, ph.Config(device="cpu", tuning=ph.Tuning(feature_slack=1e-2)))
     c = hand.solver.contact
     worlds = 4096
-    pool = min(max(c.points.n_features * worlds * contact_mod.PATCH_POOL_PER_FEATURE, contact_mod.PATCH_POOL_MIN),
-               contact_mod.PATCH_POOL_MAX)
+    pool = contact_mod.patch_pool_size(c.points.n_features * worlds, hand.config.contact_frame_margin)
     need = layout = 0
     for _ in range(3):
         hand.step()
@@ -320,7 +359,7 @@ def test_a_deep_start_lists_nearly_every_point_and_every_patch_fits():
     from physhand_mj.bench.cases import press_case, run_case
 
     with warnings.catch_warnings():
-        warnings.filterwarnings("error", message=".*PATCH_POOL_MAX.*")
+        warnings.filterwarnings("error", message=".*patches.*")
         r = run_case(press_case("coarse", site="fingertip", depth=0.004, start=-0.004), ph.Config(device="cpu"),
                      frames=2, asset=ph.load_asset())
     c = r["solver"].contact

@@ -10,6 +10,8 @@ object side's queries run :class:`~physhand_mj.contact.query_space.QuerySpace` (
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import warp as wp
 
@@ -35,7 +37,8 @@ from physhand_mj.launch import launch_options, tiled_blocks
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
 # within 1 cm, at most ~270, and ~184 of its ~1,760 (features every 0.25 mm) are listed per frame); a
-# patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches).
+# patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches) in
+# that frame, after which the pool grows (ContactReports.features_listed).
 # 2^30 int32 entries (4 GiB) at most: the HOI box grasp at W = 4096 needs 442 M (an H100, 2026-11-26;
 # with the 2^28 it had then, points of some worlds went unpushed, up to 0.49 mm inside)
 # The BVH path (winding.feature_patches) gives the k-th of a frame's n listed features the slot
@@ -48,6 +51,27 @@ PATCH_SLOT = 128
 PATCH_POOL_PER_FEATURE = 2 * PATCH_SLOT
 PATCH_POOL_MIN = 1 << 15
 PATCH_POOL_MAX = 1 << 30
+# the frame margin PATCH_POOL_PER_FEATURE was measured at (the default): a patch's radius is at most
+# Config.contact_frame_margin and the skin triangles within it grow with its square (the rest skin's,
+# within a ball about a skin vertex: 147 on average at 10 mm, 500 at 20 mm, 1,074 at 30 mm), so a
+# larger margin gets proportionally more entries per feature point, up to PATCH_POOL_SCALED (16 MiB;
+# a large object's many feature points, most of them never listed, keep the unscaled pool); past
+# that the pool grows when a frame needs more (ContactReports.features_listed). MyoSuite's 20 mm
+# margin: the myoHandReorient envs list ~1,400 of 1,960 points, needing 449 k entries packed, past the
+# 502 k of 256 per point (211 patches did not fit); 2.0 M with the margin's square
+PATCH_POOL_MARGIN = 0.01
+PATCH_POOL_SCALED = 1 << 22
+
+
+def patch_pool_size(n_features: int, frame_margin: float) -> int:
+    """The patch pool's first size (entries) for ``n_features`` object feature points (every
+    world's) whose patches reach at most ``frame_margin`` (m): PATCH_POOL_PER_FEATURE each, times
+    (frame_margin / PATCH_POOL_MARGIN)^2 above PATCH_POOL_MARGIN up to PATCH_POOL_SCALED in all,
+    within [PATCH_POOL_MIN, PATCH_POOL_MAX]."""
+    base = n_features * PATCH_POOL_PER_FEATURE
+    scaled = math.ceil(base * max(1.0, (float(frame_margin) / PATCH_POOL_MARGIN) ** 2))
+    return int(min(max(min(scaled, max(base, PATCH_POOL_SCALED)), PATCH_POOL_MIN), PATCH_POOL_MAX))
+
 
 # batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.execution.tiled_features
 # None): the HOI box grasp on an H100 (benchmarks/batch_hoi.py), hand-frames/s with a block per feature
@@ -187,6 +211,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.patch_lanes = PATCH_LANES if cuda else 1  # (feature_patches_tiled's block)
         self._patch_used_host = wp.zeros(3, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
+        # buffers replaced since the contact was made (a grown patch pool): the recorded frames read the
+        # old ones, so the solver records its frames again when this changes (Solver._queue_frame)
+        self.reallocations = 0
         # m, Warp's tie tolerance of the pseudo-normal sign (1e-3 x the skin's average edge length,
         # mesh_query_point_sign_normal), here of the rest skin's
         rest = model.rest_x[: int(f.max()) + 1].numpy()[f] if len(f) else np.zeros((0, 3, 3))
@@ -253,8 +280,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                 self.feat_stage = wp.zeros(pts.n_features, dtype=int, device=m.device)
                 if cfg.feature_winding:
                     n = pts.n_features
-                    cap = int(min(max(n * PATCH_POOL_PER_FEATURE, PATCH_POOL_MIN), PATCH_POOL_MAX))
-                    self.patch_pool = wp.zeros(cap, dtype=int, device=m.device)
+                    self.patch_pool = wp.zeros(patch_pool_size(n, cfg.contact_frame_margin), dtype=int,
+                                               device=m.device)
                     # [entries the patches need in all, taken at the pool's top, patches that did not fit]
                     self.patch_used = wp.zeros(3, dtype=int, device=m.device)
                     self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index

@@ -30,27 +30,43 @@ class ContactReports:
             wp.copy(self._slack_host, self.slack_report)  # (slack.py's report)
 
     def features_listed(self) -> int:
-        """Object feature points in the last frame's list (after the frame's sync); warns once when
-        their patches (the local winding number's, winding.py) overflowed the pool: those points
-        kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches)."""
+        """Object feature points in the last frame's list (after the frame's sync). Sizes the patch
+        pool (the local winding number's, winding.py) for the frames to come: where the frame's
+        patches needed more than half of it packed (what the BVH path is sure to fit) or did not fit,
+        it grows to twice their need, up to PATCH_POOL_MAX, and the solver records its frames again
+        (a frame that overflowed kept, for the points past the pool, the pseudo-normal sign (one
+        hand) or pushed them not at all (CUDA batches)). An overflow at PATCH_POOL_MAX warns once."""
         if self.feat is None:
             return 0
-        if self.config.feature_winding and not self._patch_warned:
-            used, _, failed = (int(v) for v in self._patch_used_host.numpy())
-            # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past
-            # the pool's size; < 0: an int32 counter wrapped past 2^31)
-            if failed or used > self.patch_pool.shape[0] or used < 0:
-                from physhand_mj.warn import warn_user
-
-                self._patch_warned = True
-                need = f"{used}" if used >= 0 else "over 2^31"
-                # (the BVH path's slots and top can need up to twice the packed count: winding.feature_patches)
-                what = f"{failed} feature points' patches did not fit: " if failed else ""
-                warn_user(f"contact: {what}the feature points' patches needed {need} entries packed, the pool holds "
-                          f"{self.patch_pool.shape[0]} (PATCH_POOL_MAX in physhand_mj/contact/contact.py): the "
-                          f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA "
-                          f"batches); use fewer worlds per batch")
+        if self.config.feature_winding:
+            self._fit_patch_pool()
         return int(self._feat_host.numpy()[0])
+
+    def _fit_patch_pool(self) -> None:
+        from physhand_mj.contact.contact import PATCH_POOL_MAX
+
+        used, _, failed = (int(v) for v in self._patch_used_host.numpy())
+        # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past the
+        # pool's size; < 0: an int32 counter wrapped past 2^31)
+        size = self.patch_pool.shape[0]
+        over = bool(failed or used > size or used < 0)
+        if size < PATCH_POOL_MAX and (over or 2 * used > size):
+            # (a power of two at least twice the need and the pool: a list that keeps growing re-records rarely)
+            grown = PATCH_POOL_MAX if used < 0 else min(1 << (max(2 * used, 2 * size) - 1).bit_length(), PATCH_POOL_MAX)
+            self.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
+            self.reallocations += 1
+        elif over and not self._patch_warned:
+            from physhand_mj.warn import warn_user
+
+            self._patch_warned = True
+            need = f"{used:,}" if used >= 0 else "over 2^31"
+            what = f"{failed} object feature points' patches did not fit: " if failed else ""
+            per = f" ({self.worlds} worlds)" if self.worlds > 1 else ""
+            warn_user(f"contact: {what}the feature points' patches (the skin triangles near each, for its inside "
+                      f"test) needed {need} entries packed, more than the pool's most{per}, {size:,} (4 GiB): "
+                      f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches). "
+                      f"Run fewer worlds per BatchedHands, or a smaller Config.contact_frame_margin (the "
+                      f"patches' radius)", RuntimeWarning)
 
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active

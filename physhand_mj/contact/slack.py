@@ -3,7 +3,7 @@
 How far the lists reach (``Config.tuning.feature_slack``, since 2026-11-27). Within a frame the objects stay
 where the frame put them and only the skin moves. A feature point d from the skin at the frame's
 start (``near_features`` measures d) is listed when d <= s / 2 + contact_margin, s its world's
-slack (``Config.feature_list_share`` s: a half by default since 2026-11-27's fourth session, the whole
+slack (``config.FEATURE_LIST_SHARE`` s: a half by default since 2026-11-27's fourth session, the whole
 slack before), or when the skin's pseudo normals put it inside; its patch holds the skin triangles
 within r = d + s of it (both at most contact_frame_margin). If no skin vertex moves more than D with
 2 D < s, that is exact: the point's closest triangle at the start is in the patch and stays within
@@ -34,7 +34,6 @@ from physhand_mj.contact.inside import object_point
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
-FAST_PER_WORLD = 32  # fast skin vertices a world's frame check keeps (more: the world's frame is flagged)
 UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
 
 
@@ -136,6 +135,7 @@ def certify_features(
     fast: wp.array2d(dtype=int),
     fast_count: wp.array(dtype=int),
     slack: wp.array(dtype=float),
+    motion: wp.array(dtype=float),
     margin: float,
     keep: float,
     reach: wp.array(dtype=float),
@@ -157,11 +157,12 @@ def certify_features(
     passed through p: :func:`plane_crossed`): it must also not come nearer than C, which moved at
     most D_C (its vertices' largest move), near = max(keep, d + D_C), a move of r - near. Not
     listed, outside: a move of d - keep, d its distance, measured where it lies within keep + s
-    (past the list's keep + Config.feature_list_share s: ``pt_face`` -1; at least s / 2), else
+    (past the list's keep + config.FEATURE_LIST_SHARE s: ``pt_face`` -1; at least s / 2), else
     taken as min(margin, keep + s). The frame's fast vertices (half the slack or more) are asked;
     where a point's needed move is below that threshold, or the world has more fast vertices than
-    the list holds, the point fails without asking. A failure sets ``failed[w]``; D_C of the
-    listed points, and the move of every fast vertex that started near enough to a point for its
+    the list holds, the vertices not asked could spoil it: it fails without asking, unless the
+    world's largest move (``motion[w]``, :func:`skin_motion`'s) is shorter than the point's need.
+    A failure sets ``failed[w]``; D_C of the listed points, and the move of every fast vertex that started near enough to a point for its
     move to matter there, go into ``near_motion[w]`` (their largest: the next slack's measure)."""
     i = feature[wp.tid()]
     if pts_geom[i] >= geom_count[0]:
@@ -183,7 +184,9 @@ def certify_features(
         if sd < 0.0 or plane_crossed(p, faces, x_start, x, f):  # (inside, or C may have crossed p)
             near = wp.max(keep, d + dc)
         need = wp.min(margin, d + s) - near
-    fail = need < 0.5 * s or n > fast.shape[1]  # (below the list's threshold, or past its end: not asked)
+    # a vertex not asked (its move below the list's threshold, or past the list's end) spoils the point
+    # only if it moved as far as the point needs: none did where the world's largest move is shorter
+    fail = (need < 0.5 * s or n > fast.shape[1]) and motion[w] >= need
     for j in range(wp.min(n, fast.shape[1])):
         v = fast[w, j]
         mv = vmotion[v]
@@ -251,7 +254,9 @@ class FeatureSlack:
         self.vmotion = wp.zeros(m.n_skin, dtype=float, device=dev)
         self.slack = wp.full(W, cfg.contact_frame_margin, dtype=float, device=dev)
         self.motion = wp.zeros(W, dtype=float, device=dev)
-        self.fast = wp.zeros((W, FAST_PER_WORLD), dtype=int, device=dev)
+        # room for every skin vertex of a world: a list that overflowed made its world's check fail
+        # unasked (the shipped demo's third frame has 325 fast vertices); only the fast ones are walked
+        self.fast = wp.zeros((W, max(-(-m.n_skin // W), 1)), dtype=int, device=dev)
         self.fast_count = wp.zeros(W, dtype=int, device=dev)
         self.near_motion = wp.zeros(W, dtype=float, device=dev)
         self.slack_failed = wp.zeros(W, dtype=int, device=dev)
@@ -282,10 +287,11 @@ class FeatureSlack:
         launch(certify_features, pts.n_features,
                [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
                 self.pt_dist, self.pt_face, m.skin_faces, self.x_start, state.x, self.vmotion, self.fast,
-                self.fast_count, self.slack, float(cfg.contact_frame_margin), float(cfg.contact_margin), self.reach],
+                self.fast_count, self.slack, self.motion, float(cfg.contact_frame_margin), float(cfg.contact_margin),
+                self.reach],
                [self.near_motion, self.slack_failed])
         launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
-                                         FAST_PER_WORLD, self.world_listed, float(cfg.feature_slack),
+                                         self.fast.shape[1], self.world_listed, float(cfg.feature_slack),
                                          float(cfg.contact_frame_margin)],
                [self.slack, self.slack_report])
 
@@ -313,10 +319,13 @@ class FeatureSlack:
 
             self._slack_warned = True
             w = int(np.flatnonzero(r[:, 2])[0])
-            warn_user(f"contact: a skin vertex moved up to {r[w, 1] * 1e3:.2f} mm in one frame near an object's "
-                      f"feature points, whose lists allowed for {r[w, 0] * 1e3:.2f} mm (Config.tuning.feature_slack): a "
-                      f"point's patch could have missed a closer skin triangle in that frame; the next frame's "
-                      f"lists allow for more; raise Config.tuning.feature_slack (m) for hands that move this fast")
+            want = min(2.5 * float(r[w, 1]), self.config.contact_frame_margin)
+            warn_user(f"contact: the skin moved up to {r[w, 1] * 1e3:.2f} mm in one frame, near enough to an "
+                      f"object's feature points to spoil their lists, made for moves under {r[w, 0] * 5e2:.2f}-"
+                      f"{r[w, 0] * 1e3:.2f} mm (half to all of the lists' slack, which grows after such a frame from "
+                      f"its least, Config.tuning.feature_slack): in that frame those points' contact may have missed a "
+                      f"closer skin triangle. For a hand that moves this fast set Config.tuning.feature_slack={want:.3g} "
+                      f"(m, 2.5 x the move) or shorten Config.frame_dt")
         return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4),
                     skin_motion_mm=round(float(r[:, 1].max()) * 1e3, 4), feature_slack_exceeded=over)
 

@@ -21,6 +21,7 @@ On CUDA the whole frame is one CUDA graph (captured on the second frame, after c
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import warp as wp
@@ -67,7 +68,8 @@ class Solver(PoseInput, Sleeping):
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         self._sleep_ops: dict[tuple, list] = {}
-        self._recorded_geoms = 0  # the objects' geoms when the frames were recorded (_queue_frame)
+        # the objects' geoms and the contact's buffer replacements when the frames were recorded (_queue_frame)
+        self._recorded_geoms = (0, 0)
         self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
         self._in_flight = None  # (state, ops or None asleep, rigid, frame poses) between launch and finish
         self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
@@ -165,10 +167,11 @@ class Solver(PoseInput, Sleeping):
         ``upload``: the pose buffer not yet uploaded, which a sleeping frame's graph copies and any
         other frame copies before its first launch)."""
         key = (id(state), id(self.contact))
-        geoms = len(self.contact.objects) if self.contact is not None else 0
-        if geoms != self._recorded_geoms:  # a geom added since the frames were recorded: record again (which
-            self._forget_recordings()  # kernels a frame launches depends on them: query_tiled.tiled_kernel_for)
-            self._recorded_geoms = geoms
+        c = self.contact
+        geoms = (len(c.objects), c.reallocations) if c is not None else (0, 0)
+        if geoms != self._recorded_geoms:  # a geom added since the frames were recorded (which kernels a frame
+            self._forget_recordings()  # launches depends on them: query_tiled.tiled_kernel_for), or a buffer
+            self._recorded_geoms = geoms  # the frames read replaced (a grown patch pool): record again
         ops = self._ops.get(key)
         self.activity.begin_frame(state)  # CPU: is any object near the skin (the contact's level-0 gate)?
         first = ops is None
@@ -294,9 +297,17 @@ class Solver(PoseInput, Sleeping):
 
     def _record_frame(self, state: State, key=None) -> list:
         """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
+        ops = []
+        deferred = _DeferredLaunches(self.device)  # (the frame's modules compiled side by side, then its launches made)
+        self._record_frame_ops(state, key, ops, deferred)
+        deferred.make()
+        return ops
+
+    def _record_frame_ops(self, state: State, key, ops: list, deferred) -> None:
+        """:meth:`_record_frame`'s recording into ``ops``, its launches ``deferred`` (made once the
+        frame's modules are compiled)."""
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
-        ops = []
         cur = [ops]  # where launches go: the frame's list, or a gated block's (activity.py)
         self.activity.reset_recording()
         if self.contact is not None:
@@ -312,8 +323,12 @@ class Solver(PoseInput, Sleeping):
             if not dim:
                 return
             kw = launch_options(d, count, block_dim)
-            cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
-            cur[0].append(cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count, min_dim))
+
+            def make():
+                cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
+                return cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count, min_dim)
+
+            deferred.add(cur[0], kernel, block_dim, make)
 
         def gated(record, level, slots=(), flag=None):
             """Record ``record(sub_ops)`` into a block that runs only when contact has work
@@ -413,9 +428,10 @@ class Solver(PoseInput, Sleeping):
                                    h=self._h, damp=self._damp, gravity=self._gravity, model=m,
                                    keep_lam=whole or s == cfg.substeps - 1, count=cfg.substeps if whole else 1,
                                    end=whole and end_folded, speed_limit=float(cfg.sleep_speed))
-                cmd = wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs, block_dim=fused_launch.BLOCK_DIM,
-                                      device=d, record_cmd=True)
-                cur[0].append(cmd.launch)
+                deferred.add(cur[0], fz.kernel, fused_launch.BLOCK_DIM,
+                             lambda inputs=inputs: wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs,
+                                                                   block_dim=fused_launch.BLOCK_DIM, device=d,
+                                                                   record_cmd=True).launch)
             for it in range(0 if self._fused is not None else cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
                     names = [name for name in group if m.colors[name]]
@@ -469,7 +485,6 @@ class Solver(PoseInput, Sleeping):
             launch(integrate.count_inverted, m.guard_tets.shape[0], [m.guard_tets, m.vertex_world, state.x],
                    [state.guard])
         ops += self._tail
-        return ops
 
     def set_frame_tail(self, ops: list) -> None:
         """Run ``ops`` (zero-argument callables: recorded launches, copies) at the end of every frame,
@@ -485,6 +500,81 @@ class Solver(PoseInput, Sleeping):
         self._sleep_ops.clear()
         self._graphs.clear()
         self._pre.clear()
+
+
+class _DeferredLaunches:
+    """The launches of a frame being recorded, made once it is recorded: first the Warp modules
+    they need compiled (on CUDA side by side, a thread per module up to the host's cores:
+    :func:`load_modules`), then each launch recorded (``wp.launch(record_cmd=True)``, which would
+    compile its module alone, one after the other) and put where its stand-in was. A fresh GPU
+    host compiles the package's modules in minutes one by one and in ~20 s on 16 cores. Only the
+    modules the frame launches compile: a scene without objects compiles no contact kernel."""
+
+    def __init__(self, device):
+        self.device = device
+        self.pending: list = []  # (list, index, stand-in, make)
+        self.modules: dict = {}  # Warp module -> the block_dim values it is launched with
+
+    def add(self, ops: list, kernel, block_dim, make) -> None:
+        """Record in ``ops`` a stand-in for the launch ``make()`` returns (``kernel``, ``block_dim``:
+        which module variant it needs)."""
+        stand_in = _StandIn()
+        self.pending.append((ops, len(ops), stand_in, make))
+        ops.append(stand_in)
+        self.modules.setdefault(kernel.module, set()).add(block_dim)
+
+    def make(self) -> None:
+        """Compile the modules (those already loaded return at once), then make every launch."""
+        if not self.pending:
+            return
+        load_modules(self.device, self.modules)
+        for ops, i, stand_in, make in self.pending:
+            stand_in.op = make()
+            if i < len(ops) and ops[i] is stand_in:
+                ops[i] = stand_in.op
+        self.pending, self.modules = [], {}
+
+
+class _StandIn:
+    """A recorded launch's place until it is made (_DeferredLaunches; a list copied meanwhile
+    keeps it, calling the launch made)."""
+
+    op = None
+
+    def __call__(self):
+        self.op()
+
+
+def load_modules(device, modules: dict, workers: int | None = None) -> None:
+    """Compile (or load from the kernel cache) Warp ``modules`` on ``device``, on CUDA side by side
+    (a thread per module up to the host's cores: NVRTC runs outside Python's lock), on the CPU one
+    after the other: {module: the ``block_dim`` values (None: the launch's default) it will be
+    launched with}; each as its launches would load it (``wp.force_load``). ``workers``: threads
+    (None: as said)."""
+
+    cuda = wp.get_device(device).is_cuda
+
+    def load(module):
+        for block_dim in modules[module]:
+            if block_dim is None:  # (the variant a launch without one loads: 1 on the CPU, and on CUDA the
+                block_dim = module.options["block_dim"] if cuda else 1  # module's, 256: none sets another)
+            wp.force_load(device=device, modules=[module], block_dim=block_dim, max_workers=0)
+
+    # (CUDA only: Warp's CPU builds contend: on a 2-core host the solver's two modules side by side
+    # took 1.2-2.2 x the wall time and 1.3 x the CPU time of one after the other, the grasp demo's
+    # first frame (nine modules) 1.4-1.7 x the wall time)
+    if workers is None:
+        workers = (os.cpu_count() or 1) if cuda else 1
+    workers = min(len(modules), workers)
+    if workers <= 1:
+        for module in modules:
+            load(module)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for f in [pool.submit(load, module) for module in modules]:
+            f.result()
 
 
 class _ListLaunch:

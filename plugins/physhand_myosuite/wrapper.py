@@ -66,7 +66,9 @@ class SoftSkin(gymnasium.Wrapper):
         solver substep (s): substeps = ceil(env dt / substep_dt), 40 for a 20 ms env step. At 2 ms
         substeps (10 per 20 ms) the fingertip skin sags 2.4 mm off its bones instead of 0.2 mm.
         max_speed (m/s): skin/object speed the frame broadphase covers (``contact_frame_margin`` =
-        max_speed x env dt, at least the default 10 mm).
+        max_speed x env dt, at least the default 10 mm), and the object feature lists with it
+        (``feature_slack`` = that margin: a random policy moves the fingertips 12-20 mm in a 10 ms
+        step, past lists cut to the last step's move, which then warn).
       object_geoms: geom names or ids the skin collides with (default :func:`colliding_objects`).
       observe: append the soft-contact vector (:attr:`soft_obs_names`) to the observation.
       settle_frames: solver frames that bring the skin from rest to the env's pose at each reset.
@@ -89,8 +91,9 @@ class SoftSkin(gymnasium.Wrapper):
         self.model, self.data = u.model, u.data
         self.dt = env_dt(env)
         if config is None:  # the project scenes' substep (5 ms / 10): longer ones let the tissue sag
+            margin = max(ph.Config.contact_frame_margin, max_speed * self.dt)
             config = ph.Config(device=device, substeps=max(1, int(np.ceil(self.dt / substep_dt - 1e-9))),
-                               contact_frame_margin=max(ph.Config.contact_frame_margin, max_speed * self.dt))
+                               contact_frame_margin=margin, tuning=ph.Tuning(feature_slack=margin))
         self.config = dataclasses.replace(config, frame_dt=self.dt).validate()
         asset = ph.load_asset()
         from physhand_mj.attach import resolve_naming
