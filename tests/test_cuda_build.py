@@ -6,6 +6,8 @@ import warp as wp
 
 from physhand_mj.contact import stage
 
+pytestmark = pytest.mark.slow  # NVRTC compiles the big modules for sm_90 each run (~4-9 s a module)
+
 
 def _nvrtc_archs():
     wp.init()
