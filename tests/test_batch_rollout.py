@@ -185,6 +185,7 @@ def test_measure_every_in_a_batch(runs):
                     assert ra[col] == rb[col], (run, rb["step"], rb["substep"], col)
 
 
+@pytest.mark.slow  # two batches of 2 worlds (the serial run's stop: tests/test_rollout.py, default set)
 def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, monkeypatch):
     """A batch stopped by Ctrl-C during frame 3 (raised from the batch's submit of it) with measure_every=2:
     each world's summary has 2 steps and the object-side values of frame 2 (the vertex strategy:
@@ -214,6 +215,7 @@ def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, 
     assert e["object_in_skin_frame"] == 3
 
 
+@pytest.mark.slow  # three batches of 2 worlds
 def test_a_batch_stopped_while_mujoco_steps_logs_the_frame_that_was_running(tmp_path, monkeypatch):
     """Ctrl-C while MuJoCo steps frame 3 (the batch pipelined: frame 2 still on the device then) stops
     where the serial loop stopped: frames 1 and 2 logged, each run's summary with 2 steps, its skin
