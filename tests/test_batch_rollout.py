@@ -83,7 +83,7 @@ def test_logs_and_skins_equal_the_serial_ones(runs):
         np.testing.assert_array_equal(sa, sb, err_msg=run)
 
 
-def test_cli_batch(tmp_path):
+def test_cli_batch(tmp_path, capsys):
     lst = tmp_path / "runs.txt"
     lst.write_text(f"{APPLE} grasp\n{tmp_path / 'missing.xml'}\n")
     r = subprocess.run([sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), "--batch", "2", "--steps", "1",
@@ -92,11 +92,13 @@ def test_cli_batch(tmp_path):
     lines = [json.loads(x) for x in r.stdout.strip().splitlines()]
     assert len(lines) == 2 and {"penetration_count", "error"} <= set(lines[0]) | set(lines[1])
     assert (tmp_path / "b" / "hoi_apple-grasp" / "skin_final.ply").exists()
+    from physhand_mj import cli
+
     for args, want in ((["--batch", "0"], "--batch must be at least 1"), (["--workers", "2"], "--workers needs --ray")):
-        r = subprocess.run([sys.executable, "-m", "physhand_mj.cli", "rollout", str(lst), *args, "--out",
-                            str(tmp_path / "c")], capture_output=True, text=True)
-        line = [x for x in r.stderr.splitlines() if x.startswith("physhand rollout: error:")]
-        assert r.returncode == 1 and r.stdout == "" and len(line) == 1 and want in line[0], r.stderr[-800:]
+        rc = cli.main(["rollout", str(lst), *args, "--out", str(tmp_path / "c")])  # (in this process: no new start)
+        out, err = capsys.readouterr()
+        line = [x for x in err.splitlines() if x.startswith("physhand rollout: error:")]
+        assert rc == 1 and out == "" and len(line) == 1 and want in line[0], err[-800:]
 
 
 def test_a_world_whose_object_pose_goes_nan_fails_alone(runs, monkeypatch):
@@ -187,6 +189,7 @@ def test_measure_every_in_a_batch(runs):
                     assert ra[col] == rb[col], (run, rb["step"], rb["substep"], col)
 
 
+@pytest.mark.slow  # two batches of 2 worlds (the serial run's stop: tests/test_rollout.py, default set)
 def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, monkeypatch):
     """A batch stopped by Ctrl-C during frame 3 (raised from the batch's submit of it) with measure_every=2:
     each world's summary has 2 steps and the object-side values of frame 2 (the vertex strategy:
@@ -216,6 +219,7 @@ def test_a_stopped_batch_reports_the_frame_its_object_side_comes_from(tmp_path, 
     assert e["object_in_skin_frame"] == 3
 
 
+@pytest.mark.slow  # three batches of 2 worlds
 def test_a_batch_stopped_while_mujoco_steps_logs_the_frame_that_was_running(tmp_path, monkeypatch):
     """Ctrl-C while MuJoCo steps frame 3 (the batch pipelined: frame 2 still on the device then) stops
     where the serial loop stopped: frames 1 and 2 logged, each run's summary with 2 steps, its skin

@@ -19,16 +19,24 @@ def _scene(name="grasp_glass", key="approach"):
 
 @pytest.fixture(scope="module")
 def glass_grasp():
+    """The demo's grasp (grasp_glass from `approach`, Config()) after 60 frames, and per frame the
+    measures test_the_demo_grasp_is_clean_by_every_measure asserts on: (order-5 skin samples' max
+    depth, order-9's, the contact points' max depth in the skin, the check points'), m. Measuring
+    changes nothing the other tests read (checked: the same skin, mesh, qpos and reports, bit for bit)."""
     model, data = _scene()
     hand = SoftHand(model, data, ph.Config(device="cpu"))
+    c, state = hand.solver.contact, hand.state
+    rows = []
     for _ in range(60):
         mujoco.mj_step(model, data)
         hand.step()
-    return model, data, hand
+        o5, o9, chk = c.measure(state, order=5), c.measure(state, order=9, objects_side=False), c.measure(state, check=True)
+        rows.append((o5[2], o9[2], o5[5], chk[5]))
+    return model, data, hand, np.array(rows)
 
 
 def test_written_back_mesh_equals_the_skin(glass_grasp):
-    model, data, hand = glass_grasp
+    model, data, hand, _ = glass_grasp
     gid = skin_geom_id(model)
     mid = model.geom_dataid[gid]
     local = model.mesh_vert[model.mesh_vertadr[mid]: model.mesh_vertadr[mid] + model.mesh_vertnum[mid]]
@@ -62,7 +70,7 @@ def test_the_write_back_inside_the_cuda_frame_graph_writes_the_frame_s_skin():
 
 
 def test_skeleton_vertices_follow_their_bodies(glass_grasp):
-    model, data, hand = glass_grasp
+    model, data, hand, _ = glass_grasp
     asset = hand.asset
     skel = np.flatnonzero(asset.layer == ph.Layer.SKELETON)
     b = asset.vertex_body[skel]
@@ -74,7 +82,7 @@ def test_skeleton_vertices_follow_their_bodies(glass_grasp):
 
 
 def test_glass_grasp_contact_report(glass_grasp):
-    _, _, hand = glass_grasp
+    _, _, hand, _ = glass_grasp
     report = hand.contacts()
     glass = report["objects"]["glass"]
     assert len(glass["vertices"]) > 30 and glass["area_m2"] > 1e-4 and glass["force_n"] > 0.5, glass
@@ -88,10 +96,11 @@ def test_glass_grasp_contact_report(glass_grasp):
 PAPER = dict(feature_contact=False, side_aware=False, skin_tether=0.0)  # the paper's contact: Eq. 9 at multires decision points
 
 
-def _close_on(kind, **config):
+def _close_on(kind, free=True, **config):
     """grasp_glass with the glass swapped for a static sphere or box (MjSpec); the hand closes on it
-    under position control, once with the skin's contact (``config``: Config fields) and once
-    without (the same bone motion)."""
+    under position control, once with the skin's contact (``config``: Config fields) and, with
+    ``free``, once without (the same bone motion; else None: the hand's run is the same either way,
+    both only read the MuJoCo data)."""
     spec = mujoco.MjSpec.from_file(str(ph.scene_path("grasp_glass")))
     geom = spec.geom("glass")
     if kind == "sphere":
@@ -106,15 +115,32 @@ def _close_on(kind, **config):
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
     hand = SoftHand(model, data, ph.Config.from_dict(dict(device="cpu", **config)), object_bodies=["glass"])
-    free = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=[])
+    free = SoftHand(model, data, ph.Config(device="cpu"), object_geoms=[]) if free else None
     for _ in range(50):
         mujoco.mj_step(model, data)
         hand.step()
-        free.step()
+        if free:
+            free.step()
     return model, data, hand, free
 
 
-def test_the_demo_grasp_is_clean_by_every_measure():
+@pytest.fixture(scope="module")
+def closed():
+    """``_close_on`` made once per module for each (kind, the paper's contact?): the closing tests
+    only read the runs (the box with the paper's contact serves both)."""
+    runs = {}
+
+    def get(kind, paper=False, free=False):
+        key = (kind, paper)
+        if key not in runs or (free and runs[key][3] is None):
+            runs[key] = _close_on(kind, free=free, **(PAPER if paper else {}))
+        return runs[key]
+
+    yield get
+    runs.clear()
+
+
+def test_the_demo_grasp_is_clean_by_every_measure(glass_grasp):
     """The demo (grasp_glass from `approach`, Config()): in each of 60 frames, closing and holding,
     no skin sample inside the glass on the metric's order-5 lattice nor on an order-9 lattice (no
     strategy samples it), no contact feature point inside the skin, and the denser check points
@@ -122,25 +148,17 @@ def test_the_demo_grasp_is_clean_by_every_measure():
     apart) the skin can rest on the glass's rim edge a little inside it (CPU: up to 12.3 um in this
     test's 60 frames; benchmarks/demo_residue.py, removed; in git history at a33bd78, 80 frames: 3 frames, up to 7.5 um). Before the scene's closing targets stopped at the glass
     (2026-11-25) MuJoCo drove the thumb's bone into it and 33 of 80 frames had order-5 residue."""
-    model, data = _scene()
-    hand = SoftHand(model, data, ph.Config(device="cpu"))
-    c, state = hand.solver.contact, hand.state
-    rows = []
-    for _ in range(60):
-        mujoco.mj_step(model, data)
-        hand.step()
-        o5, o9, chk = c.measure(state, order=5), c.measure(state, order=9, objects_side=False), c.measure(state, check=True)
-        rows.append((o5[2], o9[2], o5[5], chk[5]))
-    r = 1e6 * np.array(rows)
+    _, _, hand, rows = glass_grasp
+    r = 1e6 * rows
     assert hand.contacts()["objects"]["glass"]["force_n"] > 1.0  # the hand holds the glass
     assert r[:, :3].max() == 0.0 and r[:, 3].max() <= 25.0, r.max(axis=0)
 
 
 @pytest.mark.parametrize("kind", ["sphere", "box", "compound"])
-def test_closing_on_a_static_object_ends_without_penetration(kind):
+def test_closing_on_a_static_object_ends_without_penetration(closed, kind):
     """The paper's claim on its own metric (order-5 samples), with the paper's contact; the default
     contact is checked by both independent measures in the next test."""
-    model, data, hand, free = _close_on(kind, **PAPER)
+    model, data, hand, free = closed(kind, paper=True, free=True)
     m = hand.metrics()
     assert m["finite"] and m["penetration_count"] == 0, m
     touched = hand.contacts()["objects"]["glass"]
@@ -168,7 +186,7 @@ def test_closing_on_a_static_object_ends_without_penetration(kind):
 
 
 @pytest.mark.parametrize("kind", ["sphere", "box"])
-def test_closing_by_both_measures(kind):
+def test_closing_by_both_measures(closed, kind):
     """The default contact (features + side-aware) against an order-9 lattice and the denser check
     points (Contact.check_points: none of them a feature the contact pushes). On the sphere both are
     zero. On the box the position controller keeps closing the hand and MuJoCo's soft contacts let
@@ -179,7 +197,7 @@ def test_closing_by_both_measures(kind):
     mm per frame over frames 40-79 on the CPU, 0.35 mm at frame 50; 0.04-1.13 mm with the settings
     before 2026-11-25, when the bound was 0.3 mm at frame 50), and fewer object points in the skin
     than the paper's contact leaves."""
-    model, data, hand, _ = _close_on(kind)
+    model, data, hand, _ = closed(kind)
     m = hand.penetration(order=9, check=True)
     if kind == "sphere":
         assert m["penetration_count"] == 0 and m["object_in_skin_count"] == 0, m
@@ -188,7 +206,7 @@ def test_closing_by_both_measures(kind):
     bone_depth = -min(mujoco.mj_geomDistance(model, data, g, box, 0.05, np.zeros(6)) for g in range(model.ngeom)
                       if model.geom_bodyid[g] not in (0, model.geom_bodyid[box]))
     assert bone_depth > 1.0e-3, bone_depth  # a bone's geom more than 1 mm inside the box
-    _, _, paper, _ = _close_on(kind, **PAPER)
+    _, _, paper, _ = closed(kind, paper=True)
     p = paper.penetration(order=9, check=True)
     assert np.all(np.isfinite(hand.skin_vertices))
     assert m["penetration_max_um"] < 1500 and m["object_in_skin_max_um"] < 1500, m

@@ -4,6 +4,8 @@ GPU machine (an H100, sm_90) fails here, before a device session spends its time
 import pytest
 import warp as wp
 
+pytestmark = pytest.mark.slow  # NVRTC compiles the big modules for sm_90 each run (~4-9 s a module)
+
 
 def _nvrtc_archs():
     wp.init()

@@ -422,6 +422,7 @@ def test_the_slack_changes_no_push_on_the_cpu(asset):
     np.testing.assert_allclose(runs[4.0e-3], runs[1.0e-2], atol=1e-6)
 
 
+@pytest.mark.slow  # the hoi_box grasp in 2 worlds, 5 frames, then brute force over every point
 def test_band_points_in_batched_worlds(asset):
     """Batched worlds, each queried at its own offset (Contact.set_query_offsets): the hoi_box grasp in
     two worlds on the CPU, five frames. At the last frame's start, per world w with slack s_w: the

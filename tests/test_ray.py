@@ -12,6 +12,7 @@ import time
 import pytest
 
 ray = pytest.importorskip("ray")
+pytestmark = pytest.mark.slow  # a local Ray's start and its workers' runs: the README's slow set
 
 import physhand_mj as ph  # noqa: E402
 from physhand_mj.distributed import rollout_ray  # noqa: E402

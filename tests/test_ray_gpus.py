@@ -49,6 +49,7 @@ def two_gpu_ray():
         os.environ.update({k: v for k, v in saved.items() if v is not None})
 
 
+@pytest.mark.slow  # (a local Ray's start)
 def test_gpu_tasks_keep_the_nodes_visible_gpus_and_get_distinct_ones(two_gpu_ray, tmp_path):
     def _probe(folder: str, tag: str):
         """A task that waits until both tasks of its pair run (each then holds a GPU of its own), and
@@ -71,6 +72,7 @@ def test_gpu_tasks_keep_the_nodes_visible_gpus_and_get_distinct_ones(two_gpu_ray
     assert sorted(g[0] for g in plain) == ["0", "1"]  # without the switch Ray narrows it (the contrast)
 
 
+@pytest.mark.slow  # (a local Ray's start)
 def test_rollout_ray_refuses_a_numbered_gpu_for_gpu_tasks(two_gpu_ray, tmp_path):
     import physhand_mj as ph
     from physhand_mj.distributed import rollout_ray
@@ -80,6 +82,7 @@ def test_rollout_ray_refuses_a_numbered_gpu_for_gpu_tasks(two_gpu_ray, tmp_path)
                     steps=2, progress=False)
 
 
+@pytest.mark.slow  # (a local Ray's start)
 def test_rollout_ray_runs_gpu_tasks_with_the_switch(two_gpu_ray, tmp_path):
     import physhand_mj as ph
     from physhand_mj.distributed import rollout_ray

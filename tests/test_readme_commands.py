@@ -37,3 +37,16 @@ def test_cli_bad_input_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr("physhand_mj.asset.DEFAULT_ASSET", tmp_path / "missing.npz")
     rc = cli.main(["demo", "--out", str(tmp_path)])
     assert rc == 1
+
+
+def test_ci_runs_the_readmes_test_commands():
+    """.ci/run's commands are the README's test block, line for line (the default set, then the slow set)."""
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    readme = root.joinpath("README.md").read_text()
+    block = readme.split("Install and run the tests", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    ci = [x for x in root.joinpath(".ci", "run").read_text().splitlines()
+          if x and not x.startswith(("#", "set ", "cd "))]
+    assert block.splitlines() == ci, (block, ci)
+    assert ci[0].endswith("MUJOCO_GL=osmesa python -m pytest -q") and ci[1].endswith("-m slow")

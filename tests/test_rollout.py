@@ -108,13 +108,20 @@ def test_a_stopped_run_reports_the_frame_its_object_side_comes_from(apple_runs, 
         int(row["object_in_skin_count"]), float(row["object_in_skin_max_um"])), (res, row)
 
 
-def _cli(*args, **kw):
-    return subprocess.run([sys.executable, "-m", "physhand_mj.cli", "rollout", *map(str, args)], capture_output=True,
-                          text=True, **kw)
+def _main(capsys, *args):
+    """``physhand rollout ARGS`` in this process (cli.main, as the console script calls it, without a
+    new interpreter's start): its exit status, stdout and stderr. The subprocess tests here check
+    what only a process shows (Ctrl-C; tests/test_batch_rollout.py::test_cli_batch: the exit status and
+    a clean stdout)."""
+    from physhand_mj import cli
+
+    rc = cli.main(["rollout", *map(str, args)])
+    out, err = capsys.readouterr()
+    return rc, out, err
 
 
 @pytest.mark.parametrize("case", ["missing", "malformed", "keyframe", "nohand", "nonfinite", "measure_every"])
-def test_cli_bad_inputs_give_one_clear_line(case, tmp_path):
+def test_cli_bad_inputs_give_one_clear_line(case, tmp_path, capsys):
     scene = tmp_path / "scene.xml"
     want = {"missing": "scene file not found", "malformed": "malformed MJCF", "keyframe": "unknown keyframe 'nope'",
             "nohand": "has no geom 'physhand_skin'", "nonfinite": "non-finite",
@@ -133,12 +140,13 @@ def test_cli_bad_inputs_give_one_clear_line(case, tmp_path):
         head, rest = text.split('<key name="grasp" qpos="', 1)
         q, tail = rest.split('"', 1)
         scene.write_text(head + '<key name="grasp" qpos="' + " ".join(["nan"] + q.split()[1:]) + '"' + tail)
-    r = _cli(*args, "--steps", 2, "--out", tmp_path / "o")
-    assert r.returncode == 1 and r.stdout == "", (r.stdout, r.stderr)
-    line = [x for x in r.stderr.strip().splitlines() if x.startswith("physhand rollout: error:")]
-    assert len(line) == 1 and want in line[0], r.stderr
+    rc, out, err = _main(capsys, *args, "--steps", 2, "--out", tmp_path / "o")
+    assert rc == 1 and out == "", (out, err)
+    line = [x for x in err.strip().splitlines() if x.startswith("physhand rollout: error:")]
+    assert len(line) == 1 and want in line[0], err
 
 
+@pytest.mark.slow  # a new interpreter that runs until it has logged 3 frames, twice
 @pytest.mark.parametrize("every", [1, 0])
 def test_interrupted_rollout_keeps_its_log(tmp_path, every):
     """Ctrl-C after 3 frames: exit 130, the log's whole frames, the skin, the summary. With
@@ -177,12 +185,12 @@ def test_interrupted_rollout_keeps_its_log(tmp_path, every):
         assert str(summary["object_in_skin_count"]) == cells[-1]
 
 
-def test_batch_runs_a_list_into_one_table(tmp_path):
+def test_batch_runs_a_list_into_one_table(tmp_path, capsys):
     lst = tmp_path / "runs.txt"
     lst.write_text(f"# scene keyframe\n{APPLE} grasp\n{tmp_path / 'missing.xml'}\n")
-    r = _cli(lst, "--steps", 2, "--device", "cpu", "--out", tmp_path / "b")
-    assert r.returncode == 1, r.stderr
-    lines = [json.loads(x) for x in r.stdout.strip().splitlines()]
+    rc, out, err = _main(capsys, lst, "--steps", 2, "--device", "cpu", "--out", tmp_path / "b")
+    assert rc == 1, err
+    lines = [json.loads(x) for x in out.strip().splitlines()]
     assert len(lines) == 2 and lines[0]["penetration_count"] == 0 and "error" in lines[1]
     table = read_csv(tmp_path / "b" / "summary.csv")
     assert [t["scene"] for t in table] == [str(APPLE), str(tmp_path / "missing.xml")]

@@ -37,7 +37,7 @@ def _moved(poses, rot, shift, about):
 
 
 @pytest.mark.parametrize("ahead, device", [
-    (False, "cpu"), (True, "cpu"),
+    (False, "cpu"), pytest.param(True, "cpu", marks=pytest.mark.slow),
     pytest.param(True, "cuda", marks=pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device"))],
     ids=["cpu-gates", "cuda-gates", "cuda"])
 def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene, ahead, device):
@@ -76,6 +76,7 @@ def test_a_still_hand_sleeps_rides_its_bones_and_wakes_for_an_object(scene, ahea
     assert not out["asleep"] and out["contact_ops_run"] > 0 and out["triangles_tested"] > 0
 
 
+@pytest.mark.slow  # 2 x 330 frames: carried, it first sleeps at frame ~262
 def test_a_woken_hand_matches_an_always_awake_run(scene):
     """Carried at a steady 5 cm/s it falls asleep (settled relative to its bones), then a finger
     bends: the skin stays within 0.1 mm of a run that never slept (it wakes moving with its bones)."""
@@ -105,6 +106,7 @@ def test_a_woken_hand_matches_an_always_awake_run(scene):
     assert np.abs(bent_a - bent_b).max() < 1e-4
 
 
+@pytest.mark.slow  # falls asleep twice, turns and creeps: ~20 s on a 2-core CPU
 def test_a_sleeping_hand_wakes_when_gravity_turns_in_it_or_a_finger_creeps(scene):
     """Per-frame tests alone would miss slow changes: the hand turning as one body (gravity turns
     in it: woken before 2 degrees) and a finger bending below the per-frame tolerance (woken once
