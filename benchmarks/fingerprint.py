@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.append(str(Path(__file__).resolve().parents[1]))  # (after PYTHONPATH: an older tree can be fingerprinted)
 
 KINDS = ("cone_tip", "mesh_cone", "knife", "plate", "capsule", "coarse")
 HOI = ("apple", "bowl", "box", "glass1", "glass2", "phone", "toothpaste")

@@ -152,8 +152,8 @@ def bench_cone(contact: str = "multires", device: str = "cpu", steps: int = 30, 
         penetration_max_um_final=round(log[-1]["penetration_max_um"], 4),
         penetration_max_um_all=round(max(r["penetration_max_um"] for r in log), 4),
         ms_per_step=round(float(np.median(times)) * 1e3, 3), steps=steps, substeps=substeps,
-        vertices=body.n_vertices, triangles=len(body.skin_faces), queries=_queries(cfg.validate()),
-        contact_passes=cfg.contact_passes, placement=cfg.tuning.contact_placement.name.lower(),
+        vertices=body.n_vertices, triangles=len(body.skin_faces), queries=_queries(cfg),
+        contact_passes=cfg.contact_passes, placement=cfg.contact_placement.name.lower(),
         device=str(solver.device), device_name=device_name(str(solver.device)), finite=bool(out["nonfinite"] == 0),
     ), log
 

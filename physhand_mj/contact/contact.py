@@ -486,6 +486,30 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             launch(tally_worlds, m.n_vertices, [self.touched, count, 0, m.vertex_world,
                                                 2 * (len(self._stage_slots) - 1) + 1], [self.world_stage], count=count)
 
+    def _fit_patch_pool(self) -> None:
+        used, _, failed = (int(v) for v in self._patch_used_host.numpy())
+        # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past the
+        # pool's size; < 0: an int32 counter wrapped past 2^31)
+        size = self.patch_pool.shape[0]
+        over = bool(failed or used > size or used < 0)
+        if size < PATCH_POOL_MAX and (over or 2 * used > size):
+            # (a power of two at least twice the need and the pool: a list that keeps growing re-records rarely)
+            grown = PATCH_POOL_MAX if used < 0 else min(1 << (max(2 * used, 2 * size) - 1).bit_length(), PATCH_POOL_MAX)
+            self.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
+            self.reallocations += 1
+        elif over and not self._patch_warned:
+            from physhand_mj.warn import warn_user
+
+            self._patch_warned = True
+            need = f"{used:,}" if used >= 0 else "over 2^31"
+            what = f"{failed} object feature points' patches did not fit: " if failed else ""
+            per = f" ({self.worlds} worlds)" if self.worlds > 1 else ""
+            warn_user(f"contact: {what}the feature points' patches (the skin triangles near each, for its inside "
+                      f"test) needed {need} entries packed, more than the pool's most{per}, {size:,} (4 GiB): "
+                      f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches). "
+                      f"Run fewer worlds per BatchedHands, or a smaller Config.contact_frame_margin (the "
+                      f"patches' radius)", RuntimeWarning)
+
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]

@@ -24,7 +24,7 @@ class FeaturePush:
         """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
         as it is now, applied at once; returns the counter slot of the vertices it moved and that
         counter."""
-        m, o, cfg = self.model, self.objects, self.config
+        m, cfg = self.model, self.config
         if p and not self.tiled_features:  # (pass 0 sees the skin its stage's list was made on; CUDA's
             # scans read the skin's shifted copy, which apply_contact keeps current: no refit there)
             ops.append(self._refit_op(self.volume(state, winding=False), feat_count))

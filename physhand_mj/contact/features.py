@@ -199,7 +199,6 @@ def feature_kernel(search: str, stage: bool):
         raise ValueError(f"feature_kernel: search must be one of {SEARCHES}, got {search!r}")
     BVH = search == "bvh"
     TILED = search == "tiled"
-    SCAN = search == "scan"
     # a BVH stage only lists (and takes the sides of) its features; the others push them as the
     # stage's first pass would in the same launch (its skin is the one the list is made on)
     STAGE = bool(stage)

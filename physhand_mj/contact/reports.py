@@ -42,32 +42,6 @@ class ContactReports:
             self._fit_patch_pool()
         return int(self._feat_host.numpy()[0])
 
-    def _fit_patch_pool(self) -> None:
-        from physhand_mj.contact.contact import PATCH_POOL_MAX
-
-        used, _, failed = (int(v) for v in self._patch_used_host.numpy())
-        # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past the
-        # pool's size; < 0: an int32 counter wrapped past 2^31)
-        size = self.patch_pool.shape[0]
-        over = bool(failed or used > size or used < 0)
-        if size < PATCH_POOL_MAX and (over or 2 * used > size):
-            # (a power of two at least twice the need and the pool: a list that keeps growing re-records rarely)
-            grown = PATCH_POOL_MAX if used < 0 else min(1 << (max(2 * used, 2 * size) - 1).bit_length(), PATCH_POOL_MAX)
-            self.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
-            self.reallocations += 1
-        elif over and not self._patch_warned:
-            from physhand_mj.warn import warn_user
-
-            self._patch_warned = True
-            need = f"{used:,}" if used >= 0 else "over 2^31"
-            what = f"{failed} object feature points' patches did not fit: " if failed else ""
-            per = f" ({self.worlds} worlds)" if self.worlds > 1 else ""
-            warn_user(f"contact: {what}the feature points' patches (the skin triangles near each, for its inside "
-                      f"test) needed {need} entries packed, more than the pool's most{per}, {size:,} (4 GiB): "
-                      f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches). "
-                      f"Run fewer worlds per BatchedHands, or a smaller Config.contact_frame_margin (the "
-                      f"patches' radius)", RuntimeWarning)
-
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
         triangles and the skin vertices its first pass corrected (in contact at the stage's start; Eq. 9's
