@@ -11,6 +11,7 @@ from test_batch import _beside_serial, setup  # noqa: F401  (setup: a module fix
 from physhand_mj.hand_mjcf import bone_poses_at
 from physhand_mj.contact.linear import hold_planes, roll_planes
 from physhand_mj.contact.query import apply_contact
+from physhand_mj.launch import Recorder
 from physhand_mj.types import Config, GeomType
 
 HALF = np.array([0.02, 0.02, 0.005])  # m, the box's half extents
@@ -272,11 +273,9 @@ def test_the_feature_points_are_held_too(scene):  # noqa: F811
         slot, feat = c._slot, c.feat
         if not features:
             c.feat = None  # (no feature list: the hold keeps no feature points)
-        ops = []
-        c.record_hold(lambda k, dim, inputs, outputs, **kw: ops.append(
-            lambda: wp.launch(k, dim, inputs=inputs, outputs=outputs, device="cpu")), ops, state)
-        for op in ops:
-            op()
+        rec = Recorder("cpu")
+        c.record_hold(rec, state)
+        rec.run()
         c.feat, c._slot = feat, slot
         assert np.isfinite(state.x.numpy()).all()
         return measured()

@@ -32,7 +32,7 @@ from physhand_mj.contact.slack import FeatureSlack
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
 from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.types import Config, Model, Placement, Settings, Strategy
-from physhand_mj.launch import launch_options, tiled_blocks
+from physhand_mj.launch import Recorder, tiled_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
@@ -246,33 +246,33 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
             stage == "after" and p in (Placement.AFTER, Placement.BOTH))
 
-    def record_frame(self, launch, ops: list, state, gated=None, launch_pre=None) -> None:
+    def zero_counters(self, rec) -> None:
+        """Zero the frame's list lengths (``counters``), where the frame's broadphase is recorded
+        (``rec.ahead_ops()``): before :meth:`record_frame`, outside its gate (the gates read them)."""
+        rec.ahead_ops().append(self.counters.zero_)
+
+    def record_frame(self, rec, state) -> None:
         """Once per frame, before the substeps: the frame's broadphase over all skin triangles with
-        ``contact_frame_margin``; each stage then tests only this list. ``gated(record, 1)``
-        (the solver's) records what follows the broadphase into a block run only when its list is
-        not empty (physhand_mj/solver/activity.py); the caller zeroes ``counters`` first. ``launch_pre``
-        records the broadphase elsewhere (CUDA: ahead of the frame's graph, Solver.step)."""
+        ``contact_frame_margin``; each stage then tests only this list. What follows the broadphase
+        is recorded into ``rec.gated(..., 1)``, a block the solver runs only when the list is not
+        empty (physhand_mj/solver/activity.py); :meth:`zero_counters` first. The broadphase goes
+        to ``rec.launch_ahead`` (CUDA: ahead of the frame's graph, Solver.step)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        if gated is None:
-            ops.append(self.counters.zero_)
         self._slot = 1
         self._stage_slots = []
         self.pass_slots = []
-        (launch_pre or launch)(find_active, self.n_tris,
-                               [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
-                               [self.cand, self.cand_mask, self.cand_count])
-        if gated is None:
-            self._record_frame_lists(launch, ops, state)
-        else:
-            gated(lambda sub: self._record_frame_lists(launch, sub, state), 1)
+        rec.launch_ahead(find_active, self.n_tris,
+                         [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                          self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
+                         [self.cand, self.cand_mask, self.cand_count])
+        rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
-    def _record_frame_lists(self, launch, ops: list, state) -> None:
+    def _record_frame_lists(self, rec, state) -> None:
         """The per-frame resets and the frame's feature list (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
-        ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30), self.pass_flags.zero_]  # objects moved
+        rec.ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30), self.pass_flags.zero_]  # objects moved
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.feat is None:
@@ -292,19 +292,19 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
                 self._make_slack(pts.pts.shape[0])  # Config.tuning.feature_slack's buffers (slack.py)
             vol = self.volume(state, winding=False)
-            qpose = self._query_pose(launch)
-            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self._slack_start_ops(state),
+            qpose = self._query_pose(rec)
+            rec.ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self._slack_start_ops(state),
                     *vol.refit_ops()]
-            launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
+            rec.launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
                                                    cfg.contact_frame_margin, cfg.contact_margin, self.slack,
                                                    FEATURE_LIST_SHARE, self.geoms_per_world],
                    [self.feat, self.feat_count, self.feat_dist, self.pt_dist, self.pt_face, self.world_listed])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
-                ops += [self.patch_used.zero_, self.patch_fill.zero_]
+                rec.ops += [self.patch_used.zero_, self.patch_fill.zero_]
                 lanes = self.patch_lanes
                 nb = tiled_blocks(m.device, pts.n_features, lanes)
-                launch(feature_patches_tiled, (nb, lanes),
+                rec.launch(feature_patches_tiled, (nb, lanes),
                        [m.skin_faces, self._query_x(state), self.feat, self.feat_count, nb, pts.pts, pts.geom, qpose,
                         cfg.contact_frame_margin, self.feat_dist, self.slack, self.tris_per_world,
                         self.geoms_per_world],
@@ -312,8 +312,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                         self.patch_fill, self.far_angle], block_dim=lanes)
             elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
                 volw = self.volume(state, winding=True)
-                ops += [self._refit_op(volw), self.patch_used.zero_]
-                launch(feature_patches, pts.n_features,
+                rec.ops += [self._refit_op(volw), self.patch_used.zero_]
+                rec.launch(feature_patches, pts.n_features,
                        [vol.mesh.id, volw.mesh.id, m.skin_faces, self._query_x(state), self.feat, self.feat_count,
                         pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, self.feat_dist,
                         self.slack, self.geoms_per_world, PATCH_SLOT],
@@ -328,11 +328,11 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self._slot += 1
         return c
 
-    def record(self, launch, ops: list, state, gated=None) -> None:
+    def record(self, rec, state) -> None:
         """One contact stage: broadphase over the frame's list, then ``contact_passes`` x (decision
         points + Eq. 9, averaged apply); a later pass queries only the stage's triangles with a
-        vertex the previous pass moved (the others cannot have changed). With the solver's ``gated``
-        a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
+        vertex the previous pass moved (the others cannot have changed). Through the solver's gates
+        (``rec.gated``) a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
         skin: activity.py level 2)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
@@ -344,30 +344,30 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.pass_slots.append(self._slot - 1)
         # the stage's active triangles (within contact_margin) of the frame's list, and of those its
         # first pass's list, in one launch
-        launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+        rec.launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
                                           self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.cand,
                                           self.cand_mask, self.cand_count, self.bound, self.bound_mask, self.eval_x],
                [self.active, self.active_mask, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
         if self.world_stage is not None:  # the stage's active triangles per world
-            launch(tally_worlds, self.n_tris, [self.active, self.active_count, self.tris_per_world, m.vertex_world,
+            rec.launch(tally_worlds, self.n_tris, [self.active, self.active_count, self.tris_per_world, m.vertex_world,
                                                2 * stage], [self.world_stage], count=self.active_count)
         if self.feat is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
-            ops += self.volume(state, winding=False).sync_ops()
+            rec.ops += self.volume(state, winding=False).sync_ops()
             self._first_push = self.counters[self._slot + 1: self._slot + 2]  # (as the tiled path's, below)
-            launch(stage_features_scan, self.points.n_features,
+            rec.launch(stage_features_scan, self.points.n_features,
                    self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
                                         out=self.feat_stage, out_count=feat_count), [])
         elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
             # with its first pass's feature push (into that pass's counter slot, taken by _record_features)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
-            ops += self.volume(state, winding=False).sync_ops()
+            rec.ops += self.volume(state, winding=False).sync_ops()
             self._first_push = self.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
-            launch(stage_features_tiled, (nb, self.feature_lanes),
+            rec.launch(stage_features_tiled, (nb, self.feature_lanes),
                    self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
                                         stride=nb, out=self.feat_stage, out_count=feat_count), [],
                    block_dim=self.feature_lanes)
@@ -375,8 +375,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             feat_count = self.feat_stage_counts[stage: stage + 1]
             vol = self.volume(state, winding=False)
             skin = vol.mesh
-            ops.append(self._refit_op(vol))
-            launch(stage_features, self.points.n_features,
+            rec.ops.append(self._refit_op(vol))
+            rec.launch(stage_features, self.points.n_features,
                    self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, None, skin=skin,
                                         out=self.feat_stage, out_count=feat_count), [],
                    count=self.feat_count)
@@ -385,18 +385,18 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         prev: tuple = ()  # counter slots of the vertices the previous pass moved
         flag = None  # the device flag the previous pass's keep_moved set from them (activity.py level 2)
         for p in range(cfg.contact_passes):
-            if p and gated is not None:
+            if p:
                 box: dict = {}
-                gate = gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin,
-                                                                             feat_count)), 2, prev, flag)
+                gate = rec.gated(lambda sub, p=p: box.update(r=self._record_pass(rec, state, p, lst, skin,
+                                                                                 feat_count)), 2, prev, flag)
                 if gate is not None and len(self.pass_move):  # (Config.tuning.contact_pass_tol: the CPU's host test)
                     gate.moved_enough = self._moved_enough(prev[0], stage)
                 lst, prev, flag = box["r"]
             else:
-                lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
-        self.record_make_planes(launch, ops, state, feat_count)  # (Config.contact_linear: linear.py)
+                lst, prev, flag = self._record_pass(rec, state, p, lst, skin, feat_count)
+        self.record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
 
-    def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
+    def _record_pass(self, rec, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
         the device flag (1 when one of them is not zero) the next pass's conditional node reads."""
         m, o, cfg = self.model, self.objects, self.config
@@ -407,9 +407,9 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                 self.touched, self.touched_count]
         if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
             # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
-            slot, feat_touched = self._record_features(launch, ops, state, p, skin, feat_count, stamp)
+            slot, feat_touched = self._record_features(rec, state, p, skin, feat_count, stamp)
             moved_slots.append(slot)
-            self._tally_touched(launch, p, feat_touched)
+            self._tally_touched(rec, p, feat_touched)
         def decide(stride):  # the decision points' inputs (query.decide_inputs)
             return decide_inputs(m.skin_faces, o, self.tris_per_world, self.geoms_per_world, lst, stride,
                                  int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
@@ -417,7 +417,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
 
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
             nb = tiled_blocks(m.device, self.n_tris, TILE_LANES)
-            launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES), decide(nb), outs, block_dim=TILE_LANES)
+            rec.launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES), decide(nb), outs, block_dim=TILE_LANES)
         else:
             kernel = decide_and_project  # (Config.execution.multires_registers: a copy specialised to multires)
             regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, o.has_mesh)
@@ -425,20 +425,20 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
                 block = int(cfg.multires_block_dim)
                 kernel = multires_kernel(regs, block)
-            launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
+            rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
         shift, shifted = self._apply_shift(state)
-        launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
+        rec.launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=self.touched_count)
-        self._tally_touched(launch, p, self.touched_count)
+        self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
-            moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
+            moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
         flag = None
         if p + 1 < cfg.contact_passes:
             lst = (self.pass_list, self.pass_mask, self._counter())
             self.pass_slots.append(self._slot - 1)
             j = len(self.pass_slots) - 1  # (one flag per later pass of the frame, zeroed with the frame)
             flag = self.pass_flags[j: j + 1]
-            launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
+            rec.launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
                                              self.moved, self.disp, stamp, self.bound, self.counters,
                                              self._slot_array(moved_slots), self.pass_move, self.stage_tol,
                                              len(self._stage_slots) - 1],
@@ -478,12 +478,12 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             a = self._slot_ids[key] = wp.array(np.asarray(key, np.int32), dtype=int, device=self.model.device)
         return a
 
-    def _tally_touched(self, launch, p: int, count) -> None:
+    def _tally_touched(self, rec, p: int, count) -> None:
         """Batched worlds: the vertices a stage's first pass corrected (``self.touched``, ``count``
         long), per world (the log's ``contacts``)."""
         if self.world_stage is not None and p == 0:
             m = self.model
-            launch(tally_worlds, m.n_vertices, [self.touched, count, 0, m.vertex_world,
+            rec.launch(tally_worlds, m.n_vertices, [self.touched, count, 0, m.vertex_world,
                                                 2 * (len(self._stage_slots) - 1) + 1], [self.world_stage], count=count)
 
     def _fit_patch_pool(self) -> None:
@@ -530,27 +530,21 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         """Run one contact stage now (broadphase + passes) on ``state.x``; returns (F, 4) decision
         points of the last pass (x*, phi(x*)) with phi = FAR for triangles the broadphase skipped.
         For tests and diagnostics: inside a frame the solver records the same launches."""
-        ops: list = []
-        d = self.model.device
-
-        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
-            if dim:
-                kw = launch_options(d, count, block_dim)
-                ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
-
-        ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
+        rec = Recorder(self.model.device)
+        rec.ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
         kept = (self._slot, self._stage_slots, self.active_count, self.touched_count, self.pass_slots)
-        self.record_frame(launch, ops, state)
-        self.record(launch, ops, state)
+        self.zero_counters(rec)
+        self.record_frame(rec, state)
+        self.record(rec, state)
         gated = self._passes_gated
         self.finish_recording(False)  # (one stage, ungated: the last, run to the end)
         self._passes_gated = gated
         stage_active = self.active_count
         (self._slot, self._stage_slots, self.active_count, self.touched_count,
          self.pass_slots) = kept  # the solver frame's
-        for op in ops:
+        for op in rec.ops:
             op()
-        wp.synchronize_device(d)
+        wp.synchronize_device(self.model.device)
         self.finish_recording(None)  # (the solver frame's stages again)
         self.stage_active_count = int(stage_active.numpy()[0])
         return self.decision.numpy()[: self.n_tris].copy()

@@ -20,14 +20,14 @@ class FeaturePush:
         cfg = self.config
         return float(cfg.feature_offset if cfg.feature_last_offset is None else cfg.feature_last_offset)
 
-    def _record_features(self, launch, ops, state, p, skin, feat_count, stamp) -> tuple:
+    def _record_features(self, rec, state, p, skin, feat_count, stamp) -> tuple:
         """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
         as it is now, applied at once; returns the counter slot of the vertices it moved and that
         counter."""
         m, cfg = self.model, self.config
         if p and not self.tiled_features:  # (pass 0 sees the skin its stage's list was made on; CUDA's
             # scans read the skin's shifted copy, which apply_contact keeps current: no refit there)
-            ops.append(self._refit_op(self.volume(state, winding=False), feat_count))
+            rec.ops.append(self._refit_op(self.volume(state, winding=False), feat_count))
         slot = self._slot
         feat_touched = self._counter()
         # the stage's last push (Config.tuning.feature_last: pass p == contact_passes) to its own, smaller stand-off
@@ -35,19 +35,19 @@ class FeaturePush:
         if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
         elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
-            launch(feature_contact_scan, self.points.n_features,
+            rec.launch(feature_contact_scan, self.points.n_features,
                    self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched), [])
         elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
-            launch(feature_contact_tiled, (nb, self.feature_lanes),
+            rec.launch(feature_contact_tiled, (nb, self.feature_lanes),
                    self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, stride=nb), [],
                    block_dim=self.feature_lanes)
         else:
-            launch(feature_contact, self.points.n_features,
+            rec.launch(feature_contact, self.points.n_features,
                    self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, skin=skin), [],
                    count=feat_count)
         shift, shifted = self._apply_shift(state)
-        launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits, shift],
+        rec.launch(apply_contact, m.n_vertices, [self.touched, feat_touched, stamp, self.delta, self.hits, shift],
                [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 

@@ -284,10 +284,10 @@ class LinearHold:
         cfg = self.config
         return bool(cfg.contact_linear and cfg.contact_every > 1 and self.n_tris)
 
-    def record_frame_planes(self, launch) -> None:
+    def record_frame_planes(self, rec) -> None:
         """Every frame, contact or not: last frame's planes become the previous ones (roll_planes)."""
         if self.holds:
-            launch(roll_planes, 1, [self.plane_state], [])
+            rec.launch(roll_planes, 1, [self.plane_state], [])
 
     def _feature_planes(self) -> bool:
         """Whether the stages' feature points are kept too: the features' push on (contact.feat made
@@ -302,7 +302,7 @@ class LinearHold:
             self.fplane_uv = wp.zeros(nf, dtype=wp.vec2, device=d)
         return True
 
-    def record_make_planes(self, launch, ops: list, state, feat_count=None) -> None:
+    def record_make_planes(self, rec, state, feat_count=None) -> None:
         """After a stage's last pass: its planes (make_planes) and, with the feature push, its feature
         points near the skin (make_feature_planes, on the skin's BVH refit first), replacing the lists."""
         if not self.holds:
@@ -310,20 +310,20 @@ class LinearHold:
         m, o, cfg = self.model, self.objects, self.config
         if feat_count is not None and self._feature_planes():
             vol = self.volume(state, winding=False)
-            ops += [self._fplane_len.zero_, self._refit_op(vol, feat_count)]  # (the CPU: only with features listed)
-            launch(make_feature_planes, self.points.n_features,
+            rec.ops += [self._fplane_len.zero_, self._refit_op(vol, feat_count)]  # (the CPU: only with features listed)
+            rec.launch(make_feature_planes, self.points.n_features,
                    [vol.mesh.id, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
                     cfg.contact_margin], [self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state],
                    count=feat_count)
-        ops.append(self._plane_len.zero_)
-        launch(make_planes, self.n_tris,
+        rec.ops.append(self._plane_len.zero_)
+        rec.launch(make_planes, self.n_tris,
                [m.skin_faces, self.active, self.active_mask, self.active_count, self.decision, self.eval_x,
                 o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, self.tris_per_world,
                 self.geoms_per_world, cfg.contact_margin, int(self.closed_skin and cfg.side_aware), state.x],
                [self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state],
                count=self.active_count, min_dim=1)
 
-    def record_hold(self, launch, ops: list, state) -> None:
+    def record_hold(self, rec, state) -> None:
         """A substep without a stage: HOLD_PASSES passes of [the kept feature points' push, Eq. 9
         against the planes], each applied, then (Config.tuning.feature_last) the feature points once more."""
         if not self.holds:
@@ -343,6 +343,6 @@ class LinearHold:
         for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
             stamp = self._slot
             count = self._counter()
-            launch(kernel, dim, inputs, [*common, count, self.vertex_obj], count=length)
-            launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
+            rec.launch(kernel, dim, inputs, [*common, count, self.vertex_obj], count=length)
+            rec.launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
                    [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)

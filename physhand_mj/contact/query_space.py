@@ -46,11 +46,11 @@ class QuerySpace:
         self._qoff = wp.array(off, dtype=wp.vec3, device=d)
         self._qpose = wp.zeros(self.objects.capacity, dtype=wp.transform, device=d)
 
-    def _query_pose(self, launch):
+    def _query_pose(self, rec):
         """The geoms' poses for the object side's queries (moved per world by the query offsets)."""
         if self._qpose is None:
             return self.objects.pose
-        launch(shift_poses, self._qpose.shape[0], [self.objects.pose, self._qoff, self.geoms_per_world], [self._qpose])
+        rec.launch(shift_poses, self._qpose.shape[0], [self.objects.pose, self._qoff, self.geoms_per_world], [self._qpose])
         return self._qpose
 
     @property
@@ -67,7 +67,7 @@ class QuerySpace:
         ``count`` (default: the frame's feature list length) is non-zero (free to read there)."""
         ops = vol.refit_ops()
         if wp.get_device(self.model.device).is_cuda:
-            return ops[0] if len(ops) == 1 else (lambda: [op() for op in ops])
+            return ops[0] if len(rec.ops) == 1 else (lambda: [op() for op in ops])
         count = (self.feat_count if count is None else count).numpy()
         return lambda: [op() for op in ops] if count[0] else None
 

@@ -267,30 +267,30 @@ class FeatureSlack:
         self._slack_warned = False
 
     def _slack_start_ops(self, state) -> list:
-        """The frame start's ops, before the feature list: the per-frame resets and the skin's copy."""
+        """The frame start's rec.ops, before the feature list: the per-frame resets and the skin's copy."""
         x_start, x, n_skin, pt_dist = self.x_start, state.x, self.model.n_skin, self.pt_dist
         return [self.motion.zero_, self.fast_count.zero_, self.near_motion.zero_, self.slack_failed.zero_,
                 self.reach.zero_, self.world_listed.zero_, lambda: pt_dist.fill_(UNLISTED),
                 lambda: wp.copy(x_start, x, count=n_skin)]
 
-    def record_frame_end(self, launch, ops: list, state) -> None:
+    def record_frame_end(self, rec, state) -> None:
         """At the end of a frame with contact: how far the skin moved in it, per world, against the
         slack its feature lists were made with, and the next frame's slack. Nothing without listed
         feature points."""
         if self.feat is None:
             return
         m, cfg, pts = self.model, self.config, self.points
-        launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
+        rec.launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
                [self.vmotion, self.motion, self.fast, self.fast_count])
-        launch(skin_reach, self.n_tris, [m.skin_faces, self.x_start, state.x, m.vertex_world, self.fast_count],
+        rec.launch(skin_reach, self.n_tris, [m.skin_faces, self.x_start, state.x, m.vertex_world, self.fast_count],
                [self.reach])
-        launch(certify_features, pts.n_features,
+        rec.launch(certify_features, pts.n_features,
                [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
                 self.pt_dist, self.pt_face, m.skin_faces, self.x_start, state.x, self.vmotion, self.fast,
                 self.fast_count, self.slack, self.motion, float(cfg.contact_frame_margin), float(cfg.contact_margin),
                 self.reach],
                [self.near_motion, self.slack_failed])
-        launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
+        rec.launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
                                          self.fast.shape[1], self.world_listed, float(cfg.feature_slack),
                                          float(cfg.contact_frame_margin)],
                [self.slack, self.slack_report])
