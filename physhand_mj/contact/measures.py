@@ -53,7 +53,7 @@ class ContactMeasures:
         3-5; ``points``, default :attr:`points`; ``reuse``: ask only what could have changed since the
         last measure of the same points, default Config.execution.reuse_outside). ``obj`` >= 0: that object only."""
         m, o = self.model, self.objects
-        out = self.metrics if out is None else out
+        out = self.rows.metrics if out is None else out
         if not self.n_tris:
             return
         per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
@@ -62,9 +62,9 @@ class ContactMeasures:
             self._record_skin_side(rec, state, row, obj, out, order, per, v)
         pts = self.points if points is None else points
         if objects_side and self.closed_skin and len(pts):
-            vol = self.volume(state)
+            vol = self.space.volume(state)
             rec.ops += vol.ops()
-            qpose = self._query_pose(rec)
+            qpose = self.space.record_pose(rec)
             if not (self.config.reuse_outside if reuse is None else reuse):
                 rec.launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
                                                         obj, row, self.geoms_per_world, per], [out, pts.depth])
@@ -235,15 +235,15 @@ class ContactMeasures:
         measure runs at the frame's end)."""
         if synchronize:
             self.copy_metrics()
-            wp.synchronize_device(self.metrics.device)
+            wp.synchronize_device(self.rows.metrics.device)
         return reduce_worlds(self.read_metrics_worlds(synchronize=False)).copy()
 
     def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
         """:meth:`read_metrics` per world: (W, substeps + 1, 6) (batched worlds; one world: (1, ...))."""
         if synchronize:
             self.copy_metrics()
-            wp.synchronize_device(self.metrics.device)
-        return self._metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
+            wp.synchronize_device(self.rows.metrics.device)
+        return self.rows.metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
 
 
 class _Reuse:

@@ -230,7 +230,7 @@ class Solver(PoseInput, Sleeping):
             out["tethered"] = int(g[2])
         if self.contact is not None:
             self._contact_summary(out)
-            self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
+            self.last_activity = self.activity.report(self.contact.lists.counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
             self.last_activity.update(self.contact.feature_motion(self.activity.last_open1, self.warn_feature_slack))
         else:
