@@ -70,3 +70,58 @@ def launch_options(device, count=None, block_dim: int | None = None) -> dict:
         if cap:
             kw["max_blocks"] = cap
     return kw
+
+
+class Recorder:
+    """Where a stage records its work: :attr:`ops`, a list of zero-argument operations (launches,
+    memsets, copies) run later in order. This one runs every block it is given (no gates) and
+    records the frame's broadphase with the rest; the solver's
+    :class:`~physhand_mj.solver.solver.FrameRecorder` gates blocks on the contact's work
+    (physhand_mj/solver/activity.py), records the broadphase ahead of the frame on CUDA and makes
+    its launches once their modules are compiled.
+
+    A stage calls :meth:`launch` for a kernel, appends other ops to :attr:`ops`, and records a block
+    that may be skipped through :meth:`gated` (whose ``record(ops)`` appends to the list it is given,
+    which is :attr:`ops` meanwhile)."""
+
+    def __init__(self, device, ops: list | None = None):
+        self.device = device
+        self.ops = [] if ops is None else ops
+        self.ahead = None  # the list the frame's broadphase goes to (None: ops)
+
+    def launch(self, kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0) -> None:
+        """Record a launch of ``dim`` threads (none for 0); ``count`` (a (1,) int array: the length of
+        the list the kernel walks), ``block_dim`` (tiled kernels) and ``min_dim`` as
+        :func:`launch_options` and the solver's list launches read them."""
+        if dim:
+            d = self.device
+            kw = launch_options(d, count, block_dim)
+            self.ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
+
+    def launch_ahead(self, kernel, dim, inputs, outputs, **kw) -> None:
+        """:meth:`launch` into :attr:`ahead` where it is set (the frame's broadphase run before the
+        frame: its list length picks the frame's graph), else into :attr:`ops`."""
+        if self.ahead is None:
+            self.launch(kernel, dim, inputs, outputs, **kw)
+            return
+        saved, self.ops = self.ops, self.ahead
+        try:
+            self.launch(kernel, dim, inputs, outputs, **kw)
+        finally:
+            self.ops = saved
+
+    def ahead_ops(self) -> list:
+        """The list the frame's broadphase and its resets go to."""
+        return self.ops if self.ahead is None else self.ahead
+
+    def gated(self, record, level: int, slots=(), flag=None):
+        """Record ``record(ops)`` into a block that runs only when the contact has work at ``level``
+        (the solver's gates: activity.py); here it always runs, recorded in line. Returns the gate
+        (None: no gate)."""
+        record(self.ops)
+        return None
+
+    def run(self) -> None:
+        """Run the recorded ops in order, each dropped once run (a launch kept would hold its arrays)."""
+        while self.ops:
+            self.ops.pop(0)()

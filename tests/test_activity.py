@@ -189,7 +189,7 @@ def test_contact_pass_tol_skips_passes_only_before_the_frames_last_stage(scene):
             objects.set_pose(0, top + [0.0, 0.0, 0.015 + 0.03 - 0.0035 * k], (1.0, 0.0, 0.0, 0.0))
             outs.append(_step(solver, state, scene[2]))
             c = solver.contact
-            lists = c._counters_host.numpy()[np.asarray(c.pass_slots)].reshape(len(c._stage_slots), -1)
+            lists = c.lists.counters_host.numpy()[np.asarray(c.pass_slots)].reshape(len(c._stage_slots), -1)
             later.append(lists[:, 1:].sum(axis=1))  # per stage: triangles its later passes tested
         runs.append((state.x.numpy().copy(), outs, np.array(later)))
     (x0, o0, l0), (x1, o1, l1), (x2, o2, l2), (x3, o3, l3), (x4, o4, l4), (x5, o5, l5), (x6, o6, l6) = runs

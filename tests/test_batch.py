@@ -259,7 +259,7 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
         # query.apply_contact keeps current vertex by vertex (no copy of the whole skin per pass)
         record, seen = Contact._record_features, []
 
-        def checked(self, launch, ops, state, p, *rest):
+        def checked(self, rec, state, p, *rest):
             def same():
                 n = self.model.n_skin
                 x, shift = state.x.numpy()[:n], self.query_shift.numpy()
@@ -267,8 +267,8 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
                 seen.append(p)
 
             if p and self.query_shift is not None:  # (the batch's; the serial runs query x itself)
-                ops.append(same)
-            return record(self, launch, ops, state, p, *rest)
+                rec.ops.append(same)
+            return record(self, rec, state, p, *rest)
 
         monkeypatch.setattr(Contact, "_record_features", checked)
     poses = bone_poses_at(model, data, model.key("open").qpos, ids)
@@ -470,7 +470,7 @@ def test_masks_world_relative_past_31_geoms(setup):
         ref = s.step(st)
     c = batch.solver.contact
     n = int(c.cand_count.numpy()[0])
-    tris, masks = c.cand.numpy()[:n], c.cand_mask.numpy()[:n]
+    tris, masks = c.lists.cand.numpy()[:n], c.lists.cand_mask.numpy()[:n]
     world = tris // c.tris_per_world
     assert len(np.unique(world)) == W, np.unique(world)  # every world's sphere is near its hand
     np.testing.assert_array_equal(masks, 1)  # bit 0: the world's own (only) geom, also past geom 31

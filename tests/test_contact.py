@@ -305,7 +305,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     # the pseudo-normal sign on both paths (Config.tuning.feature_winding's inputs off)
     no = wp.zeros(1, dtype=int, device=d)
     off = [0, no, no, no, no, wp.zeros(1, dtype=float, device=d)]
-    kw = dict(tris=c.cand, tri_count=c.cand_count, geom_obj=o.obj, near=c.near_query, eps=c.feature_eps,
+    kw = dict(tris=c.lists.cand, tri_count=c.cand_count, geom_obj=o.obj, near=c.near_query, eps=c.feature_eps,
               offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=off,
               side=off[-1], push=(delta, hits, touched, count, vobj))
     if tiled:
@@ -348,7 +348,7 @@ def test_tiled_feature_query_matches_the_bvh_query():
     for tiled in (False, True):
         o = wp.zeros((k, 3), dtype=float, device="cpu")
         if tiled:
-            wp.launch(_feature_query_tiled, (k, 1), [c.cand, c.cand_count, c.feat, c.points.pts, c.points.geom,
+            wp.launch(_feature_query_tiled, (k, 1), [c.lists.cand, c.cand_count, c.feat, c.points.pts, c.points.geom,
                                                      objs.pose, cfg.contact_frame_margin, c.feature_eps,
                                                      c.model.skin_faces, state.x, o], device="cpu", block_dim=1)
         else:
@@ -440,7 +440,7 @@ def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
             o = wp.zeros((k, 3), dtype=float, device="cuda")
             if tiled:
                 wp.launch(_feature_query_tiled, (k, FEATURE_LANES),
-                          [c.cand, c.cand_count, c.feat, c.points.pts, c.points.geom, objs.pose,
+                          [c.lists.cand, c.cand_count, c.feat, c.points.pts, c.points.geom, objs.pose,
                            cfg.contact_frame_margin, c.feature_eps, c.model.skin_faces, state.x, o], device="cuda",
                           block_dim=FEATURE_LANES)
             else:

@@ -70,7 +70,7 @@ def _brute_force(c, x, radius):
     n = pts.pts.shape[0]
     dist = wp.zeros(n, dtype=float, device="cpu")
     count = wp.zeros(n, dtype=int, device="cpu")
-    wp.launch(_brute, n, [_cpu(pts.pts), _cpu(pts.geom), _cpu(c._qp), _cpu(c.model.skin_faces), _cpu(x),
+    wp.launch(_brute, n, [_cpu(pts.pts), _cpu(pts.geom), _cpu(c.space.pose), _cpu(c.model.skin_faces), _cpu(x),
                           wp.array(np.asarray(radius, np.float32), dtype=float, device="cpu")], [dist, count],
               device="cpu")
     return dist.numpy().astype(float), count.numpy()
@@ -90,7 +90,7 @@ def _pseudo_inside(c, x, far):
     """Per object point: whether the skin ``x``'s pseudo normals put it inside (within ``far``)."""
     mesh = wp.Mesh(points=_cpu(x), indices=wp.array(c.model.skin_faces.numpy().reshape(-1), dtype=int, device="cpu"))
     out = wp.zeros(c.points.pts.shape[0], dtype=float, device="cpu")
-    wp.launch(_signs, out.shape[0], [mesh.id, _cpu(c.points.pts), _cpu(c.points.geom), _cpu(c._qp), far], [out],
+    wp.launch(_signs, out.shape[0], [mesh.id, _cpu(c.points.pts), _cpu(c.points.geom), _cpu(c.space.pose), far], [out],
               device="cpu")
     return out.numpy() < 0
 
@@ -149,7 +149,7 @@ def _check_lists(asset, slack, device):
     c = solver.contact
     act = solver.last_activity
     assert act["feature_slack_exceeded"] == 0
-    used = float(c.slack_report.numpy()[0, 0])  # (m, as the lists were made: not the report's rounded mm)
+    used = float(c.slack_check.data.report.numpy()[0, 0])  # (m, as the lists were made: not the report's rounded mm)
     assert used >= slack - 1e-9 and used <= cfg.contact_frame_margin + 1e-9
     if slack >= cfg.contact_frame_margin:
         assert used == pytest.approx(cfg.contact_frame_margin)
@@ -161,7 +161,7 @@ def _check_lists(asset, slack, device):
     is_feature = np.zeros(c.points.pts.shape[0], bool)
     is_feature[c.points.feature.numpy()] = True
     # the frame's start: the skin the lists were made on
-    x0 = c.x_start
+    x0 = c.slack_check.data.x_start
     reach = min(cfg.contact_frame_margin, cfg.contact_margin + FEATURE_LIST_SHARE * used)
     if used >= cfg.contact_frame_margin - 1e-9:  # (a slack at the margin lists every point within it)
         reach = cfg.contact_frame_margin
@@ -175,12 +175,12 @@ def _check_lists(asset, slack, device):
     band = is_feature & ~np.isin(np.arange(len(d0)), feat) & (d0 <= min(cfg.contact_frame_margin,
                                                                          cfg.contact_margin + used) - 1e-7)
     assert band.any() == (FEATURE_LIST_SHARE < 1.0 and slack < cfg.contact_frame_margin)
-    np.testing.assert_allclose(c.pt_dist.numpy()[band], d0[band], atol=1e-6)
-    assert np.all(c.pt_face.numpy()[band] == -1)
+    np.testing.assert_allclose(c.slack_check.data.pt_dist.numpy()[band], d0[band], atol=1e-6)
+    assert np.all(c.slack_check.data.pt_face.numpy()[band] == -1)
     assert len(got) < int(np.count_nonzero(is_feature)) or slack >= cfg.contact_frame_margin
-    np.testing.assert_allclose(c.feat_dist.numpy()[:n], d0[feat], atol=1e-6)
+    np.testing.assert_allclose(c.slack_check.data.feat_dist.numpy()[:n], d0[feat], atol=1e-6)
     radius = np.full(c.points.pts.shape[0], -1.0)
-    radius[feat] = np.minimum(cfg.contact_frame_margin, c.feat_dist.numpy()[:n] + used)
+    radius[feat] = np.minimum(cfg.contact_frame_margin, c.slack_check.data.feat_dist.numpy()[:n] + used)
     _, count = _brute_force(c, x0, radius)
     length = c.patch_len.numpy()[:n]
     assert np.all(length >= 0)
@@ -192,7 +192,7 @@ def _check_lists(asset, slack, device):
     x1 = state.x
     d1, _ = _brute_force(c, x1, np.zeros(c.points.pts.shape[0]))
     pc = wp.zeros(n, dtype=float, device="cpu")
-    wp.launch(_patch_closest, n, [_cpu(a) for a in (c.feat, c.points.pts, c.points.geom, c._qp, c.model.skin_faces, x1,
+    wp.launch(_patch_closest, n, [_cpu(a) for a in (c.feat, c.points.pts, c.points.geom, c.space.pose, c.model.skin_faces, x1,
                                                     c.patch_pool, c.patch_start, c.patch_len)], [pc], device="cpu")
     np.testing.assert_allclose(pc.numpy(), d1[feat], atol=1e-7)
     unlisted = is_feature.copy()
@@ -382,19 +382,19 @@ def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset
     assert act["feature_slack_mm"] == pytest.approx(cfg.contact_frame_margin * 1e3)
     move = act["skin_motion_mm"] * 1e-3
     assert move > 0
-    nxt = float(solver.contact.slack.numpy()[0])
-    near = float(solver.contact.near_motion.numpy()[0])
+    nxt = float(solver.contact.slack_check.data.slack.numpy()[0])
+    near = float(solver.contact.slack_check.data.near_motion.numpy()[0])
     assert 0 < near <= move + 1e-9
     assert nxt == pytest.approx(min(max(cfg.feature_slack, 2.5 * near), cfg.contact_frame_margin), rel=1e-5)
     # a report of a frame that outran a cut-short slack warns (once), one at the margin does not
     c = solver.contact
-    c._slack_warned = False
-    c._slack_host.numpy()[0] = (cfg.contact_frame_margin, 0.6 * cfg.contact_frame_margin, 1.0)
-    assert c.feature_motion()["feature_slack_exceeded"] == 1 and not c._slack_warned
-    c._slack_host.numpy()[0] = (4e-3, 2.5e-3, 1.0)
+    c.slack_check.warned = False
+    c.slack_check.data.report_host.numpy()[0] = (cfg.contact_frame_margin, 0.6 * cfg.contact_frame_margin, 1.0)
+    assert c.feature_motion()["feature_slack_exceeded"] == 1 and not c.slack_check.warned
+    c.slack_check.data.report_host.numpy()[0] = (4e-3, 2.5e-3, 1.0)
     with pytest.warns(RuntimeWarning, match="feature_slack"):
         assert c.feature_motion()["feature_slack_exceeded"] == 1
-    assert c._slack_warned
+    assert c.slack_check.warned
 
 
 def test_feature_slack_must_be_a_distance():
@@ -437,9 +437,9 @@ def test_band_points_in_batched_worlds(asset):
         hands.step(pos, quat, op, oq)
     c = hands.solver.contact
     assert c.query_shift is not None
-    used = c.slack_report.numpy()[:, 0]  # (m, each world's slack its last lists were made with)
+    used = c.slack_check.data.report.numpy()[:, 0]  # (m, each world's slack its last lists were made with)
     assert np.all(used < cfg.contact_frame_margin)
-    x0 = c.x_start.numpy() + c.query_shift.numpy()  # the frame's start, where the worlds were queried
+    x0 = c.slack_check.data.x_start.numpy() + c.query_shift.numpy()  # the frame's start, where the worlds were queried
     d0, _ = _brute_force(c, _cpu_arr(x0), np.zeros(c.points.pts.shape[0]))
     world = c.points.geom.numpy() // c.geoms_per_world
     is_feature = np.zeros(len(d0), bool)
@@ -454,10 +454,10 @@ def test_band_points_in_batched_worlds(asset):
     assert not np.any((listed != want) & ~edge)
     band = is_feature & ~listed & (d0 <= ask) & ~edge
     assert band.sum() > 50 and set(np.unique(world[band])) == {0, 1}
-    np.testing.assert_allclose(c.pt_dist.numpy()[band], d0[band], atol=1e-6)
-    assert np.all(c.pt_face.numpy()[band] == -1)
+    np.testing.assert_allclose(c.slack_check.data.pt_dist.numpy()[band], d0[band], atol=1e-6)
+    assert np.all(c.slack_check.data.pt_face.numpy()[band] == -1)
     beyond = is_feature & ~listed & (d0 > ask) & ~edge
-    assert beyond.any() and np.all(c.pt_dist.numpy()[beyond] >= UNLISTED)
+    assert beyond.any() and np.all(c.slack_check.data.pt_dist.numpy()[beyond] >= UNLISTED)
 
 
 def _cpu_arr(x):

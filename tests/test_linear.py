@@ -11,6 +11,7 @@ from test_batch import _beside_serial, setup  # noqa: F401  (setup: a module fix
 from physhand_mj.hand_mjcf import bone_poses_at
 from physhand_mj.contact.linear import hold_planes, roll_planes
 from physhand_mj.contact.query import apply_contact
+from physhand_mj.launch import Recorder
 from physhand_mj.types import Config, GeomType
 
 HALF = np.array([0.02, 0.02, 0.005])  # m, the box's half extents
@@ -46,27 +47,27 @@ def _hold_once(solver, state, plane_state=None) -> int:
     flags ``plane_state``); returns how many vertices it corrected."""
     c, o, m = solver.contact, solver.contact.objects, solver.model
     count = wp.zeros(1, dtype=int, device="cpu")
-    flags = c.plane_state if plane_state is None else plane_state
-    wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.plane_tri, c.plane_bary, c.plane_geom, c.plane_eq,
+    flags = c.hold.data.state if plane_state is None else plane_state
+    wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.hold.data.tri, c.hold.data.bary, c.hold.data.geom, c.hold.data.eq,
                                              flags, o.inv_pose, o.obj, solver.config.contact_offset, state.x],
-              outputs=[c.delta, c.hits, c.touched, count, c.vertex_obj], device="cpu")
-    shift, shifted = c._apply_shift(state)
-    wp.launch(apply_contact, m.n_vertices, inputs=[c.touched, count, 10_000, c.delta, c.hits, shift],
-              outputs=[state.x, c.push, c.moved, c.disp, c.pass_move, shifted], device="cpu")
+              outputs=[c.acc.delta, c.acc.hits, c.acc.touched, count, c.vertex_obj], device="cpu")
+    shift, shifted = c.space.apply_shift(state)
+    wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.touched, count, 10_000, c.acc.delta, c.acc.hits, shift],
+              outputs=[state.x, c.push, c.acc.moved, c.acc.disp, c.lists.pass_move, shifted], device="cpu")
     return int(count.numpy()[0])
 
 
 def _next_frame_flags(solver) -> wp.array:
     """The planes' flags as the next frame's start leaves them (roll_planes on a copy)."""
-    flags = wp.clone(solver.contact.plane_state)
+    flags = wp.clone(solver.contact.hold.data.state)
     wp.launch(roll_planes, 1, inputs=[flags], device="cpu")
     return flags
 
 
 def _planes(contact):
-    n = int(contact.plane_state.numpy()[0])
-    return (contact.plane_tri.numpy()[:n], contact.plane_bary.numpy()[:n], contact.plane_geom.numpy()[:n],
-            contact.plane_eq.numpy()[:n])
+    n = int(contact.hold.data.state.numpy()[0])
+    return (contact.hold.data.tri.numpy()[:n], contact.hold.data.bary.numpy()[:n], contact.hold.data.geom.numpy()[:n],
+            contact.hold.data.eq.numpy()[:n])
 
 
 def _plane_points(solver, state, tri, bary):
@@ -161,11 +162,11 @@ def test_no_planes_outlive_a_frame_without_contact_a_wake_or_another_state(scene
     assert holds_next_frame() > 0
     other = solver.make_state(*scene[1])
     _step(solver, other, scene[2])  # (its frame makes planes of its own skin)
-    assert holds_next_frame() > 0 and solver.contact._planes_of is other
+    assert holds_next_frame() > 0 and solver.contact.hold.planes_of is other
     solver.contact.forget_planes(state)  # (what Solver.launch does first for a frame of ``state``)
-    assert holds_next_frame() == 0 and solver.contact._planes_of is state
+    assert holds_next_frame() == 0 and solver.contact.hold.planes_of is state
     solver.contact.forget_planes(state)  # (the same state again: nothing dropped)
-    assert solver.contact.plane_state.numpy().tolist() == [0, 0, 0, 0]
+    assert solver.contact.hold.data.state.numpy().tolist() == [0, 0, 0, 0]
 
 
 def test_the_option_costs_nothing_where_it_cannot_act(scene):  # noqa: F811
@@ -174,7 +175,7 @@ def test_the_option_costs_nothing_where_it_cannot_act(scene):  # noqa: F811
     runs = []
     for linear in (False, True):
         solver, state, _, _, _ = _pressed(scene, frames=2, contact_linear=linear)
-        assert not solver.contact.holds and solver.contact.plane_tri.shape[0] == 0
+        assert not solver.contact.holds and solver.contact.hold.data.tri.shape[0] == 0
         runs.append(state.x.numpy().copy())
     assert np.array_equal(runs[0], runs[1])
 
@@ -189,7 +190,7 @@ def test_no_planes_outlive_sleep(scene):  # noqa: F811
     ahead finds nothing near); its sleeping frames drop them, so it holds on none when it wakes. Here
     the planes of a pressing frame are put back by hand before an asleep frame."""
     solver, state, objects, centre, _ = _pressed(scene, frames=2, contact_every=2, contact_linear=True)
-    made = solver.contact.plane_state.numpy().copy()
+    made = solver.contact.hold.data.state.numpy().copy()
     assert made[0] > 0 and made[1] == 1
     objects.set_pose(0, (1.0, 1.0, 1.0), (1.0, 0.0, 0.0, 0.0))
     for _ in range(400):
@@ -197,7 +198,7 @@ def test_no_planes_outlive_sleep(scene):  # noqa: F811
             break
     else:
         raise AssertionError("the hand did not fall asleep")
-    solver.contact.plane_state.assign(made)  # (as if the frame before this one had made them)
+    solver.contact.hold.data.state.assign(made)  # (as if the frame before this one had made them)
     assert _step(solver, state, scene[2])["asleep"]
     objects.set_pose(0, centre - _rot_x(TILT) @ [0.0, 0.0, 5.0e-4], _quat_x(TILT))
     assert _hold_once(solver, state, _next_frame_flags(solver)) == 0
@@ -220,9 +221,9 @@ def test_batched_worlds_hold_as_their_serial_runs(setup):  # noqa: F811
                                  dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0)), serial_worlds=2)
     assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
     c = batch.solver.contact
-    tri = c.plane_tri.numpy()[: int(c.plane_state.numpy()[0])]
+    tri = c.hold.data.tri.numpy()[: int(c.hold.data.state.numpy()[0])]
     assert len(tri) > 0 and np.all(tri >= c.tris_per_world)  # world 1's triangles only
-    assert serial[1][0].contact.plane_state.numpy()[0] == len(tri)
+    assert serial[1][0].contact.hold.data.state.numpy()[0] == len(tri)
     for w, (_, st) in enumerate(serial):
         np.testing.assert_array_equal(batch.positions(w), st.x.numpy())
 
@@ -237,7 +238,7 @@ def test_the_hold_before_the_solve(scene):  # noqa: F811
                                              contact_placement="before")
         assert outs[-1]["nonfinite"] == 0 and np.isfinite(state.x.numpy()).all()
         runs.append(state.x.numpy().copy())
-    assert solver.contact.plane_state.numpy()[0] > 0
+    assert solver.contact.hold.data.state.numpy()[0] > 0
     assert np.abs(runs[0] - runs[1]).max() > 1.0e-6
 
 
@@ -257,7 +258,7 @@ def test_the_feature_points_are_held_too(scene):  # noqa: F811
     for _ in range(3):
         out = _step(solver, state, scene[2])
     c = solver.contact
-    assert out["penetration_count"] == 0 and c.plane_state.numpy()[3] > 0  # feature points kept
+    assert out["penetration_count"] == 0 and c.hold.data.state.numpy()[3] > 0  # feature points kept
     objects.set_pose(0, centre - [0.0, 0.0, 3.0e-4], quat)
     x0 = state.x.numpy().copy()
 
@@ -272,11 +273,9 @@ def test_the_feature_points_are_held_too(scene):  # noqa: F811
         slot, feat = c._slot, c.feat
         if not features:
             c.feat = None  # (no feature list: the hold keeps no feature points)
-        ops = []
-        c.record_hold(lambda k, dim, inputs, outputs, **kw: ops.append(
-            lambda: wp.launch(k, dim, inputs=inputs, outputs=outputs, device="cpu")), ops, state)
-        for op in ops:
-            op()
+        rec = Recorder("cpu")
+        c.record_hold(rec, state)
+        rec.run()
         c.feat, c._slot = feat, slot
         assert np.isfinite(state.x.numpy()).all()
         return measured()

@@ -45,7 +45,7 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
 
     def inputs(cand, cand_count, push, out=None, out_count=None):
         return F.feature_inputs(m.skin_faces, state.x, cand, cand_count, c.points.pts, c.points.geom, o.pose,
-                                cfg.contact_frame_margin, tris=c.cand, tri_count=c.cand_count,
+                                cfg.contact_frame_margin, tris=c.lists.cand, tri_count=c.cand_count,
                                 stride=c.points.n_features, geom_obj=o.obj, keep=cfg.contact_margin,
                                 eps=c.feature_eps, offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose,
                                 x0=state.x, winding=wind, out=out, out_count=out_count, push=push)

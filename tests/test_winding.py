@@ -124,7 +124,7 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
                                       c.patch_len, c.far_angle], [out], device=device)
         o = out.numpy().astype(float)
         tiled = wp.zeros(n, dtype=float, device=device)
-        wp.launch(_feature_sides_tiled, (n, lanes), [c.cand, c.cand_count, c.feat, pts.pts, pts.geom, c.objects.pose,
+        wp.launch(_feature_sides_tiled, (n, lanes), [c.lists.cand, c.cand_count, c.feat, pts.pts, pts.geom, c.objects.pose,
                                                      c.config.contact_frame_margin, c.feature_eps, c.model.skin_faces,
                                                      state.x, c.feat_slot, c.patch_pool, c.patch_start, c.patch_len,
                                                      c.far_angle], [tiled], device=device, block_dim=lanes)
@@ -159,7 +159,7 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         slot, start, length = (wp.zeros_like(a) for a in (c.feat_slot, c.patch_start, c.patch_len))
         fill, far = wp.zeros_like(c.patch_len), wp.zeros_like(c.far_angle)
         wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.feat, c.feat_count, n, pts.pts, pts.geom,
-                                                  c.objects.pose, c.config.contact_frame_margin, c.feat_dist, c.slack,
+                                                  c.objects.pose, c.config.contact_frame_margin, c.slack_check.data.feat_dist, c.slack_check.data.slack,
                                                   c.tris_per_world, c.geoms_per_world],
                   [used, pool, slot, start, length, fill, far], device="cpu", block_dim=1)
         assert np.array_equal(length.numpy()[:n], c.patch_len.numpy()[:n])

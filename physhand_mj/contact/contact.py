@@ -1,11 +1,16 @@
 """The contact stage of a substep (Algorithm 1, line 6): broadphase, decision points, Eq. 9.
 
-:class:`Contact` owns the preallocated contact buffers of one solver and records its launches into
-the solver's frame (so a CUDA graph captures them); the penetration metrics are its
-:class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py), the frame's host-side
-reports its :class:`~physhand_mj.contact.reports.ContactReports` (contact/reports.py), the feature lists'
-slack and its check :class:`~physhand_mj.contact.slack.FeatureSlack` (contact/slack.py), where the
-object side's queries run :class:`~physhand_mj.contact.query_space.QuerySpace` (contact/query_space.py).
+:class:`Contact` owns the preallocated contact buffers of one solver, declared in contact/data.py
+(:class:`~physhand_mj.contact.data.FrameLists`: the frame's, stages' and passes' lists;
+:class:`~physhand_mj.contact.data.PassBuffers`: what a pass computes and applies;
+:class:`~physhand_mj.contact.data.MetricsBuffers`: the measures' rows), and records its launches into
+the solver's frame through a :class:`~physhand_mj.launch.Recorder` (so a CUDA graph captures them):
+the frame's lists, the stages and their passes (Eq. 9, then the feature push), and the frame's
+host-side reports. It holds, each owning its own data: where the object side's queries run
+(:class:`~physhand_mj.contact.query_space.QuerySpace`, ``space``), the feature lists' slack and its
+check (:class:`~physhand_mj.contact.slack.SlackCheck`, ``slack_check``), and Config.contact_linear's
+planes (:class:`~physhand_mj.contact.linear.PlaneHold`, ``hold``); the penetration measures are its
+:class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py).
 """
 
 from __future__ import annotations
@@ -15,30 +20,30 @@ import math
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.data import contact_stages, make_frame_lists, make_metrics_buffers, make_pass_buffers
 from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
 from physhand_mj.contact.patches_tiled import PATCH_LANES, feature_patches_tiled
 from physhand_mj.contact.winding import feature_patches
-from physhand_mj.contact.feature_push import FeaturePush
 from physhand_mj.contact.inside import ObjectPoints
-from physhand_mj.contact.linear import HOLD_SLOTS, LinearHold
+from physhand_mj.contact.linear import HOLD_SLOTS, PlaneHold
 from physhand_mj.contact.measures import ContactMeasures
 from physhand_mj.contact.objects import Objects
+from physhand_mj.contact.features import feature_contact, feature_contact_scan, feature_contact_tiled, feature_inputs
 from physhand_mj.contact.query import apply_contact, decide_and_project, decide_inputs, multires_kernel
 from physhand_mj.contact.query_space import QuerySpace
-from physhand_mj.contact.reports import ContactReports
-from physhand_mj.contact.slack import FeatureSlack
+from physhand_mj.contact.slack import SlackCheck
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
 from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.types import Config, Model, Placement, Settings, Strategy
-from physhand_mj.launch import launch_options, tiled_blocks
+from physhand_mj.launch import Recorder, tiled_blocks
 
 # the local winding number's patch pool (features.py): entries per feature point of the objects,
 # within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
 # within 1 cm, at most ~270, and ~184 of its ~1,760 (features every 0.25 mm) are listed per frame); a
 # patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches) in
-# that frame, after which the pool grows (ContactReports.features_listed).
+# that frame, after which the pool grows (Contact.features_listed).
 # 2^30 int32 entries (4 GiB) at most: the HOI box grasp at W = 4096 needs 442 M (an H100, 2026-11-26;
 # with the 2^28 it had then, points of some worlds went unpushed, up to 0.49 mm inside)
 # The BVH path (winding.feature_patches) gives the k-th of a frame's n listed features the slot
@@ -56,7 +61,7 @@ PATCH_POOL_MAX = 1 << 30
 # within a ball about a skin vertex: 147 on average at 10 mm, 500 at 20 mm, 1,074 at 30 mm), so a
 # larger margin gets proportionally more entries per feature point, up to PATCH_POOL_SCALED (16 MiB;
 # a large object's many feature points, most of them never listed, keep the unscaled pool); past
-# that the pool grows when a frame needs more (ContactReports.features_listed). MyoSuite's 20 mm
+# that the pool grows when a frame needs more (Contact.features_listed). MyoSuite's 20 mm
 # margin: the myoHandReorient envs list ~1,400 of 1,960 points, needing 449 k entries packed, past the
 # 502 k of 256 per point (211 patches did not fit); 2.0 M with the margin's square
 PATCH_POOL_MARGIN = 0.01
@@ -106,7 +111,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearHold, FeaturePush):
+class Contact(ContactMeasures):
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -118,7 +123,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.model, self.objects, self.config = model, objects, config
         n_tris = model.skin_faces.shape[0]
         self.n_tris = n_tris
-        stages = config.substeps * (2 if config.contact_placement == Placement.BOTH else 1)
+        stages = contact_stages(config)
         # batched worlds (physhand_mj/batch.py): world w holds triangles [w F_w, (w + 1) F_w) and
         # geoms [w k, (w + 1) k); every list and metric is indexed by world (one world: w = 0)
         self.worlds = w = int(getattr(model, "worlds", 1))
@@ -128,34 +133,16 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         self.tris_per_world = max(n_tris // w, 1)
         self.geoms_per_world = max(objects.capacity // w, 1)
         self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
-        # batched worlds solved at one origin but queried apart (set_query_offsets): the object side's
-        # skin meshes hold x + the world's offset and its queries use the geoms' poses so moved
-        self.query_shift = self._qoff = self._qpose = None
-        self._no_shift = wp.zeros(0, dtype=wp.vec3, device=model.device)  # (apply_contact's, unshifted)
-        # per world and contact stage: [active triangles, vertices the first pass corrected] (W > 1)
-        self.world_stage = wp.zeros((w, max(stages, 1) * 2), dtype=int, device=d) if w > 1 else None
-        self._world_stage_host = wp.zeros((w, max(stages, 1) * 2), dtype=int, device="cpu",
-                                          pinned=wp.get_device(d).is_cuda) if w > 1 else None
-        # list lengths of one frame, zeroed once per frame: [frame list, per stage: its list, per pass:
-        # the pass's triangle list, Eq. 9's touched vertices, the features' touched vertices, and after
-        # the last pass the final feature push's touched vertices (Config.tuning.feature_last)]
-        # (Config.contact_linear: and what the holds of the substeps without a stage take, linear.py)
+        # where the object side's queries run: the skin meshes, and batched worlds solved at one
+        # origin but queried apart (set_query_offsets)
+        self.space = QuerySpace(model, objects, w, self.geoms_per_world)
+        # the frame's, stages' and passes' lists and their lengths (contact/data.py)
         holds = config.substeps * HOLD_SLOTS if config.contact_linear and config.contact_every > 1 else 0
-        self.counters = wp.zeros(1 + stages * (2 + 3 * config.contact_passes) + holds, dtype=int, device=d)
-        self.cand = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the frame's broadphase list
-        self.cand_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # near-geom bits per slot
-        self.cand_count = self.counters[0:1]
-        self.active = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the stage's list
-        self.active_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
+        self.lists = make_frame_lists(model, config, w, holds)
+        self.acc = make_pass_buffers(model)  # what a pass computes and applies
+        # recording cursors: the length slots (counters) of the frame's list, the stage's and the pass's touched
+        self.cand_count = self.lists.counters[0:1]
         self.active_count = self.cand_count  # replaced per stage by its counter
-        self.pass_list = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # a later pass's list
-        self.pass_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)
-        self.moved = wp.zeros(model.n_vertices, dtype=int, device=d)  # number of the pass that last moved i
-        self.disp = wp.zeros(model.n_vertices, dtype=float, device=d)  # m, how far that pass moved i
-        self.bound = wp.zeros(max(n_tris, 1), dtype=float, device=d)  # m, lowest phi per triangle (see query)
-        self.eval_x = wp.zeros((max(n_tris, 1), 3), dtype=wp.vec3, device=d)  # its vertices when bound was set
-        self.bound_mask = wp.zeros(max(n_tris, 1), dtype=int, device=d)  # the geoms bound was taken over
-        self.touched = wp.zeros(model.n_vertices, dtype=int, device=d)  # vertices a pass corrects
         self.touched_count = self.cand_count
         self._slot = 1
         # CUDA multires runs the tiled kernel when a block holds the lattice (and the centroid), by
@@ -164,21 +151,10 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
-        self.delta = wp.zeros(model.n_vertices, dtype=wp.vec3, device=d)
-        self.hits = wp.zeros(model.n_vertices, dtype=float, device=d)
-        self.decision = wp.zeros(max(n_tris, 1), dtype=wp.vec4, device=d)
-        self.push = wp.zeros(model.n_vertices, dtype=float, device=d)  # m, summed over the frame
-        self.vertex_obj = wp.full(model.n_vertices, -1, dtype=int, device=d)
-        # per row: [skin samples inside objects: count, sum depth, max depth (m),
-        #          object points inside the skin: count, sum depth, max depth (m)]
-        # (batched worlds: W blocks of these rows, world w's at [w (substeps + 1), (w + 1) (substeps + 1)))
-        self.metrics = wp.zeros((w * (config.substeps + 1), 6), dtype=float, device=d)
-        self._metrics_host = wp.zeros((w * (config.substeps + 1), 6), dtype=float, device="cpu",
-                                      pinned=wp.get_device(d).is_cuda)
+        self.rows = make_metrics_buffers(model, config, w)  # the measures' rows
         self._points = None  # ObjectPoints, built at the first recording (objects are final then)
         self._check_points = None  # the denser check set (check_points), built on first use
         self._reuse_memory = {}  # Config.execution.reuse_outside's per (points, skin volume) memory (measures.py)
-        self._volumes = {}  # SkinVolume per (state, winding) (its mesh's points are the state's skin positions)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         # (batched worlds: world 0's faces, which name world 0's skin vertices; every world is a copy,
         # and the tolerance below is then the serial hand's to the bit)
@@ -187,6 +163,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         key = e[:, 0] * (int(e.max(initial=0)) + 1) + e[:, 1]  # one integer per edge: a 1-D unique (fast for W worlds)
         self.closed_skin = bool(len(f)) and bool(np.all(np.unique(key, return_counts=True)[1] == 2))
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
+        self.slack_check = None  # the lists' slack and its check (slack.py), made with the lists
         self.feat_count = wp.zeros(1, dtype=int, device=d)
         self.feat_stage_float = wp.zeros(1, dtype=float, device=d)  # stands in for far_angle (feature_winding off)
         self._slot_ids = {}  # counter slots as device arrays, per tuple of slots (Contact._slot_array)
@@ -219,26 +196,41 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         rest = model.rest_x[: int(f.max()) + 1].numpy()[f] if len(f) else np.zeros((0, 3, 3))
         edges = np.linalg.norm(rest - np.roll(rest, -1, axis=1), axis=2)
         self.feature_eps = float(1.0e-3 * edges.mean()) if len(f) else 0.0
-        self._counters_host = wp.zeros(self.counters.shape[0], dtype=int, device="cpu",
-                                       pinned=wp.get_device(d).is_cuda)
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
         self.pass_slots = []  # per recorded pass: the slot of its triangle list's length
-        # per later pass of a frame: 1 when the pass before it moved a vertex (set by keep_moved, read by
-        # the pass's conditional graph node on CUDA, activity.py level 2; zeroed per frame)
-        self.pass_flags = wp.zeros(max(stages * config.contact_passes, 1), dtype=wp.int32, device=d)
-        # Config.tuning.contact_pass_tol: per pass (by its stamp, a counter slot) its largest vertex move, m
-        # (zeroed per frame), and per stage the tolerance its passes stop at (0 in the frame's last
-        # stage: set by finish_recording); both empty when the tolerance is 0 (no work, no flag change)
-        tol = config.contact_pass_tol > 0
-        self.pass_move = wp.zeros(self.counters.shape[0] if tol else 0, dtype=float, device=d)
-        self.stage_tol = wp.zeros(max(stages, 1) if tol else 0, dtype=float, device=d)
-        self._stage_tol_host = np.zeros(self.stage_tol.shape[0], np.float32)
         self._passes_gated = False  # (finish_recording: as the solver's frame last said)
-        cuda = wp.get_device(d).is_cuda
-        self._pass_move_host = (wp.zeros(self.pass_move.shape[0], dtype=float, device="cpu", pinned=True) if cuda
-                                else self.pass_move)
         self._feat_host = wp.zeros(1, dtype=int, device="cpu", pinned=wp.get_device(d).is_cuda)
-        self._make_planes_buffers()  # (Config.contact_linear: linear.py)
+        # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
+        self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
+                              int(self.closed_skin and config.side_aware))
+
+    @property
+    def counters(self) -> wp.array:
+        """The frame's list lengths (:attr:`FrameLists.counters`; the solver's gates read them)."""
+        return self.lists.counters
+
+    @property
+    def push(self) -> wp.array:
+        """(V,) float m: each vertex's contact move summed over the last frame (:attr:`PassBuffers.push`)."""
+        return self.acc.push
+
+    @property
+    def vertex_obj(self) -> wp.array:
+        """(V,) int: the object that last pushed each vertex in the last frame, -1 none (:attr:`PassBuffers.vertex_obj`)."""
+        return self.acc.vertex_obj
+
+    def volume(self, state, winding: bool = True):
+        """The closed skin of ``state`` as a mesh (:meth:`QuerySpace.volume`)."""
+        return self.space.volume(state, winding)
+
+    def set_query_offsets(self, offsets) -> None:
+        """Batched worlds solved at one origin, queried apart (:meth:`QuerySpace.set_offsets`)."""
+        self.space.set_offsets(offsets)
+
+    @property
+    def query_shift(self):
+        """Each skin vertex's world offset for the object side's queries (None: not queried apart)."""
+        return self.space.shift
 
     # -- recording into the solver's frame --------------------------------------------------------
     def wants(self, stage: str) -> bool:
@@ -246,33 +238,33 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
             stage == "after" and p in (Placement.AFTER, Placement.BOTH))
 
-    def record_frame(self, launch, ops: list, state, gated=None, launch_pre=None) -> None:
+    def zero_counters(self, rec) -> None:
+        """Zero the frame's list lengths (``counters``), where the frame's broadphase is recorded
+        (``rec.ahead_ops()``): before :meth:`record_frame`, outside its gate (the gates read them)."""
+        rec.ahead_ops().append(self.lists.counters.zero_)
+
+    def record_frame(self, rec, state) -> None:
         """Once per frame, before the substeps: the frame's broadphase over all skin triangles with
-        ``contact_frame_margin``; each stage then tests only this list. ``gated(record, 1)``
-        (the solver's) records what follows the broadphase into a block run only when its list is
-        not empty (physhand_mj/solver/activity.py); the caller zeroes ``counters`` first. ``launch_pre``
-        records the broadphase elsewhere (CUDA: ahead of the frame's graph, Solver.step)."""
+        ``contact_frame_margin``; each stage then tests only this list. What follows the broadphase
+        is recorded into ``rec.gated(..., 1)``, a block the solver runs only when the list is not
+        empty (physhand_mj/solver/activity.py); :meth:`zero_counters` first. The broadphase goes
+        to ``rec.launch_ahead`` (CUDA: ahead of the frame's graph, Solver.step)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        if gated is None:
-            ops.append(self.counters.zero_)
         self._slot = 1
         self._stage_slots = []
         self.pass_slots = []
-        (launch_pre or launch)(find_active, self.n_tris,
-                               [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
-                               [self.cand, self.cand_mask, self.cand_count])
-        if gated is None:
-            self._record_frame_lists(launch, ops, state)
-        else:
-            gated(lambda sub: self._record_frame_lists(launch, sub, state), 1)
+        rec.launch_ahead(find_active, self.n_tris,
+                         [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                          self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
+                         [self.lists.cand, self.lists.cand_mask, self.cand_count])
+        rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
-    def _record_frame_lists(self, launch, ops: list, state) -> None:
+    def _record_frame_lists(self, rec, state) -> None:
         """The per-frame resets and the frame's feature list (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
-        ops += [self.moved.zero_, lambda: self.bound.fill_(-1.0e30), self.pass_flags.zero_]  # objects moved
+        rec.ops += [self.acc.moved.zero_, lambda: self.acc.bound.fill_(-1.0e30), self.lists.pass_flags.zero_]  # objects moved
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.feat is None:
@@ -290,49 +282,109 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
                     self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
                     self.far_angle = wp.zeros(n, dtype=float, device=m.device)
                     self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
-                self._make_slack(pts.pts.shape[0])  # Config.tuning.feature_slack's buffers (slack.py)
-            vol = self.volume(state, winding=False)
-            qpose = self._query_pose(launch)
-            ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self._slack_start_ops(state),
+                # Config.tuning.feature_slack's buffers and check (slack.py)
+                self.slack_check = SlackCheck(m, o, cfg, pts, self.worlds, self.geoms_per_world)
+            sd = self.slack_check.data
+            vol = self.space.volume(state, winding=False)
+            qpose = self.space.record_pose(rec)
+            rec.ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self.slack_check.start_ops(state),
                     *vol.refit_ops()]
-            launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
-                                                   cfg.contact_frame_margin, cfg.contact_margin, self.slack,
+            rec.launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
+                                                   cfg.contact_frame_margin, cfg.contact_margin, sd.slack,
                                                    FEATURE_LIST_SHARE, self.geoms_per_world],
-                   [self.feat, self.feat_count, self.feat_dist, self.pt_dist, self.pt_face, self.world_listed])
+                   [self.feat, self.feat_count, sd.feat_dist, sd.pt_dist, sd.pt_face, sd.world_listed])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
-                ops += [self.patch_used.zero_, self.patch_fill.zero_]
+                rec.ops += [self.patch_used.zero_, self.patch_fill.zero_]
                 lanes = self.patch_lanes
                 nb = tiled_blocks(m.device, pts.n_features, lanes)
-                launch(feature_patches_tiled, (nb, lanes),
-                       [m.skin_faces, self._query_x(state), self.feat, self.feat_count, nb, pts.pts, pts.geom, qpose,
-                        cfg.contact_frame_margin, self.feat_dist, self.slack, self.tris_per_world,
+                rec.launch(feature_patches_tiled, (nb, lanes),
+                       [m.skin_faces, self.space.skin_x(state), self.feat, self.feat_count, nb, pts.pts, pts.geom, qpose,
+                        cfg.contact_frame_margin, sd.feat_dist, sd.slack, self.tris_per_world,
                         self.geoms_per_world],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.patch_fill, self.far_angle], block_dim=lanes)
             elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
-                volw = self.volume(state, winding=True)
-                ops += [self._refit_op(volw), self.patch_used.zero_]
-                launch(feature_patches, pts.n_features,
-                       [vol.mesh.id, volw.mesh.id, m.skin_faces, self._query_x(state), self.feat, self.feat_count,
-                        pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, self.feat_dist,
-                        self.slack, self.geoms_per_world, PATCH_SLOT],
+                volw = self.space.volume(state, winding=True)
+                rec.ops += [self.space.refit_op(volw, self.feat_count), self.patch_used.zero_]
+                rec.launch(feature_patches, pts.n_features,
+                       [vol.mesh.id, volw.mesh.id, m.skin_faces, self.space.skin_x(state), self.feat, self.feat_count,
+                        pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, sd.feat_dist,
+                        sd.slack, self.geoms_per_world, PATCH_SLOT],
                        [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
                         self.far_angle], count=self.feat_count)
 
+    def record_frame_end(self, rec, state) -> None:
+        """At the end of a frame with contact: the skin's move against the feature lists' slack
+        (:meth:`SlackCheck.record_frame_end`); nothing without listed feature points."""
+        if self.feat is not None:
+            self.slack_check.record_frame_end(rec, state)
+
+    def feature_motion(self, ran: bool = True, warn: bool = True) -> dict:
+        """The last frame's feature-list check, worst world (:meth:`SlackCheck.feature_motion`);
+        empty without feature points."""
+        return {} if self.feat is None else self.slack_check.feature_motion(ran, warn)
+
+    def feature_motion_worlds(self, ran: bool = True) -> list:
+        """Per world, 1 where the last frame's feature-list check failed
+        (:meth:`SlackCheck.feature_motion_worlds`); empty without feature points."""
+        return [] if self.feat is None else self.slack_check.feature_motion_worlds(ran)
+
+    # -- Config.contact_linear's hold (linear.py) --------------------------------------------------
+    @property
+    def holds(self) -> bool:
+        """Whether substeps without a contact stage hold the skin on the last stage's planes."""
+        return self.hold.holds
+
+    def forget_planes(self, state=None) -> None:
+        """Drop the planes (:meth:`PlaneHold.forget`)."""
+        self.hold.forget(state)
+
+    def record_frame_planes(self, rec) -> None:
+        """Every frame, contact or not: last frame's planes become the previous ones."""
+        self.hold.record_frame(rec)
+
+    def _held_points(self):
+        """The object points whose feature points the hold keeps: with the feature push (the
+        frame's lists made before any stage or hold) and the worlds not queried apart; else None."""
+        return self.points if self.feat is not None and self.space.shift is None else None
+
+    def _record_make_planes(self, rec, state, feat_count) -> None:
+        """After a stage's last pass: its planes and kept feature points (:meth:`PlaneHold.record_make`)."""
+        if not self.hold.holds:
+            return
+        features = None
+        pts = self._held_points() if feat_count is not None else None
+        if pts is not None:
+            vol = self.space.volume(state, winding=False)
+            features = (pts, self.feat_stage, feat_count, vol, self.space.refit_op(vol, feat_count))
+        self.hold.record_make(rec, state, self.lists, self.acc, self.active_count, features)
+
+    def record_hold(self, rec, state) -> None:
+        """A substep without a stage: the skin held on the last stage's planes (:meth:`PlaneHold.record_hold`)."""
+        if not self.hold.holds:
+            return
+        self.hold.record_hold(rec, state, self.lists, self.acc, self.take_counter, self.space.apply_shift(state),
+                              self._held_points())
+
+    def take_counter(self) -> tuple:
+        """The next counter slot of the frame and its (1,) counter (:meth:`_counter`)."""
+        slot = self._slot
+        return slot, self._counter()
+
     def _counter(self):
-        if self._slot >= self.counters.shape[0]:
-            raise RuntimeError(f"contact: the frame's {self.counters.shape[0]} counter slots are all taken "
+        if self._slot >= self.lists.counters.shape[0]:
+            raise RuntimeError(f"contact: the frame's {self.lists.counters.shape[0]} counter slots are all taken "
                                "(a recording that takes more than Contact.__init__ sized them for)")
-        c = self.counters[self._slot: self._slot + 1]
+        c = self.lists.counters[self._slot: self._slot + 1]
         self._slot += 1
         return c
 
-    def record(self, launch, ops: list, state, gated=None) -> None:
+    def record(self, rec, state) -> None:
         """One contact stage: broadphase over the frame's list, then ``contact_passes`` x (decision
         points + Eq. 9, averaged apply); a later pass queries only the stage's triangles with a
-        vertex the previous pass moved (the others cannot have changed). With the solver's ``gated``
-        a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
+        vertex the previous pass moved (the others cannot have changed). Through the solver's gates
+        (``rec.gated``) a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
         skin: activity.py level 2)."""
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
@@ -340,43 +392,43 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
         self.active_count = self._counter()
-        lst = (self.pass_list, self.pass_mask, self._counter())
+        lst = (self.lists.pass_list, self.lists.pass_mask, self._counter())
         self.pass_slots.append(self._slot - 1)
         # the stage's active triangles (within contact_margin) of the frame's list, and of those its
         # first pass's list, in one launch
-        launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                          self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.cand,
-                                          self.cand_mask, self.cand_count, self.bound, self.bound_mask, self.eval_x],
-               [self.active, self.active_mask, self.active_count, *lst], count=self.cand_count)
+        rec.launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                                          self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.lists.cand,
+                                          self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask, self.acc.eval_x],
+               [self.lists.active, self.lists.active_mask, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
-        if self.world_stage is not None:  # the stage's active triangles per world
-            launch(tally_worlds, self.n_tris, [self.active, self.active_count, self.tris_per_world, m.vertex_world,
-                                               2 * stage], [self.world_stage], count=self.active_count)
+        if self.lists.world_stage is not None:  # the stage's active triangles per world
+            rec.launch(tally_worlds, self.n_tris, [self.lists.active, self.active_count, self.tris_per_world, m.vertex_world,
+                                               2 * stage], [self.lists.world_stage], count=self.active_count)
         if self.feat is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
-            ops += self.volume(state, winding=False).sync_ops()
-            self._first_push = self.counters[self._slot + 1: self._slot + 2]  # (as the tiled path's, below)
-            launch(stage_features_scan, self.points.n_features,
+            rec.ops += self.space.volume(state, winding=False).sync_ops()
+            self._first_push = self.lists.counters[self._slot + 1: self._slot + 2]  # (as the tiled path's, below)
+            rec.launch(stage_features_scan, self.points.n_features,
                    self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
                                         out=self.feat_stage, out_count=feat_count), [])
         elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
             # with its first pass's feature push (into that pass's counter slot, taken by _record_features)
             feat_count = self.feat_stage_counts[stage: stage + 1]
             skin = None
-            ops += self.volume(state, winding=False).sync_ops()
-            self._first_push = self.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
+            rec.ops += self.space.volume(state, winding=False).sync_ops()
+            self._first_push = self.lists.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
-            launch(stage_features_tiled, (nb, self.feature_lanes),
+            rec.launch(stage_features_tiled, (nb, self.feature_lanes),
                    self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
                                         stride=nb, out=self.feat_stage, out_count=feat_count), [],
                    block_dim=self.feature_lanes)
         elif self.feat is not None:  # the stage's features (features.py)
             feat_count = self.feat_stage_counts[stage: stage + 1]
-            vol = self.volume(state, winding=False)
+            vol = self.space.volume(state, winding=False)
             skin = vol.mesh
-            ops.append(self._refit_op(vol))
-            launch(stage_features, self.points.n_features,
+            rec.ops.append(self.space.refit_op(vol, self.feat_count))
+            rec.launch(stage_features, self.points.n_features,
                    self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, None, skin=skin,
                                         out=self.feat_stage, out_count=feat_count), [],
                    count=self.feat_count)
@@ -385,31 +437,31 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         prev: tuple = ()  # counter slots of the vertices the previous pass moved
         flag = None  # the device flag the previous pass's keep_moved set from them (activity.py level 2)
         for p in range(cfg.contact_passes):
-            if p and gated is not None:
+            if p:
                 box: dict = {}
-                gate = gated(lambda sub, p=p: box.update(r=self._record_pass(launch, sub, state, p, lst, skin,
-                                                                             feat_count)), 2, prev, flag)
-                if gate is not None and len(self.pass_move):  # (Config.tuning.contact_pass_tol: the CPU's host test)
+                gate = rec.gated(lambda sub, p=p: box.update(r=self._record_pass(rec, state, p, lst, skin,
+                                                                                 feat_count)), 2, prev, flag)
+                if gate is not None and len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol: the CPU's host test)
                     gate.moved_enough = self._moved_enough(prev[0], stage)
                 lst, prev, flag = box["r"]
             else:
-                lst, prev, flag = self._record_pass(launch, ops, state, p, lst, skin, feat_count)
-        self.record_make_planes(launch, ops, state, feat_count)  # (Config.contact_linear: linear.py)
+                lst, prev, flag = self._record_pass(rec, state, p, lst, skin, feat_count)
+        self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
 
-    def _record_pass(self, launch, ops, state, p, lst, skin, feat_count):
+    def _record_pass(self, rec, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
         the device flag (1 when one of them is not zero) the next pass's conditional node reads."""
         m, o, cfg = self.model, self.objects, self.config
         stamp = self._slot  # unique within the frame (moved is zeroed per frame)
         moved_slots = [self._slot]
         self.touched_count = self._counter()
-        outs = [self.delta, self.hits, self.decision, self.vertex_obj, self.bound, self.bound_mask, self.eval_x,
-                self.touched, self.touched_count]
+        outs = [self.acc.delta, self.acc.hits, self.acc.decision, self.acc.vertex_obj, self.acc.bound, self.acc.bound_mask, self.acc.eval_x,
+                self.acc.touched, self.touched_count]
         if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
             # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
-            slot, feat_touched = self._record_features(launch, ops, state, p, skin, feat_count, stamp)
+            slot, feat_touched = self._record_features(rec, state, p, skin, feat_count, stamp)
             moved_slots.append(slot)
-            self._tally_touched(launch, p, feat_touched)
+            self._tally_touched(rec, p, feat_touched)
         def decide(stride):  # the decision points' inputs (query.decide_inputs)
             return decide_inputs(m.skin_faces, o, self.tris_per_world, self.geoms_per_world, lst, stride,
                                  int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
@@ -417,7 +469,7 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
 
         if self.tiled:  # CUDA multires: a block per triangle, a lane per lattice sample
             nb = tiled_blocks(m.device, self.n_tris, TILE_LANES)
-            launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES), decide(nb), outs, block_dim=TILE_LANES)
+            rec.launch(tiled_kernel_for(o.has_mesh), (nb, TILE_LANES), decide(nb), outs, block_dim=TILE_LANES)
         else:
             kernel = decide_and_project  # (Config.execution.multires_registers: a copy specialised to multires)
             regs = multires_registers_for(cfg, wp.get_device(m.device).is_cuda, m.worlds, o.has_mesh)
@@ -425,22 +477,22 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
                 block = int(cfg.multires_block_dim)
                 kernel = multires_kernel(regs, block)
-            launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
-        shift, shifted = self._apply_shift(state)
-        launch(apply_contact, m.n_vertices, [self.touched, self.touched_count, stamp, self.delta, self.hits, shift],
-               [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=self.touched_count)
-        self._tally_touched(launch, p, self.touched_count)
+            rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
+        shift, shifted = self.space.apply_shift(state)
+        rec.launch(apply_contact, m.n_vertices, [self.acc.touched, self.touched_count, stamp, self.acc.delta, self.acc.hits, shift],
+               [state.x, self.acc.push, self.acc.moved, self.acc.disp, self.lists.pass_move, shifted], count=self.touched_count)
+        self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
-            moved_slots.append(self._record_features(launch, ops, state, p + 1, skin, feat_count, stamp)[0])
+            moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
         flag = None
         if p + 1 < cfg.contact_passes:
-            lst = (self.pass_list, self.pass_mask, self._counter())
+            lst = (self.lists.pass_list, self.lists.pass_mask, self._counter())
             self.pass_slots.append(self._slot - 1)
             j = len(self.pass_slots) - 1  # (one flag per later pass of the frame, zeroed with the frame)
-            flag = self.pass_flags[j: j + 1]
-            launch(keep_moved, self.n_tris, [m.skin_faces, self.active, self.active_mask, self.active_count,
-                                             self.moved, self.disp, stamp, self.bound, self.counters,
-                                             self._slot_array(moved_slots), self.pass_move, self.stage_tol,
+            flag = self.lists.pass_flags[j: j + 1]
+            rec.launch(keep_moved, self.n_tris, [m.skin_faces, self.lists.active, self.lists.active_mask, self.active_count,
+                                             self.acc.moved, self.acc.disp, stamp, self.acc.bound, self.lists.counters,
+                                             self._slot_array(moved_slots), self.lists.pass_move, self.lists.stage_tol,
                                              len(self._stage_slots) - 1],
                    [*lst, flag],
                    count=self.active_count, min_dim=1)
@@ -450,8 +502,8 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         """Config.tuning.contact_pass_tol's host test of a pass (the CPU's level-2 gate; CUDA's keep_moved
         sets the device flag the same way): did the pass ``stamp`` move some vertex by more than its
         stage's tolerance?"""
-        move = self._pass_move_host.numpy()  # (the CPU: a view; CUDA: the frame's copy, for reports)
-        return lambda: self._stage_tol_host[stage] <= 0.0 or move[stamp] > self._stage_tol_host[stage]
+        move = self.lists.pass_move_host.numpy()  # (the CPU: a view; CUDA: the frame's copy, for reports)
+        return lambda: self.lists.stage_tol_host[stage] <= 0.0 or move[stamp] > self.lists.stage_tol_host[stage]
 
     def finish_recording(self, passes_gated: bool | None = None) -> None:
         """After a frame (or a stage) is recorded: Config.tuning.contact_pass_tol for every stage but the
@@ -463,12 +515,12 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
         else:
             self._passes_gated = bool(passes_gated)
         n = len(self._stage_slots)
-        if len(self.stage_tol) and n:  # (a host write: recorded frames and graphs read the array)
-            tol = np.full(self.stage_tol.shape[0], self.config.contact_pass_tol if passes_gated else 0.0,
+        if len(self.lists.stage_tol) and n:  # (a host write: recorded frames and graphs read the array)
+            tol = np.full(self.lists.stage_tol.shape[0], self.config.contact_pass_tol if passes_gated else 0.0,
                           np.float32)
             tol[n - 1:] = 0.0
-            self.stage_tol.assign(tol)
-            self._stage_tol_host = tol
+            self.lists.stage_tol.assign(tol)
+            self.lists.stage_tol_host = tol
 
     def _slot_array(self, slots) -> wp.array:
         """``slots`` (counter indices) as a device array, made once and held (recorded launches read it)."""
@@ -478,13 +530,13 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             a = self._slot_ids[key] = wp.array(np.asarray(key, np.int32), dtype=int, device=self.model.device)
         return a
 
-    def _tally_touched(self, launch, p: int, count) -> None:
-        """Batched worlds: the vertices a stage's first pass corrected (``self.touched``, ``count``
+    def _tally_touched(self, rec, p: int, count) -> None:
+        """Batched worlds: the vertices a stage's first pass corrected (``self.acc.touched``, ``count``
         long), per world (the log's ``contacts``)."""
-        if self.world_stage is not None and p == 0:
+        if self.lists.world_stage is not None and p == 0:
             m = self.model
-            launch(tally_worlds, m.n_vertices, [self.touched, count, 0, m.vertex_world,
-                                                2 * (len(self._stage_slots) - 1) + 1], [self.world_stage], count=count)
+            rec.launch(tally_worlds, m.n_vertices, [self.acc.touched, count, 0, m.vertex_world,
+                                                2 * (len(self._stage_slots) - 1) + 1], [self.lists.world_stage], count=count)
 
     def _fit_patch_pool(self) -> None:
         used, _, failed = (int(v) for v in self._patch_used_host.numpy())
@@ -512,11 +564,11 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
 
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
-        ops += [self.metrics.zero_, self.push.zero_, lambda: self.vertex_obj.fill_(-1)]
-        if len(self.pass_move):  # (Config.tuning.contact_pass_tol)
-            ops.append(self.pass_move.zero_)
-        if self.world_stage is not None:
-            ops.append(self.world_stage.zero_)
+        ops += [self.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
+        if len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol)
+            ops.append(self.lists.pass_move.zero_)
+        if self.lists.world_stage is not None:
+            ops.append(self.lists.world_stage.zero_)
 
     @property
     def points(self) -> ObjectPoints:
@@ -525,32 +577,138 @@ class Contact(ContactMeasures, ContactReports, FeatureSlack, QuerySpace, LinearH
             self._points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing)
         return self._points
 
+    # -- the object's side of a pass: one feature push (contact/features.py) -----------------------
+
+    @property
+    def last_push_offset(self) -> float:
+        """The stand-off (m) of a stage's last feature push: Config.tuning.feature_last_offset, or
+        feature_offset where that is None (read when a stage is recorded, as feature_offset is)."""
+        cfg = self.config
+        return float(cfg.feature_offset if cfg.feature_last_offset is None else cfg.feature_last_offset)
+
+    def _record_features(self, rec, state, p, skin, feat_count, stamp) -> tuple:
+        """The feature push of pass ``p`` (features.py): the stage's listed features against the skin
+        as it is now, applied at once; returns the counter slot of the vertices it moved and that
+        counter."""
+        m, cfg = self.model, self.config
+        if p and not self.tiled_features:  # (pass 0 sees the skin its stage's list was made on; CUDA's
+            # scans read the skin's shifted copy, which apply_contact keeps current: no refit there)
+            rec.ops.append(self.space.refit_op(self.space.volume(state, winding=False), feat_count))
+        slot = self._slot
+        feat_touched = self._counter()
+        # the stage's last push (Config.tuning.feature_last: pass p == contact_passes) to its own, smaller stand-off
+        off = self.last_push_offset if p == cfg.contact_passes else cfg.feature_offset
+        if p == 0 and self.tiled_features:  # CUDA: pushed by the stage's feature-list launch (record)
+            assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
+        elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
+            rec.launch(feature_contact_scan, self.points.n_features,
+                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched), [])
+        elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
+            nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
+            rec.launch(feature_contact_tiled, (nb, self.feature_lanes),
+                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, stride=nb), [],
+                   block_dim=self.feature_lanes)
+        else:
+            rec.launch(feature_contact, self.points.n_features,
+                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, skin=skin), [],
+                   count=feat_count)
+        shift, shifted = self.space.apply_shift(state)
+        rec.launch(apply_contact, m.n_vertices, [self.acc.touched, feat_touched, stamp, self.acc.delta, self.acc.hits, shift],
+               [state.x, self.acc.push, self.acc.moved, self.acc.disp, self.lists.pass_move, shifted], count=feat_touched)
+        return slot, feat_touched
+
+    def _feature_inputs(self, state, cand, cand_count, offset: float, touched_count, skin=None, stride: int = 0,
+                        out=None, out_count=None) -> list:
+        """A feature kernel's arguments (features.feature_inputs) over the features ``cand`` (the
+        frame's list, or a stage's) on ``state``'s skin: pushed to ``offset`` (m) with the vertices
+        counted in ``touched_count``; ``skin`` the refitted skin volume (the BVH search), ``stride``
+        the tiled launch's blocks, ``out``/``out_count`` a stage's list."""
+        m, o, cfg = self.model, self.objects, self.config
+        return feature_inputs(m.skin_faces, self.space.skin_x(state), cand, cand_count, self.points.pts, self.points.geom,
+                              self.space.pose, cfg.contact_frame_margin, skin=skin.id if skin is not None else 0,
+                              tris=self.lists.cand, tri_count=self.cand_count, stride=stride, geom_obj=o.obj,
+                              keep=cfg.contact_margin, near=self.near_query, eps=self.feature_eps, offset=offset,
+                              max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=self._winding_args(),
+                              side=self._side(), out=out, out_count=out_count,
+                              push=(self.acc.delta, self.acc.hits, self.acc.touched, touched_count, self.acc.vertex_obj))
+
+    def _winding_args(self) -> list:
+        """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
+        length, far angle]; off: the feature list's arrays stand in (never read)."""
+        if self.config.feature_winding:
+            return [1, self.feat_slot, self.patch_pool, self.patch_start, self.patch_len, self.far_angle]
+        return [0, self.feat, self.feat, self.feat, self.feat, self.feat_stage_float]
+
+    def _side(self):
+        """The CPU's per-stage sides of the listed features (features.stage_features)."""
+        return self.feat_side if self.config.feature_winding else self.feat_stage_float
+
+    # -- the frame's host-side reports: the copies the frame's one sync waits for, and what they say --
+
+    def copy_metrics(self) -> None:
+        """Start the device-to-host copy of the metrics and list lengths (the caller synchronises
+        once per frame)."""
+        wp.copy(self.rows.metrics_host, self.rows.metrics)
+        wp.copy(self.lists.counters_host, self.lists.counters)
+        if len(self.lists.pass_move) and self.lists.pass_move_host is not self.lists.pass_move:  # (CUDA: the ops report's)
+            wp.copy(self.lists.pass_move_host, self.lists.pass_move)
+        if self.lists.world_stage is not None:
+            wp.copy(self.lists.world_stage_host, self.lists.world_stage)
+        if self.feat is not None:
+            wp.copy(self._feat_host, self.feat_count)
+            if self.config.feature_winding:
+                wp.copy(self._patch_used_host, self.patch_used)
+            self.slack_check.copy_report()
+
+    def features_listed(self) -> int:
+        """Object feature points in the last frame's list (after the frame's sync). Sizes the patch
+        pool (the local winding number's, winding.py) for the frames to come: where the frame's
+        patches needed more than half of it packed (what the BVH path is sure to fit) or did not fit,
+        it grows to twice their need, up to PATCH_POOL_MAX, and the solver records its frames again
+        (a frame that overflowed kept, for the points past the pool, the pseudo-normal sign (one
+        hand) or pushed them not at all (CUDA batches)). An overflow at PATCH_POOL_MAX warns once."""
+        if self.feat is None:
+            return 0
+        if self.config.feature_winding:
+            self._fit_patch_pool()
+        return int(self._feat_host.numpy()[0])
+
+    def stage_counts(self) -> np.ndarray:
+        """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active
+        triangles and the skin vertices its first pass corrected (in contact at the stage's start; Eq. 9's
+        and the feature push's, a vertex both moved counted twice)."""
+        c = self.lists.counters_host.numpy()
+        return np.array([[c[a], c[t] + (c[f] if f >= 0 else 0)] for a, t, f in self._stage_slots],
+                        dtype=int).reshape(-1, 2)
+
+    def stage_counts_worlds(self) -> np.ndarray:
+        """(W, stages, 2) int: :meth:`stage_counts` per world (after the frame's sync; one world:
+        the frame's own, (1, stages, 2))."""
+        if self.lists.world_stage is None:
+            return self.stage_counts()[None]
+        n = len(self._stage_slots)
+        return self.lists.world_stage_host.numpy().reshape(self.worlds, -1, 2)[:, :n].copy()
+
     # -- host side ---------------------------------------------------------------------------------
     def run_stage(self, state) -> np.ndarray:
         """Run one contact stage now (broadphase + passes) on ``state.x``; returns (F, 4) decision
         points of the last pass (x*, phi(x*)) with phi = FAR for triangles the broadphase skipped.
         For tests and diagnostics: inside a frame the solver records the same launches."""
-        ops: list = []
-        d = self.model.device
-
-        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
-            if dim:
-                kw = launch_options(d, count, block_dim)
-                ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, **kw))
-
-        ops.append(lambda: self.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
+        rec = Recorder(self.model.device)
+        rec.ops.append(lambda: self.acc.decision.fill_(wp.vec4(0.0, 0.0, 0.0, 1.0e6)))
         kept = (self._slot, self._stage_slots, self.active_count, self.touched_count, self.pass_slots)
-        self.record_frame(launch, ops, state)
-        self.record(launch, ops, state)
+        self.zero_counters(rec)
+        self.record_frame(rec, state)
+        self.record(rec, state)
         gated = self._passes_gated
         self.finish_recording(False)  # (one stage, ungated: the last, run to the end)
         self._passes_gated = gated
         stage_active = self.active_count
         (self._slot, self._stage_slots, self.active_count, self.touched_count,
          self.pass_slots) = kept  # the solver frame's
-        for op in ops:
+        for op in rec.ops:
             op()
-        wp.synchronize_device(d)
+        wp.synchronize_device(self.model.device)
         self.finish_recording(None)  # (the solver frame's stages again)
         self.stage_active_count = int(stage_active.numpy()[0])
-        return self.decision.numpy()[: self.n_tris].copy()
+        return self.acc.decision.numpy()[: self.n_tris].copy()

@@ -1,5 +1,5 @@
-"""The contact held between stages (``Config.contact_linear``): a mixin of
-:class:`~physhand_mj.contact.contact.Contact`.
+"""The contact held between stages (``Config.contact_linear``): :class:`PlaneHold`, held by a
+:class:`~physhand_mj.contact.contact.Contact` (``Contact.hold``).
 
 With ``Config.contact_every`` k > 1 the contact stage (broadphase, multires decision points, Eq. 9,
 the feature push) runs every k-th substep only, and between two stages the flesh and the bones can
@@ -43,6 +43,7 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import world_geoms
 from physhand_mj.contact.closest import closest_on_triangle
+from physhand_mj.contact.data import PlaneBuffers
 from physhand_mj.contact.features import push_feature
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth_weight, side_floor, world_phi_grad
@@ -253,96 +254,101 @@ def roll_planes(plane_state: wp.array(dtype=int)):
     plane_state[1] = 0
 
 
-class LinearHold:
-    """``Config.contact_linear``'s half of :class:`~physhand_mj.contact.contact.Contact` (which owns
-    the model, the objects, the stage's lists and accumulators these methods use)."""
+class PlaneHold:
+    """``Config.contact_linear``'s planes of a :class:`~physhand_mj.contact.contact.Contact`
+    (``Contact.hold``): its buffers (:class:`~physhand_mj.contact.data.PlaneBuffers`, ``data``),
+    made by a stage's end (:meth:`record_make`) and held by the substeps without a stage
+    (:meth:`record_hold`), which take the stage's lists and pass buffers from the contact."""
 
-    def _make_planes_buffers(self) -> None:
-        """The plane list (a slot per skin triangle) where the config asks for it, else empty arrays."""
-        n, d = (max(self.n_tris, 1) if self.holds else 0), self.model.device
-        self.plane_tri = wp.zeros(n, dtype=int, device=d)
-        self.plane_bary = wp.zeros(n, dtype=wp.vec3, device=d)
-        self.plane_geom = wp.zeros(n, dtype=int, device=d)
-        self.plane_eq = wp.zeros(n, dtype=wp.vec4, device=d)
-        # [length, made this frame, made last frame, feature points kept]
-        self.plane_state = wp.zeros(4, dtype=int, device=d)
-        self._plane_len = self.plane_state[0:1]
-        self._fplane_len = self.plane_state[3:4]
-        self.fplane_pt = self.fplane_face = self.fplane_uv = None  # (sized at the first recording: the objects final)
+    def __init__(self, model, objects, config, n_tris: int, tris_per_world: int, geoms_per_world: int,
+                 side_aware: int):
+        self.model, self.objects, self.config = model, objects, config
+        self.tris_per_world, self.geoms_per_world, self.side_aware = tris_per_world, geoms_per_world, side_aware
+        self.n_tris = n_tris
+        # whether substeps without a contact stage hold the skin on the last stage's planes
+        self.holds = bool(config.contact_linear and config.contact_every > 1 and n_tris)
+        self.data = make_plane_buffers(max(n_tris, 1) if self.holds else 0, model.device)
+        self.plane_len, self.fplane_len = self.data.state[0:1], self.data.state[3:4]  # (the lists' lengths)
+        self.planes_of = None  # the state the planes were made for (forget)
 
-    def forget_planes(self, state=None) -> None:
+    def forget(self, state=None) -> None:
         """Drop the planes (a hand woken or reset, or another state stepped with this contact); with
         ``state``, only when the planes were made for another one."""
-        if not self.holds or (state is not None and getattr(self, "_planes_of", None) is state):
+        if not self.holds or (state is not None and self.planes_of is state):
             return
-        self.plane_state.zero_()
-        self._planes_of = state
+        self.data.state.zero_()
+        self.planes_of = state
 
-    @property
-    def holds(self) -> bool:
-        """Whether substeps without a contact stage hold the skin on the last stage's planes."""
-        cfg = self.config
-        return bool(cfg.contact_linear and cfg.contact_every > 1 and self.n_tris)
-
-    def record_frame_planes(self, launch) -> None:
+    def record_frame(self, rec) -> None:
         """Every frame, contact or not: last frame's planes become the previous ones (roll_planes)."""
         if self.holds:
-            launch(roll_planes, 1, [self.plane_state], [])
+            rec.launch(roll_planes, 1, [self.data.state], [])
 
-    def _feature_planes(self) -> bool:
-        """Whether the stages' feature points are kept too: the features' push on (contact.feat made
-        by the frame's lists, recorded before any stage or hold) and the worlds not queried apart
-        (batches with objects: their feature points are not held, only the planes)."""
-        if self.feat is None or self.query_shift is not None:
+    def keeps_features(self, points) -> bool:
+        """Sizes the kept feature points' slots for ``points`` (ObjectPoints; made at the frame's
+        first recording: the objects are final); False for no points (no feature push, or the worlds
+        queried apart: batches with objects hold their planes, not their feature points)."""
+        if points is None:
             return False
-        if self.fplane_pt is None:  # (made at the frame's first recording: the objects are final)
-            nf, d = self.points.n_features, self.model.device
-            self.fplane_pt = wp.zeros(nf, dtype=int, device=d)
-            self.fplane_face = wp.zeros(nf, dtype=int, device=d)
-            self.fplane_uv = wp.zeros(nf, dtype=wp.vec2, device=d)
+        b = self.data
+        if b.fpt is None:
+            nf, d = points.n_features, self.model.device
+            b.fpt = wp.zeros(nf, dtype=int, device=d)
+            b.fface = wp.zeros(nf, dtype=int, device=d)
+            b.fuv = wp.zeros(nf, dtype=wp.vec2, device=d)
         return True
 
-    def record_make_planes(self, launch, ops: list, state, feat_count=None) -> None:
-        """After a stage's last pass: its planes (make_planes) and, with the feature push, its feature
-        points near the skin (make_feature_planes, on the skin's BVH refit first), replacing the lists."""
+    def record_make(self, rec, state, lists, acc, active_count, features=None) -> None:
+        """After a stage's last pass: its planes (make_planes) over the stage's ``lists`` (FrameLists,
+        ``active_count`` its length) and decision points (``acc``: PassBuffers) and, with
+        ``features`` = (points, the stage's features, their count, the refitted skin volume, its
+        refit op), its feature points near the skin (make_feature_planes), replacing the lists."""
         if not self.holds:
             return
-        m, o, cfg = self.model, self.objects, self.config
-        if feat_count is not None and self._feature_planes():
-            vol = self.volume(state, winding=False)
-            ops += [self._fplane_len.zero_, self._refit_op(vol, feat_count)]  # (the CPU: only with features listed)
-            launch(make_feature_planes, self.points.n_features,
-                   [vol.mesh.id, self.feat_stage, feat_count, self.points.pts, self.points.geom, o.pose,
-                    cfg.contact_margin], [self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state],
-                   count=feat_count)
-        ops.append(self._plane_len.zero_)
-        launch(make_planes, self.n_tris,
-               [m.skin_faces, self.active, self.active_mask, self.active_count, self.decision, self.eval_x,
-                o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, self.tris_per_world,
-                self.geoms_per_world, cfg.contact_margin, int(self.closed_skin and cfg.side_aware), state.x],
-               [self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state],
-               count=self.active_count, min_dim=1)
+        m, o, cfg, b = self.model, self.objects, self.config, self.data
+        if features is not None and self.keeps_features(features[0]):
+            points, feat_stage, feat_count, vol, refit = features
+            rec.ops += [self.fplane_len.zero_, refit]  # (the CPU: only with features listed)
+            rec.launch(make_feature_planes, points.n_features,
+                       [vol.mesh.id, feat_stage, feat_count, points.pts, points.geom, o.pose,
+                        cfg.contact_margin], [b.fpt, b.fface, b.fuv, b.state],
+                       count=feat_count)
+        rec.ops.append(self.plane_len.zero_)
+        rec.launch(make_planes, self.n_tris,
+                   [m.skin_faces, lists.active, lists.active_mask, active_count, acc.decision, acc.eval_x,
+                    o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, self.tris_per_world,
+                    self.geoms_per_world, cfg.contact_margin, self.side_aware, state.x],
+                   [b.tri, b.bary, b.geom, b.eq, b.state],
+                   count=active_count, min_dim=1)
 
-    def record_hold(self, launch, ops: list, state) -> None:
-        """A substep without a stage: HOLD_PASSES passes of [the kept feature points' push, Eq. 9
-        against the planes], each applied, then (Config.tuning.feature_last) the feature points once more."""
+    def record_hold(self, rec, state, lists, acc, take_counter, shift: tuple, points=None) -> None:
+        """A substep without a stage: HOLD_PASSES passes of [the kept feature points' push (``points``:
+        ObjectPoints, None: none kept), Eq. 9 against the planes], each applied into ``acc``
+        (PassBuffers; ``shift``: apply_contact's shift arrays) with a touched count from
+        ``take_counter()`` (its counter slot, the vertices' stamp), then (Config.tuning.feature_last)
+        the feature points once more."""
         if not self.holds:
             return
-        m, o, cfg = self.model, self.objects, self.config
-        shift, shifted = self._apply_shift(state)
-        common = [self.delta, self.hits, self.touched]  # (a push's accumulators, then its touched count)
-        pushes = [(hold_planes, self.n_tris, self._plane_len,
-                   [m.skin_faces, self.plane_tri, self.plane_bary, self.plane_geom, self.plane_eq, self.plane_state,
+        m, o, cfg, b = self.model, self.objects, self.config, self.data
+        common = [acc.delta, acc.hits, acc.touched]  # (a push's accumulators, then its touched count)
+        pushes = [(hold_planes, self.n_tris, self.plane_len,
+                   [m.skin_faces, b.tri, b.bary, b.geom, b.eq, b.state,
                     o.inv_pose, o.obj, cfg.contact_offset, state.x])]
-        if self._feature_planes():  # the kept feature points, before the planes (as a stage's push is)
-            pushes.insert(0, (hold_features, self.points.n_features, self._fplane_len,
-                              [m.skin_faces, self.fplane_pt, self.fplane_face, self.fplane_uv, self.plane_state,
-                               self.points.pts, self.points.geom, o.pose, o.obj, cfg.feature_offset,
+        if self.keeps_features(points):  # the kept feature points, before the planes (as a stage's push is)
+            pushes.insert(0, (hold_features, points.n_features, self.fplane_len,
+                              [m.skin_faces, b.fpt, b.fface, b.fuv, b.state,
+                               points.pts, points.geom, o.pose, o.obj, cfg.feature_offset,
                                cfg.contact_margin, cfg.contact_margin, state.x]))
         order = pushes * HOLD_PASSES + (pushes[:1] if len(pushes) == 2 and cfg.feature_last else [])
         for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
-            stamp = self._slot
-            count = self._counter()
-            launch(kernel, dim, inputs, [*common, count, self.vertex_obj], count=length)
-            launch(apply_contact, m.n_vertices, [self.touched, count, stamp, self.delta, self.hits, shift],
-                   [state.x, self.push, self.moved, self.disp, self.pass_move, shifted], count=count)
+            stamp, count = take_counter()
+            rec.launch(kernel, dim, inputs, [*common, count, acc.vertex_obj], count=length)
+            rec.launch(apply_contact, m.n_vertices, [acc.touched, count, stamp, acc.delta, acc.hits, shift[0]],
+                       [state.x, acc.push, acc.moved, acc.disp, lists.pass_move, shift[1]], count=count)
+
+
+def make_plane_buffers(n: int, device) -> PlaneBuffers:
+    """The plane list, ``n`` slots (a slot per skin triangle where the config asks for a hold, else 0)."""
+    return PlaneBuffers(tri=wp.zeros(n, dtype=int, device=device), bary=wp.zeros(n, dtype=wp.vec3, device=device),
+                        geom=wp.zeros(n, dtype=int, device=device), eq=wp.zeros(n, dtype=wp.vec4, device=device),
+                        state=wp.zeros(4, dtype=int, device=device))

@@ -12,6 +12,7 @@ import warp as wp
 from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, object_points_inside,
                                         object_points_inside_reuse, reset_patches, skin_patches)
 from physhand_mj.contact import metrics
+from physhand_mj.launch import Recorder
 from physhand_mj.contact.metrics import lattice_phi, penetration_cull, penetration_samples, reduce_worlds
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -43,7 +44,7 @@ class ContactMeasures:
             self._check_points = self._check_piece(None)
         return self._check_points
 
-    def record_metrics(self, launch, ops: list, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
+    def record_metrics(self, rec, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
                        order: int = 5, points: ObjectPoints | None = None, skin_side: bool = True,
                        reuse: bool | None = None):
         """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
@@ -52,44 +53,44 @@ class ContactMeasures:
         3-5; ``points``, default :attr:`points`; ``reuse``: ask only what could have changed since the
         last measure of the same points, default Config.execution.reuse_outside). ``obj`` >= 0: that object only."""
         m, o = self.model, self.objects
-        out = self.metrics if out is None else out
+        out = self.rows.metrics if out is None else out
         if not self.n_tris:
             return
         per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
         v = self.world_views()
         if skin_side:
-            self._record_skin_side(launch, ops, state, row, obj, out, order, per, v)
+            self._record_skin_side(rec, state, row, obj, out, order, per, v)
         pts = self.points if points is None else points
         if objects_side and self.closed_skin and len(pts):
-            vol = self.volume(state)
-            ops += vol.ops()
-            qpose = self._query_pose(launch)
+            vol = self.space.volume(state)
+            rec.ops += vol.ops()
+            qpose = self.space.record_pose(rec)
             if not (self.config.reuse_outside if reuse is None else reuse):
-                launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
+                rec.launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
                                                         obj, row, self.geoms_per_world, per], [out, pts.depth])
                 return
             r = self._reuse(pts, vol, qpose)  # (Config.execution.reuse_outside: ask only what could have changed)
             bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
-            launch(reset_patches, r.motion.shape[0], [], [r.motion, r.lower, r.upper])
-            launch(skin_patches, m.skin_faces.shape[0], [vol.points, r.prev_x, m.skin_faces,
+            rec.launch(reset_patches, r.motion.shape[0], [], [r.motion, r.lower, r.upper])
+            rec.launch(skin_patches, m.skin_faces.shape[0], [vol.points, r.prev_x, m.skin_faces,
                                                          vol.points.shape[0] // self.worlds, m.skin_body, bodies],
                    [r.motion, r.lower, r.upper])
-            launch(keep_points, vol.points.shape[0], [vol.points], [r.prev_x])
-            launch(object_points_inside_reuse, len(pts),
+            rec.launch(keep_points, vol.points.shape[0], [vol.points], [r.prev_x])
+            rec.launch(object_points_inside_reuse, len(pts),
                    [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion, r.lower,
                     r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per], [out, pts.depth, r.slack])
-            launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
+            rec.launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
 
-    def _record_skin_side(self, launch, ops, state, row, obj, out, order, per, v):
+    def _record_skin_side(self, rec, state, row, obj, out, order, per, v):
         """The skin measure: samples of the order-``order`` lattice inside objects (columns 0-2)."""
         m, o = self.model, self.objects
         geoms = [v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count]
         culled = obj < 0 and self.cull_measure
         listed, count = self._penetration_list(culled)
         if culled:  # the triangles near an object first, then a thread per kept triangle
-            ops.append(count.zero_)
-            launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
-        launch(penetration_samples, self.n_tris,
+            rec.ops.append(count.zero_)
+            rec.launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
+        rec.launch(penetration_samples, self.n_tris,
                [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count,
                 metrics.SKIP_MARGIN], [out])
 
@@ -145,27 +146,20 @@ class ContactMeasures:
                        check: bool = False) -> np.ndarray:
         """:meth:`measure` per world: (W, 6) float rows, world w's skin against world w's objects
         (batched worlds, physhand_mj/batch.py; one world: (1, 6))."""
-        d = self.model.device
-        out = wp.zeros((self.worlds, 6), dtype=float, device=d)
-        ops: list = []
-
-        def launch(kernel, dim, inputs, outputs, **_):
-            ops.append(lambda: wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d))
-
+        out = wp.zeros((self.worlds, 6), dtype=float, device=self.model.device)
+        rec = Recorder(self.model.device)
         check = check and objects_side
         pieces = self._check_pieces() if check else None
         if pieces is None:
-            self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
+            self.record_metrics(rec, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
                                 points=self.check_points if check else None)
         else:  # the check points a few worlds at a time, each piece made, asked and dropped (not kept)
-            self.record_metrics(launch, ops, state, 0, obj=obj, out=out, objects_side=False, order=order)
-        while ops:
-            ops.pop(0)()
+            self.record_metrics(rec, state, 0, obj=obj, out=out, objects_side=False, order=order)
+        rec.run()
         for geoms in pieces or ():
             pts = self._check_piece(geoms)
-            self.record_metrics(launch, ops, state, 0, obj=obj, out=out, points=pts, skin_side=False, reuse=False)
-            while ops:  # (popped: a launch kept would hold this piece's arrays while the next is made)
-                ops.pop(0)()
+            self.record_metrics(rec, state, 0, obj=obj, out=out, points=pts, skin_side=False, reuse=False)
+            rec.run()  # (ops dropped as run: a launch kept would hold this piece's arrays while the next is made)
             del pts
         return out.numpy().astype(float)
 
@@ -241,15 +235,15 @@ class ContactMeasures:
         measure runs at the frame's end)."""
         if synchronize:
             self.copy_metrics()
-            wp.synchronize_device(self.metrics.device)
+            wp.synchronize_device(self.rows.metrics.device)
         return reduce_worlds(self.read_metrics_worlds(synchronize=False)).copy()
 
     def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
         """:meth:`read_metrics` per world: (W, substeps + 1, 6) (batched worlds; one world: (1, ...))."""
         if synchronize:
             self.copy_metrics()
-            wp.synchronize_device(self.metrics.device)
-        return self._metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
+            wp.synchronize_device(self.rows.metrics.device)
+        return self.rows.metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
 
 
 class _Reuse:

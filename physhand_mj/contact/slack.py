@@ -21,8 +21,8 @@ contact_frame_margin until it has listed a point; a world that lists none keeps 
 moves are the frame's end positions against its start, not the paths between.
 
 Kernels that take arrays (``skin_motion``, ``skin_reach``, ``certify_features``, ``next_slack``) and
-:class:`FeatureSlack`, the :class:`~physhand_mj.contact.contact.Contact` mixin that holds their
-buffers, records them at a frame's end and reports them after the frame's sync.
+:class:`SlackCheck`, held by a :class:`~physhand_mj.contact.contact.Contact` (``Contact.slack_check``),
+owns their buffers, records them at a frame's end and reports them after the frame's sync.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.data import SlackBuffers
 from physhand_mj.contact.inside import object_point
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -234,66 +235,48 @@ def next_slack(
         slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
 
 
-class FeatureSlack:
-    """The feature lists' slack, a mixin of :class:`~physhand_mj.contact.contact.Contact` (which owns
-    the model, config, object points and world layout): the buffers, the frame start's resets, the
-    frame end's check and its reports."""
+class SlackCheck:
+    """The feature lists' slack of a :class:`~physhand_mj.contact.contact.Contact` and the frame
+    end's check of it: its buffers (:class:`~physhand_mj.contact.data.SlackBuffers`, ``data``), the
+    frame start's resets, the frame end's check and its reports. ``points``: the contact's object
+    points (ObjectPoints); made with the contact's feature lists (its first recorded frame)."""
 
-    def _make_slack(self, n_points: int) -> None:
-        """Per listed feature its distance to the skin at the frame's start (m, ``feat_dist``); per
-        object point its signed distance and closest triangle then (``pt_dist``, UNLISTED where not
-        listed; ``pt_face``); per skin vertex the skin at the start and its move; per world the slack
-        its lists are made with (the first: contact_frame_margin), its largest move, its fast
-        vertices, the largest move near the points, a failed point, its longest skin edge, the
-        points listed, the frame's report (slack, move, failed) and its host copy."""
-        m, cfg, W, dev = self.model, self.config, self.worlds, self.model.device
-        self.feat_dist = wp.zeros(self.points.n_features, dtype=float, device=dev)
-        self.pt_dist = wp.full(n_points, UNLISTED, dtype=float, device=dev)
-        self.pt_face = wp.zeros(n_points, dtype=int, device=dev)
-        self.x_start = wp.zeros(m.n_skin, dtype=wp.vec3, device=dev)
-        self.vmotion = wp.zeros(m.n_skin, dtype=float, device=dev)
-        self.slack = wp.full(W, cfg.contact_frame_margin, dtype=float, device=dev)
-        self.motion = wp.zeros(W, dtype=float, device=dev)
-        # room for every skin vertex of a world: a list that overflowed made its world's check fail
-        # unasked (the shipped demo's third frame has 325 fast vertices); only the fast ones are walked
-        self.fast = wp.zeros((W, max(-(-m.n_skin // W), 1)), dtype=int, device=dev)
-        self.fast_count = wp.zeros(W, dtype=int, device=dev)
-        self.near_motion = wp.zeros(W, dtype=float, device=dev)
-        self.slack_failed = wp.zeros(W, dtype=int, device=dev)
-        self.reach = wp.zeros(W, dtype=float, device=dev)
-        self.world_listed = wp.zeros(W, dtype=int, device=dev)
-        self.slack_report = wp.zeros((W, 3), dtype=float, device=dev)
-        self._slack_host = wp.zeros((W, 3), dtype=float, device="cpu", pinned=wp.get_device(dev).is_cuda)
-        self._slack_warned = False
+    def __init__(self, model, objects, config, points, worlds: int, geoms_per_world: int):
+        self.model, self.objects, self.config, self.points = model, objects, config, points
+        self.worlds, self.geoms_per_world = worlds, geoms_per_world
+        self.data = make_slack_buffers(model, config, points, worlds)
+        self.warned = False  # (feature_motion warns once)
 
-    def _slack_start_ops(self, state) -> list:
+    def start_ops(self, state) -> list:
         """The frame start's ops, before the feature list: the per-frame resets and the skin's copy."""
-        x_start, x, n_skin, pt_dist = self.x_start, state.x, self.model.n_skin, self.pt_dist
-        return [self.motion.zero_, self.fast_count.zero_, self.near_motion.zero_, self.slack_failed.zero_,
-                self.reach.zero_, self.world_listed.zero_, lambda: pt_dist.fill_(UNLISTED),
+        b = self.data
+        x_start, x, n_skin, pt_dist = b.x_start, state.x, self.model.n_skin, b.pt_dist
+        return [b.motion.zero_, b.fast_count.zero_, b.near_motion.zero_, b.failed.zero_,
+                b.reach.zero_, b.world_listed.zero_, lambda: pt_dist.fill_(UNLISTED),
                 lambda: wp.copy(x_start, x, count=n_skin)]
 
-    def record_frame_end(self, launch, ops: list, state) -> None:
-        """At the end of a frame with contact: how far the skin moved in it, per world, against the
-        slack its feature lists were made with, and the next frame's slack. Nothing without listed
-        feature points."""
-        if self.feat is None:
-            return
-        m, cfg, pts = self.model, self.config, self.points
-        launch(skin_motion, m.n_skin, [state.x, self.x_start, m.vertex_world, self.slack],
-               [self.vmotion, self.motion, self.fast, self.fast_count])
-        launch(skin_reach, self.n_tris, [m.skin_faces, self.x_start, state.x, m.vertex_world, self.fast_count],
-               [self.reach])
-        launch(certify_features, pts.n_features,
-               [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
-                self.pt_dist, self.pt_face, m.skin_faces, self.x_start, state.x, self.vmotion, self.fast,
-                self.fast_count, self.slack, self.motion, float(cfg.contact_frame_margin), float(cfg.contact_margin),
-                self.reach],
-               [self.near_motion, self.slack_failed])
-        launch(next_slack, self.worlds, [self.motion, self.near_motion, self.slack_failed, self.fast_count,
-                                         self.fast.shape[1], self.world_listed, float(cfg.feature_slack),
-                                         float(cfg.contact_frame_margin)],
-               [self.slack, self.slack_report])
+    def record_frame_end(self, rec, state) -> None:
+        """At the end of a frame with listed feature points: how far the skin moved in it, per
+        world, against the slack its feature lists were made with, and the next frame's slack."""
+        m, cfg, pts, b = self.model, self.config, self.points, self.data
+        rec.launch(skin_motion, m.n_skin, [state.x, b.x_start, m.vertex_world, b.slack],
+                   [b.vmotion, b.motion, b.fast, b.fast_count])
+        rec.launch(skin_reach, m.skin_faces.shape[0], [m.skin_faces, b.x_start, state.x, m.vertex_world, b.fast_count],
+                   [b.reach])
+        rec.launch(certify_features, pts.n_features,
+                   [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
+                    b.pt_dist, b.pt_face, m.skin_faces, b.x_start, state.x, b.vmotion, b.fast,
+                    b.fast_count, b.slack, b.motion, float(cfg.contact_frame_margin), float(cfg.contact_margin),
+                    b.reach],
+                   [b.near_motion, b.failed])
+        rec.launch(next_slack, self.worlds, [b.motion, b.near_motion, b.failed, b.fast_count,
+                                             b.fast.shape[1], b.world_listed, float(cfg.feature_slack),
+                                             float(cfg.contact_frame_margin)],
+                   [b.slack, b.report])
+
+    def copy_report(self) -> None:
+        """Start the report's device-to-host copy (the frame's sync waits for it)."""
+        wp.copy(self.data.report_host, self.data.report)
 
     def feature_motion(self, ran: bool = True, warn: bool = True) -> dict:
         """The last frame, worst world (after the frame's sync; Config.tuning.feature_slack, this module):
@@ -304,20 +287,18 @@ class FeatureSlack:
         contact_frame_margin, unless ``warn`` is False: Solver.warn_feature_slack, off while SoftHand
         settles, which moves the bones on purpose; the count is reported either way). A frame that
         did not run its contact block (``ran`` False: nothing near) made no lists: its move and count
-        are 0, its slack the last lists'. Empty without feature points."""
-        if self.feat is None:
-            return {}
-        r = self._slack_host.numpy()
+        are 0, its slack the last lists'."""
+        r = self.data.report_host.numpy()
         if not ran:
             return dict(feature_slack_mm=round(float(r[:, 0].max()) * 1e3, 4), skin_motion_mm=0.0,
                         feature_slack_exceeded=0)
         over = int(np.count_nonzero(r[:, 2]))
         # (warned where the lists were cut short of contact_frame_margin: at it they are the frame
         # broadphase's own, as before the slack; the count says it either way)
-        if over and warn and not self._slack_warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
+        if over and warn and not self.warned and np.any(r[r[:, 2] > 0, 0] < self.config.contact_frame_margin):
             from physhand_mj.warn import warn_user
 
-            self._slack_warned = True
+            self.warned = True
             w = int(np.flatnonzero(r[:, 2])[0])
             want = min(2.5 * float(r[w, 1]), self.config.contact_frame_margin)
             warn_user(f"contact: the skin moved up to {r[w, 1] * 1e3:.2f} mm in one frame, near enough to an "
@@ -331,9 +312,36 @@ class FeatureSlack:
 
     def feature_motion_worlds(self, ran: bool = True) -> list:
         """Per world, 1 where the last frame's feature-list check failed (:meth:`feature_motion`),
-        else 0 (also in a frame whose contact block did not run); empty without feature points."""
-        if self.feat is None:
-            return []
+        else 0 (also in a frame whose contact block did not run)."""
         if not ran:
             return [0] * self.worlds
-        return [int(v) for v in self._slack_host.numpy()[:, 2]]
+        return [int(v) for v in self.data.report_host.numpy()[:, 2]]
+
+
+def make_slack_buffers(model, config, points, worlds: int) -> SlackBuffers:
+    """Per listed feature its distance to the skin at the frame's start; per object point its signed
+    distance and closest triangle then (UNLISTED where not listed); per skin vertex the skin at the
+    start and its move; per world the slack its lists are made with (the first:
+    contact_frame_margin), its largest move, its fast vertices, the largest move near the points, a
+    failed point, its longest skin edge, the points listed, the frame's report (slack, move,
+    failed) and its host copy (:class:`~physhand_mj.contact.data.SlackBuffers`)."""
+    W, dev, n_skin = worlds, model.device, model.n_skin
+    n_points = points.pts.shape[0]
+    return SlackBuffers(
+        feat_dist=wp.zeros(points.n_features, dtype=float, device=dev),
+        pt_dist=wp.full(n_points, UNLISTED, dtype=float, device=dev),
+        pt_face=wp.zeros(n_points, dtype=int, device=dev),
+        x_start=wp.zeros(n_skin, dtype=wp.vec3, device=dev),
+        vmotion=wp.zeros(n_skin, dtype=float, device=dev),
+        slack=wp.full(W, config.contact_frame_margin, dtype=float, device=dev),
+        motion=wp.zeros(W, dtype=float, device=dev),
+        # room for every skin vertex of a world: a list that overflowed made its world's check fail
+        # unasked (the shipped demo's third frame has 325 fast vertices); only the fast ones are walked
+        fast=wp.zeros((W, max(-(-n_skin // W), 1)), dtype=int, device=dev),
+        fast_count=wp.zeros(W, dtype=int, device=dev),
+        near_motion=wp.zeros(W, dtype=float, device=dev),
+        failed=wp.zeros(W, dtype=int, device=dev),
+        reach=wp.zeros(W, dtype=float, device=dev),
+        world_listed=wp.zeros(W, dtype=int, device=dev),
+        report=wp.zeros((W, 3), dtype=float, device=dev),
+        report_host=wp.zeros((W, 3), dtype=float, device="cpu", pinned=wp.get_device(dev).is_cuda))

@@ -132,7 +132,7 @@ class Sleeping:
                 self.contact.begin_frame(ops)
                 ops.append(self.contact.counters.zero_)  # (CUDA: also when the broadphase did not run ahead)
                 if self.contact.holds:  # (Config.contact_linear: no plane outlives a frame without contact)
-                    ops.append(self.contact.plane_state.zero_)
+                    ops.append(self.contact.hold.data.state.zero_)
             cmd = wp.launch(integrate.carry_asleep, m.n_vertices,
                             inputs=[m.vertex_carrier, m.vertex_world, state.body_pose, float(self.config.frame_dt)],
                             outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,

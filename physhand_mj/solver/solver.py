@@ -37,7 +37,7 @@ from physhand_mj.solver.poses import PoseInput
 from physhand_mj.solver.sleep import Sleeping, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
-from physhand_mj.launch import launch_options
+from physhand_mj.launch import Recorder, launch_options
 from physhand_mj.types import Config, Model, NonFinite, Scheme, SolverError, State, Strategy
 
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
@@ -230,7 +230,7 @@ class Solver(PoseInput, Sleeping):
             out["tethered"] = int(g[2])
         if self.contact is not None:
             self._contact_summary(out)
-            self.last_activity = self.activity.report(self.contact._counters_host.numpy(),
+            self.last_activity = self.activity.report(self.contact.lists.counters_host.numpy(),
                                                       self.contact.features_listed(), self.contact)
             self.last_activity.update(self.contact.feature_motion(self.activity.last_open1, self.warn_feature_slack))
         else:
@@ -297,54 +297,20 @@ class Solver(PoseInput, Sleeping):
 
     def _record_frame(self, state: State, key=None) -> list:
         """The frame as a list of zero-argument operations (recorded launches, memsets, copies)."""
-        ops = []
-        deferred = _DeferredLaunches(self.device)  # (the frame's modules compiled side by side, then its launches made)
-        self._record_frame_ops(state, key, ops, deferred)
-        deferred.make()
-        return ops
+        rec = FrameRecorder(self.device, self.activity)
+        self._record_frame_ops(state, key, rec)
+        rec.make()
+        return rec.ops
 
-    def _record_frame_ops(self, state: State, key, ops: list, deferred) -> None:
-        """:meth:`_record_frame`'s recording into ``ops``, its launches ``deferred`` (made once the
-        frame's modules are compiled)."""
+    def _record_frame_ops(self, state: State, key, rec: "FrameRecorder") -> None:
+        """:meth:`_record_frame`'s recording into ``rec`` (its launches made once the frame's
+        modules are compiled)."""
         m, cfg, d = self.model, self.config, self.device
         n = m.n_vertices
-        cur = [ops]  # where launches go: the frame's list, or a gated block's (activity.py)
+        ops, launch, gated = rec.ops, rec.launch, rec.gated
         self.activity.reset_recording()
         if self.contact is not None:
             self.contact.begin_frame(ops)
-
-        def launch(kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0):
-            """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
-            the list the kernel walks) a CPU launch runs only that many threads (CPU memory is
-            read on the host for free; CUDA launches at most ``list_launch_blocks`` blocks, whose
-            threads past the list return); ``block_dim`` for tiled kernels (CUDA: a block per list
-            entry, capped the same way); ``min_dim``: a CPU list launch runs at least that many
-            threads (a kernel whose thread 0 has work of its own however long the list)."""
-            if not dim:
-                return
-            kw = launch_options(d, count, block_dim)
-
-            def make():
-                cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
-                return cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count, min_dim)
-
-            deferred.add(cur[0], kernel, block_dim, make)
-
-        def gated(record, level, slots=(), flag=None):
-            """Record ``record(sub_ops)`` into a block that runs only when contact has work
-            (activity.py: level 0 = an object may be near, 1 = the frame broadphase kept a triangle,
-            2 = one of the contact counters at ``slots`` is not zero; ``flag``: a device flag
-            already set from them, for CUDA's conditional node)."""
-            sub: list = []
-            outer, cur[0] = cur[0], sub
-            try:
-                record(sub)
-            finally:
-                cur[0] = outer
-            if sub:
-                outer.append(self.activity.gate(sub, level, slots, flag))
-                return outer[-1]
-            return None
 
         lams = dict(edge=state.lam_edge, tet=state.lam_tet, dih=state.lam_dih)
         fam = {
@@ -371,20 +337,11 @@ class Solver(PoseInput, Sleeping):
                [state.body_sub, state.guard])
         if self.contact is not None:
             contact = self.contact
-            contact.record_frame_planes(launch)  # (Config.contact_linear, every frame: contact/linear.py)
+            contact.record_frame_planes(rec)  # (Config.contact_linear, every frame: contact/linear.py)
             if self.activity.gate_ahead:  # CUDA: the broadphase runs ahead of the frame's graph (step)
-                pre = self._pre[key] = [contact.counters.zero_]
-
-                def launch_pre(*args, **kw):
-                    saved, cur[0] = cur[0], pre
-                    try:
-                        launch(*args, **kw)
-                    finally:
-                        cur[0] = saved
-            else:
-                ops.append(contact.counters.zero_)  # the frame's list lengths (the level-1 gates read one)
-                launch_pre = None
-            gated(lambda sub: contact.record_frame(launch, sub, state, gated, launch_pre), 0)
+                rec.ahead = self._pre[key] = []
+            contact.zero_counters(rec)  # the frame's list lengths (the level-1 gates read one)
+            gated(lambda sub: contact.record_frame(rec, state), 0)
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
         inv_mass, vertex_body, body_local = ((rs.inv_mass, rs.vertex_body, rs.body_local) if rs is not None
@@ -417,9 +374,9 @@ class Solver(PoseInput, Sleeping):
             if s == cfg.substeps:
                 break
             if before:
-                gated(lambda sub: contact.record(launch, sub, state, gated), 1)
+                gated(lambda sub: contact.record(rec, state), 1)
             elif hold and not hold_after:
-                gated(lambda sub: contact.record_hold(launch, sub, state), 1)
+                gated(lambda sub: contact.record_hold(rec, state), 1)
             # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
             whole = self._fused is not None and self._fused.frame_launch and self.contact is None
             if self._fused is not None and (s == 0 or not whole):  # the three groups, each averaged, in one launch
@@ -428,10 +385,10 @@ class Solver(PoseInput, Sleeping):
                                    h=self._h, damp=self._damp, gravity=self._gravity, model=m,
                                    keep_lam=whole or s == cfg.substeps - 1, count=cfg.substeps if whole else 1,
                                    end=whole and end_folded, speed_limit=float(cfg.sleep_speed))
-                deferred.add(cur[0], fz.kernel, fused_launch.BLOCK_DIM,
-                             lambda inputs=inputs: wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs,
-                                                                   block_dim=fused_launch.BLOCK_DIM, device=d,
-                                                                   record_cmd=True).launch)
+                rec.add(fz.kernel, fused_launch.BLOCK_DIM,
+                        lambda inputs=inputs: wp.launch_tiled(fz.kernel, dim=[m.worlds], inputs=inputs,
+                                                              block_dim=fused_launch.BLOCK_DIM, device=d,
+                                                              record_cmd=True).launch)
             for it in range(0 if self._fused is not None else cfg.iterations):
                 for row, group in enumerate(JACOBI_GROUPS):
                     names = [name for name in group if m.colors[name]]
@@ -456,9 +413,9 @@ class Solver(PoseInput, Sleeping):
                     apply(pending)
                     pending = -1
                 if staged and contact.wants("after"):
-                    gated(lambda sub: contact.record(launch, sub, state, gated), 1)
+                    gated(lambda sub: contact.record(rec, state), 1)
                 elif hold_after:
-                    gated(lambda sub: contact.record_hold(launch, sub, state), 1)
+                    gated(lambda sub: contact.record_hold(rec, state), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
                 if pending >= 0:
                     apply(pending)
@@ -469,16 +426,16 @@ class Solver(PoseInput, Sleeping):
                         launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.vertex_world, m.skin_local, state.body_sub, s,
                                                                  cfg.skin_tether], [state.x, state.guard])
                     if cfg.substep_metrics:  # only when a log asks (rollout)
-                        contact.record_metrics(launch, sub, state, s, objects_side=False)
+                        contact.record_metrics(rec, state, s, objects_side=False)
 
                 gated(after_contact, 1)
         if self.contact is not None:  # nothing within the frame margin: nothing inside, the rows stay zero
 
             def frame_end(sub):
                 if cfg.frame_metrics or cfg.object_metrics:  # (none when no one reads them: measured on demand)
-                    self.contact.record_metrics(launch, sub, state, cfg.substeps, objects_side=cfg.object_metrics,
+                    self.contact.record_metrics(rec, state, cfg.substeps, objects_side=cfg.object_metrics,
                                                 skin_side=cfg.frame_metrics)
-                self.contact.record_frame_end(launch, sub, state)  # the skin's move against the feature slack
+                self.contact.record_frame_end(rec, state)  # the skin's move against the feature slack
 
             gated(frame_end, 1)
         if not end_folded:  # (else counted inside the frame launch, from shared memory)
@@ -500,6 +457,63 @@ class Solver(PoseInput, Sleeping):
         self._sleep_ops.clear()
         self._graphs.clear()
         self._pre.clear()
+
+
+class FrameRecorder(Recorder):
+    """The solver's recorder of a frame (:class:`~physhand_mj.launch.Recorder`): its launches made
+    once the frame is recorded (:class:`_DeferredLaunches`: the modules compiled first), each a
+    CPU list launch sized by its list's length where it walks one; :meth:`gated` blocks the
+    contact's work behind the solver's gates (``activity``: activity.py); :attr:`ahead` the list
+    the frame broadphase runs from ahead of the frame's graph (CUDA), set by the solver."""
+
+    def __init__(self, device, activity):
+        super().__init__(device)
+        self.activity = activity
+        self.deferred = _DeferredLaunches(device)
+
+    def launch(self, kernel, dim, inputs, outputs, count=None, block_dim=None, min_dim=0) -> None:
+        """Record a launch of ``dim`` threads; with ``count`` (a (1,) int array: the length of
+        the list the kernel walks) a CPU launch runs only that many threads (CPU memory is
+        read on the host for free; CUDA launches at most ``list_launch_blocks`` blocks, whose
+        threads past the list return); ``block_dim`` for tiled kernels (CUDA: a block per list
+        entry, capped the same way); ``min_dim``: a CPU list launch runs at least that many
+        threads (a kernel whose thread 0 has work of its own however long the list)."""
+        if not dim:
+            return
+        d = self.device
+        kw = launch_options(d, count, block_dim)
+
+        def make():
+            cmd = wp.launch(kernel, dim, inputs=inputs, outputs=outputs, device=d, record_cmd=True, **kw)
+            return cmd.launch if count is None or d.is_cuda else _ListLaunch(cmd, count, min_dim)
+
+        self.add(kernel, block_dim, make)
+
+    def add(self, kernel, block_dim, make) -> None:
+        """Record the launch ``make()`` returns once the frame's modules are compiled (``kernel``,
+        ``block_dim``: the module variant it needs)."""
+        self.deferred.add(self.ops, kernel, block_dim, make)
+
+    def gated(self, record, level, slots=(), flag=None):
+        """Record ``record(sub_ops)`` into a block that runs only when contact has work
+        (activity.py: level 0 = an object may be near, 1 = the frame broadphase kept a triangle,
+        2 = one of the contact counters at ``slots`` is not zero; ``flag``: a device flag
+        already set from them, for CUDA's conditional node); returns the gate (None: nothing
+        recorded)."""
+        sub: list = []
+        outer, self.ops = self.ops, sub
+        try:
+            record(sub)
+        finally:
+            self.ops = outer
+        if sub:
+            outer.append(self.activity.gate(sub, level, slots, flag))
+            return outer[-1]
+        return None
+
+    def make(self) -> None:
+        """Make the recorded launches (:meth:`_DeferredLaunches.make`)."""
+        self.deferred.make()
 
 
 class _DeferredLaunches:
