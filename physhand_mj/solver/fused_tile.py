@@ -4,8 +4,6 @@ average of a group, and one constraint's loads (its ids, inverse masses and rest
 multiplier store. Functions of arrays and tiles only; which of their paths a kernel takes is fixed by
 the kernel's constant arguments (``vec``, ``pin``, ``row``, ``strided``), folded once inlined."""
 
-from __future__ import annotations
-
 from typing import Any
 
 import warp as wp
@@ -83,57 +81,46 @@ def load_here(arr: wp.array(dtype=float), j: int) -> float:
     ...
 
 
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const int4 q = __ldg(reinterpret_cast<const int4*>(wp::address(arr, j, 0)));
-return wp::vec_t<4, int>(q.x, q.y, q.z, q.w);
+class _Renamed:
+    """``@_Renamed.func_native(snippet, name)``: ``wp.func_native(snippet)`` for a function a factory
+    defines, registered as ``name``. Warp keys a function by its qualified name, the same for every
+    function one factory defines, and its code generator takes a function for native (its return
+    type from the annotation) by a decorator called ``func_native`` in the source."""
+
+    @staticmethod
+    def func_native(snippet: str, name: str):
+        def register(f):
+            f.__name__ = f.__qualname__ = name
+            return wp.func_native(snippet)(f)
+        return register
+
+
+def row_load(width: int, scalar: type, vec: type):
+    """The native ``wp.func`` ``row{width}{i|f}(arr, j) -> vec``: row ``j`` of a contiguous (n, ``width``)
+    int32 or float32 array, aligned to its row (4 x ``width`` bytes): one 64- or 128-bit load on CUDA
+    (Warp's vectors are 4-byte aligned, so ``arr[j, k]`` is ``width`` loads and address computations)."""
+    c = "int" if scalar is int else "float"
+    name = f"row{width}{c[0]}"
+    snippet = f"""#if defined(__CUDA_ARCH__)
+const {c}{width} q = __ldg(reinterpret_cast<const {c}{width}*>(wp::address(arr, j, 0)));
+return wp::vec_t<{width}, {c}>({", ".join("q." + "xyzw"[k] for k in range(width))});
 #else
-const int* p = wp::address(arr, j, 0);
-return wp::vec_t<4, int>(p[0], p[1], p[2], p[3]);
+const {c}* p = wp::address(arr, j, 0);
+return wp::vec_t<{width}, {c}>({", ".join(f"p[{k}]" for k in range(width))});
 #endif
-""")
-def row4i(arr: wp.array2d(dtype=int), j: int) -> wp.vec4i:
-    """Row ``j`` of a contiguous (n, 4) int32 array, 16-byte aligned: one 128-bit load on CUDA (Warp's
-    vectors are 4-byte aligned, so ``arr[j, k]`` is four loads and four address computations)."""
-    ...
+"""
+
+    @_Renamed.func_native(snippet, name)
+    def row(arr: wp.array2d(dtype=scalar), j: int) -> vec:
+        ...
+
+    return row
 
 
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const float4 q = __ldg(reinterpret_cast<const float4*>(wp::address(arr, j, 0)));
-return wp::vec_t<4, float>(q.x, q.y, q.z, q.w);
-#else
-const float* p = wp::address(arr, j, 0);
-return wp::vec_t<4, float>(p[0], p[1], p[2], p[3]);
-#endif
-""")
-def row4f(arr: wp.array2d(dtype=float), j: int) -> wp.vec4:
-    """Row ``j`` of a contiguous (n, 4) float32 array, 16-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const int2 q = __ldg(reinterpret_cast<const int2*>(wp::address(arr, j, 0)));
-return wp::vec_t<2, int>(q.x, q.y);
-#else
-const int* p = wp::address(arr, j, 0);
-return wp::vec_t<2, int>(p[0], p[1]);
-#endif
-""")
-def row2i(arr: wp.array2d(dtype=int), j: int) -> wp.vec2i:
-    """Row ``j`` of a contiguous (n, 2) int32 array, 8-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const float2 q = __ldg(reinterpret_cast<const float2*>(wp::address(arr, j, 0)));
-return wp::vec_t<2, float>(q.x, q.y);
-#else
-const float* p = wp::address(arr, j, 0);
-return wp::vec_t<2, float>(p[0], p[1]);
-#endif
-""")
-def row2f(arr: wp.array2d(dtype=float), j: int) -> wp.vec2:
-    """Row ``j`` of a contiguous (n, 2) float32 array, 8-byte aligned (:func:`row4i`)."""
-    ...
+row4i = row_load(4, int, wp.vec4i)
+row4f = row_load(4, float, wp.vec4)
+row2i = row_load(2, int, wp.vec2i)
+row2f = row_load(2, float, wp.vec2)
 
 
 @wp.func_native("""WP_TILE_SYNC();""")
