@@ -192,87 +192,76 @@ def add_corners_fixed(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: 
     add2_fixed(ds, ns, i3, i4, d3, d4, moves, scale, bound)
 
 
-@wp.func
-def corners2(ids: wp.array2d(dtype=int), rows: wp.array2d(dtype=float), inv_mass: wp.array(dtype=float),
-             rest: wp.array(dtype=float), j: int, vec: int, pin: int, row: int):
-    """Constraint ``j`` of a 2-vertex family: (i1, i2, w1, w2, rest). ``vec``: ids and masses in one
-    vector load each (``row`` too); ``pin``: the rest value loaded here (:func:`load_here`);
-    ``row``: the masses from the family's per-constraint rows, else per vertex (``inv_mass``)."""
-    i1 = int(0)
-    i2 = int(0)
-    if vec != 0:
-        e = row2i(ids, j)
-        i1 = e[0]
-        i2 = e[1]
-    else:
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-    r = float(0.0)
-    if pin != 0:
-        r = load_here(rest, j)
-    else:
-        r = rest[j]
-    w1 = float(0.0)
-    w2 = float(0.0)
-    if vec != 0:
-        q = row2f(rows, j)
-        w1 = q[0]
-        w2 = q[1]
-    elif row != 0:
-        w1 = rows[j, 0]
-        w2 = rows[j, 1]
-    else:
-        w1 = inv_mass[i1]
-        w2 = inv_mass[i2]
-    return i1, i2, w1, w2, r
+def corner_loads(corners: int):
+    """The ``wp.func`` ``corners{2|4}(ids, rows, inv_mass, rest, j, vec, pin, row)``: constraint ``j``
+    of a ``corners``-vertex family (2: edges; 4: tets, dihedrals), (i1.., w1.., rest). ``vec``: ids and
+    masses in one vector load each (``row`` too; :func:`row_load`); ``pin``: the rest value loaded
+    here (:func:`load_here`); ``row``: the masses from the family's per-constraint rows, else per
+    vertex (``inv_mass``)."""
+    FOUR = corners == 4
+    ROW_IDS = row4i if FOUR else row2i
+    ROW_MASSES = row4f if FOUR else row2f
+
+    def loads(ids: wp.array2d(dtype=int), rows: wp.array2d(dtype=float), inv_mass: wp.array(dtype=float),
+              rest: wp.array(dtype=float), j: int, vec: int, pin: int, row: int):
+        i1 = int(0)
+        i2 = int(0)
+        if wp.static(FOUR):
+            i3 = int(0)
+            i4 = int(0)
+        if vec != 0:
+            e = wp.static(ROW_IDS)(ids, j)
+            i1 = e[0]
+            i2 = e[1]
+            if wp.static(FOUR):
+                i3 = e[2]
+                i4 = e[3]
+        else:
+            i1 = ids[j, 0]
+            i2 = ids[j, 1]
+            if wp.static(FOUR):
+                i3 = ids[j, 2]
+                i4 = ids[j, 3]
+        r = float(0.0)
+        if pin != 0:
+            r = load_here(rest, j)
+        else:
+            r = rest[j]
+        w1 = float(0.0)
+        w2 = float(0.0)
+        if wp.static(FOUR):
+            w3 = float(0.0)
+            w4 = float(0.0)
+        if vec != 0:
+            q = wp.static(ROW_MASSES)(rows, j)
+            w1 = q[0]
+            w2 = q[1]
+            if wp.static(FOUR):
+                w3 = q[2]
+                w4 = q[3]
+        elif row != 0:
+            w1 = rows[j, 0]
+            w2 = rows[j, 1]
+            if wp.static(FOUR):
+                w3 = rows[j, 2]
+                w4 = rows[j, 3]
+        else:
+            w1 = inv_mass[i1]
+            w2 = inv_mass[i2]
+            if wp.static(FOUR):
+                w3 = inv_mass[i3]
+                w4 = inv_mass[i4]
+        if wp.static(FOUR):
+            return i1, i2, i3, i4, w1, w2, w3, w4, r
+        else:
+            return i1, i2, w1, w2, r
+
+    loads.__name__ = loads.__qualname__ = f"corners{corners}"
+    return wp.func(loads)
 
 
-@wp.func
-def corners4(ids: wp.array2d(dtype=int), rows: wp.array2d(dtype=float), inv_mass: wp.array(dtype=float),
-             rest: wp.array(dtype=float), j: int, vec: int, pin: int, row: int):
-    """Constraint ``j`` of a 4-vertex family (tets, dihedrals): (i1..i4, w1..w4, rest), as
-    :func:`corners2`."""
-    i1 = int(0)
-    i2 = int(0)
-    i3 = int(0)
-    i4 = int(0)
-    if vec != 0:
-        e = row4i(ids, j)
-        i1 = e[0]
-        i2 = e[1]
-        i3 = e[2]
-        i4 = e[3]
-    else:
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-        i3 = ids[j, 2]
-        i4 = ids[j, 3]
-    r = float(0.0)
-    if pin != 0:
-        r = load_here(rest, j)
-    else:
-        r = rest[j]
-    w1 = float(0.0)
-    w2 = float(0.0)
-    w3 = float(0.0)
-    w4 = float(0.0)
-    if vec != 0:
-        q = row4f(rows, j)
-        w1 = q[0]
-        w2 = q[1]
-        w3 = q[2]
-        w4 = q[3]
-    elif row != 0:
-        w1 = rows[j, 0]
-        w2 = rows[j, 1]
-        w3 = rows[j, 2]
-        w4 = rows[j, 3]
-    else:
-        w1 = inv_mass[i1]
-        w2 = inv_mass[i2]
-        w3 = inv_mass[i3]
-        w4 = inv_mass[i4]
-    return i1, i2, i3, i4, w1, w2, w3, w4, r
+corners2 = corner_loads(2)
+corners4 = corner_loads(4)
 
 
 @wp.func
