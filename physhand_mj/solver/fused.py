@@ -44,6 +44,8 @@ in each world (the asset's layout: skin, flesh, skeleton).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -119,6 +121,84 @@ TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
 
 _KERNELS: dict = {}
+_PASSES: dict = {}
+# Each family's XPBD step, its sum by vertex (SUM "gather"), corners, and whether its compliance is per constraint
+FAMILIES = {"edges": (edge_correction, edges_of_vertex, 2, True), "tets": (tet_correction, tets_of_vertex, 4, True),
+            "dihedrals": (dihedral_correction, dihedrals_of_vertex, 4, False)}
+
+
+def family_pass(family: str, gather: bool, fixed: bool):
+    """The ``wp.func`` that adds one family's corrections (``FAMILIES``) into a world's shared
+    accumulator ``ds`` from its shared positions ``xs``: one Jacobi group of :func:`substep_kernel`,
+    which every thread of the block calls. ``gather``: SUM "gather" (each movable vertex sums its own
+    constraints, in constraint order), else each constraint once, its corners added atomically
+    (``fixed``: ACCUM "fixed"). Its int arguments ``vec``, ``pin``, ``row_mass``, ``strided`` are the
+    kernel's constants (folded once inlined: the function is forced inline, so the kernel's code is
+    the loop written out in place)."""
+    key = (family, bool(gather), bool(fixed))
+    if key in _PASSES:
+        return _PASSES[key]
+    correction, of_vertex, corners, alpha_per_constraint = FAMILIES[family]
+    FOUR = corners == 4
+    GATHER = key[1]
+    FIXED = key[2]
+
+    def add_family(xs: Any, ds: Any, n_soft: int, w: int, lane: int, bd: int, inv_mass: wp.array(dtype=float),
+                   ids: wp.array2d(dtype=int), rest: wp.array(dtype=float), alpha: Any, masses: wp.array2d(dtype=float),
+                   off: wp.array(dtype=int), ent: wp.array(dtype=int), asset_row: wp.array(dtype=int),
+                   lam: wp.array(dtype=float), inv_h2: float, keep: int, fx_scale: float, fx_bound: float, vec: int,
+                   pin: int, row_mass: int, strided: int):
+        if wp.static(GATHER):
+            for k in range((n_soft + bd - 1) // bd):
+                l = k * bd + lane
+                d = wp.vec3(0.0)
+                if l < n_soft:
+                    d = of_vertex(l, w, off, ent, ids, rest, alpha, inv_mass, xs, inv_h2, lam)
+                shared_set(ds, l, d, l < n_soft)
+        else:
+            nc = ids.shape[0]
+            for k in range((nc + bd - 1) // bd):
+                j = k * bd + lane
+                i1 = int(0)
+                i2 = int(0)
+                if wp.static(FOUR):
+                    i3 = int(0)
+                    i4 = int(0)
+                moves = int(0)
+                d1 = wp.vec3(0.0)
+                d2 = wp.vec3(0.0)
+                if wp.static(FOUR):
+                    d3 = wp.vec3(0.0)
+                    d4 = wp.vec3(0.0)
+                if j < nc:
+                    at = float(0.0)
+                    if wp.static(FOUR):
+                        i1, i2, i3, i4, w1, w2, w3, w4, r = corners4(ids, masses, inv_mass, rest, j, vec, pin, row_mass)
+                    else:
+                        i1, i2, w1, w2, r = corners2(ids, masses, inv_mass, rest, j, vec, pin, row_mass)
+                    if wp.static(alpha_per_constraint):
+                        at = alpha[j] * inv_h2
+                    else:
+                        at = alpha * inv_h2
+                    if wp.static(FOUR):
+                        moves, dlam, d1, d2, d3, d4 = correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4, r, at,
+                                                                 0.0)
+                    else:
+                        moves, dlam, d1, d2 = correction(xs[i1], xs[i2], w1, w2, r, at, 0.0)
+                    # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
+                    keep_multiplier(lam, asset_row, w * nc, j, dlam, keep, strided)
+                if wp.static(FOUR and FIXED):
+                    add_corners_fixed(ds, n_soft, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bound)
+                if wp.static(FOUR and not FIXED):
+                    add_corners(ds, n_soft, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+                if wp.static(not FOUR and FIXED):
+                    add2_fixed(ds, n_soft, i1, i2, d1, d2, moves, fx_scale, fx_bound)
+                if wp.static(not FOUR and not FIXED):
+                    add2(ds, n_soft, i1, i2, d1, d2, moves)
+
+    add_family.__name__ = add_family.__qualname__ = f"add_{family}{'_gather' if GATHER else ''}{'_fixed' if FIXED else ''}"
+    _PASSES[key] = wp.func(add_family, inline=True)
+    return _PASSES[key]
 
 
 def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False,
@@ -139,13 +219,13 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
     STRIDED = key[4]
     FIXED = key[5]
     ROWM = key[6]
-    PLAIN = not GATHER
     # (as ints for corners2 / corners4 / keep_multiplier: constants of this kernel, folded once inlined)
     ROWM_I = int(ROWM)
     PIN_I = int(key[7])  # (PIN_LOADS: the rest data loaded at the top of each constraint's iteration)
     VEC_I = int(key[8])  # (VEC_LOADS: a constraint's ids and masses in one vector load each)
     STRIDED_I = int(STRIDED)
     ACC = wp.vec3i if FIXED else wp.vec3
+    edges, tets, dihedrals = (family_pass(f, GATHER, FIXED) for f in ("edges", "tets", "dihedrals"))
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
     def solve_substep_shared(
@@ -250,109 +330,22 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                 keep = 1
 
             # group 0: edges and attachments (Eq. 2, 4-5)
-            ne = edge_ids.shape[0]
-            if wp.static(GATHER):
-                for k in range((NS + bd - 1) // bd):
-                    l = k * bd + lane
-                    d = wp.vec3(0.0)
-                    if l < NS:
-                        d = edges_of_vertex(l, w, edge_off, edge_ent, edge_ids, edge_rest, edge_alpha, inv_mass, xs,
-                                            inv_h2, lam_edge)
-                    shared_set(ds, l, d, l < NS)
-            if wp.static(PLAIN):
-                for k in range((ne + bd - 1) // bd):
-                    j = k * bd + lane
-                    i1 = int(0)
-                    i2 = int(0)
-                    moves = int(0)
-                    d1 = wp.vec3(0.0)
-                    d2 = wp.vec3(0.0)
-                    if j < ne:
-                        i1, i2, w1, w2, rest = corners2(edge_ids, edge_w, inv_mass, edge_rest, j, VEC_I, PIN_I, ROWM_I)
-                        moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], w1, w2, rest, edge_alpha[j] * inv_h2,
-                                                              0.0)
-                        # (lambda reset this substep: 0 + dlam; 0 where nothing moves)
-                        keep_multiplier(lam_edge, edge_row, w * ne, j, dlam, keep, STRIDED_I)
-                    if wp.static(FIXED):
-                        add2_fixed(ds, NS, i1, i2, d1, d2, moves, fx_scale, fx_bounds[0])
-                    else:
-                        add2(ds, NS, i1, i2, d1, d2, moves)
+            edges(xs, ds, NS, w, lane, bd, inv_mass, edge_ids, edge_rest, edge_alpha, edge_w, edge_off, edge_ent,
+                  edge_row, lam_edge, inv_h2, keep, fx_scale, fx_bounds[0], VEC_I, PIN_I, ROWM_I, STRIDED_I)
             if wp.static(FIXED):
                 apply_group_fixed(xs, ds, NS, vertex_count, 0, relaxation, lane, bd, fx_step)
             else:
                 apply_group(xs, ds, NS, vertex_count, 0, relaxation, lane, bd)
-
             # group 1: tets (Eq. 3)
-            nt = tet_ids.shape[0]
-            if wp.static(GATHER):
-                for k in range((NS + bd - 1) // bd):
-                    l = k * bd + lane
-                    d = wp.vec3(0.0)
-                    if l < NS:
-                        d = tets_of_vertex(l, w, tet_off, tet_ent, tet_ids, tet_rest6v, tet_alpha, inv_mass, xs, inv_h2,
-                                           lam_tet)
-                    shared_set(ds, l, d, l < NS)
-            if wp.static(PLAIN):
-                for k in range((nt + bd - 1) // bd):
-                    j = k * bd + lane
-                    i1 = int(0)
-                    i2 = int(0)
-                    i3 = int(0)
-                    i4 = int(0)
-                    moves = int(0)
-                    d1 = wp.vec3(0.0)
-                    d2 = wp.vec3(0.0)
-                    d3 = wp.vec3(0.0)
-                    d4 = wp.vec3(0.0)
-                    if j < nt:
-                        i1, i2, i3, i4, w1, w2, w3, w4, rest = corners4(tet_ids, tet_w, inv_mass, tet_rest6v, j, VEC_I,
-                                                                        PIN_I, ROWM_I)
-                        moves, dlam, d1, d2, d3, d4 = tet_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3, w4,
-                                                                     rest, tet_alpha[j] * inv_h2, 0.0)
-                        keep_multiplier(lam_tet, tet_row, w * nt, j, dlam, keep, STRIDED_I)
-                    if wp.static(FIXED):
-                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bounds[1])
-                    else:
-                        add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+            tets(xs, ds, NS, w, lane, bd, inv_mass, tet_ids, tet_rest6v, tet_alpha, tet_w, tet_off, tet_ent, tet_row,
+                 lam_tet, inv_h2, keep, fx_scale, fx_bounds[1], VEC_I, PIN_I, ROWM_I, STRIDED_I)
             if wp.static(FIXED):
                 apply_group_fixed(xs, ds, NS, vertex_count, 1, relaxation, lane, bd, fx_step)
             else:
                 apply_group(xs, ds, NS, vertex_count, 1, relaxation, lane, bd)
-
             # group 2: skin smoothness (Eq. 6)
-            nd = dih_ids.shape[0]
-            if wp.static(GATHER):
-                for k in range((NS + bd - 1) // bd):
-                    l = k * bd + lane
-                    d = wp.vec3(0.0)
-                    if l < NS:
-                        d = dihedrals_of_vertex(l, w, dih_off, dih_ent, dih_ids, dih_rest, dih_alpha, inv_mass, xs, inv_h2,
-                                                lam_dih)
-                    shared_set(ds, l, d, l < NS)
-            if wp.static(PLAIN):
-                for k in range((nd + bd - 1) // bd):
-                    j = k * bd + lane
-                    i1 = int(0)
-                    i2 = int(0)
-                    i3 = int(0)
-                    i4 = int(0)
-                    moves = int(0)
-                    d1 = wp.vec3(0.0)
-                    d2 = wp.vec3(0.0)
-                    d3 = wp.vec3(0.0)
-                    d4 = wp.vec3(0.0)
-                    if j < nd:
-                        i1, i2, i3, i4, w1, w2, w3, w4, rest = corners4(dih_ids, dih_w, inv_mass, dih_rest, j, VEC_I,
-                                                                        PIN_I, ROWM_I)
-                        dlam = float(0.0)
-                        if not (w1 == 0.0 and w2 == 0.0 and w3 == 0.0 and w4 == 0.0):
-                            moves, dlam, d1, d2, d3, d4 = dihedral_correction(xs[i1], xs[i2], xs[i3], xs[i4], w1, w2, w3,
-                                                                              w4, rest, dih_alpha * inv_h2, 0.0)
-                        keep_multiplier(lam_dih, dih_row, w * nd, j, dlam, keep, STRIDED_I)
-                    if wp.static(FIXED):
-                        add_corners_fixed(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves, fx_scale, fx_bounds[2])
-                    else:
-                        add_corners(ds, NS, i1, i2, i3, i4, d1, d2, d3, d4, moves)
+            dihedrals(xs, ds, NS, w, lane, bd, inv_mass, dih_ids, dih_rest, dih_alpha, dih_w, dih_off, dih_ent,
+                      dih_row, lam_dih, inv_h2, keep, fx_scale, fx_bounds[2], VEC_I, PIN_I, ROWM_I, STRIDED_I)
             block_sync()
             for k in range((NS + bd - 1) // bd):  # the last apply, then the soft vertices back
                 l = k * bd + lane

@@ -22,32 +22,13 @@ from physhand_mj.solver.tet import tet_correction
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
 
-@wp.func
-def edges_of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),
-                    rest: wp.array(dtype=float), alpha: wp.array(dtype=float), inv_mass: wp.array(dtype=float),
-                    xs: Any, inv_h2: float, lam: wp.array(dtype=float)):
-    d = wp.vec3(0.0)
-    nc = ids.shape[0]
-    for e in range(off[l], off[l + 1]):
-        code = ent[e]
-        jc = code // 2
-        j = jc // 2
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-        moves, dlam, d1, d2 = edge_correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], rest[j], alpha[j] * inv_h2,
-                                              0.0)
-        if code % 2 == 1:
-            lam[w * nc + j] = dlam
-        if moves != 0:
-            d = d + wp.where(jc % 2 == 0, d1, d2)
-    return d
-
-
-def corners4_of_vertex(correction, alpha_per_constraint: bool, name: str):
-    """The ``wp.func`` ``name`` summing movable vertex ``l``'s corrections from a family of 4-vertex
-    constraints whose XPBD step is ``correction`` (tet.tet_correction, smooth.dihedral_correction),
-    in constraint order, storing lambda where the entry is the writer; ``alpha_per_constraint``:
-    the compliance an array (one per constraint) or one float."""
+def constraints_of_vertex(correction, corners: int, alpha_per_constraint: bool, name: str):
+    """The ``wp.func`` ``name`` summing movable vertex ``l``'s corrections from a family of
+    ``corners``-vertex constraints (2 or 4) whose XPBD step is ``correction`` (edge.edge_correction,
+    tet.tet_correction, smooth.dihedral_correction), in constraint order, storing lambda where the
+    entry is the writer; ``alpha_per_constraint``: the compliance an array (one per constraint) or
+    one float."""
+    FOUR = corners == 4
 
     def of_vertex(l: int, w: int, off: wp.array(dtype=int), ent: wp.array(dtype=int), ids: wp.array2d(dtype=int),
                   rest: wp.array(dtype=float), alpha: Any, inv_mass: wp.array(dtype=float), xs: Any, inv_h2: float,
@@ -57,23 +38,29 @@ def corners4_of_vertex(correction, alpha_per_constraint: bool, name: str):
         for e in range(off[l], off[l + 1]):
             code = ent[e]
             jc = code // 2
-            j = jc // 4
-            c = jc % 4
-            i1 = ids[j, 0]
-            i2 = ids[j, 1]
-            i3 = ids[j, 2]
-            i4 = ids[j, 3]
+            j = jc // corners
+            c = jc % corners
             at = float(0.0)
             if wp.static(alpha_per_constraint):
                 at = alpha[j] * inv_h2
             else:
                 at = alpha * inv_h2
-            moves, dlam, d1, d2, d3, d4 = correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1], inv_mass[i2],
-                                                     inv_mass[i3], inv_mass[i4], rest[j], at, 0.0)
+            i1 = ids[j, 0]
+            i2 = ids[j, 1]
+            if wp.static(FOUR):
+                i3 = ids[j, 2]
+                i4 = ids[j, 3]
+                moves, dlam, d1, d2, d3, d4 = correction(xs[i1], xs[i2], xs[i3], xs[i4], inv_mass[i1], inv_mass[i2],
+                                                         inv_mass[i3], inv_mass[i4], rest[j], at, 0.0)
+            else:
+                moves, dlam, d1, d2 = correction(xs[i1], xs[i2], inv_mass[i1], inv_mass[i2], rest[j], at, 0.0)
             if code % 2 == 1:
                 lam[w * nc + j] = dlam
             if moves != 0:
-                d = d + corner_of(c, d1, d2, d3, d4)
+                if wp.static(FOUR):
+                    d = d + corner_of(c, d1, d2, d3, d4)
+                else:
+                    d = d + wp.where(c == 0, d1, d2)
         return d
 
     of_vertex.__name__ = of_vertex.__qualname__ = name
@@ -91,8 +78,9 @@ def corner_of(c: int, d1: wp.vec3, d2: wp.vec3, d3: wp.vec3, d4: wp.vec3):
     return d4
 
 
-tets_of_vertex = corners4_of_vertex(tet_correction, True, "tets_of_vertex")
-dihedrals_of_vertex = corners4_of_vertex(dihedral_correction, False, "dihedrals_of_vertex")
+edges_of_vertex = constraints_of_vertex(edge_correction, 2, True, "edges_of_vertex")
+tets_of_vertex = constraints_of_vertex(tet_correction, 4, True, "tets_of_vertex")
+dihedrals_of_vertex = constraints_of_vertex(dihedral_correction, 4, False, "dihedrals_of_vertex")
 
 
 def vertex_entries(ids: np.ndarray, n_soft: int) -> tuple[np.ndarray, np.ndarray]:

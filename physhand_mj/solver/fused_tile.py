@@ -4,8 +4,6 @@ average of a group, and one constraint's loads (its ids, inverse masses and rest
 multiplier store. Functions of arrays and tiles only; which of their paths a kernel takes is fixed by
 the kernel's constant arguments (``vec``, ``pin``, ``row``, ``strided``), folded once inlined."""
 
-from __future__ import annotations
-
 from typing import Any
 
 import warp as wp
@@ -83,57 +81,46 @@ def load_here(arr: wp.array(dtype=float), j: int) -> float:
     ...
 
 
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const int4 q = __ldg(reinterpret_cast<const int4*>(wp::address(arr, j, 0)));
-return wp::vec_t<4, int>(q.x, q.y, q.z, q.w);
+class _Renamed:
+    """``@_Renamed.func_native(snippet, name)``: ``wp.func_native(snippet)`` for a function a factory
+    defines, registered as ``name``. Warp keys a function by its qualified name, the same for every
+    function one factory defines, and its code generator takes a function for native (its return
+    type from the annotation) by a decorator called ``func_native`` in the source."""
+
+    @staticmethod
+    def func_native(snippet: str, name: str):
+        def register(f):
+            f.__name__ = f.__qualname__ = name
+            return wp.func_native(snippet)(f)
+        return register
+
+
+def row_load(width: int, scalar: type, vec: type):
+    """The native ``wp.func`` ``row{width}{i|f}(arr, j) -> vec``: row ``j`` of a contiguous (n, ``width``)
+    int32 or float32 array, aligned to its row (4 x ``width`` bytes): one 64- or 128-bit load on CUDA
+    (Warp's vectors are 4-byte aligned, so ``arr[j, k]`` is ``width`` loads and address computations)."""
+    c = "int" if scalar is int else "float"
+    name = f"row{width}{c[0]}"
+    snippet = f"""#if defined(__CUDA_ARCH__)
+const {c}{width} q = __ldg(reinterpret_cast<const {c}{width}*>(wp::address(arr, j, 0)));
+return wp::vec_t<{width}, {c}>({", ".join("q." + "xyzw"[k] for k in range(width))});
 #else
-const int* p = wp::address(arr, j, 0);
-return wp::vec_t<4, int>(p[0], p[1], p[2], p[3]);
+const {c}* p = wp::address(arr, j, 0);
+return wp::vec_t<{width}, {c}>({", ".join(f"p[{k}]" for k in range(width))});
 #endif
-""")
-def row4i(arr: wp.array2d(dtype=int), j: int) -> wp.vec4i:
-    """Row ``j`` of a contiguous (n, 4) int32 array, 16-byte aligned: one 128-bit load on CUDA (Warp's
-    vectors are 4-byte aligned, so ``arr[j, k]`` is four loads and four address computations)."""
-    ...
+"""
+
+    @_Renamed.func_native(snippet, name)
+    def row(arr: wp.array2d(dtype=scalar), j: int) -> vec:
+        ...
+
+    return row
 
 
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const float4 q = __ldg(reinterpret_cast<const float4*>(wp::address(arr, j, 0)));
-return wp::vec_t<4, float>(q.x, q.y, q.z, q.w);
-#else
-const float* p = wp::address(arr, j, 0);
-return wp::vec_t<4, float>(p[0], p[1], p[2], p[3]);
-#endif
-""")
-def row4f(arr: wp.array2d(dtype=float), j: int) -> wp.vec4:
-    """Row ``j`` of a contiguous (n, 4) float32 array, 16-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const int2 q = __ldg(reinterpret_cast<const int2*>(wp::address(arr, j, 0)));
-return wp::vec_t<2, int>(q.x, q.y);
-#else
-const int* p = wp::address(arr, j, 0);
-return wp::vec_t<2, int>(p[0], p[1]);
-#endif
-""")
-def row2i(arr: wp.array2d(dtype=int), j: int) -> wp.vec2i:
-    """Row ``j`` of a contiguous (n, 2) int32 array, 8-byte aligned (:func:`row4i`)."""
-    ...
-
-
-@wp.func_native("""#if defined(__CUDA_ARCH__)
-const float2 q = __ldg(reinterpret_cast<const float2*>(wp::address(arr, j, 0)));
-return wp::vec_t<2, float>(q.x, q.y);
-#else
-const float* p = wp::address(arr, j, 0);
-return wp::vec_t<2, float>(p[0], p[1]);
-#endif
-""")
-def row2f(arr: wp.array2d(dtype=float), j: int) -> wp.vec2:
-    """Row ``j`` of a contiguous (n, 2) float32 array, 8-byte aligned (:func:`row4i`)."""
-    ...
+row4i = row_load(4, int, wp.vec4i)
+row4f = row_load(4, float, wp.vec4)
+row2i = row_load(2, int, wp.vec2i)
+row2f = row_load(2, float, wp.vec2)
 
 
 @wp.func_native("""WP_TILE_SYNC();""")
@@ -205,87 +192,76 @@ def add_corners_fixed(ds: Any, ns: int, i1: int, i2: int, i3: int, i4: int, d1: 
     add2_fixed(ds, ns, i3, i4, d3, d4, moves, scale, bound)
 
 
-@wp.func
-def corners2(ids: wp.array2d(dtype=int), rows: wp.array2d(dtype=float), inv_mass: wp.array(dtype=float),
-             rest: wp.array(dtype=float), j: int, vec: int, pin: int, row: int):
-    """Constraint ``j`` of a 2-vertex family: (i1, i2, w1, w2, rest). ``vec``: ids and masses in one
-    vector load each (``row`` too); ``pin``: the rest value loaded here (:func:`load_here`);
-    ``row``: the masses from the family's per-constraint rows, else per vertex (``inv_mass``)."""
-    i1 = int(0)
-    i2 = int(0)
-    if vec != 0:
-        e = row2i(ids, j)
-        i1 = e[0]
-        i2 = e[1]
-    else:
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-    r = float(0.0)
-    if pin != 0:
-        r = load_here(rest, j)
-    else:
-        r = rest[j]
-    w1 = float(0.0)
-    w2 = float(0.0)
-    if vec != 0:
-        q = row2f(rows, j)
-        w1 = q[0]
-        w2 = q[1]
-    elif row != 0:
-        w1 = rows[j, 0]
-        w2 = rows[j, 1]
-    else:
-        w1 = inv_mass[i1]
-        w2 = inv_mass[i2]
-    return i1, i2, w1, w2, r
+def corner_loads(corners: int):
+    """The ``wp.func`` ``corners{2|4}(ids, rows, inv_mass, rest, j, vec, pin, row)``: constraint ``j``
+    of a ``corners``-vertex family (2: edges; 4: tets, dihedrals), (i1.., w1.., rest). ``vec``: ids and
+    masses in one vector load each (``row`` too; :func:`row_load`); ``pin``: the rest value loaded
+    here (:func:`load_here`); ``row``: the masses from the family's per-constraint rows, else per
+    vertex (``inv_mass``)."""
+    FOUR = corners == 4
+    ROW_IDS = row4i if FOUR else row2i
+    ROW_MASSES = row4f if FOUR else row2f
+
+    def loads(ids: wp.array2d(dtype=int), rows: wp.array2d(dtype=float), inv_mass: wp.array(dtype=float),
+              rest: wp.array(dtype=float), j: int, vec: int, pin: int, row: int):
+        i1 = int(0)
+        i2 = int(0)
+        if wp.static(FOUR):
+            i3 = int(0)
+            i4 = int(0)
+        if vec != 0:
+            e = wp.static(ROW_IDS)(ids, j)
+            i1 = e[0]
+            i2 = e[1]
+            if wp.static(FOUR):
+                i3 = e[2]
+                i4 = e[3]
+        else:
+            i1 = ids[j, 0]
+            i2 = ids[j, 1]
+            if wp.static(FOUR):
+                i3 = ids[j, 2]
+                i4 = ids[j, 3]
+        r = float(0.0)
+        if pin != 0:
+            r = load_here(rest, j)
+        else:
+            r = rest[j]
+        w1 = float(0.0)
+        w2 = float(0.0)
+        if wp.static(FOUR):
+            w3 = float(0.0)
+            w4 = float(0.0)
+        if vec != 0:
+            q = wp.static(ROW_MASSES)(rows, j)
+            w1 = q[0]
+            w2 = q[1]
+            if wp.static(FOUR):
+                w3 = q[2]
+                w4 = q[3]
+        elif row != 0:
+            w1 = rows[j, 0]
+            w2 = rows[j, 1]
+            if wp.static(FOUR):
+                w3 = rows[j, 2]
+                w4 = rows[j, 3]
+        else:
+            w1 = inv_mass[i1]
+            w2 = inv_mass[i2]
+            if wp.static(FOUR):
+                w3 = inv_mass[i3]
+                w4 = inv_mass[i4]
+        if wp.static(FOUR):
+            return i1, i2, i3, i4, w1, w2, w3, w4, r
+        else:
+            return i1, i2, w1, w2, r
+
+    loads.__name__ = loads.__qualname__ = f"corners{corners}"
+    return wp.func(loads)
 
 
-@wp.func
-def corners4(ids: wp.array2d(dtype=int), rows: wp.array2d(dtype=float), inv_mass: wp.array(dtype=float),
-             rest: wp.array(dtype=float), j: int, vec: int, pin: int, row: int):
-    """Constraint ``j`` of a 4-vertex family (tets, dihedrals): (i1..i4, w1..w4, rest), as
-    :func:`corners2`."""
-    i1 = int(0)
-    i2 = int(0)
-    i3 = int(0)
-    i4 = int(0)
-    if vec != 0:
-        e = row4i(ids, j)
-        i1 = e[0]
-        i2 = e[1]
-        i3 = e[2]
-        i4 = e[3]
-    else:
-        i1 = ids[j, 0]
-        i2 = ids[j, 1]
-        i3 = ids[j, 2]
-        i4 = ids[j, 3]
-    r = float(0.0)
-    if pin != 0:
-        r = load_here(rest, j)
-    else:
-        r = rest[j]
-    w1 = float(0.0)
-    w2 = float(0.0)
-    w3 = float(0.0)
-    w4 = float(0.0)
-    if vec != 0:
-        q = row4f(rows, j)
-        w1 = q[0]
-        w2 = q[1]
-        w3 = q[2]
-        w4 = q[3]
-    elif row != 0:
-        w1 = rows[j, 0]
-        w2 = rows[j, 1]
-        w3 = rows[j, 2]
-        w4 = rows[j, 3]
-    else:
-        w1 = inv_mass[i1]
-        w2 = inv_mass[i2]
-        w3 = inv_mass[i3]
-        w4 = inv_mass[i4]
-    return i1, i2, i3, i4, w1, w2, w3, w4, r
+corners2 = corner_loads(2)
+corners4 = corner_loads(4)
 
 
 @wp.func

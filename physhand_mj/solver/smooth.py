@@ -78,7 +78,10 @@ def dihedral_angle_gradients(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3)
 def dihedral_correction(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3, w0: float, w1: float, w2: float,
                         w3: float, rest: float, at: float, lam_j: float):
     """Eq. 6's XPBD step for one pair of skin triangles: (moves, dlam, dx_e0, dx_e1, dx_o0, dx_o1);
-    ``at`` = alpha / h^2. moves = 0 where the gradient vanishes."""
+    ``at`` = alpha / h^2. moves = 0 where every vertex is kinematic or the gradient vanishes."""
+    z = wp.vec3(0.0)
+    if w0 == 0.0 and w1 == 0.0 and w2 == 0.0 and w3 == 0.0:  # every vertex kinematic: nothing moves
+        return 0, 0.0, z, z, z, z
     theta, g0, g1, g2, g3 = dihedral_angle_gradients(e0, e1, o0, o1)
     c = theta - rest
     # keep C in (-pi, pi]: the signed angle wraps at +-pi
@@ -87,7 +90,6 @@ def dihedral_correction(e0: wp.vec3, e1: wp.vec3, o0: wp.vec3, o1: wp.vec3, w0: 
     if c < -wp.pi:
         c = c + 2.0 * wp.pi
     a = w0 * wp.length_sq(g0) + w1 * wp.length_sq(g1) + w2 * wp.length_sq(g2) + w3 * wp.length_sq(g3) + at
-    z = wp.vec3(0.0)
     if a <= 1.0e-20:
         return 0, 0.0, z, z, z, z
     dlam = multiplier_step(c, at, lam_j, a)
