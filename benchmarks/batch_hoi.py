@@ -323,8 +323,7 @@ def main() -> None:
                         if failed:  # (outside the handler: its traceback would keep the failed arrays alive)
                             print(f"[{scene} W={w}] no check points: {failed[:120]}", file=sys.stderr, flush=True)
                             row["check_skipped"] = failed
-                            contact._check_points = None
-                            contact._reuse_memory.clear()  # (re-made on use: every point asked again once)
+                            contact.measures.forget()  # (re-made on use: every point asked again once)
                             gc.collect()
                             dense = contact.measure_worlds(hands.state, order=9, objects_side=False)
                         row.update(order9_count_max=int(dense[:, 0].max()), order9_max_um=round(float(dense[:, 2].max()) * 1e6, 2))

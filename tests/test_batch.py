@@ -408,16 +408,16 @@ def test_reused_outside_answers_per_world(setup, device):
         batch.set_object_poses(np.stack([top + [0.0, 0.0, 0.03 - 0.002 * f],
                                          top + [0.0, 0.0, 0.012 - 0.001 * f]])[:, None], ident)
         kept = c.measure_worlds(batch.state)
-        c.config = dataclasses.replace(c.config, reuse_outside=False)
+        c.measures.config = dataclasses.replace(c.measures.config, reuse_outside=False)
         every = c.measure_worlds(batch.state)
-        c.config = dataclasses.replace(c.config, reuse_outside=True)
+        c.measures.config = dataclasses.replace(c.measures.config, reuse_outside=True)
         # counts and maxima exactly; the depth sums within float rounding (CUDA's atomics add in any order)
         np.testing.assert_array_equal(kept[:, [0, 2, 3, 5]], every[:, [0, 2, 3, 5]])
         np.testing.assert_allclose(kept[:, [1, 4]], every[:, [1, 4]], rtol=1e-6)
         counts.append(every[:, 3])
     counts = np.array(counts)
     assert counts[0, 1] == 0 and counts[-1, 1] > 20 and not counts[:, 0].any(), counts
-    assert any(int((m.slack.numpy() > 0).sum()) > 1000 for m in c._reuse_memory.values())
+    assert any(int((m.slack.numpy() > 0).sum()) > 1000 for m in c.measures.reuse_memory.values())
 
 
 def test_broadphase_tests_only_the_triangles_own_world(setup):

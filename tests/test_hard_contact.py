@@ -316,7 +316,7 @@ def test_reused_outside_answers_equal_asking_every_point(asset, kind, site, star
     # so it answers the same; told every point is a metre clear, it asks none and sees none inside
     contact, state = runs[True]["solver"].contact, runs[True]["state"]
     assert contact.measure(state)[3] == runs[True]["obj_count"][-1]
-    for memory in contact._reuse_memory.values():
+    for memory in contact.measures.reuse_memory.values():
         memory.slack.fill_(1.0)
     assert contact.measure(state)[3] == 0
 

@@ -94,16 +94,16 @@ def test_check_points_measured_in_pieces_equal_the_whole(monkeypatch):
     batch.set_object_poses(np.stack([ball, block], 1), np.array([[[1.0, 0.0, 0.0, 0.0]] * 2] * 3))
     contact = batch.solver.contact
     assert contact.geoms_per_world == 2
-    one_world = len(contact._check_piece(range(2)))
+    one_world = len(contact.measures.check_piece(range(2)))
     monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", one_world)
-    assert [list(r) for r in contact._check_pieces()] == [[0, 1], [2, 3], [4, 5]]
+    assert [list(r) for r in contact.measures.check_pieces()] == [[0, 1], [2, 3], [4, 5]]
     pieces = contact.measure_worlds(batch.state, order=9, check=True)
-    assert contact._check_points is None  # nothing kept
+    assert contact.measures._check_points is None  # nothing kept
     monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", 2 * one_world)  # two worlds, then one
-    assert [list(r) for r in contact._check_pieces()] == [[0, 1, 2, 3], [4, 5]]
+    assert [list(r) for r in contact.measures.check_pieces()] == [[0, 1, 2, 3], [4, 5]]
     assert np.array_equal(contact.measure_worlds(batch.state, order=9, check=True), pieces)
     monkeypatch.setattr(measures, "CHECK_POINTS_AT_ONCE", 3 * one_world)
-    assert contact._check_pieces() is None
+    assert contact.measures.check_pieces() is None
     whole = contact.measure_worlds(batch.state, order=9, check=True)
     assert pieces[0, 3] == 0 and pieces[1, 3] > 0 and pieces[2, 3] > pieces[1, 3], pieces
     np.testing.assert_array_equal(pieces[:, [0, 1, 2, 3, 5]], whole[:, [0, 1, 2, 3, 5]])

@@ -2,15 +2,14 @@
 
 :class:`Contact` owns the preallocated contact buffers of one solver, declared in contact/data.py
 (:class:`~physhand_mj.contact.data.FrameLists`: the frame's, stages' and passes' lists;
-:class:`~physhand_mj.contact.data.PassBuffers`: what a pass computes and applies;
-:class:`~physhand_mj.contact.data.MetricsBuffers`: the measures' rows), and records its launches into
+:class:`~physhand_mj.contact.data.PassBuffers`: what a pass computes and applies), and records its launches into
 the solver's frame through a :class:`~physhand_mj.launch.Recorder` (so a CUDA graph captures them):
 the frame's lists, the stages and their passes (Eq. 9, then the feature push), and the frame's
 host-side reports. It holds, each owning its own data: where the object side's queries run
 (:class:`~physhand_mj.contact.query_space.QuerySpace`, ``space``), the feature lists' slack and its
 check (:class:`~physhand_mj.contact.slack.SlackCheck`, ``slack_check``), and Config.contact_linear's
-planes (:class:`~physhand_mj.contact.linear.PlaneHold`, ``hold``); the penetration measures are its
-:class:`~physhand_mj.contact.measures.ContactMeasures` (contact/measures.py).
+planes (:class:`~physhand_mj.contact.linear.PlaneHold`, ``hold``), and the penetration measures with
+their rows (:class:`~physhand_mj.contact.measures.ContactMeasures`, ``measures``).
 """
 
 from __future__ import annotations
@@ -111,7 +110,7 @@ def _same_device(a, b) -> bool:
         return False
 
 
-class Contact(ContactMeasures):
+class Contact:
     """Skin-object contact for a solver ``Model`` against ``objects`` (see Config.contact*)."""
 
     capturable = True
@@ -132,7 +131,6 @@ class Contact(ContactMeasures):
                              f"into {w} equal worlds")
         self.tris_per_world = max(n_tris // w, 1)
         self.geoms_per_world = max(objects.capacity // w, 1)
-        self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
         # where the object side's queries run: the skin meshes, and batched worlds solved at one
         # origin but queried apart (set_query_offsets)
         self.space = QuerySpace(model, objects, w, self.geoms_per_world)
@@ -151,10 +149,7 @@ class Contact(ContactMeasures):
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
-        self.rows = make_metrics_buffers(model, config, w)  # the measures' rows
         self._points = None  # ObjectPoints, built at the first recording (objects are final then)
-        self._check_points = None  # the denser check set (check_points), built on first use
-        self._reuse_memory = {}  # Config.execution.reuse_outside's per (points, skin volume) memory (measures.py)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         # (batched worlds: world 0's faces, which name world 0's skin vertices; every world is a copy,
         # and the tolerance below is then the serial hand's to the bit)
@@ -162,6 +157,10 @@ class Contact(ContactMeasures):
         e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1).astype(np.int64)
         key = e[:, 0] * (int(e.max(initial=0)) + 1) + e[:, 1]  # one integer per edge: a 1-D unique (fast for W worlds)
         self.closed_skin = bool(len(f)) and bool(np.all(np.unique(key, return_counts=True)[1] == 2))
+        # both penetration measures and their rows (measures.py)
+        self.measures = ContactMeasures(model, objects, config, make_metrics_buffers(model, config, w), self.space,
+                                        n_tris=n_tris, worlds=w, tris_per_world=self.tris_per_world,
+                                        geoms_per_world=self.geoms_per_world, closed_skin=self.closed_skin)
         self.feat = None  # the frame's list of object feature points near the skin (features.py)
         self.slack_check = None  # the lists' slack and its check (slack.py), made with the lists
         self.feat_count = wp.zeros(1, dtype=int, device=d)
@@ -564,7 +563,7 @@ class Contact(ContactMeasures):
 
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
-        ops += [self.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
+        ops += [self.measures.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
         if len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol)
             ops.append(self.lists.pass_move.zero_)
         if self.lists.world_stage is not None:
@@ -576,6 +575,74 @@ class Contact(ContactMeasures):
         if self._points is None:
             self._points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing)
         return self._points
+
+    # -- the penetration measures (measures.py: ContactMeasures) -----------------------------------
+
+    @property
+    def check_points(self) -> ObjectPoints:
+        """The denser object points the contact never uses (:attr:`ContactMeasures.check_points`)."""
+        return self.measures.check_points
+
+    @property
+    def cull_measure(self) -> bool:
+        """Whether the skin measure culls its triangles first (:attr:`ContactMeasures.cull_measure`)."""
+        return self.measures.cull_measure
+
+    @cull_measure.setter
+    def cull_measure(self, on: bool) -> None:
+        self.measures.cull_measure = on
+
+    def world_views(self) -> dict:
+        """The objects' per-geom arrays as (W, k) views (:meth:`ContactMeasures.world_views`)."""
+        return self.measures.world_views()
+
+    def record_metrics(self, rec, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
+                       order: int = 5, points: ObjectPoints | None = None, skin_side: bool = True,
+                       reuse: bool | None = None) -> None:
+        """Both measures of ``state`` recorded into row ``row`` (:meth:`ContactMeasures.record_metrics`;
+        ``points`` default :attr:`points`)."""
+        if self.n_tris:
+            self.measures.record_metrics(rec, state, row, self.points if points is None else points, obj=obj,
+                                         out=out, objects_side=objects_side, order=order, skin_side=skin_side,
+                                         reuse=reuse)
+
+    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+                check: bool = False) -> np.ndarray:
+        """Both measures of ``state`` now, a (6,) row (:meth:`ContactMeasures.measure`; ``check``: the
+        :attr:`check_points` instead of :attr:`points`)."""
+        return self.measures.measure(state, self._measured_points(check), obj, order, objects_side, check)
+
+    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+                       check: bool = False) -> np.ndarray:
+        """:meth:`measure` per world, (W, 6) rows (:meth:`ContactMeasures.measure_worlds`)."""
+        return self.measures.measure_worlds(state, self._measured_points(check), obj, order, objects_side, check)
+
+    def _measured_points(self, check: bool) -> ObjectPoints | None:
+        """The points a measure at once asks: :attr:`points` (built on first use) unless no skin or ``check``."""
+        return self.points if self.n_tris and not check else None
+
+    def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`points` inside the skin of ``state`` now (:meth:`ContactMeasures.object_points_inside`)."""
+        return self.measures.object_points_inside(state, self.points)
+
+    def penetrating_samples(self, state, order: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """The skin samples inside objects now (:meth:`ContactMeasures.penetrating_samples`)."""
+        return self.measures.penetrating_samples(state, order)
+
+    def read_metrics(self, synchronize: bool = True) -> np.ndarray:
+        """The last frame's rows, (substeps + 1, 6) (:meth:`ContactMeasures.read_metrics`); ``synchronize``:
+        copy them (and the frame's other reports, :meth:`copy_metrics`) and wait first."""
+        if synchronize:
+            self.copy_metrics()
+            wp.synchronize_device(self.measures.rows.metrics.device)
+        return self.measures.read_metrics()
+
+    def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
+        """:meth:`read_metrics` per world, (W, substeps + 1, 6) (:meth:`ContactMeasures.read_metrics_worlds`)."""
+        if synchronize:
+            self.copy_metrics()
+            wp.synchronize_device(self.measures.rows.metrics.device)
+        return self.measures.read_metrics_worlds()
 
     # -- the object's side of a pass: one feature push (contact/features.py) -----------------------
 
@@ -648,7 +715,7 @@ class Contact(ContactMeasures):
     def copy_metrics(self) -> None:
         """Start the device-to-host copy of the metrics and list lengths (the caller synchronises
         once per frame)."""
-        wp.copy(self.rows.metrics_host, self.rows.metrics)
+        self.measures.copy_rows()
         wp.copy(self.lists.counters_host, self.lists.counters)
         if len(self.lists.pass_move) and self.lists.pass_move_host is not self.lists.pass_move:  # (CUDA: the ops report's)
             wp.copy(self.lists.pass_move_host, self.lists.pass_move)

@@ -1,7 +1,8 @@
-"""The contact's two penetration measures (DESIGN.md, Metrics), a mixin of
-:class:`~physhand_mj.contact.contact.Contact`: skin samples on an order-L lattice inside objects, and
-object surface points inside the closed skin (the contact's own feature points, or the denser
-:attr:`~ContactMeasures.check_points` it never uses), recorded into a frame or run at once.
+"""The contact's two penetration measures (DESIGN.md, Metrics), a :class:`ContactMeasures` that
+:class:`~physhand_mj.contact.contact.Contact` holds (``Contact.measures``): skin samples on an
+order-L lattice inside objects, and object surface points inside the closed skin (the contact's own
+feature points, or the denser :attr:`~ContactMeasures.check_points` it never uses), recorded into a
+frame or run at once.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.data import MetricsBuffers
 from physhand_mj.contact.inside import (ObjectPoints, keep_points, keep_poses, object_points_inside,
                                         object_points_inside_reuse, reset_patches, skin_patches)
 from physhand_mj.contact import metrics
@@ -17,7 +19,7 @@ from physhand_mj.contact.metrics import lattice_phi, penetration_cull, penetrati
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
-# the independent check's object points (Contact.check_points): each edge piece that holds a feature
+# the independent check's object points (ContactMeasures.check_points): each edge piece that holds a feature
 # point (Config.tuning.feature_spacing long) cut in CHECK_EDGE_SUBDIVIDE (a count; even, so no check point is
 # a feature point; surface rings of revolution shifted half a step off the cone's slant line), the
 # surface every CHECK_SURFACE_SPACING m (half the measure's 1 mm)
@@ -30,28 +32,47 @@ CHECK_POINTS_AT_ONCE = 50_000_000
 
 
 class ContactMeasures:
-    """Both measures of a :class:`~physhand_mj.contact.contact.Contact` (which owns the buffers:
-    ``metrics``, ``points``, ``volume``, the objects and the world layout)."""
+    """Both measures of a contact's skin against its objects. Owns the measures' rows
+    (:class:`~physhand_mj.contact.data.MetricsBuffers`, ``rows``), the check points, the skin
+    measure's culled list and Config.execution.reuse_outside's memory; reads the model, the objects,
+    the config, the world layout and the contact's :class:`~physhand_mj.contact.query_space.QuerySpace`
+    (``space``: the skin volume and the queries' poses). The object side's default points are the
+    contact's own (``Contact.points``), passed in by the caller."""
+
+    def __init__(self, model, objects, config, rows: MetricsBuffers, space, *, n_tris: int, worlds: int,
+                 tris_per_world: int, geoms_per_world: int, closed_skin: bool):
+        self.model, self.objects, self.config, self.rows, self.space = model, objects, config, rows, space
+        self.n_tris, self.worlds = n_tris, worlds
+        self.tris_per_world, self.geoms_per_world = tris_per_world, geoms_per_world
+        self.closed_skin = closed_skin
+        self._views = None  # the objects' arrays as (W, k) views (world_views)
+        self._check_points = None  # the denser check set (check_points), built on first use
+        self._check_shapes = {}  # the check points' sampled shapes, shared by every piece (ObjectPoints.shapes)
+        self.reuse_memory = {}  # Config.execution.reuse_outside's per (points, skin volume) memory (_Reuse)
+        self._lists = {}  # the skin measure's kept triangles and count, culled or not (_penetration_list)
+        # the skin measure culls its triangles into a list first for batched worlds (cull_measure)
+        self._cull_measure = worlds > 1
 
     @property
     def check_points(self) -> ObjectPoints:
         """A denser set of object surface points that the contact never uses: edges every
         Config.tuning.feature_spacing / CHECK_EDGE_SUBDIVIDE (each piece that holds a feature point at its
         midpoint cut in 4: none of their points), the surface every CHECK_SURFACE_SPACING. The
-        independent check of the second measure (the feature push works on :attr:`points`' corners and edges, so a
-        measure on those same points would share the method's own samples)."""
+        independent check of the second measure (the feature push works on Contact.points' corners and edges, so
+        a measure on those same points would share the method's own samples)."""
         if self._check_points is None:
-            self._check_points = self._check_piece(None)
+            self._check_points = self.check_piece(None)
         return self._check_points
 
-    def record_metrics(self, rec, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
-                       order: int = 5, points: ObjectPoints | None = None, skin_side: bool = True,
+    def record_metrics(self, rec, state, row: int, points: ObjectPoints | None, obj: int = -1, out=None,
+                       objects_side: bool = True, order: int = 5, skin_side: bool = True,
                        reuse: bool | None = None):
         """Both penetration measures of ``state`` into row ``row`` of ``out`` (default the frame's
-        metrics): skin samples on the order-``order`` lattice inside objects (columns 0-2; unless not
-        ``skin_side``) and, with ``objects_side``, object surface points inside the closed skin (columns
-        3-5; ``points``, default :attr:`points`; ``reuse``: ask only what could have changed since the
-        last measure of the same points, default Config.execution.reuse_outside). ``obj`` >= 0: that object only."""
+        metrics, ``rows.metrics``): skin samples on the order-``order`` lattice inside objects (columns
+        0-2; unless not ``skin_side``) and, with ``objects_side``, object surface points inside the
+        closed skin (columns 3-5; ``points``: the contact's own, Contact.points, or the check points;
+        ``reuse``: ask only what could have changed since the last measure of the same points, default
+        Config.execution.reuse_outside). ``obj`` >= 0: that object only. No skin triangles: nothing."""
         m, o = self.model, self.objects
         out = self.rows.metrics if out is None else out
         if not self.n_tris:
@@ -60,7 +81,7 @@ class ContactMeasures:
         v = self.world_views()
         if skin_side:
             self._record_skin_side(rec, state, row, obj, out, order, per, v)
-        pts = self.points if points is None else points
+        pts = points
         if objects_side and self.closed_skin and len(pts):
             vol = self.space.volume(state)
             rec.ops += vol.ops()
@@ -99,7 +120,7 @@ class ContactMeasures:
         """Whether the skin measure culls its triangles into a list first (:func:`penetration_cull`):
         for batched worlds, where ~5 % of the triangles are near an object (H100, the bowl at W =
         1,024: 76.6 -> 13.3 ms a frame). One hand keeps the one-kernel layout, as measured there."""
-        return getattr(self, "_cull_measure", self.worlds > 1)
+        return self._cull_measure
 
     @cull_measure.setter
     def cull_measure(self, on: bool) -> None:
@@ -108,21 +129,20 @@ class ContactMeasures:
     def _penetration_list(self, culled: bool):
         """The skin measure's kept triangles and their count (made on first use, shared by every
         measure: they run one after another); not culled: empty arrays (every triangle asks)."""
-        key = "_pen_list" if culled else "_no_list"
-        if key not in self.__dict__:
+        if culled not in self._lists:
             d, n = self.model.device, self.n_tris if culled else 0
-            self.__dict__[key] = (wp.zeros(n, dtype=int, device=d), wp.zeros(int(culled), dtype=int, device=d))
-        return self.__dict__[key]
+            self._lists[culled] = (wp.zeros(n, dtype=int, device=d), wp.zeros(int(culled), dtype=int, device=d))
+        return self._lists[culled]
 
     def _reuse(self, pts: ObjectPoints, vol, pose) -> "_Reuse":
         """The object-side measure's memory for ``pts`` against the skin volume ``vol`` (made on first
         use: every point is asked the first time)."""
         key = (id(pts), id(vol))
-        if key not in self._reuse_memory:
+        if key not in self.reuse_memory:
             bodies = max(int(self.model.n_bodies) // self.worlds, 1)
-            self._reuse_memory[key] = _Reuse(len(pts), vol.points.shape[0], pose.shape[0], self.worlds * bodies,
-                                             self.model.device)
-        return self._reuse_memory[key]
+            self.reuse_memory[key] = _Reuse(len(pts), vol.points.shape[0], pose.shape[0], self.worlds * bodies,
+                                            self.model.device)
+        return self.reuse_memory[key]
 
     def world_views(self) -> dict:
         """The objects' per-geom arrays as (W, k) views: world w's geoms in row w (one world:
@@ -134,43 +154,43 @@ class ContactMeasures:
                            for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
         return self._views
 
-    def measure(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
+    def measure(self, state, points: ObjectPoints | None, obj: int = -1, order: int = 5, objects_side: bool = True,
                 check: bool = False) -> np.ndarray:
         """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
         sum depth m, max depth m] of skin samples inside objects, then of object points inside the
-        skin (``check``: the denser :attr:`check_points` instead of the contact's own points). Runs
+        skin (``points``: the contact's own; ``check``: the denser :attr:`check_points` instead). Runs
         at once, outside any frame (reports, pictures, checks)."""
-        return reduce_worlds(self.measure_worlds(state, obj, order, objects_side, check))
+        return reduce_worlds(self.measure_worlds(state, points, obj, order, objects_side, check))
 
-    def measure_worlds(self, state, obj: int = -1, order: int = 5, objects_side: bool = True,
-                       check: bool = False) -> np.ndarray:
+    def measure_worlds(self, state, points: ObjectPoints | None, obj: int = -1, order: int = 5,
+                       objects_side: bool = True, check: bool = False) -> np.ndarray:
         """:meth:`measure` per world: (W, 6) float rows, world w's skin against world w's objects
         (batched worlds, physhand_mj/batch.py; one world: (1, 6))."""
         out = wp.zeros((self.worlds, 6), dtype=float, device=self.model.device)
         rec = Recorder(self.model.device)
         check = check and objects_side
-        pieces = self._check_pieces() if check else None
+        pieces = self.check_pieces() if check else None
         if pieces is None:
-            self.record_metrics(rec, state, 0, obj=obj, out=out, objects_side=objects_side, order=order,
-                                points=self.check_points if check else None)
+            self.record_metrics(rec, state, 0, self.check_points if check else points, obj=obj, out=out,
+                                objects_side=objects_side, order=order)
         else:  # the check points a few worlds at a time, each piece made, asked and dropped (not kept)
-            self.record_metrics(rec, state, 0, obj=obj, out=out, objects_side=False, order=order)
+            self.record_metrics(rec, state, 0, points, obj=obj, out=out, objects_side=False, order=order)
         rec.run()
         for geoms in pieces or ():
-            pts = self._check_piece(geoms)
-            self.record_metrics(rec, state, 0, obj=obj, out=out, points=pts, skin_side=False, reuse=False)
+            pts = self.check_piece(geoms)
+            self.record_metrics(rec, state, 0, pts, obj=obj, out=out, skin_side=False, reuse=False)
             rec.run()  # (ops dropped as run: a launch kept would hold this piece's arrays while the next is made)
             del pts
         return out.numpy().astype(float)
 
-    def _check_pieces(self) -> list | None:
+    def check_pieces(self) -> list | None:
         """None when :attr:`check_points` fit at once (at most CHECK_POINTS_AT_ONCE points), else the
         geom ranges of the pieces they are measured in (whole worlds each). A batch's check points are
         W copies of each object's: the HOI bowl has 212,271, so W = 4,096 would hold 870 million."""
         if self._check_points is not None:
             return None
         gpw, n = self.geoms_per_world, len(self.objects.names)
-        shapes = self.__dict__.setdefault("_check_shapes", {})
+        shapes = self._check_shapes
         keys = ObjectPoints.shapes(self.objects, range(n), shapes, *self._check_spacing())
         per_geom = [len(shapes[k][0]) for k in keys]
         per_world = [sum(per_geom[w * gpw:(w + 1) * gpw]) for w in range(self.worlds)]
@@ -185,23 +205,30 @@ class ContactMeasures:
         pieces.append(range(start * gpw, n))
         return [p for p in pieces if len(p)]
 
+    def forget(self) -> None:
+        """Drop the check points and the reuse memory (their device memory; made again on use, when
+        every point is asked again once)."""
+        self._check_points = None
+        self.reuse_memory.clear()
+
     def _check_spacing(self) -> tuple:
         """The check points' (edge spacing m, surface spacing m, edge subdivision) for ObjectPoints."""
         return self.config.feature_spacing, CHECK_SURFACE_SPACING, CHECK_EDGE_SUBDIVIDE
 
-    def _check_piece(self, geoms) -> ObjectPoints:
+    def check_piece(self, geoms) -> ObjectPoints:
         """:attr:`check_points` of ``geoms`` alone (None: all; the shapes sampled once, shared)."""
         e, s, k = self._check_spacing()
         return ObjectPoints(self.objects, edge_spacing=e, surface_spacing=s, edge_subdivide=k, geoms=geoms,
-                            shapes=self.__dict__.setdefault("_check_shapes", {}))
+                            shapes=self._check_shapes)
 
-    def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
-        """The objects' surface points inside the skin of ``state`` now: world points (k, 3) m and
-        their depths (k,) m (distance to the closest skin point), for pictures and checks."""
-        pts = self.points
+    def object_points_inside(self, state, points: ObjectPoints) -> tuple[np.ndarray, np.ndarray]:
+        """The object surface points ``points`` (the contact's own) inside the skin of ``state`` now:
+        world points (k, 3) m and their depths (k,) m (distance to the closest skin point), for
+        pictures and checks."""
+        pts = points
         if not len(pts):
             return np.zeros((0, 3)), np.zeros(0)
-        self.measure(state)  # fills pts.depth
+        self.measure(state, pts)  # fills pts.depth
         depth = pts.depth.numpy()[: len(pts)].astype(float)
         hit = np.flatnonzero(depth > 0)
         pose = self.objects._host["pose"][pts.geom_host[hit]].astype(float)  # [p, q x y z w]
@@ -228,21 +255,19 @@ class ContactMeasures:
         inside = s < 0
         return p[inside].astype(float), -s[inside].astype(float)
 
-    def read_metrics(self, synchronize: bool = True) -> np.ndarray:
-        """(substeps + 1, 6): per row [count, sum depth m, max depth m] of skin samples inside objects,
-        then of object points inside the skin; the last row is the frame's end. Rows of substeps are
-        zero unless Config.substep_metrics (and their object columns are always zero: the second
-        measure runs at the frame's end)."""
-        if synchronize:
-            self.copy_metrics()
-            wp.synchronize_device(self.rows.metrics.device)
-        return reduce_worlds(self.read_metrics_worlds(synchronize=False)).copy()
+    def copy_rows(self) -> None:
+        """Start the rows' device-to-host copy (Contact.copy_metrics; the caller synchronises)."""
+        wp.copy(self.rows.metrics_host, self.rows.metrics)
 
-    def read_metrics_worlds(self, synchronize: bool = True) -> np.ndarray:
+    def read_metrics(self) -> np.ndarray:
+        """(substeps + 1, 6): per row [count, sum depth m, max depth m] of skin samples inside objects,
+        then of object points inside the skin; the last row is the frame's end (the host copy as
+        the last frame's sync left it). Rows of substeps are zero unless Config.substep_metrics (and
+        their object columns are always zero: the second measure runs at the frame's end)."""
+        return reduce_worlds(self.read_metrics_worlds()).copy()
+
+    def read_metrics_worlds(self) -> np.ndarray:
         """:meth:`read_metrics` per world: (W, substeps + 1, 6) (batched worlds; one world: (1, ...))."""
-        if synchronize:
-            self.copy_metrics()
-            wp.synchronize_device(self.rows.metrics.device)
         return self.rows.metrics_host.numpy().reshape(self.worlds, -1, 6).copy()
 
 
