@@ -289,7 +289,7 @@ def test_batched_worlds_share_one_mesh_and_match_serial_runs(setup, monkeypatch,
                                  dict(gtype=GeomType.MESH, size=None, vertices=ball.vertices, faces=ball.faces,
                                       mesh_range=0.05), serial_worlds=2)
     assert out["penetration_count"] == 0 and out["triangles_tested"] > 0
-    assert int(batch.solver.contact.feat_count.numpy()[0]) > 0  # the mesh's corners and edges were listed
+    assert int(batch.solver.contact.features.count.numpy()[0]) > 0  # the mesh's corners and edges were listed
     dense = summarize(batch.solver.contact.measure(batch.state, order=9, check=True))
     assert dense["penetration_count"] == 0 and dense["object_in_skin_count"] == 0, dense
     rest = serial[0][1].x.numpy()

@@ -341,20 +341,20 @@ def test_tiled_feature_query_matches_the_bvh_query():
     x0 = state.x.numpy().copy()
     c.run_stage(state)  # the frame's triangle and feature lists for this pose
     state.x.assign(x0)
-    k = int(c.feat_count.numpy()[0])
+    k = int(c.features.count.numpy()[0])
     assert k > 100 and int(c.cand_count.numpy()[0]) > 100
     out = {}
     cfg = c.config
     for tiled in (False, True):
         o = wp.zeros((k, 3), dtype=float, device="cpu")
         if tiled:
-            wp.launch(_feature_query_tiled, (k, 1), [c.lists.cand, c.cand_count, c.feat, c.points.pts, c.points.geom,
+            wp.launch(_feature_query_tiled, (k, 1), [c.lists.cand, c.cand_count, c.features.listed, c.points.pts, c.points.geom,
                                                      objs.pose, cfg.contact_frame_margin, c.feature_eps,
                                                      c.model.skin_faces, state.x, o], device="cpu", block_dim=1)
         else:
             skin = c.volume(state, winding=False).mesh
             skin.refit()
-            wp.launch(_feature_query_bvh, k, [skin.id, c.feat, c.points.pts, c.points.geom, objs.pose, c.near_query,
+            wp.launch(_feature_query_bvh, k, [skin.id, c.features.listed, c.points.pts, c.points.geom, objs.pose, c.near_query,
                                               cfg.contact_frame_margin, c.model.skin_faces, state.x, o], device="cpu")
         out[tiled] = o.numpy().astype(float)
     a, b = out[False], out[True]
@@ -364,7 +364,7 @@ def test_tiled_feature_query_matches_the_bvh_query():
     assert (a[:, 2] < 0).sum() > 20, (a[:, 2] < 0).sum()  # features inside the skin
     same = np.flatnonzero(a[:, 0] == b[:, 0])
     assert len(same) > 0.7 * k, (len(same), k)
-    feats = c.feat.numpy()[same]
+    feats = c.features.listed.numpy()[same]
     (d0, h0), (d1, h1) = (_feature_pass(c, state, feats, t) for t in (False, True))
     assert np.array_equal(h0 > 0, h1 > 0) and (h0 > 0).sum() > 10
     assert np.allclose(h0, h1, rtol=1e-5) and np.abs(d0 - d1).max() < 1e-9, np.abs(d0 - d1).max()
@@ -433,20 +433,20 @@ def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
     x0 = state.x.numpy().copy()
     c.run_stage(state)  # the frame's triangle and feature lists for this state
     state.x.assign(x0)
-    k = int(c.feat_count.numpy()[0])
+    k = int(c.features.count.numpy()[0])
     if k:
         res = {}
         for tiled in (False, True):
             o = wp.zeros((k, 3), dtype=float, device="cuda")
             if tiled:
                 wp.launch(_feature_query_tiled, (k, FEATURE_LANES),
-                          [c.lists.cand, c.cand_count, c.feat, c.points.pts, c.points.geom, objs.pose,
+                          [c.lists.cand, c.cand_count, c.features.listed, c.points.pts, c.points.geom, objs.pose,
                            cfg.contact_frame_margin, c.feature_eps, c.model.skin_faces, state.x, o], device="cuda",
                           block_dim=FEATURE_LANES)
             else:
                 skin = c.volume(state, winding=False).mesh
                 skin.refit()
-                wp.launch(_feature_query_bvh, k, [skin.id, c.feat, c.points.pts, c.points.geom, objs.pose,
+                wp.launch(_feature_query_bvh, k, [skin.id, c.features.listed, c.points.pts, c.points.geom, objs.pose,
                                                   c.near_query, cfg.contact_frame_margin, c.model.skin_faces, state.x,
                                                   o], device="cuda")
             res[tiled] = o.numpy().astype(float)

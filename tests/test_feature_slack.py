@@ -127,17 +127,17 @@ def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
 
     monkeypatch.setattr(contact_mod, "PATCH_SLOT", 30)  # (the knife's patches: 19 to ~70)
     c = _check_lists(asset, 4.0e-3, "cpu")
-    n = int(c.feat_count.numpy()[0])
-    cap = min(30, c.patch_pool.shape[0] // (2 * n))  # (the list's slots fill at most half the pool)
+    n = int(c.features.count.numpy()[0])
+    cap = min(30, c.features.patch_pool.shape[0] // (2 * n))  # (the list's slots fill at most half the pool)
     assert cap == 30
-    length, start = c.patch_len.numpy()[:n], c.patch_start.numpy()[:n]
+    length, start = c.features.patch_len.numpy()[:n], c.features.patch_start.numpy()[:n]
     top = length > cap
     assert top.any() and (~top).any()
     np.testing.assert_array_equal(start[~top], cap * np.arange(n)[~top])  # (their own slots)
-    assert np.all(start[top] >= cap * n) and np.all(start[top] + length[top] <= c.patch_pool.shape[0])
+    assert np.all(start[top] >= cap * n) and np.all(start[top] + length[top] <= c.features.patch_pool.shape[0])
     span = sorted(zip(start[top], start[top] + length[top]))
     assert all(a[1] <= b[0] for a, b in zip(span, span[1:]))  # (the top's patches do not overlap)
-    used = c.patch_used.numpy()
+    used = c.features.patch_used.numpy()
     assert used[0] == length.sum() and used[1] == length[top].sum() and used[2] == 0
 
 
@@ -155,9 +155,9 @@ def _check_lists(asset, slack, device):
         assert used == pytest.approx(cfg.contact_frame_margin)
     else:
         assert used < cfg.contact_frame_margin  # (the press moved the skin < 4 mm a frame: the slack came down)
-    n = int(c.feat_count.numpy()[0])
+    n = int(c.features.count.numpy()[0])
     assert n > 10
-    feat = c.feat.numpy()[:n]
+    feat = c.features.listed.numpy()[:n]
     is_feature = np.zeros(c.points.pts.shape[0], bool)
     is_feature[c.points.feature.numpy()] = True
     # the frame's start: the skin the lists were made on
@@ -182,18 +182,18 @@ def _check_lists(asset, slack, device):
     radius = np.full(c.points.pts.shape[0], -1.0)
     radius[feat] = np.minimum(cfg.contact_frame_margin, c.slack_check.data.feat_dist.numpy()[:n] + used)
     _, count = _brute_force(c, x0, radius)
-    length = c.patch_len.numpy()[:n]
+    length = c.features.patch_len.numpy()[:n]
     assert np.all(length >= 0)
     np.testing.assert_array_equal(length, count[feat])
     if device != "cpu":  # (CUDA's patch fills in no fixed order; the same triangles)
-        pool, start = c.patch_pool.numpy(), c.patch_start.numpy()[:n]
+        pool, start = c.features.patch_pool.numpy(), c.features.patch_start.numpy()[:n]
         assert all(len(set(pool[a: a + ln])) == ln for a, ln in zip(start, length))
     # the frame's end
     x1 = state.x
     d1, _ = _brute_force(c, x1, np.zeros(c.points.pts.shape[0]))
     pc = wp.zeros(n, dtype=float, device="cpu")
-    wp.launch(_patch_closest, n, [_cpu(a) for a in (c.feat, c.points.pts, c.points.geom, c.space.pose, c.model.skin_faces, x1,
-                                                    c.patch_pool, c.patch_start, c.patch_len)], [pc], device="cpu")
+    wp.launch(_patch_closest, n, [_cpu(a) for a in (c.features.listed, c.points.pts, c.points.geom, c.space.pose, c.model.skin_faces, x1,
+                                                    c.features.patch_pool, c.features.patch_start, c.features.patch_len)], [pc], device="cpu")
     np.testing.assert_allclose(pc.numpy(), d1[feat], atol=1e-7)
     unlisted = is_feature.copy()
     unlisted[feat] = False
@@ -445,7 +445,7 @@ def test_band_points_in_batched_worlds(asset):
     is_feature = np.zeros(len(d0), bool)
     is_feature[c.points.feature.numpy()] = True
     listed = np.zeros(len(d0), bool)
-    listed[c.feat.numpy()[: int(c.feat_count.numpy()[0])]] = True
+    listed[c.features.listed.numpy()[: int(c.features.count.numpy()[0])]] = True
     lim = cfg.contact_margin + FEATURE_LIST_SHARE * used[world]
     ask = cfg.contact_margin + used[world]
     edge = (np.abs(d0 - lim) < 1e-7) | (np.abs(d0 - ask) < 1e-7)  # (float rounding at the cuts)

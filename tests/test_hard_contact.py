@@ -408,4 +408,4 @@ def test_open_skin_has_no_object_side():
     state = solver.make_state()
     assert not solver.contact.closed_skin
     solver.step(state)
-    assert solver.contact.measure(state)[3] == 0 and solver.contact.feat is None
+    assert solver.contact.measure(state)[3] == 0 and solver.contact.features is None

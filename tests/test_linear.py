@@ -270,13 +270,13 @@ def test_the_feature_points_are_held_too(scene):  # noqa: F811
     def hold(features: bool):
         state.x.assign(x0)
         c.counters.zero_()  # (the frame's lists are read; the hold's touched counts start from zero)
-        slot, feat = c._slot, c.feat
+        slot, lists = c._slot, c.features
         if not features:
-            c.feat = None  # (no feature list: the hold keeps no feature points)
+            c.features = None  # (no feature list: the hold keeps no feature points)
         rec = Recorder("cpu")
         c.record_hold(rec, state)
         rec.run()
-        c.feat, c._slot = feat, slot
+        c.features, c._slot = lists, slot
         assert np.isfinite(state.x.numpy()).all()
         return measured()
 

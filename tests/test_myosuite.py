@@ -152,10 +152,10 @@ def test_a_reorient_episode_warns_nothing_and_patches_every_listed_point():
         need = 0
         for _ in range(STEPS):
             env.step(env.action_space.sample())
-            used = c._patch_used_host.numpy()
-            n = int(c.feat_count.numpy()[0])
-            assert n > 500 and used[2] == 0 and 2 * used[0] <= c.patch_pool.shape[0], (n, used)
-            assert np.all(c.patch_len.numpy()[:n] >= 0)
+            used = c.features.patch_used_host.numpy()
+            n = int(c.features.count.numpy()[0])
+            assert n > 500 and used[2] == 0 and 2 * used[0] <= c.features.patch_pool.shape[0], (n, used)
+            assert np.all(c.features.patch_len.numpy()[:n] >= 0)
             need = max(need, int(used[0]))
     assert c.reallocations == 0
     assert 2 * need > c.points.n_features * contact_mod.PATCH_POOL_PER_FEATURE, need

@@ -30,7 +30,7 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     x0 = state.x.numpy().copy()
     c.run_stage(state)  # the frame's triangle and feature lists (and the features' patches) for this pose
     state.x.assign(x0)
-    k = int(c.feat_count.numpy()[0])
+    k = int(c.features.count.numpy()[0])
     assert k > 100
     nv = m.n_vertices
 
@@ -51,7 +51,7 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
                                 x0=state.x, winding=wind, out=out, out_count=out_count, push=push)
 
     dim, kw = ((c.points.n_features, 1), dict(block_dim=1)) if kind == "tiled" else (c.points.n_features, {})
-    wp.launch(F.feature_kernel(kind, True), dim, inputs(c.feat, c.feat_count, fused, stage, stage_count), device=d,
+    wp.launch(F.feature_kernel(kind, True), dim, inputs(c.features.listed, c.features.count, fused, stage, stage_count), device=d,
               **kw)
     wp.launch(F.feature_kernel(kind, False), dim, inputs(stage, stage_count, alone), device=d, **kw)
     assert np.array_equal(state.x.numpy(), x0)  # neither moves the skin

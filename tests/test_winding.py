@@ -114,23 +114,23 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         hand.step()
         if frame < 6:
             continue
-        n = int(c.feat_count.numpy()[0])
+        n = int(c.features.count.numpy()[0])
         assert n > 20
         skin = c.volume(state, winding=False).mesh
         skin.refit()
         out = wp.zeros((n, 3), dtype=float, device=device)
-        wp.launch(_feature_sides, n, [skin.id, c.feat, pts.pts, pts.geom, c.objects.pose, c.config.contact_frame_margin,
-                                      c.model.skin_faces, state.x, c.feat_slot, c.patch_pool, c.patch_start,
-                                      c.patch_len, c.far_angle], [out], device=device)
+        wp.launch(_feature_sides, n, [skin.id, c.features.listed, pts.pts, pts.geom, c.objects.pose, c.config.contact_frame_margin,
+                                      c.model.skin_faces, state.x, c.features.slot, c.features.patch_pool, c.features.patch_start,
+                                      c.features.patch_len, c.features.far_angle], [out], device=device)
         o = out.numpy().astype(float)
         tiled = wp.zeros(n, dtype=float, device=device)
-        wp.launch(_feature_sides_tiled, (n, lanes), [c.lists.cand, c.cand_count, c.feat, pts.pts, pts.geom, c.objects.pose,
+        wp.launch(_feature_sides_tiled, (n, lanes), [c.lists.cand, c.cand_count, c.features.listed, pts.pts, pts.geom, c.objects.pose,
                                                      c.config.contact_frame_margin, c.feature_eps, c.model.skin_faces,
-                                                     state.x, c.feat_slot, c.patch_pool, c.patch_start, c.patch_len,
-                                                     c.far_angle], [tiled], device=device, block_dim=lanes)
-        assert np.all(c.patch_len.numpy()[:n] > 0)  # every patch fit the pool
+                                                     state.x, c.features.slot, c.features.patch_pool, c.features.patch_start, c.features.patch_len,
+                                                     c.features.far_angle], [tiled], device=device, block_dim=lanes)
+        assert np.all(c.features.patch_len.numpy()[:n] > 0)  # every patch fit the pool
         # the full winding number, every skin triangle, in float64
-        world, _ = _object_points_world(c, c.feat.numpy()[:n])
+        world, _ = _object_points_world(c, c.features.listed.numpy()[:n])
         x = state.x.numpy().astype(float)[faces]
         full = np.array([_solid_angle_sum(x - p) for p in world]) / FOUR_PI
         assert np.all(np.abs(full - np.round(full)) < 1e-3)  # off the surface: an integer
@@ -150,25 +150,25 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
     if device == "cpu":  # CUDA's patches (feature_patches_tiled, a block over every skin triangle) against the BVH's
         from physhand_mj.contact.patches_tiled import feature_patches_tiled
 
-        n = int(c.feat_count.numpy()[0])
+        n = int(c.features.count.numpy()[0])
         x_start = state.x.numpy().copy()
         c.run_stage(state)  # the frame's lists and patches for this skin (BVH + winding number)
         state.x.assign(x_start)
-        n = int(c.feat_count.numpy()[0])
-        used, pool = wp.zeros(1, dtype=int, device="cpu"), wp.zeros_like(c.patch_pool)
-        slot, start, length = (wp.zeros_like(a) for a in (c.feat_slot, c.patch_start, c.patch_len))
-        fill, far = wp.zeros_like(c.patch_len), wp.zeros_like(c.far_angle)
-        wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.feat, c.feat_count, n, pts.pts, pts.geom,
+        n = int(c.features.count.numpy()[0])
+        used, pool = wp.zeros(1, dtype=int, device="cpu"), wp.zeros_like(c.features.patch_pool)
+        slot, start, length = (wp.zeros_like(a) for a in (c.features.slot, c.features.patch_start, c.features.patch_len))
+        fill, far = wp.zeros_like(c.features.patch_len), wp.zeros_like(c.features.far_angle)
+        wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.features.listed, c.features.count, n, pts.pts, pts.geom,
                                                   c.objects.pose, c.config.contact_frame_margin, c.slack_check.data.feat_dist, c.slack_check.data.slack,
                                                   c.tris_per_world, c.geoms_per_world],
                   [used, pool, slot, start, length, fill, far], device="cpu", block_dim=1)
-        assert np.array_equal(length.numpy()[:n], c.patch_len.numpy()[:n])
-        p0, p1, s0, s1 = c.patch_pool.numpy(), pool.numpy(), c.patch_start.numpy(), start.numpy()
+        assert np.array_equal(length.numpy()[:n], c.features.patch_len.numpy()[:n])
+        p0, p1, s0, s1 = c.features.patch_pool.numpy(), pool.numpy(), c.features.patch_start.numpy(), start.numpy()
         for k in range(n):
-            ln = c.patch_len.numpy()[k]
+            ln = c.features.patch_len.numpy()[k]
             assert np.array_equal(np.sort(p0[s0[k]: s0[k] + ln]), np.sort(p1[s1[k]: s1[k] + ln]))
         # the far part's own solid angle against 4 pi w_0 minus the patch's (w_0 an integer)
-        np.testing.assert_allclose(far.numpy()[:n], c.far_angle.numpy()[:n], atol=2e-3)
+        np.testing.assert_allclose(far.numpy()[:n], c.features.far_angle.numpy()[:n], atol=2e-3)
 
 
 def _solid_angle_sum(tri):
@@ -270,12 +270,12 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
             c.features_listed()
     msg = [str(w.message) for w in rec if "patches" in str(w.message)]
     assert len(msg) == 1 and "BatchedHands" in msg[0] and ".py" not in msg[0] and "PATCH" not in msg[0], msg
-    assert c.patch_pool.shape[0] == 512
-    n = int(c.feat_count.numpy()[0])
-    lens = c.patch_len.numpy()[:n]
+    assert c.features.patch_pool.shape[0] == 512
+    n = int(c.features.count.numpy()[0])
+    lens = c.features.patch_len.numpy()[:n]
     assert n > 0 and np.any(lens == -1) and np.any(lens > 0)
     assert lens[lens > 0].sum() <= 512
-    assert c.patch_used.numpy()[2] == np.count_nonzero(lens < 0)  # (the failures are counted, and warned of)
+    assert c.features.patch_used.numpy()[2] == np.count_nonzero(lens < 0)  # (the failures are counted, and warned of)
     assert np.all(np.isfinite(hand.state.x.numpy()))
 
 
@@ -297,21 +297,21 @@ def test_a_patch_pool_too_small_for_the_scene_grows(monkeypatch):
         warnings.simplefilter("error", RuntimeWarning)
         hand = ph.SoftHand(model, data, ph.Config(device="cpu"), settle_frames=1)
         c = hand.solver.contact
-        first = c.patch_pool.shape[0]
+        first = c.features.patch_pool.shape[0]
         assert first == 8 * c.points.n_features and c.reallocations == 0
         grew = []
         for frame in range(6):
             mujoco.mj_step(model, data)
             hand.step()
-            used = c._patch_used_host.numpy()
-            n = int(c.feat_count.numpy()[0])
-            assert n > 100 and 2 * used[0] <= c.patch_pool.shape[0], (frame, n, used)
+            used = c.features.patch_used_host.numpy()
+            n = int(c.features.count.numpy()[0])
+            assert n > 100 and 2 * used[0] <= c.features.patch_pool.shape[0], (frame, n, used)
             if c.reallocations > len(grew):
                 grew.append(frame)
             elif grew:  # (a frame after the pool grew: recorded again, every patch in it)
                 assert hand.solver._recorded_geoms[1] == c.reallocations
-                assert used[2] == 0 and np.all(c.patch_len.numpy()[:n] >= 0), (frame, used)
-    assert grew == [0] and c.patch_pool.shape[0] >= 4 * first, (grew, c.patch_pool.shape[0], first)
+                assert used[2] == 0 and np.all(c.features.patch_len.numpy()[:n] >= 0), (frame, used)
+    assert grew == [0] and c.features.patch_pool.shape[0] >= 4 * first, (grew, c.features.patch_pool.shape[0], first)
 
 
 def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
@@ -338,14 +338,14 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     for _ in range(3):
         hand.step()
         c.features_listed()
-        n = int(c.feat_count.numpy()[0])
-        length = c.patch_len.numpy()[:n]
+        n = int(c.features.count.numpy()[0])
+        length = c.features.patch_len.numpy()[:n]
         assert np.all(length >= 0)
-        need = max(need, int(c._patch_used_host.numpy()[0]))
+        need = max(need, int(c.features.patch_used_host.numpy()[0]))
         cap = min(contact_mod.PATCH_SLOT, pool // (2 * n * worlds))
         layout = max(layout, n * cap + int(length[length > cap].sum()))
         assert cap >= 32, cap
-    assert 50_000 < need <= c.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them
+    assert 50_000 < need <= c.features.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them
     assert need * worlds <= pool, (need * worlds, pool)
     assert layout * worlds <= pool, (layout * worlds, pool)
     assert need * worlds < 2**31  # the int32 counters do not wrap
@@ -366,7 +366,7 @@ def test_a_deep_start_lists_nearly_every_point_and_every_patch_fits():
         r = run_case(press_case("coarse", site="fingertip", depth=0.004, start=-0.004), ph.Config(device="cpu"),
                      frames=2, asset=ph.load_asset())
     c = r["solver"].contact
-    n = int(c.feat_count.numpy()[0])
-    used = c.patch_used.numpy()
+    n = int(c.features.count.numpy()[0])
+    used = c.features.patch_used.numpy()
     assert n > c.points.n_features // 2 and used[1] > 0 and used[2] == 0, (n, c.points.n_features, used)
-    assert np.all(c.patch_len.numpy()[:n] >= 0)
+    assert np.all(c.features.patch_len.numpy()[:n] >= 0)

@@ -19,7 +19,8 @@ import math
 import numpy as np
 import warp as wp
 
-from physhand_mj.contact.data import contact_stages, make_frame_lists, make_metrics_buffers, make_pass_buffers
+from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
+                                      make_metrics_buffers, make_pass_buffers)
 from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -122,7 +123,6 @@ class Contact:
         self.model, self.objects, self.config = model, objects, config
         n_tris = model.skin_faces.shape[0]
         self.n_tris = n_tris
-        stages = contact_stages(config)
         # batched worlds (physhand_mj/batch.py): world w holds triangles [w F_w, (w + 1) F_w) and
         # geoms [w k, (w + 1) k); every list and metric is indexed by world (one world: w = 0)
         self.worlds = w = int(getattr(model, "worlds", 1))
@@ -161,17 +161,15 @@ class Contact:
         self.measures = ContactMeasures(model, objects, config, make_metrics_buffers(model, config, w), self.space,
                                         n_tris=n_tris, worlds=w, tris_per_world=self.tris_per_world,
                                         geoms_per_world=self.geoms_per_world, closed_skin=self.closed_skin)
-        self.feat = None  # the frame's list of object feature points near the skin (features.py)
+        # the feature push's lists of object feature points near the skin and their patches (data.py),
+        # made at the first recording with feature points (None: no feature push)
+        self.features: FeatureLists | None = None
         self.slack_check = None  # the lists' slack and its check (slack.py), made with the lists
-        self.feat_count = wp.zeros(1, dtype=int, device=d)
-        self.feat_stage_float = wp.zeros(1, dtype=float, device=d)  # stands in for far_angle (feature_winding off)
         self._slot_ids = {}  # counter slots as device arrays, per tuple of slots (Contact._slot_array)
         self._first_push = None  # the stage's first-pass feature counter (CUDA: filled by stage_features_tiled)
         # m, the radius a feature's skin query tries first (features.closest_signed): a pass's
         # features lie within ~contact_margin of the skin; the frame margin is the fallback
         self.near_query = float(min(config.contact_frame_margin, max(4.0 * config.contact_margin, 1.0e-3)))
-        self.feat_stage = None  # the stage's features: inside the skin or within contact_margin of it
-        self.feat_stage_counts = wp.zeros(max(stages, 1), dtype=int, device=d)  # one per stage of a frame
         # CUDA: the stage's and passes' feature queries by a block per feature over the frame's
         # triangle list (features.py, stage_features_tiled / feature_contact_tiled; no skin BVH refit
         # per stage and pass); lanes per block: FEATURE_LANES on CUDA, 1 on the CPU (a block is one
@@ -185,7 +183,6 @@ class Contact:
         self.feature_scan = bool(cuda and tf is None and w >= FEATURE_SCAN_WORLDS and config.feature_winding)
         self.feature_lanes = FEATURE_LANES if cuda else 1
         self.patch_lanes = PATCH_LANES if cuda else 1  # (feature_patches_tiled's block)
-        self._patch_used_host = wp.zeros(3, dtype=int, device="cpu", pinned=cuda)
         self._patch_warned = False
         # buffers replaced since the contact was made (a grown patch pool): the recorded frames read the
         # old ones, so the solver records its frames again when this changes (Solver._queue_frame)
@@ -198,7 +195,6 @@ class Contact:
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
         self.pass_slots = []  # per recorded pass: the slot of its triangle list's length
         self._passes_gated = False  # (finish_recording: as the solver's frame last said)
-        self._feat_host = wp.zeros(1, dtype=int, device="cpu", pinned=wp.get_device(d).is_cuda)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -266,68 +262,55 @@ class Contact:
         rec.ops += [self.acc.moved.zero_, lambda: self.acc.bound.fill_(-1.0e30), self.lists.pass_flags.zero_]  # objects moved
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
-            if self.feat is None:
-                self.feat = wp.zeros(pts.n_features, dtype=int, device=m.device)
-                self.feat_stage = wp.zeros(pts.n_features, dtype=int, device=m.device)
-                if cfg.feature_winding:
-                    n = pts.n_features
-                    self.patch_pool = wp.zeros(patch_pool_size(n, cfg.contact_frame_margin), dtype=int,
-                                               device=m.device)
-                    # [entries the patches need in all, taken at the pool's top, patches that did not fit]
-                    self.patch_used = wp.zeros(3, dtype=int, device=m.device)
-                    self.feat_slot = wp.zeros(pts.pts.shape[0], dtype=int, device=m.device)  # by point index
-                    self.patch_start = wp.zeros(n, dtype=int, device=m.device)
-                    self.patch_len = wp.full(n, -1, dtype=int, device=m.device)
-                    self.patch_fill = wp.zeros(n, dtype=int, device=m.device)  # CUDA's appends per feature
-                    self.far_angle = wp.zeros(n, dtype=float, device=m.device)
-                    self.feat_side = wp.zeros(n, dtype=float, device=m.device)  # CPU: the stage's sides
+            if self.features is None:
+                pool = patch_pool_size(pts.n_features, cfg.contact_frame_margin)
+                self.features = make_feature_lists(pts, cfg, pool, m.device)
                 # Config.tuning.feature_slack's buffers and check (slack.py)
                 self.slack_check = SlackCheck(m, o, cfg, pts, self.worlds, self.geoms_per_world)
-            sd = self.slack_check.data
+            fl, sd = self.features, self.slack_check.data
             vol = self.space.volume(state, winding=False)
             qpose = self.space.record_pose(rec)
-            rec.ops += [self.feat_count.zero_, self.feat_stage_counts.zero_, *self.slack_check.start_ops(state),
-                    *vol.refit_ops()]
+            rec.ops += [fl.count.zero_, fl.stage_counts.zero_, *self.slack_check.start_ops(state), *vol.refit_ops()]
             rec.launch(near_features, pts.n_features, [vol.mesh.id, pts.feature, pts.pts, pts.geom, qpose, o.count,
-                                                   cfg.contact_frame_margin, cfg.contact_margin, sd.slack,
-                                                   FEATURE_LIST_SHARE, self.geoms_per_world],
-                   [self.feat, self.feat_count, sd.feat_dist, sd.pt_dist, sd.pt_face, sd.world_listed])
+                                                       cfg.contact_frame_margin, cfg.contact_margin, sd.slack,
+                                                       FEATURE_LIST_SHARE, self.geoms_per_world],
+                       [fl.listed, fl.count, sd.feat_dist, sd.pt_dist, sd.pt_face, sd.world_listed])
             if cfg.feature_winding and self.tiled_features and not self.feature_scan:  # CUDA, one hand:
                 # a block per feature over its world's skin
-                rec.ops += [self.patch_used.zero_, self.patch_fill.zero_]
+                rec.ops += [fl.patch_used.zero_, fl.patch_fill.zero_]
                 lanes = self.patch_lanes
                 nb = tiled_blocks(m.device, pts.n_features, lanes)
                 rec.launch(feature_patches_tiled, (nb, lanes),
-                       [m.skin_faces, self.space.skin_x(state), self.feat, self.feat_count, nb, pts.pts, pts.geom, qpose,
-                        cfg.contact_frame_margin, sd.feat_dist, sd.slack, self.tris_per_world,
-                        self.geoms_per_world],
-                       [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
-                        self.patch_fill, self.far_angle], block_dim=lanes)
+                           [m.skin_faces, self.space.skin_x(state), fl.listed, fl.count, nb, pts.pts, pts.geom, qpose,
+                            cfg.contact_frame_margin, sd.feat_dist, sd.slack, self.tris_per_world,
+                            self.geoms_per_world],
+                           [fl.patch_used, fl.patch_pool, fl.slot, fl.patch_start, fl.patch_len,
+                            fl.patch_fill, fl.far_angle], block_dim=lanes)
             elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
                 volw = self.space.volume(state, winding=True)
-                rec.ops += [self.space.refit_op(volw, self.feat_count), self.patch_used.zero_]
+                rec.ops += [self.space.refit_op(volw, fl.count), fl.patch_used.zero_]
                 rec.launch(feature_patches, pts.n_features,
-                       [vol.mesh.id, volw.mesh.id, m.skin_faces, self.space.skin_x(state), self.feat, self.feat_count,
-                        pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, sd.feat_dist,
-                        sd.slack, self.geoms_per_world, PATCH_SLOT],
-                       [self.patch_used, self.patch_pool, self.feat_slot, self.patch_start, self.patch_len,
-                        self.far_angle], count=self.feat_count)
+                           [vol.mesh.id, volw.mesh.id, m.skin_faces, self.space.skin_x(state), fl.listed, fl.count,
+                            pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, sd.feat_dist,
+                            sd.slack, self.geoms_per_world, PATCH_SLOT],
+                           [fl.patch_used, fl.patch_pool, fl.slot, fl.patch_start, fl.patch_len,
+                            fl.far_angle], count=fl.count)
 
     def record_frame_end(self, rec, state) -> None:
         """At the end of a frame with contact: the skin's move against the feature lists' slack
         (:meth:`SlackCheck.record_frame_end`); nothing without listed feature points."""
-        if self.feat is not None:
+        if self.features is not None:
             self.slack_check.record_frame_end(rec, state)
 
     def feature_motion(self, ran: bool = True, warn: bool = True) -> dict:
         """The last frame's feature-list check, worst world (:meth:`SlackCheck.feature_motion`);
         empty without feature points."""
-        return {} if self.feat is None else self.slack_check.feature_motion(ran, warn)
+        return {} if self.features is None else self.slack_check.feature_motion(ran, warn)
 
     def feature_motion_worlds(self, ran: bool = True) -> list:
         """Per world, 1 where the last frame's feature-list check failed
         (:meth:`SlackCheck.feature_motion_worlds`); empty without feature points."""
-        return [] if self.feat is None else self.slack_check.feature_motion_worlds(ran)
+        return [] if self.features is None else self.slack_check.feature_motion_worlds(ran)
 
     # -- Config.contact_linear's hold (linear.py) --------------------------------------------------
     @property
@@ -346,7 +329,7 @@ class Contact:
     def _held_points(self):
         """The object points whose feature points the hold keeps: with the feature push (the
         frame's lists made before any stage or hold) and the worlds not queried apart; else None."""
-        return self.points if self.feat is not None and self.space.shift is None else None
+        return self.points if self.features is not None and self.space.shift is None else None
 
     def _record_make_planes(self, rec, state, feat_count) -> None:
         """After a stage's last pass: its planes and kept feature points (:meth:`PlaneHold.record_make`)."""
@@ -356,7 +339,7 @@ class Contact:
         pts = self._held_points() if feat_count is not None else None
         if pts is not None:
             vol = self.space.volume(state, winding=False)
-            features = (pts, self.feat_stage, feat_count, vol, self.space.refit_op(vol, feat_count))
+            features = (pts, self.features.stage, feat_count, vol, self.space.refit_op(vol, feat_count))
         self.hold.record_make(rec, state, self.lists, self.acc, self.active_count, features)
 
     def record_hold(self, rec, state) -> None:
@@ -389,7 +372,7 @@ class Contact:
         if not self.n_tris:
             return
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
-        self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.feat is not None else -1))
+        self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.features is not None else -1))
         self.active_count = self._counter()
         lst = (self.lists.pass_list, self.lists.pass_mask, self._counter())
         self.pass_slots.append(self._slot - 1)
@@ -403,34 +386,35 @@ class Contact:
         if self.lists.world_stage is not None:  # the stage's active triangles per world
             rec.launch(tally_worlds, self.n_tris, [self.lists.active, self.active_count, self.tris_per_world, m.vertex_world,
                                                2 * stage], [self.lists.world_stage], count=self.active_count)
-        if self.feat is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
-            feat_count = self.feat_stage_counts[stage: stage + 1]
+        fl = self.features
+        if fl is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
+            feat_count = fl.stage_counts[stage: stage + 1]
             skin = None
             rec.ops += self.space.volume(state, winding=False).sync_ops()
             self._first_push = self.lists.counters[self._slot + 1: self._slot + 2]  # (as the tiled path's, below)
             rec.launch(stage_features_scan, self.points.n_features,
-                   self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
-                                        out=self.feat_stage, out_count=feat_count), [])
-        elif self.feat is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
+                       self._feature_inputs(state, fl.listed, fl.count, cfg.feature_offset, self._first_push,
+                                            out=fl.stage, out_count=feat_count), [])
+        elif fl is not None and self.tiled_features:  # the stage's features, a block each (CUDA),
             # with its first pass's feature push (into that pass's counter slot, taken by _record_features)
-            feat_count = self.feat_stage_counts[stage: stage + 1]
+            feat_count = fl.stage_counts[stage: stage + 1]
             skin = None
             rec.ops += self.space.volume(state, winding=False).sync_ops()
             self._first_push = self.lists.counters[self._slot + 1: self._slot + 2]  # after the pass's Eq. 9 slot
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
             rec.launch(stage_features_tiled, (nb, self.feature_lanes),
-                   self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, self._first_push,
-                                        stride=nb, out=self.feat_stage, out_count=feat_count), [],
-                   block_dim=self.feature_lanes)
-        elif self.feat is not None:  # the stage's features (features.py)
-            feat_count = self.feat_stage_counts[stage: stage + 1]
+                       self._feature_inputs(state, fl.listed, fl.count, cfg.feature_offset, self._first_push,
+                                            stride=nb, out=fl.stage, out_count=feat_count), [],
+                       block_dim=self.feature_lanes)
+        elif fl is not None:  # the stage's features (features.py)
+            feat_count = fl.stage_counts[stage: stage + 1]
             vol = self.space.volume(state, winding=False)
             skin = vol.mesh
-            rec.ops.append(self.space.refit_op(vol, self.feat_count))
+            rec.ops.append(self.space.refit_op(vol, fl.count))
             rec.launch(stage_features, self.points.n_features,
-                   self._feature_inputs(state, self.feat, self.feat_count, cfg.feature_offset, None, skin=skin,
-                                        out=self.feat_stage, out_count=feat_count), [],
-                   count=self.feat_count)
+                       self._feature_inputs(state, fl.listed, fl.count, cfg.feature_offset, None, skin=skin,
+                                            out=fl.stage, out_count=feat_count), [],
+                       count=fl.count)
         else:
             skin = feat_count = None
         prev: tuple = ()  # counter slots of the vertices the previous pass moved
@@ -456,7 +440,7 @@ class Contact:
         self.touched_count = self._counter()
         outs = [self.acc.delta, self.acc.hits, self.acc.decision, self.acc.vertex_obj, self.acc.bound, self.acc.bound_mask, self.acc.eval_x,
                 self.acc.touched, self.touched_count]
-        if self.feat is not None:  # features.py: the stage's list against the skin as it is now, applied
+        if self.features is not None:  # features.py: the stage's list against the skin as it is now, applied
             # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
             slot, feat_touched = self._record_features(rec, state, p, skin, feat_count, stamp)
             moved_slots.append(slot)
@@ -481,7 +465,7 @@ class Contact:
         rec.launch(apply_contact, m.n_vertices, [self.acc.touched, self.touched_count, stamp, self.acc.delta, self.acc.hits, shift],
                [state.x, self.acc.push, self.acc.moved, self.acc.disp, self.lists.pass_move, shifted], count=self.touched_count)
         self._tally_touched(rec, p, self.touched_count)
-        if p + 1 == cfg.contact_passes and self.feat is not None and cfg.feature_last:
+        if p + 1 == cfg.contact_passes and self.features is not None and cfg.feature_last:
             moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
         flag = None
         if p + 1 < cfg.contact_passes:
@@ -538,15 +522,15 @@ class Contact:
                                                 2 * (len(self._stage_slots) - 1) + 1], [self.lists.world_stage], count=count)
 
     def _fit_patch_pool(self) -> None:
-        used, _, failed = (int(v) for v in self._patch_used_host.numpy())
+        used, _, failed = (int(v) for v in self.features.patch_used_host.numpy())
         # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past the
         # pool's size; < 0: an int32 counter wrapped past 2^31)
-        size = self.patch_pool.shape[0]
+        size = self.features.patch_pool.shape[0]
         over = bool(failed or used > size or used < 0)
         if size < PATCH_POOL_MAX and (over or 2 * used > size):
             # (a power of two at least twice the need and the pool: a list that keeps growing re-records rarely)
             grown = PATCH_POOL_MAX if used < 0 else min(1 << (max(2 * used, 2 * size) - 1).bit_length(), PATCH_POOL_MAX)
-            self.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
+            self.features.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
             self.reallocations += 1
         elif over and not self._patch_warned:
             from physhand_mj.warn import warn_user
@@ -669,15 +653,15 @@ class Contact:
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
         elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
             rec.launch(feature_contact_scan, self.points.n_features,
-                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched), [])
+                   self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched), [])
         elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
             rec.launch(feature_contact_tiled, (nb, self.feature_lanes),
-                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, stride=nb), [],
+                   self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched, stride=nb), [],
                    block_dim=self.feature_lanes)
         else:
             rec.launch(feature_contact, self.points.n_features,
-                   self._feature_inputs(state, self.feat_stage, feat_count, off, feat_touched, skin=skin), [],
+                   self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched, skin=skin), [],
                    count=feat_count)
         shift, shifted = self.space.apply_shift(state)
         rec.launch(apply_contact, m.n_vertices, [self.acc.touched, feat_touched, stamp, self.acc.delta, self.acc.hits, shift],
@@ -702,13 +686,14 @@ class Contact:
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
         length, far angle]; off: the feature list's arrays stand in (never read)."""
+        fl = self.features
         if self.config.feature_winding:
-            return [1, self.feat_slot, self.patch_pool, self.patch_start, self.patch_len, self.far_angle]
-        return [0, self.feat, self.feat, self.feat, self.feat, self.feat_stage_float]
+            return [1, fl.slot, fl.patch_pool, fl.patch_start, fl.patch_len, fl.far_angle]
+        return [0, fl.listed, fl.listed, fl.listed, fl.listed, fl.no_side]
 
     def _side(self):
         """The CPU's per-stage sides of the listed features (features.stage_features)."""
-        return self.feat_side if self.config.feature_winding else self.feat_stage_float
+        return self.features.side if self.config.feature_winding else self.features.no_side
 
     # -- the frame's host-side reports: the copies the frame's one sync waits for, and what they say --
 
@@ -721,10 +706,10 @@ class Contact:
             wp.copy(self.lists.pass_move_host, self.lists.pass_move)
         if self.lists.world_stage is not None:
             wp.copy(self.lists.world_stage_host, self.lists.world_stage)
-        if self.feat is not None:
-            wp.copy(self._feat_host, self.feat_count)
+        if self.features is not None:
+            wp.copy(self.features.count_host, self.features.count)
             if self.config.feature_winding:
-                wp.copy(self._patch_used_host, self.patch_used)
+                wp.copy(self.features.patch_used_host, self.features.patch_used)
             self.slack_check.copy_report()
 
     def features_listed(self) -> int:
@@ -734,11 +719,11 @@ class Contact:
         it grows to twice their need, up to PATCH_POOL_MAX, and the solver records its frames again
         (a frame that overflowed kept, for the points past the pool, the pseudo-normal sign (one
         hand) or pushed them not at all (CUDA batches)). An overflow at PATCH_POOL_MAX warns once."""
-        if self.feat is None:
+        if self.features is None:
             return 0
         if self.config.feature_winding:
             self._fit_patch_pool()
-        return int(self._feat_host.numpy()[0])
+        return int(self.features.count_host.numpy()[0])
 
     def stage_counts(self) -> np.ndarray:
         """(stages, 2) int of the last frame (after ``read_metrics``): per contact stage, the active

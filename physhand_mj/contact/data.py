@@ -2,8 +2,12 @@
 
 :class:`~physhand_mj.contact.contact.Contact` holds a :class:`FrameLists` (the frame's, stages' and
 passes' triangle lists and their lengths), a :class:`PassBuffers` (what a pass accumulates and
-applies) and a :class:`MetricsBuffers` (the penetration measures' rows); its :class:`~physhand_mj.contact.slack.SlackCheck` holds a
-:class:`SlackBuffers`, its :class:`~physhand_mj.contact.linear.PlaneHold` a :class:`PlaneBuffers`.
+applies) and, with the feature push, a :class:`FeatureLists` (the object feature points listed near
+the skin and their patches); its :class:`~physhand_mj.contact.measures.ContactMeasures` holds a
+:class:`MetricsBuffers` (the penetration measures' rows), its
+:class:`~physhand_mj.contact.slack.SlackCheck` a :class:`SlackBuffers` (the lists' slack and their
+check, with each listed point's distance), its :class:`~physhand_mj.contact.linear.PlaneHold` a
+:class:`PlaneBuffers`.
 Each is made by its ``make_*`` function. Shapes name F = skin triangles (all worlds'), V = vertices,
 S = skin vertices, W = batched worlds, P = object surface points, N = object feature points, and
 "stages" = contact stages of a frame. A host copy (``*_host``) is in pinned memory on CUDA, where the
@@ -74,6 +78,33 @@ class PassBuffers:
     disp: wp.array  # (V,) float m: how far that pass moved it
     push: wp.array  # (V,) float m: the contact's move of the vertex summed over the frame (reports)
     vertex_obj: wp.array  # (V,) int: the object that last pushed the vertex this frame (-1: none)
+
+
+@dataclass
+class FeatureLists:
+    """The feature push's lists (features.py): the object feature points near the skin, the frame's
+    (features.near_features) and each stage's, and with Config.feature_winding the local winding
+    number's patches (winding.py, patches_tiled.py). Made at the first recording with listed feature
+    points (the objects final then); the patch pool grows after a frame that needed more
+    (Contact.features_listed). Indices are into the contact's ``ObjectPoints`` (its ``pts``); the
+    patch entries are skin triangle indices."""
+
+    listed: wp.array  # (N,) int: the frame's list of feature points within contact_frame_margin of the skin
+    count: wp.array  # (1,) int: its length, zeroed per frame
+    count_host: wp.array  # (1,) int, host: its copy after the frame (Contact.features_listed)
+    stage: wp.array  # (N,) int: a stage's list: features inside the skin or within contact_margin of it
+    stage_counts: wp.array  # (max(stages, 1),) int: per stage of a frame its list's length, zeroed per frame
+    no_side: wp.array  # (1,) float: stands in for far_angle and side without Config.feature_winding (never read)
+    # Config.feature_winding only (else None):
+    patch_pool: wp.array | None = None  # (pool,) int: the listed features' patches, skin triangles each (patch_pool_size)
+    patch_used: wp.array | None = None  # (3,) int: [entries the patches need in all, taken at the pool's top, patches that did not fit]
+    patch_used_host: wp.array | None = None  # (3,) int, host: its copy after the frame
+    slot: wp.array | None = None  # (P,) int: per object point (by point index) its listed feature's slot
+    patch_start: wp.array | None = None  # (N,) int: per listed feature its patch's first entry in the pool
+    patch_len: wp.array | None = None  # (N,) int: its length (-1: no patch, it did not fit)
+    patch_fill: wp.array | None = None  # (N,) int: CUDA's appends per feature (patches_tiled.py)
+    far_angle: wp.array | None = None  # (N,) float: the solid angle of the skin outside the patch (winding.py)
+    side: wp.array | None = None  # (N,) float: the CPU's per-stage sides of the listed features (features.stage_features)
 
 
 @dataclass
@@ -162,6 +193,30 @@ def make_pass_buffers(model) -> PassBuffers:
         delta=wp.zeros(n, dtype=wp.vec3, device=d), hits=wp.zeros(n, dtype=float, device=d),
         decision=wp.zeros(f, dtype=wp.vec4, device=d), push=wp.zeros(n, dtype=float, device=d),
         vertex_obj=wp.full(n, -1, dtype=int, device=d))
+
+
+def make_feature_lists(points, config: Config, pool: int, device) -> FeatureLists:
+    """The feature lists for the object points ``points`` (an ObjectPoints: ``n_features`` feature
+    points of ``pts.shape[0]`` points); ``pool``: the patch pool's first size (entries,
+    contact.patch_pool_size; Config.feature_winding only)."""
+    d, n, stages = device, points.n_features, contact_stages(config)
+    cuda = wp.get_device(d).is_cuda
+    lists = FeatureLists(listed=wp.zeros(n, dtype=int, device=d), count=wp.zeros(1, dtype=int, device=d),
+                         count_host=wp.zeros(1, dtype=int, device="cpu", pinned=cuda),
+                         stage=wp.zeros(n, dtype=int, device=d),
+                         stage_counts=wp.zeros(max(stages, 1), dtype=int, device=d),
+                         no_side=wp.zeros(1, dtype=float, device=d))
+    if config.feature_winding:
+        lists.patch_pool = wp.zeros(pool, dtype=int, device=d)
+        lists.patch_used = wp.zeros(3, dtype=int, device=d)
+        lists.patch_used_host = wp.zeros(3, dtype=int, device="cpu", pinned=cuda)
+        lists.slot = wp.zeros(points.pts.shape[0], dtype=int, device=d)
+        lists.patch_start = wp.zeros(n, dtype=int, device=d)
+        lists.patch_len = wp.full(n, -1, dtype=int, device=d)
+        lists.patch_fill = wp.zeros(n, dtype=int, device=d)
+        lists.far_angle = wp.zeros(n, dtype=float, device=d)
+        lists.side = wp.zeros(n, dtype=float, device=d)
+    return lists
 
 
 def make_metrics_buffers(model, config: Config, worlds: int) -> MetricsBuffers:
