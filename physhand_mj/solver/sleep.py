@@ -1,7 +1,8 @@
-"""Whole-hand sleeping, a mixin of :class:`~physhand_mj.solver.solver.Solver` (physhand_mj/solver/activity.py
-has the concept and its measurements): the bone tests on the host (a hand moving as one rigid body,
-no object near), the sleeping frame (one launch carries every vertex with its bone), the CUDA
-host-side box test that skips the broadphase run ahead, and waking.
+"""Whole-hand sleeping, a :class:`Sleep` the :class:`~physhand_mj.solver.solver.Solver` holds
+(``Solver.sleep``; physhand_mj/solver/activity.py has the concept and its measurements): the bone
+tests on the host (a hand moving as one rigid body, no object near), the sleeping frame (one launch
+carries every vertex with its bone), the CUDA host-side box test that skips the broadphase run
+ahead, and waking.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from physhand_mj.rotations import pose_turn, quat_to_mat
 from physhand_mj.types import State
 
 SLEEP_TURN = math.radians(2.0)  # rad: the first bone's turn since the hand fell asleep that wakes it
-# m, the sleeping skin's box (Solver._asleep_and_alone) is grown by this: its bones may drift up to
+# m, the sleeping skin's box (Sleep.asleep_and_alone) is grown by this: its bones may drift up to
 # Config.tuning.sleep_bone_motion (10 um at a 0.1 m lever) from one rigid motion before the hand wakes
 SLEEP_BOX_SLACK = 1.0e-3
 
@@ -53,11 +54,24 @@ def bone_motions(start: np.ndarray, end: np.ndarray, lever: float = 0.1) -> np.n
     return dist + ang * lever
 
 
-class Sleeping:
-    """The sleeping half of :class:`~physhand_mj.solver.solver.Solver` (which owns the model, the
-    config, the activity gates, the contact and the frame replay these methods use)."""
+class Sleep:
+    """A solver's whole-hand sleeping: its tests, its recorded sleeping frames and their launch. Reads
+    the solver's model, config, activity gates (:class:`~physhand_mj.solver.activity.Activity`), contact
+    and regions (None: none); the solver passes what a frame needs (its replay, its tail ops, the
+    guard's host copy, the ops run ahead) to :meth:`launch` and :meth:`finish`."""
 
-    def _may_sleep(self, state: State) -> bool:
+    def __init__(self, model, config, device, activity, contact, regions):
+        self.model, self.config, self.device = model, config, device
+        self.activity, self.contact, self.regions = activity, contact, regions
+        self.ops: dict[tuple, list] = {}  # the recorded sleeping frames, per (frame key, pose buffer)
+        self.alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
+        self.launched = None  # (frame key, ops counted, broadphase ran ahead) of the frame launch queued
+
+    def forget(self) -> None:
+        """Drop the recorded sleeping frames (the solver records its frames again)."""
+        self.ops.clear()
+
+    def may_sleep(self, state: State) -> bool:
         """Settled for Config.tuning.sleep_frames frames and no object near (this frame's test: the CPU's
         host box test, or the frame broadphase run ahead on CUDA; no objects at all: nothing near)."""
         cfg, act = self.config, self.activity
@@ -69,7 +83,7 @@ class Sleeping:
             return not act.open1
         return act.enabled and act.objects_near == 0
 
-    def _asleep_and_alone(self, state: State, poses) -> bool:
+    def asleep_and_alone(self, state: State, poses) -> bool:
         """CUDA, a hand that slept last frame and may sleep on: is every object farther than
         Config.contact_frame_margin from its skin? Decided on the host, without the frame broadphase
         run ahead and its sync. Asleep, the bones move as one rigid body (within
@@ -83,11 +97,11 @@ class Sleeping:
         from physhand_mj.solver.activity import objects_near
 
         box = state.sleep_box
-        if box is None or self.contact is None or not self.activity.gate_ahead or not self._settled(state):
+        if box is None or self.contact is None or not self.activity.gate_ahead or not self.settled(state):
             return False
         objs = self.contact.objects._host["pose"]
         key = (id(box), poses[0][0].tobytes(), poses[1][0].tobytes(), objs.tobytes())
-        if key == self._alone_key:  # this box, its bone and every object where the last test left them
+        if key == self.alone_key:  # this box, its bone and every object where the last test left them
             self.activity.objects_near = 0
             return True
         corners = []
@@ -98,12 +112,12 @@ class Sleeping:
         near = objects_near(self.contact.objects, world.min(axis=0), world.max(axis=0),
                             self.config.contact_frame_margin)
         self.activity.objects_near = near
-        self._alone_key = key if near == 0 else None
+        self.alone_key = key if near == 0 else None
         return near == 0
 
-    def _take_sleep_box(self, state: State) -> None:
+    def take_box(self, state: State) -> None:
         """CUDA, the first sleeping frame: the skin's 8 box corners in the first bone's frame at the
-        frame's end pose (see :meth:`_asleep_and_alone`); one copy of the skin to the host."""
+        frame's end pose (see :meth:`asleep_and_alone`); one copy of the skin to the host."""
         m = self.model
         if not (self.activity.gate_ahead and self.contact is not None and m.n_bodies
                 and int(getattr(m, "worlds", 1)) == 1):
@@ -114,16 +128,16 @@ class Sleeping:
         lo, hi = local.min(axis=0) - SLEEP_BOX_SLACK, local.max(axis=0) + SLEEP_BOX_SLACK
         pick = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
         state.sleep_box = np.where(pick == 1, hi, lo)
-        self._alone_key = None  # a new box: test it afresh (an old key could name a freed box's id)
+        self.alone_key = None  # a new box: test it afresh (an old key could name a freed box's id)
 
-    def _launch_sleep(self, state: State, key, upload=None) -> None:
+    def launch(self, state: State, key, replay, tail: list, guard_host, pin: int = -1, upload=None) -> None:
         """One launch: every vertex rides with its carrier bone, at rest; the report buffers zeroed
-        (CUDA: one captured graph, which with ``upload`` (a pose buffer Solver.launch left) also
-        uploads the frame's poses first, and copies the guard back). :meth:`_finish_sleep` reports
-        it (Solver.launch / finish)."""
-        pin = -1 if upload is None else next(i for i, p in enumerate(self._pose_pins) if p is upload)
+        (CUDA: one captured graph, which with ``upload`` (a pose buffer Solver.launch left, its index
+        ``pin``) also uploads the frame's poses first, and copies the guard back to ``guard_host``).
+        ``replay(ops, key)``: the solver's frame replay (Solver.replay); ``tail``: the ops ending
+        every frame (Solver.set_frame_tail). :meth:`finish` reports it."""
         frame_key, key = key, key + (pin,)  # (the frame's key names its broadphase ahead; one graph per buffer)
-        ops = self._sleep_ops.get(key)
+        ops = self.ops.get(key)
         if ops is None:
             m, d = self.model, self.device
             ops = [] if upload is None else [lambda: wp.copy(state.body_pose, upload)]
@@ -138,45 +152,30 @@ class Sleeping:
                             outputs=[state.x, state.v, state.x_prev, state.x_safe, state.guard], device=d,
                             record_cmd=True)
             ops.append(cmd.launch)
-            ops += self._tail  # (Solver.set_frame_tail)
-            ops.append(lambda: wp.copy(self._guard_host, state.guard))
-            self._sleep_ops[key] = ops
+            ops += tail
+            ops.append(lambda: wp.copy(guard_host, state.guard))
+            self.ops[key] = ops
         ahead = self.activity.gate_ahead and state.sleep_box is None  # (CUDA: the broadphase ran ahead)
-        self._replay(ops, key + ("asleep",))
-        if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
-            self.contact.copy_metrics()
-            self._asleep_summary = None
+        replay(ops, key + ("asleep",))
         # (ops_run counts the frame's launches and memsets as before: not the pose upload and guard copy
         # the graph took over, nor the planes' reset)
         extra = 1 + int(upload is not None) + int(self.contact is not None and self.contact.holds)
-        self._sleep_launched = (frame_key, len(ops) - extra, ahead)
+        self.launched = (frame_key, len(ops) - extra, ahead)
 
-    def _finish_sleep(self, state: State) -> dict:
-        key, n_ops, ahead = self._sleep_launched
+    def finish(self, state: State, ahead_ops: dict) -> dict:
+        """The sleeping frame :meth:`launch` queued: its sync, the state's clock, the box taken on its
+        first frame; returns its activity report (Solver.last_activity; ``ahead_ops``: the solver's
+        broadphase ops run ahead, per frame key)."""
+        key, n_ops, ahead = self.launched
         wp.synchronize_device(self.device)
         state.time += self.config.frame_dt
         state.frames += 1
         if state.sleep_box is None:
-            self._take_sleep_box(state)
-        ahead = len(self._pre.get(key, ())) * int(ahead)
+            self.take_box(state)
+        ahead = len(ahead_ops.get(key, ())) * int(ahead)
         near = self.activity.objects_near if self.contact is not None else 0
-        self.last_activity = dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
-                                  features_listed=0, ops_run=n_ops + ahead, contact_ops_run=ahead)
-        g = self._guard_np
-        self._read_guard_worlds(g)
-        out = {"nonfinite": int(g[0]), "inverted": 0}
-        if self.contact is not None:
-            if self.config.skin_tether > 0:
-                out["tethered"] = 0
-            if self._asleep_summary is None:  # (the host rows stay as they were: the same summary)
-                self._asleep_summary = {}
-                self._contact_summary(self._asleep_summary)
-            out.update(self._asleep_summary)
-        out.update(self.last_activity)
-        if self.regions is not None:  # (the regions' own state waits under the whole hand's sleep)
-            out.update(self.regions.report(whole_hand=True))
-        out["asleep"] = True
-        return out
+        return dict(objects_near=near, triangles_frame=0, triangles_stage=0, triangles_tested=0,
+                    features_listed=0, ops_run=n_ops + ahead, contact_ops_run=ahead)
 
     def wake(self, state: State) -> None:
         """Forget that ``state`` had settled (it sleeps again after Config.tuning.sleep_frames still frames)."""
@@ -187,10 +186,10 @@ class Sleeping:
         if self.contact is not None:  # (Config.contact_linear: a woken or reset hand holds on no old plane)
             self.contact.forget_planes()
 
-    def _settled(self, state: State) -> bool:
+    def settled(self, state: State) -> bool:
         return self.config.sleep_speed > 0 and state.still >= self.config.sleep_frames
 
-    def _bones_still(self, state: State) -> bool:
+    def bones_still(self, state: State) -> bool:
         """The sleep test's bone conditions for this frame (poses on the host, before the upload):
         no bone moves relative to the others by more than Config.tuning.sleep_bone_motion in the frame, and,
         while asleep, since it fell asleep; nor has the first bone turned by more than SLEEP_TURN

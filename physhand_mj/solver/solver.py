@@ -34,7 +34,7 @@ from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.rotations import compose_quat, quat_to_mat
 from physhand_mj.solver.model import JACOBI_GROUPS
 from physhand_mj.solver.poses import PoseInput
-from physhand_mj.solver.sleep import Sleeping, frame_rigid
+from physhand_mj.solver.sleep import Sleep, frame_rigid
 from physhand_mj.solver.smooth import solve_dihedrals
 from physhand_mj.solver.tet import solve_tets
 from physhand_mj.launch import Recorder, launch_options
@@ -43,7 +43,7 @@ from physhand_mj.types import Config, Model, NonFinite, Scheme, SolverError, Sta
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
-class Solver(PoseInput, Sleeping):
+class Solver(PoseInput):
     """XPBD solver for one layered body. With ``objects`` (a :class:`~physhand_mj.contact.Objects`)
     and ``config.contact`` not NONE, each substep also runs the skin-object contact correction
     (Algorithm 1 line 6, placed by ``config.contact_placement``) and ``step`` reports penetration."""
@@ -67,12 +67,10 @@ class Solver(PoseInput, Sleeping):
         self._ops: dict[tuple, list] = {}
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
-        self._sleep_ops: dict[tuple, list] = {}
         # the objects' geoms and the contact's buffer replacements when the frames were recorded (_queue_frame)
         self._recorded_geoms = (0, 0)
         self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
         self._in_flight = None  # (state, ops or None asleep, rigid, frame poses) between launch and finish
-        self._alone_key = None  # (sleep box, first bone's poses, object poses) of the last 'nothing near' test
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
         h = self.config.substep_dt
         self._h = h
@@ -82,7 +80,7 @@ class Solver(PoseInput, Sleeping):
         self._init_poses(model.n_bodies, self.device.is_cuda)  # (poses.py)
         self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
         self._guard_np = self._guard_host.numpy()  # (its numpy view, made once)
-        self._asleep_summary = None  # (sleep.py: an asleep frame's contact summary while the host rows stay)
+        self._asleep_summary = None  # (an asleep frame's contact summary while the host rows stay: _finish_asleep)
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
         self._fused = fused_choice.choose(model, self.config, self.device)  # Config.execution.fused_substep
@@ -92,6 +90,8 @@ class Solver(PoseInput, Sleeping):
             from physhand_mj.solver.regions import RegionSleep
 
             self.regions = RegionSleep(self)
+        # whole-hand sleeping (sleep.py): its tests and its recorded sleeping frames
+        self.sleep = Sleep(model, self.config, self.device, self.activity, self.contact, self.regions)
 
     # -- state -------------------------------------------------------------------------------
     def make_state(self, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0)) -> State:
@@ -146,7 +146,7 @@ class Solver(PoseInput, Sleeping):
             self.contact.forget_planes(state)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
         # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
-        rigid = self._bones_still(state) if self._settled(state) else None
+        rigid = self.sleep.bones_still(state) if self.sleep.settled(state) else None
         if self.regions is not None:
             self.regions.before_frame(*frame_poses)
         # a frame that may sleep on CUDA graphs uploads its poses inside its graph (sleep.py); else now
@@ -181,8 +181,8 @@ class Solver(PoseInput, Sleeping):
             if self.contact is not None:
                 self.contact.finish_recording(self.activity.passes_gated)
         act = self.activity
-        if not first and rigid and self._asleep_and_alone(state, frame_poses):
-            self._launch_sleep(state, key, upload)  # (CUDA: no broadphase ahead, no extra sync)
+        if not first and rigid and self.sleep.asleep_and_alone(state, frame_poses):
+            self._launch_asleep(state, key, upload)  # (CUDA: no broadphase ahead, no extra sync)
             self._in_flight = (state, None, rigid, frame_poses)
             return
         if upload is not None:  # (before the broadphase ahead or the frame)
@@ -193,15 +193,15 @@ class Solver(PoseInput, Sleeping):
             wp.copy(self._cand_host, self.contact.cand_count)
             wp.synchronize_device(self.device)
             act.open1 = bool(self._cand_host.numpy()[0])
-        if not first and rigid and self._may_sleep(state):
-            self._launch_sleep(state, key)
+        if not first and rigid and self.sleep.may_sleep(state):
+            self._launch_asleep(state, key)
             self._in_flight = (state, None, rigid, frame_poses)
             return
         if first:
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
         else:
-            graph = self._replay(ops, key + (act.open1,))
+            graph = self.replay(ops, key + (act.open1,))
             if graph is not None:
                 self.last_graph = graph  # (bench.py replays it for the GPU-only cost)
         wp.copy(self._guard_host, state.guard)
@@ -218,7 +218,7 @@ class Solver(PoseInput, Sleeping):
         _, ops, rigid, frame_poses = self._in_flight
         self._in_flight = None
         if ops is None:  # a sleeping frame
-            return self._finish_sleep(state)
+            return self._finish_asleep(state)
         wp.synchronize_device(self.device)  # the frame's host sync (on CUDA with contact: its second)
         g = self._guard_np
         self._asleep_summary = None
@@ -251,6 +251,39 @@ class Solver(PoseInput, Sleeping):
                               f"{state.frames}; state kept at their last finite positions")
         return out
 
+    def _launch_asleep(self, state: State, key, upload=None) -> None:
+        """A sleeping frame's launch (:meth:`Sleep.launch`), then its report's copies."""
+        pin = -1 if upload is None else next(i for i, p in enumerate(self._pose_pins) if p is upload)
+        self.sleep.launch(state, key, self.replay, self._tail, self._guard_host, pin, upload)
+        if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
+            self.contact.copy_metrics()
+            self._asleep_summary = None
+
+    def _finish_asleep(self, state: State) -> dict:
+        """:meth:`finish` for a sleeping frame (:meth:`Sleep.finish`): the guard's counts, the contact
+        summary the host rows last gave, the activity and the regions' reports."""
+        self.last_activity = self.sleep.finish(state, self._pre)
+        g = self._guard_np
+        self._read_guard_worlds(g)
+        out = {"nonfinite": int(g[0]), "inverted": 0}
+        if self.contact is not None:
+            if self.config.skin_tether > 0:
+                out["tethered"] = 0
+            if self._asleep_summary is None:  # (the host rows stay as they were: the same summary)
+                self._asleep_summary = {}
+                self._contact_summary(self._asleep_summary)
+            out.update(self._asleep_summary)
+        out.update(self.last_activity)
+        if self.regions is not None:  # (the regions' own state waits under the whole hand's sleep)
+            out.update(self.regions.report(whole_hand=True))
+        out["asleep"] = True
+        return out
+
+    def wake(self, state: State) -> None:
+        """Forget that ``state`` had settled (it sleeps again after Config.tuning.sleep_frames still frames;
+        :meth:`Sleep.wake`)."""
+        self.sleep.wake(state)
+
     def _contact_summary(self, out: dict) -> None:
         """The frame's penetration summary (its metrics row, read at the frame's sync) into ``out``."""
         from physhand_mj.contact.metrics import summarize  # contact imports the solver's types: no cycle here
@@ -270,7 +303,7 @@ class Solver(PoseInput, Sleeping):
         """``guard_worlds`` (W, 4) of the frame just read back (one world: the frame's own counts)."""
         self.guard_worlds = g[4:].reshape(-1, 4).copy() if len(g) > 4 else g[None, :4].copy()
 
-    def _replay(self, ops: list, gkey):
+    def replay(self, ops: list, gkey):
         """Run ``ops``: on CUDA with graphs as the graph captured under ``gkey`` (captured on first
         use) and returned; otherwise one by one (returns None)."""
         if not self._capturable():
@@ -454,7 +487,7 @@ class Solver(PoseInput, Sleeping):
     def _forget_recordings(self) -> None:
         """Drop every recorded frame and graph: the next frame records again (kernels stay compiled)."""
         self._ops.clear()
-        self._sleep_ops.clear()
+        self.sleep.forget()
         self._graphs.clear()
         self._pre.clear()
 
