@@ -216,7 +216,7 @@ def test_a_staged_upload_is_taken_only_with_the_rows_it_was_staged_with(setup):
 
     def marked():
         token = solver.stage_pose_rows(state, rows_b)
-        solver._pose_pins[token[1]].numpy()[1] = mark
+        solver.poses.pins[token[1]].numpy()[1] = mark
         return token
 
     _, up = pair(rows_a, marked, rows_b)

@@ -1,7 +1,8 @@
-"""The bone poses going into a frame, a mixin of :class:`~physhand_mj.solver.solver.Solver`: their
-checks (``pose_rows``), the next frame's end poses (``set_body_poses``, ``set_body_pose_rows``), the
-fast-motion warning, and the upload: two pinned host buffers used in turn, one of which
-``stage_pose_rows`` fills while a frame in flight still copies from the other (BatchedHands.submit).
+"""The bone poses going into a frame, a :class:`PoseInput` the :class:`~physhand_mj.solver.solver.Solver`
+holds (``Solver.poses``; the solver's pose methods call it): their checks (``pose_rows``), the next
+frame's end poses (``set_body_poses``, ``set_body_pose_rows``), the fast-motion warning, and the
+upload: two pinned host buffers used in turn, one of which ``stage_pose_rows`` fills while a frame
+in flight still copies from the other (BatchedHands.submit).
 """
 
 from __future__ import annotations
@@ -13,33 +14,37 @@ from physhand_mj.types import State
 
 
 class PoseInput:
-    """The pose half of :class:`~physhand_mj.solver.solver.Solver` (which owns the model, the
-    config, the contact, the regions and the frame in flight these methods read)."""
+    """A solver's bone poses going in: reads its model, config, contact and regions (None: none); the
+    methods that must not run while a frame of the state is in flight take the state in flight
+    (``in_flight``: None when none; Solver.launch to Solver.finish)."""
 
-    def _init_poses(self, n_bodies: int, pinned: bool) -> None:
+    def __init__(self, model, config, contact, regions, pinned: bool):
+        self.model, self.config, self.contact, self.regions = model, config, contact, regions
+        n_bodies = model.n_bodies
         # the upload buffers ([frame start, frame end] rows), one per frame in turn: a frame in flight
         # copies from one while the next frame's poses go into the other (stage_pose_rows)
-        self._pose_pins = [wp.empty((2, n_bodies), dtype=wp.transform, device="cpu", pinned=pinned) for _ in range(2)]
-        self._pose_pins_np = [p.numpy() for p in self._pose_pins]  # (their numpy views, made once: ~10 us each)
+        self.pins = [wp.empty((2, n_bodies), dtype=wp.transform, device="cpu", pinned=pinned) for _ in range(2)]
+        self._pins_np = [p.numpy() for p in self.pins]  # (their numpy views, made once: ~10 us each)
         self._pin = 0  # the buffer the next launch uploads from
         self._rows_set = None  # the rows set_body_pose_rows last took (a staged upload names them)
         self._staged = None  # the last stage_pose_rows token (launch takes only that one)
         self._warned_fast = False
         self.warn_fast_motion = True  # warn (once) when a bone outruns Config.contact_frame_margin in a frame
 
-    def set_body_poses(self, state: State, pos: np.ndarray, quat: np.ndarray) -> None:
+    def set_body_poses(self, state: State, pos: np.ndarray, quat: np.ndarray, in_flight: State | None) -> None:
         """Bone poses at the end of the next frame: pos (B, 3) m, quat (B, 4) w x y z, in the
         solver's world frame, ordered as ``model.body_names``. The skeleton moves there during the
         frame (interpolated per substep)."""
-        self._not_in_flight(state)
+        self._not_in_flight(state, in_flight)
         self.pose_rows(pos, quat, out=state.pose_host[1])  # (written in place: batches, W x the bones a frame)
         state.pose_fresh = True
         self._rows_set = None
 
-    def _not_in_flight(self, state: State) -> None:
+    @staticmethod
+    def _not_in_flight(state: State, in_flight: State | None) -> None:
         """The next frame's poses may not be written while this state's frame is in flight: its
         ``finish`` still reads that frame's end poses (the sleep test)."""
-        if self._in_flight is not None and self._in_flight[0] is state:
+        if in_flight is not None and in_flight is state:
             raise RuntimeError("a frame of this state is in flight (Solver.launch): Solver.finish(state) before "
                                "setting the next frame's poses")
 
@@ -82,28 +87,28 @@ class PoseInput:
         if np.shape(rows) != state.pose_host[1].shape:
             raise ValueError(f"pose rows must be {state.pose_host[1].shape} (Solver.pose_rows), got {np.shape(rows)}")
 
-    def set_body_pose_rows(self, state: State, rows: np.ndarray) -> None:
+    def set_body_pose_rows(self, state: State, rows: np.ndarray, in_flight: State | None) -> None:
         """The next frame's end poses as :meth:`pose_rows` made them (checked and normed)."""
-        self._not_in_flight(state)
+        self._not_in_flight(state, in_flight)
         self._check_rows(state, rows)
         state.pose_host[1] = rows
         state.pose_fresh = True
         self._rows_set = rows
 
-    def stage_pose_rows(self, state: State, rows: np.ndarray):
+    def stage_pose_rows(self, state: State, rows: np.ndarray, in_flight: State | None):
         """While a frame of ``state`` is in flight, fill the next frame's upload buffer with its start
         (the frame in flight's end) and ``rows`` (its end, :meth:`pose_rows`), so that the host copy
         leaves the time between that frame's end and the next one's launch. Returns a token for
-        :meth:`launch` (``staged=``), which takes the buffer as it is only if this is the last token
-        staged and :meth:`set_body_pose_rows` was given this very ``rows`` array after :meth:`finish`,
+        :meth:`Solver.launch` (``staged=``), which takes the buffer as it is only if this is the last token
+        staged and :meth:`set_body_pose_rows` was given this very ``rows`` array after :meth:`Solver.finish`,
         and fills the buffer itself otherwise; ``rows`` must not change in between (the buffer holds
         their copy). None (nothing to stage) when no frame of ``state`` is in flight or per-region
         sleeping is on. (BatchedHands.submit: fresh rows each frame, staged once.)"""
         self._staged = None
-        if self._in_flight is None or self._in_flight[0] is not state or self.regions is not None:
+        if in_flight is None or in_flight is not state or self.regions is not None:
             return None
         self._check_rows(state, rows)
-        buf = self._pose_pins_np[self._pin]  # (the frame in flight uploads from the other one)
+        buf = self._pins_np[self._pin]  # (the frame in flight uploads from the other one)
         buf[0] = state.pose_host[0]  # (launch moved the frame in flight's end there; finish leaves it)
         buf[1] = rows
         # (the fast-motion check's largest bone move too, for launch)
@@ -111,7 +116,7 @@ class PoseInput:
         return self._staged
 
     def _checks_jump(self) -> bool:
-        """Whether :meth:`launch` checks how far a bone moves in the frame (contact, the warning not given)."""
+        """Whether :meth:`Solver.launch` checks how far a bone moves in the frame (contact, the warning not given)."""
         return self.contact is not None and self.warn_fast_motion and not self._warned_fast and bool(self.model.n_bodies)
 
     @staticmethod
@@ -120,8 +125,8 @@ class PoseInput:
         d = p1[:, :3] - p0[:, :3]
         return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
 
-    def _frame_poses_in(self, state: State, staged):
-        """:meth:`launch`'s poses: the frame's end settled (the start again without a new pose), the
+    def frame_poses_in(self, state: State, staged):
+        """:meth:`Solver.launch`'s poses: the frame's end settled (the start again without a new pose), the
         fast-motion warning, and the upload buffer filled unless ``staged`` (:meth:`stage_pose_rows`'
         token) is the last one staged for this state and these rows. Returns (the buffer, the
         frame's (start, end) rows on the host: the start a view of the buffer, filled again two
@@ -143,8 +148,8 @@ class PoseInput:
                           f"Config.contact_frame_margin - contact_margin "
                           f"({(self.config.contact_frame_margin - self.config.contact_margin) * 1e3:.1f} mm): "
                           f"contacts may be missed; raise contact_frame_margin or use shorter frames")
-        pin = self._pose_pins[self._pin]
-        buf = self._pose_pins_np[self._pin]
+        pin = self.pins[self._pin]
+        buf = self._pins_np[self._pin]
         if staged is None:
             buf[:] = state.pose_host  # (else stage_pose_rows filled it while the frame before ran)
         self._pin ^= 1

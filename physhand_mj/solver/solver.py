@@ -43,7 +43,7 @@ from physhand_mj.types import Config, Model, NonFinite, Scheme, SolverError, Sta
 wp.config.log_level = wp.LOG_WARNING  # keep stdout for the CLI's JSON line
 
 
-class Solver(PoseInput):
+class Solver:
     """XPBD solver for one layered body. With ``objects`` (a :class:`~physhand_mj.contact.Objects`)
     and ``config.contact`` not NONE, each substep also runs the skin-object contact correction
     (Algorithm 1 line 6, placed by ``config.contact_placement``) and ``step`` reports penetration."""
@@ -77,7 +77,6 @@ class Solver(PoseInput):
         self._inv_h2 = 1.0 / (h * h)
         self._damp = math.exp(-self.config.damping * h)
         self._gravity = wp.vec3(*[float(g) for g in self.config.gravity])
-        self._init_poses(model.n_bodies, self.device.is_cuda)  # (poses.py)
         self._guard_host = wp.zeros(self._guard_len(), dtype=int, device="cpu", pinned=self.device.is_cuda)
         self._guard_np = self._guard_host.numpy()  # (its numpy view, made once)
         self._asleep_summary = None  # (an asleep frame's contact summary while the host rows stay: _finish_asleep)
@@ -90,6 +89,8 @@ class Solver(PoseInput):
             from physhand_mj.solver.regions import RegionSleep
 
             self.regions = RegionSleep(self)
+        # the bone poses going in (poses.py): their checks, the fast-motion warning, the upload buffers
+        self.poses = PoseInput(model, self.config, self.contact, self.regions, self.device.is_cuda)
         # whole-hand sleeping (sleep.py): its tests and its recorded sleeping frames
         self.sleep = Sleep(model, self.config, self.device, self.activity, self.contact, self.regions)
 
@@ -122,6 +123,38 @@ class Solver(PoseInput):
         st.pose_host[0] = st.pose_host[1]
         return st
 
+    # -- the bone poses going in (poses.py) ------------------------------------------------------
+    def set_body_poses(self, state: State, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Bone poses at the end of the next frame: pos (B, 3) m, quat (B, 4) w x y z, in the
+        solver's world frame, ordered as ``model.body_names`` (:meth:`PoseInput.set_body_poses`)."""
+        self.poses.set_body_poses(state, pos, quat, self._state_in_flight())
+
+    def pose_rows(self, pos: np.ndarray, quat: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`set_body_poses`' checks and conversion without a state, (B, 7) rows (:meth:`PoseInput.pose_rows`)."""
+        return self.poses.pose_rows(pos, quat, out)
+
+    def set_body_pose_rows(self, state: State, rows: np.ndarray) -> None:
+        """The next frame's end poses as :meth:`pose_rows` made them (:meth:`PoseInput.set_body_pose_rows`)."""
+        self.poses.set_body_pose_rows(state, rows, self._state_in_flight())
+
+    def stage_pose_rows(self, state: State, rows: np.ndarray):
+        """While a frame of ``state`` is in flight, fill the next frame's upload buffer; a token for
+        :meth:`launch` or None (:meth:`PoseInput.stage_pose_rows`)."""
+        return self.poses.stage_pose_rows(state, rows, self._state_in_flight())
+
+    @property
+    def warn_fast_motion(self) -> bool:
+        """Warn (once) when a bone outruns Config.contact_frame_margin in a frame (:attr:`PoseInput.warn_fast_motion`)."""
+        return self.poses.warn_fast_motion
+
+    @warn_fast_motion.setter
+    def warn_fast_motion(self, on: bool) -> None:
+        self.poses.warn_fast_motion = on
+
+    def _state_in_flight(self) -> State | None:
+        """The state whose frame is in flight (between :meth:`launch` and :meth:`finish`), else None."""
+        return None if self._in_flight is None else self._in_flight[0]
+
     # -- the frame -------------------------------------------------------------------------------
     def step(self, state: State) -> dict:
         """Advance one frame (``config.frame_dt``). Returns the frame's guard counts
@@ -141,7 +174,7 @@ class Solver(PoseInput):
         changed. One frame in flight at a time. ``staged``: :meth:`stage_pose_rows`' token."""
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
-        pin, frame_poses = self._frame_poses_in(state, staged)  # (poses.py: the frame's poses, their upload buffer)
+        pin, frame_poses = self.poses.frame_poses_in(state, staged)  # (poses.py: the frame's poses, their upload buffer)
         if self.contact is not None:  # (Config.contact_linear: planes made for another state are dropped)
             self.contact.forget_planes(state)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
@@ -253,7 +286,7 @@ class Solver(PoseInput):
 
     def _launch_asleep(self, state: State, key, upload=None) -> None:
         """A sleeping frame's launch (:meth:`Sleep.launch`), then its report's copies."""
-        pin = -1 if upload is None else next(i for i, p in enumerate(self._pose_pins) if p is upload)
+        pin = -1 if upload is None else next(i for i, p in enumerate(self.poses.pins) if p is upload)
         self.sleep.launch(state, key, self.replay, self._tail, self._guard_host, pin, upload)
         if self.contact is not None and state.sleep_box is None:  # (asleep on: the host rows stay zero)
             self.contact.copy_metrics()
