@@ -84,7 +84,6 @@ def patch_pool_size(n_features: int, frame_margin: float) -> int:
 FEATURE_SCAN_WORLDS = 64
 
 
-
 AUTO_MULTIRES_REGISTERS = 128  # Config.execution.multires_registers = None: the cap for a CUDA batch with a mesh object
 
 
@@ -211,7 +210,8 @@ class Contact:
 
     @property
     def vertex_obj(self) -> wp.array:
-        """(V,) int: the object that last pushed each vertex in the last frame, -1 none (:attr:`PassBuffers.vertex_obj`)."""
+        """(V,) int: the object that last pushed each vertex in the last frame, -1 none
+        (:attr:`PassBuffers.vertex_obj`)."""
         return self.acc.vertex_obj
 
     def volume(self, state, winding: bool = True):
@@ -259,7 +259,8 @@ class Contact:
     def _record_frame_lists(self, rec, state) -> None:
         """The per-frame resets and the frame's feature list (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
-        rec.ops += [self.acc.moved.zero_, lambda: self.acc.bound.fill_(-1.0e30), self.lists.pass_flags.zero_]  # objects moved
+        # (the objects moved: every triangle's bound is stale)
+        rec.ops += [self.acc.moved.zero_, lambda: self.acc.bound.fill_(-1.0e30), self.lists.pass_flags.zero_]
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.features is None:
@@ -378,14 +379,16 @@ class Contact:
         self.pass_slots.append(self._slot - 1)
         # the stage's active triangles (within contact_margin) of the frame's list, and of those its
         # first pass's list, in one launch
-        rec.launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                                          self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.lists.cand,
-                                          self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask, self.acc.eval_x],
-               [self.lists.active, self.lists.active_mask, self.active_count, *lst], count=self.cand_count)
+        rec.launch(stage_lists, self.n_tris,
+                   [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+                    self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.lists.cand,
+                    self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask, self.acc.eval_x],
+                   [self.lists.active, self.lists.active_mask, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
         if self.lists.world_stage is not None:  # the stage's active triangles per world
-            rec.launch(tally_worlds, self.n_tris, [self.lists.active, self.active_count, self.tris_per_world, m.vertex_world,
-                                               2 * stage], [self.lists.world_stage], count=self.active_count)
+            rec.launch(tally_worlds, self.n_tris,
+                       [self.lists.active, self.active_count, self.tris_per_world, m.vertex_world, 2 * stage],
+                       [self.lists.world_stage], count=self.active_count)
         fl = self.features
         if fl is not None and self.feature_scan:  # the stage's features, a thread each (CUDA batches)
             feat_count = fl.stage_counts[stage: stage + 1]
@@ -424,7 +427,8 @@ class Contact:
                 box: dict = {}
                 gate = rec.gated(lambda sub, p=p: box.update(r=self._record_pass(rec, state, p, lst, skin,
                                                                                  feat_count)), 2, prev, flag)
-                if gate is not None and len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol: the CPU's host test)
+                # (Config.tuning.contact_pass_tol: the CPU's host test)
+                if gate is not None and len(self.lists.pass_move):
                     gate.moved_enough = self._moved_enough(prev[0], stage)
                 lst, prev, flag = box["r"]
             else:
@@ -438,13 +442,15 @@ class Contact:
         stamp = self._slot  # unique within the frame (moved is zeroed per frame)
         moved_slots = [self._slot]
         self.touched_count = self._counter()
-        outs = [self.acc.delta, self.acc.hits, self.acc.decision, self.acc.vertex_obj, self.acc.bound, self.acc.bound_mask, self.acc.eval_x,
-                self.acc.touched, self.touched_count]
+        a = self.acc
+        outs = [a.delta, a.hits, a.decision, a.vertex_obj, a.bound, a.bound_mask, a.eval_x, a.touched,
+                self.touched_count]
         if self.features is not None:  # features.py: the stage's list against the skin as it is now, applied
             # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
             slot, feat_touched = self._record_features(rec, state, p, skin, feat_count, stamp)
             moved_slots.append(slot)
             self._tally_touched(rec, p, feat_touched)
+
         def decide(stride):  # the decision points' inputs (query.decide_inputs)
             return decide_inputs(m.skin_faces, o, self.tris_per_world, self.geoms_per_world, lst, stride,
                                  int(cfg.contact), cfg.multires_samples, cfg.multires_rounds, cfg.opt_queries,
@@ -462,8 +468,8 @@ class Contact:
                 kernel = multires_kernel(regs, block)
             rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
         shift, shifted = self.space.apply_shift(state)
-        rec.launch(apply_contact, m.n_vertices, [self.acc.touched, self.touched_count, stamp, self.acc.delta, self.acc.hits, shift],
-               [state.x, self.acc.push, self.acc.moved, self.acc.disp, self.lists.pass_move, shifted], count=self.touched_count)
+        rec.launch(apply_contact, m.n_vertices, [a.touched, self.touched_count, stamp, a.delta, a.hits, shift],
+                   [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
         self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.features is not None and cfg.feature_last:
             moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
@@ -473,12 +479,11 @@ class Contact:
             self.pass_slots.append(self._slot - 1)
             j = len(self.pass_slots) - 1  # (one flag per later pass of the frame, zeroed with the frame)
             flag = self.lists.pass_flags[j: j + 1]
-            rec.launch(keep_moved, self.n_tris, [m.skin_faces, self.lists.active, self.lists.active_mask, self.active_count,
-                                             self.acc.moved, self.acc.disp, stamp, self.acc.bound, self.lists.counters,
-                                             self._slot_array(moved_slots), self.lists.pass_move, self.lists.stage_tol,
-                                             len(self._stage_slots) - 1],
-                   [*lst, flag],
-                   count=self.active_count, min_dim=1)
+            rec.launch(keep_moved, self.n_tris,
+                       [m.skin_faces, self.lists.active, self.lists.active_mask, self.active_count, a.moved, a.disp,
+                        stamp, a.bound, self.lists.counters, self._slot_array(moved_slots), self.lists.pass_move,
+                        self.lists.stage_tol, len(self._stage_slots) - 1],
+                       [*lst, flag], count=self.active_count, min_dim=1)
         return lst, tuple(moved_slots), flag
 
     def _moved_enough(self, stamp: int, stage: int):
@@ -518,8 +523,9 @@ class Contact:
         long), per world (the log's ``contacts``)."""
         if self.lists.world_stage is not None and p == 0:
             m = self.model
-            rec.launch(tally_worlds, m.n_vertices, [self.acc.touched, count, 0, m.vertex_world,
-                                                2 * (len(self._stage_slots) - 1) + 1], [self.lists.world_stage], count=count)
+            rec.launch(tally_worlds, m.n_vertices,
+                       [self.acc.touched, count, 0, m.vertex_world, 2 * (len(self._stage_slots) - 1) + 1],
+                       [self.lists.world_stage], count=count)
 
     def _fit_patch_pool(self) -> None:
         used, _, failed = (int(v) for v in self.features.patch_used_host.numpy())
@@ -653,19 +659,20 @@ class Contact:
             assert feat_touched.ptr == self._first_push.ptr, "the first pass's feature counter slot moved"
         elif self.feature_scan:  # CUDA batches: a thread per feature over its patch
             rec.launch(feature_contact_scan, self.points.n_features,
-                   self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched), [])
+                       self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched), [])
         elif self.tiled_features:  # CUDA: a block per feature over its patch (or the frame's list)
             nb = tiled_blocks(m.device, self.points.n_features, self.feature_lanes)
             rec.launch(feature_contact_tiled, (nb, self.feature_lanes),
-                   self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched, stride=nb), [],
-                   block_dim=self.feature_lanes)
+                       self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched, stride=nb), [],
+                       block_dim=self.feature_lanes)
         else:
             rec.launch(feature_contact, self.points.n_features,
-                   self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched, skin=skin), [],
-                   count=feat_count)
+                       self._feature_inputs(state, self.features.stage, feat_count, off, feat_touched, skin=skin), [],
+                       count=feat_count)
         shift, shifted = self.space.apply_shift(state)
-        rec.launch(apply_contact, m.n_vertices, [self.acc.touched, feat_touched, stamp, self.acc.delta, self.acc.hits, shift],
-               [state.x, self.acc.push, self.acc.moved, self.acc.disp, self.lists.pass_move, shifted], count=feat_touched)
+        a = self.acc
+        rec.launch(apply_contact, m.n_vertices, [a.touched, feat_touched, stamp, a.delta, a.hits, shift],
+                   [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 
     def _feature_inputs(self, state, cand, cand_count, offset: float, touched_count, skin=None, stride: int = 0,
@@ -675,13 +682,15 @@ class Contact:
         counted in ``touched_count``; ``skin`` the refitted skin volume (the BVH search), ``stride``
         the tiled launch's blocks, ``out``/``out_count`` a stage's list."""
         m, o, cfg = self.model, self.objects, self.config
-        return feature_inputs(m.skin_faces, self.space.skin_x(state), cand, cand_count, self.points.pts, self.points.geom,
-                              self.space.pose, cfg.contact_frame_margin, skin=skin.id if skin is not None else 0,
-                              tris=self.lists.cand, tri_count=self.cand_count, stride=stride, geom_obj=o.obj,
-                              keep=cfg.contact_margin, near=self.near_query, eps=self.feature_eps, offset=offset,
-                              max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=self._winding_args(),
-                              side=self._side(), out=out, out_count=out_count,
-                              push=(self.acc.delta, self.acc.hits, self.acc.touched, touched_count, self.acc.vertex_obj))
+        return feature_inputs(m.skin_faces, self.space.skin_x(state), cand, cand_count, self.points.pts,
+                              self.points.geom, self.space.pose, cfg.contact_frame_margin,
+                              skin=skin.id if skin is not None else 0, tris=self.lists.cand, tri_count=self.cand_count,
+                              stride=stride, geom_obj=o.obj, keep=cfg.contact_margin, near=self.near_query,
+                              eps=self.feature_eps, offset=offset, max_step=cfg.contact_margin, pose0=o.pose,
+                              x0=state.x, winding=self._winding_args(), side=self._side(), out=out,
+                              out_count=out_count,
+                              push=(self.acc.delta, self.acc.hits, self.acc.touched, touched_count,
+                                    self.acc.vertex_obj))
 
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
@@ -702,7 +711,8 @@ class Contact:
         once per frame)."""
         self.measures.copy_rows()
         wp.copy(self.lists.counters_host, self.lists.counters)
-        if len(self.lists.pass_move) and self.lists.pass_move_host is not self.lists.pass_move:  # (CUDA: the ops report's)
+        # (CUDA: the ops report's; the CPU's host array is the device's)
+        if len(self.lists.pass_move) and self.lists.pass_move_host is not self.lists.pass_move:
             wp.copy(self.lists.pass_move_host, self.lists.pass_move)
         if self.lists.world_stage is not None:
             wp.copy(self.lists.world_stage_host, self.lists.world_stage)

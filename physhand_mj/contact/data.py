@@ -55,7 +55,8 @@ class FrameLists:
     # zeroed per frame (Config.tuning.contact_pass_tol; empty when the tolerance is 0)
     pass_move: wp.array
     pass_move_host: wp.array  # (like pass_move,) float m, host (the CPU: pass_move itself)
-    stage_tol: wp.array  # (max(stages, 1) or 0,) float m: per stage the move its passes stop under (Contact.finish_recording)
+    # (max(stages, 1) or 0,) float m: per stage the move its passes stop under (Contact.finish_recording)
+    stage_tol: wp.array
     stage_tol_host: np.ndarray  # (like stage_tol,) float32: what finish_recording last wrote
     # (W, 2 max(stages, 1)) int or None for one world: per world and stage [active triangles, vertices
     # the first pass corrected]
@@ -96,15 +97,17 @@ class FeatureLists:
     stage_counts: wp.array  # (max(stages, 1),) int: per stage of a frame its list's length, zeroed per frame
     no_side: wp.array  # (1,) float: stands in for far_angle and side without Config.feature_winding (never read)
     # Config.feature_winding only (else None):
-    patch_pool: wp.array | None = None  # (pool,) int: the listed features' patches, skin triangles each (patch_pool_size)
-    patch_used: wp.array | None = None  # (3,) int: [entries the patches need in all, taken at the pool's top, patches that did not fit]
+    # (pool,) int: the listed features' patches, skin triangles each (contact.patch_pool_size; grows)
+    patch_pool: wp.array | None = None
+    # (3,) int: [entries the patches need in all, taken at the pool's top, patches that did not fit]
+    patch_used: wp.array | None = None
     patch_used_host: wp.array | None = None  # (3,) int, host: its copy after the frame
     slot: wp.array | None = None  # (P,) int: per object point (by point index) its listed feature's slot
     patch_start: wp.array | None = None  # (N,) int: per listed feature its patch's first entry in the pool
     patch_len: wp.array | None = None  # (N,) int: its length (-1: no patch, it did not fit)
     patch_fill: wp.array | None = None  # (N,) int: CUDA's appends per feature (patches_tiled.py)
     far_angle: wp.array | None = None  # (N,) float: the solid angle of the skin outside the patch (winding.py)
-    side: wp.array | None = None  # (N,) float: the CPU's per-stage sides of the listed features (features.stage_features)
+    side: wp.array | None = None  # (N,) float: the CPU's per-stage sides of the listed features (stage_features)
 
 
 @dataclass

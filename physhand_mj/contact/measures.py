@@ -87,19 +87,21 @@ class ContactMeasures:
             rec.ops += vol.ops()
             qpose = self.space.record_pose(rec)
             if not (self.config.reuse_outside if reuse is None else reuse):
-                rec.launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
-                                                        obj, row, self.geoms_per_world, per], [out, pts.depth])
+                rec.launch(object_points_inside, len(pts),
+                           [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj, obj, row,
+                            self.geoms_per_world, per], [out, pts.depth])
                 return
             r = self._reuse(pts, vol, qpose)  # (Config.execution.reuse_outside: ask only what could have changed)
             bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
             rec.launch(reset_patches, r.motion.shape[0], [], [r.motion, r.lower, r.upper])
-            rec.launch(skin_patches, m.skin_faces.shape[0], [vol.points, r.prev_x, m.skin_faces,
-                                                         vol.points.shape[0] // self.worlds, m.skin_body, bodies],
-                   [r.motion, r.lower, r.upper])
+            rec.launch(skin_patches, m.skin_faces.shape[0],
+                       [vol.points, r.prev_x, m.skin_faces, vol.points.shape[0] // self.worlds, m.skin_body, bodies],
+                       [r.motion, r.lower, r.upper])
             rec.launch(keep_points, vol.points.shape[0], [vol.points], [r.prev_x])
             rec.launch(object_points_inside_reuse, len(pts),
-                   [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion, r.lower,
-                    r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per], [out, pts.depth, r.slack])
+                       [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, r.prev_pose, pts.geom_radius, r.motion,
+                        r.lower, r.upper, bodies, o.count, o.obj, obj, row, self.geoms_per_world, per],
+                       [out, pts.depth, r.slack])
             rec.launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
 
     def _record_skin_side(self, rec, state, row, obj, out, order, per, v):
@@ -110,10 +112,11 @@ class ContactMeasures:
         listed, count = self._penetration_list(culled)
         if culled:  # the triangles near an object first, then a thread per kept triangle
             rec.ops.append(count.zero_)
-            rec.launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
+            rec.launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world],
+                       [listed, count])
         rec.launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count,
-                metrics.SKIP_MARGIN], [out])
+                   [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count,
+                    metrics.SKIP_MARGIN], [out])
 
     @property
     def cull_measure(self) -> bool:
@@ -154,8 +157,8 @@ class ContactMeasures:
                            for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
         return self._views
 
-    def measure(self, state, points: ObjectPoints | None, obj: int = -1, order: int = 5, objects_side: bool = True,
-                check: bool = False) -> np.ndarray:
+    def measure(self, state, points: ObjectPoints | None, obj: int = -1, order: int = 5,
+                objects_side: bool = True, check: bool = False) -> np.ndarray:
         """Both measures of ``state`` now (see :meth:`record_metrics`) as a (6,) float row: [count,
         sum depth m, max depth m] of skin samples inside objects, then of object points inside the
         skin (``points``: the contact's own; ``check``: the denser :attr:`check_points` instead). Runs

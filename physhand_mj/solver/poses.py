@@ -117,7 +117,8 @@ class PoseInput:
 
     def _checks_jump(self) -> bool:
         """Whether :meth:`Solver.launch` checks how far a bone moves in the frame (contact, the warning not given)."""
-        return self.contact is not None and self.warn_fast_motion and not self._warned_fast and bool(self.model.n_bodies)
+        return (self.contact is not None and self.warn_fast_motion and not self._warned_fast
+                and bool(self.model.n_bodies))
 
     @staticmethod
     def _bone_jump(p0: np.ndarray, p1: np.ndarray) -> float:

@@ -144,7 +144,8 @@ class Solver:
 
     @property
     def warn_fast_motion(self) -> bool:
-        """Warn (once) when a bone outruns Config.contact_frame_margin in a frame (:attr:`PoseInput.warn_fast_motion`)."""
+        """Warn (once) when a bone outruns Config.contact_frame_margin in a frame
+        (:attr:`PoseInput.warn_fast_motion`)."""
         return self.poses.warn_fast_motion
 
     @warn_fast_motion.setter
@@ -174,7 +175,7 @@ class Solver:
         changed. One frame in flight at a time. ``staged``: :meth:`stage_pose_rows`' token."""
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
-        pin, frame_poses = self.poses.frame_poses_in(state, staged)  # (poses.py: the frame's poses, their upload buffer)
+        pin, frame_poses = self.poses.frame_poses_in(state, staged)  # (the frame's poses, their upload buffer)
         if self.contact is not None:  # (Config.contact_linear: planes made for another state are dropped)
             self.contact.forget_planes(state)
         # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
@@ -489,8 +490,9 @@ class Solver:
 
                 def after_contact(sub, s=s):
                     if cfg.skin_tether > 0:  # contact can drag the skin, nothing else can
-                        launch(integrate.tether_skin, m.n_skin, [m.skin_body, m.vertex_world, m.skin_local, state.body_sub, s,
-                                                                 cfg.skin_tether], [state.x, state.guard])
+                        launch(integrate.tether_skin, m.n_skin,
+                               [m.skin_body, m.vertex_world, m.skin_local, state.body_sub, s, cfg.skin_tether],
+                               [state.x, state.guard])
                     if cfg.substep_metrics:  # only when a log asks (rollout)
                         contact.record_metrics(rec, state, s, objects_side=False)
 
