@@ -20,7 +20,7 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import MESH, geom_sdf
+from physhand_mj.contact.sdf import MESH, GeomSet, geom_sdf
 from physhand_mj.contact.sdf_mesh import GRID_OFF, grid_lower, grid_node
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -46,34 +46,32 @@ def world_geoms(t: int, tris_per_world: int, geoms_per_world: int, count: int):
 
 
 @wp.func
-def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int),
+def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), geoms: GeomSet,
                tris_per_world: int, geoms_per_world: int, margin: float):
     """The bit mask of the geoms (of those in ``allowed``) that skin triangle ``t`` can reach within
     ``margin`` (m); 0: none (:func:`find_active`)."""
     m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
     mask = int(0)
-    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
+    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geoms.count[0])
     for g in range(g0, g1):
         bit = int(1 << 30)
         if g - g0 < 31:
             bit = 1 << (g - g0)
         if (allowed & bit) == 0:
             continue
-        q = wp.transform_point(inv_pose[g], m)
-        if wp.length(q) - radius[g] - r <= margin:
-            ids = mesh[g]
-            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid decides what it can prove, in one read:
+        q = wp.transform_point(geoms.inv_pose[g], m)
+        if wp.length(q) - geoms.radius[g] - r <= margin:
+            ids = geoms.mesh[g]
+            if geoms.gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid decides what it can prove, in one read:
                 dc, s = grid_node(ids[1], q)  # phi(q) within dc -+ s
                 # near for sure (on the grid, within the query range, where the exact query answers phi)
-                if USE_GRID_UPPER and dc > 0.5 * GRID_OFF and dc + s - r <= margin and wp.abs(dc) + s <= size[g][0]:
+                if USE_GRID_UPPER and dc > 0.5 * GRID_OFF and dc + s - r <= margin and wp.abs(dc) + s <= geoms.size[g][0]:
                     mask = mask | bit
                     continue
                 if grid_lower(dc, s) - r > margin:  # far for sure
                     continue
                 ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
-            if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:
+            if geom_sdf(geoms.gtype[g], q, geoms.size[g], ids) - r <= margin:
                 mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
     return mask
 
@@ -82,12 +80,7 @@ def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(d
 def find_active(
     faces: wp.array2d(dtype=int),
     x: wp.array(dtype=wp.vec3),
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
+    geoms: GeomSet,
     tris_per_world: int,
     geoms_per_world: int,
     margin: float,
@@ -109,8 +102,7 @@ def find_active(
     bound proves near (within the mesh's query range); the others are asked the exact distance, so
     the lists are those of the exact distance."""
     t = wp.tid()
-    mask = reach_mask(t, -1, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                      geoms_per_world, margin)
+    mask = reach_mask(t, -1, faces, x, geoms, tris_per_world, geoms_per_world, margin)
     if mask != 0:
         slot = wp.atomic_add(active_count, 0, 1)
         active[slot] = t
@@ -205,17 +197,13 @@ def first_pass_keeps(t: int, mask: int, faces: wp.array2d(dtype=int), x: wp.arra
 
 @wp.func
 def stage_list_entry(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-                     gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                     inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                     mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int), tris_per_world: int,
-                     geoms_per_world: int, margin: float, bound: wp.array(dtype=float),
-                     bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3), active: wp.array(dtype=int),
-                     active_mask: wp.array(dtype=int), active_count: wp.array(dtype=int), out: wp.array(dtype=int),
-                     out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
+                     geoms: GeomSet, tris_per_world: int, geoms_per_world: int, margin: float,
+                     bound: wp.array(dtype=float), bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3),
+                     active: wp.array(dtype=int), active_mask: wp.array(dtype=int), active_count: wp.array(dtype=int),
+                     out: wp.array(dtype=int), out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
     """Frame-list triangle ``t`` (near the geoms of ``allowed``) into its stage's active list when it
     can reach a geom within ``margin``, and into the first pass's list when :func:`first_pass_keeps`."""
-    mask = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                      geoms_per_world, margin)
+    mask = reach_mask(t, allowed, faces, x, geoms, tris_per_world, geoms_per_world, margin)
     if mask == 0:
         return
     slot = wp.atomic_add(active_count, 0, 1)
@@ -231,12 +219,7 @@ def stage_list_entry(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.a
 def stage_lists(
     faces: wp.array2d(dtype=int),
     x: wp.array(dtype=wp.vec3),
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
+    geoms: GeomSet,
     tris_per_world: int,
     geoms_per_world: int,
     margin: float,
@@ -259,9 +242,8 @@ def stage_lists(
     k = wp.tid()
     if k >= src_count[0]:
         return
-    stage_list_entry(src[k], src_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                     geoms_per_world, margin, bound, bound_mask, eval_x, active, active_mask, active_count, out,
-                     out_mask, out_count)
+    stage_list_entry(src[k], src_mask[k], faces, x, geoms, tris_per_world, geoms_per_world, margin, bound, bound_mask,
+                     eval_x, active, active_mask, active_count, out, out_mask, out_count)
 
 
 @wp.kernel

@@ -132,7 +132,6 @@ class Contact(ContactMeasures):
                              f"into {w} equal worlds")
         self.tris_per_world = max(n_tris // w, 1)
         self.geoms_per_world = max(objects.capacity // w, 1)
-        self._views = None  # the objects' arrays as (W, k) views (the metrics' per-world geoms)
         # where the object side's queries run: the skin meshes, and batched worlds solved at one
         # origin but queried apart (set_query_offsets)
         self.space = QuerySpace(model, objects, w, self.geoms_per_world)
@@ -256,8 +255,8 @@ class Contact(ContactMeasures):
         self._stage_slots = []
         self.pass_slots = []
         rec.launch_ahead(find_active, self.n_tris,
-                         [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                          self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
+                         [m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world,
+                          cfg.contact_frame_margin],
                          [self.lists.cand, self.lists.cand_mask, self.cand_count])
         rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
@@ -396,7 +395,7 @@ class Contact(ContactMeasures):
         self.pass_slots.append(self._slot - 1)
         # the stage's active triangles (within contact_margin) of the frame's list, and of those its
         # first pass's list, in one launch
-        rec.launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
+        rec.launch(stage_lists, self.n_tris, [m.skin_faces, state.x, o.geoms,
                                           self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.lists.cand,
                                           self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask, self.acc.eval_x],
                [self.lists.active, self.lists.active_mask, self.active_count, *lst], count=self.cand_count)
