@@ -400,7 +400,8 @@ def test_the_grids_bounds_list_the_triangles_the_exact_distance_lists(device):
 
     def listed(geoms, margin):
         out = [wp.zeros(n, dtype=int, device=device) for _ in range(2)] + [wp.zeros(1, dtype=int, device=device)]
-        wp.launch(find_active, n, inputs=[faces, x, geoms, n, 1, margin], outputs=out, device=device)
+        wp.launch(find_active, n, inputs=[faces, x, geoms, n, 1, margin, *[None] * 6], outputs=[*out, *[None] * 3],
+                  device=device)
         k = int(out[2].numpy()[0])
         return dict(zip(out[0].numpy()[:k].tolist(), out[1].numpy()[:k].tolist()))
 

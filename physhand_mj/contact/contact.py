@@ -256,8 +256,8 @@ class Contact(ContactMeasures):
         self.pass_slots = []
         rec.launch_ahead(find_active, self.n_tris,
                          [m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world,
-                          cfg.contact_frame_margin],
-                         [self.lists.cand, self.lists.cand_mask, self.cand_count])
+                          cfg.contact_frame_margin, *[None] * 6],
+                         [self.lists.cand, self.lists.cand_mask, self.cand_count, *[None] * 3])
         rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
     def _record_frame_lists(self, rec, state) -> None:

@@ -129,8 +129,7 @@ def hold_planes(
     plane_geom: wp.array(dtype=int),
     plane_eq: wp.array(dtype=wp.vec4),
     plane_state: wp.array(dtype=int),
-    inv_pose: wp.array(dtype=wp.transform),
-    geom_obj: wp.array(dtype=int),
+    geoms: GeomSet,
     offset: float,
     x: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
@@ -154,7 +153,7 @@ def hold_planes(
     w = plane_bary[k]
     p = x[i0] * w[0] + x[i1] * w[1] + x[i2] * w[2]
     g = plane_geom[k]
-    ti = inv_pose[g]
+    ti = geoms.inv_pose[g]
     e = plane_eq[k]
     gl = wp.vec3(e[0], e[1], e[2])
     d = wp.dot(gl, wp.transform_point(ti, p)) + e[3]
@@ -162,7 +161,7 @@ def hold_planes(
         return
     corr = wp.quat_rotate_inv(wp.transform_get_rotation(ti), gl) * (offset - d)
     wt = depth_weight(-d)
-    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geom_obj[g], delta, hits, touched, touched_count, vertex_obj)
+    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geoms.obj[g], delta, hits, touched, touched_count, vertex_obj)
 
 
 @wp.kernel
@@ -329,7 +328,7 @@ class PlaneHold:
         common = [acc.delta, acc.hits, acc.touched]  # (a push's accumulators, then its touched count)
         pushes = [(hold_planes, self.n_tris, self.plane_len,
                    [m.skin_faces, b.tri, b.bary, b.geom, b.eq, b.state,
-                    o.inv_pose, o.obj, cfg.contact_offset, state.x])]
+                    o.geoms, cfg.contact_offset, state.x])]
         if self.keeps_features(points):  # the kept feature points, before the planes (as a stage's push is)
             pushes.insert(0, (hold_features, points.n_features, self.fplane_len,
                               [m.skin_faces, b.fpt, b.fface, b.fuv, b.state,

@@ -65,8 +65,9 @@ class ContactMeasures:
             rec.ops += vol.ops()
             qpose = self.space.record_pose(rec)
             if not (self.config.reuse_outside if reuse is None else reuse):
-                rec.launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj,
-                                                        obj, row, self.geoms_per_world, per], [out, pts.depth])
+                rec.launch(object_points_inside, len(pts), [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, *[None] * 5,
+                                                        0, o.count, o.obj, obj, row, self.geoms_per_world, per],
+                           [out, pts.depth, None])
                 return
             r = self._reuse(pts, vol, qpose)  # (Config.execution.reuse_outside: ask only what could have changed)
             bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
@@ -83,15 +84,14 @@ class ContactMeasures:
     def _record_skin_side(self, rec, state, row, obj, out, order, per):
         """The skin measure: samples of the order-``order`` lattice inside objects (columns 0-2)."""
         m, o = self.model, self.objects
-        geoms = [o.geoms, self.geoms_per_world]
         culled = obj < 0 and self.cull_measure
         listed, count = self._penetration_list(culled)
+        args = [m.skin_faces, state.x, o.geoms, self.geoms_per_world, obj, row, order, self.tris_per_world, per, listed,
+                count, metrics.SKIP_MARGIN]
         if culled:  # the triangles near an object first, then a thread per kept triangle
             rec.ops.append(count.zero_)
-            rec.launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world], [listed, count])
-        rec.launch(penetration_samples, self.n_tris,
-               [m.skin_faces, state.x, *geoms, obj, row, order, self.tris_per_world, per, listed, count,
-                metrics.SKIP_MARGIN], [out])
+            rec.launch(penetration_cull, self.n_tris, args, [out])
+        rec.launch(penetration_samples, self.n_tris, args, [out])
 
     @property
     def cull_measure(self) -> bool:
