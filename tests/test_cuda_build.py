@@ -24,3 +24,18 @@ def test_the_feature_kernels_build_for_an_h100(tmp_path):
     for module in (features, slack, winding):
         out = wp.compile_aot_module(module, arch=90, module_dir=tmp_path / module.__name__, use_ptx=False)
         assert out and all(p.exists() and p.stat().st_size > 0 for p in out)
+
+
+@pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")
+def test_the_geom_set_kernels_build_for_an_h100(tmp_path):
+    """The kernels that take the objects' geoms as one struct (sdf.GeomSet) and the flag-made
+    variants (broadphase.list_source, metrics.penetration_source, inside.points_inside_source) build
+    to sm_90 machine code: contact/broadphase.py, query.py (and its MULTIRES and tiled decision-point
+    kernels), linear.py, metrics.py and inside.py."""
+    from physhand_mj.contact import broadphase, inside, linear, metrics, query, query_tiled
+
+    modules = [broadphase, query, linear, metrics, inside, query.multires_kernel(128).module,
+               query_tiled.tiled_kernel_for(True).module, query_tiled.tiled_kernel_for(False).module]
+    for i, module in enumerate(modules):
+        out = wp.compile_aot_module(module, arch=90, module_dir=tmp_path / str(i), use_ptx=False)
+        assert out and all(p.exists() and p.stat().st_size > 0 for p in out)

@@ -367,8 +367,9 @@ def test_reuse_bound_sees_a_hinged_face_and_a_turning_object():
                                                          upper, 2, count, gobj, -1, 0, 1, 1],
                   outputs=[kept, depth, slack], device=d)
         wp.launch(keep_poses, 1, inputs=[pose], outputs=[prev_pose], device=d)
-        wp.launch(object_points_inside, 1, inputs=[mesh.id, box, pts, geom, pose, count, gobj, -1, 0, 1, 1],
-                  outputs=[every, wp.zeros(1, dtype=float, device=d)], device=d)
+        wp.launch(object_points_inside, 1, inputs=[mesh.id, box, pts, geom, pose, *[None] * 5, 0, count, gobj, -1, 0,
+                                                   1, 1], outputs=[every, wp.zeros(1, dtype=float, device=d), None],
+                  device=d)
         return kept.numpy()[0, 3:], every.numpy()[0, 3:]
 
     kept, every = measure()

@@ -49,7 +49,7 @@ def _hold_once(solver, state, plane_state=None) -> int:
     count = wp.zeros(1, dtype=int, device="cpu")
     flags = c.hold.data.state if plane_state is None else plane_state
     wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.hold.data.tri, c.hold.data.bary, c.hold.data.geom, c.hold.data.eq,
-                                             flags, o.inv_pose, o.obj, solver.config.contact_offset, state.x],
+                                             flags, o.geoms, solver.config.contact_offset, state.x],
               outputs=[c.acc.delta, c.acc.hits, c.acc.touched, count, c.vertex_obj], device="cpu")
     shift, shifted = c.space.apply_shift(state)
     wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.touched, count, 10_000, c.acc.delta, c.acc.hits, shift],

@@ -53,13 +53,12 @@ def test_the_culled_skin_measure_equals_the_one_kernel_measure(device, order):
     contact.cull_measure = True
     listed = contact.measure_worlds(state, order=order, objects_side=False)[0]
     # the same kernel without a list: every triangle asks its bound itself, one thread each
-    m, v = contact.model, contact.world_views()
+    m = contact.model
     out = wp.zeros((1, 6), dtype=float, device=device)
     none = wp.zeros(0, dtype=int, device=device)
     wp.launch(penetration_samples, contact.n_tris,
-              [m.skin_faces, state.x, v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"],
-               contact.objects.count, v["obj"], -1, 0, order, contact.tris_per_world, 1, none, none,
-               metrics.SKIP_MARGIN], [out], device=device)
+              [m.skin_faces, state.x, contact.objects.geoms, contact.geoms_per_world, -1, 0, order,
+               contact.tris_per_world, 1, none, none, metrics.SKIP_MARGIN], [out], device=device)
     whole = out.numpy()[0].astype(float)
     assert whole[0] > 50 and whole[2] > 3e-3, "the hand is not pressed in: the test would compare nothing"
     assert listed[0] == whole[0] and listed[2] == whole[2]  # counts and the deepest: exact on every device

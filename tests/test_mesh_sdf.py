@@ -398,15 +398,15 @@ def test_the_grids_bounds_list_the_triangles_the_exact_distance_lists(device):
     assert int(objs._host["mesh"][0][1]) != 0  # (it has a grid)
     n = len(c)
 
-    def listed(ids, margin):
+    def listed(geoms, margin):
         out = [wp.zeros(n, dtype=int, device=device) for _ in range(2)] + [wp.zeros(1, dtype=int, device=device)]
-        wp.launch(find_active, n, inputs=[faces, x, objs.gtype, objs.size, objs.inv_pose, objs.radius, ids, objs.count,
-                                          n, 1, margin], outputs=out, device=device)
+        wp.launch(find_active, n, inputs=[faces, x, geoms, n, 1, margin, *[None] * 6], outputs=[*out, *[None] * 3],
+                  device=device)
         k = int(out[2].numpy()[0])
         return dict(zip(out[0].numpy()[:k].tolist(), out[1].numpy()[:k].tolist()))
 
     for margin in (5e-4, 1e-2):
-        exact, grid = listed(objs.mesh_exact, margin), listed(objs.mesh, margin)
+        exact, grid = listed(objs.geoms_exact, margin), listed(objs.geoms, margin)
         assert 200 < len(exact) < n, (margin, len(exact))
         assert grid == exact, margin
         if margin == 1e-2:  # the upper bound alone decides most of the listed triangles (the path is taken)

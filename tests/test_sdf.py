@@ -175,15 +175,14 @@ def test_mesh_sdf_matches_the_analytic_box():
 
 def test_compound_object_is_the_union_of_its_geoms():
     from physhand_mj.contact.query import scene_phi, scene_phi_grad
+    from physhand_mj.contact.sdf import GeomSet
 
     @wp.kernel
-    def union(p: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul),
-              count: wp.array(dtype=int), phi: wp.array(dtype=float), phi2: wp.array(dtype=float),
+    def union(p: wp.array(dtype=wp.vec3), geoms: GeomSet, phi: wp.array(dtype=float), phi2: wp.array(dtype=float),
               grad: wp.array(dtype=wp.vec3)):
         i = wp.tid()
-        phi[i] = scene_phi(p[i], gtype, size, pose, radius, mesh, count[0], -1)
-        d, g, arg = scene_phi_grad(p[i], gtype, size, pose, radius, mesh, count[0], -1)
+        phi[i] = scene_phi(p[i], geoms, geoms.count[0], -1)
+        d, g, arg = scene_phi_grad(p[i], geoms, geoms.count[0], -1)
         phi2[i] = d
         grad[i] = g
 
@@ -196,8 +195,8 @@ def test_compound_object_is_the_union_of_its_geoms():
     n = len(p)
     phi, phi2, grad = (wp.zeros(n, dtype=float, device="cpu"), wp.zeros(n, dtype=float, device="cpu"),
                        wp.zeros(n, dtype=wp.vec3, device="cpu"))
-    wp.launch(union, n, inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3, device="cpu"), objs.gtype, objs.size, objs.inv_pose,
-                                objs.radius, objs.mesh, objs.count], outputs=[phi, phi2, grad], device="cpu")
+    wp.launch(union, n, inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3, device="cpu"), objs.geoms],
+              outputs=[phi, phi2, grad], device="cpu")
     rot = np.array([[np.cos(np.pi / 4), -np.sin(np.pi / 4), 0], [np.sin(np.pi / 4), np.cos(np.pi / 4), 0], [0, 0, 1]])
     want = np.minimum(np.linalg.norm(p - [-0.015, 0, 0], axis=1) - 0.02,
                       ref_box((p - [0.02, 0, 0]) @ rot, np.array([0.01, 0.01, 0.01])))

@@ -20,7 +20,7 @@ thread of the query kernel costs ~90 ns even when it returns at once.)
 
 import warp as wp
 
-from physhand_mj.contact.sdf import MESH, geom_sdf
+from physhand_mj.contact.sdf import MESH, GeomSet, geom_sdf
 from physhand_mj.contact.sdf_mesh import GRID_OFF, grid_lower, grid_node
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -46,75 +46,34 @@ def world_geoms(t: int, tris_per_world: int, geoms_per_world: int, count: int):
 
 
 @wp.func
-def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int),
+def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), geoms: GeomSet,
                tris_per_world: int, geoms_per_world: int, margin: float):
     """The bit mask of the geoms (of those in ``allowed``) that skin triangle ``t`` can reach within
     ``margin`` (m); 0: none (:func:`find_active`)."""
     m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
     mask = int(0)
-    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
+    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geoms.count[0])
     for g in range(g0, g1):
         bit = int(1 << 30)
         if g - g0 < 31:
             bit = 1 << (g - g0)
         if (allowed & bit) == 0:
             continue
-        q = wp.transform_point(inv_pose[g], m)
-        if wp.length(q) - radius[g] - r <= margin:
-            ids = mesh[g]
-            if gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid decides what it can prove, in one read:
+        q = wp.transform_point(geoms.inv_pose[g], m)
+        if wp.length(q) - geoms.radius[g] - r <= margin:
+            ids = geoms.mesh[g]
+            if geoms.gtype[g] == MESH and ids[1] != wp.uint64(0):  # the grid decides what it can prove, in one read:
                 dc, s = grid_node(ids[1], q)  # phi(q) within dc -+ s
                 # near for sure (on the grid, within the query range, where the exact query answers phi)
-                if USE_GRID_UPPER and dc > 0.5 * GRID_OFF and dc + s - r <= margin and wp.abs(dc) + s <= size[g][0]:
+                if USE_GRID_UPPER and dc > 0.5 * GRID_OFF and dc + s - r <= margin and wp.abs(dc) + s <= geoms.size[g][0]:
                     mask = mask | bit
                     continue
                 if grid_lower(dc, s) - r > margin:  # far for sure
                     continue
                 ids = wp.vec2ul(ids[0], wp.uint64(0))  # the rest: the exact distance, once
-            if geom_sdf(gtype[g], q, size[g], ids) - r <= margin:
+            if geom_sdf(geoms.gtype[g], q, geoms.size[g], ids) - r <= margin:
                 mask = mask | bit  # the world's geoms >= 31 share bit 30: the triangle is active, they are always tried
     return mask
-
-
-@wp.kernel
-def find_active(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
-    tris_per_world: int,
-    geoms_per_world: int,
-    margin: float,
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
-    active_count: wp.array(dtype=int),
-):
-    """Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms,
-    so decision points query only the geoms near their triangle (the frame's list; a stage's comes
-    from that list by :func:`stage_lists`).
-    World-indexed (batched worlds, physhand_mj/batch.py): triangle t belongs to world
-    w = t // ``tris_per_world`` and tests only that world's geoms [w k, (w + 1) k), k =
-    ``geoms_per_world``, so a world's broadphase work does not grow with the number of worlds; one
-    world passes its triangle count and the geom capacity (w = 0: every geom in use). Mask bits are
-    world-relative: bit j is geom w k + j (j < 31; the world's geoms from its 31st on share bit 30,
-    and the decision points, query.world_phi, always try those, within the world's [w k, (w + 1) k)
-    only); one world's bits are its global geom indices, as before batching. A mesh's distance grid
-    (objects.mesh_grid) rejects the triangles its lower bound proves far and takes those its upper
-    bound proves near (within the mesh's query range); the others are asked the exact distance, so
-    the lists are those of the exact distance."""
-    t = wp.tid()
-    mask = reach_mask(t, -1, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                      geoms_per_world, margin)
-    if mask != 0:
-        slot = wp.atomic_add(active_count, 0, 1)
-        active[slot] = t
-        active_mask[slot] = mask
 
 
 @wp.func
@@ -203,65 +162,75 @@ def first_pass_keeps(t: int, mask: int, faces: wp.array2d(dtype=int), x: wp.arra
     return True
 
 
-@wp.func
-def stage_list_entry(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-                     gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                     inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                     mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int), tris_per_world: int,
-                     geoms_per_world: int, margin: float, bound: wp.array(dtype=float),
-                     bound_mask: wp.array(dtype=int), eval_x: wp.array2d(dtype=wp.vec3), active: wp.array(dtype=int),
-                     active_mask: wp.array(dtype=int), active_count: wp.array(dtype=int), out: wp.array(dtype=int),
-                     out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
-    """Frame-list triangle ``t`` (near the geoms of ``allowed``) into its stage's active list when it
-    can reach a geom within ``margin``, and into the first pass's list when :func:`first_pass_keeps`."""
-    mask = reach_mask(t, allowed, faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                      geoms_per_world, margin)
-    if mask == 0:
-        return
-    slot = wp.atomic_add(active_count, 0, 1)
-    active[slot] = t
-    active_mask[slot] = mask
-    if first_pass_keeps(t, mask, faces, x, bound, bound_mask, eval_x):
-        slot = wp.atomic_add(out_count, 0, 1)
-        out[slot] = t
-        out_mask[slot] = mask
+def list_source(stage: bool):
+    """The Python function of a triangle-list kernel, for ``wp.kernel``: :func:`find_active` (the
+    frame's list over every triangle) or, ``stage``, :func:`stage_lists` (a stage's two lists over
+    the frame's list ``src``). Both take the same arguments; find_active reads no ``src``, ``bound``,
+    ``bound_mask``, ``eval_x`` nor ``out`` lists (None)."""
+    STAGE = bool(stage)
+
+    def kernel(
+        faces: wp.array2d(dtype=int),
+        x: wp.array(dtype=wp.vec3),
+        geoms: GeomSet,
+        tris_per_world: int,
+        geoms_per_world: int,
+        margin: float,
+        src: wp.array(dtype=int),
+        src_mask: wp.array(dtype=int),
+        src_count: wp.array(dtype=int),
+        bound: wp.array(dtype=float),
+        bound_mask: wp.array(dtype=int),
+        eval_x: wp.array2d(dtype=wp.vec3),
+        active: wp.array(dtype=int),
+        active_mask: wp.array(dtype=int),
+        active_count: wp.array(dtype=int),
+        out: wp.array(dtype=int),
+        out_mask: wp.array(dtype=int),
+        out_count: wp.array(dtype=int),
+    ):
+        k = wp.tid()
+        t = k
+        allowed = int(-1)
+        if wp.static(STAGE):
+            if k >= src_count[0]:
+                return
+            t = src[k]
+            allowed = src_mask[k]
+        mask = reach_mask(t, allowed, faces, x, geoms, tris_per_world, geoms_per_world, margin)
+        if mask == 0:
+            return
+        slot = wp.atomic_add(active_count, 0, 1)
+        active[slot] = t
+        active_mask[slot] = mask
+        if wp.static(STAGE):
+            if first_pass_keeps(t, mask, faces, x, bound, bound_mask, eval_x):
+                slot = wp.atomic_add(out_count, 0, 1)
+                out[slot] = t
+                out_mask[slot] = mask
+
+    kernel.__name__ = kernel.__qualname__ = "stage_lists" if STAGE else "find_active"  # (the kernel's key: tests)
+    return kernel
 
 
-@wp.kernel
-def stage_lists(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
-    tris_per_world: int,
-    geoms_per_world: int,
-    margin: float,
-    src: wp.array(dtype=int),
-    src_mask: wp.array(dtype=int),
-    src_count: wp.array(dtype=int),
-    bound: wp.array(dtype=float),
-    bound_mask: wp.array(dtype=int),
-    eval_x: wp.array2d(dtype=wp.vec3),
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
-    active_count: wp.array(dtype=int),
-    out: wp.array(dtype=int),
-    out_mask: wp.array(dtype=int),
-    out_count: wp.array(dtype=int),
-):
-    """A contact stage's two lists in one launch: :func:`find_active` over the frame's list ``src``
-    (the stage's active triangles, ``active``) and, of those, its first pass's (``out``,
-    :func:`first_pass_keeps`)."""
-    k = wp.tid()
-    if k >= src_count[0]:
-        return
-    stage_list_entry(src[k], src_mask[k], faces, x, gtype, size, inv_pose, radius, mesh, geom_count, tris_per_world,
-                     geoms_per_world, margin, bound, bound_mask, eval_x, active, active_mask, active_count, out,
-                     out_mask, out_count)
+find_active = wp.kernel(list_source(False))
+""" Append each triangle that can reach a geom within ``margin``, with the bit mask of those geoms,
+so decision points query only the geoms near their triangle (the frame's list; a stage's comes
+from that list by :func:`stage_lists`).
+World-indexed (batched worlds, physhand_mj/batch.py): triangle t belongs to world w = t //
+``tris_per_world`` and tests only that world's geoms [w k, (w + 1) k), k =
+``geoms_per_world``, so a world's broadphase work does not grow with the number of worlds; one
+world passes its triangle count and the geom capacity (w = 0: every geom in use). Mask bits are
+world-relative: bit j is geom w k + j (j < 31; the world's geoms from its 31st on share bit 30,
+and the decision points, query.world_phi, always try those, within the world's [w k, (w + 1) k)
+only); one world's bits are its global geom indices, as before batching. A mesh's distance grid
+(objects.mesh_grid) rejects the triangles its lower bound proves far and takes those its upper
+bound proves near (within the mesh's query range); the others are asked the exact distance, so
+the lists are those of the exact distance. Arguments: :func:`list_source`."""
+stage_lists = wp.kernel(list_source(True))
+""" A contact stage's two lists in one launch: :func:`find_active` over the frame's list ``src``
+(near the geoms of its mask ``src_mask``: the stage's active triangles, ``active``) and, of those,
+its first pass's (``out``, :func:`first_pass_keeps`)."""
 
 
 @wp.kernel

@@ -251,9 +251,9 @@ class Contact:
         self._stage_slots = []
         self.pass_slots = []
         rec.launch_ahead(find_active, self.n_tris,
-                         [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                          self.tris_per_world, self.geoms_per_world, cfg.contact_frame_margin],
-                         [self.lists.cand, self.lists.cand_mask, self.cand_count])
+                         [m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world,
+                          cfg.contact_frame_margin, *[None] * 6],
+                         [self.lists.cand, self.lists.cand_mask, self.cand_count, *[None] * 3])
         rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
     def _record_frame_lists(self, rec, state) -> None:
@@ -380,9 +380,9 @@ class Contact:
         # the stage's active triangles (within contact_margin) of the frame's list, and of those its
         # first pass's list, in one launch
         rec.launch(stage_lists, self.n_tris,
-                   [m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh, o.count,
-                    self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.lists.cand,
-                    self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask, self.acc.eval_x],
+                   [m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world, cfg.contact_margin,
+                    self.lists.cand, self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask,
+                    self.acc.eval_x],
                    [self.lists.active, self.lists.active_mask, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
         if self.lists.world_stage is not None:  # the stage's active triangles per world
@@ -581,10 +581,6 @@ class Contact:
     @cull_measure.setter
     def cull_measure(self, on: bool) -> None:
         self.measures.cull_measure = on
-
-    def world_views(self) -> dict:
-        """The objects' per-geom arrays as (W, k) views (:meth:`ContactMeasures.world_views`)."""
-        return self.measures.world_views()
 
     def record_metrics(self, rec, state, row: int, obj: int = -1, out=None, objects_side: bool = True,
                        order: int = 5, points: ObjectPoints | None = None, skin_side: bool = True,

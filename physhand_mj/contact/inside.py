@@ -162,39 +162,6 @@ def add_inside(out: wp.array2d(dtype=float), o: int, d: float):
 
 
 @wp.kernel
-def object_points_inside(
-    skin: wp.uint64,
-    box: wp.array(dtype=wp.vec3),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    geom_count: wp.array(dtype=int),
-    geom_obj: wp.array(dtype=int),
-    obj_filter: int,
-    row: int,
-    geoms_per_world: int,
-    rows_per_world: int,
-    out: wp.array2d(dtype=float),
-    depth: wp.array(dtype=float),
-):
-    """Object surface points (geom-local ``pts`` of geom ``pts_geom``) inside the skin: adds into
-    out[row, 3:6] [count, sum of depths m, max depth m]; depth[i] (m, 0 outside) per point.
-    ``obj_filter`` >= 0 keeps only that object's points. Batched worlds (physhand_mj/batch.py): the
-    point of geom g belongs to world w = g // ``geoms_per_world``, is tested only where it lies in
-    world w's skin box (``box[2 w]``, ``box[2 w + 1]``: outside it no point is inside the closed skin)
-    and adds into row w ``rows_per_world`` + ``row`` (one world: the geom capacity, w = 0)."""
-    i = wp.tid()
-    g = pts_geom[i]
-    w = g // geoms_per_world  # the point's world (its geom's): tested against that world's skin box
-    d = float(0.0)
-    if g < geom_count[0] and (obj_filter < 0 or geom_obj[g] == obj_filter):
-        d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[2 * w], box[2 * w + 1])
-    depth[i] = d
-    if d > 0.0:
-        add_inside(out, w * rows_per_world + row, d)
-
-
-@wp.kernel
 def reset_patches(motion: wp.array(dtype=float), lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3)):
     k = wp.tid()
     motion[k] = 0.0
@@ -255,78 +222,100 @@ def box_distance(p: wp.vec3, lower: wp.vec3, upper: wp.vec3):
                              wp.max(wp.max(lower[2] - p[2], p[2] - upper[2]), 0.0)))
 
 
-@wp.kernel
-def object_points_inside_reuse(
-    skin: wp.uint64,
-    box: wp.array(dtype=wp.vec3),
-    pts: wp.array(dtype=wp.vec3),
-    pts_geom: wp.array(dtype=int),
-    pose: wp.array(dtype=wp.transform),
-    prev_pose: wp.array(dtype=wp.transform),
-    geom_radius: wp.array(dtype=float),
-    motion: wp.array(dtype=float),
-    patch_lower: wp.array(dtype=wp.vec3),
-    patch_upper: wp.array(dtype=wp.vec3),
-    bodies: int,
-    geom_count: wp.array(dtype=int),
-    geom_obj: wp.array(dtype=int),
-    obj_filter: int,
-    row: int,
-    geoms_per_world: int,
-    rows_per_world: int,
-    out: wp.array2d(dtype=float),
-    depth: wp.array(dtype=float),
-    slack: wp.array(dtype=float),
-):
-    """:func:`object_points_inside`, asking again only the points whose answer could have changed
-    (``Config.execution.reuse_outside``). ``slack[i]`` (m) is a lower bound of point i's distance to the skin
-    (0: ask it). Since it was taken, each skin patch P of the point's world (skin_patches: every
-    skin triangle belongs to one patch, whose box holds its corners now, and its points moved no
-    farther than its corners, at most ``motion[P]``) stayed at least max(slack, its box's distance
-    now) - motion[P] from the point, all along
-    the way, and the point moved at most |dt| + 2 sin(theta / 2) ``geom_radius`` with its geom (pose
-    against ``prev_pose``). While the smallest of these stays positive the skin has not crossed the
-    point, so it is still outside, and that bound is its new slack. A point asked again gets its
-    distance to the skin (Warp's closest-point search), or to its world's skin box where it lies
-    outside that box, or 0 inside the skin."""
-    i = wp.tid()
-    g = pts_geom[i]
-    if g >= geom_count[0]:
-        depth[i] = 0.0
-        return
-    w = g // geoms_per_world
-    t0 = prev_pose[g]
-    t1 = pose[g]
-    dq = wp.mul(wp.quat_inverse(wp.transform_get_rotation(t0)), wp.transform_get_rotation(t1))
-    p = wp.transform_point(t1, pts[i])
-    # how far the point can have come (m), with float rounding at the query's coordinates (worlds are
-    # queried up to tens of metres out: ~16 ulp there, and 1 um)
-    own = (wp.length(wp.transform_get_translation(t1) - wp.transform_get_translation(t0))
-           + 2.0 * wp.length(wp.vec3(dq[0], dq[1], dq[2])) * geom_radius[g] + 1.0e-6 + 2.0e-6 * wp.length(p))
-    s0 = slack[i]
-    s = float(0.0)
-    if s0 > 0.0:
-        s = float(1.0e6)
-        for k in range(w * bodies, (w + 1) * bodies):
-            s = wp.min(s, wp.max(s0, box_distance(p, patch_lower[k], patch_upper[k])) - motion[k])
-        s = s - own
-    d = float(0.0)
-    if (obj_filter < 0 or geom_obj[g] == obj_filter) and not (s > 0.0):
-        lo = box[2 * w]
-        hi = box[2 * w + 1]
-        s = box_distance(p, lo, hi)
-        if s <= 0.0:  # in the skin's box: the winding number, the distance to the skin
-            q = wp.mesh_query_point_no_sign(skin, p, INSIDE_RANGE)
-            s = 0.0  # (no skin within INSIDE_RANGE: outside by the measure's definition; asked again)
-            if q.result:
-                s = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
-                if winding_number(skin, p, 2.0) > 0.5:  # inside: its depth, and asked every time
-                    d = s
-                    s = 0.0
-    slack[i] = s
-    depth[i] = d
-    if d > 0.0:
-        add_inside(out, w * rows_per_world + row, d)
+def points_inside_source(reuse: bool):
+    """The Python function of an object-side measure kernel, for ``wp.kernel``:
+    :func:`object_points_inside` or, ``reuse``, :func:`object_points_inside_reuse`; both take the
+    same arguments (the first reads none of ``prev_pose``, ``geom_radius``, ``motion``,
+    ``patch_lower``, ``patch_upper``, ``bodies`` and ``slack``: None, 0)."""
+    REUSE = bool(reuse)
+
+    def kernel(
+        skin: wp.uint64,
+        box: wp.array(dtype=wp.vec3),
+        pts: wp.array(dtype=wp.vec3),
+        pts_geom: wp.array(dtype=int),
+        pose: wp.array(dtype=wp.transform),
+        prev_pose: wp.array(dtype=wp.transform),
+        geom_radius: wp.array(dtype=float),
+        motion: wp.array(dtype=float),
+        patch_lower: wp.array(dtype=wp.vec3),
+        patch_upper: wp.array(dtype=wp.vec3),
+        bodies: int,
+        geom_count: wp.array(dtype=int),
+        geom_obj: wp.array(dtype=int),
+        obj_filter: int,
+        row: int,
+        geoms_per_world: int,
+        rows_per_world: int,
+        out: wp.array2d(dtype=float),
+        depth: wp.array(dtype=float),
+        slack: wp.array(dtype=float),
+    ):
+        i = wp.tid()
+        g = pts_geom[i]
+        if g >= geom_count[0]:
+            depth[i] = 0.0
+            return
+        w = g // geoms_per_world
+        d = float(0.0)
+        if wp.static(REUSE):
+            t0 = prev_pose[g]
+            t1 = pose[g]
+            dq = wp.mul(wp.quat_inverse(wp.transform_get_rotation(t0)), wp.transform_get_rotation(t1))
+            p = wp.transform_point(t1, pts[i])
+            # how far the point can have come (m), with float rounding at the query's coordinates (worlds are
+            # queried up to tens of metres out: ~16 ulp there, and 1 um)
+            own = (wp.length(wp.transform_get_translation(t1) - wp.transform_get_translation(t0))
+                   + 2.0 * wp.length(wp.vec3(dq[0], dq[1], dq[2])) * geom_radius[g] + 1.0e-6 + 2.0e-6 * wp.length(p))
+            s0 = slack[i]
+            s = float(0.0)
+            if s0 > 0.0:
+                s = float(1.0e6)
+                for k in range(w * bodies, (w + 1) * bodies):
+                    s = wp.min(s, wp.max(s0, box_distance(p, patch_lower[k], patch_upper[k])) - motion[k])
+                s = s - own
+            if (obj_filter < 0 or geom_obj[g] == obj_filter) and not (s > 0.0):
+                lo = box[2 * w]
+                hi = box[2 * w + 1]
+                s = box_distance(p, lo, hi)
+                if s <= 0.0:  # in the skin's box: the winding number, the distance to the skin
+                    q = wp.mesh_query_point_no_sign(skin, p, INSIDE_RANGE)
+                    s = 0.0  # (no skin within INSIDE_RANGE: outside by the measure's definition; asked again)
+                    if q.result:
+                        s = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
+                        if winding_number(skin, p, 2.0) > 0.5:  # inside: its depth, and asked every time
+                            d = s
+                            s = 0.0
+            slack[i] = s
+        elif obj_filter < 0 or geom_obj[g] == obj_filter:
+            d = inside_depth(skin, object_point(i, pts, pts_geom, pose), box[2 * w], box[2 * w + 1])
+        depth[i] = d
+        if d > 0.0:
+            add_inside(out, w * rows_per_world + row, d)
+
+    kernel.__name__ = kernel.__qualname__ = "object_points_inside_reuse" if REUSE else "object_points_inside"
+    return kernel
+
+
+object_points_inside = wp.kernel(points_inside_source(False))
+""" Object surface points (geom-local ``pts`` of geom ``pts_geom``) inside the skin: adds into
+out[row, 3:6] [count, sum of depths m, max depth m]; depth[i] (m, 0 outside) per point.
+``obj_filter`` >= 0 keeps only that object's points. Batched worlds (physhand_mj/batch.py): the
+point of geom g belongs to world w = g // ``geoms_per_world``, is tested only where it lies in
+world w's skin box (``box[2 w]``, ``box[2 w + 1]``: outside it no point is inside the closed skin)
+and adds into row w ``rows_per_world`` + ``row`` (one world: the geom capacity, w = 0)."""
+object_points_inside_reuse = wp.kernel(points_inside_source(True))
+""" :func:`object_points_inside`, asking again only the points whose answer could have changed
+(``Config.execution.reuse_outside``). ``slack[i]`` (m) is a lower bound of point i's distance to the skin
+(0: ask it). Since it was taken, each skin patch P of the point's world (skin_patches: every
+skin triangle belongs to one patch, whose box holds its corners now, and its points moved no
+farther than its corners, at most ``motion[P]``) stayed at least max(slack, its box's distance
+now) - motion[P] from the point, all along
+the way, and the point moved at most |dt| + 2 sin(theta / 2) ``geom_radius`` with its geom (pose
+against ``prev_pose``). While the smallest of these stays positive the skin has not crossed the
+point, so it is still outside, and that bound is its new slack. A point asked again gets its
+distance to the skin (Warp's closest-point search), or to its world's skin box where it lies
+outside that box, or 0 inside the skin."""
 
 
 class ObjectPoints:

@@ -47,6 +47,7 @@ from physhand_mj.contact.data import PlaneBuffers
 from physhand_mj.contact.features import push_feature
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth_weight, side_floor, world_phi_grad
+from physhand_mj.contact.sdf import GeomSet
 
 wp.set_module_options({"enable_backward": False})
 
@@ -67,12 +68,7 @@ def make_planes(
     active_count: wp.array(dtype=int),
     decision: wp.array(dtype=wp.vec4),
     eval_x: wp.array2d(dtype=wp.vec3),
-    gtype: wp.array(dtype=int),
-    size: wp.array(dtype=wp.vec3),
-    inv_pose: wp.array(dtype=wp.transform),
-    radius: wp.array(dtype=float),
-    mesh: wp.array(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
+    geoms: GeomSet,
     tris_per_world: int,
     geoms_per_world: int,
     margin: float,
@@ -107,15 +103,15 @@ def make_planes(
     b = x[i1]
     c = x[i2]
     p = a * w[0] + b * w[1] + c * w[2]
-    base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
-    d, g, arg = world_phi_grad(p, gtype, size, inv_pose, radius, mesh, base, end - base, active_mask[k])
+    base, end = world_geoms(t, tris_per_world, geoms_per_world, geoms.count[0])
+    d, g, arg = world_phi_grad(p, geoms, base, end - base, active_mask[k])
     if d >= margin:
         return
-    if side_aware != 0 and -d > side_floor(gtype[arg], size[arg]):
+    if side_aware != 0 and -d > side_floor(geoms.gtype[arg], geoms.size[arg]):
         nt = wp.normalize(wp.cross(b - a, c - a))
         if wp.dot(g, nt) > SIDE_COS:  # (query.project's side-aware exit: not along the gradient)
             return
-    ti = inv_pose[arg]
+    ti = geoms.inv_pose[arg]
     gl = wp.quat_rotate(wp.transform_get_rotation(ti), g)  # the gradient in the geom's frame
     ql = wp.transform_point(ti, p)
     slot = wp.atomic_add(plane_state, 0, 1)
@@ -133,8 +129,7 @@ def hold_planes(
     plane_geom: wp.array(dtype=int),
     plane_eq: wp.array(dtype=wp.vec4),
     plane_state: wp.array(dtype=int),
-    inv_pose: wp.array(dtype=wp.transform),
-    geom_obj: wp.array(dtype=int),
+    geoms: GeomSet,
     offset: float,
     x: wp.array(dtype=wp.vec3),
     delta: wp.array(dtype=wp.vec3),
@@ -158,7 +153,7 @@ def hold_planes(
     w = plane_bary[k]
     p = x[i0] * w[0] + x[i1] * w[1] + x[i2] * w[2]
     g = plane_geom[k]
-    ti = inv_pose[g]
+    ti = geoms.inv_pose[g]
     e = plane_eq[k]
     gl = wp.vec3(e[0], e[1], e[2])
     d = wp.dot(gl, wp.transform_point(ti, p)) + e[3]
@@ -166,7 +161,7 @@ def hold_planes(
         return
     corr = wp.quat_rotate_inv(wp.transform_get_rotation(ti), gl) * (offset - d)
     wt = depth_weight(-d)
-    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geom_obj[g], delta, hits, touched, touched_count, vertex_obj)
+    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geoms.obj[g], delta, hits, touched, touched_count, vertex_obj)
 
 
 @wp.kernel
@@ -316,8 +311,8 @@ class PlaneHold:
         rec.ops.append(self.plane_len.zero_)
         rec.launch(make_planes, self.n_tris,
                    [m.skin_faces, lists.active, lists.active_mask, active_count, acc.decision, acc.eval_x,
-                    o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, self.tris_per_world,
-                    self.geoms_per_world, cfg.contact_margin, self.side_aware, state.x],
+                    o.geoms_exact, self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.side_aware,
+                    state.x],
                    [b.tri, b.bary, b.geom, b.eq, b.state],
                    count=active_count, min_dim=1)
 
@@ -333,7 +328,7 @@ class PlaneHold:
         common = [acc.delta, acc.hits, acc.touched]  # (a push's accumulators, then its touched count)
         pushes = [(hold_planes, self.n_tris, self.plane_len,
                    [m.skin_faces, b.tri, b.bary, b.geom, b.eq, b.state,
-                    o.inv_pose, o.obj, cfg.contact_offset, state.x])]
+                    o.geoms, cfg.contact_offset, state.x])]
         if self.keeps_features(points):  # the kept feature points, before the planes (as a stage's push is)
             pushes.insert(0, (hold_features, points.n_features, self.fplane_len,
                               [m.skin_faces, b.fpt, b.fface, b.fuv, b.state,

@@ -45,7 +45,6 @@ class ContactMeasures:
         self.n_tris, self.worlds = n_tris, worlds
         self.tris_per_world, self.geoms_per_world = tris_per_world, geoms_per_world
         self.closed_skin = closed_skin
-        self._views = None  # the objects' arrays as (W, k) views (world_views)
         self._check_points = None  # the denser check set (check_points), built on first use
         self._check_shapes = {}  # the check points' sampled shapes, shared by every piece (ObjectPoints.shapes)
         self.reuse_memory = {}  # Config.execution.reuse_outside's per (points, skin volume) memory (_Reuse)
@@ -78,9 +77,8 @@ class ContactMeasures:
         if not self.n_tris:
             return
         per = out.shape[0] // self.worlds  # rows per world (world w's row ``row`` is w per + row)
-        v = self.world_views()
         if skin_side:
-            self._record_skin_side(rec, state, row, obj, out, order, per, v)
+            self._record_skin_side(rec, state, row, obj, out, order, per)
         pts = points
         if objects_side and self.closed_skin and len(pts):
             vol = self.space.volume(state)
@@ -88,8 +86,8 @@ class ContactMeasures:
             qpose = self.space.record_pose(rec)
             if not (self.config.reuse_outside if reuse is None else reuse):
                 rec.launch(object_points_inside, len(pts),
-                           [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, o.count, o.obj, obj, row,
-                            self.geoms_per_world, per], [out, pts.depth])
+                           [vol.mesh.id, vol.box, pts.pts, pts.geom, qpose, *[None] * 5, 0, o.count, o.obj, obj, row,
+                            self.geoms_per_world, per], [out, pts.depth, None])
                 return
             r = self._reuse(pts, vol, qpose)  # (Config.execution.reuse_outside: ask only what could have changed)
             bodies = r.motion.shape[0] // self.worlds  # skin patches a world: one per bone
@@ -104,19 +102,17 @@ class ContactMeasures:
                        [out, pts.depth, r.slack])
             rec.launch(keep_poses, qpose.shape[0], [qpose], [r.prev_pose])
 
-    def _record_skin_side(self, rec, state, row, obj, out, order, per, v):
+    def _record_skin_side(self, rec, state, row, obj, out, order, per):
         """The skin measure: samples of the order-``order`` lattice inside objects (columns 0-2)."""
         m, o = self.model, self.objects
-        geoms = [v["gtype"], v["size"], v["inv_pose"], v["radius"], v["mesh"], o.count]
         culled = obj < 0 and self.cull_measure
         listed, count = self._penetration_list(culled)
+        args = [m.skin_faces, state.x, o.geoms, self.geoms_per_world, obj, row, order, self.tris_per_world, per, listed,
+                count, metrics.SKIP_MARGIN]
         if culled:  # the triangles near an object first, then a thread per kept triangle
             rec.ops.append(count.zero_)
-            rec.launch(penetration_cull, self.n_tris, [m.skin_faces, state.x, *geoms, self.tris_per_world],
-                       [listed, count])
-        rec.launch(penetration_samples, self.n_tris,
-                   [m.skin_faces, state.x, *geoms, v["obj"], obj, row, order, self.tris_per_world, per, listed, count,
-                    metrics.SKIP_MARGIN], [out])
+            rec.launch(penetration_cull, self.n_tris, args, [out])
+        rec.launch(penetration_samples, self.n_tris, args, [out])
 
     @property
     def cull_measure(self) -> bool:
@@ -146,16 +142,6 @@ class ContactMeasures:
             self.reuse_memory[key] = _Reuse(len(pts), vol.points.shape[0], pose.shape[0], self.worlds * bodies,
                                             self.model.device)
         return self.reuse_memory[key]
-
-    def world_views(self) -> dict:
-        """The objects' per-geom arrays as (W, k) views: world w's geoms in row w (one world:
-        (1, capacity))."""
-        if self._views is None:
-            o, w = self.objects, self.worlds
-            # the allocated length (Objects holds at least one slot, also for capacity 0)
-            self._views = {name: getattr(o, name).reshape((w, getattr(o, name).shape[0] // w))
-                           for name in ("gtype", "size", "inv_pose", "radius", "mesh", "obj")}
-        return self._views
 
     def measure(self, state, points: ObjectPoints | None, obj: int = -1, order: int = 5,
                 objects_side: bool = True, check: bool = False) -> np.ndarray:
@@ -251,8 +237,8 @@ class ContactMeasures:
         k = (order + 1) * (order + 2) // 2
         pts = wp.zeros((f, k), dtype=wp.vec3, device=d)
         phi = wp.zeros((f, k), dtype=float, device=d)
-        wp.launch(lattice_phi, f, inputs=[m.skin_faces, state.x, o.gtype, o.size, o.inv_pose, o.radius, o.mesh,
-                                          o.count, self.tris_per_world, self.geoms_per_world, order],
+        wp.launch(lattice_phi, f, inputs=[m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world,
+                                          order],
                   outputs=[pts, phi], device=d)
         p, s = pts.numpy().reshape(-1, 3), phi.numpy().ravel()
         inside = s < 0

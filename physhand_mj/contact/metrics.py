@@ -23,7 +23,7 @@ import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
 from physhand_mj.contact.query import world_phi
-from physhand_mj.contact.sdf import FAR, MESH, geom_sdf
+from physhand_mj.contact.sdf import FAR, MESH, GeomSet, geom_sdf
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -36,160 +36,145 @@ SKIP_MARGIN = 1.0e-6
 
 
 @wp.func
-def phi_below(p: wp.vec3, wtype: wp.array(dtype=int), wsize: wp.array(dtype=wp.vec3),
-              winv: wp.array(dtype=wp.transform), wrad: wp.array(dtype=float), wmesh: wp.array(dtype=wp.vec2ul),
-              n: int, wobj: wp.array(dtype=int), obj_filter: int, cap: float):
-    """A lower bound of phi (m) at world point p against a world's n geoms (``obj_filter`` >= 0:
-    that object's only) that is phi itself wherever phi <= ``cap``: a geom whose bounding sphere
+def phi_below(p: wp.vec3, geoms: GeomSet, base: int, n: int, obj_filter: int, cap: float):
+    """A lower bound of phi (m) at world point p against a world's n geoms [base, base + n)
+    (``obj_filter`` >= 0: that object's only) that is phi itself wherever phi <= ``cap``: a geom whose bounding sphere
     lies farther than ``cap`` from p adds |q| - R (<= its phi) instead of its SDF, so a mesh far
     from p costs no query (and, as in world_phi, a geom farther than the best so far none)."""
     best = float(FAR)
-    for g in range(n):
-        if obj_filter >= 0 and wobj[g] != obj_filter:
+    for j in range(n):
+        g = base + j
+        if obj_filter >= 0 and geoms.obj[g] != obj_filter:
             continue
-        q = wp.transform_point(winv[g], p)
-        far = wp.length(q) - wrad[g]
+        q = wp.transform_point(geoms.inv_pose[g], p)
+        far = wp.length(q) - geoms.radius[g]
         if far > cap or far >= best:
             best = wp.min(best, far)
         else:
-            best = wp.min(best, geom_sdf(wtype[g], q, wsize[g], wmesh[g]))
+            best = wp.min(best, geom_sdf(geoms.gtype[g], q, geoms.size[g], geoms.mesh[g]))
     return best
 
 
 @wp.func
 def world_of(t: int, tris_per_world: int, k: int, geom_count: wp.array(dtype=int)):
-    """(world, geoms in use) of skin triangle ``t``: its world's row of the (W, k) geom views."""
+    """(world, geoms in use) of skin triangle ``t``: world w's geoms are [w k, w k + k)."""
     w = t // tris_per_world
     return w, wp.max(wp.min(k, geom_count[0] - w * k), 0)
 
 
-@wp.kernel
-def penetration_samples(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    gtype: wp.array2d(dtype=int),
-    size: wp.array2d(dtype=wp.vec3),
-    inv_pose: wp.array2d(dtype=wp.transform),
-    radius: wp.array2d(dtype=float),
-    mesh: wp.array2d(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
-    geom_obj: wp.array2d(dtype=int),
-    obj_filter: int,
-    row: int,
-    order: int,
-    tris_per_world: int,
-    rows_per_world: int,
-    listed: wp.array(dtype=int),
-    listed_count: wp.array(dtype=int),
-    skip_margin: float,
-    out: wp.array2d(dtype=float),
-):
-    """Samples on the order-``order`` lattice ((order + 1)(order + 2) / 2 per triangle; the metric's
-    is 5); obj_filter >= 0 restricts the samples' SDF to the geoms of that object.
+def penetration_source(cull: bool):
+    """The Python function of a skin-measure kernel, for ``wp.kernel``: :func:`penetration_samples`
+    or, ``cull``, :func:`penetration_cull` (its bound alone); both take the same arguments."""
+    CULL = bool(cull)
 
-    Per world (batched worlds, physhand_mj/batch.py): the geom arrays come as (W, k) views, world w's
-    k geoms in row w; triangle t belongs to world w = t // ``tris_per_world``, is measured against
-    its world's geoms only and adds into row w ``rows_per_world`` + ``row`` of ``out``. One world:
-    (1, capacity) views, w = 0.
-
-    With a ``listed_count`` (length 1), thread i measures triangle ``listed[i]`` of the ones
-    :func:`penetration_cull` kept (its bound already asked), and threads past the count return: on
-    a GPU the few triangles near an object then fill whole warps instead of one lane in ~20.
-
-    ``skip_margin`` > 0 (SKIP_MARGIN): the corners first; a sample at p with phi(corner) - |p - corner| >
-    skip_margin for any corner is outside (1-Lipschitz) and not asked."""
-    t = wp.tid()
-    culled = listed_count.shape[0] > 0
-    if culled:
-        if t >= listed_count[0]:
+    def kernel(
+        faces: wp.array2d(dtype=int),
+        x: wp.array(dtype=wp.vec3),
+        geoms: GeomSet,
+        geoms_per_world: int,
+        obj_filter: int,
+        row: int,
+        order: int,
+        tris_per_world: int,
+        rows_per_world: int,
+        listed: wp.array(dtype=int),
+        listed_count: wp.array(dtype=int),
+        skip_margin: float,
+        out: wp.array2d(dtype=float),
+    ):
+        t = wp.tid()
+        culled = False
+        if wp.static(not CULL):
+            culled = listed_count.shape[0] > 0
+            if culled:
+                if t >= listed_count[0]:
+                    return
+                t = listed[t]
+        a = x[faces[t, 0]]
+        b = x[faces[t, 1]]
+        c = x[faces[t, 2]]
+        m, r = triangle_bound(a, b, c)
+        w, n = world_of(t, tris_per_world, geoms_per_world, geoms.count)
+        base = w * geoms_per_world
+        # (exact: the bound is phi itself wherever phi <= r)
+        if obj_filter < 0 and not culled and phi_below(m, geoms, base, n, -1, r) > r:
             return
-        t = listed[t]
-    a = x[faces[t, 0]]
-    b = x[faces[t, 1]]
-    c = x[faces[t, 2]]
-    m, r = triangle_bound(a, b, c)
-    w, n = world_of(t, tris_per_world, gtype.shape[1], geom_count)
-    wtype = gtype[w]
-    wsize = size[w]
-    winv = inv_pose[w]
-    wrad = radius[w]
-    wmesh = mesh[w]
-    if obj_filter < 0 and not culled and phi_below(m, wtype, wsize, winv, wrad, wmesh, n, geom_obj[w], -1, r) > r:
-        return
-    wobj = geom_obj[w]
-    # the corners as the lattice makes them (a vertex that is not finite makes every sample NaN, as before)
-    pa = a * 1.0 + b * 0.0 + c * 0.0
-    pb = a * 0.0 + b * 1.0 + c * 0.0
-    pc = a * 0.0 + b * 0.0 + c * 1.0
-    da = phi_below(pa, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
-    db = phi_below(pb, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
-    dc = phi_below(pc, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
-    # the corner bound only where phi is 1-Lipschitz: not for a mesh signed by its winding number (an
-    # open mesh closed over its holes, where the sign flips away from any face), and a corner with no
-    # mesh within its query range (FAR) bounds nothing
-    bound = skip_margin > 0.0
-    for g in range(n):
-        if wtype[g] == MESH and wsize[g][1] > 0.5 and wsize[g][1] < 1.5:  # (sdf_mesh.MESH_SIGN_WINDING)
-            bound = False
-    ba = wp.where(da < 0.5 * FAR, da, -FAR)
-    bb = wp.where(db < 0.5 * FAR, db, -FAR)
-    bc = wp.where(dc < 0.5 * FAR, dc, -FAR)
-    count = float(0.0)
-    total = float(0.0)
-    deepest = float(0.0)
-    for i in range(order + 1):
-        for j in range(order + 1 - i):
-            u = float(i) / float(order)
-            v = float(j) / float(order)
-            p = a * (1.0 - u - v) + b * u + c * v
-            d = float(0.0)
-            if i == 0 and j == 0:  # (the corners: asked above)
-                d = da
-            elif i == order:
-                d = db
-            elif j == order:
-                d = dc
-            elif bound and wp.max(ba - wp.length(p - pa), wp.max(bb - wp.length(p - pb),
-                                                                bc - wp.length(p - pc))) > skip_margin:
-                d = 1.0  # (outside: not asked)
-            else:
-                d = phi_below(p, wtype, wsize, winv, wrad, wmesh, n, wobj, obj_filter, 0.0)
-            if d < 0.0:
-                count += 1.0
-                total += -d
-                deepest = wp.max(deepest, -d)
-    if count > 0.0:
-        o = w * rows_per_world + row
-        wp.atomic_add(out, o, 0, count)
-        wp.atomic_add(out, o, 1, total)
-        wp.atomic_max(out, o, 2, deepest)
+        if wp.static(CULL):
+            listed[wp.atomic_add(listed_count, 0, 1)] = t
+            return
+        # the corners as the lattice makes them (a vertex that is not finite makes every sample NaN, as
+        # before)
+        pa = a * 1.0 + b * 0.0 + c * 0.0
+        pb = a * 0.0 + b * 1.0 + c * 0.0
+        pc = a * 0.0 + b * 0.0 + c * 1.0
+        da = phi_below(pa, geoms, base, n, obj_filter, 0.0)
+        db = phi_below(pb, geoms, base, n, obj_filter, 0.0)
+        dc = phi_below(pc, geoms, base, n, obj_filter, 0.0)
+        # the corner bound only where phi is 1-Lipschitz: not for a mesh signed by its winding number (an
+        # open mesh closed over its holes, where the sign flips away from any face), and a corner with no
+        # mesh within its query range (FAR) bounds nothing
+        bound = skip_margin > 0.0
+        for j in range(n):
+            g = base + j
+            if geoms.gtype[g] == MESH and geoms.size[g][1] > 0.5 and geoms.size[g][1] < 1.5:  # (sdf_mesh.MESH_SIGN_WINDING)
+                bound = False
+        ba = wp.where(da < 0.5 * FAR, da, -FAR)
+        bb = wp.where(db < 0.5 * FAR, db, -FAR)
+        bc = wp.where(dc < 0.5 * FAR, dc, -FAR)
+        count = float(0.0)
+        total = float(0.0)
+        deepest = float(0.0)
+        for i in range(order + 1):
+            for j in range(order + 1 - i):
+                u = float(i) / float(order)
+                v = float(j) / float(order)
+                p = a * (1.0 - u - v) + b * u + c * v
+                d = float(0.0)
+                if i == 0 and j == 0:  # (the corners: asked above)
+                    d = da
+                elif i == order:
+                    d = db
+                elif j == order:
+                    d = dc
+                elif bound and wp.max(ba - wp.length(p - pa), wp.max(bb - wp.length(p - pb),
+                                                                    bc - wp.length(p - pc))) > skip_margin:
+                    d = 1.0  # (outside: not asked)
+                else:
+                    d = phi_below(p, geoms, base, n, obj_filter, 0.0)
+                if d < 0.0:
+                    count += 1.0
+                    total += -d
+                    deepest = wp.max(deepest, -d)
+        if count > 0.0:
+            o = w * rows_per_world + row
+            wp.atomic_add(out, o, 0, count)
+            wp.atomic_add(out, o, 1, total)
+            wp.atomic_max(out, o, 2, deepest)
+
+    kernel.__name__ = kernel.__qualname__ = "penetration_cull" if CULL else "penetration_samples"  # (the kernel's key)
+    return kernel
 
 
-@wp.kernel
-def penetration_cull(
-    faces: wp.array2d(dtype=int),
-    x: wp.array(dtype=wp.vec3),
-    gtype: wp.array2d(dtype=int),
-    size: wp.array2d(dtype=wp.vec3),
-    inv_pose: wp.array2d(dtype=wp.transform),
-    radius: wp.array2d(dtype=float),
-    mesh: wp.array2d(dtype=wp.vec2ul),
-    geom_count: wp.array(dtype=int),
-    tris_per_world: int,
-    listed: wp.array(dtype=int),
-    listed_count: wp.array(dtype=int),
-):
-    """:func:`penetration_samples`' bound alone: triangle t goes to ``listed`` unless phi(centroid)
-    > circumradius clears every sample (no object filter). Appended in any order on a GPU; on
-    the CPU in ascending t, so its atomics add in the order of the one-kernel measure."""
-    t = wp.tid()
-    m, r = triangle_bound(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
-    w, n = world_of(t, tris_per_world, gtype.shape[1], geom_count)
-    # (exact: the bound is phi itself wherever phi <= r; no object filter, so gtype[w] stands in for
-    # the geoms' objects, unread)
-    if phi_below(m, gtype[w], size[w], inv_pose[w], radius[w], mesh[w], n, gtype[w], -1, r) > r:
-        return
-    listed[wp.atomic_add(listed_count, 0, 1)] = t
+penetration_samples = wp.kernel(penetration_source(False))
+""" Samples on the order-``order`` lattice ((order + 1)(order + 2) / 2 per triangle; the metric's
+is 5); obj_filter >= 0 restricts the samples' SDF to the geoms of that object.
+
+Per world (batched worlds, physhand_mj/batch.py): world w's geoms are [w k, w k + k), k =
+``geoms_per_world``; triangle t belongs to world w = t // ``tris_per_world``, is measured against
+its world's geoms only and adds into row w ``rows_per_world`` + ``row`` of ``out``. One world:
+k = the geom capacity, w = 0.
+
+With a ``listed_count`` (length 1), thread i measures triangle ``listed[i]`` of the ones
+:func:`penetration_cull` kept (its bound already asked), and threads past the count return: on
+a GPU the few triangles near an object then fill whole warps instead of one lane in ~20.
+
+``skip_margin`` > 0 (SKIP_MARGIN): the corners first; a sample at p with phi(corner) - |p - corner| >
+skip_margin for any corner is outside (1-Lipschitz) and not asked."""
+penetration_cull = wp.kernel(penetration_source(True))
+""" :func:`penetration_samples`' bound alone: triangle t goes to ``listed`` unless phi(centroid)
+> circumradius clears every sample (launched with no object filter and an empty list). Appended
+in any order on a GPU; on the CPU in ascending t, so its atomics add in the order of the one-kernel
+measure."""
 
 
 def reduce_worlds(rows: np.ndarray) -> np.ndarray:
@@ -227,15 +212,13 @@ def summarize_rows(rows: np.ndarray) -> list[dict]:
 
 
 @wp.kernel
-def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype: wp.array(dtype=int),
-                size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                mesh: wp.array(dtype=wp.vec2ul), geom_count: wp.array(dtype=int), tris_per_world: int,
+def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), geoms: GeomSet, tris_per_world: int,
                 geoms_per_world: int, order: int, points: wp.array2d(dtype=wp.vec3), phi: wp.array2d(dtype=float)):
     """The order-``order`` lattice samples of every triangle ((order + 1)(order + 2) / 2; the
     metric's 21 at order 5) and their phi (m) against the triangle's world's geoms (batched worlds:
     as broadphase.world_geoms; one world: all), for pictures and checks."""
     t = wp.tid()
-    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])
+    g0, g1 = world_geoms(t, tris_per_world, geoms_per_world, geoms.count[0])
     a = x[faces[t, 0]]
     b = x[faces[t, 1]]
     c = x[faces[t, 2]]
@@ -245,5 +228,5 @@ def lattice_phi(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), gtype:
         for j in range(order + 1 - i):
             p = a * (1.0 - float(i) / n - float(j) / n) + b * (float(i) / n) + c * (float(j) / n)
             points[t, k] = p
-            phi[t, k] = world_phi(p, gtype, size, inv_pose, radius, mesh, g0, g1 - g0, -1)
+            phi[t, k] = world_phi(p, geoms, g0, g1 - g0, -1)
             k += 1

@@ -13,6 +13,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound
+from physhand_mj.contact.sdf import GeomSet
 from physhand_mj.contact.sdf_mesh import (FEATURES_PER_FACE, GRID_OFF, GRID_PAD, MESH_SIGN_PSEUDO,
                                           MESH_SIGN_PSEUDO_NEAR, MESH_SIGN_WINDING, WINDING_ACCURACY, mesh_near_faces,
                                           pseudo_normal_table, sdf_mesh_grad)
@@ -361,7 +362,8 @@ class Objects:
     (bounding radius, m), mesh (G,) vec2ul (wp.Mesh id or 0, its distance grid's wp.Volume id or 0:
     :func:`mesh_grid`; what the broadphase and the metrics query), mesh_exact (G,) vec2ul (the same
     without the grids: what the decision points and Eq. 9 query), obj (G,) int (object index); count (1,)
-    int, the number of geoms in use. Host lists keep names and meshes alive.
+    int, the number of geoms in use. ``geoms`` and ``geoms_exact`` hold them as the kernels take them
+    (sdf.GeomSet, with ``mesh`` and with ``mesh_exact``). Host lists keep names and meshes alive.
     """
 
     device: str
@@ -375,6 +377,8 @@ class Objects:
     mesh_exact: object = None
     obj: object = None
     count: object = None
+    geoms: object = None
+    geoms_exact: object = None
     names: list = field(default_factory=list)
     object_names: list = field(default_factory=list)
     _meshes: list = field(default_factory=list)
@@ -393,10 +397,17 @@ class Objects:
         self.mesh_exact = wp.zeros(c, dtype=wp.vec2ul, device=d)
         self.obj = wp.zeros(c, dtype=int, device=d)
         self.count = wp.zeros(1, dtype=int, device=d)
+        self.geoms, self.geoms_exact = self._geom_set(self.mesh), self._geom_set(self.mesh_exact)
         self._host = dict(gtype=np.zeros(c, np.int32), size=np.zeros((c, 3), np.float32),
                           pose=np.zeros((c, 7), np.float32), radius=np.zeros(c, np.float32),
                           mesh=np.zeros((c, 2), np.uint64), obj=np.zeros(c, np.int32))
         self._pose_buf = wp.empty(2 * c, dtype=wp.transform, device="cpu", pinned=wp.get_device(d).is_cuda)
+
+    def _geom_set(self, mesh) -> GeomSet:
+        s = GeomSet()
+        s.gtype, s.size, s.inv_pose, s.radius = self.gtype, self.size, self.inv_pose, self.radius
+        s.mesh, s.obj, s.count = mesh, self.obj, self.count
+        return s
 
     def __len__(self) -> int:
         return len(self.names)

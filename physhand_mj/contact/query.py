@@ -34,7 +34,7 @@ import functools
 import warp as wp
 
 from physhand_mj.contact.broadphase import triangle_bound, world_geoms
-from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, geom_sdf,
+from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, GeomSet, geom_sdf,
                                      geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic)
 from physhand_mj.contact.sdf_mesh import mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids, sdf_mesh_near
 from physhand_mj.types import Strategy
@@ -115,12 +115,11 @@ def only_geom(near: int, base: int, n_geoms: int):
 
 
 @wp.func
-def geom_data(g: int, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              inv_pose: wp.array(dtype=wp.transform), mesh: wp.array(dtype=wp.vec2ul)):
+def geom_data(g: int, geoms: GeomSet):
     """(type, inverse pose, size, mesh id) of geom ``g``; a NONE geom (phi = FAR) for g < 0."""
     if g < 0:
         return int(0), wp.transform_identity(), wp.vec3(0.0), wp.vec2ul(wp.uint64(0), wp.uint64(0))
-    return gtype[g], inv_pose[g], size[g], mesh[g]
+    return geoms.gtype[g], geoms.inv_pose[g], geoms.size[g], geoms.mesh[g]
 
 
 SIDE_COS = wp.constant(0.6)  # cos of the angle beyond which Eq. 9 would push the skin out through the object
@@ -159,9 +158,7 @@ def phi_funcs(with_mesh: bool):
     sdf, sdf_grad = (geom_sdf, geom_sdf_grad) if with_mesh else (geom_sdf_analytic, geom_sdf_grad_analytic)
 
     @wp.func
-    def world_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                  inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                  mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
+    def world_phi(p: wp.vec3, geoms: GeomSet, base: int, count: int, mask: int):
         """min over the geoms [base, base + count) (one world's: batched worlds) of phi at world point
         p (m). Only geoms whose bit is set in ``mask`` count: bit j is geom base + j (the broadphase's
         world-relative list for this triangle; -1 = all); geoms base + 31 on share bit 30 and are always
@@ -172,15 +169,13 @@ def phi_funcs(with_mesh: bool):
             if (j < 31 and ((mask >> j) & 1) == 0):
                 continue
             g = base + j
-            q = wp.transform_point(inv_pose[g], p)
-            if wp.length(q) - radius[g] < best:
-                best = wp.min(best, sdf(gtype[g], q, size[g], mesh[g]))
+            q = wp.transform_point(geoms.inv_pose[g], p)
+            if wp.length(q) - geoms.radius[g] < best:
+                best = wp.min(best, sdf(geoms.gtype[g], q, geoms.size[g], geoms.mesh[g]))
         return best
 
     @wp.func
-    def world_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                       inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                       mesh: wp.array(dtype=wp.vec2ul), base: int, count: int, mask: int):
+    def world_phi_grad(p: wp.vec3, geoms: GeomSet, base: int, count: int, mask: int):
         """(phi, unit world gradient, geom index) of the closest geom of [base, base + count) at world
         point p (``mask`` as in :func:`world_phi`; the index is global)."""
         best = float(FAR)
@@ -190,10 +185,10 @@ def phi_funcs(with_mesh: bool):
             if (j < 31 and ((mask >> j) & 1) == 0):
                 continue
             g = base + j
-            ti = inv_pose[g]
+            ti = geoms.inv_pose[g]
             q = wp.transform_point(ti, p)
-            if wp.length(q) - radius[g] < best:
-                d, n = sdf_grad(gtype[g], q, size[g], mesh[g])
+            if wp.length(q) - geoms.radius[g] < best:
+                d, n = sdf_grad(geoms.gtype[g], q, geoms.size[g], geoms.mesh[g])
                 if d < best:
                     best = d
                     grad = wp.quat_rotate_inv(wp.transform_get_rotation(ti), n)
@@ -202,21 +197,18 @@ def phi_funcs(with_mesh: bool):
 
     @wp.func
     def phi_at(p: wp.vec3, single: int, s_type: int, s_inv: wp.transform, s_size: wp.vec3, s_mesh: wp.vec2ul,
-               gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-               radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), base: int, n_geoms: int, near: int):
+               geoms: GeomSet, base: int, n_geoms: int, near: int):
         """phi (m) at world point p: the one geom near the triangle (``single``, its data from
         :func:`geom_data`) or, with ``single`` < 0, the lowest over its world's geoms in ``near``."""
         if single < 0:
-            return world_phi(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+            return world_phi(p, geoms, base, n_geoms, near)
         return sdf(s_type, wp.transform_point(s_inv, p), s_size, s_mesh)
 
     @wp.func
     def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
-                near: int, base: int, n_geoms: int,
-                gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3), inv_pose: wp.array(dtype=wp.transform),
-                radius: wp.array(dtype=float), mesh: wp.array(dtype=wp.vec2ul), geom_obj: wp.array(dtype=int),
-                delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
-                touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
+                near: int, base: int, n_geoms: int, geoms: GeomSet, delta: wp.array(dtype=wp.vec3),
+                hits: wp.array(dtype=float), touched: wp.array(dtype=int), touched_count: wp.array(dtype=int),
+                vertex_obj: wp.array(dtype=int)):
         """Eq. 9 for a triangle (vertices i0, i1, i2, outward unit normal nt) whose decision point is
         best_p: the correction that puts x* ``offset`` outside the surface along the gradient there,
         added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
@@ -229,13 +221,13 @@ def phi_funcs(with_mesh: bool):
         triangle then leaves the object the way it came, into the hand along -nt (``side_aware``: the
         skin is closed, so it has an inside): by sphere tracing from x* (inside an SDF a step of |phi|
         never passes the surface), at most MARCH_STEPS steps; no exit found, no correction."""
-        d, g, arg = world_phi_grad(best_p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+        d, g, arg = world_phi_grad(best_p, geoms, base, n_geoms, near)
         corr = g * (offset - d)
-        if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > side_floor(gtype[arg], size[arg]):
+        if side_aware != 0 and wp.dot(g, nt) > SIDE_COS and -d > side_floor(geoms.gtype[arg], geoms.size[arg]):
             t = float(0.0)
             exited = int(0)
             for k in range(MARCH_STEPS):
-                dd = world_phi(best_p - nt * t, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                dd = world_phi(best_p - nt * t, geoms, base, n_geoms, near)
                 if dd >= offset:
                     exited = 1
                     break
@@ -246,7 +238,7 @@ def phi_funcs(with_mesh: bool):
                 return
             corr = -nt * t
         w = depth_weight(-d)
-        accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geom_obj[arg], delta, hits, touched, touched_count, vertex_obj)
+        accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geoms.obj[arg], delta, hits, touched, touched_count, vertex_obj)
 
     return world_phi, world_phi_grad, phi_at, project
 
@@ -255,19 +247,15 @@ world_phi, world_phi_grad, phi_at, project = phi_funcs(True)
 
 
 @wp.func
-def scene_phi(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-              inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-              mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
-    """:func:`world_phi` over geoms [0, count) (one world, or a world's (W, k) view row)."""
-    return world_phi(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
+def scene_phi(p: wp.vec3, geoms: GeomSet, count: int, mask: int):
+    """:func:`world_phi` over geoms [0, count) (one world)."""
+    return world_phi(p, geoms, 0, count, mask)
 
 
 @wp.func
-def scene_phi_grad(p: wp.vec3, gtype: wp.array(dtype=int), size: wp.array(dtype=wp.vec3),
-                   inv_pose: wp.array(dtype=wp.transform), radius: wp.array(dtype=float),
-                   mesh: wp.array(dtype=wp.vec2ul), count: int, mask: int):
+def scene_phi_grad(p: wp.vec3, geoms: GeomSet, count: int, mask: int):
     """:func:`world_phi_grad` over geoms [0, count)."""
-    return world_phi_grad(p, gtype, size, inv_pose, radius, mesh, 0, count, mask)
+    return world_phi_grad(p, geoms, 0, count, mask)
 
 
 @wp.func
@@ -301,13 +289,7 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
         # Model:
         faces: wp.array2d(dtype=int),
         # Objects:
-        gtype: wp.array(dtype=int),
-        size: wp.array(dtype=wp.vec3),
-        inv_pose: wp.array(dtype=wp.transform),
-        radius: wp.array(dtype=float),
-        mesh: wp.array(dtype=wp.vec2ul),
-        geom_count: wp.array(dtype=int),
-        geom_obj: wp.array(dtype=int),
+        geoms: GeomSet,
         tris_per_world: int,
         geoms_per_world: int,
         # Contact in:
@@ -358,10 +340,10 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                 eval_x[t, 1] = b
                 eval_x[t, 2] = c
                 bound_mask[t] = near
-            base, end = world_geoms(t, tris_per_world, geoms_per_world, geom_count[0])  # the triangle's world's geoms
+            base, end = world_geoms(t, tris_per_world, geoms_per_world, geoms.count[0])  # the triangle's world's geoms
             n_geoms = end - base
             single = only_geom(near, base, n_geoms)  # one geom near this triangle (the common case)
-            s_type, s_inv, s_size, s_mesh = geom_data(single, gtype, size, inv_pose, mesh)
+            s_type, s_inv, s_size, s_mesh = geom_data(single, geoms)
             best = float(FAR)
             best_p = a
             certified = float(-FAR)
@@ -370,8 +352,7 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                 multires_now = strategy == MULTIRES
                 if strategy != MULTIRES:
                     mc, rc = triangle_bound(a, b, c)
-                    dc = phi_fn(mc, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
-                                n_geoms, near)
+                    dc = phi_fn(mc, single, s_type, s_inv, s_size, s_mesh, geoms, base, n_geoms, near)
                     if dc > rc:  # no point of the triangle is inside an object
                         decision[t] = wp.vec4(mc[0], mc[1], mc[2], dc)
                         bound[t] = dc - rc
@@ -389,8 +370,7 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                             p = (b + c) * 0.5
                         elif q == 5:
                             p = (c + a) * 0.5
-                        d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh, base,
-                                   n_geoms, near)
+                        d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, geoms, base, n_geoms, near)
                         if d < best:
                             best = d
                             best_p = p
@@ -400,7 +380,7 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                     w2 = float(1.0 / 3.0)
                     for q in range(opt_queries):
                         p = a * w0 + b * w1 + c * w2
-                        d, g, arg = grad_fn(p, gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                        d, g, arg = grad_fn(p, geoms, base, n_geoms, near)
                         if d < best:
                             best = d
                             best_p = p
@@ -429,10 +409,10 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                     if lane < n_lat:
                         u, v = lattice_uv(lane, order)
                         d = phi_fn(ta * (1.0 - u - v) + tb * u + tc * v, single, s_type, s_inv, s_size, s_mesh,
-                                   gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                                   geoms, base, n_geoms, near)
                     elif lane == n_lat and n_lat < samples:  # a leftover query on the centroid
                         d = phi_fn((ta + tb + tc) * (1.0 / 3.0), single, s_type, s_inv, s_size, s_mesh,
-                                   gtype, size, inv_pose, radius, mesh, base, n_geoms, near)
+                                   geoms, base, n_geoms, near)
                     # the three lowest samples (indices j0, j1, j2), ascending
                     j0 = wp.tile_argmin(wp.tile(d))[0]
                     d0 = wp.tile_min(wp.tile(d))[0]
@@ -508,8 +488,7 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                                     d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d,
                                                       n_near, near_first, lm)
                                 else:
-                                    d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius,
-                                               mesh, base, n_geoms, near)
+                                    d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, geoms, base, n_geoms, near)
                                 count += 1
                                 d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
                         if count < samples:  # spend a leftover query on the centroid
@@ -519,8 +498,8 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                                 d = sdf_mesh_near(wp.transform_point(s_inv, p), s_size, s_mesh[0], near_ids, near_d,
                                                   n_near, near_first, lm)
                             else:
-                                d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, gtype, size, inv_pose, radius, mesh,
-                                           base, n_geoms, near)
+                                d = phi_fn(p, single, s_type, s_inv, s_size, s_mesh, geoms, base,
+                                           n_geoms, near)
                             d0, p0, d1, p1, d2, p2 = keep_three_lowest(d, p, d0, p0, d1, p1, d2, p2)
                         if d0 < best:
                             best = d0
@@ -541,8 +520,8 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                     bound[t] = certified
                 if best < 0.5 * offset:
                     nt = wp.normalize(wp.cross(b - a, c - a))
-                    project_fn(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, gtype, size, inv_pose,
-                               radius, mesh, geom_obj, delta, hits, touched, touched_count, vertex_obj)
+                    project_fn(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, geoms, delta, hits,
+                               touched, touched_count, vertex_obj)
             k += step
 
     decide_and_project.__qualname__ = "decide_and_project"  # (the kernel's key: profiles, tests)
@@ -590,8 +569,8 @@ def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst
     the skin ``faces``, the ``objects``' geoms (their exact mesh ids), the list ``lst`` (active,
     mask, count) and the strategy's settings."""
     o = objects
-    return [faces, o.gtype, o.size, o.inv_pose, o.radius, o.mesh_exact, o.count, o.obj, tris_per_world,
-            geoms_per_world, *lst, stride, strategy, samples, rounds, opt_queries, offset, side_aware, x]
+    return [faces, o.geoms_exact, tris_per_world, geoms_per_world, *lst, stride, strategy, samples, rounds,
+            opt_queries, offset, side_aware, x]
 
 
 @wp.func

@@ -214,3 +214,23 @@ def geom_sdf_funcs(with_mesh: bool):
 
 geom_sdf, geom_sdf_grad = geom_sdf_funcs(True)
 geom_sdf_analytic, geom_sdf_grad_analytic = geom_sdf_funcs(False)  # (MESH reads FAR)
+
+
+@wp.struct
+class GeomSet:
+    """The objects' per-geom arrays as one kernel argument (G = capacity; objects.Objects holds two,
+    made once with its arrays: ``geoms``, the meshes with their distance grids, and ``geoms_exact``,
+    without). A launch captures the arrays it holds, so a CUDA graph stays valid while Objects
+    updates them in place.
+
+    gtype (G,) int (GeomType), size (G,) vec3 (m), inv_pose (G,) transform (world -> geom frame),
+    radius (G,) float (bounding radius, m), mesh (G,) vec2ul (wp.Mesh id, distance grid id or 0),
+    obj (G,) int (object index), count (1,) int (geoms in use)."""
+
+    gtype: wp.array(dtype=int)
+    size: wp.array(dtype=wp.vec3)
+    inv_pose: wp.array(dtype=wp.transform)
+    radius: wp.array(dtype=float)
+    mesh: wp.array(dtype=wp.vec2ul)
+    obj: wp.array(dtype=int)
+    count: wp.array(dtype=int)
