@@ -42,7 +42,12 @@ def _demo(args) -> dict:
         if args.video:
             writer = imageio.get_writer(out / "demo.mp4", fps=50, codec="libx264", quality=7, macro_block_size=8)
         t0 = time.perf_counter()
-        hand = SoftHand(model, data, ph.Config(device=args.device))
+        # the scene closes the hand in ~0.2 s, its fingertips up to ~7 mm a 5 ms frame: the object feature
+        # lists are sized for the frame margin (Config.tuning.feature_slack = contact_frame_margin), as a
+        # scene that moves this fast should be (the warning says so otherwise; docs/contact.md)
+        config = ph.Config(device=args.device)
+        config.tuning.feature_slack = config.contact_frame_margin
+        hand = SoftHand(model, data, config)
         setup_s = time.perf_counter() - t0
         camera = figures.contact_camera(hand.skin_vertices)
         vmax = None  # colour scale of the pressure heat map: each frame's 95th percentile

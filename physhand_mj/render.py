@@ -23,9 +23,36 @@ _HINT = ("no OpenGL backend for offscreen rendering: on a CPU machine install OS
          "(apt-get install -y libosmesa6) and set MUJOCO_GL=osmesa; on a GPU machine set MUJOCO_GL=egl")
 
 
+# where the user's MUJOCO_GL cannot work (no such backend, its library missing): what is wrong; rendering
+# is then off (MUJOCO_GL=disable) so that ``import mujoco`` does not fail, and make_renderer says this
+_GL_PROBLEM: str | None = None
+_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+_VALID = ("egl", "osmesa", "glfw", "glx", "enable", "enabled", "on", "true", "1", "disable", "disabled", "off",
+          "false", "0")
+
+
+def _loads(name: str) -> bool:
+    path = ctypes.util.find_library(name)
+    try:
+        return path is not None and ctypes.CDLL(path) is not None
+    except OSError:
+        return False
+
+
 def select_gl_backend() -> str | None:
-    """Set ``MUJOCO_GL`` (and ``PYOPENGL_PLATFORM``) if unset; returns the backend in force."""
-    if os.environ.get("MUJOCO_GL"):
+    """Set ``MUJOCO_GL`` (and ``PYOPENGL_PLATFORM``) if unset; returns the backend in force. A
+    ``MUJOCO_GL`` that cannot work here (an unknown value, or egl / osmesa without its library, which
+    would make ``import mujoco`` fail) turns rendering off instead: simulation runs, and a picture
+    raises :class:`RenderUnavailable` naming the problem, in one line."""
+    global _GL_PROBLEM
+    chosen = os.environ.get("MUJOCO_GL", "").lower().strip()
+    if chosen:
+        if chosen not in _VALID:
+            _GL_PROBLEM = f"MUJOCO_GL={chosen} is not a MuJoCo backend (egl, osmesa or glfw)"
+        elif chosen in _LIBRARIES and not _loads(_LIBRARIES[chosen]):
+            _GL_PROBLEM = f"MUJOCO_GL={chosen}: lib{_LIBRARIES[chosen]} cannot be loaded on this machine"
+        if _GL_PROBLEM:
+            os.environ["MUJOCO_GL"] = "disable"
         return os.environ["MUJOCO_GL"]
     if os.path.exists("/dev/nvidia0") and ctypes.util.find_library("EGL"):
         backend = "egl"
@@ -45,6 +72,8 @@ def make_renderer(model, width: int = 640, height: int = 480):
     """A ``mujoco.Renderer`` or :class:`RenderUnavailable` with the fix in its message."""
     import mujoco
 
+    if _GL_PROBLEM:
+        raise RenderUnavailable(f"{_GL_PROBLEM}; {_HINT}")
     width = min(width, model.vis.global_.offwidth)
     height = min(height, model.vis.global_.offheight)
     try:

@@ -116,3 +116,21 @@ def test_demo_draws_one_frame_before_building_the_hand(tmp_path, monkeypatch, ca
     err = capsys.readouterr().err.strip()
     assert built == ["renderer"], built
     assert err.count("\n") == 0 and "cannot draw offscreen: eglMakeCurrent failed" in err, err
+
+
+@pytest.mark.parametrize("gl, patch", [("nonsense", ""), ("egl", "import ctypes.util; ctypes.util.find_library = lambda n: None; ")],
+                         ids=["unknown-backend", "egl-without-libEGL"])
+def test_a_mujoco_gl_that_cannot_work_fails_the_demo_in_one_line(gl, patch, tmp_path):
+    """A MUJOCO_GL that would make ``import mujoco`` raise (an unknown value; egl on a GPU host without
+    libEGL, simulated by hiding the library) turns rendering off: the demo fails before it simulates,
+    in one line naming the problem, and a command that draws nothing still runs."""
+    env = dict(os.environ, MUJOCO_GL=gl)
+    code = (patch + "import sys; from physhand_mj.cli import main; sys.exit(main(sys.argv[1:]))")
+    r = subprocess.run([sys.executable, "-c", code, "demo", "--out", str(tmp_path)], capture_output=True, text=True,
+                       env=env, timeout=300)
+    lines = _own_lines(r.stderr)
+    assert r.returncode == 1 and r.stdout == "" and "Traceback" not in r.stderr, r.stderr
+    assert len(lines) == 1 and f"MUJOCO_GL={gl}" in lines[0] and "frame" not in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-c", patch + "import physhand_mj, mujoco; print(physhand_mj.__version__)"],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
