@@ -234,7 +234,7 @@ class Config:
         the shallowest held skin on the CPU sweep) and ``"robot_pads"`` (OPT at 5 substeps)."""
         if name not in PRESETS:
             raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")
-        config = cls(**{**PRESETS[name], **overrides})
+        config = cls.from_dict({**PRESETS[name], **overrides})
         config.validate()
         return config
 
