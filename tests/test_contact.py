@@ -295,6 +295,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     (one thread per block on the CPU; ``blocks`` of them walking the list, default one per entry);
     the skin is not moved."""
     from physhand_mj.contact.features import feature_contact, feature_contact_tiled, feature_inputs
+    from physhand_mj.contact.query import push_sums
 
     m, o, cfg, d = c.model, c.objects, c.config, "cpu"
     n = m.n_vertices
@@ -307,7 +308,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     off = [0, no, no, no, no, wp.zeros(1, dtype=float, device=d)]
     kw = dict(tris=c.lists.cand, tri_count=c.cand_count, geom_obj=o.obj, near=c.near_query, eps=c.feature_eps,
               offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=off,
-              side=off[-1], push=(delta, hits, touched, count, vobj))
+              side=off[-1], push=(push_sums(delta, hits, touched, vobj), count))
     if tiled:
         nb = blocks or len(feats)
         wp.launch(feature_contact_tiled, (nb, 1),

@@ -50,9 +50,9 @@ def _hold_once(solver, state, plane_state=None) -> int:
     flags = c.hold.data.state if plane_state is None else plane_state
     wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.hold.data.tri, c.hold.data.bary, c.hold.data.geom, c.hold.data.eq,
                                              flags, o.geoms, solver.config.contact_offset, state.x],
-              outputs=[c.acc.delta, c.acc.hits, c.acc.touched, count, c.vertex_obj], device="cpu")
+              outputs=[c.acc.sums, count], device="cpu")
     shift, shifted = c.space.apply_shift(state)
-    wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.touched, count, 10_000, c.acc.delta, c.acc.hits, shift],
+    wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.sums, count, 10_000, shift],
               outputs=[state.x, c.push, c.acc.moved, c.acc.disp, c.lists.pass_move, shifted], device="cpu")
     return int(count.numpy()[0])
 

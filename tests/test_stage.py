@@ -19,6 +19,7 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     every point that pass pushes."""
     from physhand_mj.bench.cases import press_case, run_case, site_point
     from physhand_mj.contact import features as F
+    from physhand_mj.contact.query import push_sums
 
     asset = ph.load_asset()
     r = run_case(press_case("knife", site="palm", depth=0.004, start=-0.004), ph.Config(device="cpu"), frames=2,
@@ -48,7 +49,8 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
                                 cfg.contact_frame_margin, tris=c.lists.cand, tri_count=c.cand_count,
                                 stride=c.points.n_features, geom_obj=o.obj, keep=cfg.contact_margin,
                                 eps=c.feature_eps, offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose,
-                                x0=state.x, winding=wind, out=out, out_count=out_count, push=push)
+                                x0=state.x, winding=wind, out=out, out_count=out_count,
+                                push=(push_sums(*push[:3], push[4]), push[3]))
 
     dim, kw = ((c.points.n_features, 1), dict(block_dim=1)) if kind == "tiled" else (c.points.n_features, {})
     wp.launch(F.feature_kernel(kind, True), dim, inputs(c.features.listed, c.features.count, fused, stage, stage_count), device=d,

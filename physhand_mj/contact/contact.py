@@ -443,8 +443,7 @@ class Contact:
         moved_slots = [self._slot]
         self.touched_count = self._counter()
         a = self.acc
-        outs = [a.delta, a.hits, a.decision, a.vertex_obj, a.bound, a.bound_mask, a.eval_x, a.touched,
-                self.touched_count]
+        outs = [a.decision, a.bound, a.bound_mask, a.eval_x, a.sums, self.touched_count]
         if self.features is not None:  # features.py: the stage's list against the skin as it is now, applied
             # before Eq. 9 (one after the other: averaged together, the two undid each other at rims)
             slot, feat_touched = self._record_features(rec, state, p, skin, feat_count, stamp)
@@ -468,7 +467,7 @@ class Contact:
                 kernel = multires_kernel(regs, block)
             rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
         shift, shifted = self.space.apply_shift(state)
-        rec.launch(apply_contact, m.n_vertices, [a.touched, self.touched_count, stamp, a.delta, a.hits, shift],
+        rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift],
                    [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
         self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.features is not None and cfg.feature_last:
@@ -667,7 +666,7 @@ class Contact:
                        count=feat_count)
         shift, shifted = self.space.apply_shift(state)
         a = self.acc
-        rec.launch(apply_contact, m.n_vertices, [a.touched, feat_touched, stamp, a.delta, a.hits, shift],
+        rec.launch(apply_contact, m.n_vertices, [a.sums, feat_touched, stamp, shift],
                    [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 
@@ -685,8 +684,7 @@ class Contact:
                               eps=self.feature_eps, offset=offset, max_step=cfg.contact_margin, pose0=o.pose,
                               x0=state.x, winding=self._winding_args(), side=self._side(), out=out,
                               out_count=out_count,
-                              push=(self.acc.delta, self.acc.hits, self.acc.touched, touched_count,
-                                    self.acc.vertex_obj))
+                              push=(self.acc.sums, touched_count))
 
     def _winding_args(self) -> list:
         """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.query import PushSums, push_sums
 from physhand_mj.types import Config, Placement
 
 
@@ -79,6 +80,7 @@ class PassBuffers:
     disp: wp.array  # (V,) float m: how far that pass moved it
     push: wp.array  # (V,) float m: the contact's move of the vertex summed over the frame (reports)
     vertex_obj: wp.array  # (V,) int: the object that last pushed the vertex this frame (-1: none)
+    sums: PushSums  # delta, hits, touched and vertex_obj as the kernels take them (one argument)
 
 
 @dataclass
@@ -189,13 +191,14 @@ def make_frame_lists(model, config: Config, worlds: int, hold_slots: int) -> Fra
 def make_pass_buffers(model) -> PassBuffers:
     """A pass's buffers for ``model``'s skin triangles and vertices."""
     d, n, f = model.device, model.n_vertices, max(model.skin_faces.shape[0], 1)
+    sums = push_sums(wp.zeros(n, dtype=wp.vec3, device=d), wp.zeros(n, dtype=float, device=d),
+                     wp.zeros(n, dtype=int, device=d), wp.full(n, -1, dtype=int, device=d))
     return PassBuffers(
         moved=wp.zeros(n, dtype=int, device=d), disp=wp.zeros(n, dtype=float, device=d),
         bound=wp.zeros(f, dtype=float, device=d), eval_x=wp.zeros((f, 3), dtype=wp.vec3, device=d),
-        bound_mask=wp.zeros(f, dtype=int, device=d), touched=wp.zeros(n, dtype=int, device=d),
-        delta=wp.zeros(n, dtype=wp.vec3, device=d), hits=wp.zeros(n, dtype=float, device=d),
+        bound_mask=wp.zeros(f, dtype=int, device=d), touched=sums.touched, delta=sums.delta, hits=sums.hits,
         decision=wp.zeros(f, dtype=wp.vec4, device=d), push=wp.zeros(n, dtype=float, device=d),
-        vertex_obj=wp.full(n, -1, dtype=int, device=d))
+        vertex_obj=sums.vertex_obj, sums=sums)
 
 
 def make_feature_lists(points, config: Config, pool: int, device) -> FeatureLists:

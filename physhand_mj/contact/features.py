@@ -36,7 +36,7 @@ import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle, closest_signed
 from physhand_mj.contact.inside import object_point
-from physhand_mj.contact.query import accumulate, depth_weight
+from physhand_mj.contact.query import PushSums, accumulate, depth_weight
 from physhand_mj.contact.winding import closest_scan, closest_tiled, winding_sign
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
@@ -107,12 +107,11 @@ def near_features(
 
 @wp.func
 def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, faces: wp.array2d(dtype=int),
-                 offset: float, max_step: float, x: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3),
-                 hits: wp.array(dtype=float), touched: wp.array(dtype=int), touched_count: wp.array(dtype=int),
-                 vertex_obj: wp.array(dtype=int)):
+                 offset: float, max_step: float, x: wp.array(dtype=wp.vec3), sums: PushSums,
+                 touched_count: wp.array(dtype=int)):
     """The correction of the module docstring for feature point ``p`` whose closest skin point is
     (u, v, 1 - u - v) on skin triangle ``f`` (the point u x0 + v x1 + (1 - u - v) x2, Warp's mesh
-    query convention), ``sign`` +1 outside the skin / -1 inside: into ``delta``/``hits`` when p is
+    query convention), ``sign`` +1 outside the skin / -1 inside: into ``sums`` when p is
     inside (or closer than offset / 2 outside) and inside the triangle's plane."""
     i0 = faces[f, 0]
     i1 = faces[f, 1]
@@ -138,8 +137,8 @@ def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, 
     v0 = wd * wp.max(w0, 1.0e-3)
     v1 = wd * wp.max(w1, 1.0e-3)
     v2 = wd * wp.max(w2, 1.0e-3)
-    accumulate(i0, i1, i2, corr * (w0 * inv), corr * (w1 * inv), corr * (w2 * inv), v0, v1, v2, obj, delta,
-               hits, touched, touched_count, vertex_obj)
+    accumulate(i0, i1, i2, corr * (w0 * inv), corr * (w1 * inv), corr * (w2 * inv), v0, v1, v2, obj, sums,
+               touched_count)
 
 
 @wp.func
@@ -239,11 +238,8 @@ def feature_kernel(search: str, stage: bool):
         # Contact out:
         out: wp.array(dtype=int),
         out_count: wp.array(dtype=int),
-        delta: wp.array(dtype=wp.vec3),
-        hits: wp.array(dtype=float),
-        touched: wp.array(dtype=int),
+        sums: PushSums,
         touched_count: wp.array(dtype=int),
-        vertex_obj: wp.array(dtype=int),
     ):
         if wp.static(TILED):
             blk, lane = wp.tid()
@@ -300,8 +296,8 @@ def feature_kernel(search: str, stage: bool):
                 if wp.static(PUSH):
                     if push:
                         f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
-                        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, delta,
-                                     hits, touched, touched_count, vertex_obj)
+                        push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, sums,
+                                     touched_count)
             k += step
 
     # the kernels' own names (profiles, tests), not the factory's
@@ -314,12 +310,14 @@ def feature_inputs(faces, x, cand, cand_count, pts, pts_geom, pose, margin: floa
                    tri_count=None, stride: int = 0, geom_obj=None, keep: float = 0.0, near: float = 0.0,
                    eps: float = 0.0, offset: float = 0.0, max_step: float = 0.0, pose0=None, x0=None,
                    winding=(0, None, None, None, None, None), side=None, out=None, out_count=None,
-                   push=(None, None, None, None, None)) -> list:
+                   push=(None, None)) -> list:
     """The arguments of a :func:`feature_kernel` launch in its order; ``winding``: (on, slot, pool,
-    patch_start, patch_len, far_angle); ``push``: (delta, hits, touched, touched_count,
-    vertex_obj). What the variant does not read may stay None."""
+    patch_start, patch_len, far_angle); ``push``: (sums, touched_count), the accumulators
+    (query.PushSums) and the touched list's counter. What the variant does not read may stay None."""
+    sums, touched_count = push
     return [skin, faces, x, tris, tri_count, cand, cand_count, stride, pts, pts_geom, pose, geom_obj, margin, keep,
-            near, eps, offset, max_step, pose0, x0, *winding, side, out, out_count, *push]
+            near, eps, offset, max_step, pose0, x0, *winding, side, out, out_count,
+            PushSums() if sums is None else sums, touched_count]
 
 
 stage_features = feature_kernel("bvh", True)
@@ -329,7 +327,7 @@ the pseudo normal takes as inside gets its side checked once per stage: ``side[s
 +1 outside, 0 not checked (the pseudo normal took it as outside)."""
 feature_contact = feature_kernel("bvh", False)
 """For each listed feature point inside the skin (or closer than offset / 2 outside it): the
-correction of the module docstring on its closest skin triangle, into ``delta``/``hits``. With
+correction of the module docstring on its closest skin triangle, into ``sums``. With
 ``winding`` a point the pseudo normal takes as inside takes its side from the local winding number
 (module docstring; ``x`` the skin as the queries see it): the stage's check (``side``,
 :func:`stage_features`) where it made one, else one now (kept for the stage)."""
@@ -337,7 +335,7 @@ stage_features_tiled = feature_kernel("tiled", True)
 """:func:`stage_features` with a block per listed feature: the closest point by :func:`closest_tiled`
 (the feature's patch, or the skin triangles ``tris``: the frame's broadphase list). The stage's first
 pass sees the skin its list is made on, so the same closest point also gives that pass's push
-(:func:`feature_contact_tiled`'s, into ``delta`` ... ``vertex_obj``) in this launch: a point it pushes
+(:func:`feature_contact_tiled`'s, into ``sums``) in this launch: a point it pushes
 (inside, or closer than offset / 2 outside) is always kept (keep >= offset / 2)."""
 feature_contact_tiled = feature_kernel("tiled", False)
 """:func:`feature_contact` with a block per listed feature: the closest point by :func:`closest_tiled`,

@@ -46,7 +46,8 @@ from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.contact.data import PlaneBuffers
 from physhand_mj.contact.features import push_feature
 from physhand_mj.contact.inside import object_point
-from physhand_mj.contact.query import SIDE_COS, accumulate, apply_contact, depth_weight, side_floor, world_phi_grad
+from physhand_mj.contact.query import (SIDE_COS, PushSums, accumulate, apply_contact, depth_weight, side_floor,
+                                      world_phi_grad)
 from physhand_mj.contact.sdf import GeomSet
 
 wp.set_module_options({"enable_backward": False})
@@ -132,11 +133,8 @@ def hold_planes(
     geoms: GeomSet,
     offset: float,
     x: wp.array(dtype=wp.vec3),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
+    sums: PushSums,
     touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
 ):
     """One pass of Eq. 9 against the planes :func:`make_planes` left (this frame's, or the last
     frame's when that frame made some: ``plane_state`` [length, made this frame, made last frame]):
@@ -161,7 +159,7 @@ def hold_planes(
         return
     corr = wp.quat_rotate_inv(wp.transform_get_rotation(ti), gl) * (offset - d)
     wt = depth_weight(-d)
-    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geoms.obj[g], delta, hits, touched, touched_count, vertex_obj)
+    accumulate(i0, i1, i2, corr, corr, corr, wt, wt, wt, geoms.obj[g], sums, touched_count)
 
 
 @wp.kernel
@@ -210,11 +208,8 @@ def hold_features(
     max_step: float,
     reach: float,
     x: wp.array(dtype=wp.vec3),
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
-    touched: wp.array(dtype=int),
+    sums: PushSums,
     touched_count: wp.array(dtype=int),
-    vertex_obj: wp.array(dtype=int),
 ):
     """The feature push (features.push_feature) of every kept feature point against the skin point
     it was closest to when kept, where that point is still within ``reach`` (m) of it: a point
@@ -238,8 +233,7 @@ def hold_features(
     sign = float(1.0)
     if wp.dot(p - c, n) < 0.0:
         sign = -1.0
-    push_feature(p, f, uv[0], uv[1], sign, geom_obj[pts_geom[i]], faces, offset, max_step, x, delta, hits, touched,
-                 touched_count, vertex_obj)
+    push_feature(p, f, uv[0], uv[1], sign, geom_obj[pts_geom[i]], faces, offset, max_step, x, sums, touched_count)
 
 
 @wp.kernel
@@ -325,7 +319,6 @@ class PlaneHold:
         if not self.holds:
             return
         m, o, cfg, b = self.model, self.objects, self.config, self.data
-        common = [acc.delta, acc.hits, acc.touched]  # (a push's accumulators, then its touched count)
         pushes = [(hold_planes, self.n_tris, self.plane_len,
                    [m.skin_faces, b.tri, b.bary, b.geom, b.eq, b.state,
                     o.geoms, cfg.contact_offset, state.x])]
@@ -337,8 +330,8 @@ class PlaneHold:
         order = pushes * HOLD_PASSES + (pushes[:1] if len(pushes) == 2 and cfg.feature_last else [])
         for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
             stamp, count = take_counter()
-            rec.launch(kernel, dim, inputs, [*common, count, acc.vertex_obj], count=length)
-            rec.launch(apply_contact, m.n_vertices, [acc.touched, count, stamp, acc.delta, acc.hits, shift[0]],
+            rec.launch(kernel, dim, inputs, [acc.sums, count], count=length)
+            rec.launch(apply_contact, m.n_vertices, [acc.sums, count, stamp, shift[0]],
                        [state.x, acc.push, acc.moved, acc.disp, lists.pass_move, shift[1]], count=count)
 
 

@@ -75,29 +75,51 @@ def depth_weight(depth: float):
     return wp.max(s * s * s * s, 1.0e-30)
 
 
+@wp.struct
+class PushSums:
+    """A push's per-vertex accumulators as one kernel argument (data.PassBuffers' ``delta``, ``hits``,
+    ``touched`` and ``vertex_obj``, its ``sums``: made once with them; a launch captures the arrays
+    it holds, so a CUDA graph stays valid). The touched list's length is a counter slot per push,
+    passed beside it (the struct is not rebuilt per launch).
+
+    delta (V,) vec3 (m: summed weighted corrections), hits (V,) float (their weights summed),
+    touched (V,) int (the vertices the push corrects, a list), vertex_obj (V,) int (the object that
+    last pushed the vertex, -1: none)."""
+
+    delta: wp.array(dtype=wp.vec3)
+    hits: wp.array(dtype=float)
+    touched: wp.array(dtype=int)
+    vertex_obj: wp.array(dtype=int)
+
+
+def push_sums(delta, hits, touched, vertex_obj) -> PushSums:
+    """A :class:`PushSums` of the given arrays (held, not copied)."""
+    s = PushSums()
+    s.delta, s.hits, s.touched, s.vertex_obj = delta, hits, touched, vertex_obj
+    return s
+
+
 @wp.func
-def touch(hits: wp.array(dtype=float), i: int, w: float, touched: wp.array(dtype=int),
-          touched_count: wp.array(dtype=int)):
+def touch(sums: PushSums, i: int, w: float, touched_count: wp.array(dtype=int)):
     """hits[i] += w (> 0); the first hit of vertex i in a pass appends i to ``touched``."""
-    if wp.atomic_add(hits, i, w) == 0.0:
-        touched[wp.atomic_add(touched_count, 0, 1)] = i
+    if wp.atomic_add(sums.hits, i, w) == 0.0:
+        sums.touched[wp.atomic_add(touched_count, 0, 1)] = i
 
 
 @wp.func
 def accumulate(i0: int, i1: int, i2: int, c0: wp.vec3, c1: wp.vec3, c2: wp.vec3, w0: float, w1: float, w2: float,
-               obj: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float), touched: wp.array(dtype=int),
-               touched_count: wp.array(dtype=int), vertex_obj: wp.array(dtype=int)):
+               obj: int, sums: PushSums, touched_count: wp.array(dtype=int)):
     """Add a triangle's vertex corrections c_j with weights w_j (> 0) into the pass's weighted
     means (``apply_contact`` divides by the summed weights) and record the touched object."""
-    wp.atomic_add(delta, i0, c0 * w0)
-    wp.atomic_add(delta, i1, c1 * w1)
-    wp.atomic_add(delta, i2, c2 * w2)
-    touch(hits, i0, w0, touched, touched_count)
-    touch(hits, i1, w1, touched, touched_count)
-    touch(hits, i2, w2, touched, touched_count)
-    vertex_obj[i0] = obj
-    vertex_obj[i1] = obj
-    vertex_obj[i2] = obj
+    wp.atomic_add(sums.delta, i0, c0 * w0)
+    wp.atomic_add(sums.delta, i1, c1 * w1)
+    wp.atomic_add(sums.delta, i2, c2 * w2)
+    touch(sums, i0, w0, touched_count)
+    touch(sums, i1, w1, touched_count)
+    touch(sums, i2, w2, touched_count)
+    sums.vertex_obj[i0] = obj
+    sums.vertex_obj[i1] = obj
+    sums.vertex_obj[i2] = obj
 
 
 @wp.func
@@ -206,9 +228,8 @@ def phi_funcs(with_mesh: bool):
 
     @wp.func
     def project(best_p: wp.vec3, offset: float, i0: int, i1: int, i2: int, nt: wp.vec3, side_aware: int,
-                near: int, base: int, n_geoms: int, geoms: GeomSet, delta: wp.array(dtype=wp.vec3),
-                hits: wp.array(dtype=float), touched: wp.array(dtype=int), touched_count: wp.array(dtype=int),
-                vertex_obj: wp.array(dtype=int)):
+                near: int, base: int, n_geoms: int, geoms: GeomSet, sums: PushSums,
+                touched_count: wp.array(dtype=int)):
         """Eq. 9 for a triangle (vertices i0, i1, i2, outward unit normal nt) whose decision point is
         best_p: the correction that puts x* ``offset`` outside the surface along the gradient there,
         added to its vertices' accumulators with the depth weight; the touched object recorded per vertex.
@@ -238,7 +259,7 @@ def phi_funcs(with_mesh: bool):
                 return
             corr = -nt * t
         w = depth_weight(-d)
-        accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geoms.obj[arg], delta, hits, touched, touched_count, vertex_obj)
+        accumulate(i0, i1, i2, corr, corr, corr, w, w, w, geoms.obj[arg], sums, touched_count)
 
     return world_phi, world_phi_grad, phi_at, project
 
@@ -306,14 +327,11 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
         # State in:
         x: wp.array(dtype=wp.vec3),
         # Contact out:
-        delta: wp.array(dtype=wp.vec3),
-        hits: wp.array(dtype=float),
         decision: wp.array(dtype=wp.vec4),
-        vertex_obj: wp.array(dtype=int),
         bound: wp.array(dtype=float),
         bound_mask: wp.array(dtype=int),
         eval_x: wp.array2d(dtype=wp.vec3),
-        touched: wp.array(dtype=int),
+        sums: PushSums,
         touched_count: wp.array(dtype=int),
     ):
         if wp.static(TILED):
@@ -520,8 +538,8 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
                     bound[t] = certified
                 if best < 0.5 * offset:
                     nt = wp.normalize(wp.cross(b - a, c - a))
-                    project_fn(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, geoms, delta, hits,
-                               touched, touched_count, vertex_obj)
+                    project_fn(best_p, offset, i0, i1, i2, nt, side_aware, near, base, n_geoms, geoms, sums,
+                               touched_count)
             k += step
 
     decide_and_project.__qualname__ = "decide_and_project"  # (the kernel's key: profiles, tests)
@@ -531,9 +549,9 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
 decide_and_project = wp.kernel(decide_source(False, False))
 """ One active triangle per thread: decision point x* by ``strategy``; if phi(x*) < offset / 2
 (Config.tuning.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
-corrections into ``delta`` and ``hits`` of its three vertices (summed, weighted by the depth),
-the vertices' first hits of the pass appended to ``touched``, and the object touched into
-``vertex_obj``. decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
+corrections into ``sums`` (:class:`PushSums`: ``delta`` and ``hits`` of its three vertices, summed
+and weighted by the depth, the vertices' first hits of the pass appended to ``touched``, counted in
+``touched_count``, and the object touched into ``vertex_obj``). decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
 point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
 for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
 geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
@@ -574,16 +592,15 @@ def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst
 
 
 @wp.func
-def apply_vertex(i: int, stamp: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=float),
-                 x: wp.array(dtype=wp.vec3), push: wp.array(dtype=float), moved: wp.array(dtype=int),
-                 disp: wp.array(dtype=float)):
+def apply_vertex(i: int, stamp: int, sums: PushSums, x: wp.array(dtype=wp.vec3), push: wp.array(dtype=float),
+                 moved: wp.array(dtype=int), disp: wp.array(dtype=float)):
     """:func:`apply_contact` for touched vertex ``i``."""
-    dx = delta[i] * (1.0 / hits[i])
+    dx = sums.delta[i] * (1.0 / sums.hits[i])
     x[i] = x[i] + dx
     step = wp.length(dx)
     push[i] = push[i] + step
-    delta[i] = wp.vec3(0.0)
-    hits[i] = 0.0
+    sums.delta[i] = wp.vec3(0.0)
+    sums.hits[i] = 0.0
     if moved[i] == stamp:  # moved twice in this pass (the feature push, then Eq. 9): how far in all
         disp[i] = disp[i] + step
     else:
@@ -593,11 +610,9 @@ def apply_vertex(i: int, stamp: int, delta: wp.array(dtype=wp.vec3), hits: wp.ar
 
 @wp.kernel
 def apply_contact(
-    touched: wp.array(dtype=int),
+    sums: PushSums,
     touched_count: wp.array(dtype=int),
     stamp: int,
-    delta: wp.array(dtype=wp.vec3),
-    hits: wp.array(dtype=float),
     shift: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
@@ -616,8 +631,8 @@ def apply_contact(
     k = wp.tid()
     if k >= touched_count[0]:
         return
-    i = touched[k]
-    apply_vertex(i, stamp, delta, hits, x, push, moved, disp)
+    i = sums.touched[k]
+    apply_vertex(i, stamp, sums, x, push, moved, disp)
     if i < shifted.shape[0]:
         shifted[i] = x[i] + shift[i]
     if pass_move.shape[0] > 0:
