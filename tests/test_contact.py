@@ -296,6 +296,7 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     the skin is not moved."""
     from physhand_mj.contact.features import feature_contact, feature_contact_tiled, feature_inputs
     from physhand_mj.contact.query import push_sums
+    from physhand_mj.contact.winding import patches_of
 
     m, o, cfg, d = c.model, c.objects, c.config, "cpu"
     n = m.n_vertices
@@ -305,10 +306,11 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     lst_count = wp.array([len(feats)], dtype=int, device=d)
     # the pseudo-normal sign on both paths (Config.tuning.feature_winding's inputs off)
     no = wp.zeros(1, dtype=int, device=d)
-    off = [0, no, no, no, no, wp.zeros(1, dtype=float, device=d)]
+    no_side = wp.zeros(1, dtype=float, device=d)
+    off = (0, patches_of(no, no, no, no, no_side))
     kw = dict(tris=c.lists.cand, tri_count=c.cand_count, geom_obj=o.obj, near=c.near_query, eps=c.feature_eps,
               offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose, x0=state.x, winding=off,
-              side=off[-1], push=(push_sums(delta, hits, touched, vobj), count))
+              side=no_side, push=(push_sums(delta, hits, touched, vobj), count))
     if tiled:
         nb = blocks or len(feats)
         wp.launch(feature_contact_tiled, (nb, 1),

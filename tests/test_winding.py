@@ -13,7 +13,7 @@ import physhand_mj as ph
 from physhand_mj.contact.closest import FOUR_PI, solid_angle
 from physhand_mj.contact.features import FEATURE_LANES
 from physhand_mj.contact.inside import INSIDE_RANGE, inside_depth, object_point
-from physhand_mj.contact.winding import closest_tiled, frame_winding, winding_sign
+from physhand_mj.contact.winding import Patches, closest_tiled, frame_winding, patches_of, winding_sign
 
 
 @wp.kernel
@@ -46,9 +46,8 @@ def test_solid_angles_sum_to_the_winding_number():
 @wp.kernel
 def _feature_sides(skin: wp.uint64, feat: wp.array(dtype=int), pts: wp.array(dtype=wp.vec3),
                    pts_geom: wp.array(dtype=int), pose: wp.array(dtype=wp.transform), far: float,
-                   faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), slot: wp.array(dtype=int),
-                   pool: wp.array(dtype=int), start: wp.array(dtype=int), length: wp.array(dtype=int),
-                   far_angle: wp.array(dtype=float), out: wp.array2d(dtype=float)):
+                   faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), patches: Patches,
+                   out: wp.array2d(dtype=float)):
     k = wp.tid()
     i = feat[k]
     p = object_point(i, pts, pts_geom, pose)
@@ -57,21 +56,18 @@ def _feature_sides(skin: wp.uint64, feat: wp.array(dtype=int), pts: wp.array(dty
     if q.result:
         out[k, 0] = q.sign
         out[k, 2] = wp.length(p - wp.mesh_eval_position(skin, q.face, q.u, q.v))
-    out[k, 1] = winding_sign(p, i, faces, x, slot, pool, start, length, far_angle, 0.0)
+    out[k, 1] = winding_sign(p, i, faces, x, patches, 0.0)
 
 
 @wp.kernel
 def _feature_sides_tiled(tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), feat: wp.array(dtype=int),
                          pts: wp.array(dtype=wp.vec3), pts_geom: wp.array(dtype=int),
                          pose: wp.array(dtype=wp.transform), far: float, eps: float, faces: wp.array2d(dtype=int),
-                         x: wp.array(dtype=wp.vec3), slot: wp.array(dtype=int), pool: wp.array(dtype=int),
-                         start: wp.array(dtype=int), length: wp.array(dtype=int), far_angle: wp.array(dtype=float),
-                         out: wp.array(dtype=float)):
+                         x: wp.array(dtype=wp.vec3), patches: Patches, out: wp.array(dtype=float)):
     k, lane = wp.tid()
     i = feat[k]
     p = object_point(i, pts, pts_geom, pose)
-    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, far, eps, 1, slot, pool, start,
-                                         length, far_angle)
+    found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, far, eps, 1, patches)
     if lane == 0:
         out[k] = 0.0
         if found:
@@ -120,14 +116,12 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         skin.refit()
         out = wp.zeros((n, 3), dtype=float, device=device)
         wp.launch(_feature_sides, n, [skin.id, c.features.listed, pts.pts, pts.geom, c.objects.pose, c.config.contact_frame_margin,
-                                      c.model.skin_faces, state.x, c.features.slot, c.features.patch_pool, c.features.patch_start,
-                                      c.features.patch_len, c.features.far_angle], [out], device=device)
+                                      c.model.skin_faces, state.x, c.features.patches], [out], device=device)
         o = out.numpy().astype(float)
         tiled = wp.zeros(n, dtype=float, device=device)
         wp.launch(_feature_sides_tiled, (n, lanes), [c.lists.cand, c.cand_count, c.features.listed, pts.pts, pts.geom, c.objects.pose,
                                                      c.config.contact_frame_margin, c.feature_eps, c.model.skin_faces,
-                                                     state.x, c.features.slot, c.features.patch_pool, c.features.patch_start, c.features.patch_len,
-                                                     c.features.far_angle], [tiled], device=device, block_dim=lanes)
+                                                     state.x, c.features.patches], [tiled], device=device, block_dim=lanes)
         assert np.all(c.features.patch_len.numpy()[:n] > 0)  # every patch fit the pool
         # the full winding number, every skin triangle, in float64
         world, _ = _object_points_world(c, c.features.listed.numpy()[:n])
@@ -161,7 +155,7 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
         wp.launch(feature_patches_tiled, (n, 1), [c.model.skin_faces, state.x, c.features.listed, c.features.count, n, pts.pts, pts.geom,
                                                   c.objects.pose, c.config.contact_frame_margin, c.slack_check.data.feat_dist, c.slack_check.data.slack,
                                                   c.tris_per_world, c.geoms_per_world],
-                  [used, pool, slot, start, length, fill, far], device="cpu", block_dim=1)
+                  [used, patches_of(slot, pool, start, length, far), fill], device="cpu", block_dim=1)
         assert np.array_equal(length.numpy()[:n], c.features.patch_len.numpy()[:n])
         p0, p1, s0, s1 = c.features.patch_pool.numpy(), pool.numpy(), c.features.patch_start.numpy(), start.numpy()
         for k in range(n):

@@ -285,8 +285,7 @@ class Contact:
                            [m.skin_faces, self.space.skin_x(state), fl.listed, fl.count, nb, pts.pts, pts.geom, qpose,
                             cfg.contact_frame_margin, sd.feat_dist, sd.slack, self.tris_per_world,
                             self.geoms_per_world],
-                           [fl.patch_used, fl.patch_pool, fl.slot, fl.patch_start, fl.patch_len,
-                            fl.patch_fill, fl.far_angle], block_dim=lanes)
+                           [fl.patch_used, fl.patches, fl.patch_fill], block_dim=lanes)
             elif cfg.feature_winding:  # the local winding number's patches and far angles (features.py)
                 volw = self.space.volume(state, winding=True)
                 rec.ops += [self.space.refit_op(volw, fl.count), fl.patch_used.zero_]
@@ -294,8 +293,7 @@ class Contact:
                            [vol.mesh.id, volw.mesh.id, m.skin_faces, self.space.skin_x(state), fl.listed, fl.count,
                             pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, sd.feat_dist,
                             sd.slack, self.geoms_per_world, PATCH_SLOT],
-                           [fl.patch_used, fl.patch_pool, fl.slot, fl.patch_start, fl.patch_len,
-                            fl.far_angle], count=fl.count)
+                           [fl.patch_used, fl.patches], count=fl.count)
 
     def record_frame_end(self, rec, state) -> None:
         """At the end of a frame with contact: the skin's move against the feature lists' slack
@@ -536,6 +534,7 @@ class Contact:
             # (a power of two at least twice the need and the pool: a list that keeps growing re-records rarely)
             grown = PATCH_POOL_MAX if used < 0 else min(1 << (max(2 * used, 2 * size) - 1).bit_length(), PATCH_POOL_MAX)
             self.features.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
+            self.features.patches.pool = self.features.patch_pool  # (the frames are recorded again)
             self.reallocations += 1
         elif over and not self._patch_warned:
             from physhand_mj.warn import warn_user
@@ -687,12 +686,9 @@ class Contact:
                               push=(self.acc.sums, touched_count))
 
     def _winding_args(self) -> list:
-        """The feature kernels' local-winding-number inputs (features.py): [on, slot, pool, start,
-        length, far angle]; off: the feature list's arrays stand in (never read)."""
-        fl = self.features
-        if self.config.feature_winding:
-            return [1, fl.slot, fl.patch_pool, fl.patch_start, fl.patch_len, fl.far_angle]
-        return [0, fl.listed, fl.listed, fl.listed, fl.listed, fl.no_side]
+        """The feature kernels' local-winding-number inputs (features.py): [on, patches]; off: the
+        feature list's arrays stand in (FeatureLists.patches, never read)."""
+        return [int(bool(self.config.feature_winding)), self.features.patches]
 
     def _side(self):
         """The CPU's per-stage sides of the listed features (features.stage_features)."""

@@ -28,6 +28,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.query import PushSums, push_sums
+from physhand_mj.contact.winding import Patches, patches_of
 from physhand_mj.types import Config, Placement
 
 
@@ -110,6 +111,9 @@ class FeatureLists:
     patch_fill: wp.array | None = None  # (N,) int: CUDA's appends per feature (patches_tiled.py)
     far_angle: wp.array | None = None  # (N,) float: the solid angle of the skin outside the patch (winding.py)
     side: wp.array | None = None  # (N,) float: the CPU's per-stage sides of the listed features (stage_features)
+    # slot, patch_pool, patch_start, patch_len and far_angle as the kernels take them (one argument;
+    # without Config.feature_winding ``listed`` and ``no_side`` stand in, never read)
+    patches: Patches | None = None
 
 
 @dataclass
@@ -222,6 +226,9 @@ def make_feature_lists(points, config: Config, pool: int, device) -> FeatureList
         lists.patch_fill = wp.zeros(n, dtype=int, device=d)
         lists.far_angle = wp.zeros(n, dtype=float, device=d)
         lists.side = wp.zeros(n, dtype=float, device=d)
+        lists.patches = patches_of(lists.slot, lists.patch_pool, lists.patch_start, lists.patch_len, lists.far_angle)
+    else:
+        lists.patches = patches_of(lists.listed, lists.listed, lists.listed, lists.listed, lists.no_side)
     return lists
 
 

@@ -37,7 +37,7 @@ import warp as wp
 from physhand_mj.contact.closest import closest_on_triangle, closest_signed
 from physhand_mj.contact.inside import object_point
 from physhand_mj.contact.query import PushSums, accumulate, depth_weight
-from physhand_mj.contact.winding import closest_scan, closest_tiled, winding_sign
+from physhand_mj.contact.winding import Patches, closest_scan, closest_tiled, winding_sign
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -229,11 +229,7 @@ def feature_kernel(search: str, stage: bool):
         pose0: wp.array(dtype=wp.transform),
         x0: wp.array(dtype=wp.vec3),
         winding: int,
-        slot: wp.array(dtype=int),
-        pool: wp.array(dtype=int),
-        patch_start: wp.array(dtype=int),
-        patch_len: wp.array(dtype=int),
-        far_angle: wp.array(dtype=float),
+        patches: Patches,
         side: wp.array(dtype=float),
         # Contact out:
         out: wp.array(dtype=int),
@@ -262,11 +258,10 @@ def feature_kernel(search: str, stage: bool):
                 v = q.v
                 sign = q.sign
             elif wp.static(TILED):
-                found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding, slot,
-                                                     pool, patch_start, patch_len, far_angle)
+                found, f, u, v, sign = closest_tiled(p, i, lane, faces, x, tris, tri_count, margin, eps, winding,
+                                                     patches)
             else:
-                found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, slot, pool, patch_start, patch_len,
-                                                    far_angle)
+                found, f, u, v, sign = closest_scan(p, i, faces, x, margin, eps, patches)
             if lane == 0 and found:
                 push = True
                 if wp.static(STAGE):  # the stage's list: inside the skin or less than keep outside it
@@ -282,16 +277,15 @@ def feature_kernel(search: str, stage: bool):
                             if winding != 0:
                                 sd = float(0.0)
                                 if sign < 0.0:
-                                    sd = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle,
-                                                      sign)
-                                side[slot[i]] = sd
+                                    sd = winding_sign(p, i, faces, x, patches, sign)
+                                side[patches.slot[i]] = sd
                 elif wp.static(BVH):  # the stage's side where it took one, else one now (kept for the stage)
                     if winding != 0 and sign < 0.0:
-                        ks = slot[i]
+                        ks = patches.slot[i]
                         s0 = sign
                         sign = side[ks]
                         if sign == 0.0:  # taken as outside when the stage began
-                            sign = winding_sign(p, i, faces, x, slot, pool, patch_start, patch_len, far_angle, s0)
+                            sign = winding_sign(p, i, faces, x, patches, s0)
                             side[ks] = sign
                 if wp.static(PUSH):
                     if push:
@@ -309,14 +303,14 @@ def feature_kernel(search: str, stage: bool):
 def feature_inputs(faces, x, cand, cand_count, pts, pts_geom, pose, margin: float, *, skin=0, tris=None,
                    tri_count=None, stride: int = 0, geom_obj=None, keep: float = 0.0, near: float = 0.0,
                    eps: float = 0.0, offset: float = 0.0, max_step: float = 0.0, pose0=None, x0=None,
-                   winding=(0, None, None, None, None, None), side=None, out=None, out_count=None,
+                   winding=(0, None), side=None, out=None, out_count=None,
                    push=(None, None)) -> list:
-    """The arguments of a :func:`feature_kernel` launch in its order; ``winding``: (on, slot, pool,
-    patch_start, patch_len, far_angle); ``push``: (sums, touched_count), the accumulators
+    """The arguments of a :func:`feature_kernel` launch in its order; ``winding``: (on, patches), the
+    local winding number's switch and its patches (winding.Patches); ``push``: (sums, touched_count), the accumulators
     (query.PushSums) and the touched list's counter. What the variant does not read may stay None."""
-    sums, touched_count = push
+    (on, patches), (sums, touched_count) = winding, push
     return [skin, faces, x, tris, tri_count, cand, cand_count, stride, pts, pts_geom, pose, geom_obj, margin, keep,
-            near, eps, offset, max_step, pose0, x0, *winding, side, out, out_count,
+            near, eps, offset, max_step, pose0, x0, on, Patches() if patches is None else patches, side, out, out_count,
             PushSums() if sums is None else sums, touched_count]
 
 

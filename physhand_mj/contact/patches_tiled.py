@@ -7,7 +7,7 @@ import warp as wp
 
 from physhand_mj.contact.closest import solid_angle
 from physhand_mj.contact.inside import object_point
-from physhand_mj.contact.winding import patch_radius, within
+from physhand_mj.contact.winding import Patches, patch_radius, within
 
 wp.set_module_options({"enable_backward": False})  # forward only
 
@@ -33,12 +33,8 @@ def feature_patches_tiled(
     tris_per_world: int,
     geoms_per_world: int,
     pool_count: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    slot: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
+    patches: Patches,
     patch_fill: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
 ):
     """:func:`feature_patches` with a block per listed feature (CUDA; launch (stride, PATCH_LANES),
     block b taking entries b, b + stride, ...): the lanes scan every skin triangle of the feature's world, so Omega_far is the far triangles'
@@ -76,20 +72,20 @@ def feature_patches_tiled(
         if lane == 0:
             mine = wp.atomic_add(pool_count, 0, n)
         start = wp.tile_max(wp.tile(mine))[0]
-        if start < 0 or start > pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
+        if start < 0 or start > patches.pool.shape[0] - n:  # (no start + n: it wraps past 2^31; so does the counter)
             if lane == 0:
-                slot[i] = k
-                patch_len[k] = -1
+                patches.slot[i] = k
+                patches.length[k] = -1
         else:
             j = first + lane
             while j < first + tris_per_world:
                 t = j
                 j += lanes
                 if within(p, t, faces, x, r):
-                    pool[start + wp.atomic_add(patch_fill, k, 1)] = t
+                    patches.pool[start + wp.atomic_add(patch_fill, k, 1)] = t
             if lane == 0:
-                slot[i] = k
-                patch_start[k] = start
-                patch_len[k] = n
-                far_angle[k] = far
+                patches.slot[i] = k
+                patches.start[k] = start
+                patches.length[k] = n
+                patches.far_angle[k] = far
         k += stride

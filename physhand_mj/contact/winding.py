@@ -32,6 +32,32 @@ from physhand_mj.contact.inside import object_point, winding_number
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
 
+@wp.struct
+class Patches:
+    """The listed feature points' patches as one kernel argument (data.FeatureLists' ``slot``,
+    ``patch_pool``, ``patch_start``, ``patch_len`` and ``far_angle``, its ``patches``: made once
+    with them, its pool again where the pool grows, after which the frames are recorded again).
+    Without Config.feature_winding the feature list's arrays stand in (never read).
+
+    slot (P,) int (per object point its listed feature's slot), pool (pool,) int (skin triangles),
+    start (N,) int (per listed feature its patch's first entry in the pool), length (N,) int (its
+    length, -1: no patch, it did not fit), far_angle (N,) float (the solid angle of the skin outside
+    the patch)."""
+
+    slot: wp.array(dtype=int)
+    pool: wp.array(dtype=int)
+    start: wp.array(dtype=int)
+    length: wp.array(dtype=int)
+    far_angle: wp.array(dtype=float)
+
+
+def patches_of(slot, pool, start, length, far_angle) -> Patches:
+    """A :class:`Patches` of the given arrays (held, not copied)."""
+    s = Patches()
+    s.slot, s.pool, s.start, s.length, s.far_angle = slot, pool, start, length, far_angle
+    return s
+
+
 @wp.func
 def patch_angle(p: wp.vec3, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), pool: wp.array(dtype=int),
                 start: int, n: int):
@@ -125,17 +151,13 @@ def feature_patches(
     geoms_per_world: int,
     most: int,
     pool_count: wp.array(dtype=int),
-    pool: wp.array(dtype=int),
-    slot: wp.array(dtype=int),
-    patch_start: wp.array(dtype=int),
-    patch_len: wp.array(dtype=int),
-    far_angle: wp.array(dtype=float),
+    patches: Patches,
 ):
     """Once per frame, for the k-th listed feature point i (module docstring, the local winding
     number): its patch (the skin triangles whose boxes meet the cube of half-size r around it, from
-    ``skin``'s BVH, that come within r of it; r = :func:`patch_radius`) written to ``pool``, and
+    ``skin``'s BVH, that come within r of it; r = :func:`patch_radius`) written to ``patches.pool``, and
     Omega_far = 4 pi w_0 - Omega_patch with w_0 ``skin_w``'s fast winding number (an integer, -1 to
-    1). ``slot[i] = k``.
+    1). ``patches.slot[i] = k``.
 
     One walk of the BVH writes the patch to its own slot, pool[k c: (k + 1) c] (k < the listed
     count n, c = min(``most``, pool size // 2 n): the list's slots fill at most the pool's lower
@@ -148,7 +170,8 @@ def feature_patches(
     if k >= feat_count[0]:
         return
     i = feat[k]
-    slot[i] = k
+    pool = patches.pool
+    patches.slot[i] = k
     p = object_point(i, pts, pts_geom, pose)
     r = patch_radius(radius, feat_dist[k], slack[pts_geom[i] // geoms_per_world])
     lo = p - wp.vec3(r)
@@ -172,7 +195,7 @@ def feature_patches(
         if top <= pool.shape[0]:
             top = wp.atomic_add(pool_count, 1, n)
         if top < 0 or top > pool.shape[0] - n or pool.shape[0] - top - n < feat_count[0] * cap:
-            patch_len[k] = -1
+            patches.length[k] = -1
             wp.atomic_add(pool_count, 2, 1)
             return
         start = pool.shape[0] - top - n
@@ -184,41 +207,39 @@ def feature_patches(
             if near and n < size:  # (the same test on the same triangles as the first walk)
                 pool[start + n] = t
                 n += 1
-    patch_start[k] = start
-    patch_len[k] = n
-    far_angle[k] = FOUR_PI * frame_winding(skin_w, p, feat_dist[k], margin) - omega
+    patches.start[k] = start
+    patches.length[k] = n
+    patches.far_angle[k] = FOUR_PI * frame_winding(skin_w, p, feat_dist[k], margin) - omega
 
 
 @wp.func
-def winding_sign(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
-                 slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
-                 patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float), sign: float):
+def winding_sign(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), patches: Patches,
+                 sign: float):
     """The side of feature point ``i`` at ``p`` by the local winding number (+1 outside the skin, -1
     inside); ``sign`` (the pseudo normal's) where its patch did not fit the pool."""
-    k = slot[i]
-    n = patch_len[k]
+    k = patches.slot[i]
+    n = patches.length[k]
     if n < 0:
         return sign
-    if patch_angle(p, faces, x, pool, patch_start[k], n) + far_angle[k] > 0.5 * FOUR_PI:
+    if patch_angle(p, faces, x, patches.pool, patches.start[k], n) + patches.far_angle[k] > 0.5 * FOUR_PI:
         return -1.0
     return 1.0
 
 
 @wp.func
 def closest_scan(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), far: float, eps: float,
-                 slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
-                 patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
+                 patches: Patches):
     """:func:`closest_tiled` by one thread over feature point ``i``'s patch (batched worlds on CUDA:
     a thread per listed feature, Config.execution.tiled_features None): the same closest point and the local
     winding number's sign (not found where the patch did not fit the pool: Contact warns)."""
-    k = slot[i]
-    n = patch_len[k]
+    k = patches.slot[i]
+    n = patches.length[k]
     if n < 0:
         return False, int(0), float(0.0), float(0.0), float(1.0)
-    d, f, acc, omega = scan_closest(p, 0, 1, faces, x, pool, patch_start[k], n, far, eps, 1)
+    d, f, acc, omega = scan_closest(p, 0, 1, faces, x, patches.pool, patches.start[k], n, far, eps, 1)
     found, f, u, v, sign = finish_closest(p, d, f, acc, faces, x, far)
     sign = float(1.0)
-    if omega + far_angle[k] > 0.5 * FOUR_PI:
+    if omega + patches.far_angle[k] > 0.5 * FOUR_PI:
         sign = -1.0
     return found, f, u, v, sign
 
@@ -226,18 +247,18 @@ def closest_scan(p: wp.vec3, i: int, faces: wp.array2d(dtype=int), x: wp.array(d
 @wp.func
 def closest_tiled(p: wp.vec3, i: int, lane: int, faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3),
                   tris: wp.array(dtype=int), tri_count: wp.array(dtype=int), far: float, eps: float, winding: int,
-                  slot: wp.array(dtype=int), pool: wp.array(dtype=int), patch_start: wp.array(dtype=int),
-                  patch_len: wp.array(dtype=int), far_angle: wp.array(dtype=float)):
+                  patches: Patches):
     """:func:`closest_signed_tiled` for feature point ``i`` at ``p``: with ``winding`` over its patch
     (the triangles near it, module docstring) with the local winding number's sign; else (or where
     its patch did not fit the pool) over the frame's list ``tris`` with the pseudo-normal sign."""
-    if winding != 0:  # (slot is read only then: off, a stand-in array is passed)
-        k = slot[i]
-        n = patch_len[k]
+    if winding != 0:  # (the patches are read only then: off, stand-in arrays are passed)
+        k = patches.slot[i]
+        n = patches.length[k]
         if n >= 0:
-            found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, pool, patch_start[k], n, far, eps, 1)
+            found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, patches.pool, patches.start[k], n, far,
+                                                               eps, 1)
             sign = float(1.0)
-            if omega + far_angle[k] > 0.5 * FOUR_PI:
+            if omega + patches.far_angle[k] > 0.5 * FOUR_PI:
                 sign = -1.0
             return found, f, u, v, sign
     found, f, u, v, sign, omega = closest_signed_tiled(p, lane, faces, x, tris, 0, tri_count[0], far, eps, 0)
