@@ -551,8 +551,8 @@ decide_and_project = wp.kernel(decide_source(False, False))
 (Config.tuning.contact_offset: the skin rests that far outside objects), Eq. 9 onto phi = offset:
 corrections into ``sums`` (:class:`PushSums`: ``delta`` and ``hits`` of its three vertices, summed
 and weighted by the depth, the vertices' first hits of the pass appended to ``touched``, counted in
-``touched_count``, and the object touched into ``vertex_obj``). decision[t] = (x*, phi(x*)) for diagnostics (for triangles left early: the lowest
-point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
+``touched_count``, and the object touched into ``vertex_obj``). decision[t] = (x*, phi(x*)) for
+diagnostics (for triangles left early: the lowest point seen); bound[t] = the triangle's lowest phi as the later passes' filters use it (certified
 for triangles left early, the strategy's estimate phi(x*) otherwise), with the positions and the
 geoms (bound_mask[t]) it holds for in eval_x[t]. Batched worlds: triangle t queries only its
 world's geoms [w k, (w + 1) k), w = t // ``tris_per_world``, k = ``geoms_per_world``
