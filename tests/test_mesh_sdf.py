@@ -384,7 +384,7 @@ def test_the_grids_bounds_list_the_triangles_the_exact_distance_lists(device):
     the triangles that the exact distance alone lists, with the same masks, at the frame's and the
     stage's margins; the upper bound decides most of the near ones."""
     from physhand_mj.contact import broadphase
-    from physhand_mj.contact.broadphase import find_active
+    from physhand_mj.contact.broadphase import NO_LIST, find_active, tri_list
 
     mesh = CONVEX["wedge30_knife"]()
     rng = np.random.default_rng(5)
@@ -400,8 +400,8 @@ def test_the_grids_bounds_list_the_triangles_the_exact_distance_lists(device):
 
     def listed(geoms, margin):
         out = [wp.zeros(n, dtype=int, device=device) for _ in range(2)] + [wp.zeros(1, dtype=int, device=device)]
-        wp.launch(find_active, n, inputs=[faces, x, geoms, n, 1, margin, *[None] * 6], outputs=[*out, *[None] * 3],
-                  device=device)
+        wp.launch(find_active, n, inputs=[faces, x, geoms, n, 1, margin, NO_LIST, *[None] * 4],
+                  outputs=[tri_list(out[0], out[1]), out[2], NO_LIST, None], device=device)
         k = int(out[2].numpy()[0])
         return dict(zip(out[0].numpy()[:k].tolist(), out[1].numpy()[:k].tolist()))
 

@@ -30,6 +30,27 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 USE_GRID_UPPER = wp.constant(True)
 
 
+@wp.struct
+class TriList:
+    """A triangle list as the kernels take it: skin triangle indices (into ``Model.skin_faces``) and
+    per entry the bit mask of its world's geoms near it (:func:`reach_mask`). Made once with its
+    arrays (data.FrameLists); its length is a counter slot that changes per pass, passed beside it
+    (a recorded launch keeps its arguments)."""
+
+    tri: wp.array(dtype=int)
+    mask: wp.array(dtype=int)
+
+
+def tri_list(tri, mask) -> TriList:
+    """A :class:`TriList` over the arrays ``tri`` and ``mask``."""
+    s = TriList()
+    s.tri, s.mask = tri, mask
+    return s
+
+
+NO_LIST = TriList()  # where a kernel reads no list (find_active's src and out): Warp takes no None for a struct
+
+
 @wp.func
 def triangle_bound(a: wp.vec3, b: wp.vec3, c: wp.vec3):
     """(centroid, circumradius about it): every point of the triangle lies within r of m."""
@@ -78,8 +99,8 @@ def reach_mask(t: int, allowed: int, faces: wp.array2d(dtype=int), x: wp.array(d
 
 @wp.func
 def keep_if_moved(t: int, mask: int, faces: wp.array2d(dtype=int), moved: wp.array(dtype=int),
-                  disp: wp.array(dtype=float), stamp: int, bound: wp.array(dtype=float), out: wp.array(dtype=int),
-                  out_mask: wp.array(dtype=int), out_count: wp.array(dtype=int)):
+                  disp: wp.array(dtype=float), stamp: int, bound: wp.array(dtype=float), out: TriList,
+                  out_count: wp.array(dtype=int)):
     """:func:`keep_moved` for active triangle ``t`` (broadphase mask ``mask``)."""
     m = float(0.0)
     for j in range(3):
@@ -92,15 +113,14 @@ def keep_if_moved(t: int, mask: int, faces: wp.array2d(dtype=int), moved: wp.arr
         bound[t] = bound[t] - m
         return
     slot = wp.atomic_add(out_count, 0, 1)
-    out[slot] = t
-    out_mask[slot] = mask
+    out.tri[slot] = t
+    out.mask[slot] = mask
 
 
 @wp.kernel
 def keep_moved(
     faces: wp.array2d(dtype=int),
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
+    active: TriList,
     active_count: wp.array(dtype=int),
     moved: wp.array(dtype=int),
     disp: wp.array(dtype=float),
@@ -111,8 +131,7 @@ def keep_moved(
     pass_move: wp.array(dtype=float),
     stage_tol: wp.array(dtype=float),
     stage: int,
-    out: wp.array(dtype=int),
-    out_mask: wp.array(dtype=int),
+    out: TriList,
     out_count: wp.array(dtype=int),
     flag: wp.array(dtype=wp.int32),
 ):
@@ -138,7 +157,7 @@ def keep_moved(
         flag[0] = wp.where(go and total > 0, 1, 0)
     if k >= active_count[0] or not go:
         return
-    keep_if_moved(active[k], active_mask[k], faces, moved, disp, stamp, bound, out, out_mask, out_count)
+    keep_if_moved(active.tri[k], active.mask[k], faces, moved, disp, stamp, bound, out, out_count)
 
 
 @wp.func
@@ -166,7 +185,7 @@ def list_source(stage: bool):
     """The Python function of a triangle-list kernel, for ``wp.kernel``: :func:`find_active` (the
     frame's list over every triangle) or, ``stage``, :func:`stage_lists` (a stage's two lists over
     the frame's list ``src``). Both take the same arguments; find_active reads no ``src``, ``bound``,
-    ``bound_mask``, ``eval_x`` nor ``out`` lists (None)."""
+    ``bound_mask``, ``eval_x`` nor ``out`` (None; :data:`NO_LIST` for the lists)."""
     STAGE = bool(stage)
 
     def kernel(
@@ -176,17 +195,14 @@ def list_source(stage: bool):
         tris_per_world: int,
         geoms_per_world: int,
         margin: float,
-        src: wp.array(dtype=int),
-        src_mask: wp.array(dtype=int),
+        src: TriList,
         src_count: wp.array(dtype=int),
         bound: wp.array(dtype=float),
         bound_mask: wp.array(dtype=int),
         eval_x: wp.array2d(dtype=wp.vec3),
-        active: wp.array(dtype=int),
-        active_mask: wp.array(dtype=int),
+        active: TriList,
         active_count: wp.array(dtype=int),
-        out: wp.array(dtype=int),
-        out_mask: wp.array(dtype=int),
+        out: TriList,
         out_count: wp.array(dtype=int),
     ):
         k = wp.tid()
@@ -195,19 +211,19 @@ def list_source(stage: bool):
         if wp.static(STAGE):
             if k >= src_count[0]:
                 return
-            t = src[k]
-            allowed = src_mask[k]
+            t = src.tri[k]
+            allowed = src.mask[k]
         mask = reach_mask(t, allowed, faces, x, geoms, tris_per_world, geoms_per_world, margin)
         if mask == 0:
             return
         slot = wp.atomic_add(active_count, 0, 1)
-        active[slot] = t
-        active_mask[slot] = mask
+        active.tri[slot] = t
+        active.mask[slot] = mask
         if wp.static(STAGE):
             if first_pass_keeps(t, mask, faces, x, bound, bound_mask, eval_x):
                 slot = wp.atomic_add(out_count, 0, 1)
-                out[slot] = t
-                out_mask[slot] = mask
+                out.tri[slot] = t
+                out.mask[slot] = mask
 
     kernel.__name__ = kernel.__qualname__ = "stage_lists" if STAGE else "find_active"  # (the kernel's key: tests)
     return kernel
@@ -229,7 +245,7 @@ bound proves near (within the mesh's query range); the others are asked the exac
 the lists are those of the exact distance. Arguments: :func:`list_source`."""
 stage_lists = wp.kernel(list_source(True))
 """ A contact stage's two lists in one launch: :func:`find_active` over the frame's list ``src``
-(near the geoms of its mask ``src_mask``: the stage's active triangles, ``active``) and, of those,
+(near the geoms of its masks ``src.mask``: the stage's active triangles, ``active``) and, of those,
 its first pass's (``out``, :func:`first_pass_keeps`)."""
 
 

@@ -21,7 +21,7 @@ import warp as wp
 
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
-from physhand_mj.contact.broadphase import find_active, keep_moved, stage_lists, tally_worlds
+from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
 from physhand_mj.contact.patches_tiled import PATCH_LANES, feature_patches_tiled
@@ -252,8 +252,8 @@ class Contact:
         self.pass_slots = []
         rec.launch_ahead(find_active, self.n_tris,
                          [m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world,
-                          cfg.contact_frame_margin, *[None] * 6],
-                         [self.lists.cand, self.lists.cand_mask, self.cand_count, *[None] * 3])
+                          cfg.contact_frame_margin, NO_LIST, *[None] * 4],
+                         [self.lists.cand_tris, self.cand_count, NO_LIST, None])
         rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
     def _record_frame_lists(self, rec, state) -> None:
@@ -373,15 +373,14 @@ class Contact:
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.features is not None else -1))
         self.active_count = self._counter()
-        lst = (self.lists.pass_list, self.lists.pass_mask, self._counter())
+        lst = (self.lists.pass_tris, self._counter())
         self.pass_slots.append(self._slot - 1)
         # the stage's active triangles (within contact_margin) of the frame's list, and of those its
         # first pass's list, in one launch
         rec.launch(stage_lists, self.n_tris,
                    [m.skin_faces, state.x, o.geoms, self.tris_per_world, self.geoms_per_world, cfg.contact_margin,
-                    self.lists.cand, self.lists.cand_mask, self.cand_count, self.acc.bound, self.acc.bound_mask,
-                    self.acc.eval_x],
-                   [self.lists.active, self.lists.active_mask, self.active_count, *lst], count=self.cand_count)
+                    self.lists.cand_tris, self.cand_count, self.acc.bound, self.acc.bound_mask, self.acc.eval_x],
+                   [self.lists.active_tris, self.active_count, *lst], count=self.cand_count)
         stage = len(self._stage_slots) - 1
         if self.lists.world_stage is not None:  # the stage's active triangles per world
             rec.launch(tally_worlds, self.n_tris,
@@ -463,7 +462,7 @@ class Contact:
             if regs:  # (its block size passed to the launch: Warp launches 256 on CUDA whatever the module says)
                 block = int(cfg.multires_block_dim)
                 kernel = multires_kernel(regs, block)
-            rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[2], block_dim=block)
+            rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[1], block_dim=block)
         shift, shifted = self.space.apply_shift(state)
         rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift],
                    [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
@@ -472,12 +471,12 @@ class Contact:
             moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
         flag = None
         if p + 1 < cfg.contact_passes:
-            lst = (self.lists.pass_list, self.lists.pass_mask, self._counter())
+            lst = (self.lists.pass_tris, self._counter())
             self.pass_slots.append(self._slot - 1)
             j = len(self.pass_slots) - 1  # (one flag per later pass of the frame, zeroed with the frame)
             flag = self.lists.pass_flags[j: j + 1]
             rec.launch(keep_moved, self.n_tris,
-                       [m.skin_faces, self.lists.active, self.lists.active_mask, self.active_count, a.moved, a.disp,
+                       [m.skin_faces, self.lists.active_tris, self.active_count, a.moved, a.disp,
                         stamp, a.bound, self.lists.counters, self._slot_array(moved_slots), self.lists.pass_move,
                         self.lists.stage_tol, len(self._stage_slots) - 1],
                        [*lst, flag], count=self.active_count, min_dim=1)

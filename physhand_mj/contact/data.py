@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.broadphase import TriList, tri_list
 from physhand_mj.contact.query import PushSums, push_sums
 from physhand_mj.contact.winding import Patches, patches_of
 from physhand_mj.types import Config, Placement
@@ -50,6 +51,9 @@ class FrameLists:
     active_mask: wp.array  # (max(F, 1),) int: its near-geom bits
     pass_list: wp.array  # (max(F, 1),) int: a later pass's list (triangles with a vertex the last pass moved)
     pass_mask: wp.array  # (max(F, 1),) int: its near-geom bits
+    cand_tris: TriList  # cand and cand_mask as the kernels take them (one argument; its length: a counter slot)
+    active_tris: TriList  # active and active_mask so
+    pass_tris: TriList  # pass_list and pass_mask so
     # (max(stages x passes, 1),) int32: per later pass of a frame, 1 when the pass before it moved a
     # vertex (keep_moved sets it, CUDA's conditional node reads it: activity.py level 2; zeroed per frame)
     pass_flags: wp.array
@@ -178,12 +182,13 @@ def make_frame_lists(model, config: Config, worlds: int, hold_slots: int) -> Fra
     tol = config.contact_pass_tol > 0  # (no tolerance: no work, no flag change)
     pass_move = wp.zeros(counters.shape[0] if tol else 0, dtype=float, device=d)
     stage_tol = wp.zeros(max(stages, 1) if tol else 0, dtype=float, device=d)
+    cand, active, pass_list = (tri_list(wp.zeros(f, dtype=int, device=d), wp.zeros(f, dtype=int, device=d))
+                               for _ in range(3))
     return FrameLists(
         counters=counters,
         counters_host=wp.zeros(counters.shape[0], dtype=int, device="cpu", pinned=cuda),
-        cand=wp.zeros(f, dtype=int, device=d), cand_mask=wp.zeros(f, dtype=int, device=d),
-        active=wp.zeros(f, dtype=int, device=d), active_mask=wp.zeros(f, dtype=int, device=d),
-        pass_list=wp.zeros(f, dtype=int, device=d), pass_mask=wp.zeros(f, dtype=int, device=d),
+        cand=cand.tri, cand_mask=cand.mask, active=active.tri, active_mask=active.mask,
+        pass_list=pass_list.tri, pass_mask=pass_list.mask, cand_tris=cand, active_tris=active, pass_tris=pass_list,
         pass_flags=wp.zeros(max(stages * config.contact_passes, 1), dtype=wp.int32, device=d),
         pass_move=pass_move,
         pass_move_host=(wp.zeros(pass_move.shape[0], dtype=float, device="cpu", pinned=True) if cuda

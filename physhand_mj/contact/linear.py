@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from physhand_mj.contact.broadphase import world_geoms
+from physhand_mj.contact.broadphase import TriList, world_geoms
 from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.contact.data import PlaneBuffers
 from physhand_mj.contact.features import push_feature
@@ -64,8 +64,7 @@ HOLD_SLOTS = 2 * HOLD_PASSES + 1
 @wp.kernel
 def make_planes(
     faces: wp.array2d(dtype=int),
-    active: wp.array(dtype=int),
-    active_mask: wp.array(dtype=int),
+    active: TriList,
     active_count: wp.array(dtype=int),
     decision: wp.array(dtype=wp.vec4),
     eval_x: wp.array2d(dtype=wp.vec3),
@@ -81,7 +80,7 @@ def make_planes(
     plane_eq: wp.array(dtype=wp.vec4),
     plane_state: wp.array(dtype=int),
 ):
-    """For each of the stage's active triangles (``active[:active_count]``): its decision point
+    """For each of the stage's active triangles (``active.tri[:active_count]``): its decision point
     (``decision``, taken on the vertices ``eval_x``) as barycentric weights, the point at those weights
     on the triangle as it is now, phi and its gradient there; within ``margin``, a plane [g, c] in the
     closest geom's frame (phi ~ g . q + c for a point q in that frame) appended to the plane list.
@@ -92,7 +91,7 @@ def make_planes(
         plane_state[1] = 1
     if k >= active_count[0]:
         return
-    t = active[k]
+    t = active.tri[k]
     i0 = faces[t, 0]
     i1 = faces[t, 1]
     i2 = faces[t, 2]
@@ -105,7 +104,7 @@ def make_planes(
     c = x[i2]
     p = a * w[0] + b * w[1] + c * w[2]
     base, end = world_geoms(t, tris_per_world, geoms_per_world, geoms.count[0])
-    d, g, arg = world_phi_grad(p, geoms, base, end - base, active_mask[k])
+    d, g, arg = world_phi_grad(p, geoms, base, end - base, active.mask[k])
     if d >= margin:
         return
     if side_aware != 0 and -d > side_floor(geoms.gtype[arg], geoms.size[arg]):
@@ -304,7 +303,7 @@ class PlaneHold:
                        count=feat_count)
         rec.ops.append(self.plane_len.zero_)
         rec.launch(make_planes, self.n_tris,
-                   [m.skin_faces, lists.active, lists.active_mask, active_count, acc.decision, acc.eval_x,
+                   [m.skin_faces, lists.active_tris, active_count, acc.decision, acc.eval_x,
                     o.geoms_exact, self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.side_aware,
                     state.x],
                    [b.tri, b.bary, b.geom, b.eq, b.state],

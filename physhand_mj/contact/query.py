@@ -33,7 +33,7 @@ import functools
 
 import warp as wp
 
-from physhand_mj.contact.broadphase import triangle_bound, world_geoms
+from physhand_mj.contact.broadphase import TriList, triangle_bound, world_geoms
 from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, GeomSet, geom_sdf,
                                      geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic)
 from physhand_mj.contact.sdf_mesh import mesh_near_dist, mesh_near_faces, mesh_near_first, mesh_near_ids, sdf_mesh_near
@@ -314,8 +314,7 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
         tris_per_world: int,
         geoms_per_world: int,
         # Contact in:
-        active: wp.array(dtype=int),
-        active_mask: wp.array(dtype=int),
+        active: TriList,
         active_count: wp.array(dtype=int),
         stride: int,
         strategy: int,
@@ -345,8 +344,8 @@ def decide_source(tiled: bool, multires: bool, with_mesh: bool = True):
             n = wp.min(k + 1, active_count[0])
             step = int(1)
         while k < n:  # (tiled: uniform over the block, k is the block's triangle; every lane reaches the block reductions)
-            t = active[k]
-            near = active_mask[k]
+            t = active.tri[k]
+            near = active.mask[k]
             i0 = faces[t, 0]
             i1 = faces[t, 1]
             i2 = faces[t, 2]
@@ -584,8 +583,8 @@ def multires_kernel(max_registers: int, block_dim: int = 256):
 def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst, stride: int, strategy: int,
                   samples: int, rounds: int, opt_queries: int, offset: float, side_aware: int, x) -> list:
     """The inputs of a decision-point launch (:func:`decide_source`'s kernels) before its outputs:
-    the skin ``faces``, the ``objects``' geoms (their exact mesh ids), the list ``lst`` (active,
-    mask, count) and the strategy's settings."""
+    the skin ``faces``, the ``objects``' geoms (their exact mesh ids), the list ``lst`` (broadphase.TriList,
+    count) and the strategy's settings."""
     o = objects
     return [faces, o.geoms_exact, tris_per_world, geoms_per_world, *lst, stride, strategy, samples, rounds,
             opt_queries, offset, side_aware, x]
