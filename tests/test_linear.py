@@ -9,7 +9,7 @@ import warp as wp
 from activity_helpers import _solver, _step, scene  # noqa: F401  (scene: a module fixture)
 from test_batch import _beside_serial, setup  # noqa: F401  (setup: a module fixture)
 from physhand_mj.hand_mjcf import bone_poses_at
-from physhand_mj.contact.linear import hold_planes, roll_planes
+from physhand_mj.contact.linear import Planes, hold_planes, roll_planes
 from physhand_mj.contact.query import apply_contact
 from physhand_mj.launch import Recorder
 from physhand_mj.types import Config, GeomType
@@ -47,9 +47,13 @@ def _hold_once(solver, state, plane_state=None) -> int:
     flags ``plane_state``); returns how many vertices it corrected."""
     c, o, m = solver.contact, solver.contact.objects, solver.model
     count = wp.zeros(1, dtype=int, device="cpu")
-    flags = c.hold.data.state if plane_state is None else plane_state
-    wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, c.hold.data.tri, c.hold.data.bary, c.hold.data.geom, c.hold.data.eq,
-                                             flags, o.geoms, solver.config.contact_offset, state.x],
+    planes = c.hold.data.planes
+    if plane_state is not None:  # (a copy of the struct with those flags)
+        planes = Planes()
+        planes.tri, planes.bary, planes.geom, planes.eq = (c.hold.data.tri, c.hold.data.bary, c.hold.data.geom,
+                                                           c.hold.data.eq)
+        planes.state = plane_state
+    wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, planes, o.geoms, solver.config.contact_offset, state.x],
               outputs=[c.acc.sums, count], device="cpu")
     shift, shifted = c.space.apply_shift(state)
     wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.sums, count, 10_000, shift],

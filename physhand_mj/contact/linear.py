@@ -61,6 +61,29 @@ HOLD_PASSES = 2
 HOLD_SLOTS = 2 * HOLD_PASSES + 1
 
 
+@wp.struct
+class Planes:
+    """The plane list (data.PlaneBuffers' arrays of the same names) as the kernels take it:
+    :func:`make_planes` fills it, :func:`hold_planes` reads it."""
+
+    tri: wp.array(dtype=int)  # the plane's skin triangle
+    bary: wp.array(dtype=wp.vec3)  # the decision point's barycentric weights in it
+    geom: wp.array(dtype=int)  # the geom the plane is of
+    eq: wp.array(dtype=wp.vec4)  # the plane [unit gradient, offset m] in the geom's frame
+    state: wp.array(dtype=int)  # [planes, made this frame, made last frame, feature points kept]
+
+
+@wp.struct
+class KeptPoints:
+    """The kept feature points (data.PlaneBuffers' fpt, fface, fuv and state) as the kernels take
+    them: :func:`make_feature_planes` fills them, :func:`hold_features` reads them."""
+
+    pt: wp.array(dtype=int)  # a kept feature point
+    face: wp.array(dtype=int)  # its closest skin triangle
+    uv: wp.array(dtype=wp.vec2)  # the barycentric weights of its closest point there
+    state: wp.array(dtype=int)  # as Planes.state
+
+
 @wp.kernel
 def make_planes(
     faces: wp.array2d(dtype=int),
@@ -74,21 +97,17 @@ def make_planes(
     margin: float,
     side_aware: int,
     x: wp.array(dtype=wp.vec3),
-    plane_tri: wp.array(dtype=int),
-    plane_bary: wp.array(dtype=wp.vec3),
-    plane_geom: wp.array(dtype=int),
-    plane_eq: wp.array(dtype=wp.vec4),
-    plane_state: wp.array(dtype=int),
+    planes: Planes,
 ):
     """For each of the stage's active triangles (``active.tri[:active_count]``): its decision point
     (``decision``, taken on the vertices ``eval_x``) as barycentric weights, the point at those weights
     on the triangle as it is now, phi and its gradient there; within ``margin``, a plane [g, c] in the
     closest geom's frame (phi ~ g . q + c for a point q in that frame) appended to the plane list.
-    Thread 0 marks the list as made in this frame (``plane_state[1]``); the caller zeroes its length
-    (``plane_state[0]``) first."""
+    Thread 0 marks the list as made in this frame (``planes.state[1]``); the caller zeroes its length
+    (``planes.state[0]``) first."""
     k = wp.tid()
     if k == 0:
-        plane_state[1] = 1
+        planes.state[1] = 1
     if k >= active_count[0]:
         return
     t = active.tri[k]
@@ -114,21 +133,17 @@ def make_planes(
     ti = geoms.inv_pose[arg]
     gl = wp.quat_rotate(wp.transform_get_rotation(ti), g)  # the gradient in the geom's frame
     ql = wp.transform_point(ti, p)
-    slot = wp.atomic_add(plane_state, 0, 1)
-    plane_tri[slot] = t
-    plane_bary[slot] = w
-    plane_geom[slot] = arg
-    plane_eq[slot] = wp.vec4(gl[0], gl[1], gl[2], d - wp.dot(gl, ql))
+    slot = wp.atomic_add(planes.state, 0, 1)
+    planes.tri[slot] = t
+    planes.bary[slot] = w
+    planes.geom[slot] = arg
+    planes.eq[slot] = wp.vec4(gl[0], gl[1], gl[2], d - wp.dot(gl, ql))
 
 
 @wp.kernel
 def hold_planes(
     faces: wp.array2d(dtype=int),
-    plane_tri: wp.array(dtype=int),
-    plane_bary: wp.array(dtype=wp.vec3),
-    plane_geom: wp.array(dtype=int),
-    plane_eq: wp.array(dtype=wp.vec4),
-    plane_state: wp.array(dtype=int),
+    planes: Planes,
     geoms: GeomSet,
     offset: float,
     x: wp.array(dtype=wp.vec3),
@@ -136,22 +151,22 @@ def hold_planes(
     touched_count: wp.array(dtype=int),
 ):
     """One pass of Eq. 9 against the planes :func:`make_planes` left (this frame's, or the last
-    frame's when that frame made some: ``plane_state`` [length, made this frame, made last frame]):
+    frame's when that frame made some: ``planes.state`` [length, made this frame, made last frame]):
     the plane's point on the triangle as it is now, phi there by the plane, and below offset / 2 the
     triangle's vertices corrected along the plane's normal (query.project's correction and depth
     weight), into the pass's accumulators (apply_contact averages them)."""
     k = wp.tid()
-    if k >= plane_state[0] or (plane_state[1] == 0 and plane_state[2] == 0):
+    if k >= planes.state[0] or (planes.state[1] == 0 and planes.state[2] == 0):
         return
-    t = plane_tri[k]
+    t = planes.tri[k]
     i0 = faces[t, 0]
     i1 = faces[t, 1]
     i2 = faces[t, 2]
-    w = plane_bary[k]
+    w = planes.bary[k]
     p = x[i0] * w[0] + x[i1] * w[1] + x[i2] * w[2]
-    g = plane_geom[k]
+    g = planes.geom[k]
     ti = geoms.inv_pose[g]
-    e = plane_eq[k]
+    e = planes.eq[k]
     gl = wp.vec3(e[0], e[1], e[2])
     d = wp.dot(gl, wp.transform_point(ti, p)) + e[3]
     if d >= 0.5 * offset or d < -HOLD_MAX_DEPTH:
@@ -170,15 +185,12 @@ def make_feature_planes(
     pts_geom: wp.array(dtype=int),
     pose: wp.array(dtype=wp.transform),
     margin: float,
-    fplane_pt: wp.array(dtype=int),
-    fplane_face: wp.array(dtype=int),
-    fplane_uv: wp.array(dtype=wp.vec2),
-    plane_state: wp.array(dtype=int),
+    kept: KeptPoints,
 ):
     """For each of the stage's listed object feature points (``feat[:feat_count]``) within ``margin``
     of the skin as the stage left it: the skin's closest point (face, u, v) on the skin's BVH, kept
     with the point (its geom carries it) for :func:`hold_features`; the caller zeroes
-    ``plane_state[3]`` (the list's length) first."""
+    ``kept.state[3]`` (the list's length) first."""
     k = wp.tid()
     if k >= feat_count[0]:
         return
@@ -186,19 +198,16 @@ def make_feature_planes(
     q = wp.mesh_query_point_no_sign(skin, object_point(i, pts, pts_geom, pose), margin)
     if not q.result:
         return
-    slot = wp.atomic_add(plane_state, 3, 1)
-    fplane_pt[slot] = i
-    fplane_face[slot] = q.face
-    fplane_uv[slot] = wp.vec2(q.u, q.v)
+    slot = wp.atomic_add(kept.state, 3, 1)
+    kept.pt[slot] = i
+    kept.face[slot] = q.face
+    kept.uv[slot] = wp.vec2(q.u, q.v)
 
 
 @wp.kernel
 def hold_features(
     faces: wp.array2d(dtype=int),
-    fplane_pt: wp.array(dtype=int),
-    fplane_face: wp.array(dtype=int),
-    fplane_uv: wp.array(dtype=wp.vec2),
-    plane_state: wp.array(dtype=int),
+    kept: KeptPoints,
     pts: wp.array(dtype=wp.vec3),
     pts_geom: wp.array(dtype=int),
     pose: wp.array(dtype=wp.transform),
@@ -215,13 +224,13 @@ def hold_features(
     behind the triangle's plane as it is now counts as inside, else outside (then pushed only when
     closer than offset / 2, as a stage would); the triangle pushed along its inward normal until the
     point is ``offset`` outside its plane (at most ``max_step``), into the pass's accumulators
-    (``plane_state`` as in :func:`hold_planes`)."""
+    (``kept.state`` as in :func:`hold_planes`)."""
     k = wp.tid()
-    if k >= plane_state[3] or (plane_state[1] == 0 and plane_state[2] == 0):
+    if k >= kept.state[3] or (kept.state[1] == 0 and kept.state[2] == 0):
         return
-    i = fplane_pt[k]
-    uv = fplane_uv[k]
-    f = fplane_face[k]
+    i = kept.pt[k]
+    uv = kept.uv[k]
+    f = kept.face[k]
     p = object_point(i, pts, pts_geom, pose)
     w2 = 1.0 - uv[0] - uv[1]
     c = x[faces[f, 0]] * uv[0] + x[faces[f, 1]] * uv[1] + x[faces[f, 2]] * w2
@@ -284,6 +293,8 @@ class PlaneHold:
             b.fpt = wp.zeros(nf, dtype=int, device=d)
             b.fface = wp.zeros(nf, dtype=int, device=d)
             b.fuv = wp.zeros(nf, dtype=wp.vec2, device=d)
+            b.kept = KeptPoints()
+            b.kept.pt, b.kept.face, b.kept.uv, b.kept.state = b.fpt, b.fface, b.fuv, b.state
         return True
 
     def record_make(self, rec, state, lists, acc, active_count, features=None) -> None:
@@ -299,14 +310,14 @@ class PlaneHold:
             rec.ops += [self.fplane_len.zero_, refit]  # (the CPU: only with features listed)
             rec.launch(make_feature_planes, points.n_features,
                        [vol.mesh.id, feat_stage, feat_count, points.pts, points.geom, o.pose,
-                        cfg.contact_margin], [b.fpt, b.fface, b.fuv, b.state],
+                        cfg.contact_margin], [b.kept],
                        count=feat_count)
         rec.ops.append(self.plane_len.zero_)
         rec.launch(make_planes, self.n_tris,
                    [m.skin_faces, lists.active_tris, active_count, acc.decision, acc.eval_x,
                     o.geoms_exact, self.tris_per_world, self.geoms_per_world, cfg.contact_margin, self.side_aware,
                     state.x],
-                   [b.tri, b.bary, b.geom, b.eq, b.state],
+                   [b.planes],
                    count=active_count, min_dim=1)
 
     def record_hold(self, rec, state, lists, acc, take_counter, shift: tuple, points=None) -> None:
@@ -319,12 +330,10 @@ class PlaneHold:
             return
         m, o, cfg, b = self.model, self.objects, self.config, self.data
         pushes = [(hold_planes, self.n_tris, self.plane_len,
-                   [m.skin_faces, b.tri, b.bary, b.geom, b.eq, b.state,
-                    o.geoms, cfg.contact_offset, state.x])]
+                   [m.skin_faces, b.planes, o.geoms, cfg.contact_offset, state.x])]
         if self.keeps_features(points):  # the kept feature points, before the planes (as a stage's push is)
             pushes.insert(0, (hold_features, points.n_features, self.fplane_len,
-                              [m.skin_faces, b.fpt, b.fface, b.fuv, b.state,
-                               points.pts, points.geom, o.pose, o.obj, cfg.feature_offset,
+                              [m.skin_faces, b.kept, points.pts, points.geom, o.pose, o.obj, cfg.feature_offset,
                                cfg.contact_margin, cfg.contact_margin, state.x]))
         order = pushes * HOLD_PASSES + (pushes[:1] if len(pushes) == 2 and cfg.feature_last else [])
         for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
@@ -336,6 +345,8 @@ class PlaneHold:
 
 def make_plane_buffers(n: int, device) -> PlaneBuffers:
     """The plane list, ``n`` slots (a slot per skin triangle where the config asks for a hold, else 0)."""
-    return PlaneBuffers(tri=wp.zeros(n, dtype=int, device=device), bary=wp.zeros(n, dtype=wp.vec3, device=device),
-                        geom=wp.zeros(n, dtype=int, device=device), eq=wp.zeros(n, dtype=wp.vec4, device=device),
-                        state=wp.zeros(4, dtype=int, device=device))
+    p = Planes()
+    p.tri, p.bary = wp.zeros(n, dtype=int, device=device), wp.zeros(n, dtype=wp.vec3, device=device)
+    p.geom, p.eq = wp.zeros(n, dtype=int, device=device), wp.zeros(n, dtype=wp.vec4, device=device)
+    p.state = wp.zeros(4, dtype=int, device=device)
+    return PlaneBuffers(tri=p.tri, bary=p.bary, geom=p.geom, eq=p.eq, state=p.state, planes=p)
