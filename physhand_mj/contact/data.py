@@ -23,7 +23,6 @@ per applied push.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -32,9 +31,6 @@ from physhand_mj.contact.broadphase import TriList, tri_list
 from physhand_mj.contact.query import PushSums, push_sums
 from physhand_mj.contact.winding import Patches, patches_of
 from physhand_mj.types import Config, Placement
-
-if TYPE_CHECKING:  # (linear.py imports this module)
-    from physhand_mj.contact.linear import KeptPoints, Planes
 
 
 def contact_stages(config: Config) -> int:
@@ -166,11 +162,13 @@ class PlaneBuffers:
     geom: wp.array  # (like tri,) int: the geom the plane is of
     eq: wp.array  # (like tri,) vec4: the plane [unit gradient, offset m] in the geom's frame
     state: wp.array  # (4,) int: [planes, made this frame, made last frame, feature points kept]
-    planes: Planes  # tri, bary, geom, eq and state as the kernels take them (one argument)
+    # linear.Planes (linear.py imports this module, not the other way): tri, bary, geom, eq and
+    # state as the kernels take them (one argument)
+    planes: object
     fpt: wp.array | None = None  # (N,) int: a kept feature point
     fface: wp.array | None = None  # (N,) int: its closest skin triangle
     fuv: wp.array | None = None  # (N,) vec2: the barycentric weights of its closest point there
-    kept: KeptPoints | None = None  # fpt, fface, fuv and state as the kernels take them
+    kept: object = None  # linear.KeptPoints or None: fpt, fface, fuv and state as the kernels take them
 
 
 def make_frame_lists(model, config: Config, worlds: int, hold_slots: int) -> FrameLists:
