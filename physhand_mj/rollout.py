@@ -184,16 +184,18 @@ def load_rollout_scene(scene, keyframe: str | None = None, model=None):
 
 
 def rollout_config(model, substeps: int, contact: str, device, config: dict | None = None):
-    """The rollout's :class:`~physhand_mj.Config`: the scene's time step as the frame, per-substep
-    metrics on (the log), ``config``'s further fields."""
+    """The rollout's validated :class:`~physhand_mj.Settings`: the scene's time step as the frame,
+    per-substep metrics on (the log), ``config``'s further options (any group's, ``Config.from_dict``)."""
     import physhand_mj as ph
     from physhand_mj.types import Strategy
 
     if not (config or {}).get("frame_metrics", True):
         raise ValueError("a rollout logs every frame's skin measure: leave Config.frame_metrics on (use "
                          "BatchedHands or Solver directly to run frames without it)")
-    return ph.Config(frame_dt=float(model.opt.timestep), substeps=substeps, contact=Strategy[contact.upper()],
-                     device=device, substep_metrics=True, **(config or {}))
+    # (validated once: the log reads substep_dt every row; config may name any group's options)
+    return ph.Config.from_dict(dict(frame_dt=float(model.opt.timestep), substeps=substeps,
+                                    contact=Strategy[contact.upper()], device=device, substep_metrics=True,
+                                    **(config or {}))).validate()
 
 
 def start_row(data, start: dict) -> list:

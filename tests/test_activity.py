@@ -346,6 +346,8 @@ def test_a_rollout_refuses_to_log_without_frame_metrics():
 
     model = SimpleNamespace(opt=SimpleNamespace(timestep=0.002))
     assert rollout_config(model, 10, "multires", "cpu", {}).frame_metrics
+    # an option of an expert group by its name, as a rollout list's JSON gives it
+    assert rollout_config(model, 10, "multires", "cpu", {"feature_offset": 5e-5}).feature_offset == 5e-5
     with pytest.raises(ValueError, match="frame_metrics"):
         rollout_config(model, 10, "multires", "cpu", {"frame_metrics": False})
 
