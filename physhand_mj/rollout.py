@@ -29,8 +29,11 @@ empty without feature points.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -122,13 +125,14 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 both = hand.penetration() if measured(step, steps, measure_every) else None  # (not timed)
                 rows = getattr(hand.solver, "substep_metrics", None)
                 counts = hand.solver.contact.stage_counts() if hand.solver.contact is not None else None
-                # a frame's rows go out together: an interrupted log holds whole frames
-                log.writerows(frame_rows(step, data, cfg, rows, counts, dt, both))
-                counters.writerow(counter_row(step, res))
-                f.flush()
-                fc.flush()
-                times.append(dt)
-                last, obj_frame = carry_object_side(res, both, last, step, obj_frame)
+                frame = frame_rows(step, data, cfg, rows, counts, dt, both)
+                with whole_frame():  # a frame's rows and its count go out together: an interrupted log holds whole frames
+                    log.writerows(frame)
+                    counters.writerow(counter_row(step, res))
+                    f.flush()
+                    fc.flush()
+                    times.append(dt)
+                    last, obj_frame = carry_object_side(res, both, last, step, obj_frame)
                 bar.update(1)
                 if res["nonfinite"]:
                     raise SolverError(f"{res['nonfinite']} skin/flesh positions turned non-finite in frame {step}")
@@ -142,6 +146,26 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     m = hand.metrics()
     return summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
                        interrupted, log_path, skin_path, object_frame=obj_frame)
+
+
+@contextlib.contextmanager
+def whole_frame():
+    """Ctrl-C held back until the block ends: a frame's log rows and the summary's frame count are
+    kept together (a stop between the two wrote one frame more than the summary counted). Ctrl-C and
+    Ray's cancel (``ray.cancel``, which raises through the same SIGINT handler) arrive as Python's
+    SIGINT handler; outside the main thread, where no handler can be set, the block runs as is."""
+    old = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(old):
+        yield
+        return
+    caught = []
+    signal.signal(signal.SIGINT, lambda *a: caught.append(a))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+    if caught:
+        old(*caught[0])  # (the handler that was there: Python's default raises KeyboardInterrupt)
 
 
 def carry_object_side(res: dict, both: dict | None, last: dict, step: int, frame: int) -> tuple[dict, int]:

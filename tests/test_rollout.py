@@ -195,3 +195,32 @@ def test_batch_runs_a_list_into_one_table(tmp_path, capsys):
     table = read_csv(tmp_path / "b" / "summary.csv")
     assert [t["scene"] for t in table] == [str(APPLE), str(tmp_path / "missing.xml")]
     assert table[1]["error"].startswith("scene file not found")
+
+
+def test_a_ctrl_c_inside_a_frames_commit_waits_for_its_end():
+    """The race the Ray Ctrl-C test once hit (a frame's rows logged, its count not): SIGINT raised
+    (as Ctrl-C and ``ray.cancel`` do) between the two halves of a commit arrives after both."""
+    import _thread
+
+    from physhand_mj.rollout import whole_frame
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    done = []
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with whole_frame():
+                done.append("rows")
+                _thread.interrupt_main()
+                for _ in range(1000):  # bytecodes where an undeferred interrupt would land
+                    pass
+                done.append("count")
+        assert done == ["rows", "count"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+        with pytest.raises(KeyboardInterrupt):  # and outside a commit an interrupt lands at once
+            _thread.interrupt_main()
+            for _ in range(1000):
+                pass
+            done.append("late")
+        assert done == ["rows", "count"]
+    finally:
+        signal.signal(signal.SIGINT, old)
