@@ -14,7 +14,7 @@ import physhand_mj as ph
 from physhand_mj.bench.cases import press_case, run_case
 from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.contact.slack import UNLISTED, certify_features, next_slack, skin_motion, skin_reach
+from physhand_mj.contact.slack import UNLISTED, SkinMoves, certify_features, next_slack, skin_motion, skin_reach
 from physhand_mj.contact.inside import object_point
 
 
@@ -161,7 +161,7 @@ def _check_lists(asset, slack, device):
     is_feature = np.zeros(c.points.pts.shape[0], bool)
     is_feature[c.points.feature.numpy()] = True
     # the frame's start: the skin the lists were made on
-    x0 = c.slack_check.data.x_start
+    x0 = c.slack_check.data.moves.x_start
     reach = min(cfg.contact_frame_margin, cfg.contact_margin + FEATURE_LIST_SHARE * used)
     if used >= cfg.contact_frame_margin - 1e-9:  # (a slack at the margin lists every point within it)
         reach = cfg.contact_frame_margin
@@ -240,28 +240,26 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
             x1[v] += np.asarray(dv, np.float32)
         slack = _arr(np.float32([slack0]), float)
         nv = x0.shape[0]
-        vmotion, motion = wp.zeros(nv, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu")
-        fast, fast_count = wp.zeros((1, cap), dtype=int, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
-        wp.launch(skin_motion, nv, [_arr(x1, wp.vec3), _arr(x0, wp.vec3), _arr(np.zeros(nv, np.int32), int), slack],
-                  [vmotion, motion, fast, fast_count], device="cpu")
-        reach = wp.zeros(1, dtype=float, device="cpu")
-        wp.launch(skin_reach, 2, [faces, _arr(x0, wp.vec3), _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int),
-                                  fast_count], [reach], device="cpu")
+        mv = SkinMoves()  # (a fast row of ``cap``, not slack.skin_moves' room for every vertex)
+        mv.x_start, mv.vmotion = _arr(x0, wp.vec3), wp.zeros(nv, dtype=float, device="cpu")
+        mv.motion, mv.reach = wp.zeros(1, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu")
+        mv.fast, mv.fast_count = wp.zeros((1, cap), dtype=int, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
+        fast_count, x1w, world = mv.fast_count, _arr(x1, wp.vec3), _arr(np.zeros(nv, np.int32), int)
+        wp.launch(skin_motion, nv, [x1w, world, slack], [mv], device="cpu")
+        wp.launch(skin_reach, 2, [faces, x1w, world], [mv], device="cpu")
         edges = [np.linalg.norm(t - np.roll(t, 1, axis=1), axis=2) for t in (x0[faces.numpy()], x1[faces.numpy()])]
         longest = max(np.nanmax(e) for e in edges)  # (at the start or the end; asked only where a vertex moved fast)
-        assert reach.numpy()[0] == (pytest.approx(longest, rel=1e-6) if fast_count.numpy()[0] else 0.0)
+        assert mv.reach.numpy()[0] == (pytest.approx(longest, rel=1e-6) if fast_count.numpy()[0] else 0.0)
         near, failed = wp.zeros(1, dtype=float, device="cpu"), wp.zeros(1, dtype=int, device="cpu")
         n = len(pts)
         wp.launch(certify_features, n, [_arr(np.arange(n, dtype=np.int32), int),
                                         _arr(np.asarray(pts, np.float32), wp.vec3), _arr(np.zeros(n, np.int32), int),
                                         pose, _arr(np.int32([1]), int), 1, _arr(np.float32(dist), float),
-                                        _arr(np.int32(face or [0] * n), int), faces, _arr(x0, wp.vec3),
-                                        _arr(x1, wp.vec3), vmotion, fast,
-                                        fast_count, slack, motion, 1e-2, 5e-4, reach], [near, failed], device="cpu")
+                                        _arr(np.int32(face or [0] * n), int), faces, x1w, mv, slack, 1e-2, 5e-4],
+                  [near, failed], device="cpu")
         report = wp.zeros((1, 3), dtype=float, device="cpu")
         listed = _arr(np.int32([int(any(abs(x) < UNLISTED for x in dist))]), int)
-        wp.launch(next_slack, 1, [motion, near, failed, fast_count, cap, listed, 4e-3, 1e-2], [slack, report],
-                  device="cpu")
+        wp.launch(next_slack, 1, [mv, near, failed, listed, 4e-3, 1e-2], [slack, report], device="cpu")
         return report.numpy()[0], float(slack.numpy()[0]), int(fast_count.numpy()[0])
 
     r, nxt, n = check({3: (0, 0, -3e-3)})  # B 3 mm towards the point: fast, but it needs 4 mm
@@ -439,7 +437,7 @@ def test_band_points_in_batched_worlds(asset):
     assert c.query_shift is not None
     used = c.slack_check.data.report.numpy()[:, 0]  # (m, each world's slack its last lists were made with)
     assert np.all(used < cfg.contact_frame_margin)
-    x0 = c.slack_check.data.x_start.numpy() + c.query_shift.numpy()  # the frame's start, where the worlds were queried
+    x0 = c.slack_check.data.moves.x_start.numpy() + c.query_shift.numpy()  # the frame's start, where the worlds were queried
     d0, _ = _brute_force(c, _cpu_arr(x0), np.zeros(c.points.pts.shape[0]))
     world = c.points.geom.numpy() // c.geoms_per_world
     is_feature = np.zeros(len(d0), bool)

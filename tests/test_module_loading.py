@@ -69,9 +69,9 @@ def test_modules_load_side_by_side_as_their_launches_would():
     for m in mods:
         assert any(ctx == device.context for ctx, _ in m.execs), m.name
     x = wp.zeros(3, dtype=wp.vec3, device=device)
-    out = wp.zeros(3, dtype=float, device=device)
-    motion, fast_count = wp.zeros(1, dtype=float, device=device), wp.zeros(1, dtype=int, device=device)
-    wp.launch(slack.skin_motion, 3, [x, x, wp.zeros(3, dtype=int, device=device), wp.full(1, 1.0, dtype=float,
-                                                                                          device=device)],
-              [out, motion, wp.zeros((1, 3), dtype=int, device=device), fast_count], device=device)
+    mv = slack.skin_moves(3, 1, device)
+    wp.launch(slack.skin_motion, 3, [x, wp.zeros(3, dtype=int, device=device), wp.full(1, 1.0, dtype=float,
+                                                                                       device=device)],
+              [mv], device=device)
+    out, fast_count = mv.vmotion, mv.fast_count
     assert np.all(out.numpy() == 0) and fast_count.numpy()[0] == 0

@@ -138,15 +138,10 @@ class SlackBuffers:
     feat_dist: wp.array  # (N,) float m: per listed feature its distance to the skin at the frame's start
     pt_dist: wp.array  # (P,) float m: per object point its signed distance then (slack.UNLISTED: not listed)
     pt_face: wp.array  # (P,) int: its closest skin triangle then (-1: measured, not listed)
-    x_start: wp.array  # (S,) vec3 m: the skin at the frame's start
-    vmotion: wp.array  # (S,) float m: each skin vertex's move over the frame
+    moves: object  # slack.SkinMoves (slack.py imports this module): the skin at the frame's start, its moves
     slack: wp.array  # (W,) float m: the slack each world's lists are made with (the first: contact_frame_margin)
-    motion: wp.array  # (W,) float m: the world's largest skin move in the frame
-    fast: wp.array  # (W, S / W) int: per world its fast vertices (moved half the slack or more)
-    fast_count: wp.array  # (W,) int: how many
     near_motion: wp.array  # (W,) float m: the largest move near the feature points (the next slack's measure)
     failed: wp.array  # (W,) int: 1 where the check failed a point
-    reach: wp.array  # (W,) float m: the world's longest skin edge at the frame's start or end
     world_listed: wp.array  # (W,) int: points the world listed
     report: wp.array  # (W, 3) float: per world [slack m, largest move m, failed]
     report_host: wp.array  # (W, 3) float, host

@@ -38,33 +38,52 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 UNLISTED = wp.constant(1.0e30)  # pt_dist of a point the frame did not list
 
 
+@wp.struct
+class SkinMoves:
+    """The frame's skin moves, per vertex and per world (:func:`skin_motion`, :func:`skin_reach`;
+    read by :func:`certify_features` and :func:`next_slack`)."""
+
+    x_start: wp.array(dtype=wp.vec3)  # (S,) m: the skin at the frame's start
+    vmotion: wp.array(dtype=float)  # (S,) m: each skin vertex's move over the frame
+    motion: wp.array(dtype=float)  # (W,) m: the world's largest skin move in the frame
+    fast: wp.array2d(dtype=int)  # (W, S / W): per world its fast vertices (moved half the slack or more)
+    fast_count: wp.array(dtype=int)  # (W,): how many (counted past the row's end)
+    reach: wp.array(dtype=float)  # (W,) m: the world's longest skin edge at the frame's start or end
+
+
+def skin_moves(n_skin: int, worlds: int, device) -> SkinMoves:
+    """A zeroed :class:`SkinMoves`: room in ``fast`` for every skin vertex of a world (a list that
+    overflowed made its world's check fail unasked; the shipped demo's third frame has 325 fast
+    vertices); only the fast ones are walked."""
+    m = SkinMoves()
+    m.x_start = wp.zeros(n_skin, dtype=wp.vec3, device=device)
+    m.vmotion = wp.zeros(n_skin, dtype=float, device=device)
+    m.motion = wp.zeros(worlds, dtype=float, device=device)
+    m.fast = wp.zeros((worlds, max(-(-n_skin // worlds), 1)), dtype=int, device=device)
+    m.fast_count = wp.zeros(worlds, dtype=int, device=device)
+    m.reach = wp.zeros(worlds, dtype=float, device=device)
+    return m
+
+
 @wp.kernel
-def skin_motion(
-    x: wp.array(dtype=wp.vec3),
-    x_start: wp.array(dtype=wp.vec3),
-    vertex_world: wp.array(dtype=int),
-    slack: wp.array(dtype=float),
-    vmotion: wp.array(dtype=float),
-    motion: wp.array(dtype=float),
-    fast: wp.array2d(dtype=int),
-    fast_count: wp.array(dtype=int),
-):
+def skin_motion(x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int), slack: wp.array(dtype=float),
+                moves: SkinMoves):
     """After a frame: how far (m) each skin vertex moved since the frame's start (``vmotion``), the
     world's largest move (``motion``, atomic max) and its *fast* vertices, those that moved half
     its slack or more (``fast[w]``, ``fast_count[w]`` counts past the row's end). A non-finite
     vertex counts 0 (the guard's)."""
     i = wp.tid()
-    d = wp.length(x[i] - x_start[i])
+    d = wp.length(x[i] - moves.x_start[i])
     if not (d == d):
         d = 0.0
-    vmotion[i] = d
+    moves.vmotion[i] = d
     w = vertex_world[i]
-    if d > motion[w]:  # (a read first: a world's vertices all hit one address, most below its max)
-        wp.atomic_max(motion, w, d)
+    if d > moves.motion[w]:  # (a read first: a world's vertices all hit one address, most below its max)
+        wp.atomic_max(moves.motion, w, d)
     if d >= 0.5 * slack[w]:
-        j = wp.atomic_add(fast_count, w, 1)
-        if j < fast.shape[1]:
-            fast[w, j] = i
+        j = wp.atomic_add(moves.fast_count, w, 1)
+        if j < moves.fast.shape[1]:
+            moves.fast[w, j] = i
 
 
 @wp.func
@@ -76,24 +95,24 @@ def longest_edge(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), t: in
 
 
 @wp.kernel
-def skin_reach(faces: wp.array2d(dtype=int), x_start: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3),
-               vertex_world: wp.array(dtype=int), fast_count: wp.array(dtype=int), reach: wp.array(dtype=float)):
+def skin_reach(faces: wp.array2d(dtype=int), x: wp.array(dtype=wp.vec3), vertex_world: wp.array(dtype=int),
+               moves: SkinMoves):
     """Per world the longest skin edge (m) at the frame's start or end (atomic max): how far a
     triangle's points lie from its vertices then, and anywhere on the straight way between, where
     each edge is a blend of its two ends (:func:`certify_features`, which reads it only for a
     world's fast vertices: a world without one is skipped and keeps 0). A non-finite edge counts 0."""
     t = wp.tid()
-    if fast_count[vertex_world[faces[t, 0]]] == 0:
+    if moves.fast_count[vertex_world[faces[t, 0]]] == 0:
         return
-    e0 = longest_edge(faces, x_start, t)
+    e0 = longest_edge(faces, moves.x_start, t)
     e = longest_edge(faces, x, t)
     if not (e == e):
         e = 0.0
     if e0 == e0:
         e = wp.max(e, e0)
     w = vertex_world[faces[t, 0]]
-    if e > reach[w]:  # (as in skin_motion: the atomic only where it can raise the max)
-        wp.atomic_max(reach, w, e)
+    if e > moves.reach[w]:  # (as in skin_motion: the atomic only where it can raise the max)
+        wp.atomic_max(moves.reach, w, e)
 
 
 @wp.func
@@ -130,16 +149,11 @@ def certify_features(
     pt_dist: wp.array(dtype=float),
     pt_face: wp.array(dtype=int),
     faces: wp.array2d(dtype=int),
-    x_start: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
-    vmotion: wp.array(dtype=float),
-    fast: wp.array2d(dtype=int),
-    fast_count: wp.array(dtype=int),
+    moves: SkinMoves,
     slack: wp.array(dtype=float),
-    motion: wp.array(dtype=float),
     margin: float,
     keep: float,
-    reach: wp.array(dtype=float),
     near_motion: wp.array(dtype=float),
     failed: wp.array(dtype=int),
 ):
@@ -170,7 +184,7 @@ def certify_features(
         return
     w = pts_geom[i] // geoms_per_world
     s = slack[w]
-    n = fast_count[w]
+    n = moves.fast_count[w]
     sd = pt_dist[i]
     p = object_point(i, pts, pts_geom, pose)
     near = keep  # how near the spoiling triangle must come
@@ -180,20 +194,20 @@ def certify_features(
     elif sd < UNLISTED:
         d = wp.abs(sd)
         f = pt_face[i]
-        dc = wp.max(vmotion[faces[f, 0]], wp.max(vmotion[faces[f, 1]], vmotion[faces[f, 2]]))
+        dc = wp.max(moves.vmotion[faces[f, 0]], wp.max(moves.vmotion[faces[f, 1]], moves.vmotion[faces[f, 2]]))
         wp.atomic_max(near_motion, w, dc)
-        if sd < 0.0 or plane_crossed(p, faces, x_start, x, f):  # (inside, or C may have crossed p)
+        if sd < 0.0 or plane_crossed(p, faces, moves.x_start, x, f):  # (inside, or C may have crossed p)
             near = wp.max(keep, d + dc)
         need = wp.min(margin, d + s) - near
     # a vertex not asked (its move below the list's threshold, or past the list's end) spoils the point
     # only if it moved as far as the point needs: none did where the world's largest move is shorter
-    fail = (need < 0.5 * s or n > fast.shape[1]) and motion[w] >= need
-    for j in range(wp.min(n, fast.shape[1])):
-        v = fast[w, j]
-        mv = vmotion[v]
-        if wp.length(x_start[v] - p) <= near + mv + reach[w]:  # near enough for its move to matter here
+    fail = (need < 0.5 * s or n > moves.fast.shape[1]) and moves.motion[w] >= need
+    for j in range(wp.min(n, moves.fast.shape[1])):
+        v = moves.fast[w, j]
+        mv = moves.vmotion[v]
+        if wp.length(moves.x_start[v] - p) <= near + mv + moves.reach[w]:  # near enough for its move to matter here
             wp.atomic_max(near_motion, w, mv)
-            if mv >= need and segment_distance(p, x_start[v], x[v]) <= near + reach[w]:  # (its way passed
+            if mv >= need and segment_distance(p, moves.x_start[v], x[v]) <= near + moves.reach[w]:  # (its way passed
                 fail = True  # near enough for one of its triangles to come within ``near`` of p)
     if fail:
         failed[w] = 1
@@ -205,11 +219,9 @@ SLACK_DECAY = wp.constant(0.8)
 
 @wp.kernel
 def next_slack(
-    motion: wp.array(dtype=float),
+    moves: SkinMoves,
     near_motion: wp.array(dtype=float),
     failed: wp.array(dtype=int),
-    fast_count: wp.array(dtype=int),
-    cap: int,
     world_count: wp.array(dtype=int),
     least: float,
     most: float,
@@ -219,17 +231,17 @@ def next_slack(
     """Per world, after a frame: ``report[w]`` = (the slack it was listed with, the skin's largest
     move, 1 where :func:`certify_features` failed a point), and the next frame's slack: 2.5 x the
     largest move near the feature points (``near_motion``; the world's largest move after a failed
-    frame or one with more fast vertices than ``cap``, whose moves were not all seen), at least
+    frame or one with more fast vertices than its ``fast`` row holds, whose moves were not all seen), at least
     SLACK_DECAY x this frame's (a move under half the slack was not measured) and ``least``, at most
     ``most`` (m). A world that listed no point and failed none keeps its slack (so a frame whose
     contact block runs with nothing near changes nothing: Config.execution.skip_idle gives the same lists)."""
     w = wp.tid()
     s = slack[w]
     m = near_motion[w]
-    if failed[w] != 0 or fast_count[w] > cap:
-        m = wp.max(m, motion[w])
+    if failed[w] != 0 or moves.fast_count[w] > moves.fast.shape[1]:
+        m = wp.max(m, moves.motion[w])
     report[w, 0] = s
-    report[w, 1] = motion[w]
+    report[w, 1] = moves.motion[w]
     report[w, 2] = float(failed[w])
     if world_count[w] > 0 or failed[w] != 0:
         slack[w] = wp.min(wp.max(wp.max(least, 2.5 * m), SLACK_DECAY * s), most)
@@ -250,27 +262,24 @@ class SlackCheck:
     def start_ops(self, state) -> list:
         """The frame start's ops, before the feature list: the per-frame resets and the skin's copy."""
         b = self.data
-        x_start, x, n_skin, pt_dist = b.x_start, state.x, self.model.n_skin, b.pt_dist
-        return [b.motion.zero_, b.fast_count.zero_, b.near_motion.zero_, b.failed.zero_,
-                b.reach.zero_, b.world_listed.zero_, lambda: pt_dist.fill_(UNLISTED),
+        x_start, x, n_skin, pt_dist = b.moves.x_start, state.x, self.model.n_skin, b.pt_dist
+        mv = b.moves
+        return [mv.motion.zero_, mv.fast_count.zero_, b.near_motion.zero_, b.failed.zero_,
+                mv.reach.zero_, b.world_listed.zero_, lambda: pt_dist.fill_(UNLISTED),
                 lambda: wp.copy(x_start, x, count=n_skin)]
 
     def record_frame_end(self, rec, state) -> None:
         """At the end of a frame with listed feature points: how far the skin moved in it, per
         world, against the slack its feature lists were made with, and the next frame's slack."""
         m, cfg, pts, b = self.model, self.config, self.points, self.data
-        rec.launch(skin_motion, m.n_skin, [state.x, b.x_start, m.vertex_world, b.slack],
-                   [b.vmotion, b.motion, b.fast, b.fast_count])
-        rec.launch(skin_reach, m.skin_faces.shape[0], [m.skin_faces, b.x_start, state.x, m.vertex_world, b.fast_count],
-                   [b.reach])
+        rec.launch(skin_motion, m.n_skin, [state.x, m.vertex_world, b.slack], [b.moves])
+        rec.launch(skin_reach, m.skin_faces.shape[0], [m.skin_faces, state.x, m.vertex_world], [b.moves])
         rec.launch(certify_features, pts.n_features,
                    [pts.feature, pts.pts, pts.geom, self.objects.pose, self.objects.count, self.geoms_per_world,
-                    b.pt_dist, b.pt_face, m.skin_faces, b.x_start, state.x, b.vmotion, b.fast,
-                    b.fast_count, b.slack, b.motion, float(cfg.contact_frame_margin), float(cfg.contact_margin),
-                    b.reach],
+                    b.pt_dist, b.pt_face, m.skin_faces, state.x, b.moves, b.slack, float(cfg.contact_frame_margin),
+                    float(cfg.contact_margin)],
                    [b.near_motion, b.failed])
-        rec.launch(next_slack, self.worlds, [b.motion, b.near_motion, b.failed, b.fast_count,
-                                             b.fast.shape[1], b.world_listed, float(cfg.feature_slack),
+        rec.launch(next_slack, self.worlds, [b.moves, b.near_motion, b.failed, b.world_listed, float(cfg.feature_slack),
                                              float(cfg.contact_frame_margin)],
                    [b.slack, b.report])
 
@@ -331,17 +340,10 @@ def make_slack_buffers(model, config, points, worlds: int) -> SlackBuffers:
         feat_dist=wp.zeros(points.n_features, dtype=float, device=dev),
         pt_dist=wp.full(n_points, UNLISTED, dtype=float, device=dev),
         pt_face=wp.zeros(n_points, dtype=int, device=dev),
-        x_start=wp.zeros(n_skin, dtype=wp.vec3, device=dev),
-        vmotion=wp.zeros(n_skin, dtype=float, device=dev),
+        moves=skin_moves(n_skin, W, dev),
         slack=wp.full(W, config.contact_frame_margin, dtype=float, device=dev),
-        motion=wp.zeros(W, dtype=float, device=dev),
-        # room for every skin vertex of a world: a list that overflowed made its world's check fail
-        # unasked (the shipped demo's third frame has 325 fast vertices); only the fast ones are walked
-        fast=wp.zeros((W, max(-(-n_skin // W), 1)), dtype=int, device=dev),
-        fast_count=wp.zeros(W, dtype=int, device=dev),
         near_motion=wp.zeros(W, dtype=float, device=dev),
         failed=wp.zeros(W, dtype=int, device=dev),
-        reach=wp.zeros(W, dtype=float, device=dev),
         world_listed=wp.zeros(W, dtype=int, device=dev),
         report=wp.zeros((W, 3), dtype=float, device=dev),
         report_host=wp.zeros((W, 3), dtype=float, device="cpu", pinned=wp.get_device(dev).is_cuda))
