@@ -50,6 +50,9 @@ class Tuning:
       opt_queries: Frank-Wolfe queries of the OPT strategy (the paper's baseline: 32).
       side_aware: where the SDF gradient at a decision point points out of the hand, leave the object
         along the triangle's inward normal instead of by Eq. 9 (deep starts, thin walls).
+      bone_hold: where an object holds the bone under a skin vertex (its nearest skeleton vertex at
+        rest), no contact push moves that vertex: no penetration-free skin exists there
+        (contact/bones.py; the contact report names the bone and its depth).
     Contact (object side, the features: corners, tips and sharp edges smaller than a triangle):
       feature_offset: how far outside the skin a pushed feature point ends (m; 60 um; 80 um and more
         let a 1 mm plate tunnel); feature_last_offset: the stage's last push's (m; None: feature_offset);
@@ -79,6 +82,7 @@ class Tuning:
     multires_rounds: int = 2
     opt_queries: int = 32
     side_aware: bool = True
+    bone_hold: bool = True
     feature_offset: float = 6.0e-5
     feature_last_offset: float | None = None
     feature_spacing: float = 2.5e-4

@@ -35,7 +35,9 @@ class Model:
         body_local: (N,) vec3, skeleton vertices' positions in their body frame (m), 0 elsewhere.
       skin_body: (n_skin,) int, the bone of each skin vertex's nearest skeleton vertex at rest (-1
         without a skeleton); skin_local: (n_skin,) vec3, its rest position in that bone's frame (m):
-        the skin carried rigidly by its bones (Config.skin_tether).
+        the skin carried rigidly by its bones (Config.skin_tether); skin_anchor: (n_skin,) vec3, that
+        nearest skeleton vertex (the skin vertex's *anchor*) in the same bone's frame (m): where an
+        object holds it, no contact push moves the skin vertex (contact/bones.py).
       edge_ids: (E, 2) int; edge_rest: (E,) float (m); edge_alpha: (E,) float (m/N). The edge
         family holds the tet edges (Eq. 2) and the flesh attachments (Eq. 4, an edge constraint);
         edge_is_att: (E,) numpy bool marks the attachments.
@@ -66,6 +68,7 @@ class Model:
     body_local: object
     skin_body: object
     skin_local: object
+    skin_anchor: object
     vertex_carrier: object
     edge_ids: object
     edge_rest: object

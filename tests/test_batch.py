@@ -71,7 +71,7 @@ def test_tiled_model_is_the_replicated_assets_model(setup):
     with pytest.raises(ValueError, match="colored"):  # its colours span the body: not tileable
         tile_model_arrays(model_arrays(asset, Config(device="cpu", tuning=Tuning(scheme=ph.Scheme.COLORED)).validate()), W)
     t_atomic = tile_model_arrays(model_arrays(asset, Config(device="cpu", execution=Execution(jacobi_gather=False)).validate()), W)
-    f32 = ("rest_x", "inv_mass", "body_local", "skin_local", "vertex_count")
+    f32 = ("rest_x", "inv_mass", "body_local", "skin_local", "skin_anchor", "vertex_count")
     for k in ("vertex_body", "vertex_carrier", "vertex_world", "skin_body", "skin_faces", "guard_tets",
               "tet_ids", "dih_ids", "body_rest_pos", "body_rest_quat") + f32:
         a, b = np.asarray(t[k]), np.asarray(r[k])

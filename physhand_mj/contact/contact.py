@@ -21,6 +21,7 @@ import warp as wp
 
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
+from physhand_mj.contact.bones import hold_skin, make_bone_hold
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -194,6 +195,8 @@ class Contact:
         self._stage_slots = []  # per recorded stage: (active-list slot, first-pass touched slots)
         self.pass_slots = []  # per recorded pass: the slot of its triangle list's length
         self._passes_gated = False  # (finish_recording: as the solver's frame last said)
+        # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
+        self.bone_hold = make_bone_hold(model.n_skin, model.device, config.bone_hold)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -257,8 +260,13 @@ class Contact:
         rec.gated(lambda sub: self._record_frame_lists(rec, state), 1)
 
     def _record_frame_lists(self, rec, state) -> None:
-        """The per-frame resets and the frame's feature list (after the broadphase)."""
+        """The per-frame resets, the skin held by bones inside objects and the frame's feature list
+        (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
+        if cfg.bone_hold and m.n_skin:  # (bones.py: at the frame's last bone pose)
+            rec.launch(hold_skin, m.n_skin, [m.skin_body, m.skin_local, m.skin_anchor, m.vertex_world, state.body_sub,
+                                             cfg.substeps - 1, o.geoms, self.geoms_per_world, o.count],
+                       [self.bone_hold])
         # (the objects moved: every triangle's bound is stale)
         rec.ops += [self.acc.moved.zero_, lambda: self.acc.bound.fill_(-1.0e30), self.lists.pass_flags.zero_]
         pts = self.points
@@ -346,7 +354,7 @@ class Contact:
         if not self.hold.holds:
             return
         self.hold.record_hold(rec, state, self.lists, self.acc, self.take_counter, self.space.apply_shift(state),
-                              self._held_points())
+                              self.bone_hold, self._held_points())
 
     def take_counter(self) -> tuple:
         """The next counter slot of the frame and its (1,) counter (:meth:`_counter`)."""
@@ -464,7 +472,7 @@ class Contact:
                 kernel = multires_kernel(regs, block)
             rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[1], block_dim=block)
         shift, shifted = self.space.apply_shift(state)
-        rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift],
+        rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift, self.bone_hold],
                    [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
         self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.features is not None and cfg.feature_last:
@@ -664,7 +672,7 @@ class Contact:
                        count=feat_count)
         shift, shifted = self.space.apply_shift(state)
         a = self.acc
-        rec.launch(apply_contact, m.n_vertices, [a.sums, feat_touched, stamp, shift],
+        rec.launch(apply_contact, m.n_vertices, [a.sums, feat_touched, stamp, shift, self.bone_hold],
                    [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 

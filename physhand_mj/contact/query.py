@@ -33,6 +33,7 @@ import functools
 
 import warp as wp
 
+from physhand_mj.contact.bones import BoneHold, held_move
 from physhand_mj.contact.broadphase import TriList, triangle_bound, world_geoms
 from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, GeomSet, geom_sdf,
                                      geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic)
@@ -591,15 +592,15 @@ def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst
 
 
 @wp.func
-def apply_vertex(i: int, stamp: int, sums: PushSums, x: wp.array(dtype=wp.vec3), push: wp.array(dtype=float),
-                 moved: wp.array(dtype=int), disp: wp.array(dtype=float)):
-    """:func:`apply_contact` for touched vertex ``i``."""
-    dx = sums.delta[i] * (1.0 / sums.hits[i])
+def apply_vertex(i: int, stamp: int, sums: PushSums, hold: BoneHold, x: wp.array(dtype=wp.vec3),
+                 push: wp.array(dtype=float), moved: wp.array(dtype=int), disp: wp.array(dtype=float)):
+    """:func:`apply_contact` for touched vertex ``i``, where its bones allow it (bones.held_move)."""
+    dx = held_move(hold, i, x[i], sums.delta[i] * (1.0 / sums.hits[i]))
+    sums.delta[i] = wp.vec3(0.0)
+    sums.hits[i] = 0.0
     x[i] = x[i] + dx
     step = wp.length(dx)
     push[i] = push[i] + step
-    sums.delta[i] = wp.vec3(0.0)
-    sums.hits[i] = 0.0
     if moved[i] == stamp:  # moved twice in this pass (the feature push, then Eq. 9): how far in all
         disp[i] = disp[i] + step
     else:
@@ -613,6 +614,7 @@ def apply_contact(
     touched_count: wp.array(dtype=int),
     stamp: int,
     shift: wp.array(dtype=wp.vec3),
+    hold: BoneHold,
     x: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
@@ -631,7 +633,7 @@ def apply_contact(
     if k >= touched_count[0]:
         return
     i = sums.touched[k]
-    apply_vertex(i, stamp, sums, x, push, moved, disp)
+    apply_vertex(i, stamp, sums, hold, x, push, moved, disp)
     if i < shifted.shape[0]:
         shifted[i] = x[i] + shift[i]
     if pass_move.shape[0] > 0:

@@ -165,6 +165,7 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     ns = int(asset.n_skin)
     skin_body = np.full(ns, -1, np.int32)
     skin_local = np.zeros((ns, 3))
+    skin_anchor = np.zeros((ns, 3))  # that skeleton vertex (the skin's anchor), in the same bone's frame
     # batched worlds (physhand_mj/batch.py) share their rest positions: a 4th coordinate keeps
     # every nearest-vertex query inside its own world
     xw = np.c_[x, 1.0e3 * world] if worlds > 1 else x
@@ -174,6 +175,7 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
         near = kv[cKDTree(xw[kv]).query(xw[:ns])[1]]
         skin_body = vb[near].astype(np.int32)
         skin_local = np.einsum("kji,kj->ki", rot[skin_body], x[:ns] - asset.body_rest_pos[skin_body])
+        skin_anchor = local[near]
 
     # every vertex's carrier (a sleeping hand's rigid ride, activity.py): its own bone for the
     # skeleton, the bone of the nearest skeleton vertex at rest for the others
@@ -187,7 +189,7 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
     return dict(
         n_vertices=n, n_skin=ns, body_names=tuple(str(b) for b in asset.body_names), worlds=worlds,
         rest_x=x, inv_mass=inv_mass, vertex_body=vb, body_local=local, skin_body=skin_body,
-        skin_local=skin_local, vertex_carrier=carrier, vertex_world=world,
+        skin_local=skin_local, skin_anchor=skin_anchor, vertex_carrier=carrier, vertex_world=world,
         edge_ids=np.asarray(fam["edge"][0]), edge_rest=np.asarray(fam["edge"][1]),
         edge_alpha=np.asarray(fam["edge"][2]), edge_is_att=edge_is_att,
         tet_ids=np.asarray(fam["tet"][0]), tet_rest6v=np.asarray(fam["tet"][1]), tet_alpha=np.asarray(fam["tet"][2]),
@@ -217,7 +219,7 @@ def upload_model(a: dict, cfg: Config) -> Model:
         body_names=tuple(a["body_names"]),
         rest_x=v3(a["rest_x"]), inv_mass=f32(a["inv_mass"]),
         vertex_body=i1(a["vertex_body"]), body_local=v3(a["body_local"]), skin_body=i1(a["skin_body"]),
-        skin_local=v3(a["skin_local"]), vertex_carrier=i1(a["vertex_carrier"]),
+        skin_local=v3(a["skin_local"]), skin_anchor=v3(a["skin_anchor"]), vertex_carrier=i1(a["vertex_carrier"]),
         edge_ids=i2(a["edge_ids"], 2), edge_rest=f32(a["edge_rest"]), edge_alpha=f32(a["edge_alpha"]),
         tet_ids=i2(a["tet_ids"], 4), tet_rest6v=f32(a["tet_rest6v"]), tet_alpha=f32(a["tet_alpha"]),
         edge_is_att=np.asarray(a["edge_is_att"]),

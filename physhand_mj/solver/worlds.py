@@ -194,7 +194,7 @@ def tile_model(a: dict, worlds: int, cfg):
         rest_x=per_vertex(one.rest_x), inv_mass=per_vertex(one.inv_mass),
         vertex_body=bodies_of_vertices(one.vertex_body), body_local=per_vertex(one.body_local),
         skin_body=launch(tile_bodies, W * ns, [one.skin_body, max(ns, 1), nb], wp.empty(W * ns, dtype=int, device=dev)),
-        skin_local=rows(one.skin_local), vertex_carrier=bodies_of_vertices(one.vertex_carrier),
+        skin_local=rows(one.skin_local), skin_anchor=rows(one.skin_anchor), vertex_carrier=bodies_of_vertices(one.vertex_carrier),
         edge_ids=ids(one.edge_ids), edge_rest=rows(one.edge_rest), edge_alpha=rows(one.edge_alpha),
         tet_ids=ids(one.tet_ids), tet_rest6v=rows(one.tet_rest6v), tet_alpha=rows(one.tet_alpha),
         edge_is_att=np.tile(np.asarray(a["edge_is_att"]), W),
@@ -292,7 +292,7 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
 
     # the stored dtypes (solver.model.upload_model) before tiling: each element is cast once, not W times
     a = dict(a, **{k: np.asarray(a[k], np.float32) for k in (
-        "rest_x", "inv_mass", "body_local", "skin_local", "edge_rest", "edge_alpha", "tet_rest6v", "tet_alpha",
+        "rest_x", "inv_mass", "body_local", "skin_local", "skin_anchor", "edge_rest", "edge_alpha", "tet_rest6v", "tet_alpha",
         "dih_rest", "vertex_count")})
     sizes = {name: np.asarray(a[f"{name}_ids"]).size for name in ("edge", "tet", "dih")}
     counts = np.asarray(a["vertex_count"])
@@ -303,7 +303,7 @@ def tile_model_arrays(a: dict, worlds: int) -> dict:
         vertex_body=vertex_bodies(a["vertex_body"]), body_local=per_vertex(a["body_local"]),
         vertex_carrier=vertex_bodies(a["vertex_carrier"]),
         vertex_world=wv.astype(np.int32),
-        skin_body=bodies(a["skin_body"]), skin_local=tiled(a["skin_local"]),
+        skin_body=bodies(a["skin_body"]), skin_local=tiled(a["skin_local"]), skin_anchor=tiled(a["skin_anchor"]),
         edge_ids=ids(a["edge_ids"]), edge_rest=tiled(a["edge_rest"]), edge_alpha=tiled(a["edge_alpha"]),
         edge_is_att=tiled(a["edge_is_att"]),
         tet_ids=ids(a["tet_ids"]), tet_rest6v=tiled(a["tet_rest6v"]), tet_alpha=tiled(a["tet_alpha"]),
