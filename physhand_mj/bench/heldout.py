@@ -163,19 +163,40 @@ def _torus(rng):
     return "torus", m.vertices, m.faces, [FACE_UP, ACROSS][int(rng.integers(2))]
 
 
-def _shell(rng):
-    import trimesh
+def cap_shell(r: float, thickness: float, top: float, rings: int = 16, sections: int = 48):
+    """(vertices, faces): a spherical cap shell about the origin, outer radius ``r`` (m), ``thickness``
+    (m), from its pole (+z) to the half-angle ``top`` (rad), closed by a flat rim."""
+    t = np.linspace(0.0, top, rings + 1)[1:]
+    a = np.arange(sections) * 2 * np.pi / sections
+    ring = np.stack([np.outer(np.sin(t), np.cos(a)), np.outer(np.sin(t), np.sin(a)),
+                     np.repeat(np.cos(t)[:, None], sections, 1)], -1).reshape(-1, 3)
+    v = np.vstack([[0, 0, r], ring * r, [0, 0, r - thickness], ring * (r - thickness)])
+    n = 1 + rings * sections  # vertices per side; side s's ring k, angle j: s n + 1 + k sections + j
+    faces = []
+    for s in (0, 1):
+        o, flip = s * n, s == 1  # the inner side faces the centre
+        for j in range(sections):
+            j1 = (j + 1) % sections
+            faces.append([o, o + 1 + j, o + 1 + j1])
+            for k in range(rings - 1):
+                a0, a1 = o + 1 + k * sections + j, o + 1 + k * sections + j1
+                b0, b1 = a0 + sections, a1 + sections
+                faces += [[a0, b0, b1], [a0, b1, a1]]
+        if flip:
+            faces[-sections * (2 * rings - 1):] = [f[::-1] for f in faces[-sections * (2 * rings - 1):]]
+    last = 1 + (rings - 1) * sections
+    for j in range(sections):  # the rim: outer last ring to inner last ring
+        j1 = (j + 1) % sections
+        a0, a1, b0, b1 = last + j, last + j1, n + last + j, n + last + j1
+        faces += [[a0, b0, b1], [a0, b1, a1]]
+    return v, np.asarray(faces)
 
-    r = rng.uniform(5e-3, 15e-3)
-    ri = r - 1e-3
+
+def _shell(rng):
     top = np.radians(rng.uniform(60.0, 90.0))  # the cap's half-angle from the pole (+z)
-    t = np.linspace(0.0, top, 24)
-    outer = np.c_[r * np.sin(t), r * np.cos(t)]
-    inner = np.c_[ri * np.sin(t[::-1]), ri * np.cos(t[::-1])]
-    profile = np.vstack([outer, inner, outer[:1]])  # (radius, z), closed along the axis
-    m = trimesh.creation.revolve(profile, sections=48)
+    v, f = cap_shell(rng.uniform(5e-3, 15e-3), 1e-3, top)
     rim_first = bool(rng.integers(2))
-    return (f"shell {np.degrees(top):.0f} deg {'rim' if rim_first else 'dome'} first", m.vertices, m.faces,
+    return (f"shell {np.degrees(top):.0f} deg {'rim' if rim_first else 'dome'} first", v, f,
             FLIP if rim_first else FACE_UP)
 
 
