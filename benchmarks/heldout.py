@@ -43,8 +43,9 @@ def worst(v: dict) -> str:
 
 def markdown(res: dict) -> str:
     s = res["summary"]
+    options = json.dumps(res["config"]) if res["config"] else "none: Config()"
     lines = [f"Held-out contact ({res['device']}; seed {res['seed']}, {res['cases']} cases, {res['frames']} frames, "
-             f"held from frame {res['held_from']}; Config overrides {res['config'] or 'none'})", "",
+             f"held from frame {res['held_from']}; Config options {options})", "",
              f"**Pass rate: {s['passed']} / {s['feasible']} feasible cases** ({s['pass_rate'] * 100:.0f} %); "
              f"{s['infeasible']} infeasible (a bone within {CLEARANCE_MM} mm of the object), "
              f"{s['infeasible_passed']} of them at zero anyway.", "",
@@ -56,13 +57,28 @@ def markdown(res: dict) -> str:
                      f"{', '.join(f'{m} {c}' for m, c in sorted(fails.items())) or '-'} |")
     bad = [r for r in res["rows"] if not r["passed"] or not r["feasible"]]
     if bad:
-        lines += ["", "| case | shape | site | depth mm | start | bone clearance mm | held-frame worst (count / depth) | max disp mm |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += ["", "| case | shape | site | depth mm | start | bone clearance mm | held-frame worst (count / depth) "
+                  "| max disp mm |", "|---|---|---|---|---|---|---|---|"]
         for r in bad:
             lines.append(f"| {r['case']}{'' if r['feasible'] else ' (infeasible)'} | {r['shape']} | {r['body']} "
                          f"v{r['vertex']} | {r['depth_mm']} | {r['start']} | {r['clearance_mm']} | {worst(r)} | "
                          f"{r['max_disp_mm']} |")
     return "\n".join(lines) + "\n"
+
+
+def _commit() -> str | None:
+    """The checkout's commit (short hash, "+" if it has local changes), or None outside git."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+" if dirty else "")
 
 
 def dump(res: dict) -> str:
@@ -78,7 +94,8 @@ def main():
     ap.add_argument("--cases", type=int, default=40, help="number of cases (count; kinds in turn)")
     ap.add_argument("--frames", type=int, default=20, help="5 ms frames per case; the press takes the first half, "
                     "the rest are held frames")
-    ap.add_argument("--config", default="{}", help="Config overrides as JSON (default: the shipped Config())")
+    ap.add_argument("--config", default="{}", help="Config options as JSON, any group's keys flat "
+                    "(Config.from_dict; default: the shipped Config())")
     ap.add_argument("--out", default=None, help="JSON path (default docs/benchmarks/heldout_<device>.json; "
                     "the markdown beside it, .md)")
     a = ap.parse_args()
@@ -87,7 +104,7 @@ def main():
     from tqdm import tqdm
 
     over = json.loads(a.config)
-    cfg = ph.Config(device=a.device, **over)
+    cfg = ph.Config.from_dict(dict(over, device=a.device))
     asset = ph.load_asset()
     press = a.frames // 2
     cases = generate(a.seed, a.cases, asset, press_frames=press)
@@ -109,7 +126,7 @@ def main():
                    failed_by_kind=dict(Counter(r["kind"] for r in feasible if not r["passed"])),
                    all_finite=all(r["finite"] for r in rows), wall_s=round(time.perf_counter() - t0, 1))
     dev = device_name(a.device if a.device != "cuda" else "cuda:0")
-    res = dict(device=dev, seed=a.seed, cases=a.cases, frames=a.frames, held_from=press, config=over,
+    res = dict(device=dev, commit=_commit(), seed=a.seed, cases=a.cases, frames=a.frames, held_from=press, config=over,
                clearance_mm=CLEARANCE_MM, summary=summary, rows=rows)
     out = Path(a.out) if a.out else Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / \
         f"heldout_{a.device.split(':')[0]}.json"

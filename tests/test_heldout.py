@@ -24,11 +24,12 @@ from physhand_mj.types import GeomType
 SEED = 0
 STRESS_CASES = 12  # the first 12 cases of benchmarks/heldout.py's seed 0: every kind at least once
 STRESS_FRAMES = 20  # pressed over 10, held 10
-# On the CPU (2026-11-29, main at 9a77111) all 12 pass, as do all 200 of seed 0 in
-# docs/benchmarks/heldout_cpu.json; one case of slack, because the held contact is chaotic (CUDA's
-# atomics take another path each run, and a contact change can move a case onto a path with a
-# micrometre of residue in one held frame) while a mechanism broken for a kind fails ~2 of 12.
-STRESS_MIN_PASSED = 11
+# Measured on the CPU (2026-11-29, main at 9a77111; docs/benchmarks/heldout_cpu.json): Config() passes
+# all 12 (a CPU run is one fixed path), and 178 of the 187 feasible cases of seed 0's first 200 (95 %);
+# the paper's contact (no feature push, no side-aware exits, no tether) passes 1 of the 12. A contact
+# change moves the held contact onto other paths: at 95 % per case, fewer than 10 of 12 pass on ~2 %
+# of them, while a broken contact passes a few.
+STRESS_MIN_PASSED = 10
 
 
 @pytest.fixture(scope="module")

@@ -65,7 +65,7 @@ def site_point(asset, site: str):
     return skin[k].astype(float), vn[k].astype(float)
 
 
-def case_frame(case: "Case", asset):
+def case_frame(case: Case, asset):
     """(skin point (3,) m, outward unit normal (3,), geom quaternion (4,) w x y z) of ``case``: its
     site (named, or ``point``/``normal``) and the geom's orientation, its +z along the inward normal."""
     p0, n = (np.asarray(case.point, float), np.asarray(case.normal, float)) if case.point is not None \
@@ -78,7 +78,7 @@ def case_frame(case: "Case", asset):
     return p0, n, quat
 
 
-def case_position(case: "Case", p0: np.ndarray, n: np.ndarray, depth_now: float) -> np.ndarray:
+def case_position(case: Case, p0: np.ndarray, n: np.ndarray, depth_now: float) -> np.ndarray:
     """The geom's position (m) with its lead point (geom z = ``case.lead``) ``depth_now`` m into the
     rest skin along -n from the site ``p0``."""
     return p0 - n * depth_now - (-n) * case.lead

@@ -389,4 +389,4 @@ def verdict(h: Heldout, r: dict) -> dict:
     if not r["finite"]:
         failed.append("nonfinite")
     return dict(passed=not failed, failed=failed, measures=out, finite=bool(r["finite"]),
-                max_disp_mm=round(float(np.nanmax(r["max_disp_mm"])), 2), held_frames=int(len(r["ms"][held])))
+                max_disp_mm=round(float(np.nanmax(r["max_disp_mm"])), 2), held_frames=len(r["ms"][held]))
