@@ -5,7 +5,8 @@
 
 A case is an object (a geom of :class:`~physhand_mj.contact.Objects`: analytic or a trimesh-built
 mesh) placed against a skin point of the embedded hand in its rest pose (``fingertip``: the index
-finger's pad; ``palm``: the middle of the palm), its axis along the skin's inward normal. The
+finger's pad; ``palm``: the middle of the palm; or any skin point and normal: ``Case.point``,
+``Case.normal``, as physhand_mj/bench/heldout.py draws them), its axis along the skin's inward normal. The
 object starts ``start`` m outside the skin (or inside, negative) and moves ``depth`` m into the
 rest skin over ``press_frames`` frames, then holds; the bones do not move. :func:`run_case` runs
 the solver and measures both penetration measures after every frame, plus a dense check (skin
