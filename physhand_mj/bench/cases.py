@@ -5,7 +5,8 @@
 
 A case is an object (a geom of :class:`~physhand_mj.contact.Objects`: analytic or a trimesh-built
 mesh) placed against a skin point of the embedded hand in its rest pose (``fingertip``: the index
-finger's pad; ``palm``: the middle of the palm), its axis along the skin's inward normal. The
+finger's pad; ``palm``: the middle of the palm; or any skin point and normal: ``Case.point``,
+``Case.normal``, as physhand_mj/bench/heldout.py draws them), its axis along the skin's inward normal. The
 object starts ``start`` m outside the skin (or inside, negative) and moves ``depth`` m into the
 rest skin over ``press_frames`` frames, then holds; the bones do not move. :func:`run_case` runs
 the solver and measures both penetration measures after every frame, plus a dense check (skin
@@ -65,6 +66,25 @@ def site_point(asset, site: str):
     return skin[k].astype(float), vn[k].astype(float)
 
 
+def case_frame(case: Case, asset):
+    """(skin point (3,) m, outward unit normal (3,), geom quaternion (4,) w x y z) of ``case``: its
+    site (named, or ``point``/``normal``) and the geom's orientation, its +z along the inward normal."""
+    p0, n = (np.asarray(case.point, float), np.asarray(case.normal, float)) if case.point is not None \
+        else site_point(asset, case.site)
+    quat = compose_quat(rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
+    if case.lay:  # a quarter turn about the geom x axis: its z axis lies across the normal
+        quat = compose_quat(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
+    if case.turn is not None:
+        quat = compose_quat(quat, np.asarray(case.turn, float))
+    return p0, n, quat
+
+
+def case_position(case: Case, p0: np.ndarray, n: np.ndarray, depth_now: float) -> np.ndarray:
+    """The geom's position (m) with its lead point (geom z = ``case.lead``) ``depth_now`` m into the
+    rest skin along -n from the site ``p0``."""
+    return p0 - n * depth_now - (-n) * case.lead
+
+
 @dataclass
 class Case:
     """An object against the hand: ``gtype``/``size`` (MuJoCo sizes) or a mesh (``vertices``,
@@ -84,6 +104,11 @@ class Case:
     press_frames: int = 15
     spin: float = 0.0  # rad about the normal (orients edges)
     lay: bool = False  # turn the geom's z axis across the normal (a capsule lying on the skin)
+    # any skin site instead of a named one: ``point`` (3,) m and its outward unit ``normal`` (3,) in the
+    # asset frame (``site`` is then only a label)
+    point: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    turn: np.ndarray | None = None  # a last rotation (w x y z) in the geom frame, after spin and lay (tilts)
 
 
 def wedge(angle_deg=30.0, length=0.02, height=0.012):
@@ -157,15 +182,11 @@ def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=N
 
     asset = asset if asset is not None else ph.load_asset()
     cfg = config.validate()
-    p0, n = site_point(asset, case.site)
-    quat = compose_quat(rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
-    if case.lay:  # a quarter turn about the geom x axis: its z axis lies across the normal
-        quat = compose_quat(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
+    p0, n, quat = case_frame(case, asset)
     objs = Objects(str(cfg.device or "cpu"), 1)
 
     def place(depth_now):
-        # the lead point (geom z = lead) sits depth_now into the skin along -n
-        return p0 - n * depth_now - (-n) * case.lead
+        return case_position(case, p0, n, depth_now)
 
     if case.gtype == GeomType.MESH:
         objs.add(GeomType.MESH, None, place(-case.start), quat, name=case.name, vertices=case.vertices,
