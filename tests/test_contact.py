@@ -314,13 +314,13 @@ def _feature_pass(c, state, feats, tiled: bool, blocks: int | None = None):
     if tiled:
         nb = blocks or len(feats)
         wp.launch(feature_contact_tiled, (nb, 1),
-                  feature_inputs(m.skin_faces, state.x, lst, lst_count, c.points.pts, c.points.geom, o.pose,
+                  feature_inputs(m.skin_faces, state.x, lst, lst_count, c.points.pts, c.points.geom, c.points.normal, o.pose,
                                  cfg.contact_frame_margin, stride=nb, **kw), device=d, block_dim=1)
     else:
         skin = c.volume(state, winding=False).mesh
         skin.refit()
         wp.launch(feature_contact, len(feats),
-                  feature_inputs(m.skin_faces, state.x, lst, lst_count, c.points.pts, c.points.geom, o.pose,
+                  feature_inputs(m.skin_faces, state.x, lst, lst_count, c.points.pts, c.points.geom, c.points.normal, o.pose,
                                  cfg.contact_frame_margin, skin=skin.id, **kw), device=d)
     h = hits.numpy().astype(float)
     return delta.numpy().astype(float) / np.maximum(h, 1e-300)[:, None], h

@@ -45,7 +45,7 @@ def test_the_stage_feature_list_pushes_as_the_first_pass_would(kind):
     stage, stage_count = wp.zeros(k, dtype=int, device=d), wp.zeros(1, dtype=int, device=d)
 
     def inputs(cand, cand_count, push, out=None, out_count=None):
-        return F.feature_inputs(m.skin_faces, state.x, cand, cand_count, c.points.pts, c.points.geom, o.pose,
+        return F.feature_inputs(m.skin_faces, state.x, cand, cand_count, c.points.pts, c.points.geom, c.points.normal, o.pose,
                                 cfg.contact_frame_margin, tris=c.lists.cand, tri_count=c.cand_count,
                                 stride=c.points.n_features, geom_obj=o.obj, keep=cfg.contact_margin,
                                 eps=c.feature_eps, offset=cfg.feature_offset, max_step=cfg.contact_margin, pose0=o.pose,

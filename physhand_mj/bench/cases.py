@@ -5,8 +5,9 @@
 
 A case is an object (a geom of :class:`~physhand_mj.contact.Objects`: analytic or a trimesh-built
 mesh) placed against a skin point of the embedded hand in its rest pose (``fingertip``: the index
-finger's pad; ``palm``: the middle of the palm; or any skin point and normal: ``Case.point``,
-``Case.normal``, as physhand_mj/bench/heldout.py draws them), its axis along the skin's inward normal. The
+finger's pad; ``palm``: the middle of the palm; ``fingers``: the middle finger's proximal phalanx, where a
+plate lies across three fingers; or any skin point and normal: ``Case.point``, ``Case.normal``, as
+physhand_mj/bench/heldout.py draws them), its axis along the skin's inward normal. The
 object starts ``start`` m outside the skin (or inside, negative) and moves ``depth`` m into the
 rest skin over ``press_frames`` frames, then holds; the bones do not move. :func:`run_case` runs
 the solver and measures both penetration measures after every frame, plus a dense check (skin
@@ -27,7 +28,7 @@ CONE = dict(radius=0.06, height=0.10)  # m: the analytic cone, tip at the origin
 SHEET = dict(nx=50, ny=48, spacing=0.005, height=0.005)  # 2,400 vertices, 5 mm apart, 5 mm above the tip
 
 
-SITES = ("fingertip", "palm")
+SITES = ("fingertip", "palm", "fingers")
 
 
 def rot_z_to(n: np.ndarray) -> np.ndarray:
@@ -58,6 +59,12 @@ def site_point(asset, site: str):
         c = asset.body_rest_pos[names.index("distph2_r")] + 0.008 * axis
         near = np.flatnonzero(np.linalg.norm(skin - c, axis=1) < 0.012)
         k = near[np.argmax(vn[near] @ palmar)]  # the pad: the normal most along the palm's
+    elif site == "fingers":  # the middle finger's palmar skin halfway along its proximal phalanx
+        # (a plate there lies across the index, middle and ring proximal phalanges)
+        c = asset.body_rest_pos[names.index("3proxph_r")] + 0.02 * axis
+        lateral = np.linalg.norm((skin - c) - np.outer((skin - c) @ palmar, palmar), axis=1)
+        near = np.flatnonzero(lateral < 0.005)
+        k = near[np.argmax((skin[near] - c) @ palmar)]
     else:  # the palm's surface on the line through the middle metacarpal, 2 cm before its head
         c = asset.body_rest_pos[names.index("3proxph_r")] - 0.02 * axis
         lateral = np.linalg.norm((skin - c) - np.outer((skin - c) @ palmar, palmar), axis=1)
@@ -74,6 +81,8 @@ def case_frame(case: Case, asset):
     quat = compose_quat(rot_z_to(-n), np.array([np.cos(case.spin / 2), 0, 0, np.sin(case.spin / 2)]))
     if case.lay:  # a quarter turn about the geom x axis: its z axis lies across the normal
         quat = compose_quat(quat, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))
+    if case.tilt:  # slanted: a turn about the geom x axis
+        quat = compose_quat(quat, np.array([np.cos(case.tilt / 2), np.sin(case.tilt / 2), 0.0, 0.0]))
     if case.turn is not None:
         quat = compose_quat(quat, np.asarray(case.turn, float))
     return p0, n, quat
@@ -104,11 +113,12 @@ class Case:
     press_frames: int = 15
     spin: float = 0.0  # rad about the normal (orients edges)
     lay: bool = False  # turn the geom's z axis across the normal (a capsule lying on the skin)
+    tilt: float = 0.0  # rad about the geom's x axis, after spin and lay (a plate pressed in slanted)
     # any skin site instead of a named one: ``point`` (3,) m and its outward unit ``normal`` (3,) in the
     # asset frame (``site`` is then only a label)
     point: np.ndarray | None = None
     normal: np.ndarray | None = None
-    turn: np.ndarray | None = None  # a last rotation (w x y z) in the geom frame, after spin and lay (tilts)
+    turn: np.ndarray | None = None  # a last rotation (w x y z) in the geom frame, after spin, lay and tilt
 
 
 def wedge(angle_deg=30.0, length=0.02, height=0.012):

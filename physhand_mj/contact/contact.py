@@ -684,7 +684,7 @@ class Contact:
         the tiled launch's blocks, ``out``/``out_count`` a stage's list."""
         m, o, cfg = self.model, self.objects, self.config
         return feature_inputs(m.skin_faces, self.space.skin_x(state), cand, cand_count, self.points.pts,
-                              self.points.geom, self.space.pose, cfg.contact_frame_margin,
+                              self.points.geom, self.points.normal, self.space.pose, cfg.contact_frame_margin,
                               skin=skin.id if skin is not None else 0, tris=self.lists.cand, tri_count=self.cand_count,
                               stride=stride, geom_obj=o.obj, keep=cfg.contact_margin, near=self.near_query,
                               eps=self.feature_eps, offset=offset, max_step=cfg.contact_margin, pose0=o.pose,

@@ -41,6 +41,8 @@ from physhand_mj.contact.winding import Patches, closest_scan, closest_tiled, wi
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
+WALL_COS = wp.constant(0.1)  # a wall's face point pushes a skin triangle whose inward normal is within 90 degrees of its own
+
 
 @wp.kernel
 def near_features(
@@ -108,11 +110,13 @@ def near_features(
 @wp.func
 def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, faces: wp.array2d(dtype=int),
                  offset: float, max_step: float, x: wp.array(dtype=wp.vec3), sums: PushSums,
-                 touched_count: wp.array(dtype=int)):
+                 touched_count: wp.array(dtype=int), normal: wp.vec3):
     """The correction of the module docstring for feature point ``p`` whose closest skin point is
     (u, v, 1 - u - v) on skin triangle ``f`` (the point u x0 + v x1 + (1 - u - v) x2, Warp's mesh
     query convention), ``sign`` +1 outside the skin / -1 inside: into ``sums`` when p is
-    inside (or closer than offset / 2 outside) and inside the triangle's plane."""
+    inside (or closer than offset / 2 outside) and inside the triangle's plane. A wall's face point
+    (``normal``: its world outward normal; zero for a feature) pushes only a triangle whose inward
+    normal it faces (WALL_COS): the face the skin must end against, not the one it must end away from."""
     i0 = faces[f, 0]
     i1 = faces[f, 1]
     i2 = faces[f, 2]
@@ -131,6 +135,11 @@ def push_feature(p: wp.vec3, f: int, u: float, v: float, sign: float, obj: int, 
     if need <= 0.0:
         return  # p is outside this triangle's plane: the skin's side handles it
     corr = m * wp.min(need, max_step)
+    if wp.length(normal) > 0.0:  # a wall's face point: through the wall, along its normal
+        cn = wp.dot(normal, m)
+        if cn <= WALL_COS:
+            return
+        corr = normal * wp.min(need / cn, max_step)
     inv = 1.0 / (w0 * w0 + w1 * w1 + w2 * w2)
     # each vertex's say in its mean: the depth weight times its share (floored: a weight must be > 0)
     wd = depth_weight(need)
@@ -217,6 +226,7 @@ def feature_kernel(search: str, stage: bool):
         # Objects:
         pts: wp.array(dtype=wp.vec3),
         pts_geom: wp.array(dtype=int),
+        pts_normal: wp.array(dtype=wp.vec3),
         pose: wp.array(dtype=wp.transform),
         geom_obj: wp.array(dtype=int),
         # Contact in:
@@ -290,8 +300,9 @@ def feature_kernel(search: str, stage: bool):
                 if wp.static(PUSH):
                     if push:
                         f0, u0, v0, p0 = at_origin(i, p, f, u, v, pts, pts_geom, pose0, faces, x0)
+                        nw = wp.quat_rotate(wp.transform_get_rotation(pose0[pts_geom[i]]), pts_normal[i])
                         push_feature(p0, f0, u0, v0, sign, geom_obj[pts_geom[i]], faces, offset, max_step, x0, sums,
-                                     touched_count)
+                                     touched_count, nw)
             k += step
 
     # the kernels' own names (profiles, tests), not the factory's
@@ -300,7 +311,7 @@ def feature_kernel(search: str, stage: bool):
     return wp.kernel(kernel)
 
 
-def feature_inputs(faces, x, cand, cand_count, pts, pts_geom, pose, margin: float, *, skin=0, tris=None,
+def feature_inputs(faces, x, cand, cand_count, pts, pts_geom, pts_normal, pose, margin: float, *, skin=0, tris=None,
                    tri_count=None, stride: int = 0, geom_obj=None, keep: float = 0.0, near: float = 0.0,
                    eps: float = 0.0, offset: float = 0.0, max_step: float = 0.0, pose0=None, x0=None,
                    winding=(0, None), side=None, out=None, out_count=None,
@@ -309,7 +320,8 @@ def feature_inputs(faces, x, cand, cand_count, pts, pts_geom, pose, margin: floa
     local winding number's switch and its patches (winding.Patches); ``push``: (sums, touched_count), the accumulators
     (query.PushSums) and the touched list's counter. What the variant does not read may stay None."""
     (on, patches), (sums, touched_count) = winding, push
-    return [skin, faces, x, tris, tri_count, cand, cand_count, stride, pts, pts_geom, pose, geom_obj, margin, keep,
+    return [skin, faces, x, tris, tri_count, cand, cand_count, stride, pts, pts_geom, pts_normal, pose, geom_obj,
+            margin, keep,
             near, eps, offset, max_step, pose0, x0, on, Patches() if patches is None else patches, side, out, out_count,
             PushSums() if sums is None else sums, touched_count]
 

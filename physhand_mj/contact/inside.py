@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.sdf import geom_sdf_grad
 from physhand_mj.contact.surface import PointKind, mesh_points, primitive_points
 from physhand_mj.types import GeomType
 
@@ -352,8 +353,20 @@ class ObjectPoints:
         self.pts = wp.array(pts32, dtype=wp.vec3, device=d)
         self.geom = wp.array(self.geom_host if total else np.full(1, 1 << 30, np.int32), dtype=int, device=d)
         self.kind = wp.array(kind if total else np.zeros(1, np.int32), dtype=int, device=d)
-        feat = np.flatnonzero(kind != int(PointKind.SURFACE)).astype(np.int32)
+        # the contact's pushed points: the sharp features (corners, edges) and the faces of walls
+        # (wall_half_thickness: a thin geom's face can lie wholly inside the hand, where no skin
+        # sample is inside it and no feature is near the skin; docs/contact.md "Thin walls")
+        walls = np.array([wall_half_thickness(objects, g) > 0.0 for g in range(self.n_geoms)] or [False])
+        on_wall = (kind == int(PointKind.SURFACE)) & walls[self.geom_host] if total else np.zeros(0, bool)
+        feat = np.flatnonzero((kind != int(PointKind.SURFACE)) | on_wall).astype(np.int32)
         self.n_features = len(feat)
+        self.n_wall = int(on_wall.sum())
+        # per point its geom-local outward normal where it is a wall's face point (the push's gate,
+        # features.push_feature), zero elsewhere
+        normal = np.zeros((max(total, 1), 3), np.float32)
+        if self.n_wall:
+            normal[:total][on_wall] = wall_normals(objects, self.geom_host[on_wall], pts[on_wall])
+        self.normal = wp.array(normal, dtype=wp.vec3, device=d)
         self.feature = wp.array(feat if len(feat) else np.zeros(1, np.int32), dtype=int, device=d)
         self.depth = wp.zeros(n, dtype=float, device=d)
         # per geom: the farthest of its points from its origin (m; how far a turn can carry them)
@@ -387,3 +400,54 @@ class ObjectPoints:
 
     def __len__(self) -> int:
         return len(self.pts_host)
+
+
+# A wall: a geom whose faces can lie wholly inside the hand with the skin on one side of them (a
+# plate pressed face-first, a shell): half-thickness at most WALL_HALF (m), at most WALL_ASPECT x
+# its extent across. Thicker objects meet the skin before their far face is inside the hand
+# (Eq. 9 acts on the skin inside them); walls are thinner than the skin's triangles and than a
+# substep's flesh motion, so the skin can also pass wholly through them.
+WALL_HALF = 1.5e-3
+WALL_ASPECT = 0.5
+
+
+def wall_half_thickness(objects, g: int) -> float:
+    """Half the thickness (m) of geom ``g`` of ``objects`` where it is a wall, else 0: a box's least
+    half extent, a cylinder's half height (a disc), a mesh's measured half-thickness (plates and
+    shells of even thickness: objects.mesh_half_thickness; 0 for others), at most WALL_HALF and at
+    most WALL_ASPECT x the geom's next-least half extent (box, cylinder) or bounding radius (mesh)."""
+    h = objects._host
+    t = GeomType(int(h["gtype"][g]))
+    s = np.asarray(h["size"][g], float)
+    if t == GeomType.BOX:
+        e = np.sort(s)
+        half, across = e[0], e[1]
+    elif t == GeomType.CYLINDER:
+        half, across = s[1], s[0]
+    elif t == GeomType.MESH:
+        half, across = s[2], float(h["radius"][g])
+    else:
+        return 0.0
+    return float(half) if 0.0 < half <= WALL_HALF and half <= WALL_ASPECT * across else 0.0
+
+
+@wp.kernel
+def surface_normals(pts: wp.array(dtype=wp.vec3), geom: wp.array(dtype=int), gtype: wp.array(dtype=int),
+                    size: wp.array(dtype=wp.vec3), mesh: wp.array(dtype=wp.vec2ul), out: wp.array(dtype=wp.vec3)):
+    """out[i] = the unit SDF gradient of geom ``geom[i]`` at its local surface point ``pts[i]``."""
+    i = wp.tid()
+    g = geom[i]
+    d, n = geom_sdf_grad(gtype[g], pts[i], size[g], mesh[g])
+    out[i] = wp.normalize(n)
+
+
+def wall_normals(objects, geom: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(n, 3) float32 geom-local outward unit normals at points ``pts`` (on the surfaces of geoms
+    ``geom``): the SDF's gradient there (a box's or a disc's face normal, a mesh's pseudo normal)."""
+    d = objects.device
+    gs = objects.geoms_exact
+    out = wp.zeros(len(pts), dtype=wp.vec3, device=d)
+    wp.launch(surface_normals, len(pts), inputs=[wp.array(np.asarray(pts, np.float32), dtype=wp.vec3, device=d),
+                                      wp.array(np.asarray(geom, np.int32), dtype=int, device=d), gs.gtype, gs.size,
+                                      gs.mesh], outputs=[out], device=d)
+    return out.numpy()

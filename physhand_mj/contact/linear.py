@@ -210,6 +210,7 @@ def hold_features(
     kept: KeptPoints,
     pts: wp.array(dtype=wp.vec3),
     pts_geom: wp.array(dtype=int),
+    pts_normal: wp.array(dtype=wp.vec3),
     pose: wp.array(dtype=wp.transform),
     geom_obj: wp.array(dtype=int),
     offset: float,
@@ -241,7 +242,9 @@ def hold_features(
     sign = float(1.0)
     if wp.dot(p - c, n) < 0.0:
         sign = -1.0
-    push_feature(p, f, uv[0], uv[1], sign, geom_obj[pts_geom[i]], faces, offset, max_step, x, sums, touched_count)
+    nw = wp.quat_rotate(wp.transform_get_rotation(pose[pts_geom[i]]), pts_normal[i])
+    push_feature(p, f, uv[0], uv[1], sign, geom_obj[pts_geom[i]], faces, offset, max_step, x, sums, touched_count,
+                 nw)
 
 
 @wp.kernel
@@ -333,7 +336,7 @@ class PlaneHold:
                    [m.skin_faces, b.planes, o.geoms, cfg.contact_offset, state.x])]
         if self.keeps_features(points):  # the kept feature points, before the planes (as a stage's push is)
             pushes.insert(0, (hold_features, points.n_features, self.fplane_len,
-                              [m.skin_faces, b.kept, points.pts, points.geom, o.pose, o.obj, cfg.feature_offset,
+                              [m.skin_faces, b.kept, points.pts, points.geom, points.normal, o.pose, o.obj, cfg.feature_offset,
                                cfg.contact_margin, cfg.contact_margin, state.x]))
         order = pushes * HOLD_PASSES + (pushes[:1] if len(pushes) == 2 and cfg.feature_last else [])
         for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
