@@ -15,6 +15,7 @@ mesh_id)`` (physhand_mj.render.upload_skin does it); the passive viewer needs
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import mujoco
@@ -22,6 +23,7 @@ import numpy as np
 
 from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
+from physhand_mj.contact.bones import BONE_CAP
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
 from physhand_mj.hand_mjcf import SKIN_GEOM, body_ids, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
@@ -37,6 +39,21 @@ def _mat_to_quat(mats: np.ndarray) -> np.ndarray:
         mujoco.mju_mat2Quat(out[i], m)
     return out
 
+
+
+@contextlib.contextmanager
+def _settling(solver):
+    """A settle's frames (the bones move from the rest pose to the scene's on purpose): no fast-motion
+    or feature-slack warning, and no skin held by bones the sweep passes through objects
+    (Contact.bones_free); a user's warning choices are kept."""
+    warn = solver.warn_fast_motion, solver.warn_feature_slack
+    solver.warn_fast_motion = solver.warn_feature_slack = False
+    try:
+        with solver.contact.bones_free() if solver.contact is not None and solver.config.bone_hold \
+                else contextlib.nullcontext():
+            yield
+    finally:
+        solver.warn_fast_motion, solver.warn_feature_slack = warn
 
 class SoftHand:
     """The layered soft hand of ``asset`` (default: the embedded MyoHand) in a compiled MuJoCo model.
@@ -111,14 +128,11 @@ class SoftHand:
         rest_pos, rest_quat = self.state.pose_host[1][:, :3].astype(float), self.state.pose_host[1][:, 3:].astype(float)
         rest_quat = np.concatenate([rest_quat[:, 3:], rest_quat[:, :3]], axis=1)  # x y z w -> w x y z
         settler = self.solver if settle_contact or self.solver.contact is None else Solver(self.solver.model, self.config)
-        settler.warn_fast_motion = settler.warn_feature_slack = False  # settling moves the bones on purpose
-        try:
+        with _settling(settler):
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames
                 settler.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, nlerp(rest_quat, quat, a))
                 settler.step(self.state)
-        finally:
-            self.solver.warn_fast_motion = self.solver.warn_feature_slack = True
         self._write_back()
 
     # -- setup -----------------------------------------------------------------------------------
@@ -245,15 +259,11 @@ class SoftHand:
         rest_pos = fresh.pose_host[1][:, :3].astype(float)
         rest_quat = fresh.pose_host[1][:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
         self.solver.wake(self.state)  # a new episode settles before it may sleep
-        warn = self.solver.warn_fast_motion, self.solver.warn_feature_slack  # (a user's choice is kept)
-        self.solver.warn_fast_motion = self.solver.warn_feature_slack = False  # settling moves the bones on purpose
-        try:
+        with _settling(self.solver):
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames
                 self.solver.set_body_poses(self.state, (1 - a) * rest_pos + a * pos, nlerp(rest_quat, quat, a))
                 self._last = self.solver.step(self.state)
-        finally:
-            self.solver.warn_fast_motion, self.solver.warn_feature_slack = warn
         self._timing = dict(sync=0.0, solver=0.0, writeback=0.0, frames=0)
         self._write_back()
 
@@ -266,13 +276,18 @@ class SoftHand:
         vertex of mass m by dx in a substep of length h is an impulse m dx / h, i.e. the multiplier of
         a hard constraint; forces are averaged over the frame's substeps), ``penetration_count`` and
         ``deepest_um`` (the 21-sample metric against that object alone), ``object_in_skin_count``
-        and ``object_in_skin_deepest_um`` (that object's surface points inside the skin). ``pressure_pa`` is force
-        per vertex area, a heat map over the skin.
+        and ``object_in_skin_deepest_um`` (that object's surface points inside the skin), and its bones:
+        ``bone_clearance_mm`` (the least distance of a skeleton vertex from it; negative: a bone inside it,
+        that deep, so no penetration-free skin exists there), ``bones_inside`` (the bodies with a
+        vertex inside it) and ``skin_held`` (skin vertices the last frame's contact left where their
+        bones carry them because it holds their bone: Config.tuning.bone_hold, contact/bones.py).
+        ``pressure_pa`` is force per vertex area, a heat map over the skin; ``bone_clearance_mm`` the
+        least over all objects (50 mm where no bone is nearer).
         """
         n = self.asset.n_skin
         c = self.solver.contact
         if c is None:
-            return {"objects": {}, "pressure_pa": np.zeros(n)}
+            return {"objects": {}, "pressure_pa": np.zeros(n), "bone_clearance_mm": BONE_CAP * 1e3}
         h, s = self.config.substep_dt, self.config.substeps
         push = c.push.numpy()[:n].astype(float)
         vobj = c.vertex_obj.numpy()[:n]
@@ -280,14 +295,18 @@ class SoftHand:
         area = vertex_areas(self._skin, self.asset.skin_faces)
         pressure = np.where(area > 0, force / np.maximum(area, 1e-12), 0.0)
         out = {}
+        bones = c.bone_report(self.state)
         for k, name in enumerate(self.objects.object_names):
             row = self._measure(k)
             idx = np.flatnonzero((vobj == k) & (push > 0))
+            b = bones["objects"].get(k, dict(clearance_m=BONE_CAP, bones=[], skin_held=0))
             out[name] = dict(vertices=idx, area_m2=float(area[idx].sum()), force_n=float(force[idx].sum()),
                              penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6,
                              object_in_skin_count=int(round(float(row[3]))),
-                             object_in_skin_deepest_um=float(row[5]) * 1e6)
-        return {"objects": out, "pressure_pa": pressure}
+                             object_in_skin_deepest_um=float(row[5]) * 1e6,
+                             bone_clearance_mm=b["clearance_m"] * 1e3, bones_inside=b["bones"],
+                             skin_held=b["skin_held"])
+        return {"objects": out, "pressure_pa": pressure, "bone_clearance_mm": bones["bone_clearance_m"] * 1e3}
 
     def _measure(self, obj: int = -1, order: int = 5) -> np.ndarray:
         """Both measures of the skin as it is now (against object ``obj``, -1: all): [count, sum depth

@@ -91,6 +91,12 @@ def test_glass_grasp_contact_report(glass_grasp):
     assert m["penetration_max_um"] < 100.0, m
     p = report["pressure_pa"]
     assert p.shape == (hand.asset.n_skin,) and (p > 0).sum() == len(glass["vertices"])
+    # position control lets fingertip bones just inside the glass (contact/bones.py): reported, and
+    # shallower than HOLD_DEPTH, so no skin is held (the skin ends outside the glass, asserted above)
+    from physhand_mj.contact.bones import HOLD_DEPTH
+
+    assert -float(HOLD_DEPTH) * 1e3 < glass["bone_clearance_mm"] < 0.0 and glass["bones_inside"], glass
+    assert glass["skin_held"] == 0 and report["bone_clearance_mm"] == glass["bone_clearance_mm"]
 
 
 PAPER = dict(feature_contact=False, side_aware=False, skin_tether=0.0)  # the paper's contact: Eq. 9 at multires decision points

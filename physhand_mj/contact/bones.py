@@ -2,21 +2,28 @@
 
 Contact moves only the skin; the bones go where MuJoCo puts them. When MuJoCo lets a bone into an
 object (position control closing on a box, a keyframe placed by hand), no skin there can leave the
-object without leaving its bone, and pushing it out anyway drags it across the object (measured
-before this module: a 40 mm box 5-15 mm past a palm bone moved skin 25 mm, the tether's bound, and
-26-40 mm a frame while the box stood still, with 400-800 inverted tets). So:
+object without leaving its bone. Pushing it out anyway dragged the skin through the finger and
+back every frame (a 30 mm sphere 5-15 mm past the distal phalanx: skin 10-22 mm from rest, 160-340
+inverted tets; a 40 mm box past a palm bone: 25 mm, the tether's bound, and 20-40 mm a frame while
+the box stood still). So (``Config.tuning.bone_hold``, on):
 
-- **Held skin** (``Config.tuning.bone_hold``, on): every skin vertex has an *anchor*, the skeleton
-  vertex nearest it at rest (``Model.skin_anchor``, in the bone's frame). Once per frame with an
-  object near, :func:`hold_skin` marks the skin vertices whose anchor an object holds (phi < 0 at
-  the frame's last bone pose; ``Contact.held``: 1 + the geom). Every contact push (Eq. 9, the
-  feature push, the linear hold) is applied by ``query.apply_vertex``, which moves no held vertex:
-  it stays where its flesh and bones carry it, at most its flesh thickness (its rest distance to
-  its anchor) plus the anchor's depth inside the object (SDFs are 1-Lipschitz). Its unheld
-  neighbours are pushed out as before; where no anchor is inside, nothing changes (bit for bit).
-- **The report** (:func:`bone_clearance`, on demand, not per frame): per skeleton vertex its
-  clearance from the nearest object (m, negative inside) and that object's geom; ``SoftHand.contacts()``
-  gives per object the bones it holds and how deep, and how many skin vertices it held.
+- **The hold.** Every skin vertex has an *anchor*, the skeleton vertex nearest it at rest
+  (``Model.skin_anchor``, in the bone's frame), and a *flesh thickness*, its rest distance to it.
+  Once per frame with an object near, :func:`hold_skin` finds, at the frame's last bone pose, where
+  the bone carries the vertex (``Model.skin_local``, the tether's point) and whether an object
+  holds the anchor more than HOLD_DEPTH deep; such a vertex is *held* and its world *gripped*. Every
+  contact push (Eq. 9, the feature push, the linear hold) is applied by ``query.apply_vertex``
+  through :func:`held_move`: a held vertex is not moved, and in a gripped world a push that would
+  leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
+  (or than it already was) is not applied. Held skin stays inside the object: the penetration is
+  the answer, stated by the report below. A bone less than HOLD_DEPTH inside grips nothing.
+- **The report** (:func:`bone_clearance`, :func:`bone_report`, on demand, not per frame): per
+  skeleton vertex its clearance from the nearest object (m, negative inside) and that object's
+  geom; ``SoftHand.contacts()`` gives per object the bones it holds and how deep, and how many
+  skin vertices the frame held.
+
+Where no anchor lies HOLD_DEPTH inside an object, results are bit for bit those without the hold
+(the project's hard cases, the HOI grasps, the demo's glass, whose grasp lets bones ~1 mm in).
 """
 
 from __future__ import annotations
@@ -57,6 +64,11 @@ def geoms_of_world(w: int, geoms_per_world: int, geom_count: wp.array(dtype=int)
 # m: how much farther than its flesh thickness from where its bone carries it a push may leave a
 # skin vertex (unless it already was farther: posed skin between two bones)
 REACH_SLACK = wp.constant(2.0e-3)
+# m: how deep inside an object an anchor must lie to hold its skin. A bone just inside (MuJoCo's
+# position control closing a grasp lets a fingertip bone ~1 mm into the demo's glass) keeps the
+# skin pushed out over it, as before the hold: the skin passes the bone's surface by that much,
+# which nothing sees, where a held fingertip showed 3.5 mm of skin inside the glass
+HOLD_DEPTH = wp.constant(2.0e-3)
 
 
 @wp.struct
@@ -65,32 +77,42 @@ class BoneHold:
     :func:`make_bone_hold`; empty arrays: no bound). held (S,) int: 1 + the geom that holds the
     vertex's anchor (no push moves it), 0 elsewhere; carried (S,) vec3 m: where its bone carries
     the vertex at the frame's last bone pose (its rest offset, Model.skin_local); reach (S,) float
-    m: how far from there a push may leave it."""
+    m: how far from there a push may leave it in a gripped world; world (S,) int: its world
+    (Model.vertex_world); gripped (W,) int: 1 for a world with a held vertex this frame; depth (1,)
+    float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never)."""
 
     held: wp.array(dtype=int)
     carried: wp.array(dtype=wp.vec3)
     reach: wp.array(dtype=float)
+    world: wp.array(dtype=int)
+    gripped: wp.array(dtype=int)
+    depth: wp.array(dtype=float)
 
 
-def make_bone_hold(n_skin: int, device, on: bool = True) -> BoneHold:
-    """A :class:`BoneHold` for ``n_skin`` skin vertices (``on`` False: empty, no bound)."""
-    n = n_skin if on else 0
+def make_bone_hold(model, on: bool = True) -> BoneHold:
+    """A :class:`BoneHold` for ``model``'s skin (``on`` False: empty arrays, no bound)."""
+    n, d = (model.n_skin if on else 0), model.device
     h = BoneHold()
-    h.held = wp.zeros(n, dtype=int, device=device)
-    h.carried = wp.zeros(n, dtype=wp.vec3, device=device)
-    h.reach = wp.zeros(n, dtype=float, device=device)
+    h.held = wp.zeros(n, dtype=int, device=d)
+    h.carried = wp.zeros(n, dtype=wp.vec3, device=d)
+    h.reach = wp.zeros(n, dtype=float, device=d)
+    h.world = model.vertex_world if on else wp.zeros(0, dtype=int, device=d)
+    h.gripped = wp.zeros(model.worlds if on else 0, dtype=int, device=d)
+    h.depth = wp.full(1, float(HOLD_DEPTH), dtype=float, device=d)
     return h
 
 
 @wp.func
 def held_move(hold: BoneHold, i: int, xi: wp.vec3, dx: wp.vec3):
     """Contact correction ``dx`` of skin vertex ``i`` (at ``xi``) where its bones allow it, else 0:
-    not where an object holds its anchor, nor where it would leave the vertex farther from where
-    its bone carries it than its reach (or than it already was)."""
+    not where an object holds its anchor, nor, in a gripped world, where it would leave the vertex
+    farther from where its bone carries it than its reach (or than it already was)."""
     if i >= hold.held.shape[0]:
         return dx
     if hold.held[i] != 0:
         return wp.vec3(0.0)
+    if hold.gripped[hold.world[i]] == 0:
+        return dx
     c = hold.carried[i]
     if wp.length(xi + dx - c) > wp.max(hold.reach[i], wp.length(xi - c)):
         return wp.vec3(0.0)
@@ -112,16 +134,18 @@ def hold_skin(
 ):
     """Skin vertex i's hold for the frame, at bone ``skin_body[i]``'s pose of substep ``sub``: where
     the bone carries it (``skin_local[i]``), its reach (its flesh thickness, the rest distance to its
-    anchor ``skin_anchor[i]``, plus REACH_SLACK) and whether an object holds the anchor (phi < 0)."""
+    anchor ``skin_anchor[i]``, plus REACH_SLACK) and whether an object holds the anchor (deeper than
+    ``hold.depth`` inside it), which grips its world (``hold.gripped``, zeroed before)."""
     i = wp.tid()
     h = int(0)
     b = skin_body[i]
     if b >= 0:
         base, n = geoms_of_world(vertex_world[i], geoms_per_world, geom_count)
         pose = body_sub[sub, b]
-        phi, g = nearest_geom(wp.transform_point(pose, skin_anchor[i]), geoms, base, n, 0.0)
+        phi, g = nearest_geom(wp.transform_point(pose, skin_anchor[i]), geoms, base, n, -hold.depth[0])
         if g >= 0:
             h = g + 1
+            hold.gripped[vertex_world[i]] = 1
         hold.carried[i] = wp.transform_point(pose, skin_local[i])
         hold.reach[i] = wp.length(skin_local[i] - skin_anchor[i]) + REACH_SLACK
     else:
@@ -159,8 +183,8 @@ def bone_report(model, objects, x, geoms_per_world: int, held=None, world: int =
     """The bones of world ``world`` against its objects, for ``x`` (the state's positions): per
     object index (``objects.obj`` of a geom) ``clearance_m`` (its least clearance from any skeleton
     vertex, m; negative: a bone inside it, that deep), ``bones`` (the bodies with a vertex inside,
-    sorted names) and, given the last frame's ``held`` (Contact.held), ``skin_held`` (its skin
-    vertices held: the object holds their anchor); and ``bone_clearance_m``, the least over objects (BONE_CAP where none is near)."""
+    sorted names) and, given the last frame's ``held`` (BoneHold.held), ``skin_held`` (its skin
+    vertices the frame held: it holds their anchor; 0 for an object that holds no bone now); and ``bone_clearance_m``, the least over objects (BONE_CAP where none is near)."""
     dev = model.device
     vb = model.vertex_body.numpy()
     vw = model.vertex_world.numpy()
@@ -184,6 +208,8 @@ def bone_report(model, objects, x, geoms_per_world: int, held=None, world: int =
         ns = model.n_skin
         h = held.numpy()[:ns][vw[:ns] == world]
         for o, n_held in zip(*np.unique(obj_of[h[h > 0] - 1], return_counts=True)):
-            out["objects"].setdefault(int(o), dict(clearance_m=BONE_CAP, bones=[], skin_held=0))["skin_held"] = int(n_held)
+            row = out["objects"].get(int(o))
+            if row is not None and row["clearance_m"] < 0.0:  # (held is the last frame's with an object near:
+                row["skin_held"] = int(n_held)  # an object that holds no bone now holds no skin)
     out["bone_clearance_m"] = float(c.min())
     return out

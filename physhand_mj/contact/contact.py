@@ -14,6 +14,7 @@ their rows (:class:`~physhand_mj.contact.measures.ContactMeasures`, ``measures``
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -21,7 +22,7 @@ import warp as wp
 
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
-from physhand_mj.contact.bones import hold_skin, make_bone_hold
+from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -196,7 +197,7 @@ class Contact:
         self.pass_slots = []  # per recorded pass: the slot of its triangle list's length
         self._passes_gated = False  # (finish_recording: as the solver's frame last said)
         # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
-        self.bone_hold = make_bone_hold(model.n_skin, model.device, config.bone_hold)
+        self.bone_hold = make_bone_hold(model, config.bone_hold)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -264,6 +265,7 @@ class Contact:
         (after the broadphase)."""
         m, o, cfg = self.model, self.objects, self.config
         if cfg.bone_hold and m.n_skin:  # (bones.py: at the frame's last bone pose)
+            rec.ops.append(self.bone_hold.gripped.zero_)
             rec.launch(hold_skin, m.n_skin, [m.skin_body, m.skin_local, m.skin_anchor, m.vertex_world, state.body_sub,
                                              cfg.substeps - 1, o.geoms, self.geoms_per_world, o.count],
                        [self.bone_hold])
@@ -611,6 +613,23 @@ class Contact:
     def _measured_points(self, check: bool) -> ObjectPoints | None:
         """The points a measure at once asks: :attr:`points` (built on first use) unless no skin or ``check``."""
         return self.points if self.n_tris and not check else None
+
+    @contextlib.contextmanager
+    def bones_free(self):
+        """No skin held within the block (bones.py; SoftHand's settling, whose bones sweep through
+        objects on their way to the pose: a transient there is no start to keep)."""
+        d = self.bone_hold.depth
+        d.fill_(1.0e30)
+        try:
+            yield
+        finally:
+            d.fill_(float(HOLD_DEPTH))
+
+    def bone_report(self, state, world: int = 0) -> dict:
+        """The bones of world ``world`` against the objects now, and the skin the last frame held
+        (:func:`~physhand_mj.contact.bones.bone_report`)."""
+        return bone_report(self.model, self.objects, state.x, self.geoms_per_world,
+                           self.bone_hold.held if self.config.bone_hold else None, world)
 
     def object_points_inside(self, state) -> tuple[np.ndarray, np.ndarray]:
         """:attr:`points` inside the skin of ``state`` now (:meth:`ContactMeasures.object_points_inside`)."""
