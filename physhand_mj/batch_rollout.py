@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from physhand_mj.rollout import (LOG_COLUMNS, carry_object_side, check_counts, check_measure_every, failed_row,
+from physhand_mj.rollout import (LOG_COLUMNS, bone_clearances, carry_object_side, check_counts, check_measure_every, failed_row,
                                  frame_rows, load_rollout_scene, measured, rollout_config, run_names, start_row,
                                  summary_row, write_summary)
 
@@ -286,6 +286,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         on_start(hands, [r.model for r in runs], [r.data for r in runs])
     starts = hands.penetration()
     c = hands.solver.contact
+    bones0 = bone_clearances(c, hands.state, W)
     alive = [True] * W
     last = [dict(s) for s in starts]
     interrupted = False
@@ -414,6 +415,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                     f.close()
     d = str(hands.solver.device)
     skins = hands.skins()  # (one copy from the device for the batch)
+    bones1 = bone_clearances(hands.solver.contact, hands.state, W)
     for w, r in enumerate(runs):
         if rows[r.index] is not None:  # failed: no skin, as the serial run
             continue
@@ -422,7 +424,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         trimesh.Trimesh(skin, asset.skin_faces, process=False).export(skin_path)
         rows[r.index] = summary_row(r.scene, r.key, r.times, substeps, contact, starts[w], last[w],
                                     bool(np.all(np.isfinite(skin))), d, interrupted, r.out / "log.csv", skin_path,
-                                    object_frame=obj_frame[w])
+                                    object_frame=obj_frame[w], bones=(bones0[w], bones1[w]))
     hands.close()  # the batch's device memory back before the next batch allocates
     return interrupted
 

@@ -102,6 +102,7 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     out.mkdir(parents=True, exist_ok=True)
     log_path, skin_path, counters_path = out / "log.csv", out / "skin_final.ply", out / "counters.csv"
     start = hand.penetration()
+    bones0 = bone_clearances(hand.solver.contact, hand.state)[0]
     if on_start is not None:
         on_start(hand, model, data)
     times: list[float] = []
@@ -145,7 +146,17 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
         on_end(hand, model, data)
     m = hand.metrics()
     return summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
-                       interrupted, log_path, skin_path, object_frame=obj_frame)
+                       interrupted, log_path, skin_path, object_frame=obj_frame,
+                       bones=(bones0, bone_clearances(hand.solver.contact, hand.state)[0]))
+
+
+def bone_clearances(contact, state, worlds: int = 1) -> list:
+    """Per world the bones' least clearance from its objects now (mm, 50 at most; negative: a bone
+    that deep inside an object, where no penetration-free skin exists: contact/bones.py); None
+    without contact."""
+    if contact is None:
+        return [None] * worlds
+    return [round(contact.bone_report(state, w)["bone_clearance_m"] * 1e3, 4) for w in range(worlds)]
 
 
 @contextlib.contextmanager
@@ -253,10 +264,12 @@ def frame_rows(step: int, data, cfg, rows, counts, dt: float, both: dict) -> lis
 
 
 def summary_row(scene, key, times, substeps: int, contact: str, start: dict, last: dict, finite: bool, device: str,
-                interrupted: bool, log_path, skin_path, object_frame: int | None = None) -> dict:
+                interrupted: bool, log_path, skin_path, object_frame: int | None = None, bones=(None, None)) -> dict:
     """A rollout's summary: ``times`` the frames' wall times (s; the first, which compiles, is not
     counted), ``start`` / ``last`` the measures before the first and after the last frame;
-    ``object_frame``: the frame ``last``'s object-side values come from (default: the last)."""
+    ``object_frame``: the frame ``last``'s object-side values come from (default: the last);
+    ``bones``: the bones' least clearance from the objects (mm) before the first and after the last
+    frame (:func:`bone_clearances`)."""
     from physhand_mj.launch import device_name
 
     timed = times[1:] if len(times) > 1 else times
@@ -273,6 +286,7 @@ def summary_row(scene, key, times, substeps: int, contact: str, start: dict, las
                 initial_penetration_max_um=_um(start["penetration_max_um"]),
                 initial_object_in_skin_count=start["object_in_skin_count"],
                 initial_object_in_skin_max_um=_um(start["object_in_skin_max_um"]),
+                initial_bone_clearance_mm=bones[0], bone_clearance_mm=bones[1],
                 ms_per_frame=round(1e3 * float(np.mean(timed)), 3) if timed else math.nan,
                 finite=finite and int(last.get("nonfinite", 0)) == 0, device=d, device_name=device_name(d),
                 interrupted=interrupted, log=str(log_path), skin=str(skin_path))
@@ -319,7 +333,8 @@ def batch_targets(source, keyframe: str | None = None) -> list[tuple[Path, str |
 
 SUMMARY_COLUMNS = ["scene", "keyframe", "steps", "contact", "initial_penetration_count", "initial_penetration_max_um",
                    "penetration_count", "penetration_max_um", "penetration_avg_um", "initial_object_in_skin_count",
-                   "object_in_skin_count", "object_in_skin_max_um", "ms_per_frame", "finite", "device",
+                   "object_in_skin_count", "object_in_skin_max_um", "initial_bone_clearance_mm",
+                   "bone_clearance_mm", "ms_per_frame", "finite", "device",
                    "interrupted", "error"]  # the columns of a batch's summary.csv, one row per run
 
 

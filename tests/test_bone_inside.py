@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import physhand_mj as ph
-from physhand_mj.bench.cases import Case, run_case, site_point
+from physhand_mj.bench.cases import bone_case, run_case
 from physhand_mj.contact.bones import HOLD_DEPTH, REACH_SLACK, bone_report
 from physhand_mj.rotations import quat_to_mat
-from physhand_mj.types import GeomType, Layer
+from physhand_mj.types import Layer
 
 FRAMES = 12
 
@@ -20,26 +20,8 @@ def asset():
     return ph.load_asset()
 
 
-def _placement(asset, site: str, depth: float, radius: float):
-    """The sphere (radius m) along the site's normal whose deepest-held skeleton vertex lies ``depth``
-    m inside it (bisection over how far its lead point goes into the rest skin), and that depth."""
-    pts = np.asarray(asset.positions)
-    skel = pts[np.asarray(asset.layer) == int(Layer.SKELETON)]
-    p0, n = site_point(asset, site)
-
-    def clearance(t):
-        return float((np.linalg.norm(skel - (p0 + n * (radius - t)), axis=1) - radius).min())
-
-    lo, hi = 0.0, 2.0 * radius
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if clearance(mid) > -depth else (lo, mid)
-    return lo, p0 + n * (radius - lo), clearance(lo)
-
-
 def _run(asset, site, depth, radius, hold=True):
-    t, centre, clear = _placement(asset, site, depth, radius)
-    case = Case("big", GeomType.SPHERE, (radius, 0.0, 0.0), lead=radius, site=site, depth=t, start=-t, press_frames=1)
+    case, centre, clear = bone_case(site, depth, radius, asset)
     r = run_case(case, ph.Config(device="cpu", tuning=ph.Tuning(bone_hold=hold)), frames=FRAMES, asset=asset)
     return r, centre, clear
 

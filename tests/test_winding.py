@@ -99,7 +99,9 @@ def test_local_winding_number_is_right_where_the_pseudo_normals_are_wrong(device
     # the lists and patches at the frame margin (feature_slack = contact_frame_margin): the old targets
     # move skin 12 mm in a frame, past the slack's lists (reported as feature_slack_exceeded; an H200
     # then gave one listed point of ~100 a patch short of a triangle); the sign is this test's subject
-    hand = ph.SoftHand(model, data, ph.Config(device=device, tuning=ph.Tuning(feature_slack=0.01)))
+    # (those targets drive fingertip bones more than 2 mm into the glass; the contact must still press
+    # that skin onto them to turn triangles over, so the bones' hold, contact/bones.py, is off here)
+    hand = ph.SoftHand(model, data, ph.Config(device=device, tuning=ph.Tuning(feature_slack=0.01, bone_hold=False)))
     c, state = hand.solver.contact, hand.state
     lanes = FEATURE_LANES if device == "cuda" else 1
     faces = c.model.skin_faces.numpy()

@@ -174,6 +174,29 @@ def press_case(kind: str, site: str = "fingertip", depth: float = 0.003, start: 
     raise ValueError(f"unknown case '{kind}'")
 
 
+def bone_case(site: str, depth: float, radius: float, asset) -> tuple:
+    """An infeasible start (contact/bones.py): a sphere of ``radius`` m on the site's normal, embedded
+    so that the skeleton vertex deepest inside it lies ``depth`` m inside (bisection over how far its
+    lead point goes into the rest skin; the bones do not move). Returns (Case, the sphere's centre
+    (3,) m, the skeleton's least clearance from it (m; about -depth, or less where the sphere
+    cannot reach a bone less deep without holding another deeper))."""
+    from physhand_mj.types import Layer
+
+    skel = np.asarray(asset.positions)[np.asarray(asset.layer) == int(Layer.SKELETON)]
+    p0, n = site_point(asset, site)
+
+    def clearance(t):
+        return float((np.linalg.norm(skel - (p0 + n * (radius - t)), axis=1) - radius).min())
+
+    lo, hi = 0.0, 2.0 * radius
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if clearance(mid) > -depth else (lo, mid)
+    case = Case("sphere", GeomType.SPHERE, (radius, 0.0, 0.0), lead=radius, site=site, depth=lo, start=-lo,
+                press_frames=1)
+    return case, p0 + n * (radius - lo), clearance(lo)
+
+
 def run_case(case: Case, config, frames: int = 30, check_order: int = 9, asset=None, progress=None) -> dict:
     """Run ``case`` for ``frames`` frames; returns per-frame arrays of both measures
     (``skin_count``/``skin_max_um``: the order-5 metric; ``dense_count``/``dense_max_um``: order
