@@ -422,8 +422,10 @@ def wall_half_thickness(objects, g: int) -> float:
     if t == GeomType.BOX:
         e = np.sort(s)
         half, across = e[0], e[1]
-    elif t == GeomType.CYLINDER:
-        half, across = s[1], s[0]
+    elif t == GeomType.CYLINDER:  # a disc or a rod: its least half extent
+        half, across = min(s[0], s[1]), max(s[0], s[1])
+    elif t == GeomType.CAPSULE:  # a rod
+        half, across = s[0], s[0] + s[1]
     elif t == GeomType.MESH:
         half, across = s[2], float(h["radius"][g])
     else:
