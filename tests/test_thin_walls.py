@@ -93,23 +93,34 @@ def test_wall_into_an_eminence():
     assert_clean(run_wall(wall_case(0.012, 0.001, 0.004), 16), 3)
 
 
+@pytest.mark.slow
+@pytest.mark.xfail(reason="known limit (docs/contact.md Thin walls): a 2 mm plate slanted 20 degrees, 2 mm deep at the "
+                          "palm, leaves a few order-5 samples in a rare held frame (2/8/0/0 at frame 14 of 16)",
+                   strict=False)
+def test_thick_wall_slanted():
+    assert_clean(run_wall(wall_case(0.008, 0.002, 0.002, tilt=20.0), 16), 4)
+
+
 def test_walls_are_thin_geoms_only():
     """Only thin geoms get face points pushed (no extra work for other objects)."""
     from physhand_mj.contact import Objects
     from physhand_mj.contact.inside import ObjectPoints, wall_half_thickness
 
-    o = Objects("cpu", 5)
+    o = Objects("cpu", 8)
     o.add(GeomType.BOX, (0.02, 0.02, 0.0005), (0, 0, 0.1))  # a plate: a wall
     o.add(GeomType.BOX, (0.02, 0.02, 0.004), (0, 0, 0.2))  # 8 mm thick: not
-    o.add(GeomType.BOX, (0.001, 0.001, 0.02), (0, 0, 0.3))  # a rod, thin but not wide: not
+    o.add(GeomType.BOX, (0.001, 0.001, 0.02), (0, 0, 0.3))  # a rod: a wall (the skin can close over it)
     o.add(GeomType.CYLINDER, (0.02, 0.001), (0, 0, 0.4))  # a disc: a wall
     o.add(GeomType.SPHERE, (0.01,), (0, 0, 0.5))
-    assert [wall_half_thickness(o, g) > 0 for g in range(5)] == [True, False, False, True, False]
+    o.add(GeomType.CAPSULE, (0.00085, 0.014), (0, 0, 0.6))  # a 1.7 mm rod: a wall
+    o.add(GeomType.CYLINDER, (0.003, 0.02), (0, 0, 0.7))  # a 6 mm rod: not
+    o.add(GeomType.BOX, (0.001, 0.001, 0.001), (0, 0, 0.8))  # a 2 mm cube, thin but not long: not
+    assert [wall_half_thickness(o, g) > 0 for g in range(8)] == [True, False, True, True, False, True, False, False]
     pts = ObjectPoints(o)
     normal = pts.normal.numpy()
     on = np.linalg.norm(normal, axis=1) > 0
     assert on.sum() == pts.n_wall > 0
-    assert set(pts.geom_host[on]) == {0, 3}
+    assert set(pts.geom_host[on]) == {0, 2, 3, 5}
     # the plate's face points' normals are their faces' (+-z on the broad faces), unit length
     plate = on & (pts.geom_host == 0)
     broad = plate & np.isclose(np.abs(pts.pts_host[:, 2]), 0.0005)
@@ -119,3 +130,34 @@ def test_walls_are_thin_geoms_only():
     o2 = Objects("cpu", 1)
     o2.add(GeomType.SPHERE, (0.01,), (0, 0, 0.5))
     assert ObjectPoints(o2).n_wall == 0
+
+
+def heldout_case(i):
+    """Case ``i`` of the held-out generator's seed 0 (physhand_mj/bench/heldout.py), run for 20 frames
+    (the last 10 held), its bones' clearance measured."""
+    from physhand_mj.bench import heldout as H
+
+    asset = ph.load_asset()
+    h = H.draw_case(0, i, asset)
+    h.clearance_mm = H.clearance_mm(h.case, asset)
+    assert h.feasible, h.clearance_mm
+    return h, H.verdict(h, run_case(h.case, ph.Config(device="cpu"), frames=20, asset=asset))
+
+
+@pytest.mark.slow
+def test_buried_rod():
+    """Held-out rod122: a 1.7 mm capsule 28 mm long lying 2.9 mm deep in the palm, 94 % under the rest
+    skin at the start (bones 7.1 mm clear). The skin must go down around it (before rods were walls:
+    264 object points up to 7.3 mm inside the skin in every frame, the skin closed over it)."""
+    h, v = heldout_case(122)
+    assert h.kind == "rod" and h.embedded
+    assert v["passed"], v
+
+
+@pytest.mark.slow
+def test_shell_dome_first():
+    """Held-out shell46: an 88-degree 1 mm spherical cap shell, dome first, 3.1 mm into the proximal
+    phalanx of the little finger (bones 0.65 mm clear; before the wall push: 334-722 skin samples)."""
+    h, v = heldout_case(46)
+    assert h.kind == "shell"
+    assert v["passed"], v

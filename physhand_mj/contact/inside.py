@@ -402,28 +402,33 @@ class ObjectPoints:
         return len(self.pts_host)
 
 
-# A wall: a geom whose faces can lie wholly inside the hand with the skin on one side of them (a
-# plate pressed face-first, a shell): half-thickness at most WALL_HALF (m), at most WALL_ASPECT x
-# its extent across. Thicker objects meet the skin before their far face is inside the hand
-# (Eq. 9 acts on the skin inside them); walls are thinner than the skin's triangles and than a
-# substep's flesh motion, so the skin can also pass wholly through them.
+# A wall: a geom thin enough that the skin can close over it, lying wholly inside the hand with the
+# skin on one side of it (a plate pressed face-first, a shell, a rod lying in the palm): half-thickness
+# at most WALL_HALF (m), at most WALL_ASPECT x its longest extent. Thicker objects meet the skin
+# before their far side is inside the hand (Eq. 9 acts on the skin inside them); walls are thinner
+# than the skin's triangles and than a substep's flesh motion, so the skin can also pass wholly
+# through them.
 WALL_HALF = 1.5e-3
 WALL_ASPECT = 0.5
 
 
 def wall_half_thickness(objects, g: int) -> float:
     """Half the thickness (m) of geom ``g`` of ``objects`` where it is a wall, else 0: a box's least
-    half extent, a cylinder's half height (a disc), a mesh's measured half-thickness (plates and
-    shells of even thickness: objects.mesh_half_thickness; 0 for others), at most WALL_HALF and at
-    most WALL_ASPECT x the geom's next-least half extent (box, cylinder) or bounding radius (mesh)."""
+    half extent (a plate or a rod), a cylinder's least of radius and half height (a disc or a rod), a
+    capsule's radius (a rod), a mesh's measured half-thickness (plates and shells of even
+    thickness: objects.mesh_half_thickness; 0 for others), at most WALL_HALF and at most
+    WALL_ASPECT x the geom's largest half extent (box, cylinder), its radius + half length
+    (capsule) or its bounding radius (mesh)."""
     h = objects._host
     t = GeomType(int(h["gtype"][g]))
     s = np.asarray(h["size"][g], float)
-    if t == GeomType.BOX:
+    if t == GeomType.BOX:  # a plate or a rod: its least half extent
         e = np.sort(s)
-        half, across = e[0], e[1]
-    elif t == GeomType.CYLINDER:
-        half, across = s[1], s[0]
+        half, across = e[0], e[2]
+    elif t == GeomType.CYLINDER:  # a disc or a rod: its least half extent
+        half, across = min(s[0], s[1]), max(s[0], s[1])
+    elif t == GeomType.CAPSULE:  # a rod
+        half, across = s[0], s[0] + s[1]
     elif t == GeomType.MESH:
         half, across = s[2], float(h["radius"][g])
     else:
