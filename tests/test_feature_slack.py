@@ -382,7 +382,7 @@ def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset
     assert move > 0
     nxt = float(solver.contact.slack_check.data.slack.numpy()[0])
     near = float(solver.contact.slack_check.data.near_motion.numpy()[0])
-    assert 0 < near <= move + 1e-9
+    assert 0 < near <= move + 1e-7  # (the report's skin_motion_mm is rounded to 0.1 um)
     assert nxt == pytest.approx(min(max(cfg.feature_slack, 2.5 * near), cfg.contact_frame_margin), rel=1e-5)
     # a report of a frame that outran a cut-short slack warns (once), one at the margin does not
     c = solver.contact
