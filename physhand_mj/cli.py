@@ -395,8 +395,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=None,
                    help="timing passes in alternating order; the fastest median counts (count, default 2; --quick 1)")
     p.add_argument("--workloads", default=None,
-                   help="comma-separated hoi:SCENE, case:KIND@SITE and cone:paper (the paper's sheet on a cone; "
-                        "default: box, apple, glass2, knife@fingertip, cone_tip@palm, plate@fingertip, cone:paper)")
+                   help="comma-separated hoi:SCENE, case:KIND@SITE, heldout:SEED:I (case I of the held-out "
+                        "generator) and cone:paper (the paper's sheet on a cone; default: box, apple, glass2, "
+                        "knife@fingertip, cone_tip@palm, plate@fingertip, cone:paper, heldout:0:0, heldout:0:51, "
+                        "heldout:0:24, heldout:0:4)")
     p.set_defaults(run=_bench_accuracy)
     args = parser.parse_args(argv)
 

@@ -12,6 +12,9 @@ workload:
   contact first (as ``physhand rollout`` does), then ``frames`` frames of ``SoftHand.step``;
 - ``case:<kind>@<site>``: a hard case (physhand_mj/bench/cases.py) pressed 4 mm into the rest skin from
   2 mm outside over 15 frames, then held; ``Solver.step`` alone;
+- ``heldout:<seed>:<i>``: case ``i`` of the held-out generator (physhand_mj/bench/heldout.py: a random
+  object at a random skin site, pressed in or embedded 0.5-4 mm over its first 10 frames, then held),
+  ``Solver.step`` alone; the default four are feasible cases (the bones >= 1.2 mm clear) of four kinds;
 - ``cone:paper``: the paper's cone experiment (section 4.2; physhand_mj.bench.runs.bench_cone's sheet and
   cone): a 2,400-vertex open sheet falls on an analytic cone; ``Solver.step``; an open sheet has no
   inside, so only the skin side is measured (the object features and side-aware exits need a closed
@@ -42,9 +45,13 @@ import numpy as np
 
 HOLD = 4  # frames at the end whose worst penetration the Pareto front uses (a setting must hold, not flicker)
 # The sharp HOI object (box), a large smooth contact (apple), a cylinder (glass2); a knife edge into the
-# fingertip, a cone tip into the palm, a 1 mm plate edge first into the fingertip.
+# fingertip, a cone tip into the palm, a 1 mm plate edge first into the fingertip; four held-out cases
+# of seed 0 (heldout.py), each a kind the project's cases do not cover: a convex hull 3.4 mm into a
+# fingertip (bones 1.2 mm clear), a 0.5 mm plate face first 4 mm into the palm, a 2.1 mm rod lying
+# 3.9 mm across a middle phalanx (1.35 mm clear) and a 1 mm hemispherical shell rim first 3.4 mm into
+# the palm.
 WORKLOADS = ("hoi:box", "hoi:apple", "hoi:glass2", "case:knife@fingertip", "case:cone_tip@palm",
-             "case:plate@fingertip", "cone:paper")
+             "case:plate@fingertip", "cone:paper", "heldout:0:0", "heldout:0:51", "heldout:0:24", "heldout:0:4")
 QUICK_WORKLOADS = ("hoi:box", "case:knife@fingertip")
 
 
@@ -115,7 +122,10 @@ def sweep_points(quick: bool = False) -> list[SweepPoint]:
             P("vertex", substeps=5), P("opt", substeps=5), P(samples=16, rounds=2, substeps=5),
             P(samples=10, rounds=3, substeps=5), P("opt", substeps=5, iterations=2),
             # half the contact stages, the skin held between them (Config.contact_linear, 2026-11-28)
-            P(every=2), P(every=2, linear=True), P("opt", every=2, linear=True), P(every=3, linear=True)]
+            P(every=2), P(every=2, linear=True), P("opt", every=2, linear=True), P(every=3, linear=True),
+            # around the cheapest setting at zero on every workload in the 2026-12 run (e2+hold)
+            P(every=2, linear=True, substeps=5), P(every=2, linear=True, passes=4),
+            P(samples=10, rounds=3, every=2, linear=True)]
     return pts
 
 
@@ -159,11 +169,21 @@ def _hoi_run(scene: str, pt: SweepPoint, device: str, frames: int, hold_frames: 
     return dict(ms=ms, hold=np.asarray(hold, float), finite=finite)
 
 
-def _case_run(kind: str, site: str, pt: SweepPoint, device: str, frames: int, hold_frames: int, asset) -> dict:
-    from physhand_mj.bench.cases import press_case, run_case
+def heldout_case(spec: str, asset):
+    """The :class:`~physhand_mj.bench.heldout.Heldout` of workload ``heldout:<seed>:<i>`` (``spec``:
+    ``<seed>:<i>``), its bones' clearance measured."""
+    from physhand_mj.bench.heldout import clearance_mm, draw_case
 
-    r = run_case(press_case(kind, site=site, depth=0.004, start=0.002), pt.config(device), frames=frames,
-                 asset=asset)
+    seed, i = (int(v) for v in spec.split(":"))
+    h = draw_case(seed, i, asset)
+    h.clearance_mm = clearance_mm(h.case, asset)
+    return h
+
+
+def _case_run(case, pt: SweepPoint, device: str, frames: int, hold_frames: int, asset) -> dict:
+    from physhand_mj.bench.cases import run_case
+
+    r = run_case(case, pt.config(device), frames=frames, asset=asset)
     keys = ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "check_count", "check_max_um")
     hold = np.stack([np.asarray(r[k][-hold_frames:], float) for k in keys], axis=1)
     return dict(ms=list(r["ms"]), hold=hold, finite=bool(r["finite"]))
@@ -210,7 +230,8 @@ ROW_COLUMNS = ["point", "workload", "contact", "samples", "rounds", "features", 
 
 
 def check_workloads(workloads) -> None:
-    """Raise ValueError naming the first workload that is not hoi:SCENE or case:KIND@SITE."""
+    """Raise ValueError naming the first workload that is not hoi:SCENE, case:KIND@SITE,
+    heldout:SEED:I or cone:paper."""
     import physhand_mj as ph
     from physhand_mj.bench.cases import SITES, press_case
 
@@ -227,10 +248,15 @@ def check_workloads(workloads) -> None:
             press_case(case)  # ValueError for an unknown kind
             if site not in SITES:
                 raise ValueError(f"workload '{w}': site must be one of {', '.join(SITES)}")
+        elif kind == "heldout":
+            parts = spec.split(":")
+            if len(parts) != 2 or not all(p.isdigit() for p in parts):
+                raise ValueError(f"workload '{w}': heldout:SEED:I takes two integers >= 0 (the generator's seed "
+                                 f"and case index, physhand_mj/bench/heldout.py), e.g. heldout:0:4")
         elif w == "cone:paper":
             pass
         else:
-            raise ValueError(f"workload '{w}' must be hoi:SCENE, case:KIND@SITE or cone:paper")
+            raise ValueError(f"workload '{w}' must be hoi:SCENE, case:KIND@SITE, heldout:SEED:I or cone:paper")
 
 
 def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats: int = 1, progress=None) -> list[dict]:
@@ -247,6 +273,11 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
     names = [p.name for p in points]
     if len(set(names)) != len(names):
         raise ValueError(f"sweep points must differ: {sorted(n for n in names if names.count(n) > 1)}")
+    from physhand_mj.bench.cases import press_case
+
+    cases = {w: (press_case(w[5:].split("@")[0], site=w[5:].split("@")[1], depth=0.004, start=0.002)
+                 if w.startswith("case:") else heldout_case(w[8:], asset).case)
+             for w in workloads if w.startswith(("case:", "heldout:"))}
     jobs = [(i, w) for i in range(len(points)) for w in workloads]
     ms: dict = {}
     meas: dict = {}
@@ -257,9 +288,8 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
             kind, spec = w.split(":", 1)
             if kind == "hoi":
                 r = _hoi_run(spec, pt, device, frames, hold)
-            elif kind == "case":
-                case, site = spec.split("@")
-                r = _case_run(case, site, pt, device, frames, hold, asset)
+            elif kind in ("case", "heldout"):
+                r = _case_run(cases[w], pt, device, frames, hold, asset)
             else:  # cone:paper
                 r = _cone_run(pt, device, frames, hold)
             med = float(np.median(r["ms"][skip:]))

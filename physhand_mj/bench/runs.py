@@ -203,8 +203,17 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
         w.writeheader()
         w.writerows(rows)
     name = device_name(dev)
+    import physhand_mj as ph
+
+    asset = ph.load_asset()
+    heldout = {}  # what each held-out workload is, and whether a penetration-free skin exists there
+    for w in workloads:
+        if w.startswith("heldout:"):
+            h = acc.heldout_case(w[len("heldout:"):], asset)
+            heldout[w] = dict(case=h.label, kind=h.kind, clearance_mm=round(h.clearance_mm, 3), feasible=h.feasible)
     json_path.write_text(json.dumps(dict(device=dev, device_name=name, frames=frames, repeats=repeats,
-                                         workloads=list(workloads), hold_frames=acc.HOLD, points=table, rows=rows),
+                                         workloads=list(workloads), hold_frames=acc.HOLD, heldout=heldout,
+                                         points=table, rows=rows),
                                     indent=1))
     acc.plot_front(table, png_path, f"physhand bench accuracy: {len(points)} settings x {len(workloads)} workloads, "
                                     f"{frames} frames, {name}")
