@@ -390,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
                                           "cases; CSV, JSON and a Pareto plot in DIR")
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")
     p.add_argument("--out", type=Path, default=Path("accuracy_out"), help="output directory (default accuracy_out)")
-    p.add_argument("--quick", action="store_true", help="a smoke run: 2 settings, 2 workloads, 2 frames")
+    p.add_argument("--quick", action="store_true", help="a smoke run: 2 settings, 3 workloads, 2 frames")
     p.add_argument("--frames", type=int, default=None, help="5 ms frames per run (count, default 20; --quick 2)")
     p.add_argument("--repeats", type=int, default=None,
                    help="timing passes in alternating order; the fastest median counts (count, default 2; --quick 1)")

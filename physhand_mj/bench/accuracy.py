@@ -52,7 +52,7 @@ HOLD = 4  # frames at the end whose worst penetration the Pareto front uses (a s
 # the palm.
 WORKLOADS = ("hoi:box", "hoi:apple", "hoi:glass2", "case:knife@fingertip", "case:cone_tip@palm",
              "case:plate@fingertip", "cone:paper", "heldout:0:0", "heldout:0:51", "heldout:0:24", "heldout:0:4")
-QUICK_WORKLOADS = ("hoi:box", "case:knife@fingertip")
+QUICK_WORKLOADS = ("hoi:box", "case:knife@fingertip", "heldout:0:24")
 
 
 @dataclass(frozen=True)

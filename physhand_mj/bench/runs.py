@@ -171,9 +171,9 @@ def _queries(cfg) -> int:
 def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False, frames: int | None = None,
                    repeats: int | None = None, workloads=None, progress=None) -> dict:
     """What accuracy costs in time (physhand_mj/bench/accuracy.py): every swept contact setting on the HOI
-    grasps and hard cases; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
+    grasps, hard cases, held-out cases and the paper's cone; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
     ``.json`` (the rows, one row per setting with its Pareto flags, the device) and ``.png`` (the
-    Pareto fronts). ``quick``: 2 settings, 2 workloads, 2 frames, 1 repeat (a smoke run)."""
+    Pareto fronts). ``quick``: 2 settings, 3 workloads, 2 frames, 1 repeat (a smoke run)."""
     import csv
     import json
 
