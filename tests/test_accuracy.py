@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, pareto_front, summarize_points,
-                                  sweep_points)
+from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, cheapest_zero, pareto_front,
+                                        summarize_points, sweep_points)
 from physhand_mj.cli import main
 
 
@@ -46,6 +46,12 @@ def test_summary_takes_the_worst_workload_and_flags_the_front():
     assert [(t["skin_um"], t["object_um"]) for t in table] == [(500, 900), (2, 0), (3, 1)]
     assert [t["pareto_both"] for t in table] == [True, True, False]
     assert [t["default"] for t in table] == [False, True, False]
+    assert not any(t["zero"] for t in table) and cheapest_zero(table) is None
+    rows[3]["hold_skin_max_um"] = 0  # pts[1] now at zero everywhere: the cheapest at zero, at its substeps only
+    table = summarize_points(pts, rows)
+    assert [t["zero"] for t in table] == [False, True, False]
+    assert cheapest_zero(table)["point"] == pts[1].name == cheapest_zero(table, substeps=10)["point"]
+    assert cheapest_zero(table, substeps=5) is None
 
 
 def test_sweep_names_are_unique_and_hold_the_default():
@@ -76,6 +82,7 @@ def test_bench_accuracy_quick_writes_csv_json_png(tmp_path, capsys):
     assert list(data["heldout"]) == [w for w in out["workloads"] if w.startswith("heldout:")]
     assert all(h["feasible"] and h["clearance_mm"] > 0.5 for h in data["heldout"].values())
     assert out["default_on_front"] is not None and out["pareto"]  # the front is never empty
+    assert set(out["cheapest_zero"]) == {"any", "default_substeps"}
     assert (tmp_path / "accuracy_cpu.png").stat().st_size > 10_000
 
 

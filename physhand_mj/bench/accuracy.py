@@ -31,7 +31,10 @@ docs/contact.md); ``hold_*``: the worst of the last ``HOLD`` frames (all frames 
 
 Per setting: ``ms_per_frame`` = the mean over workloads; ``skin_um`` = the deepest skin sample
 (order 5 or 9) and ``object_um`` = the deepest object point over workloads and the last ``HOLD``
-frames. :func:`pareto_front` keeps the settings no other setting beats on time and depth together.
+frames; ``zero``: both are 0 (no sample, no point in any held frame of any workload).
+:func:`pareto_front` keeps the settings no other setting beats on time and depth together;
+:func:`cheapest_zero` is the fastest setting at zero (how ``Config()``'s contact is chosen,
+docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -321,13 +324,14 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
 
 POINT_COLUMNS = ["point", "contact", "samples", "rounds", "features", "side_aware", "passes", "substeps", "iterations",
                  "every", "linear", "ms_per_frame", "skin_um", "object_um", "skin_count", "object_count", "finite", "default",
-                 "pareto_skin", "pareto_object", "pareto_both"]
+                 "zero", "pareto_skin", "pareto_object", "pareto_both"]
 
 
 def summarize_points(points, rows) -> list[dict]:
     """One row per point (POINT_COLUMNS): mean ms over workloads, the deepest penetration of each
-    measure over workloads and held frames, counts at the end summed over workloads, and whether
-    the point is on the Pareto front of (ms, skin_um), (ms, object_um) and (ms, skin_um, object_um)."""
+    measure over workloads and held frames, counts at the end summed over workloads, ``zero`` (finite
+    and no penetration by either measure on any workload in any held frame), and whether the point is
+    on the Pareto front of (ms, skin_um), (ms, object_um) and (ms, skin_um, object_um)."""
     out = []
     for pt in points:
         mine = [r for r in rows if r["point"] == pt.name]
@@ -338,12 +342,23 @@ def summarize_points(points, rows) -> list[dict]:
                         skin_count=sum(r["skin5_count"] + r["skin9_count"] for r in mine),
                         object_count=sum(r["object_count"] for r in mine),
                         finite=all(r["finite"] for r in mine), default=pt.is_default()))
+        p = out[-1]
+        p["zero"] = bool(p["finite"] and p["skin_um"] == 0 and p["object_um"] == 0
+                         and all(r.get("hold_count", 0) == 0 for r in mine))
     c = np.array([[p["ms_per_frame"], p["skin_um"], p["object_um"]] for p in out], float)
     for key, cols in (("pareto_skin", [0, 1]), ("pareto_object", [0, 2]), ("pareto_both", [0, 1, 2])):
         mask = pareto_front(c[:, cols])
         for p, m in zip(out, mask):
             p[key] = bool(m and p["finite"])
     return out
+
+
+def cheapest_zero(table, substeps: int | None = None):
+    """The fastest row of ``table`` (summarize_points) that is ``zero``, among those with ``substeps``
+    substeps and one iteration when given (the material: fewer substeps make a softer hand,
+    docs/accuracy.md); None when no row is."""
+    rows = [p for p in table if p["zero"] and (substeps is None or (p["substeps"] == substeps and p["iterations"] == 1))]
+    return min(rows, key=lambda p: p["ms_per_frame"], default=None)
 
 
 def plot_front(table, path, title: str) -> None:

@@ -220,8 +220,14 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
     default = next((p for p in table if p["default"]), None)
     front = [dict(point=p["point"], ms_per_frame=p["ms_per_frame"], skin_um=p["skin_um"], object_um=p["object_um"])
              for p in sorted(table, key=lambda p: p["ms_per_frame"]) if p["pareto_both"]]
+    from physhand_mj.types import Config
+
+    # the fastest setting at zero by every measure: of all, and of those at Config()'s substeps (its material)
+    zero = {k: (None if p is None else dict(point=p["point"], ms_per_frame=p["ms_per_frame"]))
+            for k, p in (("any", acc.cheapest_zero(table)),
+                         ("default_substeps", acc.cheapest_zero(table, substeps=Config().substeps)))}
     return dict(command="bench accuracy", device=dev, device_name=name, points=len(points), workloads=list(workloads),
-                frames=frames, repeats=repeats, pareto=front,
+                frames=frames, repeats=repeats, pareto=front, cheapest_zero=zero,
                 default_on_front=None if default is None else dict(skin=default["pareto_skin"],
                                                                    object=default["pareto_object"],
                                                                    both=default["pareto_both"]),
