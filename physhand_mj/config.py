@@ -148,9 +148,12 @@ class Config:
     Contact:
       contact: :class:`Strategy` of the decision points (NONE, VERTEX, OPT, MULTIRES: the paper's).
       contact_passes: query + projection rounds per stage, at most (a pass re-tests only what moved).
-      contact_every: a contact stage every this many substeps (count; always in the frame's last).
+      contact_every: a contact stage every this many substeps (count; always in the frame's last;
+        2 with contact_linear: the cheapest setting of the accuracy sweep at zero by every measure on
+        all its workloads at 10 substeps, docs/accuracy.md; 1: the paper's Algorithm 1).
       contact_linear: with contact_every > 1, hold the skin between stages on the planes and feature
-        points the last stage found (8-26 % faster, docs/activity.md).
+        points the last stage found (8-26 % faster than a stage every substep, docs/activity.md;
+        without it a stage every second substep leaves residue).
       contact_frame_margin: how far skin and objects may approach each other in one frame (m; 1 cm at
         5 ms frames is 2 m/s); objects farther cost nothing.
       feature_contact: also push the skin off object corners, tips and sharp edges inside it.
@@ -182,8 +185,8 @@ class Config:
     nonfinite: NonFinite = NonFinite.RECOVER
     contact: Strategy = Strategy.MULTIRES
     contact_passes: int = 8
-    contact_every: int = 1
-    contact_linear: bool = False
+    contact_every: int = 2
+    contact_linear: bool = True
     contact_frame_margin: float = 1.0e-2
     feature_contact: bool = True
     skin_tether: float = 0.025
@@ -232,10 +235,12 @@ class Config:
     @classmethod
     def preset(cls, name: str, **overrides) -> "Config":
         """A named setting of the accuracy sweep's recommendation table (docs/accuracy.md), with
-        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: half the
-        frame at the same end-of-frame depth on the sweep's workloads, the flesh ~2.5-3 x softer
-        under gravity, held presses at the palm 1.5-6 x deeper), ``"dataset"`` (OPT decision points:
-        the shallowest held skin on the CPU sweep) and ``"robot_pads"`` (OPT at 5 substeps)."""
+        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: 0.68 x
+        the frame, a few um on one held-out workload, the flesh ~2.5-3 x softer under gravity, held
+        presses at the palm 1.5-6 x deeper), ``"dataset"`` (OPT decision points and a contact stage
+        every substep, the paper's Algorithm 1: zero on every workload with no held skin between
+        stages) and ``"robot_pads"`` (the same at 5 substeps: the cheapest setting at zero on every
+        workload, with the softer flesh)."""
         if name not in PRESETS:
             raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")
         config = cls.from_dict({**PRESETS[name], **overrides})
@@ -383,6 +388,6 @@ plus ``substeps_requested``: the ``substeps`` asked for where ``max_substep`` ra
 PRESETS: dict[str, dict] = {
     "default": {},
     "interactive": {"substeps": 5},
-    "dataset": {"contact": Strategy.OPT},
-    "robot_pads": {"contact": Strategy.OPT, "substeps": 5},
+    "dataset": {"contact": Strategy.OPT, "contact_every": 1, "contact_linear": False},
+    "robot_pads": {"contact": Strategy.OPT, "substeps": 5, "contact_every": 1, "contact_linear": False},
 }

@@ -144,7 +144,7 @@ def test_config_presets_are_the_recommended_sweep_points():
     from physhand_mj.types import Config
 
     by_name = {p.name: p for p in sweep_points()}
-    want = {"default": "multires 21x2+feat+side p8 s10", "interactive": "multires 21x2+feat+side p8 s5",
+    want = {"default": "multires 21x2+feat+side p8 s10 e2+hold", "interactive": "multires 21x2+feat+side p8 s5 e2+hold",
             "dataset": "opt+feat+side p8 s10", "robot_pads": "opt+feat+side p8 s5"}
     for preset, point in want.items():
         a = dataclasses.asdict(Config.preset(preset, device="cpu").validate())

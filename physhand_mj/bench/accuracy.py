@@ -363,21 +363,27 @@ def cheapest_zero(table, substeps: int | None = None):
 
 def plot_front(table, path, title: str) -> None:
     """Two panels (skin samples in objects; object points in the skin: deepest um against ms per
-    frame), every setting a dot, the Pareto front joined and labelled with its settings."""
+    frame), every setting a dot (a circle at ``Config()``'s substeps, a triangle at others), the
+    Pareto front joined and labelled with its settings, ``Config()`` a star."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from physhand_mj.types import Config
+
+    steps = Config().substeps
     fig, axes = plt.subplots(1, 2, figsize=(15, 6.5))
     for ax, key, front, label in ((axes[0], "skin_um", "pareto_skin", "skin samples inside the object (order 5 and 9)"),
                                   (axes[1], "object_um", "pareto_object", "object points inside the skin")):
         x = np.array([p["ms_per_frame"] for p in table])
         y = np.array([p[key] for p in table])
         colors = {"vertex": "tab:red", "opt": "tab:orange", "multires": "tab:blue"}
-        for c, col in colors.items():
-            sel = [i for i, p in enumerate(table) if p["contact"] == c]
-            ax.scatter(x[sel], y[sel], s=28, color=col, alpha=0.55, label=c)
+        for c, col in colors.items():  # circles: Config()'s substeps (its material); triangles: others
+            for mark, same in (("o", True), ("^", False)):
+                sel = [i for i, p in enumerate(table) if p["contact"] == c and (p["substeps"] == steps) == same]
+                ax.scatter(x[sel], y[sel], s=28, marker=mark, color=col, alpha=0.55,
+                           label=f"{c}, {steps} substeps" if same else f"{c}, other substeps")
         on = sorted([i for i, p in enumerate(table) if p[front]], key=lambda i: x[i])
         ax.plot(x[on], y[on], "k-", lw=1, drawstyle="steps-post", label="Pareto front")
         ax.scatter(x[on], y[on], s=70, facecolors="none", edgecolors="k", lw=1.5)
@@ -392,8 +398,9 @@ def plot_front(table, path, title: str) -> None:
         ax.set_ylabel(f"deepest {label}, um")
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=8, loc="lower center", ncol=5)  # below the panels: no point hidden
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
