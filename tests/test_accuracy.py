@@ -31,7 +31,8 @@ def test_pareto_front_excludes_dominated_points():
 
 
 def test_summary_takes_the_worst_workload_and_flags_the_front():
-    pts = [SweepPoint("vertex", features=False, side_aware=False), SweepPoint(), SweepPoint(passes=2)]
+    pts = [SweepPoint("vertex", features=False, side_aware=False), SweepPoint(every=2, linear=True),
+           SweepPoint(passes=2)]  # pts[1]: Config()'s
 
     def row(pt, w, ms, skin, obj):
         return dict(point=pt.name, workload=w, ms_per_frame=ms, hold_skin_max_um=skin, hold_object_max_um=obj,

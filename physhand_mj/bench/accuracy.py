@@ -105,11 +105,21 @@ class SweepPoint:
                                                                                    c.multires_rounds)))
 
 
+def default_point() -> SweepPoint:
+    """The SweepPoint of ``Config()``."""
+    from physhand_mj.types import Config
+
+    c = Config().validate()
+    return SweepPoint(c.contact.name.lower(), c.multires_samples, c.multires_rounds, c.feature_contact, c.side_aware,
+                      c.contact_passes, c.substeps, c.iterations, c.contact_every, c.contact_linear)
+
+
 def sweep_points(quick: bool = False) -> list[SweepPoint]:
-    """The settings swept: each knob moved away from the default, plus cheap combinations."""
+    """The settings swept: each knob moved away from a stage every substep (``SweepPoint()``, the
+    paper's Algorithm 1 with the project's contact), plus cheap combinations and ``Config()``'s."""
     P = SweepPoint
     if quick:
-        return [P("vertex", features=False, side_aware=False, passes=2, substeps=5), P()]
+        return [P("vertex", features=False, side_aware=False, passes=2, substeps=5), default_point()]
     pts = []
     for c in ("vertex", "opt", "multires"):  # strategy x the paper's contact (Eq. 9 only) / features + side
         pts += [P(c, features=False, side_aware=False), P(c)]
@@ -129,6 +139,8 @@ def sweep_points(quick: bool = False) -> list[SweepPoint]:
             # around the cheapest setting at zero on every workload in the 2026-12 run (e2+hold)
             P(every=2, linear=True, substeps=5), P(every=2, linear=True, passes=4),
             P(samples=10, rounds=3, every=2, linear=True)]
+    if not any(p.is_default() for p in pts):  # (a Config() changed by hand is swept too)
+        pts.append(default_point())
     return pts
 
 
