@@ -149,8 +149,9 @@ class Config:
       contact: :class:`Strategy` of the decision points (NONE, VERTEX, OPT, MULTIRES: the paper's).
       contact_passes: query + projection rounds per stage, at most (a pass re-tests only what moved).
       contact_every: a contact stage every this many substeps (count; always in the frame's last;
-        2 with contact_linear: the cheapest setting of the accuracy sweep at zero by every measure on
-        all its workloads at 10 substeps, docs/accuracy.md; 1: the paper's Algorithm 1).
+        1: the paper's Algorithm 1). 2 with contact_linear is the cheapest setting at zero on the
+        accuracy sweep at 10 substeps but not yet on the project's own stress presses, nor equal
+        between batched and serial worlds (docs/accuracy.md, "The default contact").
       contact_linear: with contact_every > 1, hold the skin between stages on the planes and feature
         points the last stage found (8-26 % faster than a stage every substep, docs/activity.md;
         without it a stage every second substep leaves residue).
@@ -185,8 +186,8 @@ class Config:
     nonfinite: NonFinite = NonFinite.RECOVER
     contact: Strategy = Strategy.MULTIRES
     contact_passes: int = 8
-    contact_every: int = 2
-    contact_linear: bool = True
+    contact_every: int = 1
+    contact_linear: bool = False
     contact_frame_margin: float = 1.0e-2
     feature_contact: bool = True
     skin_tether: float = 0.025
@@ -235,12 +236,12 @@ class Config:
     @classmethod
     def preset(cls, name: str, **overrides) -> "Config":
         """A named setting of the accuracy sweep's recommendation table (docs/accuracy.md), with
-        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: 0.68 x
-        the frame, a few um on one held-out workload, the flesh ~2.5-3 x softer under gravity, held
-        presses at the palm 1.5-6 x deeper), ``"dataset"`` (OPT decision points and a contact stage
-        every substep, the paper's Algorithm 1: zero on every workload with no held skin between
-        stages) and ``"robot_pads"`` (the same at 5 substeps: the cheapest setting at zero on every
-        workload, with the softer flesh)."""
+        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: 0.64 x
+        the frame on the CPU sweep, the flesh ~2.5-3 x softer under gravity, held presses at the palm
+        1.5-6 x deeper), ``"dataset"`` (OPT decision points: zero by every measure on every workload
+        of the CPU sweep) and ``"robot_pads"`` (OPT at 5 substeps: the cheapest setting at zero on
+        every workload, with the softer flesh). The presets name a stage every substep
+        (``contact_every=1``) themselves."""
         if name not in PRESETS:
             raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")
         config = cls.from_dict({**PRESETS[name], **overrides})

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, cheapest_zero, pareto_front,
-                                        summarize_points, sweep_points)
+from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, cheapest_zero, default_point,
+                                        pareto_front, summarize_points, sweep_points)
 from physhand_mj.cli import main
 
 
@@ -31,7 +31,7 @@ def test_pareto_front_excludes_dominated_points():
 
 
 def test_summary_takes_the_worst_workload_and_flags_the_front():
-    pts = [SweepPoint("vertex", features=False, side_aware=False), SweepPoint(every=2, linear=True),
+    pts = [SweepPoint("vertex", features=False, side_aware=False), default_point(),
            SweepPoint(passes=2)]  # pts[1]: Config()'s
 
     def row(pt, w, ms, skin, obj):
@@ -145,7 +145,7 @@ def test_config_presets_are_the_recommended_sweep_points():
     from physhand_mj.types import Config
 
     by_name = {p.name: p for p in sweep_points()}
-    want = {"default": "multires 21x2+feat+side p8 s10 e2+hold", "interactive": "multires 21x2+feat+side p8 s5 e2+hold",
+    want = {"default": "multires 21x2+feat+side p8 s10", "interactive": "multires 21x2+feat+side p8 s5",
             "dataset": "opt+feat+side p8 s10", "robot_pads": "opt+feat+side p8 s5"}
     for preset, point in want.items():
         a = dataclasses.asdict(Config.preset(preset, device="cpu").validate())
