@@ -390,13 +390,15 @@ def main(argv: list[str] | None = None) -> int:
                                           "cases; CSV, JSON and a Pareto plot in DIR")
     p.add_argument("--device", default="cpu", help="Warp device: cpu or cuda[:N] (default cpu)")
     p.add_argument("--out", type=Path, default=Path("accuracy_out"), help="output directory (default accuracy_out)")
-    p.add_argument("--quick", action="store_true", help="a smoke run: 2 settings, 2 workloads, 2 frames")
+    p.add_argument("--quick", action="store_true", help="a smoke run: 2 settings, 3 workloads, 2 frames")
     p.add_argument("--frames", type=int, default=None, help="5 ms frames per run (count, default 20; --quick 2)")
     p.add_argument("--repeats", type=int, default=None,
                    help="timing passes in alternating order; the fastest median counts (count, default 2; --quick 1)")
     p.add_argument("--workloads", default=None,
-                   help="comma-separated hoi:SCENE, case:KIND@SITE and cone:paper (the paper's sheet on a cone; "
-                        "default: box, apple, glass2, knife@fingertip, cone_tip@palm, plate@fingertip, cone:paper)")
+                   help="comma-separated hoi:SCENE, case:KIND@SITE, heldout:SEED:I (case I of the held-out "
+                        "generator) and cone:paper (the paper's sheet on a cone; default: box, apple, glass2, "
+                        "knife@fingertip, cone_tip@palm, plate@fingertip, cone:paper, heldout:0:0, heldout:0:51, "
+                        "heldout:0:24, heldout:0:4)")
     p.set_defaults(run=_bench_accuracy)
     args = parser.parse_args(argv)
 

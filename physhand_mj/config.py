@@ -148,9 +148,13 @@ class Config:
     Contact:
       contact: :class:`Strategy` of the decision points (NONE, VERTEX, OPT, MULTIRES: the paper's).
       contact_passes: query + projection rounds per stage, at most (a pass re-tests only what moved).
-      contact_every: a contact stage every this many substeps (count; always in the frame's last).
+      contact_every: a contact stage every this many substeps (count; always in the frame's last;
+        1: the paper's Algorithm 1). 2 with contact_linear is the cheapest setting at zero on the
+        accuracy sweep at 10 substeps but not yet on the project's own stress presses, nor equal
+        between batched and serial worlds (docs/accuracy.md, "The default contact").
       contact_linear: with contact_every > 1, hold the skin between stages on the planes and feature
-        points the last stage found (8-26 % faster, docs/activity.md).
+        points the last stage found (8-26 % faster than a stage every substep, docs/activity.md;
+        without it a stage every second substep leaves residue).
       contact_frame_margin: how far skin and objects may approach each other in one frame (m; 1 cm at
         5 ms frames is 2 m/s); objects farther cost nothing.
       feature_contact: also push the skin off object corners, tips and sharp edges inside it.
@@ -232,10 +236,12 @@ class Config:
     @classmethod
     def preset(cls, name: str, **overrides) -> "Config":
         """A named setting of the accuracy sweep's recommendation table (docs/accuracy.md), with
-        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: half the
-        frame at the same end-of-frame depth on the sweep's workloads, the flesh ~2.5-3 x softer
-        under gravity, held presses at the palm 1.5-6 x deeper), ``"dataset"`` (OPT decision points:
-        the shallowest held skin on the CPU sweep) and ``"robot_pads"`` (OPT at 5 substeps)."""
+        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: 0.64 x
+        the frame on the CPU sweep, the flesh ~2.5-3 x softer under gravity, held presses at the palm
+        1.5-6 x deeper), ``"dataset"`` (OPT decision points: zero by every measure on every workload
+        of the CPU sweep) and ``"robot_pads"`` (OPT at 5 substeps: the cheapest setting at zero on
+        every workload, with the softer flesh). The presets name a stage every substep
+        (``contact_every=1``) themselves."""
         if name not in PRESETS:
             raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")
         config = cls.from_dict({**PRESETS[name], **overrides})
@@ -383,6 +389,6 @@ plus ``substeps_requested``: the ``substeps`` asked for where ``max_substep`` ra
 PRESETS: dict[str, dict] = {
     "default": {},
     "interactive": {"substeps": 5},
-    "dataset": {"contact": Strategy.OPT},
-    "robot_pads": {"contact": Strategy.OPT, "substeps": 5},
+    "dataset": {"contact": Strategy.OPT, "contact_every": 1, "contact_linear": False},
+    "robot_pads": {"contact": Strategy.OPT, "substeps": 5, "contact_every": 1, "contact_linear": False},
 }

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, pareto_front, summarize_points,
-                                  sweep_points)
+from physhand_mj.bench.accuracy import (POINT_COLUMNS, ROW_COLUMNS, SweepPoint, cheapest_zero, default_point,
+                                        pareto_front, summarize_points, sweep_points)
 from physhand_mj.cli import main
 
 
@@ -31,7 +31,8 @@ def test_pareto_front_excludes_dominated_points():
 
 
 def test_summary_takes_the_worst_workload_and_flags_the_front():
-    pts = [SweepPoint("vertex", features=False, side_aware=False), SweepPoint(), SweepPoint(passes=2)]
+    pts = [SweepPoint("vertex", features=False, side_aware=False), default_point(),
+           SweepPoint(passes=2)]  # pts[1]: Config()'s
 
     def row(pt, w, ms, skin, obj):
         return dict(point=pt.name, workload=w, ms_per_frame=ms, hold_skin_max_um=skin, hold_object_max_um=obj,
@@ -46,6 +47,12 @@ def test_summary_takes_the_worst_workload_and_flags_the_front():
     assert [(t["skin_um"], t["object_um"]) for t in table] == [(500, 900), (2, 0), (3, 1)]
     assert [t["pareto_both"] for t in table] == [True, True, False]
     assert [t["default"] for t in table] == [False, True, False]
+    assert not any(t["zero"] for t in table) and cheapest_zero(table) is None
+    rows[3]["hold_skin_max_um"] = 0  # pts[1] now at zero everywhere: the cheapest at zero, at its substeps only
+    table = summarize_points(pts, rows)
+    assert [t["zero"] for t in table] == [False, True, False]
+    assert cheapest_zero(table)["point"] == pts[1].name == cheapest_zero(table, substeps=10)["point"]
+    assert cheapest_zero(table, substeps=5) is None
 
 
 def test_sweep_names_are_unique_and_hold_the_default():
@@ -62,6 +69,7 @@ def test_bench_accuracy_quick_writes_csv_json_png(tmp_path, capsys):
     assert len(lines) == 1, lines
     out = json.loads(lines[0])
     assert out["command"] == "bench accuracy" and out["points"] == 2 and out["frames"] == 2
+    assert len(out["workloads"]) == 3
     assert out["device"] == "cpu" and "cpu" in out["device_name"]
     with open(tmp_path / "accuracy_cpu.csv", newline="") as f:
         reader = csv.DictReader(f)
@@ -72,7 +80,10 @@ def test_bench_accuracy_quick_writes_csv_json_png(tmp_path, capsys):
     data = json.loads((tmp_path / "accuracy_cpu.json").read_text())
     assert len(data["points"]) == 2 and list(data["points"][0]) == POINT_COLUMNS
     assert data["device_name"] == out["device_name"] and len(data["rows"]) == len(rows)
+    assert list(data["heldout"]) == [w for w in out["workloads"] if w.startswith("heldout:")]
+    assert all(h["feasible"] and h["clearance_mm"] > 0.5 for h in data["heldout"].values())
     assert out["default_on_front"] is not None and out["pareto"]  # the front is never empty
+    assert set(out["cheapest_zero"]) == {"any", "default_substeps"}
     assert (tmp_path / "accuracy_cpu.png").stat().st_size > 10_000
 
 
@@ -91,6 +102,25 @@ def test_the_cone_experiment_is_a_sweep_workload():
     assert vertex["object_count"] == multires["object_count"] == 0
     with pytest.raises(ValueError, match="cone:paper"):
         check_workloads(["cone:other"])
+
+
+def test_heldout_workloads_are_the_generators_cases():
+    """heldout:SEED:I is case I of bench/heldout.py's generator; the default sweep holds four
+    feasible ones of different kinds; a malformed one is refused by name."""
+    import physhand_mj as ph
+    from physhand_mj.bench.accuracy import QUICK_WORKLOADS, WORKLOADS, check_workloads, heldout_case
+    from physhand_mj.bench.heldout import draw_case
+
+    asset = ph.load_asset()
+    held = [w for w in WORKLOADS if w.startswith("heldout:")]
+    assert len(held) >= 4 and any(w.startswith("heldout:") for w in QUICK_WORKLOADS)
+    check_workloads(held)
+    cases = [heldout_case(w[len("heldout:"):], asset) for w in held]
+    assert len({h.kind for h in cases}) == len(cases) and all(h.feasible for h in cases), [h.label for h in cases]
+    assert cases[0].label == draw_case(*(int(v) for v in held[0].split(":")[1:]), asset).label
+    for bad in ("heldout:0", "heldout:a:1", "heldout:0:-1", "heldout:0:1:2"):
+        with pytest.raises(ValueError, match="heldout:SEED:I"):
+            check_workloads([bad])
 
 
 def test_bench_accuracy_errors_are_one_line(capsys, tmp_path):

@@ -12,6 +12,9 @@ workload:
   contact first (as ``physhand rollout`` does), then ``frames`` frames of ``SoftHand.step``;
 - ``case:<kind>@<site>``: a hard case (physhand_mj/bench/cases.py) pressed 4 mm into the rest skin from
   2 mm outside over 15 frames, then held; ``Solver.step`` alone;
+- ``heldout:<seed>:<i>``: case ``i`` of the held-out generator (physhand_mj/bench/heldout.py: a random
+  object at a random skin site, pressed in or embedded 0.5-4 mm over its first 10 frames, then held),
+  ``Solver.step`` alone; the default four are feasible cases (the bones >= 1.2 mm clear) of four kinds;
 - ``cone:paper``: the paper's cone experiment (section 4.2; physhand_mj.bench.runs.bench_cone's sheet and
   cone): a 2,400-vertex open sheet falls on an analytic cone; ``Solver.step``; an open sheet has no
   inside, so only the skin side is measured (the object features and side-aware exits need a closed
@@ -28,7 +31,10 @@ docs/contact.md); ``hold_*``: the worst of the last ``HOLD`` frames (all frames 
 
 Per setting: ``ms_per_frame`` = the mean over workloads; ``skin_um`` = the deepest skin sample
 (order 5 or 9) and ``object_um`` = the deepest object point over workloads and the last ``HOLD``
-frames. :func:`pareto_front` keeps the settings no other setting beats on time and depth together.
+frames; ``zero``: both are 0 (no sample, no point in any held frame of any workload).
+:func:`pareto_front` keeps the settings no other setting beats on time and depth together;
+:func:`cheapest_zero` is the fastest setting at zero (how ``Config()``'s contact is chosen,
+docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -42,10 +48,14 @@ import numpy as np
 
 HOLD = 4  # frames at the end whose worst penetration the Pareto front uses (a setting must hold, not flicker)
 # The sharp HOI object (box), a large smooth contact (apple), a cylinder (glass2); a knife edge into the
-# fingertip, a cone tip into the palm, a 1 mm plate edge first into the fingertip.
+# fingertip, a cone tip into the palm, a 1 mm plate edge first into the fingertip; four held-out cases
+# of seed 0 (heldout.py), each a kind the project's cases do not cover: a convex hull 3.4 mm into a
+# fingertip (bones 1.2 mm clear), a 0.5 mm plate face first 4 mm into the palm, a 2.1 mm rod lying
+# 3.9 mm across a middle phalanx (1.35 mm clear) and a 1 mm hemispherical shell rim first 3.4 mm into
+# the palm.
 WORKLOADS = ("hoi:box", "hoi:apple", "hoi:glass2", "case:knife@fingertip", "case:cone_tip@palm",
-             "case:plate@fingertip", "cone:paper")
-QUICK_WORKLOADS = ("hoi:box", "case:knife@fingertip")
+             "case:plate@fingertip", "cone:paper", "heldout:0:0", "heldout:0:51", "heldout:0:24", "heldout:0:4")
+QUICK_WORKLOADS = ("hoi:box", "case:knife@fingertip", "heldout:0:24")
 
 
 @dataclass(frozen=True)
@@ -95,11 +105,21 @@ class SweepPoint:
                                                                                    c.multires_rounds)))
 
 
+def default_point() -> SweepPoint:
+    """The SweepPoint of ``Config()``."""
+    from physhand_mj.types import Config
+
+    c = Config().validate()
+    return SweepPoint(c.contact.name.lower(), c.multires_samples, c.multires_rounds, c.feature_contact, c.side_aware,
+                      c.contact_passes, c.substeps, c.iterations, c.contact_every, c.contact_linear)
+
+
 def sweep_points(quick: bool = False) -> list[SweepPoint]:
-    """The settings swept: each knob moved away from the default, plus cheap combinations."""
+    """The settings swept: each knob moved away from a stage every substep (``SweepPoint()``, the
+    paper's Algorithm 1 with the project's contact), plus cheap combinations and ``Config()``'s."""
     P = SweepPoint
     if quick:
-        return [P("vertex", features=False, side_aware=False, passes=2, substeps=5), P()]
+        return [P("vertex", features=False, side_aware=False, passes=2, substeps=5), default_point()]
     pts = []
     for c in ("vertex", "opt", "multires"):  # strategy x the paper's contact (Eq. 9 only) / features + side
         pts += [P(c, features=False, side_aware=False), P(c)]
@@ -115,7 +135,12 @@ def sweep_points(quick: bool = False) -> list[SweepPoint]:
             P("vertex", substeps=5), P("opt", substeps=5), P(samples=16, rounds=2, substeps=5),
             P(samples=10, rounds=3, substeps=5), P("opt", substeps=5, iterations=2),
             # half the contact stages, the skin held between them (Config.contact_linear, 2026-11-28)
-            P(every=2), P(every=2, linear=True), P("opt", every=2, linear=True), P(every=3, linear=True)]
+            P(every=2), P(every=2, linear=True), P("opt", every=2, linear=True), P(every=3, linear=True),
+            # around the cheapest setting at zero on every workload in the 2026-12 run (e2+hold)
+            P(every=2, linear=True, substeps=5), P(every=2, linear=True, passes=4),
+            P(samples=10, rounds=3, every=2, linear=True)]
+    if not any(p.is_default() for p in pts):  # (a Config() changed by hand is swept too)
+        pts.append(default_point())
     return pts
 
 
@@ -159,11 +184,21 @@ def _hoi_run(scene: str, pt: SweepPoint, device: str, frames: int, hold_frames: 
     return dict(ms=ms, hold=np.asarray(hold, float), finite=finite)
 
 
-def _case_run(kind: str, site: str, pt: SweepPoint, device: str, frames: int, hold_frames: int, asset) -> dict:
-    from physhand_mj.bench.cases import press_case, run_case
+def heldout_case(spec: str, asset):
+    """The :class:`~physhand_mj.bench.heldout.Heldout` of workload ``heldout:<seed>:<i>`` (``spec``:
+    ``<seed>:<i>``), its bones' clearance measured."""
+    from physhand_mj.bench.heldout import clearance_mm, draw_case
 
-    r = run_case(press_case(kind, site=site, depth=0.004, start=0.002), pt.config(device), frames=frames,
-                 asset=asset)
+    seed, i = (int(v) for v in spec.split(":"))
+    h = draw_case(seed, i, asset)
+    h.clearance_mm = clearance_mm(h.case, asset)
+    return h
+
+
+def _case_run(case, pt: SweepPoint, device: str, frames: int, hold_frames: int, asset) -> dict:
+    from physhand_mj.bench.cases import run_case
+
+    r = run_case(case, pt.config(device), frames=frames, asset=asset)
     keys = ("skin_count", "skin_max_um", "dense_count", "dense_max_um", "check_count", "check_max_um")
     hold = np.stack([np.asarray(r[k][-hold_frames:], float) for k in keys], axis=1)
     return dict(ms=list(r["ms"]), hold=hold, finite=bool(r["finite"]))
@@ -210,7 +245,8 @@ ROW_COLUMNS = ["point", "workload", "contact", "samples", "rounds", "features", 
 
 
 def check_workloads(workloads) -> None:
-    """Raise ValueError naming the first workload that is not hoi:SCENE or case:KIND@SITE."""
+    """Raise ValueError naming the first workload that is not hoi:SCENE, case:KIND@SITE,
+    heldout:SEED:I or cone:paper."""
     import physhand_mj as ph
     from physhand_mj.bench.cases import SITES, press_case
 
@@ -227,10 +263,15 @@ def check_workloads(workloads) -> None:
             press_case(case)  # ValueError for an unknown kind
             if site not in SITES:
                 raise ValueError(f"workload '{w}': site must be one of {', '.join(SITES)}")
+        elif kind == "heldout":
+            parts = spec.split(":")
+            if len(parts) != 2 or not all(p.isdigit() for p in parts):
+                raise ValueError(f"workload '{w}': heldout:SEED:I takes two integers >= 0 (the generator's seed "
+                                 f"and case index, physhand_mj/bench/heldout.py), e.g. heldout:0:4")
         elif w == "cone:paper":
             pass
         else:
-            raise ValueError(f"workload '{w}' must be hoi:SCENE, case:KIND@SITE or cone:paper")
+            raise ValueError(f"workload '{w}' must be hoi:SCENE, case:KIND@SITE, heldout:SEED:I or cone:paper")
 
 
 def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats: int = 1, progress=None) -> list[dict]:
@@ -247,6 +288,11 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
     names = [p.name for p in points]
     if len(set(names)) != len(names):
         raise ValueError(f"sweep points must differ: {sorted(n for n in names if names.count(n) > 1)}")
+    from physhand_mj.bench.cases import press_case
+
+    cases = {w: (press_case(w[5:].split("@")[0], site=w[5:].split("@")[1], depth=0.004, start=0.002)
+                 if w.startswith("case:") else heldout_case(w[8:], asset).case)
+             for w in workloads if w.startswith(("case:", "heldout:"))}
     jobs = [(i, w) for i in range(len(points)) for w in workloads]
     ms: dict = {}
     meas: dict = {}
@@ -257,9 +303,8 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
             kind, spec = w.split(":", 1)
             if kind == "hoi":
                 r = _hoi_run(spec, pt, device, frames, hold)
-            elif kind == "case":
-                case, site = spec.split("@")
-                r = _case_run(case, site, pt, device, frames, hold, asset)
+            elif kind in ("case", "heldout"):
+                r = _case_run(cases[w], pt, device, frames, hold, asset)
             else:  # cone:paper
                 r = _cone_run(pt, device, frames, hold)
             med = float(np.median(r["ms"][skip:]))
@@ -291,13 +336,14 @@ def run_sweep(points, workloads, device: str = "cpu", frames: int = 20, repeats:
 
 POINT_COLUMNS = ["point", "contact", "samples", "rounds", "features", "side_aware", "passes", "substeps", "iterations",
                  "every", "linear", "ms_per_frame", "skin_um", "object_um", "skin_count", "object_count", "finite", "default",
-                 "pareto_skin", "pareto_object", "pareto_both"]
+                 "zero", "pareto_skin", "pareto_object", "pareto_both"]
 
 
 def summarize_points(points, rows) -> list[dict]:
     """One row per point (POINT_COLUMNS): mean ms over workloads, the deepest penetration of each
-    measure over workloads and held frames, counts at the end summed over workloads, and whether
-    the point is on the Pareto front of (ms, skin_um), (ms, object_um) and (ms, skin_um, object_um)."""
+    measure over workloads and held frames, counts at the end summed over workloads, ``zero`` (finite
+    and no penetration by either measure on any workload in any held frame), and whether the point is
+    on the Pareto front of (ms, skin_um), (ms, object_um) and (ms, skin_um, object_um)."""
     out = []
     for pt in points:
         mine = [r for r in rows if r["point"] == pt.name]
@@ -308,6 +354,9 @@ def summarize_points(points, rows) -> list[dict]:
                         skin_count=sum(r["skin5_count"] + r["skin9_count"] for r in mine),
                         object_count=sum(r["object_count"] for r in mine),
                         finite=all(r["finite"] for r in mine), default=pt.is_default()))
+        p = out[-1]
+        p["zero"] = bool(p["finite"] and p["skin_um"] == 0 and p["object_um"] == 0
+                         and all(r.get("hold_count", 0) == 0 for r in mine))
     c = np.array([[p["ms_per_frame"], p["skin_um"], p["object_um"]] for p in out], float)
     for key, cols in (("pareto_skin", [0, 1]), ("pareto_object", [0, 2]), ("pareto_both", [0, 1, 2])):
         mask = pareto_front(c[:, cols])
@@ -316,23 +365,37 @@ def summarize_points(points, rows) -> list[dict]:
     return out
 
 
+def cheapest_zero(table, substeps: int | None = None):
+    """The fastest row of ``table`` (summarize_points) that is ``zero``, among those with ``substeps``
+    substeps and one iteration when given (the material: fewer substeps make a softer hand,
+    docs/accuracy.md); None when no row is."""
+    rows = [p for p in table if p["zero"] and (substeps is None or (p["substeps"] == substeps and p["iterations"] == 1))]
+    return min(rows, key=lambda p: p["ms_per_frame"], default=None)
+
+
 def plot_front(table, path, title: str) -> None:
     """Two panels (skin samples in objects; object points in the skin: deepest um against ms per
-    frame), every setting a dot, the Pareto front joined and labelled with its settings."""
+    frame), every setting a dot (a circle at ``Config()``'s substeps, a triangle at others), the
+    Pareto front joined and labelled with its settings, ``Config()`` a star."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from physhand_mj.types import Config
+
+    steps = Config().substeps
     fig, axes = plt.subplots(1, 2, figsize=(15, 6.5))
     for ax, key, front, label in ((axes[0], "skin_um", "pareto_skin", "skin samples inside the object (order 5 and 9)"),
                                   (axes[1], "object_um", "pareto_object", "object points inside the skin")):
         x = np.array([p["ms_per_frame"] for p in table])
         y = np.array([p[key] for p in table])
         colors = {"vertex": "tab:red", "opt": "tab:orange", "multires": "tab:blue"}
-        for c, col in colors.items():
-            sel = [i for i, p in enumerate(table) if p["contact"] == c]
-            ax.scatter(x[sel], y[sel], s=28, color=col, alpha=0.55, label=c)
+        for c, col in colors.items():  # circles: Config()'s substeps (its material); triangles: others
+            for mark, same in (("o", True), ("^", False)):
+                sel = [i for i, p in enumerate(table) if p["contact"] == c and (p["substeps"] == steps) == same]
+                ax.scatter(x[sel], y[sel], s=28, marker=mark, color=col, alpha=0.55,
+                           label=f"{c}, {steps} substeps" if same else f"{c}, other substeps")
         on = sorted([i for i, p in enumerate(table) if p[front]], key=lambda i: x[i])
         ax.plot(x[on], y[on], "k-", lw=1, drawstyle="steps-post", label="Pareto front")
         ax.scatter(x[on], y[on], s=70, facecolors="none", edgecolors="k", lw=1.5)
@@ -347,8 +410,9 @@ def plot_front(table, path, title: str) -> None:
         ax.set_ylabel(f"deepest {label}, um")
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=8, loc="lower center", ncol=5)  # below the panels: no point hidden
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -171,9 +171,9 @@ def _queries(cfg) -> int:
 def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False, frames: int | None = None,
                    repeats: int | None = None, workloads=None, progress=None) -> dict:
     """What accuracy costs in time (physhand_mj/bench/accuracy.py): every swept contact setting on the HOI
-    grasps and hard cases; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
+    grasps, hard cases, held-out cases and the paper's cone; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
     ``.json`` (the rows, one row per setting with its Pareto flags, the device) and ``.png`` (the
-    Pareto fronts). ``quick``: 2 settings, 2 workloads, 2 frames, 1 repeat (a smoke run)."""
+    Pareto fronts). ``quick``: 2 settings, 3 workloads, 2 frames, 1 repeat (a smoke run)."""
     import csv
     import json
 
@@ -203,16 +203,31 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
         w.writeheader()
         w.writerows(rows)
     name = device_name(dev)
+    import physhand_mj as ph
+
+    asset = ph.load_asset()
+    heldout = {}  # what each held-out workload is, and whether a penetration-free skin exists there
+    for w in workloads:
+        if w.startswith("heldout:"):
+            h = acc.heldout_case(w[len("heldout:"):], asset)
+            heldout[w] = dict(case=h.label, kind=h.kind, clearance_mm=round(h.clearance_mm, 3), feasible=h.feasible)
     json_path.write_text(json.dumps(dict(device=dev, device_name=name, frames=frames, repeats=repeats,
-                                         workloads=list(workloads), hold_frames=acc.HOLD, points=table, rows=rows),
+                                         workloads=list(workloads), hold_frames=acc.HOLD, heldout=heldout,
+                                         points=table, rows=rows),
                                     indent=1))
     acc.plot_front(table, png_path, f"physhand bench accuracy: {len(points)} settings x {len(workloads)} workloads, "
                                     f"{frames} frames, {name}")
     default = next((p for p in table if p["default"]), None)
     front = [dict(point=p["point"], ms_per_frame=p["ms_per_frame"], skin_um=p["skin_um"], object_um=p["object_um"])
              for p in sorted(table, key=lambda p: p["ms_per_frame"]) if p["pareto_both"]]
+    from physhand_mj.types import Config
+
+    # the fastest setting at zero by every measure: of all, and of those at Config()'s substeps (its material)
+    zero = {k: (None if p is None else dict(point=p["point"], ms_per_frame=p["ms_per_frame"]))
+            for k, p in (("any", acc.cheapest_zero(table)),
+                         ("default_substeps", acc.cheapest_zero(table, substeps=Config().substeps)))}
     return dict(command="bench accuracy", device=dev, device_name=name, points=len(points), workloads=list(workloads),
-                frames=frames, repeats=repeats, pareto=front,
+                frames=frames, repeats=repeats, pareto=front, cheapest_zero=zero,
                 default_on_front=None if default is None else dict(skin=default["pareto_skin"],
                                                                    object=default["pareto_object"],
                                                                    both=default["pareto_both"]),
