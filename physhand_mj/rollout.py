@@ -156,7 +156,10 @@ def bone_clearances(contact, state, worlds: int = 1) -> list:
     without contact."""
     if contact is None:
         return [None] * worlds
-    return [round(contact.bone_report(state, w)["bone_clearance_m"] * 1e3, 4) for w in range(worlds)]
+    from physhand_mj.contact.bones import world_clearances
+
+    c = world_clearances(contact.model, contact.objects, state.x, contact.geoms_per_world)
+    return [round(float(v) * 1e3, 4) for v in c[:worlds]]
 
 
 @contextlib.contextmanager

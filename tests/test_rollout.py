@@ -32,6 +32,9 @@ def test_multires_removes_the_initial_penetration_and_vertex_does_not(apple_runs
     assert mr["initial_penetration_count"] > 1000 and mr["initial_penetration_max_um"] > 2000, mr
     assert mr["penetration_count"] == 0 and mr["penetration_max_um"] == 0.0 and mr["finite"], mr
     assert vx["penetration_count"] > 0, vx
+    # the bones' clearance (contact/bones.py, the contact's own SDF) against the 1.5 mm the scene's
+    # generator (build/hoi.py, its own SDF of the apple) kept at the grasp
+    assert mr["initial_bone_clearance_mm"] == pytest.approx(1.5, abs=0.1) and mr["bone_clearance_mm"] > 1.0, mr
 
 
 def test_log_is_complete_and_matches_the_summary(apple_runs):

@@ -179,6 +179,23 @@ BONE_CAP = 0.05  # m: clearances are reported up to this (a bone farther from ev
 assert BONE_CAP < FAR
 
 
+def world_clearances(model, objects, x, geoms_per_world: int) -> np.ndarray:
+    """(W,) float: per world the skeleton's least clearance from its objects (m; negative: a bone
+    that deep inside one; BONE_CAP where none is nearer), one launch for every world."""
+    dev = model.device
+    vb, vw = model.vertex_body.numpy(), model.vertex_world.numpy()
+    skel = np.flatnonzero(vb >= 0).astype(np.int32)
+    out = np.full(model.worlds, BONE_CAP)
+    if not len(skel):
+        return out
+    clear = wp.zeros(len(skel), dtype=float, device=dev)
+    near = wp.zeros(len(skel), dtype=int, device=dev)
+    wp.launch(bone_clearance, len(skel), [x, wp.array(skel, dtype=int, device=dev), model.vertex_world, objects.geoms,
+                                          geoms_per_world, objects.count, BONE_CAP], [clear, near], device=dev)
+    np.minimum.at(out, vw[skel], clear.numpy().astype(float))
+    return out
+
+
 def bone_report(model, objects, x, geoms_per_world: int, held=None, world: int = 0) -> dict:
     """The bones of world ``world`` against its objects, for ``x`` (the state's positions): per
     object index (``objects.obj`` of a geom) ``clearance_m`` (its least clearance from any skeleton
