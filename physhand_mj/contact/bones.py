@@ -179,20 +179,25 @@ BONE_CAP = 0.05  # m: clearances are reported up to this (a bone farther from ev
 assert BONE_CAP < FAR
 
 
-def world_clearances(model, objects, x, geoms_per_world: int) -> np.ndarray:
-    """(W,) float: per world the skeleton's least clearance from its objects (m; negative: a bone
-    that deep inside one; BONE_CAP where none is nearer), one launch for every world."""
+def skeleton_clearance(model, objects, x, geoms_per_world: int, skel: np.ndarray) -> tuple:
+    """(clearance (k,) float m, nearest geom (k,) int) of skeleton vertices ``skel`` (vertex ids)
+    from their worlds' objects (:func:`bone_clearance`, one launch)."""
     dev = model.device
-    vb, vw = model.vertex_body.numpy(), model.vertex_world.numpy()
-    skel = np.flatnonzero(vb >= 0).astype(np.int32)
-    out = np.full(model.worlds, BONE_CAP)
-    if not len(skel):
-        return out
     clear = wp.zeros(len(skel), dtype=float, device=dev)
     near = wp.zeros(len(skel), dtype=int, device=dev)
     wp.launch(bone_clearance, len(skel), [x, wp.array(skel, dtype=int, device=dev), model.vertex_world, objects.geoms,
                                           geoms_per_world, objects.count, BONE_CAP], [clear, near], device=dev)
-    np.minimum.at(out, vw[skel], clear.numpy().astype(float))
+    return clear.numpy().astype(float), near.numpy()
+
+
+def world_clearances(model, objects, x, geoms_per_world: int) -> np.ndarray:
+    """(W,) float: per world the skeleton's least clearance from its objects (m; negative: a bone
+    that deep inside one; BONE_CAP where none is nearer), one launch for every world."""
+    vb, vw = model.vertex_body.numpy(), model.vertex_world.numpy()
+    skel = np.flatnonzero(vb >= 0).astype(np.int32)
+    out = np.full(model.worlds, BONE_CAP)
+    if len(skel):
+        np.minimum.at(out, vw[skel], skeleton_clearance(model, objects, x, geoms_per_world, skel)[0])
     return out
 
 
@@ -201,19 +206,15 @@ def bone_report(model, objects, x, geoms_per_world: int, held=None, world: int =
     object index (``objects.obj`` of a geom) ``clearance_m`` (its least clearance from any skeleton
     vertex, m; negative: a bone inside it, that deep), ``bones`` (the bodies with a vertex inside,
     sorted names) and, given the last frame's ``held`` (BoneHold.held), ``skin_held`` (its skin
-    vertices the frame held: it holds their anchor; 0 for an object that holds no bone now); and ``bone_clearance_m``, the least over objects (BONE_CAP where none is near)."""
-    dev = model.device
+    vertices the frame held: it holds their anchor; 0 for an object that holds no bone now); and
+    ``bone_clearance_m``, the least over objects (BONE_CAP where none is near)."""
     vb = model.vertex_body.numpy()
     vw = model.vertex_world.numpy()
     skel = np.flatnonzero((vb >= 0) & (vw == world)).astype(np.int32)
     out = dict(objects={}, bone_clearance_m=BONE_CAP)
     if not len(skel):
         return out
-    clear = wp.zeros(len(skel), dtype=float, device=dev)
-    near = wp.zeros(len(skel), dtype=int, device=dev)
-    wp.launch(bone_clearance, len(skel), [x, wp.array(skel, dtype=int, device=dev), model.vertex_world, objects.geoms,
-                                          geoms_per_world, objects.count, BONE_CAP], [clear, near], device=dev)
-    c, g = clear.numpy().astype(float), near.numpy()
+    c, g = skeleton_clearance(model, objects, x, geoms_per_world, skel)
     obj_of = objects.obj.numpy()
     names = model.body_names
     for o in sorted({int(obj_of[j]) for j in g[g >= 0]}):
