@@ -159,3 +159,16 @@ def test_shell_dome_first():
     h, v = heldout_case(46)
     assert h.kind == "shell"
     assert v["passed"], v
+
+
+@pytest.mark.parametrize("half,depth", [(0.03, 0.002), (0.03, 0.004), (0.03, 0.0), (0.02, 0.004)])
+def test_wide_plates_cut_the_thumb(half, depth):
+    """Issue 51's 60 mm plate (and a 40 mm one) face-first at the palm has no penetration-free skin:
+    it passes through the thumb's metacarpal at the rest pose whatever its depth (docs/contact.md
+    "Thin walls"), so a run of it is skipped by the feasibility rule (no solver run here)."""
+    from physhand_mj.bench.cases import case_frame, case_position
+
+    asset = ph.load_asset()
+    case = wall_case(half, 0.001, depth)
+    p0, n, quat = case_frame(case, asset)
+    assert bone_clearance(asset, asset.positions, case_position(case, p0, n, depth), quat, case.size) < 0.0
