@@ -159,6 +159,10 @@ class Config:
         5 ms frames is 2 m/s); objects farther cost nothing.
       feature_contact: also push the skin off object corners, tips and sharp edges inside it.
       skin_tether: the farthest a skin vertex may be from where its bone carries it (m; 0: off).
+      two_way: the skin acts back on the scene: each frame's contact impulses, summed per object and
+        per bone (contact/exchange.py), are applied by SoftHand to the objects' MuJoCo bodies and, as
+        the reaction, to the bones, through ``data.xfrc_applied`` over the next MuJoCo step
+        (docs/coupling.md; one hand, not BatchedHands).
     Measurement:
       frame_metrics: the skin measure (samples inside objects) at every frame's end.
       substep_metrics: the same after every substep (logs).
@@ -191,6 +195,7 @@ class Config:
     contact_frame_margin: float = 1.0e-2
     feature_contact: bool = True
     skin_tether: float = 0.025
+    two_way: bool = False
     frame_metrics: bool = True
     substep_metrics: bool = False
     object_metrics: bool = False
@@ -318,6 +323,7 @@ def _check(s) -> None:
     flag("region_sleep")
     flag("fused_substep", True, " (the CPU's and large CUDA batches' default)")
     flag("contact_linear")
+    flag("two_way")
     flag("tiled_features", True, " (blocks for one hand, a thread per feature for batches)")
     flag("reuse_outside")
     flag("jacobi_gather", True, " (on CUDA)")

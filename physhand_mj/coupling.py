@@ -113,6 +113,11 @@ class SoftHand:
             self._add_geom(g)
         self.solver = Solver(make_model(self.asset, self.config), self.config,
                              objects=self.objects if self.object_geoms else None)
+        # Config.two_way: each object's MuJoCo body (Objects.object_names order) and the wrenches applied
+        self.object_bodies = object_body_ids(model, self.object_geoms, self.objects)
+        self._applied = np.zeros((model.nbody, 6))
+        self._mu = None  # (K,) friction coefficients, read from the model at the first two-way frame
+        self._wrenches = None
         pos, quat = self._bone_poses()
         root_pos, root_quat = self._rest_placement(pos[0], quat[0])
         self.state = self.solver.make_state(root_pos, root_quat)
@@ -195,9 +200,14 @@ class SoftHand:
         if self._tail_writer:  # the skin geom's pose for the write-back at the end of the frame's graph
             g = self.skin_geom
             self._writer.set_frame(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
+        two_way = self.config.two_way and self.solver.contact is not None
+        if two_way:
+            self._send_objects()
         t1 = time.perf_counter()
         out = self.solver.step(self.state)
         t2 = time.perf_counter()
+        if two_way:
+            self._apply_wrenches()
         self._write_back(after_frame=True)
         t3 = time.perf_counter()
         tm = self._timing
@@ -207,6 +217,36 @@ class SoftHand:
         tm["frames"] += 1
         self._last = out
         return out
+
+    def _send_objects(self) -> None:
+        """Config.two_way: the objects' centres, velocities and friction, and the bones' centres, to the contact."""
+        m, d, bodies = self.model, self.data, self.object_bodies
+        vel = np.zeros((len(bodies), 6))
+        for k, b in enumerate(bodies):
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
+        mu = None
+        if self._mu is None:  # MuJoCo's rule for two geoms of equal priority: the larger coefficient
+            skin = float(m.geom_friction[self.skin_geom][0]) if self.skin_geom >= 0 else 1.0
+            mu = np.full(len(bodies), skin)
+            for k, g in zip(self.objects.geom_objects, self.object_geoms):
+                mu[k] = max(mu[k], float(m.geom_friction[g][0]))
+            self._mu = mu
+        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu)
+
+    def _apply_wrenches(self) -> None:
+        """Config.two_way: the last frame's mean contact wrenches into ``data.xfrc_applied`` for the next
+        MuJoCo step(s): on each object body that moves (not welded to the world, not mocap) and, as the
+        reaction, on the bones. Replaces what the last frame added; what a user put there stays."""
+        w = self.solver.contact.wrenches()
+        new = np.zeros_like(self._applied)
+        m = self.model
+        for k, b in enumerate(self.object_bodies):
+            if m.body_weldid[b] != 0 and m.body_mocapid[b] < 0:
+                new[b] += w["objects"][k]
+        np.add.at(new, self.bones, w["bones"][: len(self.bones)])
+        self.data.xfrc_applied[:] += new - self._applied
+        self._applied = new
+        self._wrenches = w
 
     def _write_back(self, after_frame: bool = False) -> None:
         """The skin into MuJoCo's mesh; ``after_frame``: right after a ``step`` frame, whose graph
@@ -433,6 +473,15 @@ def geom_spec(model, data, g: int) -> dict:
                     vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
                     mesh_range=float(2 * m.geom_rbound[g] + 0.01))
     return dict(gtype=gtype, size=m.geom_size[g], pos=d.geom_xpos[g], quat=quat, name=name, obj=body)
+
+
+def object_body_ids(model, geoms, objects) -> np.ndarray:
+    """(K,) int: the MuJoCo body of each of ``objects``' objects (``Objects.object_names`` order), from
+    the geoms ``geoms`` that were added in order."""
+    out = np.zeros(len(objects.object_names), np.int64)
+    for k, g in zip(objects.geom_objects, geoms):
+        out[k] = int(model.geom_bodyid[g])
+    return out
 
 
 def geom_quats(data, geoms) -> np.ndarray:

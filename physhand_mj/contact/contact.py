@@ -23,6 +23,7 @@ import warp as wp
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
 from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold
+from physhand_mj.contact.exchange import frame_wrenches, make_exchange, zero_ops
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -198,6 +199,10 @@ class Contact:
         self._passes_gated = False  # (finish_recording: as the solver's frame last said)
         # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
         self.bone_hold = make_bone_hold(model, config.bone_hold)
+        # Config.two_way: the frame's contact impulses per object and bone (exchange.py)
+        if config.two_way and model.worlds > 1:
+            raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
+        self.exchange = make_exchange(model, len(objects.object_names), config.two_way, config.frame_dt / config.substeps)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -356,7 +361,7 @@ class Contact:
         if not self.hold.holds:
             return
         self.hold.record_hold(rec, state, self.lists, self.acc, self.take_counter, self.space.apply_shift(state),
-                              self.bone_hold, self._held_points())
+                              self.bone_hold, self.exchange, self._held_points())
 
     def take_counter(self) -> tuple:
         """The next counter slot of the frame and its (1,) counter (:meth:`_counter`)."""
@@ -474,8 +479,8 @@ class Contact:
                 kernel = multires_kernel(regs, block)
             rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[1], block_dim=block)
         shift, shifted = self.space.apply_shift(state)
-        rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift, self.bone_hold],
-                   [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
+        rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift, self.bone_hold, self.exchange],
+                   [state.x, state.x_prev, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
         self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.features is not None and cfg.feature_last:
             moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
@@ -561,6 +566,7 @@ class Contact:
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.measures.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
+        ops += zero_ops(self.exchange)
         if len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol)
             ops.append(self.lists.pass_move.zero_)
         if self.lists.world_stage is not None:
@@ -624,6 +630,28 @@ class Contact:
             yield
         finally:
             d.fill_(float(HOLD_DEPTH))
+
+    def set_exchange(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None) -> None:
+        """Config.two_way: the objects' state for the next frame (world frame, ``Objects.object_names``
+        order): centres of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular
+        velocities ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body
+        order), about which torques are taken; ``obj_mu`` (K,): friction coefficients (None: kept)."""
+        ex = self.exchange
+        if ex.obj_com.shape[0] == 0:
+            raise ValueError("Contact.set_exchange: Config.two_way is off")
+        for arr, val in ((ex.obj_com, obj_com), (ex.obj_vel, obj_vel), (ex.obj_omega, obj_omega), (ex.bone_com, bone_com)):
+            arr.assign(np.asarray(val, np.float32).reshape(-1, 3))
+        if obj_mu is not None:
+            mu = np.asarray(obj_mu, np.float32).reshape(-1)
+            if not (np.all(np.isfinite(mu)) and np.all(mu >= 0)):
+                raise ValueError(f"friction coefficients must be finite and >= 0, got {mu}")
+            ex.obj_mu.assign(mu)
+
+    def wrenches(self) -> dict:
+        """Config.two_way: the last frame's mean contact wrenches (exchange.frame_wrenches): ``objects``
+        (K, 6) [N, N m] on each object about its centre, ``bones`` (B, 6) the reaction on each bone."""
+        cfg = self.config
+        return frame_wrenches(self.exchange, cfg.frame_dt / cfg.substeps, cfg.substeps)
 
     def bone_report(self, state, world: int = 0) -> dict:
         """The bones of world ``world`` against the objects now, and the skin the last frame held
@@ -691,8 +719,8 @@ class Contact:
                        count=feat_count)
         shift, shifted = self.space.apply_shift(state)
         a = self.acc
-        rec.launch(apply_contact, m.n_vertices, [a.sums, feat_touched, stamp, shift, self.bone_hold],
-                   [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
+        rec.launch(apply_contact, m.n_vertices, [a.sums, feat_touched, stamp, shift, self.bone_hold, self.exchange],
+                   [state.x, state.x_prev, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 
     def _feature_inputs(self, state, cand, cand_count, offset: float, touched_count, skin=None, stride: int = 0,
