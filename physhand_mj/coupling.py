@@ -115,8 +115,8 @@ class SoftHand:
                              objects=self.objects if self.object_geoms else None)
         # Config.two_way: each object's MuJoCo body (Objects.object_names order) and the wrenches applied
         self.object_bodies = object_body_ids(model, self.object_geoms, self.objects)
-        self._applied = np.zeros((model.nbody, 6))
         self._mu = None  # (K,) friction coefficients, read from the model at the first two-way frame
+        self._free = free_qpos(model, self.object_bodies)  # (K,) qpos address of a free object's joint, else -1
         self._wrenches = None
         pos, quat = self._bone_poses()
         root_pos, root_quat = self._rest_placement(pos[0], quat[0])
@@ -219,7 +219,8 @@ class SoftHand:
         return out
 
     def _send_objects(self) -> None:
-        """Config.two_way: the objects' centres, velocities and friction, and the bones' centres, to the contact."""
+        """Config.two_way: the objects' centres, velocities, friction and, for free bodies, mass and
+        inertia, and the bones' centres, to the contact for the next frame."""
         m, d, bodies = self.model, self.data, self.object_bodies
         vel = np.zeros((len(bodies), 6))
         for k, b in enumerate(bodies):
@@ -231,21 +232,47 @@ class SoftHand:
             for k, g in zip(self.objects.geom_objects, self.object_geoms):
                 mu[k] = max(mu[k], float(m.geom_friction[g][0]))
             self._mu = mu
-        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu)
+        inv_m = np.zeros(len(bodies))
+        inv_i = np.zeros((len(bodies), 3, 3))
+        for k, b in enumerate(bodies):
+            if self._free[k] >= 0:  # a free body: the skin moves it within the frame (exchange.move_objects)
+                inv_m[k] = 1.0 / m.body_mass[b]
+                r = d.ximat[b].reshape(3, 3)
+                inv_i[k] = r @ np.diag(1.0 / np.maximum(m.body_inertia[b], 1e-12)) @ r.T
+        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu, inv_m, inv_i)
 
     def _apply_wrenches(self) -> None:
-        """Config.two_way: the last frame's mean contact wrenches into ``data.xfrc_applied`` for the next
-        MuJoCo step(s): on each object body that moves (not welded to the world, not mocap) and, as the
-        reaction, on the bones. Replaces what the last frame added; what a user put there stays."""
+        """Config.two_way: the frame's contact impulses into MuJoCo: every object body that moves and,
+        as the reaction, the bones get their impulse (sum m dx / h over the frame, about their
+        centres) as one velocity change, qvel += M^-1 J^T [impulses] (mj_applyFT, mj_solveM); a free
+        object also takes the shift and turn the skin gave it within the frame (exchange.move_objects)."""
+        m, d = self.model, self.data
         w = self.solver.contact.wrenches()
-        new = np.zeros_like(self._applied)
-        m = self.model
+        T = self.config.frame_dt
+        qimp = np.zeros(m.nv)
+        shift = w["shift"]
         for k, b in enumerate(self.object_bodies):
             if m.body_weldid[b] != 0 and m.body_mocapid[b] < 0:
-                new[b] += w["objects"][k]
-        np.add.at(new, self.bones, w["bones"][: len(self.bones)])
-        self.data.xfrc_applied[:] += new - self._applied
-        self._applied = new
+                imp = w["objects"][k] * T
+                mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b] + shift[k], int(b), qimp)
+        for j, b in enumerate(self.bones):
+            imp = w["bones"][j] * T
+            mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
+        if m.nv:
+            dq = np.zeros(m.nv)
+            mujoco.mj_solveM(m, d, dq.reshape(1, -1), qimp.reshape(1, -1))
+            d.qvel[:] += dq
+        for k, b in enumerate(self.object_bodies):
+            a = self._free[k]
+            if a < 0:
+                continue
+            c = d.xipos[b]
+            q = w["turn"][k][[3, 0, 1, 2]]  # x y z w -> w x y z
+            r = quat_to_mat(q[None])[0]
+            d.qpos[a: a + 3] = c + shift[k] + r @ (d.qpos[a: a + 3] - c)
+            out = np.zeros(4)
+            mujoco.mju_mulQuat(out, q, d.qpos[a + 3: a + 7])
+            d.qpos[a + 3: a + 7] = out / np.linalg.norm(out)
         self._wrenches = w
 
     def _write_back(self, after_frame: bool = False) -> None:
@@ -473,6 +500,16 @@ def geom_spec(model, data, g: int) -> dict:
                     vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
                     mesh_range=float(2 * m.geom_rbound[g] + 0.01))
     return dict(gtype=gtype, size=m.geom_size[g], pos=d.geom_xpos[g], quat=quat, name=name, obj=body)
+
+
+def free_qpos(model, bodies) -> np.ndarray:
+    """(K,) int: the qpos address of each body's free joint where it has one (a free object), else -1."""
+    out = np.full(len(bodies), -1, np.int64)
+    for k, b in enumerate(bodies):
+        j = model.body_jntadr[b]
+        if model.body_jntnum[b] == 1 and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+            out[k] = model.jnt_qposadr[j]
+    return out
 
 
 def object_body_ids(model, geoms, objects) -> np.ndarray:

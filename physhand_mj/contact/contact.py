@@ -23,7 +23,7 @@ import warp as wp
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
 from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold
-from physhand_mj.contact.exchange import frame_wrenches, make_exchange, zero_ops
+from physhand_mj.contact.exchange import frame_wrenches, make_exchange, move_objects, pose_objects, zero_ops
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -202,7 +202,8 @@ class Contact:
         # Config.two_way: the frame's contact impulses per object and bone (exchange.py)
         if config.two_way and model.worlds > 1:
             raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
-        self.exchange = make_exchange(model, len(objects.object_names), config.two_way, config.frame_dt / config.substeps)
+        self.exchange = make_exchange(model, len(objects.object_names), config.two_way, config.frame_dt / config.substeps,
+                                     objects.pose.shape[0])
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -362,6 +363,7 @@ class Contact:
             return
         self.hold.record_hold(rec, state, self.lists, self.acc, self.take_counter, self.space.apply_shift(state),
                               self.bone_hold, self.exchange, self._held_points())
+        self._record_objects(rec)
 
     def take_counter(self) -> tuple:
         """The next counter slot of the frame and its (1,) counter (:meth:`_counter`)."""
@@ -446,6 +448,16 @@ class Contact:
             else:
                 lst, prev, flag = self._record_pass(rec, state, p, lst, skin, feat_count)
         self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
+        self._record_objects(rec)
+
+    def _record_objects(self, rec) -> None:
+        """Config.two_way: the stage's impulses into the movable objects, which move for the next
+        stage (exchange.move_objects, pose_objects): the exchange at the substep rate."""
+        ex, o = self.exchange, self.objects
+        if ex.obj_lin.shape[0] == 0:
+            return
+        rec.launch(move_objects, ex.obj_lin.shape[0], [ex], [])
+        rec.launch(pose_objects, len(o.names), [ex, o.obj], [o.pose, o.inv_pose])
 
     def _record_pass(self, rec, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
@@ -566,7 +578,7 @@ class Contact:
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.measures.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
-        ops += zero_ops(self.exchange)
+        ops += zero_ops(self.exchange, self.objects)
         if len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol)
             ops.append(self.lists.pass_move.zero_)
         if self.lists.world_stage is not None:
@@ -631,11 +643,13 @@ class Contact:
         finally:
             d.fill_(float(HOLD_DEPTH))
 
-    def set_exchange(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None) -> None:
+    def set_exchange(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None) -> None:
         """Config.two_way: the objects' state for the next frame (world frame, ``Objects.object_names``
         order): centres of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular
         velocities ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body
-        order), about which torques are taken; ``obj_mu`` (K,): friction coefficients (None: kept)."""
+        order), about which torques are taken; ``obj_mu`` (K,): friction coefficients; ``inv_mass``
+        (K,) 1/kg and ``inv_inertia`` (K, 3, 3) 1/(kg m^2), world frame: the objects the skin moves
+        within the frame (0: none) (None: each kept)."""
         ex = self.exchange
         if ex.obj_com.shape[0] == 0:
             raise ValueError("Contact.set_exchange: Config.two_way is off")
@@ -646,6 +660,9 @@ class Contact:
             if not (np.all(np.isfinite(mu)) and np.all(mu >= 0)):
                 raise ValueError(f"friction coefficients must be finite and >= 0, got {mu}")
             ex.obj_mu.assign(mu)
+        if inv_mass is not None:
+            ex.obj_inv_mass.assign(np.asarray(inv_mass, np.float32).reshape(-1))
+            ex.obj_inv_inertia.assign(np.asarray(inv_inertia, np.float32).reshape(-1, 3, 3))
 
     def wrenches(self) -> dict:
         """Config.two_way: the last frame's mean contact wrenches (exchange.frame_wrenches): ``objects``

@@ -33,7 +33,12 @@ class Exchange:
     carries skin vertex i (Model.skin_body; -1: none); h s: the substep; obj_mu (K,): each object's
     Coulomb friction coefficient against the skin; obj_vel (K,) vec3 m/s and obj_omega (K,) vec3 rad/s:
     its velocity at its centre and angular velocity (world frame, set per frame); obj_fric (K,) vec3
-    kg m: the friction corrections' share of obj_lin; obj_com (K,) vec3 m and bone_com (B,) vec3 m:
+    kg m: the friction corrections' share of obj_lin; obj_inv_mass (K,) 1/kg and obj_inv_inertia
+    (K,) mat33 1/(kg m^2, world frame): a movable object's (0: static or kinematic); sub_lin / sub_ang
+    (K,): obj_lin / obj_ang of the current substep only; dv / dw (K,) m/s, rad/s: the velocity the
+    skin has given each object so far this frame; shift (K,) m and turn (K,) quat: how far that has
+    moved and turned it about its centre; base_pose (G,) transform: the geoms' poses MuJoCo gave the
+    frame (Objects.pose before the skin moved them); obj_com (K,) vec3 m and bone_com (B,) vec3 m:
     the centres of mass torques are taken about (set per frame); obj_lin / obj_ang (K,) vec3 and
     bone_lin / bone_ang (B,) vec3: sum(m dx) (kg m) and sum((x - c) x m dx) (kg m^2) of the frame's
     corrections, on the skin's side (the objects get minus these)."""
@@ -46,6 +51,15 @@ class Exchange:
     obj_omega: wp.array(dtype=wp.vec3)
     obj_fric: wp.array(dtype=wp.vec3)
     obj_com: wp.array(dtype=wp.vec3)
+    obj_inv_mass: wp.array(dtype=float)
+    obj_inv_inertia: wp.array(dtype=wp.mat33)
+    sub_lin: wp.array(dtype=wp.vec3)
+    sub_ang: wp.array(dtype=wp.vec3)
+    dv: wp.array(dtype=wp.vec3)
+    dw: wp.array(dtype=wp.vec3)
+    shift: wp.array(dtype=wp.vec3)
+    turn: wp.array(dtype=wp.quat)
+    base_pose: wp.array(dtype=wp.transform)
     bone_com: wp.array(dtype=wp.vec3)
     obj_lin: wp.array(dtype=wp.vec3)
     obj_ang: wp.array(dtype=wp.vec3)
@@ -53,7 +67,7 @@ class Exchange:
     bone_ang: wp.array(dtype=wp.vec3)
 
 
-def make_exchange(model, n_objects: int, on: bool, h: float) -> Exchange:
+def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0) -> Exchange:
     """An :class:`Exchange` for ``model``'s skin against ``n_objects`` objects, substeps of ``h`` s
     (``on`` False: empty arrays, :func:`record` and :func:`friction` do nothing)."""
     d = model.device
@@ -67,6 +81,13 @@ def make_exchange(model, n_objects: int, on: bool, h: float) -> Exchange:
     e.obj_vel, e.obj_omega = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.obj_fric = wp.zeros(k, dtype=wp.vec3, device=d)
     e.obj_com = wp.zeros(k, dtype=wp.vec3, device=d)
+    e.obj_inv_mass = wp.zeros(k, dtype=float, device=d)
+    e.obj_inv_inertia = wp.zeros(k, dtype=wp.mat33, device=d)
+    e.sub_lin, e.sub_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.dv, e.dw = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.shift = wp.zeros(k, dtype=wp.vec3, device=d)
+    e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
+    e.base_pose = wp.zeros(max(g_count, 1) if on else 0, dtype=wp.transform, device=d)
     e.bone_com = wp.zeros(b, dtype=wp.vec3, device=d)
     e.obj_lin, e.obj_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.bone_lin, e.bone_ang = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
@@ -103,20 +124,83 @@ def record(ex: Exchange, i: int, obj: int, xi: wp.vec3, dx: wp.vec3, dxf: wp.vec
     if i >= ex.mass.shape[0] or obj < 0 or obj >= ex.obj_lin.shape[0]:
         return
     p = dx * ex.mass[i]
+    a = wp.cross(xi - ex.obj_com[obj] - ex.shift[obj], p)
     wp.atomic_add(ex.obj_fric, obj, dxf * ex.mass[i])
     wp.atomic_add(ex.obj_lin, obj, p)
-    wp.atomic_add(ex.obj_ang, obj, wp.cross(xi - ex.obj_com[obj], p))
+    wp.atomic_add(ex.obj_ang, obj, a)
+    wp.atomic_add(ex.sub_lin, obj, p)
+    wp.atomic_add(ex.sub_ang, obj, a)
     b = ex.body[i]
     if b >= 0:
         wp.atomic_add(ex.bone_lin, b, p)
         wp.atomic_add(ex.bone_ang, b, wp.cross(xi - ex.bone_com[b], p))
 
 
-def zero_ops(ex: Exchange) -> list:
-    """The per-frame resets of the sums (empty when off)."""
+@wp.kernel
+def reset_objects(ex: Exchange):
+    """Per frame: the sums and the objects' in-frame motion back to zero."""
+    k = wp.tid()
+    ex.obj_lin[k] = wp.vec3(0.0)
+    ex.obj_ang[k] = wp.vec3(0.0)
+    ex.sub_lin[k] = wp.vec3(0.0)
+    ex.sub_ang[k] = wp.vec3(0.0)
+    ex.dv[k] = wp.vec3(0.0)
+    ex.dw[k] = wp.vec3(0.0)
+    ex.shift[k] = wp.vec3(0.0)
+    ex.turn[k] = wp.quat_identity()
+
+
+@wp.kernel
+def move_objects(ex: Exchange):
+    """After a substep's contact: each movable object takes the substep's impulse from the skin
+    (minus the skin's: -sum(m dx) / h) into its velocity change, and moves by the velocity change so
+    far over the substep (the object's own motion is MuJoCo's: the frame's pose already has it)."""
+    k = wp.tid()
+    lin = ex.sub_lin[k]
+    ang = ex.sub_ang[k]
+    ex.sub_lin[k] = wp.vec3(0.0)
+    ex.sub_ang[k] = wp.vec3(0.0)
+    im = ex.obj_inv_mass[k]
+    if im <= 0.0:
+        return
+    dv = ex.dv[k] - lin * (im / ex.h)
+    dw = ex.dw[k] - ex.obj_inv_inertia[k] * ang * (1.0 / ex.h)
+    ex.dv[k] = dv
+    ex.dw[k] = dw
+    ex.shift[k] = ex.shift[k] + dv * ex.h
+    a = wp.length(dw) * ex.h
+    if a > 0.0:
+        ex.turn[k] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(dw), a) * ex.turn[k])
+
+
+@wp.kernel
+def pose_objects(ex: Exchange, obj: wp.array(dtype=int), pose: wp.array(dtype=wp.transform),
+                 inv_pose: wp.array(dtype=wp.transform)):
+    """Each geom of a movable object at its frame pose moved by its object's shift and turn about the
+    object's centre (pose and inverse, as the contact reads them)."""
+    g = wp.tid()
+    k = obj[g]
+    if ex.obj_inv_mass[k] <= 0.0:
+        return
+    b = ex.base_pose[g]
+    c = ex.obj_com[k]
+    q = ex.turn[k]
+    t = wp.transform(c + ex.shift[k] + wp.quat_rotate(q, wp.transform_get_translation(b) - c),
+                     q * wp.transform_get_rotation(b))
+    pose[g] = t
+    inv_pose[g] = wp.transform_inverse(t)
+
+
+def zero_ops(ex: Exchange, objects=None) -> list:
+    """The per-frame resets of the sums and of the objects' in-frame motion, and the geoms' frame
+    poses kept (empty when off)."""
     if ex.obj_lin.shape[0] == 0:
         return []
-    return [ex.obj_lin.zero_, ex.obj_ang.zero_, ex.obj_fric.zero_, ex.bone_lin.zero_, ex.bone_ang.zero_]
+    ops = [ex.obj_fric.zero_, ex.bone_lin.zero_, ex.bone_ang.zero_,
+           lambda: wp.launch(reset_objects, ex.obj_lin.shape[0], [ex], device=ex.obj_lin.device)]
+    if objects is not None:
+        ops.append(lambda: wp.copy(ex.base_pose, objects.pose, count=min(ex.base_pose.shape[0], objects.pose.shape[0])))
+    return ops
 
 
 def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int) -> dict:
@@ -129,4 +213,6 @@ def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int) -> dict:
     scale = 1.0 / (substeps * substep_dt * substep_dt)
     obj = np.concatenate([ex.obj_lin.numpy(), ex.obj_ang.numpy()], axis=1).astype(np.float64) * -scale
     bone = np.concatenate([ex.bone_lin.numpy(), ex.bone_ang.numpy()], axis=1).astype(np.float64) * scale
-    return dict(objects=obj, friction=ex.obj_fric.numpy().astype(np.float64) * -scale, bones=bone)
+    return dict(objects=obj, friction=ex.obj_fric.numpy().astype(np.float64) * -scale, bones=bone,
+                dv=ex.dv.numpy().astype(np.float64), dw=ex.dw.numpy().astype(np.float64),
+                shift=ex.shift.numpy().astype(np.float64), turn=ex.turn.numpy().astype(np.float64))
