@@ -116,6 +116,8 @@ class SoftHand:
         # Config.two_way: each object's MuJoCo body (Objects.object_names order) and the wrenches applied
         self.object_bodies = object_body_ids(model, self.object_geoms, self.objects)
         self._mu = None  # (K,) friction coefficients, read from the model at the first two-way frame
+        # the skin's sliding friction coefficient (None: the skin geom's, or MuJoCo's default 1 without one)
+        self.skin_friction = None
         self._free = free_qpos(model, self.object_bodies)  # (K,) qpos address of a free object's joint, else -1
         self._wrenches = None
         pos, quat = self._bone_poses()
@@ -192,6 +194,10 @@ class SoftHand:
     def step(self) -> dict:
         """One solver frame with the bones and objects where MuJoCo has them now; skin written back."""
         t0 = time.perf_counter()
+        two_way = self.config.two_way and self.solver.contact is not None
+        if two_way:  # the poses of the state mj_step left (data's kinematics are those of the step's start)
+            mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_comPos(self.model, self.data)
         pos, quat = self._bone_poses()
         self.solver.set_body_poses(self.state, pos, quat)
         if self.object_geoms:
@@ -200,7 +206,6 @@ class SoftHand:
         if self._tail_writer:  # the skin geom's pose for the write-back at the end of the frame's graph
             g = self.skin_geom
             self._writer.set_frame(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
-        two_way = self.config.two_way and self.solver.contact is not None
         if two_way:
             self._send_objects()
         t1 = time.perf_counter()
@@ -227,7 +232,8 @@ class SoftHand:
             mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
         mu = None
         if self._mu is None:  # MuJoCo's rule for two geoms of equal priority: the larger coefficient
-            skin = float(m.geom_friction[self.skin_geom][0]) if self.skin_geom >= 0 else 1.0
+            skin = self.skin_friction if self.skin_friction is not None else (
+                float(m.geom_friction[self.skin_geom][0]) if self.skin_geom >= 0 else 1.0)
             mu = np.full(len(bodies), skin)
             for k, g in zip(self.objects.geom_objects, self.object_geoms):
                 mu[k] = max(mu[k], float(m.geom_friction[g][0]))
