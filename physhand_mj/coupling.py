@@ -195,9 +195,6 @@ class SoftHand:
         """One solver frame with the bones and objects where MuJoCo has them now; skin written back."""
         t0 = time.perf_counter()
         two_way = self.config.two_way and self.solver.contact is not None
-        if two_way:  # the poses of the state mj_step left (data's kinematics are those of the step's start)
-            mujoco.mj_kinematics(self.model, self.data)
-            mujoco.mj_comPos(self.model, self.data)
         pos, quat = self._bone_poses()
         self.solver.set_body_poses(self.state, pos, quat)
         if self.object_geoms:
@@ -227,9 +224,15 @@ class SoftHand:
         """Config.two_way: the objects' centres, velocities, friction and, for free bodies, mass and
         inertia, and the bones' centres, to the contact for the next frame."""
         m, d, bodies = self.model, self.data, self.object_bodies
-        vel = np.zeros((len(bodies), 6))
+        vel = np.zeros((len(bodies), 6))  # [angular, linear at the centre], world frame
         for k, b in enumerate(bodies):
-            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
+            a = self._free[k]
+            if a >= 0:  # a free body: the velocity its step ended with (qvel; data.cvel is the step's start)
+                dof = m.jnt_dofadr[m.body_jntadr[b]]
+                w = d.xmat[b].reshape(3, 3) @ d.qvel[dof + 3: dof + 6]
+                vel[k] = np.r_[w, d.qvel[dof: dof + 3] + np.cross(w, d.xipos[b] - d.xpos[b])]
+            else:
+                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
         mu = None
         if self._mu is None:  # MuJoCo's rule for two geoms of equal priority: the larger coefficient
             skin = self.skin_friction if self.skin_friction is not None else (
@@ -251,16 +254,15 @@ class SoftHand:
         """Config.two_way: the frame's contact impulses into MuJoCo: every object body that moves and,
         as the reaction, the bones get their impulse (sum m dx / h over the frame, about their
         centres) as one velocity change, qvel += M^-1 J^T [impulses] (mj_applyFT, mj_solveM); a free
-        object also takes the shift and turn the skin gave it within the frame (exchange.move_objects)."""
+        object takes the pose the frame moved it to."""
         m, d = self.model, self.data
         w = self.solver.contact.wrenches()
         T = self.config.frame_dt
         qimp = np.zeros(m.nv)
-        shift = w["shift"]
         for k, b in enumerate(self.object_bodies):
             if m.body_weldid[b] != 0 and m.body_mocapid[b] < 0:
                 imp = w["objects"][k] * T
-                mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b] + shift[k], int(b), qimp)
+                mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
         for j, b in enumerate(self.bones):
             imp = w["bones"][j] * T
             mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
@@ -272,12 +274,15 @@ class SoftHand:
             a = self._free[k]
             if a < 0:
                 continue
+            # a free object ends where the frame took it: from the pose its step started at (data's
+            # kinematics after mj_step), moved at the substep rate with MuJoCo's velocity plus the
+            # skin's (exchange.move_objects); MuJoCo's own move of it in the step is replaced
             c = d.xipos[b]
             q = w["turn"][k][[3, 0, 1, 2]]  # x y z w -> w x y z
             r = quat_to_mat(q[None])[0]
-            d.qpos[a: a + 3] = c + shift[k] + r @ (d.qpos[a: a + 3] - c)
+            d.qpos[a: a + 3] = c + w["shift"][k] + r @ (d.xpos[b] - c)
             out = np.zeros(4)
-            mujoco.mju_mulQuat(out, q, d.qpos[a + 3: a + 7])
+            mujoco.mju_mulQuat(out, q, d.xquat[b])
             d.qpos[a + 3: a + 7] = out / np.linalg.norm(out)
         self._wrenches = w
 

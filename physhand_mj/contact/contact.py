@@ -23,7 +23,8 @@ import warp as wp
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
 from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold
-from physhand_mj.contact.exchange import frame_wrenches, make_exchange, move_objects, pose_objects, zero_ops
+from physhand_mj.contact.exchange import (frame_wrenches, make_exchange, move_objects, pose_objects, skin_friction,
+                                          take_impulses, zero_ops)
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -361,9 +362,10 @@ class Contact:
         """A substep without a stage: the skin held on the last stage's planes (:meth:`PlaneHold.record_hold`)."""
         if not self.hold.holds:
             return
+        self._record_objects_move(rec)
         self.hold.record_hold(rec, state, self.lists, self.acc, self.take_counter, self.space.apply_shift(state),
                               self.bone_hold, self.exchange, self._held_points())
-        self._record_objects(rec)
+        self._record_objects_take(rec, state)
 
     def take_counter(self) -> tuple:
         """The next counter slot of the frame and its (1,) counter (:meth:`_counter`)."""
@@ -387,6 +389,7 @@ class Contact:
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
+        self._record_objects_move(rec)
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.features is not None else -1))
         self.active_count = self._counter()
@@ -448,16 +451,26 @@ class Contact:
             else:
                 lst, prev, flag = self._record_pass(rec, state, p, lst, skin, feat_count)
         self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
-        self._record_objects(rec)
+        self._record_objects_take(rec, state)
 
-    def _record_objects(self, rec) -> None:
-        """Config.two_way: the stage's impulses into the movable objects, which move for the next
-        stage (exchange.move_objects, pose_objects): the exchange at the substep rate."""
+    def _record_objects_move(self, rec) -> None:
+        """Config.two_way, before a substep's contact: the movable objects move over the substep
+        (exchange.move_objects, pose_objects)."""
         ex, o = self.exchange, self.objects
         if ex.obj_lin.shape[0] == 0:
             return
         rec.launch(move_objects, ex.obj_lin.shape[0], [ex], [])
         rec.launch(pose_objects, len(o.names), [ex, o.obj], [o.pose, o.inv_pose])
+
+    def _record_objects_take(self, rec, state) -> None:
+        """Config.two_way, after a substep's contact: the skin's friction, then the substep's impulses
+        into the movable objects' velocities (exchange.skin_friction, take_impulses): the exchange at
+        the substep rate."""
+        ex, o, m = self.exchange, self.objects, self.model
+        if ex.obj_lin.shape[0] == 0:
+            return
+        rec.launch(skin_friction, m.n_skin, [ex, self.bone_hold, o.geoms, len(o.names), state.x_prev], [state.x])
+        rec.launch(take_impulses, ex.obj_lin.shape[0], [ex], [])
 
     def _record_pass(self, rec, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
@@ -492,7 +505,7 @@ class Contact:
             rec.launch(kernel, self.n_tris, decide(0), outs, count=lst[1], block_dim=block)
         shift, shifted = self.space.apply_shift(state)
         rec.launch(apply_contact, m.n_vertices, [a.sums, self.touched_count, stamp, shift, self.bone_hold, self.exchange],
-                   [state.x, state.x_prev, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
+                   [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=self.touched_count)
         self._tally_touched(rec, p, self.touched_count)
         if p + 1 == cfg.contact_passes and self.features is not None and cfg.feature_last:
             moved_slots.append(self._record_features(rec, state, p + 1, skin, feat_count, stamp)[0])
@@ -737,7 +750,7 @@ class Contact:
         shift, shifted = self.space.apply_shift(state)
         a = self.acc
         rec.launch(apply_contact, m.n_vertices, [a.sums, feat_touched, stamp, shift, self.bone_hold, self.exchange],
-                   [state.x, state.x_prev, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
+                   [state.x, a.push, a.moved, a.disp, self.lists.pass_move, shifted], count=feat_touched)
         return slot, feat_touched
 
     def _feature_inputs(self, state, cand, cand_count, offset: float, touched_count, skin=None, stride: int = 0,

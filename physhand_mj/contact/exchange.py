@@ -22,6 +22,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.bones import BoneHold, held_move
+from physhand_mj.contact.sdf import GeomSet, geom_sdf_grad
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -31,14 +34,16 @@ class Exchange:
 
     mass (V,) float kg: each vertex's mass (0 for kinematic ones); body (V,) int: the bone that
     carries skin vertex i (Model.skin_body; -1: none); h s: the substep; obj_mu (K,): each object's
-    Coulomb friction coefficient against the skin; obj_vel (K,) vec3 m/s and obj_omega (K,) vec3 rad/s:
+    Coulomb friction coefficient against the skin; sub_load (S,) m: the normal contact correction of
+    each skin vertex in the current substep, load (S,) m: its running mean over substeps (the normal
+    impulse m load / h that friction is bounded by), fr_obj (S,): the object it touches (-1: none); obj_vel (K,) vec3 m/s and obj_omega (K,) vec3 rad/s:
     its velocity at its centre and angular velocity (world frame, set per frame); obj_fric (K,) vec3
     kg m: the friction corrections' share of obj_lin; obj_inv_mass (K,) 1/kg and obj_inv_inertia
     (K,) mat33 1/(kg m^2, world frame): a movable object's (0: static or kinematic); sub_lin / sub_ang
     (K,): obj_lin / obj_ang of the current substep only; dv / dw (K,) m/s, rad/s: the velocity the
-    skin has given each object so far this frame; shift (K,) m and turn (K,) quat: how far that has
-    moved and turned it about its centre; base_pose (G,) transform: the geoms' poses MuJoCo gave the
-    frame (Objects.pose before the skin moved them); obj_com (K,) vec3 m and bone_com (B,) vec3 m:
+    skin has given each object so far this frame; shift (K,) m and turn (K,) quat: how far each has
+    moved and turned about its centre in the frame; base_pose (G,) transform: the geoms' poses at the
+    frame's start (Objects.pose as set for the frame); obj_com (K,) vec3 m and bone_com (B,) vec3 m:
     the centres of mass torques are taken about (set per frame); obj_lin / obj_ang (K,) vec3 and
     bone_lin / bone_ang (B,) vec3: sum(m dx) (kg m) and sum((x - c) x m dx) (kg m^2) of the frame's
     corrections, on the skin's side (the objects get minus these)."""
@@ -47,6 +52,9 @@ class Exchange:
     body: wp.array(dtype=int)
     h: float
     obj_mu: wp.array(dtype=float)
+    sub_load: wp.array(dtype=float)
+    load: wp.array(dtype=float)
+    fr_obj: wp.array(dtype=int)
     obj_vel: wp.array(dtype=wp.vec3)
     obj_omega: wp.array(dtype=wp.vec3)
     obj_fric: wp.array(dtype=wp.vec3)
@@ -78,6 +86,9 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0) -
     e.body = model.skin_body if on else wp.zeros(0, dtype=int, device=d)
     e.h = float(h)
     e.obj_mu = wp.zeros(k, dtype=float, device=d)
+    ns = model.n_skin if on else 0
+    e.sub_load, e.load = wp.zeros(ns, dtype=float, device=d), wp.zeros(ns, dtype=float, device=d)
+    e.fr_obj = wp.full(ns, -1, dtype=int, device=d)
     e.obj_vel, e.obj_omega = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.obj_fric = wp.zeros(k, dtype=wp.vec3, device=d)
     e.obj_com = wp.zeros(k, dtype=wp.vec3, device=d)
@@ -95,26 +106,73 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0) -
 
 
 @wp.func
-def friction(ex: Exchange, i: int, obj: int, xi: wp.vec3, x_start: wp.vec3, dxn: wp.vec3):
-    """Coulomb friction of skin vertex ``i`` (at ``xi``; ``x_start`` at the substep's start) against
-    object ``obj``, whose contact correction ``dxn`` this pass is the normal impulse m |dxn| / h: the
-    vertex's slip over the substep, its motion less the object's surface motion there, tangent to
-    ``dxn``, is undone where it is within mu |dxn| (sticking), else cut by mu |dxn| (sliding).
-    Returns the correction to add (0 where two-way coupling is off)."""
-    if i >= ex.mass.shape[0] or obj < 0 or obj >= ex.obj_lin.shape[0]:
-        return wp.vec3(0.0)
-    dn = wp.length(dxn)
-    if dn <= 0.0:
-        return wp.vec3(0.0)
-    n = dxn / dn
-    x1 = xi + dxn
-    u = x1 - x_start - (ex.obj_vel[obj] + wp.cross(ex.obj_omega[obj], x1 - ex.obj_com[obj])) * ex.h
+def touch_load(ex: Exchange, i: int, obj: int, dxn: wp.vec3):
+    """Skin vertex ``i``'s normal contact correction ``dxn`` by object ``obj``, for its friction."""
+    if i >= ex.sub_load.shape[0] or obj < 0:
+        return
+    ex.sub_load[i] = ex.sub_load[i] + wp.length(dxn)
+    ex.fr_obj[i] = obj
+
+
+# the running mean's weight of a substep's normal correction: the skin under a resting object is
+# pushed out in some substeps and not in others, and its friction bound is the mean normal impulse
+LOAD_RATE = wp.constant(0.25)
+# m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
+# feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
+TOUCH_GAP = wp.constant(5.0e-4)
+
+
+@wp.func
+def object_phi(x: wp.vec3, k: int, geoms: GeomSet, base: int, n: int):
+    """(phi m, outward unit normal, world) of the nearest geom of object ``k`` among a world's geoms."""
+    best = float(1.0e30)
+    nrm = wp.vec3(0.0, 0.0, 1.0)
+    for j in range(n):
+        g = base + j
+        if geoms.obj[g] == k:
+            q = wp.transform_point(geoms.inv_pose[g], x)
+            phi, grad = geom_sdf_grad(geoms.gtype[g], q, geoms.size[g], geoms.mesh[g])
+            if phi < best:
+                best = phi
+                nrm = wp.transform_vector(wp.transform_inverse(geoms.inv_pose[g]), grad)
+    return best, wp.normalize(nrm)
+
+
+@wp.kernel
+def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, x_start: wp.array(dtype=wp.vec3),
+                  x: wp.array(dtype=wp.vec3)):
+    """After a substep's contact: Coulomb friction of every skin vertex touching an object. Its slip
+    over the substep (its motion less the object's surface motion there, tangent to the surface) is
+    undone where within mu x its mean normal correction (sticking), else cut by that much (sliding);
+    the correction's impulse goes to the object and the bones (:func:`record`). A vertex that was
+    pushed recently but not this substep still holds (its mean load decays); one that left the object
+    (farther than TOUCH_GAP) lets go."""
+    i = wp.tid()
+    k = ex.fr_obj[i]
+    if k < 0:
+        return
+    sub = ex.sub_load[i]
+    ex.sub_load[i] = 0.0
+    load = ex.load[i] + LOAD_RATE * (sub - ex.load[i])
+    xi = x[i]
+    phi, n = object_phi(xi, k, geoms, 0, n_geoms)
+    if phi > TOUCH_GAP or load <= 0.0:
+        ex.load[i] = 0.0
+        ex.fr_obj[i] = -1
+        return
+    ex.load[i] = load
+    r = xi - ex.obj_com[k] - ex.shift[k]
+    vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
+    u = xi - x_start[i] - vel * ex.h
     ut = u - n * wp.dot(u, n)
     s = wp.length(ut)
-    lim = ex.obj_mu[obj] * dn
-    if s <= lim:
-        return -ut
-    return -ut * (lim / s)
+    lim = ex.obj_mu[k] * load
+    dxf = -ut
+    if s > lim:
+        dxf = -ut * (lim / s)
+    dx = held_move(hold, i, xi, dxf)
+    record(ex, i, k, xi, dx, dx)
+    x[i] = xi + dx
 
 
 @wp.func
@@ -151,10 +209,9 @@ def reset_objects(ex: Exchange):
 
 
 @wp.kernel
-def move_objects(ex: Exchange):
+def take_impulses(ex: Exchange):
     """After a substep's contact: each movable object takes the substep's impulse from the skin
-    (minus the skin's: -sum(m dx) / h) into its velocity change, and moves by the velocity change so
-    far over the substep (the object's own motion is MuJoCo's: the frame's pose already has it)."""
+    (minus the skin's: -sum(m dx) / h) into its velocity change."""
     k = wp.tid()
     lin = ex.sub_lin[k]
     ang = ex.sub_ang[k]
@@ -163,14 +220,24 @@ def move_objects(ex: Exchange):
     im = ex.obj_inv_mass[k]
     if im <= 0.0:
         return
-    dv = ex.dv[k] - lin * (im / ex.h)
-    dw = ex.dw[k] - ex.obj_inv_inertia[k] * ang * (1.0 / ex.h)
-    ex.dv[k] = dv
-    ex.dw[k] = dw
-    ex.shift[k] = ex.shift[k] + dv * ex.h
-    a = wp.length(dw) * ex.h
+    ex.dv[k] = ex.dv[k] - lin * (im / ex.h)
+    ex.dw[k] = ex.dw[k] - ex.obj_inv_inertia[k] * ang * (1.0 / ex.h)
+
+
+@wp.kernel
+def move_objects(ex: Exchange):
+    """Before a substep's contact: each movable object moves over the substep with its velocity
+    (MuJoCo's after its step, plus what the skin has changed in the frame so far). Its frame pose is
+    the one MuJoCo's step started from, so its whole motion in the frame is integrated here, at the
+    substep rate, with the skin's force in it."""
+    k = wp.tid()
+    if ex.obj_inv_mass[k] <= 0.0:
+        return
+    ex.shift[k] = ex.shift[k] + (ex.obj_vel[k] + ex.dv[k]) * ex.h
+    w = ex.obj_omega[k] + ex.dw[k]
+    a = wp.length(w) * ex.h
     if a > 0.0:
-        ex.turn[k] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(dw), a) * ex.turn[k])
+        ex.turn[k] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(w), a) * ex.turn[k])
 
 
 @wp.kernel
@@ -196,7 +263,7 @@ def zero_ops(ex: Exchange, objects=None) -> list:
     poses kept (empty when off)."""
     if ex.obj_lin.shape[0] == 0:
         return []
-    ops = [ex.obj_fric.zero_, ex.bone_lin.zero_, ex.bone_ang.zero_,
+    ops = [ex.obj_fric.zero_, ex.bone_lin.zero_, ex.bone_ang.zero_, ex.sub_load.zero_,
            lambda: wp.launch(reset_objects, ex.obj_lin.shape[0], [ex], device=ex.obj_lin.device)]
     if objects is not None:
         ops.append(lambda: wp.copy(ex.base_pose, objects.pose, count=min(ex.base_pose.shape[0], objects.pose.shape[0])))

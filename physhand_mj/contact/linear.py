@@ -344,7 +344,7 @@ class PlaneHold:
             stamp, count = take_counter()
             rec.launch(kernel, dim, inputs, [acc.sums, count], count=length)
             rec.launch(apply_contact, m.n_vertices, [acc.sums, count, stamp, shift[0], bone_hold, exchange],
-                       [state.x, state.x_prev, acc.push, acc.moved, acc.disp, lists.pass_move, shift[1]], count=count)
+                       [state.x, acc.push, acc.moved, acc.disp, lists.pass_move, shift[1]], count=count)
 
 
 def make_plane_buffers(n: int, device) -> PlaneBuffers:

@@ -34,7 +34,7 @@ import functools
 import warp as wp
 
 from physhand_mj.contact.bones import BoneHold, held_move
-from physhand_mj.contact.exchange import Exchange, friction, record
+from physhand_mj.contact.exchange import Exchange, record, touch_load
 from physhand_mj.contact.broadphase import TriList, triangle_bound, world_geoms
 from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, GeomSet, geom_sdf,
                                      geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic)
@@ -594,21 +594,16 @@ def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst
 
 @wp.func
 def apply_vertex(i: int, stamp: int, sums: PushSums, hold: BoneHold, ex: Exchange, x: wp.array(dtype=wp.vec3),
-                 x_start: wp.array(dtype=wp.vec3), push: wp.array(dtype=float), moved: wp.array(dtype=int),
-                 disp: wp.array(dtype=float)):
+                 push: wp.array(dtype=float), moved: wp.array(dtype=int), disp: wp.array(dtype=float)):
     """:func:`apply_contact` for touched vertex ``i``, where its bones allow it (bones.held_move); with
-    two-way coupling (``ex`` not empty) plus its Coulomb friction against the object (``x_start``:
-    the substep's start positions) and its impulse summed (exchange.friction, exchange.record)."""
-    dxn = sums.delta[i] * (1.0 / sums.hits[i])
+    two-way coupling (``ex`` not empty) its impulse summed and its normal load kept for its friction
+    (exchange.record, exchange.touch_load; the friction itself: exchange.skin_friction)."""
     obj = sums.vertex_obj[i]
-    dxf = friction(ex, i, obj, x[i], x_start[i], dxn)
-    full = dxn + dxf
-    dx = held_move(hold, i, x[i], full)
+    dx = held_move(hold, i, x[i], sums.delta[i] * (1.0 / sums.hits[i]))
     sums.delta[i] = wp.vec3(0.0)
     sums.hits[i] = 0.0
-    if wp.length(dx - full) > 0.0:  # (held: no move at all)
-        dxf = wp.vec3(0.0)
-    record(ex, i, obj, x[i], dx, dxf)
+    touch_load(ex, i, obj, dx)
+    record(ex, i, obj, x[i], dx, wp.vec3(0.0))
     x[i] = x[i] + dx
     step = wp.length(dx)
     push[i] = push[i] + step
@@ -628,7 +623,6 @@ def apply_contact(
     hold: BoneHold,
     ex: Exchange,
     x: wp.array(dtype=wp.vec3),
-    x_start: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
     disp: wp.array(dtype=float),
@@ -646,7 +640,7 @@ def apply_contact(
     if k >= touched_count[0]:
         return
     i = sums.touched[k]
-    apply_vertex(i, stamp, sums, hold, ex, x, x_start, push, moved, disp)
+    apply_vertex(i, stamp, sums, hold, ex, x, push, moved, disp)
     if i < shifted.shape[0]:
         shifted[i] = x[i] + shift[i]
     if pass_move.shape[0] > 0:
