@@ -248,7 +248,21 @@ class SoftHand:
                 inv_m[k] = 1.0 / m.body_mass[b]
                 r = d.ximat[b].reshape(3, 3)
                 inv_i[k] = r @ np.diag(1.0 / np.maximum(m.body_inertia[b], 1e-12)) @ r.T
-        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu, inv_m, inv_i)
+        bv = np.zeros((len(self.bones), 6))
+        for j, b in enumerate(self.bones):
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), bv[j], 0)
+        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu, inv_m, inv_i,
+                                         bv[:, 3:], bv[:, :3])
+
+    def _applied_wrench(self, k: int, idx) -> dict:
+        """Config.two_way: what the skin applied to object ``k`` over the last frame (its mean force,
+        torque about its centre and friction part, world frame) and where (the contact points, the
+        skin vertices ``idx``' positions); nothing without two-way coupling."""
+        if self._wrenches is None:
+            return {}
+        w = self._wrenches
+        return dict(force=w["objects"][k][:3].copy(), torque=w["objects"][k][3:].copy(), friction=w["friction"][k].copy(),
+                    points=self._skin[idx].copy())
 
     def _apply_wrenches(self) -> None:
         """Config.two_way: the frame's contact impulses into MuJoCo: every object body that moves and,
@@ -359,6 +373,10 @@ class SoftHand:
         that deep, so no penetration-free skin exists there), ``bones_inside`` (the bodies with a
         vertex inside it) and ``skin_held`` (skin vertices the last frame's contact left where their
         bones carry them because it holds their bone: Config.tuning.bone_hold, contact/bones.py).
+        With ``Config.two_way`` also what the skin applied to the object in the last frame (its MuJoCo
+        body took it): ``force`` (3,) N and ``torque`` (3,) N m about its centre of mass (means over the
+        frame, world frame), ``friction`` (3,) N (the friction part of ``force``) and ``points`` (n, 3) m
+        (the skin vertices of ``vertices``).
         ``pressure_pa`` is force per vertex area, a heat map over the skin; ``bone_clearance_mm`` the
         least over all objects (50 mm where no bone is nearer).
         """
@@ -379,6 +397,7 @@ class SoftHand:
             idx = np.flatnonzero((vobj == k) & (push > 0))
             b = bones["objects"].get(k, dict(clearance_m=BONE_CAP, bones=[], skin_held=0))
             out[name] = dict(vertices=idx, area_m2=float(area[idx].sum()), force_n=float(force[idx].sum()),
+                             **self._applied_wrench(k, idx),
                              penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6,
                              object_in_skin_count=int(round(float(row[3]))),
                              object_in_skin_deepest_um=float(row[5]) * 1e6,

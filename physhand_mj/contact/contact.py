@@ -204,7 +204,7 @@ class Contact:
         if config.two_way and model.worlds > 1:
             raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
         self.exchange = make_exchange(model, len(objects.object_names), config.two_way, config.frame_dt / config.substeps,
-                                     objects.pose.shape[0])
+                                     objects.pose.shape[0], config.contact_damping)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -656,13 +656,15 @@ class Contact:
         finally:
             d.fill_(float(HOLD_DEPTH))
 
-    def set_exchange(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None) -> None:
+    def set_exchange(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None,
+                     bone_vel=None, bone_omega=None) -> None:
         """Config.two_way: the objects' state for the next frame (world frame, ``Objects.object_names``
         order): centres of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular
         velocities ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body
         order), about which torques are taken; ``obj_mu`` (K,): friction coefficients; ``inv_mass``
         (K,) 1/kg and ``inv_inertia`` (K, 3, 3) 1/(kg m^2), world frame: the objects the skin moves
-        within the frame (0: none) (None: each kept)."""
+        within the frame (0: none); ``bone_vel`` / ``bone_omega`` (B, 3): the bones' velocities, m/s
+        at their centres and rad/s (None: each kept)."""
         ex = self.exchange
         if ex.obj_com.shape[0] == 0:
             raise ValueError("Contact.set_exchange: Config.two_way is off")
@@ -673,6 +675,9 @@ class Contact:
             if not (np.all(np.isfinite(mu)) and np.all(mu >= 0)):
                 raise ValueError(f"friction coefficients must be finite and >= 0, got {mu}")
             ex.obj_mu.assign(mu)
+        if bone_vel is not None:
+            ex.bone_vel.assign(np.asarray(bone_vel, np.float32).reshape(-1, 3))
+            ex.bone_omega.assign(np.asarray(bone_omega, np.float32).reshape(-1, 3))
         if inv_mass is not None:
             ex.obj_inv_mass.assign(np.asarray(inv_mass, np.float32).reshape(-1))
             ex.obj_inv_inertia.assign(np.asarray(inv_inertia, np.float32).reshape(-1, 3, 3))

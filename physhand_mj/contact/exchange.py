@@ -69,15 +69,25 @@ class Exchange:
     turn: wp.array(dtype=wp.quat)
     base_pose: wp.array(dtype=wp.transform)
     bone_com: wp.array(dtype=wp.vec3)
+    bone_vel: wp.array(dtype=wp.vec3)
+    bone_omega: wp.array(dtype=wp.vec3)
+    damp: float
+    agg_load: wp.array(dtype=float)
+    agg_n: wp.array(dtype=wp.vec3)
+    agg_vb: wp.array(dtype=wp.vec3)
+    prev_load: wp.array(dtype=float)
+    prev_n: wp.array(dtype=wp.vec3)
+    prev_vb: wp.array(dtype=wp.vec3)
     obj_lin: wp.array(dtype=wp.vec3)
     obj_ang: wp.array(dtype=wp.vec3)
     bone_lin: wp.array(dtype=wp.vec3)
     bone_ang: wp.array(dtype=wp.vec3)
 
 
-def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0) -> Exchange:
-    """An :class:`Exchange` for ``model``'s skin against ``n_objects`` objects, substeps of ``h`` s
-    (``on`` False: empty arrays, :func:`record` and :func:`friction` do nothing)."""
+def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, damping: float = 0.0) -> Exchange:
+    """An :class:`Exchange` for ``model``'s skin against ``n_objects`` objects (``g_count`` geoms),
+    substeps of ``h`` s, the flesh's contact damping time ``damping`` s (0: none) (``on`` False:
+    empty arrays, :func:`record` and :func:`touch_load` do nothing)."""
     d = model.device
     e = Exchange()
     k, b = (max(n_objects, 1), max(model.n_bodies, 1)) if on else (0, 0)
@@ -100,6 +110,11 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0) -
     e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
     e.base_pose = wp.zeros(max(g_count, 1) if on else 0, dtype=wp.transform, device=d)
     e.bone_com = wp.zeros(b, dtype=wp.vec3, device=d)
+    e.bone_vel, e.bone_omega = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
+    e.damp = float(1.0 - np.exp(-h / damping)) if damping > 0 else 0.0
+    e.agg_load, e.prev_load = wp.zeros(k, dtype=float, device=d), wp.zeros(k, dtype=float, device=d)
+    e.agg_n, e.prev_n = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.agg_vb, e.prev_vb = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.obj_lin, e.obj_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.bone_lin, e.bone_ang = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
     return e
@@ -156,13 +171,27 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, x_
     load = ex.load[i] + LOAD_RATE * (sub - ex.load[i])
     xi = x[i]
     phi, n = object_phi(xi, k, geoms, 0, n_geoms)
-    if phi > TOUCH_GAP or load <= 0.0:
+    if (sub <= 0.0 and phi > TOUCH_GAP) or load <= 0.0:
         ex.load[i] = 0.0
         ex.fr_obj[i] = -1
         return
     ex.load[i] = load
     r = xi - ex.obj_com[k] - ex.shift[k]
     vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
+    b = ex.body[i]
+    if b >= 0 and ex.damp > 0.0:  # the flesh's damping: the object's normal velocity relative to the
+        # bones under it (the previous substep's load-weighted means) decays, shared by load
+        vb = ex.bone_vel[b] + wp.cross(ex.bone_omega[b], xi - ex.bone_com[b])
+        wp.atomic_add(ex.agg_load, k, load)
+        wp.atomic_add(ex.agg_n, k, n * load)
+        wp.atomic_add(ex.agg_vb, k, vb * load)
+        pl = ex.prev_load[k]
+        im = ex.obj_inv_mass[k]
+        if pl > 0.0 and im > 0.0 and ex.mass[i] > 0.0:
+            nk = wp.normalize(ex.prev_n[k])
+            vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
+            jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
+            record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
     u = xi - x_start[i] - vel * ex.h
     ut = u - n * wp.dot(u, n)
     s = wp.length(ut)
@@ -217,6 +246,12 @@ def take_impulses(ex: Exchange):
     ang = ex.sub_ang[k]
     ex.sub_lin[k] = wp.vec3(0.0)
     ex.sub_ang[k] = wp.vec3(0.0)
+    ex.prev_load[k] = ex.agg_load[k]
+    ex.prev_n[k] = ex.agg_n[k]
+    ex.prev_vb[k] = ex.agg_vb[k]
+    ex.agg_load[k] = 0.0
+    ex.agg_n[k] = wp.vec3(0.0)
+    ex.agg_vb[k] = wp.vec3(0.0)
     im = ex.obj_inv_mass[k]
     if im <= 0.0:
         return
