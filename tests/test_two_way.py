@@ -61,7 +61,22 @@ def test_one_way_is_unchanged_and_reports_no_applied_force(slab):
     """Without two_way the box falls through the slab's skin (the skin pushes nothing) and the
     contact report has no applied force."""
     rig = SlabRig(slab, mass=0.1, mu=0.5, gap=1.0e-3, config=ph.Config(two_way=False))
+    rig.hand.solver.warn_feature_slack = False  # (the box falls through the skin: fast, on purpose)
     for _ in range(40):
         rig.step()
     assert rig.state()["height"] < -0.01
     assert "force" not in rig.hand.contacts()["objects"]["box"]
+
+
+@pytest.mark.slow  # three ramps, ~600-900 frames each (~20-30 s each on a 2-core CPU)
+@pytest.mark.parametrize("mu", [0.3, 0.6, 1.0])
+def test_a_box_on_a_tilting_table_slides_at_atan_mu(slab, mu):
+    """The pattern of Newton's test_rigid_friction_ramp: the box sticks while the table tilts (up to 2
+    degrees before atan(mu) it has moved less than 4 mm, the 6 mm flesh's shear under it, and not
+    slid) and slides within 2 degrees of atan(mu)."""
+    from physhand_mj.bench.slab import slide_angle
+
+    rig = SlabRig(slab, mass=0.1, mu=mu, gap=-3.5e-4)
+    r = slide_angle(rig, np.arctan(mu) - np.radians(8.0))
+    assert abs(np.degrees(r["angle"] - np.arctan(mu))) <= 2.0, np.degrees(r["angle"])
+    assert r["moved"] < 4.0e-3, r["moved"]
