@@ -159,6 +159,13 @@ class Config:
         5 ms frames is 2 m/s); objects farther cost nothing.
       feature_contact: also push the skin off object corners, tips and sharp edges inside it.
       skin_tether: the farthest a skin vertex may be from where its bone carries it (m; 0: off).
+      two_way: the skin acts back on the scene: each frame's contact impulses, summed per object and
+        per bone (contact/exchange.py), are applied by SoftHand to the objects' MuJoCo bodies and, as
+        the reaction, to the bones, through ``data.xfrc_applied`` over the next MuJoCo step
+        (docs/coupling.md; one hand, not BatchedHands).
+      contact_damping: with two_way, the flesh's damping at contacts (s): a touching object's normal
+        velocity relative to the bones under the skin decays over this time (the flesh's own
+        velocity damping leaves a box on the skin ringing for seconds); 0: none.
     Measurement:
       frame_metrics: the skin measure (samples inside objects) at every frame's end.
       substep_metrics: the same after every substep (logs).
@@ -191,6 +198,8 @@ class Config:
     contact_frame_margin: float = 1.0e-2
     feature_contact: bool = True
     skin_tether: float = 0.025
+    two_way: bool = False
+    contact_damping: float = 0.01
     frame_metrics: bool = True
     substep_metrics: bool = False
     object_metrics: bool = False
@@ -318,12 +327,13 @@ def _check(s) -> None:
     flag("region_sleep")
     flag("fused_substep", True, " (the CPU's and large CUDA batches' default)")
     flag("contact_linear")
+    flag("two_way")
     flag("tiled_features", True, " (blocks for one hand, a thread per feature for batches)")
     flag("reuse_outside")
     flag("jacobi_gather", True, " (on CUDA)")
     if not (isinstance(s.multires_samples, (int, np.integer)) and s.multires_samples >= 3):
         raise ValueError(f"Config.tuning.multires_samples must be an integer >= 3, got {s.multires_samples!r}")
-    for name in ("contact_margin", "contact_pass_tol", "skin_tether", "contact_frame_margin", "contact_offset",
+    for name in ("contact_margin", "contact_pass_tol", "skin_tether", "contact_frame_margin", "contact_offset", "contact_damping",
                  "feature_offset", "mesh_grid", "sleep_speed", "sleep_bone_motion"):
         nonneg(name)
     v = s.feature_last_offset

@@ -113,6 +113,13 @@ class SoftHand:
             self._add_geom(g)
         self.solver = Solver(make_model(self.asset, self.config), self.config,
                              objects=self.objects if self.object_geoms else None)
+        # Config.two_way: each object's MuJoCo body (Objects.object_names order) and the wrenches applied
+        self.object_bodies = object_body_ids(model, self.object_geoms, self.objects)
+        self._mu = None  # (K,) friction coefficients, read from the model at the first two-way frame
+        # the skin's sliding friction coefficient (None: the skin geom's, or MuJoCo's default 1 without one)
+        self.skin_friction = None
+        self._free = free_qpos(model, self.object_bodies)  # (K,) qpos address of a free object's joint, else -1
+        self._wrenches = None
         pos, quat = self._bone_poses()
         root_pos, root_quat = self._rest_placement(pos[0], quat[0])
         self.state = self.solver.make_state(root_pos, root_quat)
@@ -187,6 +194,7 @@ class SoftHand:
     def step(self) -> dict:
         """One solver frame with the bones and objects where MuJoCo has them now; skin written back."""
         t0 = time.perf_counter()
+        two_way = self.config.two_way and self.solver.contact is not None
         pos, quat = self._bone_poses()
         self.solver.set_body_poses(self.state, pos, quat)
         if self.object_geoms:
@@ -195,9 +203,13 @@ class SoftHand:
         if self._tail_writer:  # the skin geom's pose for the write-back at the end of the frame's graph
             g = self.skin_geom
             self._writer.set_frame(self.data.geom_xpos[g], self.data.geom_xmat[g].reshape(3, 3))
+        if two_way:
+            self._send_objects()
         t1 = time.perf_counter()
         out = self.solver.step(self.state)
         t2 = time.perf_counter()
+        if two_way:
+            self._apply_wrenches()
         self._write_back(after_frame=True)
         t3 = time.perf_counter()
         tm = self._timing
@@ -207,6 +219,86 @@ class SoftHand:
         tm["frames"] += 1
         self._last = out
         return out
+
+    def _send_objects(self) -> None:
+        """Config.two_way: the objects' centres, velocities, friction and, for free bodies, mass and
+        inertia, and the bones' centres, to the contact for the next frame."""
+        m, d, bodies = self.model, self.data, self.object_bodies
+        vel = np.zeros((len(bodies), 6))  # [angular, linear at the centre], world frame
+        for k, b in enumerate(bodies):
+            a = self._free[k]
+            if a >= 0:  # a free body: the velocity its step ended with (qvel; data.cvel is the step's start)
+                dof = m.jnt_dofadr[m.body_jntadr[b]]
+                w = d.xmat[b].reshape(3, 3) @ d.qvel[dof + 3: dof + 6]
+                vel[k] = np.r_[w, d.qvel[dof: dof + 3] + np.cross(w, d.xipos[b] - d.xpos[b])]
+            else:
+                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
+        mu = None
+        if self._mu is None:  # MuJoCo's rule for two geoms of equal priority: the larger coefficient
+            skin = self.skin_friction if self.skin_friction is not None else (
+                float(m.geom_friction[self.skin_geom][0]) if self.skin_geom >= 0 else 1.0)
+            mu = np.full(len(bodies), skin)
+            for k, g in zip(self.objects.geom_objects, self.object_geoms):
+                mu[k] = max(mu[k], float(m.geom_friction[g][0]))
+            self._mu = mu
+        inv_m = np.zeros(len(bodies))
+        inv_i = np.zeros((len(bodies), 3, 3))
+        for k, b in enumerate(bodies):
+            if self._free[k] >= 0:  # a free body: the skin moves it within the frame (exchange.move_objects)
+                inv_m[k] = 1.0 / m.body_mass[b]
+                r = d.ximat[b].reshape(3, 3)
+                inv_i[k] = r @ np.diag(1.0 / np.maximum(m.body_inertia[b], 1e-12)) @ r.T
+        bv = np.zeros((len(self.bones), 6))
+        for j, b in enumerate(self.bones):
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), bv[j], 0)
+        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu, inv_m, inv_i,
+                                         bv[:, 3:], bv[:, :3])
+
+    def _applied_wrench(self, k: int, idx) -> dict:
+        """Config.two_way: what the skin applied to object ``k`` over the last frame (its mean force,
+        torque about its centre and friction part, world frame) and where (the contact points, the
+        skin vertices ``idx``' positions); nothing without two-way coupling."""
+        if self._wrenches is None:
+            return {}
+        w = self._wrenches
+        return dict(force=w["objects"][k][:3].copy(), torque=w["objects"][k][3:].copy(), friction=w["friction"][k].copy(),
+                    points=self._skin[idx].copy())
+
+    def _apply_wrenches(self) -> None:
+        """Config.two_way: the frame's contact impulses into MuJoCo: every object body that moves and,
+        as the reaction, the bones get their impulse (sum m dx / h over the frame, about their
+        centres) as one velocity change, qvel += M^-1 J^T [impulses] (mj_applyFT, mj_solveM); a free
+        object takes the pose the frame moved it to."""
+        m, d = self.model, self.data
+        w = self.solver.contact.wrenches()
+        T = self.config.frame_dt
+        qimp = np.zeros(m.nv)
+        for k, b in enumerate(self.object_bodies):
+            if m.body_weldid[b] != 0 and m.body_mocapid[b] < 0:
+                imp = w["objects"][k] * T
+                mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
+        for j, b in enumerate(self.bones):
+            imp = w["bones"][j] * T
+            mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
+        if m.nv:
+            dq = np.zeros(m.nv)
+            mujoco.mj_solveM(m, d, dq.reshape(1, -1), qimp.reshape(1, -1))
+            d.qvel[:] += dq
+        for k, b in enumerate(self.object_bodies):
+            a = self._free[k]
+            if a < 0:
+                continue
+            # a free object ends where the frame took it: from the pose its step started at (data's
+            # kinematics after mj_step), moved at the substep rate with MuJoCo's velocity plus the
+            # skin's (exchange.move_objects); MuJoCo's own move of it in the step is replaced
+            c = d.xipos[b]
+            q = w["turn"][k][[3, 0, 1, 2]]  # x y z w -> w x y z
+            r = quat_to_mat(q[None])[0]
+            d.qpos[a: a + 3] = c + w["shift"][k] + r @ (d.xpos[b] - c)
+            out = np.zeros(4)
+            mujoco.mju_mulQuat(out, q, d.xquat[b])
+            d.qpos[a + 3: a + 7] = out / np.linalg.norm(out)
+        self._wrenches = w
 
     def _write_back(self, after_frame: bool = False) -> None:
         """The skin into MuJoCo's mesh; ``after_frame``: right after a ``step`` frame, whose graph
@@ -281,6 +373,10 @@ class SoftHand:
         that deep, so no penetration-free skin exists there), ``bones_inside`` (the bodies with a
         vertex inside it) and ``skin_held`` (skin vertices the last frame's contact left where their
         bones carry them because it holds their bone: Config.tuning.bone_hold, contact/bones.py).
+        With ``Config.two_way`` also what the skin applied to the object in the last frame (its MuJoCo
+        body took it): ``force`` (3,) N and ``torque`` (3,) N m about its centre of mass (means over the
+        frame, world frame), ``friction`` (3,) N (the friction part of ``force``) and ``points`` (n, 3) m
+        (the skin vertices of ``vertices``).
         ``pressure_pa`` is force per vertex area, a heat map over the skin; ``bone_clearance_mm`` the
         least over all objects (50 mm where no bone is nearer).
         """
@@ -301,6 +397,7 @@ class SoftHand:
             idx = np.flatnonzero((vobj == k) & (push > 0))
             b = bones["objects"].get(k, dict(clearance_m=BONE_CAP, bones=[], skin_held=0))
             out[name] = dict(vertices=idx, area_m2=float(area[idx].sum()), force_n=float(force[idx].sum()),
+                             **self._applied_wrench(k, idx),
                              penetration_count=int(round(float(row[0]))), deepest_um=float(row[2]) * 1e6,
                              object_in_skin_count=int(round(float(row[3]))),
                              object_in_skin_deepest_um=float(row[5]) * 1e6,
@@ -433,6 +530,25 @@ def geom_spec(model, data, g: int) -> dict:
                     vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
                     mesh_range=float(2 * m.geom_rbound[g] + 0.01))
     return dict(gtype=gtype, size=m.geom_size[g], pos=d.geom_xpos[g], quat=quat, name=name, obj=body)
+
+
+def free_qpos(model, bodies) -> np.ndarray:
+    """(K,) int: the qpos address of each body's free joint where it has one (a free object), else -1."""
+    out = np.full(len(bodies), -1, np.int64)
+    for k, b in enumerate(bodies):
+        j = model.body_jntadr[b]
+        if model.body_jntnum[b] == 1 and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+            out[k] = model.jnt_qposadr[j]
+    return out
+
+
+def object_body_ids(model, geoms, objects) -> np.ndarray:
+    """(K,) int: the MuJoCo body of each of ``objects``' objects (``Objects.object_names`` order), from
+    the geoms ``geoms`` that were added in order."""
+    out = np.zeros(len(objects.object_names), np.int64)
+    for k, g in zip(objects.geom_objects, geoms):
+        out[k] = int(model.geom_bodyid[g])
+    return out
 
 
 def geom_quats(data, geoms) -> np.ndarray:

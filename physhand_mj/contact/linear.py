@@ -323,10 +323,11 @@ class PlaneHold:
                    [b.planes],
                    count=active_count, min_dim=1)
 
-    def record_hold(self, rec, state, lists, acc, take_counter, shift: tuple, bone_hold, points=None) -> None:
+    def record_hold(self, rec, state, lists, acc, take_counter, shift: tuple, bone_hold, exchange, points=None) -> None:
         """A substep without a stage: HOLD_PASSES passes of [the kept feature points' push (``points``:
         ObjectPoints, None: none kept), Eq. 9 against the planes], each applied into ``acc``
-        (PassBuffers; ``shift``: apply_contact's shift arrays; ``bone_hold``: its bones.BoneHold) with a touched count from
+        (PassBuffers; ``shift``: apply_contact's shift arrays; ``bone_hold``, ``exchange``: its bones.BoneHold and
+        exchange.Exchange) with a touched count from
         ``take_counter()`` (its counter slot, the vertices' stamp), then (Config.tuning.feature_last)
         the feature points once more."""
         if not self.holds:
@@ -342,7 +343,7 @@ class PlaneHold:
         for kernel, dim, length, inputs in order:  # each push applied (averaged) before the next
             stamp, count = take_counter()
             rec.launch(kernel, dim, inputs, [acc.sums, count], count=length)
-            rec.launch(apply_contact, m.n_vertices, [acc.sums, count, stamp, shift[0], bone_hold],
+            rec.launch(apply_contact, m.n_vertices, [acc.sums, count, stamp, shift[0], bone_hold, exchange],
                        [state.x, acc.push, acc.moved, acc.disp, lists.pass_move, shift[1]], count=count)
 
 

@@ -418,6 +418,11 @@ class Objects:
         branch: query_tiled.tiled_kernel_for)."""
         return bool(np.any(self._host["gtype"][: len(self.names)] == int(GeomType.MESH)))
 
+    @property
+    def geom_objects(self) -> np.ndarray:
+        """(n,) int: each added geom's object (its index in ``object_names``), in ``add`` order."""
+        return self._host["obj"][: len(self.names)].astype(np.int64)
+
     def add(self, gtype: GeomType, size, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), *,
             name: str = "", obj: str | None = None, vertices=None, faces=None, mesh_range: float = 1.0,
             mesh_sign: str = "auto", mesh_grid_spacing: float = MESH_GRID) -> int:

@@ -34,6 +34,7 @@ import functools
 import warp as wp
 
 from physhand_mj.contact.bones import BoneHold, held_move
+from physhand_mj.contact.exchange import Exchange, record, touch_load
 from physhand_mj.contact.broadphase import TriList, triangle_bound, world_geoms
 from physhand_mj.contact.sdf import (BOX, CAPSULE, CYLINDER, ELLIPSOID, FAR, MESH, SPHERE, GeomSet, geom_sdf,
                                      geom_sdf_analytic, geom_sdf_grad, geom_sdf_grad_analytic)
@@ -592,12 +593,17 @@ def decide_inputs(faces, objects, tris_per_world: int, geoms_per_world: int, lst
 
 
 @wp.func
-def apply_vertex(i: int, stamp: int, sums: PushSums, hold: BoneHold, x: wp.array(dtype=wp.vec3),
+def apply_vertex(i: int, stamp: int, sums: PushSums, hold: BoneHold, ex: Exchange, x: wp.array(dtype=wp.vec3),
                  push: wp.array(dtype=float), moved: wp.array(dtype=int), disp: wp.array(dtype=float)):
-    """:func:`apply_contact` for touched vertex ``i``, where its bones allow it (bones.held_move)."""
+    """:func:`apply_contact` for touched vertex ``i``, where its bones allow it (bones.held_move); with
+    two-way coupling (``ex`` not empty) its impulse summed and its normal load kept for its friction
+    (exchange.record, exchange.touch_load; the friction itself: exchange.skin_friction)."""
+    obj = sums.vertex_obj[i]
     dx = held_move(hold, i, x[i], sums.delta[i] * (1.0 / sums.hits[i]))
     sums.delta[i] = wp.vec3(0.0)
     sums.hits[i] = 0.0
+    touch_load(ex, i, obj, dx)
+    record(ex, i, obj, x[i], dx, wp.vec3(0.0))
     x[i] = x[i] + dx
     step = wp.length(dx)
     push[i] = push[i] + step
@@ -615,6 +621,7 @@ def apply_contact(
     stamp: int,
     shift: wp.array(dtype=wp.vec3),
     hold: BoneHold,
+    ex: Exchange,
     x: wp.array(dtype=wp.vec3),
     push: wp.array(dtype=float),
     moved: wp.array(dtype=int),
@@ -633,7 +640,7 @@ def apply_contact(
     if k >= touched_count[0]:
         return
     i = sums.touched[k]
-    apply_vertex(i, stamp, sums, hold, x, push, moved, disp)
+    apply_vertex(i, stamp, sums, hold, ex, x, push, moved, disp)
     if i < shifted.shape[0]:
         shifted[i] = x[i] + shift[i]
     if pass_move.shape[0] > 0:

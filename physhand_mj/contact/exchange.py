@@ -1,0 +1,320 @@
+"""The skin's contact impulses, summed per object and per bone: what two-way coupling hands to MuJoCo.
+
+Every contact correction is a position projection of a skin vertex (Eq. 9, the feature push, the
+linear hold). A vertex of mass m moved by dx in a substep of length h gets the impulse m dx / h (the
+multiplier of a hard constraint, as XPBD reads it); by Newton's third law the object that pushed it
+gets -m dx / h at the vertex, and the vertex hands m dx / h on to its bones through the flesh (in the
+quasi-static limit the flesh's own momentum is left out: the impulse goes to the bone that carries
+the vertex, ``Model.skin_body``). :func:`record` adds one correction to the sums as it is applied
+(``query.apply_vertex``); :func:`frame_wrenches` turns a frame's sums into mean forces and torques:
+
+    F_obj = -sum(m dx) / (s h^2),  tau_obj = -sum((x - c_obj) x m dx) / (s h^2)
+    F_bone = +sum(m dx) / (s h^2), tau_bone = +sum((x - c_bone) x m dx) / (s h^2)
+
+over the frame's s substeps, about each object's and bone's centre of mass ``c`` (MuJoCo's
+``xipos``). Sum over objects + sum over bones = 0 term by term (each correction lands once on each
+side), so Newton's third law holds to float rounding. The object of a correction is the one the
+vertex's last push in that pass came from (``PushSums.vertex_obj``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.contact.bones import BoneHold, held_move
+from physhand_mj.contact.sdf import GeomSet, geom_sdf_grad
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.struct
+class Exchange:
+    """The sums one frame's contact corrections add to (one kernel argument; empty arrays: off).
+
+    mass (V,) float kg: each vertex's mass (0 for kinematic ones); body (V,) int: the bone that
+    carries skin vertex i (Model.skin_body; -1: none); h s: the substep; obj_mu (K,): each object's
+    Coulomb friction coefficient against the skin; sub_load (S,) m: the normal contact correction of
+    each skin vertex in the current substep, load (S,) m: its running mean over substeps (the normal
+    impulse m load / h that friction is bounded by), fr_obj (S,): the object it touches (-1: none); obj_vel (K,) vec3 m/s and obj_omega (K,) vec3 rad/s:
+    its velocity at its centre and angular velocity (world frame, set per frame); obj_fric (K,) vec3
+    kg m: the friction corrections' share of obj_lin; obj_inv_mass (K,) 1/kg and obj_inv_inertia
+    (K,) mat33 1/(kg m^2, world frame): a movable object's (0: static or kinematic); sub_lin / sub_ang
+    (K,): obj_lin / obj_ang of the current substep only; dv / dw (K,) m/s, rad/s: the velocity the
+    skin has given each object so far this frame; shift (K,) m and turn (K,) quat: how far each has
+    moved and turned about its centre in the frame; base_pose (G,) transform: the geoms' poses at the
+    frame's start (Objects.pose as set for the frame); obj_com (K,) vec3 m and bone_com (B,) vec3 m:
+    the centres of mass torques are taken about (set per frame); obj_lin / obj_ang (K,) vec3 and
+    bone_lin / bone_ang (B,) vec3: sum(m dx) (kg m) and sum((x - c) x m dx) (kg m^2) of the frame's
+    corrections, on the skin's side (the objects get minus these)."""
+
+    mass: wp.array(dtype=float)
+    body: wp.array(dtype=int)
+    h: float
+    obj_mu: wp.array(dtype=float)
+    sub_load: wp.array(dtype=float)
+    load: wp.array(dtype=float)
+    fr_obj: wp.array(dtype=int)
+    obj_vel: wp.array(dtype=wp.vec3)
+    obj_omega: wp.array(dtype=wp.vec3)
+    obj_fric: wp.array(dtype=wp.vec3)
+    obj_com: wp.array(dtype=wp.vec3)
+    obj_inv_mass: wp.array(dtype=float)
+    obj_inv_inertia: wp.array(dtype=wp.mat33)
+    sub_lin: wp.array(dtype=wp.vec3)
+    sub_ang: wp.array(dtype=wp.vec3)
+    dv: wp.array(dtype=wp.vec3)
+    dw: wp.array(dtype=wp.vec3)
+    shift: wp.array(dtype=wp.vec3)
+    turn: wp.array(dtype=wp.quat)
+    base_pose: wp.array(dtype=wp.transform)
+    bone_com: wp.array(dtype=wp.vec3)
+    bone_vel: wp.array(dtype=wp.vec3)
+    bone_omega: wp.array(dtype=wp.vec3)
+    damp: float
+    agg_load: wp.array(dtype=float)
+    agg_n: wp.array(dtype=wp.vec3)
+    agg_vb: wp.array(dtype=wp.vec3)
+    prev_load: wp.array(dtype=float)
+    prev_n: wp.array(dtype=wp.vec3)
+    prev_vb: wp.array(dtype=wp.vec3)
+    obj_lin: wp.array(dtype=wp.vec3)
+    obj_ang: wp.array(dtype=wp.vec3)
+    bone_lin: wp.array(dtype=wp.vec3)
+    bone_ang: wp.array(dtype=wp.vec3)
+
+
+def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, damping: float = 0.0) -> Exchange:
+    """An :class:`Exchange` for ``model``'s skin against ``n_objects`` objects (``g_count`` geoms),
+    substeps of ``h`` s, the flesh's contact damping time ``damping`` s (0: none) (``on`` False:
+    empty arrays, :func:`record` and :func:`touch_load` do nothing)."""
+    d = model.device
+    e = Exchange()
+    k, b = (max(n_objects, 1), max(model.n_bodies, 1)) if on else (0, 0)
+    inv = model.inv_mass.numpy()[: model.n_skin] if on else np.zeros(0)
+    e.mass = wp.array(np.where(inv > 0, 1.0 / np.maximum(inv, 1e-30), 0.0).astype(np.float32), dtype=float, device=d)
+    e.body = model.skin_body if on else wp.zeros(0, dtype=int, device=d)
+    e.h = float(h)
+    e.obj_mu = wp.zeros(k, dtype=float, device=d)
+    ns = model.n_skin if on else 0
+    e.sub_load, e.load = wp.zeros(ns, dtype=float, device=d), wp.zeros(ns, dtype=float, device=d)
+    e.fr_obj = wp.full(ns, -1, dtype=int, device=d)
+    e.obj_vel, e.obj_omega = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.obj_fric = wp.zeros(k, dtype=wp.vec3, device=d)
+    e.obj_com = wp.zeros(k, dtype=wp.vec3, device=d)
+    e.obj_inv_mass = wp.zeros(k, dtype=float, device=d)
+    e.obj_inv_inertia = wp.zeros(k, dtype=wp.mat33, device=d)
+    e.sub_lin, e.sub_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.dv, e.dw = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.shift = wp.zeros(k, dtype=wp.vec3, device=d)
+    e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
+    e.base_pose = wp.zeros(max(g_count, 1) if on else 0, dtype=wp.transform, device=d)
+    e.bone_com = wp.zeros(b, dtype=wp.vec3, device=d)
+    e.bone_vel, e.bone_omega = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
+    e.damp = float(1.0 - np.exp(-h / damping)) if damping > 0 else 0.0
+    e.agg_load, e.prev_load = wp.zeros(k, dtype=float, device=d), wp.zeros(k, dtype=float, device=d)
+    e.agg_n, e.prev_n = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.agg_vb, e.prev_vb = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.obj_lin, e.obj_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
+    e.bone_lin, e.bone_ang = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
+    return e
+
+
+@wp.func
+def touch_load(ex: Exchange, i: int, obj: int, dxn: wp.vec3):
+    """Skin vertex ``i``'s normal contact correction ``dxn`` by object ``obj``, for its friction."""
+    if i >= ex.sub_load.shape[0] or obj < 0:
+        return
+    ex.sub_load[i] = ex.sub_load[i] + wp.length(dxn)
+    ex.fr_obj[i] = obj
+
+
+# the running mean's weight of a substep's normal correction: the skin under a resting object is
+# pushed out in some substeps and not in others, and its friction bound is the mean normal impulse
+LOAD_RATE = wp.constant(0.25)
+# m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
+# feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
+TOUCH_GAP = wp.constant(5.0e-4)
+
+
+@wp.func
+def object_phi(x: wp.vec3, k: int, geoms: GeomSet, base: int, n: int):
+    """(phi m, outward unit normal, world) of the nearest geom of object ``k`` among a world's geoms."""
+    best = float(1.0e30)
+    nrm = wp.vec3(0.0, 0.0, 1.0)
+    for j in range(n):
+        g = base + j
+        if geoms.obj[g] == k:
+            q = wp.transform_point(geoms.inv_pose[g], x)
+            phi, grad = geom_sdf_grad(geoms.gtype[g], q, geoms.size[g], geoms.mesh[g])
+            if phi < best:
+                best = phi
+                nrm = wp.transform_vector(wp.transform_inverse(geoms.inv_pose[g]), grad)
+    return best, wp.normalize(nrm)
+
+
+@wp.kernel
+def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, x_start: wp.array(dtype=wp.vec3),
+                  x: wp.array(dtype=wp.vec3)):
+    """After a substep's contact: Coulomb friction of every skin vertex touching an object. Its slip
+    over the substep (its motion less the object's surface motion there, tangent to the surface) is
+    undone where within mu x its mean normal correction (sticking), else cut by that much (sliding);
+    the correction's impulse goes to the object and the bones (:func:`record`). A vertex that was
+    pushed recently but not this substep still holds (its mean load decays); one that left the object
+    (farther than TOUCH_GAP) lets go."""
+    i = wp.tid()
+    k = ex.fr_obj[i]
+    if k < 0:
+        return
+    sub = ex.sub_load[i]
+    ex.sub_load[i] = 0.0
+    load = ex.load[i] + LOAD_RATE * (sub - ex.load[i])
+    xi = x[i]
+    phi, n = object_phi(xi, k, geoms, 0, n_geoms)
+    if (sub <= 0.0 and phi > TOUCH_GAP) or load <= 0.0:
+        ex.load[i] = 0.0
+        ex.fr_obj[i] = -1
+        return
+    ex.load[i] = load
+    r = xi - ex.obj_com[k] - ex.shift[k]
+    vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
+    b = ex.body[i]
+    if b >= 0 and ex.damp > 0.0:  # the flesh's damping: the object's normal velocity relative to the
+        # bones under it (the previous substep's load-weighted means) decays, shared by load
+        vb = ex.bone_vel[b] + wp.cross(ex.bone_omega[b], xi - ex.bone_com[b])
+        wp.atomic_add(ex.agg_load, k, load)
+        wp.atomic_add(ex.agg_n, k, n * load)
+        wp.atomic_add(ex.agg_vb, k, vb * load)
+        pl = ex.prev_load[k]
+        im = ex.obj_inv_mass[k]
+        if pl > 0.0 and im > 0.0 and ex.mass[i] > 0.0:
+            nk = wp.normalize(ex.prev_n[k])
+            vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
+            jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
+            record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
+    u = xi - x_start[i] - vel * ex.h
+    ut = u - n * wp.dot(u, n)
+    s = wp.length(ut)
+    lim = ex.obj_mu[k] * load
+    dxf = -ut
+    if s > lim:
+        dxf = -ut * (lim / s)
+    dx = held_move(hold, i, xi, dxf)
+    record(ex, i, k, xi, dx, dx)
+    x[i] = xi + dx
+
+
+@wp.func
+def record(ex: Exchange, i: int, obj: int, xi: wp.vec3, dx: wp.vec3, dxf: wp.vec3):
+    """Add skin vertex ``i``'s correction ``dx`` (at ``xi``, before it; ``dxf`` its friction part) by
+    object ``obj`` to the sums."""
+    if i >= ex.mass.shape[0] or obj < 0 or obj >= ex.obj_lin.shape[0]:
+        return
+    p = dx * ex.mass[i]
+    a = wp.cross(xi - ex.obj_com[obj] - ex.shift[obj], p)
+    wp.atomic_add(ex.obj_fric, obj, dxf * ex.mass[i])
+    wp.atomic_add(ex.obj_lin, obj, p)
+    wp.atomic_add(ex.obj_ang, obj, a)
+    wp.atomic_add(ex.sub_lin, obj, p)
+    wp.atomic_add(ex.sub_ang, obj, a)
+    b = ex.body[i]
+    if b >= 0:
+        wp.atomic_add(ex.bone_lin, b, p)
+        wp.atomic_add(ex.bone_ang, b, wp.cross(xi - ex.bone_com[b], p))
+
+
+@wp.kernel
+def reset_objects(ex: Exchange):
+    """Per frame: the sums and the objects' in-frame motion back to zero."""
+    k = wp.tid()
+    ex.obj_lin[k] = wp.vec3(0.0)
+    ex.obj_ang[k] = wp.vec3(0.0)
+    ex.sub_lin[k] = wp.vec3(0.0)
+    ex.sub_ang[k] = wp.vec3(0.0)
+    ex.dv[k] = wp.vec3(0.0)
+    ex.dw[k] = wp.vec3(0.0)
+    ex.shift[k] = wp.vec3(0.0)
+    ex.turn[k] = wp.quat_identity()
+
+
+@wp.kernel
+def take_impulses(ex: Exchange):
+    """After a substep's contact: each movable object takes the substep's impulse from the skin
+    (minus the skin's: -sum(m dx) / h) into its velocity change."""
+    k = wp.tid()
+    lin = ex.sub_lin[k]
+    ang = ex.sub_ang[k]
+    ex.sub_lin[k] = wp.vec3(0.0)
+    ex.sub_ang[k] = wp.vec3(0.0)
+    ex.prev_load[k] = ex.agg_load[k]
+    ex.prev_n[k] = ex.agg_n[k]
+    ex.prev_vb[k] = ex.agg_vb[k]
+    ex.agg_load[k] = 0.0
+    ex.agg_n[k] = wp.vec3(0.0)
+    ex.agg_vb[k] = wp.vec3(0.0)
+    im = ex.obj_inv_mass[k]
+    if im <= 0.0:
+        return
+    ex.dv[k] = ex.dv[k] - lin * (im / ex.h)
+    ex.dw[k] = ex.dw[k] - ex.obj_inv_inertia[k] * ang * (1.0 / ex.h)
+
+
+@wp.kernel
+def move_objects(ex: Exchange):
+    """Before a substep's contact: each movable object moves over the substep with its velocity
+    (MuJoCo's after its step, plus what the skin has changed in the frame so far). Its frame pose is
+    the one MuJoCo's step started from, so its whole motion in the frame is integrated here, at the
+    substep rate, with the skin's force in it."""
+    k = wp.tid()
+    if ex.obj_inv_mass[k] <= 0.0:
+        return
+    ex.shift[k] = ex.shift[k] + (ex.obj_vel[k] + ex.dv[k]) * ex.h
+    w = ex.obj_omega[k] + ex.dw[k]
+    a = wp.length(w) * ex.h
+    if a > 0.0:
+        ex.turn[k] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(w), a) * ex.turn[k])
+
+
+@wp.kernel
+def pose_objects(ex: Exchange, obj: wp.array(dtype=int), pose: wp.array(dtype=wp.transform),
+                 inv_pose: wp.array(dtype=wp.transform)):
+    """Each geom of a movable object at its frame pose moved by its object's shift and turn about the
+    object's centre (pose and inverse, as the contact reads them)."""
+    g = wp.tid()
+    k = obj[g]
+    if ex.obj_inv_mass[k] <= 0.0:
+        return
+    b = ex.base_pose[g]
+    c = ex.obj_com[k]
+    q = ex.turn[k]
+    t = wp.transform(c + ex.shift[k] + wp.quat_rotate(q, wp.transform_get_translation(b) - c),
+                     q * wp.transform_get_rotation(b))
+    pose[g] = t
+    inv_pose[g] = wp.transform_inverse(t)
+
+
+def zero_ops(ex: Exchange, objects=None) -> list:
+    """The per-frame resets of the sums and of the objects' in-frame motion, and the geoms' frame
+    poses kept (empty when off)."""
+    if ex.obj_lin.shape[0] == 0:
+        return []
+    ops = [ex.obj_fric.zero_, ex.bone_lin.zero_, ex.bone_ang.zero_, ex.sub_load.zero_,
+           lambda: wp.launch(reset_objects, ex.obj_lin.shape[0], [ex], device=ex.obj_lin.device)]
+    if objects is not None:
+        ops.append(lambda: wp.copy(ex.base_pose, objects.pose, count=min(ex.base_pose.shape[0], objects.pose.shape[0])))
+    return ops
+
+
+def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int) -> dict:
+    """The last frame's mean wrenches (N, N m, world frame): ``objects`` (K, 6) [force, torque about
+    each object's centre] that the skin applied to each object, ``friction`` (K, 3) the friction
+    part of each force, ``bones`` (B, 6) the reaction on each bone. ``objects.sum(0)[:3] ==
+    -bones.sum(0)[:3]`` to float rounding."""
+    if ex.obj_lin.shape[0] == 0:
+        return dict(objects=np.zeros((0, 6)), friction=np.zeros((0, 3)), bones=np.zeros((0, 6)))
+    scale = 1.0 / (substeps * substep_dt * substep_dt)
+    obj = np.concatenate([ex.obj_lin.numpy(), ex.obj_ang.numpy()], axis=1).astype(np.float64) * -scale
+    bone = np.concatenate([ex.bone_lin.numpy(), ex.bone_ang.numpy()], axis=1).astype(np.float64) * scale
+    return dict(objects=obj, friction=ex.obj_fric.numpy().astype(np.float64) * -scale, bones=bone,
+                dv=ex.dv.numpy().astype(np.float64), dw=ex.dw.numpy().astype(np.float64),
+                shift=ex.shift.numpy().astype(np.float64), turn=ex.turn.numpy().astype(np.float64))
