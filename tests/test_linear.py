@@ -56,7 +56,7 @@ def _hold_once(solver, state, plane_state=None) -> int:
     wp.launch(hold_planes, c.n_tris, inputs=[m.skin_faces, planes, o.geoms, solver.config.contact_offset, state.x],
               outputs=[c.acc.sums, count], device="cpu")
     shift, shifted = c.space.apply_shift(state)
-    wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.sums, count, 10_000, shift, c.bone_hold],
+    wp.launch(apply_contact, m.n_vertices, inputs=[c.acc.sums, count, 10_000, shift, c.bone_hold, c.exchange],
               outputs=[state.x, c.push, c.acc.moved, c.acc.disp, c.lists.pass_move, shifted], device="cpu")
     return int(count.numpy()[0])
 
