@@ -23,8 +23,8 @@ import warp as wp
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
 from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold
-from physhand_mj.contact.exchange import (frame_wrenches, make_exchange, move_objects, pose_objects, skin_friction,
-                                          take_impulses, zero_ops)
+from physhand_mj.contact.exchange import (IN_BONE, IN_OBJ, OUT_BONE, OUT_OBJ, frame_wrenches, make_exchange, move_objects,
+                                          pack_outputs, pose_objects, skin_friction, take_impulses, unpack_inputs, zero_ops)
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -203,6 +203,7 @@ class Contact:
         # Config.two_way: the frame's contact impulses per object and bone (exchange.py)
         if config.two_way and model.worlds > 1:
             raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
+        self._ex_in = None  # (set_exchange's packed buffers, made at its first call)
         self.exchange = make_exchange(model, len(objects.object_names), config.two_way, config.frame_dt / config.substeps,
                                      objects.pose.shape[0], config.contact_damping)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
@@ -666,27 +667,44 @@ class Contact:
         within the frame (0: none); ``bone_vel`` / ``bone_omega`` (B, 3): the bones' velocities, m/s
         at their centres and rad/s (None: each kept)."""
         ex = self.exchange
-        if ex.obj_com.shape[0] == 0:
+        k, b = ex.obj_com.shape[0], ex.bone_com.shape[0]
+        if k == 0:
             raise ValueError("Contact.set_exchange: Config.two_way is off")
-        for arr, val in ((ex.obj_com, obj_com), (ex.obj_vel, obj_vel), (ex.obj_omega, obj_omega), (ex.bone_com, bone_com)):
-            arr.assign(np.asarray(val, np.float32).reshape(-1, 3))
+        if self._ex_in is None:  # (one packed upload a frame: exchange.unpack_inputs)
+            self._ex_in = np.zeros(k * IN_OBJ + b * IN_BONE, np.float32)
+            self._ex_dev_in = wp.zeros(len(self._ex_in), dtype=float, device=self.model.device)
+            self._ex_dev_out = wp.zeros(k * OUT_OBJ + b * OUT_BONE, dtype=float, device=self.model.device)
+        o = self._ex_in[: k * IN_OBJ].reshape(k, IN_OBJ)
+        bo = self._ex_in[k * IN_OBJ:].reshape(b, IN_BONE)
+        n = len(np.asarray(obj_com).reshape(-1, 3))
+        o[:n, 0:3], o[:n, 3:6], o[:n, 6:9] = (np.asarray(v, np.float32).reshape(-1, 3) for v in (obj_com, obj_vel, obj_omega))
+        nb = len(np.asarray(bone_com).reshape(-1, 3))
+        bo[:nb, 0:3] = np.asarray(bone_com, np.float32).reshape(-1, 3)
         if obj_mu is not None:
             mu = np.asarray(obj_mu, np.float32).reshape(-1)
             if not (np.all(np.isfinite(mu)) and np.all(mu >= 0)):
                 raise ValueError(f"friction coefficients must be finite and >= 0, got {mu}")
-            ex.obj_mu.assign(mu)
+            o[: len(mu), 19] = mu
         if bone_vel is not None:
-            ex.bone_vel.assign(np.asarray(bone_vel, np.float32).reshape(-1, 3))
-            ex.bone_omega.assign(np.asarray(bone_omega, np.float32).reshape(-1, 3))
+            bo[:nb, 3:6] = np.asarray(bone_vel, np.float32).reshape(-1, 3)
+            bo[:nb, 6:9] = np.asarray(bone_omega, np.float32).reshape(-1, 3)
         if inv_mass is not None:
-            ex.obj_inv_mass.assign(np.asarray(inv_mass, np.float32).reshape(-1))
-            ex.obj_inv_inertia.assign(np.asarray(inv_inertia, np.float32).reshape(-1, 3, 3))
+            im = np.asarray(inv_mass, np.float32).reshape(-1)
+            o[: len(im), 9] = im
+            o[: len(im), 10:19] = np.asarray(inv_inertia, np.float32).reshape(-1, 9)
+        self._ex_dev_in.assign(self._ex_in)
+        wp.launch(unpack_inputs, max(k, b), [ex, self._ex_dev_in, k, b], device=self.model.device)
 
     def wrenches(self) -> dict:
         """Config.two_way: the last frame's mean contact wrenches (exchange.frame_wrenches): ``objects``
         (K, 6) [N, N m] on each object about its centre, ``bones`` (B, 6) the reaction on each bone."""
-        cfg = self.config
-        return frame_wrenches(self.exchange, cfg.frame_dt / cfg.substeps, cfg.substeps)
+        cfg, ex = self.config, self.exchange
+        out = None
+        if self._ex_in is not None:  # (one launch and one read-back: exchange.pack_outputs)
+            k, b = ex.obj_lin.shape[0], ex.bone_lin.shape[0]
+            wp.launch(pack_outputs, max(k, b), [ex, self._ex_dev_out, k, b], device=self.model.device)
+            out = self._ex_dev_out.numpy()
+        return frame_wrenches(ex, cfg.frame_dt / cfg.substeps, cfg.substeps, out)
 
     def bone_report(self, state, world: int = 0) -> dict:
         """The bones of world ``world`` against the objects now, and the skin the last frame held

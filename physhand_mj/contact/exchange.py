@@ -305,16 +305,82 @@ def zero_ops(ex: Exchange, objects=None) -> list:
     return ops
 
 
-def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int) -> dict:
+# the per-frame traffic with the host, packed (one upload and one read-back a frame: on CUDA each
+# array's own copy cost a sync): per object [com 3, vel 3, omega 3, inv_mass, inv_inertia 9, mu] in,
+# [lin 3, ang 3, fric 3, dv 3, dw 3, shift 3, turn 4] out; per bone [com 3, vel 3, omega 3] in, [lin 3,
+# ang 3] out
+IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 20, 9, 22, 6
+
+
+@wp.func
+def _v3(buf: wp.array(dtype=float), a: int):
+    return wp.vec3(buf[a], buf[a + 1], buf[a + 2])
+
+
+@wp.func
+def _put3(buf: wp.array(dtype=float), a: int, v: wp.vec3):
+    buf[a] = v[0]
+    buf[a + 1] = v[1]
+    buf[a + 2] = v[2]
+
+
+@wp.kernel
+def unpack_inputs(ex: Exchange, buf: wp.array(dtype=float), n_obj: int, n_bone: int):
+    """The frame's inputs from one packed buffer (IN_OBJ per object, then IN_BONE per bone)."""
+    t = wp.tid()
+    if t < n_obj:
+        a = t * IN_OBJ
+        ex.obj_com[t] = _v3(buf, a)
+        ex.obj_vel[t] = _v3(buf, a + 3)
+        ex.obj_omega[t] = _v3(buf, a + 6)
+        ex.obj_inv_mass[t] = buf[a + 9]
+        ex.obj_inv_inertia[t] = wp.mat33(buf[a + 10], buf[a + 11], buf[a + 12], buf[a + 13], buf[a + 14], buf[a + 15],
+                                         buf[a + 16], buf[a + 17], buf[a + 18])
+        ex.obj_mu[t] = buf[a + 19]
+    if t < n_bone:
+        a = n_obj * IN_OBJ + t * IN_BONE
+        ex.bone_com[t] = _v3(buf, a)
+        ex.bone_vel[t] = _v3(buf, a + 3)
+        ex.bone_omega[t] = _v3(buf, a + 6)
+
+
+@wp.kernel
+def pack_outputs(ex: Exchange, buf: wp.array(dtype=float), n_obj: int, n_bone: int):
+    """The frame's sums and the objects' in-frame motion into one packed buffer (OUT_OBJ, OUT_BONE)."""
+    t = wp.tid()
+    if t < n_obj:
+        a = t * OUT_OBJ
+        _put3(buf, a, ex.obj_lin[t])
+        _put3(buf, a + 3, ex.obj_ang[t])
+        _put3(buf, a + 6, ex.obj_fric[t])
+        _put3(buf, a + 9, ex.dv[t])
+        _put3(buf, a + 12, ex.dw[t])
+        _put3(buf, a + 15, ex.shift[t])
+        q = ex.turn[t]
+        buf[a + 18] = q[0]
+        buf[a + 19] = q[1]
+        buf[a + 20] = q[2]
+        buf[a + 21] = q[3]
+    if t < n_bone:
+        a = n_obj * OUT_OBJ + t * OUT_BONE
+        _put3(buf, a, ex.bone_lin[t])
+        _put3(buf, a + 3, ex.bone_ang[t])
+
+
+def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int, out: np.ndarray | None = None) -> dict:
     """The last frame's mean wrenches (N, N m, world frame): ``objects`` (K, 6) [force, torque about
     each object's centre] that the skin applied to each object, ``friction`` (K, 3) the friction
     part of each force, ``bones`` (B, 6) the reaction on each bone. ``objects.sum(0)[:3] ==
     -bones.sum(0)[:3]`` to float rounding."""
     if ex.obj_lin.shape[0] == 0:
         return dict(objects=np.zeros((0, 6)), friction=np.zeros((0, 3)), bones=np.zeros((0, 6)))
+    k, b = ex.obj_lin.shape[0], ex.bone_lin.shape[0]
+    if out is None:  # (``out``: pack_outputs' buffer read back; else each array apart)
+        out = np.concatenate([np.concatenate([ex.obj_lin.numpy(), ex.obj_ang.numpy(), ex.obj_fric.numpy(), ex.dv.numpy(),
+                                              ex.dw.numpy(), ex.shift.numpy(), ex.turn.numpy()], axis=1).ravel(),
+                              np.concatenate([ex.bone_lin.numpy(), ex.bone_ang.numpy()], axis=1).ravel()])
+    o = np.asarray(out, np.float64)[: k * OUT_OBJ].reshape(k, OUT_OBJ)
+    bo = np.asarray(out, np.float64)[k * OUT_OBJ: k * OUT_OBJ + b * OUT_BONE].reshape(b, OUT_BONE)
     scale = 1.0 / (substeps * substep_dt * substep_dt)
-    obj = np.concatenate([ex.obj_lin.numpy(), ex.obj_ang.numpy()], axis=1).astype(np.float64) * -scale
-    bone = np.concatenate([ex.bone_lin.numpy(), ex.bone_ang.numpy()], axis=1).astype(np.float64) * scale
-    return dict(objects=obj, friction=ex.obj_fric.numpy().astype(np.float64) * -scale, bones=bone,
-                dv=ex.dv.numpy().astype(np.float64), dw=ex.dw.numpy().astype(np.float64),
-                shift=ex.shift.numpy().astype(np.float64), turn=ex.turn.numpy().astype(np.float64))
+    return dict(objects=o[:, :6] * -scale, friction=o[:, 6:9] * -scale, bones=bo * scale,
+                dv=o[:, 9:12], dw=o[:, 12:15], shift=o[:, 15:18], turn=o[:, 18:22])
