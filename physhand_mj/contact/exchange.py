@@ -1,20 +1,29 @@
-"""The skin's contact impulses, summed per object and per bone: what two-way coupling hands to MuJoCo.
+"""Two-way coupling's exchange (``Config.two_way``): the skin's contact impulses on the objects and
+the bones, the objects moved by them within the frame, and the skin's Coulomb friction.
 
-Every contact correction is a position projection of a skin vertex (Eq. 9, the feature push, the
-linear hold). A vertex of mass m moved by dx in a substep of length h gets the impulse m dx / h (the
-multiplier of a hard constraint, as XPBD reads it); by Newton's third law the object that pushed it
-gets -m dx / h at the vertex, and the vertex hands m dx / h on to its bones through the flesh (in the
-quasi-static limit the flesh's own momentum is left out: the impulse goes to the bone that carries
-the vertex, ``Model.skin_body``). :func:`record` adds one correction to the sums as it is applied
-(``query.apply_vertex``); :func:`frame_wrenches` turns a frame's sums into mean forces and torques:
+- **Impulses.** Every contact correction is a position projection of a skin vertex (Eq. 9, the
+  feature push, the linear hold). A vertex of mass m moved by dx in a substep of length h gets the
+  impulse m dx / h (the multiplier of a hard constraint, as XPBD reads it); by Newton's third law the
+  object that pushed it gets -m dx / h at the vertex, and the vertex hands m dx / h on to the bone
+  that carries it (``Model.skin_body``; the flesh's own momentum is left out). :func:`record` adds a
+  correction to the sums as ``query.apply_vertex`` applies it; each correction lands once on each
+  side, so the forces on objects and on bones sum to zero to float rounding. The object of a
+  correction is the one the vertex's last push in that pass came from (``PushSums.vertex_obj``).
+- **Objects moved at the substep rate.** A free object's frame starts from the pose MuJoCo's step
+  started from; before each stage it moves with MuJoCo's velocity plus what the skin has given it so
+  far (:func:`move_objects`, :func:`pose_objects`), after each stage it takes the stage's impulses
+  (:func:`take_impulses`). ``SoftHand`` hands the frame's pose, velocity change and the bones'
+  reaction back to MuJoCo.
+- **Friction** (:func:`skin_friction`, after each stage): each touching vertex's slip against the
+  object's surface motion is undone within mu x its running normal load, else cut by that much.
+- **Damping** (``Config.contact_damping``): a touching object's normal velocity relative to the
+  bones under the skin decays over that time, shared over the touching vertices by load.
+- **Host traffic**: one packed upload and one read-back a frame (:func:`unpack_inputs`,
+  :func:`pack_outputs`); :func:`frame_wrenches` turns the sums into mean forces and torques over the
+  frame's s substeps, about each object's and bone's centre of mass c:
 
     F_obj = -sum(m dx) / (s h^2),  tau_obj = -sum((x - c_obj) x m dx) / (s h^2)
     F_bone = +sum(m dx) / (s h^2), tau_bone = +sum((x - c_bone) x m dx) / (s h^2)
-
-over the frame's s substeps, about each object's and bone's centre of mass ``c`` (MuJoCo's
-``xipos``). Sum over objects + sum over bones = 0 term by term (each correction lands once on each
-side), so Newton's third law holds to float rounding. The object of a correction is the one the
-vertex's last push in that pass came from (``PushSums.vertex_obj``).
 """
 
 from __future__ import annotations
@@ -30,23 +39,25 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.struct
 class Exchange:
-    """The sums one frame's contact corrections add to (one kernel argument; empty arrays: off).
+    """Two-way coupling's arrays (one kernel argument; empty arrays: off). S skin vertices, K objects,
+    G geoms, B bones; world frame, SI units.
 
-    mass (V,) float kg: each vertex's mass (0 for kinematic ones); body (V,) int: the bone that
-    carries skin vertex i (Model.skin_body; -1: none); h s: the substep; obj_mu (K,): each object's
-    Coulomb friction coefficient against the skin; sub_load (S,) m: the normal contact correction of
-    each skin vertex in the current substep, load (S,) m: its running mean over substeps (the normal
-    impulse m load / h that friction is bounded by), fr_obj (S,): the object it touches (-1: none); obj_vel (K,) vec3 m/s and obj_omega (K,) vec3 rad/s:
-    its velocity at its centre and angular velocity (world frame, set per frame); obj_fric (K,) vec3
-    kg m: the friction corrections' share of obj_lin; obj_inv_mass (K,) 1/kg and obj_inv_inertia
-    (K,) mat33 1/(kg m^2, world frame): a movable object's (0: static or kinematic); sub_lin / sub_ang
-    (K,): obj_lin / obj_ang of the current substep only; dv / dw (K,) m/s, rad/s: the velocity the
-    skin has given each object so far this frame; shift (K,) m and turn (K,) quat: how far each has
-    moved and turned about its centre in the frame; base_pose (G,) transform: the geoms' poses at the
-    frame's start (Objects.pose as set for the frame); obj_com (K,) vec3 m and bone_com (B,) vec3 m:
-    the centres of mass torques are taken about (set per frame); obj_lin / obj_ang (K,) vec3 and
-    bone_lin / bone_ang (B,) vec3: sum(m dx) (kg m) and sum((x - c) x m dx) (kg m^2) of the frame's
-    corrections, on the skin's side (the objects get minus these)."""
+    The skin: mass (S,) kg; body (S,) the bone that carries each vertex (Model.skin_body; -1: none);
+    sub_load (S,) m: its normal correction in the current substep; load (S,) m: the running mean of
+    that (friction's bound is mu m load / h); fr_obj (S,): the object it touches (-1: none).
+    The objects, set per frame: obj_com, obj_vel, obj_omega (K,): centre of mass, its velocity (after
+    MuJoCo's step), angular velocity; obj_inv_mass (K,) 1/kg and obj_inv_inertia (K,) 1/(kg m^2): a
+    free object's (0: the skin does not move it within the frame); obj_mu (K,): its friction
+    coefficient against the skin; base_pose (G,): the geoms' poses at the frame's start.
+    Their motion in the frame: dv, dw (K,): the velocity the skin has given each so far; shift (K,) m
+    and turn (K,) quat: how far each has moved and turned about its centre.
+    The sums (skin side; objects get minus these): obj_lin / obj_ang (K,) and bone_lin / bone_ang
+    (B,): sum(m dx) kg m and sum((x - c) x m dx) kg m^2 over the frame; sub_lin / sub_ang (K,): the
+    current substep's; obj_fric (K,): the friction corrections' share of obj_lin.
+    The bones, set per frame: bone_com, bone_vel, bone_omega (B,).
+    Damping: damp: the share of the normal velocity taken per substep (1 - exp(-h / contact_damping));
+    agg_load / agg_n / agg_vb (K,): the touching skin's summed load, load-weighted normals and bone
+    velocities this substep; prev_*: the previous substep's. h s: the substep."""
 
     mass: wp.array(dtype=float)
     body: wp.array(dtype=int)
