@@ -80,3 +80,23 @@ def test_a_box_on_a_tilting_table_slides_at_atan_mu(slab, mu):
     r = slide_angle(rig, np.arctan(mu) - np.radians(8.0))
     assert abs(np.degrees(r["angle"] - np.arctan(mu))) <= 2.0, np.degrees(r["angle"])
     assert r["moved"] < 4.0e-3, r["moved"]
+
+
+@pytest.mark.soak  # 10,000 frames (~4 min on a 2-core CPU): `pytest -m soak tests/test_two_way.py`
+def test_a_box_resting_for_10000_frames_stays_put(slab):
+    """A 100 g box on the skin for 50 s of simulated time: finite, no drift (under 0.05 mm between
+    frames 1,000 and 10,000), no growing jitter (the height's range over the last 1,000 frames no
+    more than over frames 1,000-2,000, plus 1 um), both measures 0 at the end."""
+    rig = SlabRig(slab, mass=0.1, mu=0.5, gap=-3.0e-4)
+    pos, h = [], []
+    for f in range(10_000):
+        s = rig.step()
+        pos.append(s["pos"])
+        h.append(s["height"])
+    pos, h = np.array(pos), np.array(h)
+    assert np.all(np.isfinite(pos))
+    assert np.linalg.norm(pos[-1] - pos[999]) < 5.0e-5, np.linalg.norm(pos[-1] - pos[999])
+    assert np.ptp(h[-1000:]) <= np.ptp(h[1000:2000]) + 1.0e-6, (np.ptp(h[-1000:]), np.ptp(h[1000:2000]))
+    assert s["penetration"] == 0 and s["object_in_skin"] == 0
+    print(f"soak: drift {np.linalg.norm(pos[-1] - pos[999]) * 1e3:.4f} mm, jitter {np.ptp(h[1000:2000]) * 1e3:.4f} -> "
+          f"{np.ptp(h[-1000:]) * 1e3:.4f} mm, force {s['force'][2]:.4f} N")
