@@ -29,7 +29,7 @@ from physhand_mj.bench import device_name  # noqa: E402
 from physhand_mj.bench.slab import SlabRig, slide_angle, soft_slab  # noqa: E402
 
 
-def rest(asset, device, mass, gap, frames):
+def rest(asset, device, mass, gap, frames, trace=None):
     rig = SlabRig(asset, mass=mass, mu=0.5, gap=gap, config=ph.Config(two_way=True, device=device))
     r = []
     for _ in range(frames):
@@ -38,6 +38,8 @@ def rest(asset, device, mass, gap, frames):
         r.append((s["height"], s["force"][2], s["penetration"], s["object_in_skin"],
                   np.abs(w["objects"].sum(0)[:3] + w["bones"].sum(0)[:3]).max()))
     r = np.array(r)
+    if trace is not None:
+        trace.append((mass, r[:, 0].copy(), r[:, 1].copy()))
     return dict(mass_kg=mass, frames=frames, force_n=round(float(r[-50:, 1].mean()), 5), mg_n=round(mass * 9.81, 5),
                 swing_first_mm=round(float(np.ptp(r[:50, 0])) * 1e3, 4), swing_last_mm=round(float(np.ptp(r[-50:, 0])) * 1e3, 4),
                 sink_mm=round(float(rig.half[2] - r[-40:, 0].mean()) * 1e3, 4),
@@ -79,12 +81,14 @@ def main():
 
     asset = load_asset(args.slab) if args.slab else soft_slab()
     out = dict(device=device_name(args.device), rest=[], ramp=[], cost=None)
+    traces, tracks = [], []
     for mass, gap, frames in ((0.1, 1e-3, 200), (0.05, -2e-4, 120), (0.2, -2e-4, 120)):
-        out["rest"].append(rest(asset, args.device, mass, gap, frames))
+        out["rest"].append(rest(asset, args.device, mass, gap, frames, traces))
         print(out["rest"][-1], flush=True)
     for mu in (0.3, 0.6, 1.0):
         rig = SlabRig(asset, mass=0.1, mu=mu, gap=-3.5e-4, config=ph.Config(two_way=True, device=args.device))
         r = slide_angle(rig, np.arctan(mu) - np.radians(8.0))
+        tracks.append((mu, r["track"]))
         out["ramp"].append(dict(mu=mu, atan_deg=round(float(np.degrees(np.arctan(mu))), 2),
                                 slid_deg=round(float(np.degrees(r["angle"])), 2), moved_mm=round(r["moved"] * 1e3, 3)))
         print(out["ramp"][-1], flush=True)
@@ -92,6 +96,35 @@ def main():
     print(out["cost"], flush=True)
     path = Path(args.out or Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / f"two_way_{args.device.split(':')[0]}.json")
     path.write_text(json.dumps(out, indent=1) + "\n")
+    print(path)
+    plot(traces, tracks, out["device"], path.parents[1] / "images" / f"two_way_{args.device.split(':')[0]}.png")
+
+
+def plot(traces, tracks, device: str, path: Path) -> None:
+    """Left: the skin's force on each box against time, m g dashed; right: how far the box moved down
+    the tilting table against the table's angle, atan(mu) dotted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    for (mass, _, force), c in zip(traces, ("C0", "C1", "C2")):
+        t = np.arange(1, len(force) + 1) * 5.0
+        a.plot(t, force, c, lw=1, label=f"{mass * 1e3:.0f} g")
+        a.axhline(mass * 9.81, color=c, ls="--", lw=0.8)
+    a.set(xlabel="time (ms)", ylabel="skin force on the box, vertical (N)", title="a box laid or dropped on the skin (m g dashed)")
+    a.legend()
+    for (mu, tr), c in zip(tracks, ("C0", "C1", "C2")):
+        b.plot(np.degrees(tr[:, 0]), tr[:, 1] * 1e3, c, label=f"mu {mu}")
+        b.axvline(np.degrees(np.arctan(mu)), color=c, ls=":", lw=1)
+    b.set(xlabel="table angle (deg)", ylabel="box moved down the slope (mm)", ylim=(-1, 12),
+          title="the tilting table (atan(mu) dotted)")
+    b.legend()
+    fig.suptitle(f"two-way coupling on the soft slab, {device}")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
     print(path)
 
 

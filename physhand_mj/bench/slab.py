@@ -110,7 +110,8 @@ def slide_angle(rig: SlabRig, approach: float, fast: float = np.radians(20.0), s
     ``approach`` rad, then ``slow`` rad/s. The box slides once it moves down the slope faster than 20
     mm/s over 10 frames (50 ms) or 10 mm from where it was at ``approach``. Returns ``angle`` (rad,
     the table's when it slid; ``limit`` if it never did), ``moved`` (m, down the slope from
-    ``approach`` to 2 degrees before the slide: the flesh's shear, not a slip) and the frames run."""
+    ``approach`` to 2 degrees before the slide: the flesh's shear, not a slip), the frames run and
+    ``track`` (n, 2): [angle rad, m moved down the slope since ``approach``] of every slow frame."""
     dt = rig.model.opt.timestep
     for _ in range(settle):
         rig.step()
@@ -133,4 +134,5 @@ def slide_angle(rig: SlabRig, approach: float, fast: float = np.radians(20.0), s
             break
     a = np.array(track)
     before = a[a[:, 0] <= ang - np.radians(2.0)]
-    return dict(angle=ang, moved=float(y0 - before[-1, 1]) if len(before) else 0.0, frames=rig.frames)
+    return dict(angle=ang, moved=float(y0 - before[-1, 1]) if len(before) else 0.0, frames=rig.frames,
+                track=np.c_[a[:, 0], y0 - a[:, 1]])
