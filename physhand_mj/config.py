@@ -159,10 +159,11 @@ class Config:
         5 ms frames is 2 m/s); objects farther cost nothing.
       feature_contact: also push the skin off object corners, tips and sharp edges inside it.
       skin_tether: the farthest a skin vertex may be from where its bone carries it (m; 0: off).
-      two_way: the skin acts back on the scene: each frame's contact impulses, summed per object and
-        per bone (contact/exchange.py), are applied by SoftHand to the objects' MuJoCo bodies and, as
-        the reaction, to the bones, through ``data.xfrc_applied`` over the next MuJoCo step
-        (docs/coupling.md; one hand, not BatchedHands).
+      two_way: the skin acts back on the scene (experimental): its contact impulses and Coulomb
+        friction act on the objects, free ones moved within the frame at the substep rate, and the
+        reaction on the bones; SoftHand hands the objects' poses and everyone's velocity change to
+        MuJoCo (contact/exchange.py, docs/coupling.md; one hand, not BatchedHands; ``frame_dt`` must
+        equal MuJoCo's timestep).
       contact_damping: with two_way, the flesh's damping at contacts (s): a touching object's normal
         velocity relative to the bones under the skin decays over this time (the flesh's own
         velocity damping leaves a box on the skin ringing for seconds); 0: none.

@@ -113,9 +113,13 @@ class SoftHand:
             self._add_geom(g)
         self.solver = Solver(make_model(self.asset, self.config), self.config,
                              objects=self.objects if self.object_geoms else None)
+        if self.config.two_way:
+            check_two_way(model, self.config)
         # Config.two_way: each object's MuJoCo body (Objects.object_names order) and the wrenches applied
         self.object_bodies = object_body_ids(model, self.object_geoms, self.objects)
         self._mu = None  # (K,) friction coefficients, read from the model at the first two-way frame
+        self._bones_prev = None  # (centres, quats) of the bones at the last two-way frame
+        self._obj_vel = None  # (K, 6) [angular, linear] the objects' velocities sent for the frame
         # the skin's sliding friction coefficient (None: the skin geom's, or MuJoCo's default 1 without one)
         self.skin_friction = None
         self._free = free_qpos(model, self.object_bodies)  # (K,) qpos address of a free object's joint, else -1
@@ -248,11 +252,19 @@ class SoftHand:
                 inv_m[k] = 1.0 / m.body_mass[b]
                 r = d.ximat[b].reshape(3, 3)
                 inv_i[k] = r @ np.diag(1.0 / np.maximum(m.body_inertia[b], 1e-12)) @ r.T
-        bv = np.zeros((len(self.bones), 6))
-        for j, b in enumerate(self.bones):
-            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), bv[j], 0)
-        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], d.xipos[self.bones], mu, inv_m, inv_i,
-                                         bv[:, 3:], bv[:, :3])
+        # the bones' velocities from their poses a frame apart (mocap bones included, whose qvel is 0)
+        com, quat = d.xipos[self.bones].copy(), d.xquat[self.bones].copy()
+        bv, bw = np.zeros((len(self.bones), 3)), np.zeros((len(self.bones), 3))
+        if self._bones_prev is not None:
+            bv = (com - self._bones_prev[0]) / self.config.frame_dt
+            for j in range(len(self.bones)):
+                dq = np.zeros(4)
+                back = self._bones_prev[1][j] * np.array([1.0, -1.0, -1.0, -1.0])
+                mujoco.mju_mulQuat(dq, quat[j], back)
+                mujoco.mju_quat2Vel(bw[j], dq, self.config.frame_dt)
+        self._bones_prev = (com, quat)
+        self._obj_vel = vel
+        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], com, mu, inv_m, inv_i, bv, bw)
 
     def _applied_wrench(self, k: int, idx) -> dict:
         """Config.two_way: what the skin applied to object ``k`` over the last frame (its mean force,
@@ -293,8 +305,20 @@ class SoftHand:
             # skin's (exchange.move_objects); MuJoCo's own move of it in the step is replaced
             c = d.xipos[b]
             q = w["turn"][k][[3, 0, 1, 2]]  # x y z w -> w x y z
+            shift = w["shift"][k].copy()
+            rest = self.config.substeps - int(w["steps"][k])
+            if rest > 0:  # substeps without a stage (nothing near, or Config.contact_every > 1): the
+                # object moves on with its velocity over them, as MuJoCo's step would have moved it
+                t = self.config.frame_dt / self.config.substeps * rest
+                shift += (self._obj_vel[k, 3:] + w["dv"][k]) * t
+                omega = self._obj_vel[k, :3] + w["dw"][k]
+                ang = float(np.linalg.norm(omega)) * t
+                if ang > 0:
+                    spin, turned = np.r_[np.cos(ang / 2), omega / np.linalg.norm(omega) * np.sin(ang / 2)], np.zeros(4)
+                    mujoco.mju_mulQuat(turned, spin, q)
+                    q = turned
             r = quat_to_mat(q[None])[0]
-            d.qpos[a: a + 3] = c + w["shift"][k] + r @ (d.xpos[b] - c)
+            d.qpos[a: a + 3] = c + shift + r @ (d.xpos[b] - c)
             out = np.zeros(4)
             mujoco.mju_mulQuat(out, q, d.xquat[b])
             d.qpos[a + 3: a + 7] = out / np.linalg.norm(out)
@@ -530,6 +554,19 @@ def geom_spec(model, data, g: int) -> dict:
                     vertices=m.mesh_vert[va: va + vn], faces=m.mesh_face[fa: fa + fn],
                     mesh_range=float(2 * m.geom_rbound[g] + 0.01))
     return dict(gtype=gtype, size=m.geom_size[g], pos=d.geom_xpos[g], quat=quat, name=name, obj=body)
+
+
+def check_two_way(model, config) -> None:
+    """What two-way coupling needs of the MuJoCo model (ValueError saying what to change): a solver
+    frame as long as MuJoCo's step (the impulses are the step's, and a free object is moved over
+    it), and a one-stage integrator (after ``mj_step`` data's kinematics must be the step's start)."""
+    dt = float(model.opt.timestep)
+    if abs(config.frame_dt - dt) > 1e-12 * max(dt, 1.0):
+        raise ValueError(f"Config.two_way: Config.frame_dt ({config.frame_dt} s) must equal the model's timestep "
+                         f"({dt} s): set Config(frame_dt={dt}, ...) or model.opt.timestep")
+    if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
+        raise ValueError("Config.two_way: MuJoCo's RK4 integrator leaves data's kinematics at its last stage, not "
+                         "the step's start; use Euler or implicitfast (model.opt.integrator)")
 
 
 def free_qpos(model, bodies) -> np.ndarray:

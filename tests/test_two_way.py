@@ -57,6 +57,35 @@ def test_a_heavier_box_sinks_deeper(slab):
     assert sink[0] < sink[1] < sink[2], sink
 
 
+def test_a_box_far_from_the_skin_falls_as_in_mujoco_alone(slab):
+    """A box 5 cm over the skin (no contact stage runs: nothing within the frame margin) falls exactly
+    as MuJoCo alone moves it: the frame's stage-less substeps move it on with its velocity."""
+    import mujoco
+
+    rig = SlabRig(slab, mass=0.1, mu=0.5, gap=0.05)
+    m2 = mujoco.MjModel.from_xml_string("""<mujoco><option timestep="0.005"/><worldbody><body name="box" pos="0 0 0">
+      <freejoint/><geom type="box" size="0.015 0.015 0.01" mass="0.1"/></body></worldbody></mujoco>""")
+    d2 = mujoco.MjData(m2)
+    d2.qpos[:3] = rig.data.qpos[:3]
+    z0 = rig.data.qpos[2]
+    for _ in range(10):
+        rig.step()
+        mujoco.mj_step(m2, d2)
+    assert rig.data.qpos[2] < z0 - 0.01  # it fell
+    np.testing.assert_allclose(rig.data.qpos[:3], d2.qpos[:3], atol=1e-9)
+    np.testing.assert_allclose(rig.data.qvel[:3], d2.qvel[:3], atol=1e-9)
+
+
+def test_two_way_needs_the_models_timestep(slab):
+    """A solver frame other than MuJoCo's step is refused with what to change."""
+    import mujoco
+
+    m = mujoco.MjModel.from_xml_string("""<mujoco><option timestep="0.002"/><worldbody><body name="table" mocap="true"/>
+      <body name="box" pos="0 0 0.1"><freejoint/><geom type="box" size="0.01 0.01 0.01"/></body></worldbody></mujoco>""")
+    with pytest.raises(ValueError, match="frame_dt"):
+        ph.SoftHand(m, mujoco.MjData(m), ph.Config(two_way=True), asset=slab, writeback=False, settle_frames=1)
+
+
 def test_one_way_is_unchanged_and_reports_no_applied_force(slab):
     """Without two_way the box falls through the slab's skin (the skin pushes nothing) and the
     contact report has no applied force."""

@@ -50,7 +50,9 @@ class Exchange:
     free object's (0: the skin does not move it within the frame); obj_mu (K,): its friction
     coefficient against the skin; base_pose (G,): the geoms' poses at the frame's start.
     Their motion in the frame: dv, dw (K,): the velocity the skin has given each so far; shift (K,) m
-    and turn (K,) quat: how far each has moved and turned about its centre.
+    and turn (K,) quat: how far each has moved and turned about its centre; steps (K,): over how many
+    substeps (a frame whose stages the solver skipped, nothing near, moved it over none: SoftHand
+    moves it over the rest).
     The sums (skin side; objects get minus these): obj_lin / obj_ang (K,) and bone_lin / bone_ang
     (B,): sum(m dx) kg m and sum((x - c) x m dx) kg m^2 over the frame; sub_lin / sub_ang (K,): the
     current substep's; obj_fric (K,): the friction corrections' share of obj_lin.
@@ -78,6 +80,7 @@ class Exchange:
     dw: wp.array(dtype=wp.vec3)
     shift: wp.array(dtype=wp.vec3)
     turn: wp.array(dtype=wp.quat)
+    steps: wp.array(dtype=int)
     base_pose: wp.array(dtype=wp.transform)
     bone_com: wp.array(dtype=wp.vec3)
     bone_vel: wp.array(dtype=wp.vec3)
@@ -118,6 +121,7 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     e.sub_lin, e.sub_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.dv, e.dw = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
     e.shift = wp.zeros(k, dtype=wp.vec3, device=d)
+    e.steps = wp.zeros(k, dtype=int, device=d)
     e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
     e.base_pose = wp.zeros(max(g_count, 1) if on else 0, dtype=wp.transform, device=d)
     e.bone_com = wp.zeros(b, dtype=wp.vec3, device=d)
@@ -246,6 +250,7 @@ def reset_objects(ex: Exchange):
     ex.dw[k] = wp.vec3(0.0)
     ex.shift[k] = wp.vec3(0.0)
     ex.turn[k] = wp.quat_identity()
+    ex.steps[k] = 0
 
 
 @wp.kernel
@@ -279,6 +284,7 @@ def move_objects(ex: Exchange):
     k = wp.tid()
     if ex.obj_inv_mass[k] <= 0.0:
         return
+    ex.steps[k] = ex.steps[k] + 1
     ex.shift[k] = ex.shift[k] + (ex.obj_vel[k] + ex.dv[k]) * ex.h
     w = ex.obj_omega[k] + ex.dw[k]
     a = wp.length(w) * ex.h
@@ -318,9 +324,9 @@ def zero_ops(ex: Exchange, objects=None) -> list:
 
 # the per-frame traffic with the host, packed (one upload and one read-back a frame: on CUDA each
 # array's own copy cost a sync): per object [com 3, vel 3, omega 3, inv_mass, inv_inertia 9, mu] in,
-# [lin 3, ang 3, fric 3, dv 3, dw 3, shift 3, turn 4] out; per bone [com 3, vel 3, omega 3] in, [lin 3,
+# [lin 3, ang 3, fric 3, dv 3, dw 3, shift 3, turn 4, steps] out; per bone [com 3, vel 3, omega 3] in, [lin 3,
 # ang 3] out
-IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 20, 9, 22, 6
+IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 20, 9, 23, 6
 
 
 @wp.func
@@ -372,6 +378,7 @@ def pack_outputs(ex: Exchange, buf: wp.array(dtype=float), n_obj: int, n_bone: i
         buf[a + 19] = q[1]
         buf[a + 20] = q[2]
         buf[a + 21] = q[3]
+        buf[a + 22] = float(ex.steps[t])
     if t < n_bone:
         a = n_obj * OUT_OBJ + t * OUT_BONE
         _put3(buf, a, ex.bone_lin[t])
@@ -388,10 +395,10 @@ def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int, out: np.ndarr
     k, b = ex.obj_lin.shape[0], ex.bone_lin.shape[0]
     if out is None:  # (``out``: pack_outputs' buffer read back; else each array apart)
         out = np.concatenate([np.concatenate([ex.obj_lin.numpy(), ex.obj_ang.numpy(), ex.obj_fric.numpy(), ex.dv.numpy(),
-                                              ex.dw.numpy(), ex.shift.numpy(), ex.turn.numpy()], axis=1).ravel(),
+                                              ex.dw.numpy(), ex.shift.numpy(), ex.turn.numpy(), ex.steps.numpy()[:, None]], axis=1).ravel(),
                               np.concatenate([ex.bone_lin.numpy(), ex.bone_ang.numpy()], axis=1).ravel()])
     o = np.asarray(out, np.float64)[: k * OUT_OBJ].reshape(k, OUT_OBJ)
     bo = np.asarray(out, np.float64)[k * OUT_OBJ: k * OUT_OBJ + b * OUT_BONE].reshape(b, OUT_BONE)
     scale = 1.0 / (substeps * substep_dt * substep_dt)
     return dict(objects=o[:, :6] * -scale, friction=o[:, 6:9] * -scale, bones=bo * scale,
-                dv=o[:, 9:12], dw=o[:, 12:15], shift=o[:, 15:18], turn=o[:, 18:22])
+                dv=o[:, 9:12], dw=o[:, 12:15], shift=o[:, 15:18], turn=o[:, 18:22], steps=o[:, 22].astype(int))
