@@ -34,7 +34,7 @@ def rest(asset, device, mass, gap, frames, trace=None):
     r = []
     for _ in range(frames):
         s = rig.step()
-        w = rig.hand.solver.contact.wrenches()
+        w = rig.hand.solver.contact.two_way.wrenches()
         r.append((s["height"], s["force"][2], s["penetration"], s["object_in_skin"],
                   np.abs(w["objects"].sum(0)[:3] + w["bones"].sum(0)[:3]).max()))
     r = np.array(r)

@@ -264,7 +264,7 @@ class SoftHand:
                 mujoco.mju_quat2Vel(bw[j], dq, self.config.frame_dt)
         self._bones_prev = (com, quat)
         self._obj_vel = vel
-        self.solver.contact.set_exchange(d.xipos[bodies], vel[:, 3:], vel[:, :3], com, mu, inv_m, inv_i, bv, bw)
+        self.solver.contact.two_way.set_state(d.xipos[bodies], vel[:, 3:], vel[:, :3], com, mu, inv_m, inv_i, bv, bw)
 
     def _applied_wrench(self, k: int, idx) -> dict:
         """Config.two_way: what the skin applied to object ``k`` over the last frame (its mean force,
@@ -282,7 +282,7 @@ class SoftHand:
         centres) as one velocity change, qvel += M^-1 J^T [impulses] (mj_applyFT, mj_solveM); a free
         object takes the pose the frame moved it to."""
         m, d = self.model, self.data
-        w = self.solver.contact.wrenches()
+        w = self.solver.contact.two_way.wrenches()
         T = self.config.frame_dt
         qimp = np.zeros(m.nv)
         for k, b in enumerate(self.object_bodies):

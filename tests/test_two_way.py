@@ -24,7 +24,7 @@ def run(rig, frames):
     rows = []
     for _ in range(frames):
         s = rig.step()
-        w = rig.hand.solver.contact.wrenches()
+        w = rig.hand.solver.contact.two_way.wrenches()
         rows.append((s["height"], *s["force"], s["penetration"], s["object_in_skin"],
                      *(w["objects"].sum(0)[:3] + w["bones"].sum(0)[:3]), float(np.abs(w["objects"][:, :3]).max())))
     return np.array(rows)

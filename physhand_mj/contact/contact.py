@@ -23,8 +23,7 @@ import warp as wp
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
 from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold
-from physhand_mj.contact.exchange import (IN_BONE, IN_OBJ, OUT_BONE, OUT_OBJ, frame_wrenches, make_exchange, move_objects,
-                                          pack_outputs, pose_objects, skin_friction, take_impulses, unpack_inputs, zero_ops)
+from physhand_mj.contact.exchange import TwoWay
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
@@ -200,12 +199,8 @@ class Contact:
         self._passes_gated = False  # (finish_recording: as the solver's frame last said)
         # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
         self.bone_hold = make_bone_hold(model, config.bone_hold)
-        # Config.two_way: the frame's contact impulses per object and bone (exchange.py)
-        if config.two_way and model.worlds > 1:
-            raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
-        self._ex_in = None  # (set_exchange's packed buffers, made at its first call)
-        self.exchange = make_exchange(model, len(objects.object_names), config.two_way, config.frame_dt / config.substeps,
-                                     objects.pose.shape[0], config.contact_damping)
+        # Config.two_way: the skin's impulses and friction on the objects and bones (exchange.py)
+        self.two_way = TwoWay(model, objects, config)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))
@@ -214,6 +209,11 @@ class Contact:
     def counters(self) -> wp.array:
         """The frame's list lengths (:attr:`FrameLists.counters`; the solver's gates read them)."""
         return self.lists.counters
+
+    @property
+    def exchange(self):
+        """The :class:`~physhand_mj.contact.exchange.Exchange` every contact push records into (two-way coupling)."""
+        return self.two_way.data
 
     @property
     def push(self) -> wp.array:
@@ -363,10 +363,10 @@ class Contact:
         """A substep without a stage: the skin held on the last stage's planes (:meth:`PlaneHold.record_hold`)."""
         if not self.hold.holds:
             return
-        self._record_objects_move(rec)
+        self.two_way.record_move(rec)
         self.hold.record_hold(rec, state, self.lists, self.acc, self.take_counter, self.space.apply_shift(state),
                               self.bone_hold, self.exchange, self._held_points())
-        self._record_objects_take(rec, state)
+        self.two_way.record_take(rec, state, self.bone_hold)
 
     def take_counter(self) -> tuple:
         """The next counter slot of the frame and its (1,) counter (:meth:`_counter`)."""
@@ -390,7 +390,7 @@ class Contact:
         m, o, cfg = self.model, self.objects, self.config
         if not self.n_tris:
             return
-        self._record_objects_move(rec)
+        self.two_way.record_move(rec)
         # (active-list slot, first pass's Eq. 9 touched slot, its feature touched slot or -1)
         self._stage_slots.append((self._slot, self._slot + 2, self._slot + 3 if self.features is not None else -1))
         self.active_count = self._counter()
@@ -452,26 +452,7 @@ class Contact:
             else:
                 lst, prev, flag = self._record_pass(rec, state, p, lst, skin, feat_count)
         self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
-        self._record_objects_take(rec, state)
-
-    def _record_objects_move(self, rec) -> None:
-        """Config.two_way, before a substep's contact: the movable objects move over the substep
-        (exchange.move_objects, pose_objects)."""
-        ex, o = self.exchange, self.objects
-        if ex.obj_lin.shape[0] == 0:
-            return
-        rec.launch(move_objects, ex.obj_lin.shape[0], [ex], [])
-        rec.launch(pose_objects, len(o.names), [ex, o.obj], [o.pose, o.inv_pose])
-
-    def _record_objects_take(self, rec, state) -> None:
-        """Config.two_way, after a substep's contact: the skin's friction, then the substep's impulses
-        into the movable objects' velocities (exchange.skin_friction, take_impulses): the exchange at
-        the substep rate."""
-        ex, o, m = self.exchange, self.objects, self.model
-        if ex.obj_lin.shape[0] == 0:
-            return
-        rec.launch(skin_friction, m.n_skin, [ex, self.bone_hold, o.geoms, len(o.names), state.x_prev], [state.x])
-        rec.launch(take_impulses, ex.obj_lin.shape[0], [ex], [])
+        self.two_way.record_take(rec, state, self.bone_hold)
 
     def _record_pass(self, rec, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
@@ -592,7 +573,7 @@ class Contact:
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.measures.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
-        ops += zero_ops(self.exchange, self.objects)
+        ops += self.two_way.zero_ops()
         if len(self.lists.pass_move):  # (Config.tuning.contact_pass_tol)
             ops.append(self.lists.pass_move.zero_)
         if self.lists.world_stage is not None:
@@ -656,55 +637,6 @@ class Contact:
             yield
         finally:
             d.fill_(float(HOLD_DEPTH))
-
-    def set_exchange(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None,
-                     bone_vel=None, bone_omega=None) -> None:
-        """Config.two_way: the objects' state for the next frame (world frame, ``Objects.object_names``
-        order): centres of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular
-        velocities ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body
-        order), about which torques are taken; ``obj_mu`` (K,): friction coefficients; ``inv_mass``
-        (K,) 1/kg and ``inv_inertia`` (K, 3, 3) 1/(kg m^2), world frame: the objects the skin moves
-        within the frame (0: none); ``bone_vel`` / ``bone_omega`` (B, 3): the bones' velocities, m/s
-        at their centres and rad/s (None: each kept)."""
-        ex = self.exchange
-        k, b = ex.obj_com.shape[0], ex.bone_com.shape[0]
-        if k == 0:
-            raise ValueError("Contact.set_exchange: Config.two_way is off")
-        if self._ex_in is None:  # (one packed upload a frame: exchange.unpack_inputs)
-            self._ex_in = np.zeros(k * IN_OBJ + b * IN_BONE, np.float32)
-            self._ex_dev_in = wp.zeros(len(self._ex_in), dtype=float, device=self.model.device)
-            self._ex_dev_out = wp.zeros(k * OUT_OBJ + b * OUT_BONE, dtype=float, device=self.model.device)
-        o = self._ex_in[: k * IN_OBJ].reshape(k, IN_OBJ)
-        bo = self._ex_in[k * IN_OBJ:].reshape(b, IN_BONE)
-        n = len(np.asarray(obj_com).reshape(-1, 3))
-        o[:n, 0:3], o[:n, 3:6], o[:n, 6:9] = (np.asarray(v, np.float32).reshape(-1, 3) for v in (obj_com, obj_vel, obj_omega))
-        nb = len(np.asarray(bone_com).reshape(-1, 3))
-        bo[:nb, 0:3] = np.asarray(bone_com, np.float32).reshape(-1, 3)
-        if obj_mu is not None:
-            mu = np.asarray(obj_mu, np.float32).reshape(-1)
-            if not (np.all(np.isfinite(mu)) and np.all(mu >= 0)):
-                raise ValueError(f"friction coefficients must be finite and >= 0, got {mu}")
-            o[: len(mu), 19] = mu
-        if bone_vel is not None:
-            bo[:nb, 3:6] = np.asarray(bone_vel, np.float32).reshape(-1, 3)
-            bo[:nb, 6:9] = np.asarray(bone_omega, np.float32).reshape(-1, 3)
-        if inv_mass is not None:
-            im = np.asarray(inv_mass, np.float32).reshape(-1)
-            o[: len(im), 9] = im
-            o[: len(im), 10:19] = np.asarray(inv_inertia, np.float32).reshape(-1, 9)
-        self._ex_dev_in.assign(self._ex_in)
-        wp.launch(unpack_inputs, max(k, b), [ex, self._ex_dev_in, k, b], device=self.model.device)
-
-    def wrenches(self) -> dict:
-        """Config.two_way: the last frame's mean contact wrenches (exchange.frame_wrenches): ``objects``
-        (K, 6) [N, N m] on each object about its centre, ``bones`` (B, 6) the reaction on each bone."""
-        cfg, ex = self.config, self.exchange
-        out = None
-        if self._ex_in is not None:  # (one launch and one read-back: exchange.pack_outputs)
-            k, b = ex.obj_lin.shape[0], ex.bone_lin.shape[0]
-            wp.launch(pack_outputs, max(k, b), [ex, self._ex_dev_out, k, b], device=self.model.device)
-            out = self._ex_dev_out.numpy()
-        return frame_wrenches(ex, cfg.frame_dt / cfg.substeps, cfg.substeps, out)
 
     def bone_report(self, state, world: int = 0) -> dict:
         """The bones of world ``world`` against the objects now, and the skin the last frame held

@@ -109,29 +109,23 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     e.mass = wp.array(np.where(inv > 0, 1.0 / np.maximum(inv, 1e-30), 0.0).astype(np.float32), dtype=float, device=d)
     e.body = model.skin_body if on else wp.zeros(0, dtype=int, device=d)
     e.h = float(h)
-    e.obj_mu = wp.zeros(k, dtype=float, device=d)
+    vec = {name: wp.zeros(k, dtype=wp.vec3, device=d) for name in (
+        "obj_vel", "obj_omega", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang",
+        "agg_n", "agg_vb", "prev_n", "prev_vb")}
+    vec.update({name: wp.zeros(b, dtype=wp.vec3, device=d) for name in ("bone_com", "bone_vel", "bone_omega", "bone_lin",
+                                                                        "bone_ang")})
+    for name, arr in vec.items():
+        setattr(e, name, arr)
+    for name in ("obj_mu", "obj_inv_mass", "agg_load", "prev_load"):
+        setattr(e, name, wp.zeros(k, dtype=float, device=d))
     ns = model.n_skin if on else 0
     e.sub_load, e.load = wp.zeros(ns, dtype=float, device=d), wp.zeros(ns, dtype=float, device=d)
     e.fr_obj = wp.full(ns, -1, dtype=int, device=d)
-    e.obj_vel, e.obj_omega = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
-    e.obj_fric = wp.zeros(k, dtype=wp.vec3, device=d)
-    e.obj_com = wp.zeros(k, dtype=wp.vec3, device=d)
-    e.obj_inv_mass = wp.zeros(k, dtype=float, device=d)
     e.obj_inv_inertia = wp.zeros(k, dtype=wp.mat33, device=d)
-    e.sub_lin, e.sub_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
-    e.dv, e.dw = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
-    e.shift = wp.zeros(k, dtype=wp.vec3, device=d)
     e.steps = wp.zeros(k, dtype=int, device=d)
     e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
     e.base_pose = wp.zeros(max(g_count, 1) if on else 0, dtype=wp.transform, device=d)
-    e.bone_com = wp.zeros(b, dtype=wp.vec3, device=d)
-    e.bone_vel, e.bone_omega = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
     e.damp = float(1.0 - np.exp(-h / damping)) if damping > 0 else 0.0
-    e.agg_load, e.prev_load = wp.zeros(k, dtype=float, device=d), wp.zeros(k, dtype=float, device=d)
-    e.agg_n, e.prev_n = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
-    e.agg_vb, e.prev_vb = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
-    e.obj_lin, e.obj_ang = wp.zeros(k, dtype=wp.vec3, device=d), wp.zeros(k, dtype=wp.vec3, device=d)
-    e.bone_lin, e.bone_ang = wp.zeros(b, dtype=wp.vec3, device=d), wp.zeros(b, dtype=wp.vec3, device=d)
     return e
 
 
@@ -385,20 +379,96 @@ def pack_outputs(ex: Exchange, buf: wp.array(dtype=float), n_obj: int, n_bone: i
         _put3(buf, a + 3, ex.bone_ang[t])
 
 
-def frame_wrenches(ex: Exchange, substep_dt: float, substeps: int, out: np.ndarray | None = None) -> dict:
-    """The last frame's mean wrenches (N, N m, world frame): ``objects`` (K, 6) [force, torque about
-    each object's centre] that the skin applied to each object, ``friction`` (K, 3) the friction
-    part of each force, ``bones`` (B, 6) the reaction on each bone. ``objects.sum(0)[:3] ==
-    -bones.sum(0)[:3]`` to float rounding."""
-    if ex.obj_lin.shape[0] == 0:
-        return dict(objects=np.zeros((0, 6)), friction=np.zeros((0, 3)), bones=np.zeros((0, 6)))
-    k, b = ex.obj_lin.shape[0], ex.bone_lin.shape[0]
-    if out is None:  # (``out``: pack_outputs' buffer read back; else each array apart)
-        out = np.concatenate([np.concatenate([ex.obj_lin.numpy(), ex.obj_ang.numpy(), ex.obj_fric.numpy(), ex.dv.numpy(),
-                                              ex.dw.numpy(), ex.shift.numpy(), ex.turn.numpy(), ex.steps.numpy()[:, None]], axis=1).ravel(),
-                              np.concatenate([ex.bone_lin.numpy(), ex.bone_ang.numpy()], axis=1).ravel()])
-    o = np.asarray(out, np.float64)[: k * OUT_OBJ].reshape(k, OUT_OBJ)
-    bo = np.asarray(out, np.float64)[k * OUT_OBJ: k * OUT_OBJ + b * OUT_BONE].reshape(b, OUT_BONE)
+def frame_wrenches(out: np.ndarray, n_obj: int, n_bone: int, substep_dt: float, substeps: int) -> dict:
+    """The last frame's mean wrenches (N, N m, world frame) from :func:`pack_outputs`' buffer ``out``:
+    ``objects`` (K, 6) [force, torque about each object's centre] that the skin applied to each object,
+    ``friction`` (K, 3) the friction part of each force, ``bones`` (B, 6) the reaction on each bone
+    (``objects.sum(0)[:3] == -bones.sum(0)[:3]`` to float rounding), and the objects' in-frame motion
+    ``dv``, ``dw``, ``shift``, ``turn`` (x y z w) and ``steps``."""
+    o = np.asarray(out, np.float64)[: n_obj * OUT_OBJ].reshape(n_obj, OUT_OBJ)
+    bo = np.asarray(out, np.float64)[n_obj * OUT_OBJ: n_obj * OUT_OBJ + n_bone * OUT_BONE].reshape(n_bone, OUT_BONE)
     scale = 1.0 / (substeps * substep_dt * substep_dt)
     return dict(objects=o[:, :6] * -scale, friction=o[:, 6:9] * -scale, bones=bo * scale,
                 dv=o[:, 9:12], dw=o[:, 12:15], shift=o[:, 15:18], turn=o[:, 18:22], steps=o[:, 22].astype(int))
+
+
+class TwoWay:
+    """A contact's two-way coupling on the host side (``Config.two_way``; off: nothing recorded and
+    :attr:`data` holds empty arrays): the :class:`Exchange` its kernels take, the stages' launches
+    and the frame's packed traffic with ``SoftHand``."""
+
+    def __init__(self, model, objects, config):
+        if config.two_way and model.worlds > 1:
+            raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
+        self.model, self.objects, self.config = model, objects, config
+        self.on = bool(config.two_way)
+        self.data = make_exchange(model, len(objects.object_names), self.on, config.frame_dt / config.substeps,
+                                  objects.pose.shape[0], config.contact_damping)
+        k, b, d = self.data.obj_com.shape[0], self.data.bone_com.shape[0], model.device
+        self.n_obj, self.n_bone = k, b
+        self._in = np.zeros(k * IN_OBJ + b * IN_BONE, np.float32)  # (one upload and one read-back a frame)
+        self._dev_in = wp.zeros(len(self._in), dtype=float, device=d)
+        self._dev_out = wp.zeros(k * OUT_OBJ + b * OUT_BONE, dtype=float, device=d)
+
+    def zero_ops(self) -> list:
+        """The per-frame resets (:func:`zero_ops`)."""
+        return zero_ops(self.data, self.objects) if self.on else []
+
+    def record_move(self, rec) -> None:
+        """Before a substep's contact: the movable objects move over the substep (move_objects, pose_objects)."""
+        if self.on:
+            o = self.objects
+            rec.launch(move_objects, self.n_obj, [self.data], [])
+            rec.launch(pose_objects, len(o.names), [self.data, o.obj], [o.pose, o.inv_pose])
+
+    def record_take(self, rec, state, hold) -> None:
+        """After a substep's contact: the skin's friction (``hold``: the contact's bones.BoneHold), then the
+        substep's impulses into the movable objects' velocities (skin_friction, take_impulses)."""
+        if self.on:
+            o = self.objects
+            rec.launch(skin_friction, self.model.n_skin, [self.data, hold, o.geoms, len(o.names), state.x_prev],
+                       [state.x])
+            rec.launch(take_impulses, self.n_obj, [self.data], [])
+
+    def set_state(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None,
+                  bone_vel=None, bone_omega=None) -> None:
+        """The objects' state for the next frame (world frame, ``Objects.object_names`` order): centres
+        of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular velocities
+        ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body order), about
+        which torques are taken; ``obj_mu`` (K,): friction coefficients; ``inv_mass`` (K,) 1/kg and
+        ``inv_inertia`` (K, 3, 3) 1/(kg m^2): the objects the skin moves within the frame (0: none);
+        ``bone_vel`` / ``bone_omega`` (B, 3): the bones' velocities, m/s at their centres and rad/s
+        (None: each as last set). One upload (unpack_inputs)."""
+        if not self.on:
+            raise ValueError("TwoWay.set_state: Config.two_way is off")
+        k, b = self.n_obj, self.n_bone
+        o = self._in[: k * IN_OBJ].reshape(k, IN_OBJ)
+        bo = self._in[k * IN_OBJ:].reshape(b, IN_BONE)
+        n = len(np.asarray(obj_com).reshape(-1, 3))
+        o[:n, 0:3], o[:n, 3:6], o[:n, 6:9] = (np.asarray(v, np.float32).reshape(-1, 3) for v in (obj_com, obj_vel, obj_omega))
+        nb = len(np.asarray(bone_com).reshape(-1, 3))
+        bo[:nb, 0:3] = np.asarray(bone_com, np.float32).reshape(-1, 3)
+        if obj_mu is not None:
+            mu = np.asarray(obj_mu, np.float32).reshape(-1)
+            if not (np.all(np.isfinite(mu)) and np.all(mu >= 0)):
+                raise ValueError(f"friction coefficients must be finite and >= 0, got {mu}")
+            o[: len(mu), 19] = mu
+        if bone_vel is not None:
+            bo[:nb, 3:6] = np.asarray(bone_vel, np.float32).reshape(-1, 3)
+            bo[:nb, 6:9] = np.asarray(bone_omega, np.float32).reshape(-1, 3)
+        if inv_mass is not None:
+            im = np.asarray(inv_mass, np.float32).reshape(-1)
+            o[: len(im), 9] = im
+            o[: len(im), 10:19] = np.asarray(inv_inertia, np.float32).reshape(-1, 9)
+        self._dev_in.assign(self._in)
+        wp.launch(unpack_inputs, max(k, b), [self.data, self._dev_in, k, b], device=self.model.device)
+
+    def wrenches(self) -> dict:
+        """The last frame's mean contact wrenches and the objects' in-frame motion (:func:`frame_wrenches`;
+        one launch and one read-back)."""
+        if not self.on:
+            return dict(objects=np.zeros((0, 6)), friction=np.zeros((0, 3)), bones=np.zeros((0, 6)))
+        wp.launch(pack_outputs, max(self.n_obj, self.n_bone), [self.data, self._dev_out, self.n_obj, self.n_bone],
+                  device=self.model.device)
+        cfg = self.config
+        return frame_wrenches(self._dev_out.numpy(), self.n_obj, self.n_bone, cfg.frame_dt / cfg.substeps, cfg.substeps)
