@@ -111,27 +111,30 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
 @wp.kernel
 def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
             vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
-            thickness: float, depth: float, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int),
-            active: wp.array(dtype=int)):
-    """Per listed vertex: its nearest listed triangle now; closer than ``thickness`` in front (or
-    behind it, up to ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
+            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int),
+            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+    """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
+    else the one kept by the substep's first pass); closer than ``thickness`` in front (or behind
+    it, up to ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
     i = wp.tid()
     if i >= n[0]:
         return
     v = vlist[i]
     p = x[v]
     best = int(-1)
-    bd = float(1.0e30)
-    bu = wp.vec2()
-    for k in range(cand_n[v]):
-        t = cand[v, k]
-        uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
-        q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
-        d = wp.length(p - q)
-        if d < bd:
-            bd = d
-            best = t
-            bu = uv
+    if pick != 0:
+        bd = float(1.0e30)
+        for k in range(cand_n[v]):
+            t = cand[v, k]
+            uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
+            q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
+            d = wp.length(p - q)
+            if d < bd:
+                bd = d
+                best = t
+        nearest[v] = best
+    else:
+        best = nearest[v]
     if best < 0:
         return
     a = faces[best, 0]
@@ -140,6 +143,7 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
     xa = x[a]
     xb = x[b]
     xc = x[c]
+    bu = closest_on_triangle(xa, xb, xc, p)
     nrm = wp.cross(xb - xa, xc - xa)
     ln = wp.length(nrm)
     if ln < 1.0e-12:
@@ -209,6 +213,7 @@ class SelfContact:
         self.mark = wp.zeros(ns, dtype=int, device=d)
         self.delta = wp.zeros(ns, dtype=wp.vec3, device=d)
         self.hits = wp.zeros(ns, dtype=int, device=d)
+        self.nearest = wp.zeros(ns, dtype=int, device=d)  # per listed vertex its nearest triangle this substep
         # [listed vertices, involved vertices, pairs, pairs over SLOTS]; [corrections this frame]
         self.counts = wp.zeros(4, dtype=int, device=d)
         self.active = wp.zeros(1, dtype=int, device=d)
@@ -240,10 +245,10 @@ class SelfContact:
     def record_stage(self, rec, state, inv_mass) -> None:
         """A substep's correction: ``self_passes`` x (resolve, apply) over the frame's lists."""
         cfg = self.config
-        for _ in range(cfg.self_passes):
+        for k in range(cfg.self_passes):
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
-                        float(cfg.self_thickness), float(cfg.self_depth)],
+                        float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest],
                        [self.delta, self.hits, self.active], count=self.vcount)
             rec.launch(apply, self.n_skin, [self.icount, self.involved], [state.x, self.delta, self.hits], count=self.icount)
 
