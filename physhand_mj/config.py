@@ -101,10 +101,10 @@ class Tuning:
     sleep_frames: int = 10
     sleep_bone_motion: float = 1.0e-5
     self_thickness: float = 5.0e-4
-    self_margin: float = 3.0e-3
-    self_rest_gap: float = 6.0e-3
+    self_margin: float = 2.0e-3
+    self_rest_gap: float = 4.0e-3
     self_depth: float = 5.0e-3
-    self_passes: int = 2
+    self_passes: int = 4
 
 
 @dataclass
