@@ -6,7 +6,9 @@ Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_o
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
 measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1 mm outward offsets
 lie inside the closed skin, and inverted tets. Frame times are the median of the frames after the
-first (which compiles); modes run one after the other in the same process.
+first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
+figure other processes on a shared host disturb least); modes run one after the other in the same
+process.
 """
 
 import argparse
@@ -33,19 +35,21 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         opts["self_collision"] = True
     cfg = ph.Config.from_dict(opts)
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
-    times, res = [], {}
+    times, cpu, res = [], [], {}
     for _ in range(frames):
         mujoco.mj_step(model, data)
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.thread_time()
         res = hand.step()
         times.append(time.perf_counter() - t)
+        cpu.append(time.thread_time() - c)
     x = hand.solver.state_positions(hand.state) if hasattr(hand.solver, "state_positions") else hand.state.x.numpy()
     a = hand.asset
     out = dict(key=key, self_collision=self_collision, frames=frames,
                ms_frame=float(np.median(times[1:]) * 1e3) if frames > 1 else None,
+               cpu_ms_frame=float(np.median(cpu[1:]) * 1e3) if frames > 1 else None,
                finite=bool(np.all(np.isfinite(x))), guard_inverted=int(res.get("inverted", -1)))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
-    for k in ("self_pairs", "self_ops_run"):
+    for k in ("self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:
             out[k] = res[k]
     return out
