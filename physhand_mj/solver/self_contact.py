@@ -54,7 +54,7 @@ def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), cou
 
 @wp.kernel
 def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
-               faces: wp.array2d(dtype=int), margin: float, rest_gap: float,
+               faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
                counts: wp.array(dtype=int)):
@@ -72,6 +72,11 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
         b = faces[t, 1]
         c = faces[t, 2]
         if a == v or b == v or c == v:
+            continue
+        # the rest filter's cheap half first: a triangle whose rest bounding ball lies within
+        # rest_gap of the vertex at rest (the surface around it: most of what the box holds)
+        ball = rest_ball[t]
+        if wp.length(pr - wp.vec3(ball[0], ball[1], ball[2])) + ball[3] < rest_gap:
             continue
         uv = closest_on_triangle(x[a], x[b], x[c], p)
         d = wp.length(p - (uv[0] * x[a] + uv[1] * x[b] + (1.0 - uv[0] - uv[1]) * x[c]))
@@ -204,7 +209,11 @@ class SelfContact:
         faces = np.asarray(model.skin_faces.numpy() if hasattr(model.skin_faces, "numpy") else model.skin_faces)
         self.faces = wp.array(faces.astype(np.int32), dtype=int, device=d)
         self.indices = wp.array(faces.astype(np.int32).ravel(), dtype=int, device=d)
-        self.rest = wp.array(model.rest_x.numpy()[:ns], dtype=wp.vec3, device=d)
+        rest = model.rest_x.numpy()[:ns].astype(np.float64)
+        self.rest = wp.array(rest, dtype=wp.vec3, device=d)
+        centre = rest[faces].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
+        radius = np.linalg.norm(rest[faces] - centre[:, None], axis=2).max(axis=1)
+        self.rest_ball = wp.array(np.hstack([centre, radius[:, None]]).astype(np.float32), dtype=wp.vec4, device=d)
         self.cand = wp.zeros((ns, SLOTS), dtype=int, device=d)
         self.cand_d = wp.zeros((ns, SLOTS), dtype=float, device=d)
         self.cand_n = wp.zeros(ns, dtype=int, device=d)
@@ -237,7 +246,7 @@ class SelfContact:
         rec.ops.append(lambda: self.active.zero_())
         rec.ops.append(mesh.refit)
         rec.launch(broadphase, self.n_skin,
-                   [mesh.id, state.x, self.rest, self.faces, float(cfg.self_margin), float(cfg.self_rest_gap)],
+                   [mesh.id, state.x, self.rest, self.faces, self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap)],
                    [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts])
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
