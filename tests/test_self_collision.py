@@ -92,15 +92,13 @@ def test_open_hand_unchanged():
     np.testing.assert_array_equal(on.state.x.numpy(), off.state.x.numpy())
 
 
-@pytest.mark.slow  # two 36-frame rollouts of the power grasp, ~1 min on a 2-core CPU
+@pytest.mark.slow  # a 36-frame rollout of the power grasp with the option on
 def test_power_grasp_self_penetration_drops():
     """The power keyframe: 698 skin vertices' 0.2 mm offsets inside the skin without the option,
     61 with it (measured; docs/self_collision.md): at most 100, finite."""
-    a = ph.load_asset() if hasattr(ph, "load_asset") else None
     hand, res = _run("power", True, 36)
     x = hand.state.x.numpy()
     assert np.all(np.isfinite(x)) and res["nonfinite"] == 0
-    asset = hand.asset if a is None else a
-    m = self_penetration(x, np.asarray(asset.skin_faces))
+    m = self_penetration(x, np.asarray(hand.asset.skin_faces))
     assert m["inside_200um"] <= 100
     assert res["self_pairs"] > 0
