@@ -65,6 +65,15 @@ class Tuning:
       feature_last: end every stage with one more feature push after its last Eq. 9.
     Sleeping: sleep_frames: calm frames before the hand (or a region) sleeps (count);
       sleep_bone_motion: a bone's motion relative to the first bone that counts as still (m a frame).
+    Self-collision (``Config.self_collision``; docs/self_collision.md):
+      self_thickness: how far in front of another part's skin triangle a skin vertex is kept (m);
+      self_margin: the frame's list holds the skin triangles within this of a vertex at the frame's
+        start (m; how far two parts may approach each other in one frame);
+      self_rest_gap: the rest filter: a vertex and a triangle nearer than this at rest are never a
+        pair (m; webs, creases, the surface around the vertex);
+      self_depth: a vertex deeper than this behind its nearest triangle is left alone (m; past it the
+        nearest triangle is no longer the side it came in through);
+      self_passes: correction passes per substep (count).
     """
 
     scheme: Scheme = Scheme.JACOBI
@@ -91,6 +100,11 @@ class Tuning:
     feature_last: bool = True
     sleep_frames: int = 10
     sleep_bone_motion: float = 1.0e-5
+    self_thickness: float = 5.0e-4
+    self_margin: float = 2.0e-3
+    self_rest_gap: float = 4.0e-3
+    self_depth: float = 5.0e-3
+    self_passes: int = 4
 
 
 @dataclass
@@ -176,6 +190,9 @@ class Config:
       sleep_speed: the hand sleeps after calm frames with no soft vertex faster than this (m/s; 0:
         never); asleep, a frame is one launch and the skin rides its bones.
       region_sleep: the palm, the thumb and each finger sleep alone (one world).
+    Self-collision (opt-in, one hand; docs/self_collision.md):
+      self_collision: keep one part of the hand's skin out of another's (fingers, thumb, palm):
+        vertex-triangle contact found once a frame, resolved every substep (Tuning's ``self_*``).
     Expert groups: tuning (:class:`Tuning`), execution (:class:`Execution`).
     """
 
@@ -206,6 +223,7 @@ class Config:
     object_metrics: bool = False
     sleep_speed: float = 3.0e-3
     region_sleep: bool = False
+    self_collision: bool = False
     tuning: Tuning = field(default_factory=Tuning)
     execution: Execution = field(default_factory=Execution)
 
@@ -326,6 +344,17 @@ def _check(s) -> None:
         raise ValueError(f"Config.execution.multires_block_dim must be a multiple of 32 from 32 to 1024 (threads a block), "
                          f"got {b!r}")
     flag("region_sleep")
+    flag("self_collision")
+    for name in ("self_thickness", "self_margin", "self_rest_gap", "self_depth"):
+        pos(name)
+    if not (isinstance(s.self_passes, (int, np.integer)) and not isinstance(s.self_passes, bool) and s.self_passes >= 1):
+        raise ValueError(f"Config.tuning.self_passes must be an integer >= 1, got {s.self_passes!r}")
+    if s.self_collision and s.self_margin <= s.self_thickness:
+        raise ValueError(f"Config.tuning.self_margin ({s.self_margin} m) must exceed Config.tuning.self_thickness "
+                         f"({s.self_thickness} m)")
+    if s.self_collision and s.region_sleep:
+        raise ValueError("Config.self_collision does not run with Config.region_sleep (a region asleep would skip "
+                         "the skin it presses on)")
     flag("fused_substep", True, " (the CPU's and large CUDA batches' default)")
     flag("contact_linear")
     flag("two_way")

@@ -59,6 +59,11 @@ class Solver:
             from physhand_mj.contact import Contact
 
             self.contact = Contact(model, objects, self.config)
+        self.selfc = None  # Config.self_collision: the skin kept out of itself (solver/self_contact.py)
+        if self.config.self_collision:
+            from physhand_mj.solver.self_contact import SelfContact
+
+            self.selfc = SelfContact(model, self.config, self.device)
         from physhand_mj.solver.activity import Activity
 
         self.activity = Activity(self)  # what runs each frame (gated contact blocks, the work set)
@@ -273,6 +278,8 @@ class Solver:
         if self.regions is not None:
             self.regions.after_frame(frame_poses[1])
             self.last_activity.update(self.regions.report())
+        if self.selfc is not None:
+            self.last_activity.update(self.selfc.report())
         out.update(self.last_activity)
         # settled: no soft vertex faster than Config.sleep_speed and rigid bone motion (activity.py)
         if self.config.sleep_speed > 0 and not g[3] and rigid is None:
@@ -409,6 +416,8 @@ class Solver:
                 rec.ahead = self._pre[key] = []
             contact.zero_counters(rec)  # the frame's list lengths (the level-1 gates read one)
             gated(lambda sub: contact.record_frame(rec, state), 0)
+        if self.selfc is not None:  # the frame's self-contact list, from the positions at its start
+            self.selfc.record_frame(rec, state)
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
         inv_mass, vertex_body, body_local = ((rs.inv_mass, rs.vertex_body, rs.body_local) if rs is not None
@@ -417,7 +426,7 @@ class Solver:
         if rs is not None:
             rs.record_start(launch)
         end_folded = (self._fused is not None and self._fused.frame_launch and self._fused.fold_end
-                      and self.contact is None and rs is None)
+                      and self.contact is None and self.selfc is None and rs is None)
         for s in range(cfg.substeps + 1):
             contact = self.contact
             # Config.contact_every: the contact stages of this substep (the last substep always has them)
@@ -445,7 +454,8 @@ class Solver:
             elif hold and not hold_after:
                 gated(lambda sub: contact.record_hold(rec, state), 1)
             # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
-            whole = self._fused is not None and self._fused.frame_launch and self.contact is None
+            whole = (self._fused is not None and self._fused.frame_launch and self.contact is None
+                     and self.selfc is None)
             if self._fused is not None and (s == 0 or not whole):  # the three groups, each averaged, in one launch
                 fz = self._fused
                 inputs = fz.inputs(self._inv_h2, cfg.relaxation, state, start=s if fold else -1, finish=int(s > 0),
@@ -475,6 +485,11 @@ class Solver:
                                    count=order[1] if order else None)
                     if jacobi:
                         pending = row
+            if self.selfc is not None:  # self-contact after the constraints, before the object contact (its last word)
+                if pending >= 0:
+                    apply(pending)
+                    pending = -1
+                self.selfc.record_stage(rec, state, inv_mass)
             if contact is not None and ((staged and contact.wants("after")) or cfg.substep_metrics or hold_after):
                 if pending >= 0:  # the substep's positions must be final before contact / metrics
                     apply(pending)

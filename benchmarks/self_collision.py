@@ -1,0 +1,77 @@
+"""Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
+
+    python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--out F.json]
+
+Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
+stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
+measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1 mm outward offsets
+lie inside the closed skin, and inverted tets. Frame times are the median of the frames after the
+first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
+figure other processes on a shared host disturb least); modes run one after the other in the same
+process.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.append(str(Path(__file__).resolve().parents[1]))
+
+
+def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "hand_only", extra=None) -> dict:
+    import mujoco
+
+    import physhand_mj as ph
+    from physhand_mj.contact.self_measures import self_penetration
+    from physhand_mj.rollout import load_rollout_scene
+
+    model, data, key = load_rollout_scene(ph.scene_path(scene), key)
+    opts = dict(frame_dt=float(model.opt.timestep), substeps=10, device=device, **(extra or {}))
+    if self_collision:
+        opts["self_collision"] = True
+    cfg = ph.Config.from_dict(opts)
+    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    times, cpu, res = [], [], {}
+    for _ in range(frames):
+        mujoco.mj_step(model, data)
+        t, c = time.perf_counter(), time.thread_time()
+        res = hand.step()
+        times.append(time.perf_counter() - t)
+        cpu.append(time.thread_time() - c)
+    x = hand.solver.state_positions(hand.state) if hasattr(hand.solver, "state_positions") else hand.state.x.numpy()
+    a = hand.asset
+    out = dict(key=key, self_collision=self_collision, frames=frames,
+               ms_frame=float(np.median(times[1:]) * 1e3) if frames > 1 else None,
+               cpu_ms_frame=float(np.median(cpu[1:]) * 1e3) if frames > 1 else None,
+               finite=bool(np.all(np.isfinite(x))), guard_inverted=int(res.get("inverted", -1)))
+    out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
+    for k in ("self_vertices", "self_pairs", "self_corrections", "ops_run"):
+        if k in res:
+            out[k] = res[k]
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--keys", default="open,pinch,power")
+    ap.add_argument("--frames", type=int, default=36)
+    ap.add_argument("--modes", default="off,on")
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args()
+    rows = []
+    for key in a.keys.split(","):
+        for mode in a.modes.split(","):
+            r = run(key, a.frames, mode == "on", a.device)
+            print(json.dumps(r), flush=True)
+            rows.append(r)
+    if a.out:
+        Path(a.out).write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
