@@ -266,6 +266,17 @@ class SoftHand:
         self._obj_vel = vel
         self.solver.contact.two_way.set_state(d.xipos[bodies], vel[:, 3:], vel[:, :3], com, mu, inv_m, inv_i, bv, bw)
 
+    def applied_wrenches(self) -> dict:
+        """``Config.two_way``: per object (by name, as in :meth:`contacts`), what the skin applied to
+        it over the last frame, world frame: ``force`` (3,) N, ``torque`` (3,) N m about its centre of
+        mass, ``friction`` (3,) N (the friction part of ``force``); the cheap part of
+        :meth:`contacts` (no measures), for logs. Empty without two-way coupling or before a frame."""
+        w = self._wrenches
+        if w is None:
+            return {}
+        return {name: dict(force=w["objects"][k][:3].copy(), torque=w["objects"][k][3:].copy(),
+                           friction=w["friction"][k].copy()) for k, name in enumerate(self.objects.object_names)}
+
     def _applied_wrench(self, k: int, idx) -> dict:
         """Config.two_way: what the skin applied to object ``k`` over the last frame (its mean force,
         torque about its centre and friction part, world frame) and where (the contact points, the
