@@ -386,7 +386,8 @@ class SoftHand:
         rest_pos = fresh.pose_host[1][:, :3].astype(float)
         rest_quat = fresh.pose_host[1][:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
         self.solver.wake(self.state)  # a new episode settles before it may sleep
-        self._bones_prev = None  # (Config.two_way: the bones' velocities start over with the episode)
+        self._bones_prev = None  # (Config.two_way: the bones' velocities start over with the episode,
+        self._wrenches = None  # and the last episode's applied wrenches are gone)
         with _settling(self.solver):
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames

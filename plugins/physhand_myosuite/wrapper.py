@@ -153,6 +153,8 @@ class SoftSkin(gymnasium.Wrapper):
         self.hand.refresh_objects()  # MyoSuite's Reorient / ObjHoldRandom resize their object at reset
         self.hand.reset(self.settle_frames)  # the env's new pose; velocities and multipliers zeroed
         self.log, self._steps = [], 0
+        if self.two_way:
+            self._frame = None
         soft = self._soft_info()
         info["physhand"] = soft
         return self._observation(obs, soft), info
