@@ -25,6 +25,7 @@ import dataclasses
 
 import numpy as np
 
+from physhand_mj.rotations import quat_to_mat
 from physhand_mj.solver.model import vertex_world
 from physhand_mj.solver.worlds import check_worlds
 from physhand_mj.types import GeomType, Layer
@@ -91,9 +92,15 @@ class BatchedHands:
     """
 
     def __init__(self, asset, worlds: int, config=None, pos=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0),
-                 objects=(), spacing: float | None = None):
+                 objects=(), spacing: float | None = None, object_mass=None, object_inertia=None,
+                 object_friction=None):
         """``pos`` (3,) m / ``quat`` (4,) w x y z place the rest shape of every world; (W, 3) and
-        (W, 4) place each world's own (in its frame)."""
+        (W, 4) place each world's own (in its frame). With ``Config.two_way`` (:class:`BatchTwoWay`),
+        per object (``objects``' geoms grouped by their ``obj``; (n,) for every world or (W, n)):
+        ``object_mass`` kg (0 or None: the skin does not move it within the frame; its wrench is
+        still reported), ``object_inertia`` (n, 3) / (W, n, 3) kg m^2 principal moments in its
+        inertial frame, ``object_friction`` its friction coefficient against the skin (default 1,
+        MuJoCo's default; MuJoCo's rule for a geom pair is the larger of the two)."""
         from physhand_mj.contact import Objects
         from physhand_mj.solver import Solver
         from physhand_mj.types import Config
@@ -166,6 +173,13 @@ class BatchedHands:
         self.state.pose_host[:, :, :3] += self.body_shift.astype(np.float32)
         self.last_worlds: list[dict] = []
         self._unclaimed = None  # (report, per-world arrays) of a finished frame not yet returned
+        # Config.two_way: the objects' and bones' exchange, world by world as rows (BatchTwoWay)
+        self.two_way = None
+        if self.config.two_way and self.solver.contact is not None:
+            self.two_way = BatchTwoWay(self, object_mass, object_inertia, object_friction)
+        elif any(a is not None for a in (object_mass, object_inertia, object_friction)):
+            raise ValueError("object_mass / object_inertia / object_friction are two-way coupling's "
+                             "(Config(two_way=True), with objects)")
 
     # -- lifetime ----------------------------------------------------------------------------------
     def close(self) -> None:
@@ -252,6 +266,8 @@ class BatchedHands:
         from physhand_mj.solver import Solver
 
         pos, quat = self._check_poses(pos, quat)
+        if self.two_way is not None:  # (the bones' velocities start over after the settle's moves)
+            self.two_way.forget_bones()
         settler = Solver(self.solver.model, self.config)
         settler.warn_fast_motion = False  # settling moves the bones on purpose
         hp = self.state.pose_host[1]
@@ -262,6 +278,12 @@ class BatchedHands:
             a = (k + 1) / frames
             settler.set_body_poses(self.state, (1 - a) * rest_pos + a * target, nlerp(rest_quat, quat.reshape(-1, 4), a))
             settler.step(self.state)
+
+    @staticmethod
+    def two_way_poses(report: dict, pos, quat) -> tuple[np.ndarray, np.ndarray]:
+        """Body poses (W, n, 3) m / (W, n, 4) w x y z at a two-way frame's start moved as that frame
+        moved each object (``report``: the frame report's ``two_way``; :meth:`BatchTwoWay.moved_poses`)."""
+        return BatchTwoWay.moved_poses(report, pos, quat)
 
     def set_object_poses(self, object_pos, object_quat) -> None:
         """Every world's object poses, ``object_pos`` (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z,
@@ -290,20 +312,26 @@ class BatchedHands:
                              f"got {pos.shape} and {quat.shape}")
         return pos, quat
 
-    def step(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None) -> dict:
+    def step(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None, **two_way) -> dict:
         """One frame of every world: bone poses at its end, ``pos`` (W, B, 3) m, ``quat`` (W, B, 4)
         w x y z, bodies ordered as ``asset.body_names``; with objects their poses ``object_pos``
         (W, k, 3) m and ``object_quat`` (W, k, 4) w x y z, in each world's frame. Returns the
         solver's frame dict (counts summed over worlds, the batch's penetration summary) with
         ``worlds``: per world its guard counts and the frame's skin-sample penetration summary
-        (:meth:`frame_worlds`). The same as :meth:`submit` then :meth:`wait`."""
+        (:meth:`frame_worlds`). The same as :meth:`submit` then :meth:`wait`.
+
+        With ``Config.two_way`` the objects' state comes as keywords (:meth:`BatchTwoWay.frame_state`:
+        ``object_vel`` (W, n, 6) [linear m/s of the centre, angular rad/s], ``object_com``,
+        ``object_iquat``, ``bone_com``, ``bone_vel``) and the report's ``two_way`` says what the skin
+        did to them (:meth:`BatchTwoWay.report`: wrenches, friction, the bones' reaction, the
+        objects' motion in the frame)."""
         self._alive()
         if self._launched or self._unclaimed is not None:
             raise RuntimeError("a submitted frame's report is not read yet: BatchedHands.wait() before step()")
-        self.submit(pos, quat, object_pos, object_quat)
+        self.submit(pos, quat, object_pos, object_quat, **two_way)
         return self.wait()
 
-    def submit(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None) -> dict | None:
+    def submit(self, pos: np.ndarray, quat: np.ndarray, object_pos=None, object_quat=None, **two_way) -> dict | None:
         """:meth:`step` in a pipeline: the frame is queued on the device and the call returns the
         report of the frame submitted before it (None for the first). The new poses are checked on
         the host and copied into the next upload buffer (``Solver.stage_pose_rows``) while the
@@ -323,10 +351,16 @@ class BatchedHands:
         pos, quat = self._check_poses(pos, quat)
         rows = self.solver.pose_rows((pos + self.offsets[:, None]).reshape(-1, 3), quat.reshape(-1, 4))
         obj = self._object_rows(object_pos, object_quat)
+        if self.two_way is not None:  # (checked and packed on the host while the device runs)
+            sent = self.two_way.frame_state(pos, quat, object_pos, object_quat, **two_way)
+        elif two_way:
+            raise TypeError(f"{sorted(two_way)}: two-way coupling's inputs (Config(two_way=True), with objects)")
         staged = self.solver.stage_pose_rows(self.state, rows)  # (the upload buffer filled meanwhile too)
         self._complete()  # the frame in flight: its sync and the solver's report
         if obj is not None:
             self.objects.set_pose_rows(obj)
+        if self.two_way is not None:  # (after the frame in flight: it reads the exchange's inputs)
+            self.two_way.send(sent)
         self.solver.set_body_pose_rows(self.state, rows)
         self.solver.launch(self.state, staged=staged)
         return self._claim()
@@ -352,6 +386,8 @@ class BatchedHands:
         if not self._launched:
             return
         out = self.solver.finish(self.state)
+        if self.two_way is not None:
+            out["two_way"] = self.two_way.report()
         self._unclaimed = (out, self._world_arrays())
 
     def _claim(self) -> dict | None:
@@ -448,3 +484,201 @@ class BatchedHands:
         rest = self.worlds * ns + world * (n - ns)
         return np.concatenate([x[world * ns:(world + 1) * ns], x[rest:rest + n - ns]]) - \
             self.offsets[world].astype(np.float32)
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products a * b of (..., 4) w x y z quaternions (broadcast)."""
+    w1, x1, y1, z1 = np.moveaxis(a, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(b, -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
+
+
+def _quat_rate(q: np.ndarray, q_prev: np.ndarray, dt: float) -> np.ndarray:
+    """(..., 3) rad/s: the angular velocity that turns ``q_prev`` into ``q`` over ``dt`` (world frame;
+    MuJoCo's mju_quat2Vel of q * conj(q_prev), the turn wrapped into (-pi, pi])."""
+    dq = _qmul(q, q_prev * np.array([1.0, -1.0, -1.0, -1.0]))
+    v = dq[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    speed = 2.0 * np.arctan2(s, dq[..., :1])
+    speed = np.where(speed > np.pi, speed - 2.0 * np.pi, speed)
+    return np.where(s > 0, v / np.where(s > 0, s, 1.0) * speed / dt, 0.0)
+
+
+def _quat_turn(omega: np.ndarray, t) -> np.ndarray:
+    """(..., 4) w x y z: the turn by angular velocity ``omega`` (..., 3) rad/s over ``t`` s ((..., 1) or a number)."""
+    n = np.linalg.norm(omega, axis=-1, keepdims=True)
+    a = n * t
+    axis = omega / np.where(n > 0, n, 1.0)
+    return np.concatenate([np.cos(a / 2), axis * np.sin(a / 2)], -1)
+
+
+def _per_object(value, worlds: int, n: int, tail: tuple, what: str, default=None) -> np.ndarray:
+    """``value`` given once for every world, (n,) + tail, or per world, (W, n) + tail, as (W, n) + tail."""
+    if value is None:
+        if default is None:
+            raise ValueError(f"Config.two_way: {what} is needed, {(n,) + tail} or {(worlds, n) + tail}")
+        value = default
+    a = np.asarray(value, float)
+    if a.ndim == 0 and not tail:  # (one number for every object)
+        a = np.full(n, float(a))
+    if a.shape == (n,) + tail:
+        a = np.broadcast_to(a, (worlds, n) + tail)
+    if a.shape != (worlds, n) + tail:
+        raise ValueError(f"Config.two_way: {what} must be {(n,) + tail} or {(worlds, n) + tail}, got {a.shape}")
+    return np.array(a)
+
+
+class BatchTwoWay:
+    """Two-way coupling for :class:`BatchedHands` (``Config.two_way``): world w's objects and bones
+    are rows [w n, (w + 1) n) and [w B, (w + 1) B) of one exchange (contact/exchange.py), so every
+    kernel of ``SoftHand``'s coupling runs unchanged over all worlds at once; the host side here is
+    ``SoftHand._send_objects`` / ``_apply_wrenches`` without MuJoCo, vectorised over worlds.
+
+    An *object* is a group of ``objects``' geoms with one ``obj`` (each geom its own by default): a
+    MuJoCo body. Per frame it takes, for every world (its frame; world frame of a MuJoCo model):
+
+    - ``object_vel`` (W, n, 6): [linear m/s of its centre of mass, angular rad/s] after the
+      physics step (a MuJoCo free joint: qvel[0:3] + w x (xipos - xpos), xmat qvel[3:6]);
+    - ``object_com`` (W, n, 3) m: its centre of mass (default: its first geom's position), and
+      ``object_iquat`` (W, n, 4) w x y z: its inertial frame (default: its first geom's orientation);
+    - ``bone_com`` (W, B, 3) m: the bones' centres, about which their reaction torques are taken
+      (default: the bone poses' origins); ``bone_vel`` (W, B, 6) [linear, angular] (default: from
+      the poses a frame apart, as ``SoftHand``; the first frame after construction or ``settle``: 0).
+
+    and after the frame (:meth:`report`, the frame report's ``two_way``) gives per object the mean
+    wrench the skin applied, its friction part, the bones' reaction, and the motion of each object
+    with a mass within the frame (its centre, turn and velocity at the frame's end, the skin's
+    impulses in it; :meth:`moved_poses` moves body poses by it). A MuJoCo user then does per world
+    what ``SoftHand`` does: ``qvel += M^-1 J^T [wrench * frame_dt]`` for every object body that can
+    move and every bone (mj_applyFT at the centres, mj_solveM), and a free object's qpos = its
+    :meth:`moved_poses` pose, replacing the physics step's own move of it. ``Config.frame_dt`` must
+    be the physics step (checked by ``SoftHand``; here the caller's to keep).
+    """
+
+    def __init__(self, hands: BatchedHands, mass, inertia, friction):
+        self.hands = hands
+        c = hands.solver.contact
+        self.exchange = c.two_way
+        o = hands.objects
+        W = hands.worlds
+        self.n = len(o.object_names) // W  # objects per world (world w's: [w n, (w + 1) n))
+        if self.n * W != len(o.object_names):
+            raise ValueError("Config.two_way: every world must hold the same objects")
+        self.names = [name.rsplit("#", 1)[0] for name in o.object_names[: self.n]]
+        geom_obj = o.geom_objects[: hands.n_objects]
+        # each object's first geom (its default centre and inertial frame)
+        self.first = np.array([int(np.flatnonzero(geom_obj == k)[0]) for k in range(self.n)])
+        self.n_bodies = hands.n_bodies
+        self.set_mass(mass, inertia)
+        self.mu = _per_object(friction, W, self.n, (), "object_friction", default=1.0)
+        if not (np.all(np.isfinite(self.mu)) and np.all(self.mu >= 0)):
+            raise ValueError(f"object_friction must be finite and >= 0, got {self.mu}")
+        self._bones_prev = None  # (centres, quats) of the bones at the last frame
+        self._frame = None  # the inputs of the frame in flight (its report's motion starts from them)
+
+    def set_mass(self, mass, inertia) -> None:
+        """Each object's mass (kg; 0, inf or None: the skin does not move it within the frame) and
+        principal moments (kg m^2, its inertial frame), (n,) / (n, 3) or per world (W, n) / (W, n, 3),
+        from the next frame on."""
+        W, n = self.hands.worlds, self.n
+        m = _per_object(mass, W, n, (), "object_mass", default=np.zeros(n))
+        free = np.isfinite(m) & (m > 0)
+        self.inv_mass = np.where(free, 1.0 / np.where(free, m, 1.0), 0.0)
+        if np.any(free):
+            i = _per_object(inertia, W, n, (3,), "object_inertia (objects with a mass)")
+            if not np.all(i[free] > 0):
+                raise ValueError("object_inertia: every object with a mass needs positive principal moments")
+            self.inv_inertia = np.where(free[..., None], 1.0 / np.maximum(i, 1e-12), 0.0)
+        else:
+            self.inv_inertia = np.zeros((W, n, 3))
+
+    def forget_bones(self) -> None:
+        """The bones' velocities start over (a settle or a new episode: the next frame's are 0)."""
+        self._bones_prev = None
+
+    def frame_state(self, pos, quat, object_pos, object_quat, object_vel=None, object_com=None, object_iquat=None,
+                    bone_com=None, bone_vel=None) -> dict:
+        """The next frame's inputs, checked (see the class), on the host; :meth:`send` uploads them."""
+        W, n, B = self.hands.worlds, self.n, self.n_bodies
+        op = np.asarray(object_pos, float).reshape(W, -1, 3)
+        oq = np.asarray(object_quat, float).reshape(W, -1, 4)
+        com = op[:, self.first] if object_com is None else np.asarray(object_com, float)
+        iq = oq[:, self.first] if object_iquat is None else np.asarray(object_iquat, float)
+        vel = np.zeros((W, n, 6)) if object_vel is None else np.asarray(object_vel, float)
+        for name, a, shape in (("object_com", com, (W, n, 3)), ("object_iquat", iq, (W, n, 4)),
+                               ("object_vel", vel, (W, n, 6))):
+            if a.shape != shape:
+                raise ValueError(f"Config.two_way: {name} must be {shape} (worlds, objects: {self.names}), got {a.shape}")
+        bc = pos if bone_com is None else np.asarray(bone_com, float)
+        if bc.shape != (W, B, 3):
+            raise ValueError(f"Config.two_way: bone_com must be {(W, B, 3)}, got {bc.shape}")
+        dt = float(self.hands.config.frame_dt)
+        if bone_vel is not None:
+            bv = np.asarray(bone_vel, float)
+            if bv.shape != (W, B, 6):
+                raise ValueError(f"Config.two_way: bone_vel must be {(W, B, 6)}, got {bv.shape}")
+            lin, ang = bv[..., :3], bv[..., 3:]
+        elif self._bones_prev is not None:  # from the poses a frame apart (mocap-like bones have no velocity)
+            lin = (bc - self._bones_prev[0]) / dt
+            ang = _quat_rate(quat, self._bones_prev[1], dt)
+        else:
+            lin = ang = np.zeros((W, B, 3))
+        r = quat_to_mat(iq)  # the world inverse inertia R diag(1/I) R^T of each object
+        inv_i = np.einsum("wkij,wkj,wklj->wkil", r, self.inv_inertia, r)
+        return dict(com=com, vel=vel, bone_com=bc, bone_quat=np.array(quat, float), bone_lin=lin, bone_ang=ang,
+                    inv_i=inv_i)
+
+    def send(self, frame: dict) -> None:
+        """Upload a frame's inputs (:meth:`frame_state`; after the frame before it finished)."""
+        ex = self.exchange
+        ex.set_state(frame["com"].reshape(-1, 3), frame["vel"][..., :3].reshape(-1, 3), frame["vel"][..., 3:].reshape(-1, 3),
+                     frame["bone_com"].reshape(-1, 3), self.mu.reshape(-1), self.inv_mass.reshape(-1),
+                     frame["inv_i"].reshape(-1, 3, 3), frame["bone_lin"].reshape(-1, 3), frame["bone_ang"].reshape(-1, 3))
+        self._bones_prev = (frame["bone_com"], frame["bone_quat"])
+        self._frame = frame
+
+    def report(self) -> dict:
+        """The frame just finished (world frame, per world): ``wrench`` (W, n, 6) [force N, torque N m
+        about the centre of mass], the skin's mean over the frame on each object; ``friction`` (W, n,
+        3) N, the friction part of the force; ``bones`` (W, B, 6) the reaction on each bone (about
+        ``bone_com``; per world ``wrench`` and ``bones`` forces sum to 0, Newton's third law);
+        ``com`` (W, n, 3) m, ``turn`` (W, n, 4) w x y z, ``vel`` (W, n, 6) [linear, angular]: each
+        object's centre, rotation over the frame about its centre and velocity at the frame's end
+        (an object with a mass: moved within the frame by its velocity and the skin's impulses; the
+        others: as sent, not moved); ``moved`` (W, n) bool: which moved."""
+        f = self._frame
+        if f is None:  # (a frame before any send: settle's)
+            return {}
+        W, n, B = self.hands.worlds, self.n, self.n_bodies
+        w = self.exchange.wrenches()
+        cfg = self.hands.config
+        moved = self.inv_mass > 0
+        shift = w["shift"][: W * n].reshape(W, n, 3)
+        turn = w["turn"][: W * n].reshape(W, n, 4)[..., [3, 0, 1, 2]]  # x y z w -> w x y z
+        dv = np.concatenate([w["dv"][: W * n], w["dw"][: W * n]], 1).reshape(W, n, 6)
+        vel = f["vel"] + np.where(moved[..., None], dv, 0.0)
+        rest = cfg.substeps - w["steps"][: W * n].reshape(W, n)
+        t = (cfg.frame_dt / cfg.substeps * rest)[..., None]
+        # substeps without a stage (nothing near, Config.contact_every > 1): an object moves on with its
+        # velocity over them, as the physics step would have moved it (SoftHand._apply_wrenches)
+        late = moved & (rest > 0)
+        shift = np.where(late[..., None], shift + vel[..., :3] * t, shift)
+        spins = late & (np.linalg.norm(vel[..., 3:], axis=-1) * t[..., 0] > 0)
+        turn = np.where(spins[..., None], _qmul(_quat_turn(vel[..., 3:], t), turn), turn)
+        shift = np.where(moved[..., None], shift, 0.0)
+        turn = np.where(moved[..., None], turn, np.array([1.0, 0.0, 0.0, 0.0]))
+        return dict(wrench=w["objects"][: W * n].reshape(W, n, 6), friction=w["friction"][: W * n].reshape(W, n, 3),
+                    bones=w["bones"][: W * B].reshape(W, B, 6), com=f["com"] + shift, shift=shift, turn=turn, vel=vel,
+                    moved=moved.copy())
+
+    @staticmethod
+    def moved_poses(report: dict, pos, quat) -> tuple[np.ndarray, np.ndarray]:
+        """Body poses ``pos`` (W, n, 3) m / ``quat`` (W, n, 4) w x y z at the frame's start (a MuJoCo
+        free body's xpos / xquat after the physics step) moved as the frame moved each object
+        (``report``: :meth:`report`'s): turned by ``turn`` about its centre and carried with it."""
+        start = report["com"] - report["shift"]
+        r = quat_to_mat(report["turn"])
+        p = report["com"] + np.einsum("wkij,wkj->wki", r, np.asarray(pos, float) - start)
+        q = _qmul(report["turn"], np.asarray(quat, float))
+        return p, q / np.linalg.norm(q, axis=-1, keepdims=True)

@@ -266,6 +266,17 @@ class SoftHand:
         self._obj_vel = vel
         self.solver.contact.two_way.set_state(d.xipos[bodies], vel[:, 3:], vel[:, :3], com, mu, inv_m, inv_i, bv, bw)
 
+    def applied_wrenches(self) -> dict:
+        """``Config.two_way``: per object (by name, as in :meth:`contacts`), what the skin applied to
+        it over the last frame, world frame: ``force`` (3,) N, ``torque`` (3,) N m about its centre of
+        mass, ``friction`` (3,) N (the friction part of ``force``); the cheap part of
+        :meth:`contacts` (no measures), for logs. Empty without two-way coupling or before a frame."""
+        w = self._wrenches
+        if w is None:
+            return {}
+        return {name: dict(force=w["objects"][k][:3].copy(), torque=w["objects"][k][3:].copy(),
+                           friction=w["friction"][k].copy()) for k, name in enumerate(self.objects.object_names)}
+
     def _applied_wrench(self, k: int, idx) -> dict:
         """Config.two_way: what the skin applied to object ``k`` over the last frame (its mean force,
         torque about its centre and friction part, world frame) and where (the contact points, the
@@ -375,7 +386,8 @@ class SoftHand:
         rest_pos = fresh.pose_host[1][:, :3].astype(float)
         rest_quat = fresh.pose_host[1][:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
         self.solver.wake(self.state)  # a new episode settles before it may sleep
-        self._bones_prev = None  # (Config.two_way: the bones' velocities start over with the episode)
+        self._bones_prev = None  # (Config.two_way: the bones' velocities start over with the episode,
+        self._wrenches = None  # and the last episode's applied wrenches are gone)
         with _settling(self.solver):
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames

@@ -25,6 +25,10 @@ feature points listed, recorded ops run) and ``feature_slack_exceeded``: 1 where
 far enough in the frame, near enough to an object's feature point, that the point's list or patch
 could have missed a skin triangle (Config.tuning.feature_slack, physhand_mj/contact/slack.py), else 0;
 empty without feature points.
+- ``forces.csv`` (:data:`FORCE_COLUMNS`; with ``Config.two_way`` only, ``physhand rollout --two-way``):
+  per frame and object what the skin applied to it (``SoftHand.applied_wrenches``): the mean force
+  (N) and torque about its centre of mass (N m) over the frame, world frame, and the force's friction
+  part (N); ``contacts``: the skin vertices the contact moved against it in that frame.
 """
 
 from __future__ import annotations
@@ -43,6 +47,9 @@ LOG_COLUMNS = ["step", "substep", "time_s", "penetration_count", "penetration_ma
                "contacts", "active_triangles", "ms_frame", "object_in_skin_count", "object_in_skin_max_um"]
 COUNTER_COLUMNS = ["step", "objects_near", "triangles_tested", "features_listed", "ops_run",
                    "feature_slack_exceeded"]  # counters.csv: what a frame ran (physhand_mj/solver/activity.py)
+# forces.csv (Config.two_way): what the skin applied to each object, per frame
+FORCE_COLUMNS = ["step", "time_s", "object", "force_x_n", "force_y_n", "force_z_n", "torque_x_nm", "torque_y_nm",
+                 "torque_z_nm", "friction_x_n", "friction_y_n", "friction_z_n", "contacts"]
 
 
 def load_scene(scene, keyframe: str | None = None, model=None):
@@ -109,8 +116,13 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     interrupted = False
     last = dict(start)
     obj_frame = 0  # the frame the object-side values in last come from
-    with open(log_path, "w", newline="") as f, open(counters_path, "w", newline="") as fc:
+    forces_path = out / "forces.csv" if cfg.two_way else None
+    with open(log_path, "w", newline="") as f, open(counters_path, "w", newline="") as fc, \
+            (open(forces_path, "w", newline="") if forces_path else contextlib.nullcontext()) as ff:
         log, counters = csv.writer(f), csv.writer(fc)
+        forces = csv.writer(ff) if ff is not None else None
+        if forces is not None:
+            forces.writerow(FORCE_COLUMNS)
         log.writerow(LOG_COLUMNS)
         log.writerow(start_row(data, start))
         counters.writerow(COUNTER_COLUMNS)
@@ -130,6 +142,9 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                 with whole_frame():  # a frame's rows and its count go out together: an interrupted log holds whole frames
                     log.writerows(frame)
                     counters.writerow(counter_row(step, res))
+                    if forces is not None:
+                        forces.writerows(force_rows(step, data, hand))
+                        ff.flush()
                     f.flush()
                     fc.flush()
                     times.append(dt)
@@ -145,9 +160,27 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
     if on_end is not None:
         on_end(hand, model, data)
     m = hand.metrics()
-    return summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
-                       interrupted, log_path, skin_path, object_frame=obj_frame,
-                       bones=(bones0, bone_clearances(hand.solver.contact, hand.state)[0]))
+    row = summary_row(scene, key, times, substeps, contact, start, last, bool(m["finite"]), str(hand.solver.device),
+                      interrupted, log_path, skin_path, object_frame=obj_frame,
+                      bones=(bones0, bone_clearances(hand.solver.contact, hand.state)[0]))
+    if forces_path is not None:  # (two-way runs only: the default summary keeps its keys)
+        row.update(two_way=True, forces=str(forces_path))
+    return row
+
+
+def force_rows(step: int, data, hand) -> list:
+    """A two-way frame's forces.csv rows (:data:`FORCE_COLUMNS`), one per object."""
+    c = hand.solver.contact
+    if c is None:
+        return []
+    n = hand.asset.n_skin
+    touched = c.vertex_obj.numpy()[:n][c.push.numpy()[:n] > 0]
+    rows = []
+    for k, (name, w) in enumerate(hand.applied_wrenches().items()):
+        rows.append([step, round(float(data.time), 6), name, *(round(float(v), 6) + 0.0 for v in w["force"]),
+                     *(round(float(v), 7) + 0.0 for v in w["torque"]), *(round(float(v), 6) + 0.0 for v in w["friction"]),
+                     int(np.count_nonzero(touched == k))])
+    return rows
 
 
 def bone_clearances(contact, state, worlds: int = 1) -> list:

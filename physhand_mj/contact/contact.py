@@ -200,7 +200,7 @@ class Contact:
         # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
         self.bone_hold = make_bone_hold(model, config.bone_hold)
         # Config.two_way: the skin's impulses and friction on the objects and bones (exchange.py)
-        self.two_way = TwoWay(model, objects, config)
+        self.two_way = TwoWay(model, objects, config, self.space, self.geoms_per_world)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
         self.hold = PlaneHold(model, objects, config, n_tris, self.tris_per_world, self.geoms_per_world,
                               int(self.closed_skin and config.side_aware))

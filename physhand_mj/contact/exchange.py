@@ -32,6 +32,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.bones import BoneHold, held_move
+from physhand_mj.contact.inside import shift_poses
 from physhand_mj.contact.sdf import GeomSet, geom_sdf_grad
 
 wp.set_module_options({"enable_backward": False})
@@ -163,14 +164,15 @@ def object_phi(x: wp.vec3, k: int, geoms: GeomSet, base: int, n: int):
 
 
 @wp.kernel
-def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, x_start: wp.array(dtype=wp.vec3),
-                  x: wp.array(dtype=wp.vec3)):
+def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, vertex_world: wp.array(dtype=int),
+                  geoms_per_world: int, x_start: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3)):
     """After a substep's contact: Coulomb friction of every skin vertex touching an object. Its slip
     over the substep (its motion less the object's surface motion there, tangent to the surface) is
     undone where within mu x its mean normal correction (sticking), else cut by that much (sliding);
     the correction's impulse goes to the object and the bones (:func:`record`). A vertex that was
     pushed recently but not this substep still holds (its mean load decays); one that left the object
-    (farther than TOUCH_GAP) lets go."""
+    (farther than TOUCH_GAP) lets go. Batched worlds (``geoms_per_world`` > 0): the object's geoms
+    are looked for among the vertex's world's only (one world: all ``n_geoms``)."""
     i = wp.tid()
     k = ex.fr_obj[i]
     if k < 0:
@@ -179,7 +181,12 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, x_
     ex.sub_load[i] = 0.0
     load = ex.load[i] + LOAD_RATE * (sub - ex.load[i])
     xi = x[i]
-    phi, n = object_phi(xi, k, geoms, 0, n_geoms)
+    base = int(0)
+    count = n_geoms
+    if geoms_per_world > 0:
+        base = vertex_world[i] * geoms_per_world
+        count = geoms_per_world
+    phi, n = object_phi(xi, k, geoms, base, count)
     if (sub <= 0.0 and phi > TOUCH_GAP) or load <= 0.0:
         ex.load[i] = 0.0
         ex.fr_obj[i] = -1
@@ -397,10 +404,15 @@ class TwoWay:
     :attr:`data` holds empty arrays): the :class:`Exchange` its kernels take, the stages' launches
     and the frame's packed traffic with ``SoftHand``."""
 
-    def __init__(self, model, objects, config):
-        if config.two_way and model.worlds > 1:
-            raise ValueError("Config.two_way acts on one hand (SoftHand); BatchedHands does not apply it yet")
+    def __init__(self, model, objects, config, space=None, geoms_per_world: int = 0):
+        # batched worlds (BatchedHands): objects and bones are rows of every world's (world w's
+        # objects [w k, (w + 1) k), its bones [w B, (w + 1) B)), so every kernel maps row by row;
+        # ``space`` (contact.QuerySpace): the object side's poses, moved per world, kept current
+        # as the objects move within the frame; ``geoms_per_world``: friction looks for an object's
+        # geoms in its vertex's world only
         self.model, self.objects, self.config = model, objects, config
+        self.space = space
+        self.geoms_per_world = int(geoms_per_world) if model.worlds > 1 else 0
         self.on = bool(config.two_way)
         self.data = make_exchange(model, len(objects.object_names), self.on, config.frame_dt / config.substeps,
                                   objects.pose.shape[0], config.contact_damping)
@@ -420,14 +432,17 @@ class TwoWay:
             o = self.objects
             rec.launch(move_objects, self.n_obj, [self.data], [])
             rec.launch(pose_objects, len(o.names), [self.data, o.obj], [o.pose, o.inv_pose])
+            sp = self.space
+            if sp is not None and sp.poses is not None:  # batched worlds queried apart: their moved copy
+                rec.launch(shift_poses, sp.poses.shape[0], [o.pose, sp.offsets, sp.geoms_per_world], [sp.poses])
 
     def record_take(self, rec, state, hold) -> None:
         """After a substep's contact: the skin's friction (``hold``: the contact's bones.BoneHold), then the
         substep's impulses into the movable objects' velocities (skin_friction, take_impulses)."""
         if self.on:
             o = self.objects
-            rec.launch(skin_friction, self.model.n_skin, [self.data, hold, o.geoms, len(o.names), state.x_prev],
-                       [state.x])
+            rec.launch(skin_friction, self.model.n_skin, [self.data, hold, o.geoms, len(o.names), self.model.vertex_world,
+                                                          self.geoms_per_world, state.x_prev], [state.x])
             rec.launch(take_impulses, self.n_obj, [self.data], [])
 
     def set_state(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None,

@@ -1,6 +1,11 @@
 """``SoftPhysics``: dm_control's ``mujoco.Physics`` with the soft hand running after every MuJoCo step.
 
-- ``step(n)``: n times (MuJoCo step, then one SoftHand solver frame of ``model.opt.timestep``).
+- ``step(n)``: n times (MuJoCo step, then one SoftHand solver frame of ``model.opt.timestep``); a
+  control step of n physics steps runs n soft frames. With ``Config.two_way`` each is a whole
+  ``mj_step`` (not dm_control's legacy split step, which leaves data's kinematics at the step's
+  end: two-way coupling moves a free object over the frame from the pose the step started at, and
+  its wrenches change qpos / qvel after the step), then ``mj_step1`` once at the end, so data is in
+  sync with the new qpos / qvel as after dm_control's own step.
 - ``render(...)``: re-uploads the skin mesh into dm_control's cached MuJoCo render context when
   the skin moved since the last upload (``mujoco.mjr_uploadMesh``), so pixels show the deformed skin.
 - ``soft``: the :class:`~physhand_dmc.sensing.SensedHand`; ``soft_sensor``: its pooled signals.
@@ -52,6 +57,8 @@ class SoftPhysics(dm_mujoco.Physics):
         if self._soft is None:
             return super().step(nstep)
         tm = self.timing
+        if self._soft.config.two_way:
+            return self._step_two_way(nstep)
         for _ in range(nstep):
             t0 = time.perf_counter()
             super().step(1)
@@ -60,6 +67,24 @@ class SoftPhysics(dm_mujoco.Physics):
             tm["mujoco"] += t1 - t0
             tm["soft"] += time.perf_counter() - t1
             tm["steps"] += 1
+        self._skin_uploaded = False
+
+    def _step_two_way(self, nstep: int) -> None:
+        """``step`` with Config.two_way (see the module docstring): MuJoCo's whole step, then the soft
+        frame, which reads the step's start from data and writes the skin's impulses into qvel (and a
+        free object's pose into qpos); ``mj_step1`` at the end brings data's kinematics to the new state."""
+        tm = self.timing
+        m, d = self.model.ptr, self.data.ptr
+        with self.check_invalid_state():
+            for _ in range(nstep):
+                t0 = time.perf_counter()
+                mujoco.mj_step(m, d)
+                t1 = time.perf_counter()
+                self._soft.step()
+                tm["mujoco"] += t1 - t0
+                tm["soft"] += time.perf_counter() - t1
+                tm["steps"] += 1
+            mujoco.mj_step1(m, d)
         self._skin_uploaded = False
 
     def render(self, *args, **kwargs):

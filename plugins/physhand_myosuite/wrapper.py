@@ -15,6 +15,16 @@ step, contact against the env's colliding geoms outside the arm. Pictures add th
 scene as triangles (``SoftHand.draw``). The soft-contact pooling (per hand region and per object:
 area, force, contacting vertices, deformation) is physhand_dmc's ``SoftSensor``, launched inside
 the frame (no extra host sync).
+
+Two-way coupling (``two_way=True`` or ``config=Config(two_way=True)``): the skin's impulses act on
+MuJoCo's bodies, which needs a solver frame per MuJoCo step (``SoftHand``: ``frame_dt`` = the
+model's timestep; the exchange moves a free object over exactly one step). The wrapper then runs
+the env's ``frame_skip`` steps itself, in the env's own physics hook (``_step_physics``, which
+MyoSuite's envs call from ``step``): ``mj_step``, one soft frame, ... then MyoSuite's closing
+``mj_forward``, so observations and rewards see the state the skin left. An env step costs
+``frame_skip`` soft frames (of timestep / substeps each) instead of one; ``info["physhand"]`` and the
+log come from the last of them, with ``objects[name]["applied"]``: the force, torque and friction
+the skin applied in it (``SoftHand.applied_wrenches``).
 """
 
 from __future__ import annotations
@@ -69,6 +79,8 @@ class SoftSkin(gymnasium.Wrapper):
         max_speed x env dt, at least the default 10 mm), and the object feature lists with it
         (``feature_slack`` = that margin: a random policy moves the fingertips 12-20 mm in a 10 ms
         step, past lists cut to the last step's move, which then warn).
+      two_way: two-way coupling (``Config.two_way``; or a ``config`` with it): a soft frame after every
+        MuJoCo step of the env's frame skip (see the module docstring), ``frame_dt`` the model's timestep.
       object_geoms: geom names or ids the skin collides with (default :func:`colliding_objects`).
       observe: append the soft-contact vector (:attr:`soft_obs_names`) to the observation.
       settle_frames: solver frames that bring the skin from rest to the env's pose at each reset.
@@ -77,7 +89,7 @@ class SoftSkin(gymnasium.Wrapper):
     """
 
     def __init__(self, env, *, naming="auto", config: ph.Config | None = None, device: str = "cpu",
-                 substep_dt: float = 0.0005, max_speed: float = 2.0,
+                 substep_dt: float = 0.0005, max_speed: float = 2.0, two_way: bool = False,
                  object_geoms=None, observe: bool = False, settle_frames: int = 10, width: int = 640,
                  height: int = 480, camera: str | None = None, distance: float = 0.45, azimuth: float = 150.0,
                  elevation: float = -25.0):
@@ -90,11 +102,19 @@ class SoftSkin(gymnasium.Wrapper):
                              f"wrap a MyoSuite MuJoCo env")
         self.model, self.data = u.model, u.data
         self.dt = env_dt(env)
+        self.two_way = bool(two_way or (config is not None and config.two_way))
+        frame = self.dt
+        if self.two_way:  # a soft frame per MuJoCo step, run in the env's physics hook
+            if not callable(getattr(u, "_step_physics", None)):
+                raise ValueError(f"two-way coupling needs a soft frame after every MuJoCo step, and {type(u).__name__} "
+                                 f"has no _step_physics hook (MyoSuite's envs step their frame skip there)")
+            frame = float(self.model.opt.timestep)
         if config is None:  # the project scenes' substep (5 ms / 10): longer ones let the tissue sag
-            margin = max(ph.Config.contact_frame_margin, max_speed * self.dt)
-            config = ph.Config(device=device, substeps=max(1, int(np.ceil(self.dt / substep_dt - 1e-9))),
-                               contact_frame_margin=margin, tuning=ph.Tuning(feature_slack=margin))
-        self.config = dataclasses.replace(config, frame_dt=self.dt).validate()
+            margin = max(ph.Config.contact_frame_margin, max_speed * frame)
+            config = ph.Config(device=device, substeps=max(1, int(np.ceil(frame / substep_dt - 1e-9))),
+                               contact_frame_margin=margin, tuning=ph.Tuning(feature_slack=margin),
+                               two_way=self.two_way)
+        self.config = dataclasses.replace(config, frame_dt=frame, two_way=self.two_way).validate()
         asset = ph.load_asset()
         from physhand_mj.attach import resolve_naming
 
@@ -123,6 +143,9 @@ class SoftSkin(gymnasium.Wrapper):
                           elevation=elevation)
         self._renderer = None
         self._steps = 0
+        if self.two_way:
+            self._frame, self._soft_s = None, 0.0  # the last soft frame of an env step, its soft time (s)
+            u._step_physics = self._step_physics_two_way  # (this env instance's hook only)
 
     # -- gymnasium ---------------------------------------------------------------------------------
     def reset(self, **kwargs):
@@ -130,16 +153,38 @@ class SoftSkin(gymnasium.Wrapper):
         self.hand.refresh_objects()  # MyoSuite's Reorient / ObjHoldRandom resize their object at reset
         self.hand.reset(self.settle_frames)  # the env's new pose; velocities and multipliers zeroed
         self.log, self._steps = [], 0
+        if self.two_way:
+            self._frame = None
         soft = self._soft_info()
         info["physhand"] = soft
         return self._observation(obs, soft), info
 
+    def _step_physics_two_way(self, nstep: int | None = None) -> None:
+        """The env's physics hook with two-way coupling: per MuJoCo step of the frame skip one soft
+        frame (it reads the step's start from data and writes the skin's impulses into qvel, a free
+        object's pose into qpos), then MyoSuite's ``mj_forward`` for the observations."""
+        u = self.env.unwrapped
+        n = int(u.frame_skip) if nstep is None else int(nstep)
+        for _ in range(n):
+            mujoco.mj_step(self.model, self.data)
+            t = time.perf_counter()
+            self._frame = self.hand.step()
+            self._soft_s += time.perf_counter() - t
+        mujoco.mj_forward(self.model, self.data)
+
     def step(self, action):
         t0 = time.perf_counter()
+        if self.two_way:
+            self._soft_s = 0.0
         obs, reward, terminated, truncated, info = self.env.step(action)
         t1 = time.perf_counter()
-        frame = self.hand.step()  # bones + objects where MuJoCo left them, one frame, pooling launched
-        t2 = time.perf_counter()
+        if self.two_way:  # (the frames ran inside the env's step: its time less theirs is the env's)
+            frame = self._frame if self._frame is not None else self.hand._last
+            t1 -= self._soft_s
+            t2 = t1 + self._soft_s
+        else:
+            frame = self.hand.step()  # bones + objects where MuJoCo left them, one frame, pooling launched
+            t2 = time.perf_counter()
         soft = self._soft_info(frame)
         obs = self._observation(obs, soft)
         t3 = time.perf_counter()
@@ -161,12 +206,14 @@ class SoftSkin(gymnasium.Wrapper):
         """The soft-contact observations of the last frame (host reads of the sensor's outputs)."""
         frame = frame if frame is not None else self.hand._last
         reg, obj = self.sensor.region_host, self.sensor.obj_host
+        applied = self.hand.applied_wrenches() if self.two_way else {}  # (Config.two_way: what the skin applied)
         names = self.sensor.region_names
         return dict(
             region_names=names,
             region_force_n=reg[:, 1].astype(np.float64), region_area_m2=reg[:, 0].astype(np.float64),
             region_vertices=reg[:, 2].astype(np.int64), region_deformation_m=reg[:, 3].astype(np.float64),
-            objects={o: dict(area_m2=float(obj[k, 0]), force_n=float(obj[k, 1]), vertices=int(obj[k, 2]))
+            objects={o: dict(area_m2=float(obj[k, 0]), force_n=float(obj[k, 1]), vertices=int(obj[k, 2]),
+                             **({"applied": applied[o]} if o in applied else {}))
                      for k, o in enumerate(self.sensor.object_names)},
             penetration_count=int(frame.get("penetration_count", 0)),
             penetration_max_um=float(frame.get("penetration_max_um", 0.0)),
