@@ -147,6 +147,12 @@ class SoftTask(base.Task):
 
 def make_environment(physics, task, time_limit: float, control_timestep: float, environment_kwargs):
     kwargs = dict(environment_kwargs or {})
+    if getattr(physics.soft.config, "two_way", False):
+        # Config.two_way: a free object's frame in the solver starts from the kinematics mj_step leaves
+        # (the step's start), and SoftHand then changes qpos / qvel; dm_control's legacy step (mj_step2,
+        # then mj_step1) hands it the step's end and finishes the next step with forces computed before
+        # that change (objects fell out of every grasp). One-way coupling keeps the legacy step.
+        kwargs.setdefault("legacy_step", False)
     kwargs.setdefault("time_limit", check_positive("time_limit", time_limit, "s"))
     kwargs.setdefault("control_timestep", check_positive("control_timestep", control_timestep, "s"))
     return control.Environment(physics, task, **kwargs)
