@@ -83,8 +83,10 @@ def test_dmc_task_runs_two_way(dmc, domain, task, obj):
 def test_dmc_two_way_moves_a_far_object_as_mujoco_alone(dmc):
     """The apple lifted 0.3 m out of the hand: with two_way it moves over 4 physics steps exactly as
     dm_control's own Physics (without the soft hand) moves it, the step not taken twice."""
+    # (the reset's squeeze and gravity-free float left out: their joint-limit constraints make MuJoCo's
+    # own legacy and whole steps differ by a warm start, which is not what this compares)
     env = dmc.load("hand_hold", "apple", task_kwargs=dict(random=0, settle_frames=3, config=ph.Config(**CONFIG),
-                                                          gravity="down"))
+                                                          gravity="down", squeeze=1.0, float_frames=0))
     env.reset()
     p = env.physics
     j = p.model.body_jntadr[p.model.name2id("apple", "body")]

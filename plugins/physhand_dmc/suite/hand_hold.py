@@ -11,6 +11,15 @@ fingers cradle the object and must keep it from rolling off; ``gravity="down"`` 
 scenes' -z, along the palm, where the grasp must hold by friction alone. A floor perpendicular to
 gravity 20 cm from the palm catches a dropped object.
 
+Holding by the skin (``Config(two_way=True)``, docs/coupling.md): the HOI keyframes start with the
+skin 2.5-3.8 mm into the object, which the skin, now pushing, would throw out of an unbalanced grasp.
+So with two-way coupling the reset by default (1) sets the position targets to ``squeeze`` (1.2) x
+the keyframe's joint angles, so the actuators press the fingers onto the object, and (2) runs
+``float_frames`` (60: 0.3 s) with gravity off, in which the object settles where the skin's and the
+proxies' pushes balance; the episode (and its start position) begins there. One-way coupling keeps
+the keyframe as it was (squeeze 1, no float). ``object_proxies=False`` takes the object out of the
+proxies' MuJoCo collisions (the skin alone holds it).
+
 Reward (in [0, 1]): ``hold * (0.5 + 0.5 * firm) * no_penetration`` with ``hold`` = 1 while the
 object is within 1 cm of its start (Gaussian tail to 0.1 at 6 cm), ``firm`` = 1 from
 ``min_force`` N of soft-contact normal force on the object (linear below), ``no_penetration`` = 1
@@ -37,6 +46,8 @@ MASS = dict(apple=0.12, bowl=0.15, box=0.10, glass1=0.15, glass2=0.15, phone=0.1
 GRAVITY = {"palm": (0.0, -9.81, 0.0), "down": (0.0, 0.0, -9.81)}
 _DEFAULT_TIME_LIMIT = 2.0  # s
 _CONTROL_TIMESTEP = 0.01  # s: two MuJoCo steps (and two soft-hand frames) per env step
+# Config(two_way=True)'s reset: targets 1.2 x the keyframe's angles, 0.3 s settling with gravity off
+SQUEEZE, FLOAT_FRAMES = 1.2, 60
 
 SUITE = containers.TaggedTasks()
 
@@ -75,8 +86,20 @@ def build_model(obj: str, gravity: str = "palm") -> mujoco.MjModel:
     return spec.compile()
 
 
-def make_physics(obj: str, gravity: str, config) -> SoftPhysics:
+def without_proxies(model: mujoco.MjModel, obj: str) -> None:
+    """Take ``obj``'s geoms out of the hand's proxies' collisions (their bit 1), keeping the floor's."""
+    body = model.body(obj).id
+    for g in range(model.ngeom):
+        if model.geom_bodyid[g] == body:
+            model.geom_contype[g], model.geom_conaffinity[g] = 2, 2
+        elif model.geom(g).name == "floor":
+            model.geom_contype[g], model.geom_conaffinity[g] = 3, 3
+
+
+def make_physics(obj: str, gravity: str, config, object_proxies: bool = True) -> SoftPhysics:
     model = build_model(obj, gravity)
+    if not object_proxies:
+        without_proxies(model, obj)
     physics = SoftPhysics.from_model(wrapper.MjModel(model))
     physics.reset(0)
     physics.make_soft(solver_config(config, float(model.opt.timestep)), object_bodies=[obj])
@@ -87,9 +110,13 @@ class Hold(SoftTask):
     """Keep the object in the hand, in firm soft contact, without penetration."""
 
     def __init__(self, obj: str, random=None, settle_frames: int = 20, object_jitter: float = 0.002,
-                 min_force: float = 1.0):
+                 min_force: float = 1.0, squeeze: float = 1.0, float_frames: int = 0):
         super().__init__(random=random, settle_frames=settle_frames)
         self.obj = obj
+        self.squeeze = check_positive("squeeze", squeeze, "x the keyframe's joint angles")
+        if not (isinstance(float_frames, (int, np.integer)) and float_frames >= 0):
+            raise ValueError(f"float_frames must be an integer >= 0 (MuJoCo steps), got {float_frames!r}")
+        self.float_frames = int(float_frames)
         self.object_jitter = check_nonneg("object_jitter", object_jitter, "m")
         self.min_force = check_positive("min_force", min_force, "N")
         self._start = np.zeros(3)
@@ -104,9 +131,19 @@ class Hold(SoftTask):
         m, d = physics.model, physics.data
         self._bind_once(physics)
         mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0)
+        if self.squeeze != 1.0:  # the fingers pressed onto the object: targets past the keyframe's pose
+            d.ctrl[:] = np.clip(d.ctrl * self.squeeze, m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1])
         d.qpos[self._qadr: self._qadr + 3] += self.random.uniform(-self.object_jitter, self.object_jitter, 3)
-        self._start = d.qpos[self._qadr: self._qadr + 3].copy()
         self.finish_reset(physics)
+        if self.float_frames:  # gravity off while the object settles into the grasp
+            g = m.opt.gravity.copy()
+            m.opt.gravity[:] = 0.0
+            try:
+                physics.step(self.float_frames)
+            finally:
+                m.opt.gravity[:] = g
+            d.time = 0.0
+        self._start = d.qpos[self._qadr: self._qadr + 3].copy()
         super().initialize_episode(physics)
 
     def _task_observations(self, physics, obs):
@@ -127,10 +164,15 @@ class Hold(SoftTask):
 
 def _task(obj: str):
     def task(time_limit=_DEFAULT_TIME_LIMIT, random=None, environment_kwargs=None, *, settle_frames=20,
-             object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP):
+             object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP,
+             squeeze=None, float_frames=None, object_proxies=True):
         check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
-        t = Hold(obj, random=random, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force)
-        physics = make_physics(obj, gravity, config)
+        two_way = bool(getattr(config, "two_way", False))
+        squeeze = (SQUEEZE if two_way else 1.0) if squeeze is None else squeeze
+        float_frames = (FLOAT_FRAMES if two_way else 0) if float_frames is None else float_frames
+        t = Hold(obj, random=random, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force,
+                 squeeze=squeeze, float_frames=float_frames)
+        physics = make_physics(obj, gravity, config, object_proxies)
         return make_environment(physics, t, time_limit, control_timestep, environment_kwargs)
 
     task.__name__ = task.__qualname__ = obj

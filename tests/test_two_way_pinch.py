@@ -1,0 +1,61 @@
+"""Two-way coupling's pinch reference (issue 52, item 4): a box squeezed between two soft pads
+(physhand_mj/bench/pinch.py) holds against gravity when 2 mu N >= m g and slips otherwise, N being
+each pad's normal force while the box is loaded (read off the reaction on the pad's core)."""
+
+import numpy as np
+import pytest
+
+from physhand_mj.bench.pinch import G, PinchRig, pinch_pads
+
+pytest.importorskip("tetgen")  # (the pads are built with the asset builder: the `build` extra)
+
+MASS, DEPTH = 0.01, 0.4e-3  # kg, m: a 10 g box, each pad pressed 0.4 mm past touching
+
+
+@pytest.fixture(scope="module")
+def pads():
+    return pinch_pads()
+
+
+@pytest.fixture(scope="module")
+def bound(pads):
+    """mu at the bound with the squeeze's N (gravity off): m g / (2 N)."""
+    rig = PinchRig(pads, mass=MASS, mu=0.5)
+    return MASS * G / (2 * rig.squeeze(DEPTH, frames=40, settle=20))
+
+
+def pinch(pads, mu):
+    """Squeeze, then gravity on (ramped over 0.2 s) for 0.8 s: (mu over the bound with N under
+    load, slipped?, the run's figures). Slipped: the box fell more than 10 mm or still falls faster
+    than 20 mm/s at the end (slide_angle's criterion)."""
+    rig = PinchRig(pads, mass=MASS, mu=mu)
+    rig.squeeze(DEPTH, frames=40, settle=20)
+    out = rig.hold(160, ramp=40)
+    ratio = mu / (MASS * G / (2 * out["normal"]))
+    return ratio, bool(out["drop"] > 0.01 or out["speed"] > 0.02), out
+
+
+def test_a_pinch_holds_above_the_bound_and_slips_below(pads, bound):
+    """mu 0.9 x the bound slips (below the bound also with N under load); 1.5 x holds (about 1.37 x
+    with N under load: the load lowers N by ~10 %), its skin not entered by either measure."""
+    ratio, slipped, _ = pinch(pads, 0.9 * bound)
+    assert slipped and ratio < 1.0, ratio
+    ratio, slipped, out = pinch(pads, 1.5 * bound)
+    assert not slipped and ratio > 1.15, (ratio, out["drop"], out["speed"])
+    assert out["state"]["penetration"] == 0 and out["state"]["object_in_skin"] == 0
+    assert out["state"]["friction"][0] == pytest.approx(MASS * G, rel=0.1)  # friction carries the weight
+
+
+@pytest.mark.slow
+def test_pinch_slip_onset_is_within_15_percent_of_the_bound(pads, bound):
+    """A sweep of mu: every slipping run is below 1.15 x the bound (N under load) and every holding
+    one above 0.85 x, and the onset (between the largest slipping and the smallest holding ratio) is
+    within 15 % of 1."""
+    runs = [pinch(pads, r * bound)[:2] for r in (0.9, 1.05, 1.2, 1.35, 1.5)]
+    slip = [r for r, s in runs if s]
+    held = [r for r, s in runs if not s]
+    assert slip and held, runs
+    assert max(slip) < 1.15 and min(held) > 0.85, runs
+    assert max(slip) < min(held), runs
+    onset = 0.5 * (max(slip) + min(held))
+    assert abs(onset - 1.0) < 0.15, (onset, runs)
