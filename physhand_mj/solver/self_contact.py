@@ -113,10 +113,48 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
             _touch(faces[tk, 2], mark, involved, counts)
 
 
+@wp.func
+def _room(i: int, dp: wp.vec3, x: wp.array(dtype=wp.vec3), vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+          tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), keep: float) -> float:
+    """The share t in [0, 1] of the move dp of vertex i that keeps each of its tets' signed volume at
+    least ``keep`` x its rest volume (the volume is linear in one vertex's position)."""
+    t = float(1.0)
+    for k in range(vt_off[i], vt_off[i + 1]):
+        e = vt[k]
+        a = tets[e, 0]
+        b = tets[e, 1]
+        c = tets[e, 2]
+        d = tets[e, 3]
+        v = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
+        v1 = v
+        if i == a:
+            v1 = wp.dot(x[b] - x[a] - dp, wp.cross(x[c] - x[a] - dp, x[d] - x[a] - dp))
+        elif i == b:
+            v1 = wp.dot(x[b] + dp - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
+        elif i == c:
+            v1 = wp.dot(x[b] - x[a], wp.cross(x[c] + dp - x[a], x[d] - x[a]))
+        else:
+            v1 = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] + dp - x[a]))
+        s0 = vol0[e]
+        lo = keep * s0
+        # in the rest volume's sign: v, v1 against lo
+        if s0 < 0.0:
+            v = -v
+            v1 = -v1
+            lo = -lo
+        if v1 < lo and v1 < v:
+            tt = float(0.0)
+            if v > lo:
+                tt = (v - lo) / (v - v1)
+            t = wp.min(t, tt)
+    return t
+
+
 @wp.kernel
 def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
             vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
-            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int),
+            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
     """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
     else the one kept by the substep's first pass); closer than ``thickness`` in front (or behind
@@ -165,6 +203,12 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
     if w <= 0.0:
         return
     dl = (thickness - s) / w
+    if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
+        tk = _room(v, inv_mass[v] * dl * nrm, x, vt_off, vt, tets, vol0, keep)
+        tk = wp.min(tk, _room(a, -wa * inv_mass[a] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        tk = wp.min(tk, _room(b, -wb * inv_mass[b] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        tk = wp.min(tk, _room(c, -wc * inv_mass[c] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        dl = dl * tk
     wp.atomic_add(delta, v, inv_mass[v] * dl * nrm)
     wp.atomic_add(hits, v, 1)
     if inv_mass[a] > 0.0:
@@ -229,6 +273,19 @@ class SelfContact:
         self.vcount = wp.zeros(1, dtype=int, device=d)  # (the list launches read their length here)
         self.icount = wp.zeros(1, dtype=int, device=d)
         self._meshes: dict = {}
+        # Tuning.self_tet_keep: every tet of every skin vertex (CSR: vt_off, vt) and its rest volume
+        tets = np.asarray(model.tet_ids.numpy()).reshape(-1, 4)
+        self.tets = wp.array(tets.astype(np.int32), dtype=int, device=d)
+        rx = model.rest_x.numpy().astype(np.float64)
+        A, B, C, D = (rx[tets[:, k]] for k in range(4))
+        self.vol0 = wp.array(np.einsum("ij,ij->i", B - A, np.cross(C - A, D - A)).astype(np.float32), dtype=float, device=d)
+        sk = tets < ns
+        tv = np.repeat(np.arange(len(tets)), 4)[sk.ravel()]
+        vv = tets.ravel()[sk.ravel()]
+        order = np.argsort(vv, kind="stable")
+        cnt = np.bincount(vv, minlength=ns)
+        self.vt_off = wp.array(np.concatenate([[0], np.cumsum(cnt)]).astype(np.int32), dtype=int, device=d)
+        self.vt = wp.array(tv[order].astype(np.int32), dtype=int, device=d)
 
     def mesh(self, state) -> wp.Mesh:
         """The skin's BVH over ``state.x`` (made once per state; refit every frame)."""
@@ -257,7 +314,8 @@ class SelfContact:
         for k in range(cfg.self_passes):
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
-                        float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest],
+                        float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
+                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0],
                        [self.delta, self.hits, self.active], count=self.vcount)
             rec.launch(apply, self.n_skin, [self.icount, self.involved], [state.x, self.delta, self.hits], count=self.icount)
 
