@@ -40,6 +40,12 @@ wp.set_module_options({"enable_backward": False})
 # Power grasp: 61 -> 37 vertices inside at 0.2 mm, inverted tets 572 -> 546 (the rest shape is flat
 # there: nothing folded, the open hand lists nothing).
 FOLD_COS = wp.constant(0.0)
+FOLD_SOON = wp.constant(0.5)  # (a fold this close counts for the query slack below)
+# The frame query's reach beyond self_margin: a vertex whose nearest kept triangle lay beyond the
+# margin by s (its slack, at most REACH) is queried again only once the moves since could have used
+# it up: its own in its bone's frame plus the largest any skin near that bone may have made seen from
+# that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Cost").
+REACH = 5.0e-4
 FOLD_GAP = 1.0e-3  # m: ~ a third of a skin edge; closer at rest is the vertex's own one-ring
 
 SLOTS = 16  # listed triangles per skin vertex at most (the nearest kept: 3 mm around a vertex holds ~6-12)
@@ -60,8 +66,89 @@ def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), cou
         involved[s] = i
 
 
+@wp.func
+def _pose(body_pose: wp.array2d(dtype=wp.transform), b: int) -> wp.transform:
+    if b < 0:
+        return wp.transform_identity()
+    return body_pose[0, b]
+
+
 @wp.kernel
-def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
+def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
+                 y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float), body_move: wp.array(dtype=float),
+                 body_reach: wp.array(dtype=float)):
+    """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
+    deformation, not the bones' motion), per bone the largest (``body_move``) and the skin's farthest
+    point from the bone's origin (``body_reach``); slot B: the vertices without a bone (world frame)."""
+    v = wp.tid()
+    b = skin_body[v]
+    y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
+    m = wp.length(y - y_last[v])
+    y_last[v] = y
+    mu[v] = m
+    k = b
+    if b < 0:
+        k = body_move.shape[0] - 1
+    wp.atomic_max(body_move, k, m)
+    wp.atomic_max(body_reach, k, wp.length(y))
+
+
+@wp.kernel
+def body_motion(body_pose: wp.array2d(dtype=wp.transform), rel_last: wp.array2d(dtype=wp.transform),
+                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
+                near_move: wp.array(dtype=float)):
+    """Per pair of bones (slot B: the world frame) how far the skin of the second may have moved,
+    seen from the first, since the last frame's start: the change of their relative pose applied to
+    the second's skin (|dt| + 2 sin(angle / 2) x its reach) plus its own deformation; per bone the
+    largest over the second (``near_move``)."""
+    i, j = wp.tid()
+    nb = near_move.shape[0] - 1
+    bi = i
+    bj = j
+    if i == nb:
+        bi = -1
+    if j == nb:
+        bj = -1
+    rel = wp.transform_multiply(wp.transform_inverse(_pose(body_pose, bi)), _pose(body_pose, bj))
+    last = rel_last[i, j]
+    rel_last[i, j] = rel
+    dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
+    half = wp.min(wp.abs(dq[3]), 1.0)
+    sin_half = wp.sqrt(wp.max(1.0 - half * half, 0.0))  # sin(angle / 2)
+    dt = wp.length(wp.transform_get_translation(rel) - wp.transform_get_translation(last))
+    # bones whose skins' bounding balls (about the bone's origin) lie ``far`` apart now do not count:
+    # their skins are farther apart than any slack allows (slack + margin <= far)
+    gap = wp.length(wp.transform_get_translation(rel)) - body_reach[i] - body_reach[j]
+    if i != j and i != nb and j != nb and gap >= far:
+        return
+    d = body_move[j]
+    if i != j:
+        d = d + dt + 2.0 * sin_half * body_reach[j]
+    wp.atomic_max(near_move, i, d)
+
+
+@wp.kernel
+def pick_queries(skin_body: wp.array(dtype=int), mu: wp.array(dtype=float), near_move: wp.array(dtype=float),
+                 slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
+                 qcount: wp.array(dtype=int)):
+    """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
+    come before it is within the margin) the moves since used up (the vertex's own in its bone's
+    frame and the largest any skin may have made seen from that bone); the others keep an empty list."""
+    v = wp.tid()
+    b = skin_body[v]
+    if b < 0:
+        b = near_move.shape[0] - 1
+    sl = slack[v] - mu[v] - near_move[b]
+    slack[v] = sl
+    if sl <= 0.0:
+        qlist[wp.atomic_add(qcount, 0, 1)] = v
+    else:
+        cand_n[v] = 0
+
+
+@wp.kernel
+def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
+               mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
                faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
                vn_now: wp.array(dtype=wp.vec3), fold_gap: float,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
@@ -69,10 +156,14 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
                counts: wp.array(dtype=int)):
     """Per skin vertex, the skin triangles within ``margin`` that the rest filter keeps (the nearest
     SLOTS); counts: [listed vertices, involved vertices, pairs, pairs dropped for want of a slot]."""
-    v = wp.tid()
+    i = wp.tid()
+    if i >= nq[0]:
+        return
+    v = qlist[i]
     p = x[v]
     pr = rest[v]
-    r = wp.vec3(margin, margin, margin)
+    r = wp.vec3(reach, reach, reach)
+    nearest_kept = reach  # for the slack: the nearest triangle kept or about to fold
     q = wp.mesh_query_aabb(mesh, p - r, p + r)
     t = int(0)
     n = int(0)
@@ -82,25 +173,43 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
         c = faces[t, 2]
         if a == v or b == v or c == v:
             continue
-        # the fold rule: the skin folded onto itself (a crease closed by flexion), the vertex's normal
-        # now against the triangle's, is a pair from fold_gap apart at rest (flat there: none at rest)
-        fnow = wp.cross(x[b] - x[a], x[c] - x[a])
-        folded = wp.dot(vn_now[v], fnow) < FOLD_COS * wp.length(vn_now[v]) * wp.length(fnow)
-        # the rest filter's cheap half first: a triangle whose rest bounding ball lies within
-        # rest_gap (folded: fold_gap) of the vertex at rest (the surface around it: most of what the box holds)
+        # the rest filter's cheap half first: a triangle whose rest bounding ball lies within fold_gap
+        # (rest_gap unless folded) of the vertex at rest (the surface around it: most of what the box holds)
         ball = rest_ball[t]
         rfar = wp.length(pr - wp.vec3(ball[0], ball[1], ball[2])) + ball[3]  # an upper bound on the rest distance
-        if rfar < rest_gap and (not folded or rfar < fold_gap):
+        if rfar < fold_gap:
             continue
+        # the fold rule: the skin folded onto itself (a crease closed by flexion), the vertex's normal
+        # now against the triangle's, is a pair from fold_gap apart at rest (flat there: none at rest)
+        folded = False
+        soon = False  # (for the slack: a fold that a little more motion could close)
+        judged = rfar < rest_gap
+        if judged:
+            fnow = wp.cross(x[b] - x[a], x[c] - x[a])
+            cosn = wp.dot(vn_now[v], fnow) / wp.max(wp.length(vn_now[v]) * wp.length(fnow), 1.0e-30)
+            folded = cosn < FOLD_COS
+            soon = cosn < FOLD_SOON
+            if not soon:
+                continue
         uv = closest_on_triangle(x[a], x[b], x[c], p)
         d = wp.length(p - (uv[0] * x[a] + uv[1] * x[b] + (1.0 - uv[0] - uv[1]) * x[c]))
-        if d > margin:
+        if d > reach:
             continue
         # the rest filter: pairs near each other at rest (webs, creases, the surface around the vertex)
         ur = closest_on_triangle(rest[a], rest[b], rest[c], pr)
         qr = ur[0] * rest[a] + ur[1] * rest[b] + (1.0 - ur[0] - ur[1]) * rest[c]
         dr = wp.length(pr - qr)
-        if dr < rest_gap and (not folded or dr < fold_gap):
+        if dr < fold_gap:
+            continue
+        if dr < rest_gap and not judged:  # (the bound let it through: the normals decide now)
+            fnow = wp.cross(x[b] - x[a], x[c] - x[a])
+            cosn = wp.dot(vn_now[v], fnow) / wp.max(wp.length(vn_now[v]) * wp.length(fnow), 1.0e-30)
+            folded = cosn < FOLD_COS
+            soon = cosn < FOLD_SOON
+            if not soon:
+                continue
+        nearest_kept = wp.min(nearest_kept, d)
+        if d > margin or (dr < rest_gap and not folded):
             continue
         if n < SLOTS:
             cand[v, n] = t
@@ -116,6 +225,7 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
                 cand_d[v, far] = d
             wp.atomic_add(counts, 3, 1)
     cand_n[v] = n
+    slack[v] = nearest_kept - margin
     if n > 0:
         s = wp.atomic_add(counts, 0, 1)
         vlist[s] = v
@@ -283,6 +393,19 @@ class SelfContact:
         rest = model.rest_x.numpy()[:ns].astype(np.float64)
         self.rest = wp.array(rest, dtype=wp.vec3, device=d)
         self.vn_now = wp.zeros(ns, dtype=wp.vec3, device=d)  # the skin's area-weighted normals at the frame's start
+        # the query slack: the skin at the last frame's start, its largest move since, per vertex the slack
+        nb = int(model.n_bodies) + 1  # (slot nb: the world frame, for skin without a bone)
+        self.skin_body = model.skin_body
+        self.y_last = wp.zeros(ns, dtype=wp.vec3, device=d)
+        self.mu = wp.zeros(ns, dtype=float, device=d)
+        self.body_move = wp.zeros(nb, dtype=float, device=d)
+        self.body_reach = wp.zeros(nb, dtype=float, device=d)
+        self.near_move = wp.zeros(nb, dtype=float, device=d)
+        self.rel_last = wp.zeros((nb, nb), dtype=wp.transform, device=d)
+        self.slack = wp.zeros(ns, dtype=float, device=d)
+        self.qlist = wp.zeros(ns, dtype=int, device=d)
+        self.qcount = wp.zeros(1, dtype=int, device=d)
+        self.fcount = wp.zeros(1, dtype=int, device=d)
         centre = rest[faces].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
         radius = np.linalg.norm(rest[faces] - centre[:, None], axis=2).max(axis=1)
         self.rest_ball = wp.array(np.hstack([centre, radius[:, None]]).astype(np.float32), dtype=wp.vec4, device=d)
@@ -323,19 +446,39 @@ class SelfContact:
         return m
 
     def record_frame(self, rec, state) -> None:
-        """The frame's list: last frame's marks cleared, the BVH refit, the broadphase."""
+        """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
+        for them (CPU: only when there are any) the BVH refit, the normals, the broadphase."""
         cfg, d = self.config, self.device
         mesh = self.mesh(state)
+        cuda = wp.get_device(d).is_cuda
         rec.launch(clear_marks, self.n_skin, [self.icount, self.involved], [self.mark], count=self.icount)
-        rec.ops.append(lambda: self.counts.zero_())
-        rec.ops.append(lambda: self.active.zero_())
-        rec.ops.append(mesh.refit)
-        rec.ops.append(lambda: self.vn_now.zero_())
-        rec.launch(vertex_normals, self.faces.shape[0], [state.x, self.faces], [self.vn_now])
+        rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.qcount.zero_(), self.body_move.zero_(),
+                                self.body_reach.zero_(), self.near_move.zero_()))
+        nb = self.near_move.shape[0]
+        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose],
+                   [self.y_last, self.mu, self.body_move, self.body_reach])
+        reach = float(cfg.self_margin) + REACH
+        rec.launch(body_motion, (nb, nb), [state.body_pose],
+                   [self.rel_last, self.body_move, self.body_reach, reach, self.near_move])
+        rec.launch(pick_queries, self.n_skin, [self.skin_body, self.mu, self.near_move],
+                   [self.slack, self.cand_n, self.qlist, self.qcount])
+        q = self.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
+
+        def when_queried(op):
+            return op if cuda else (lambda: op() if q[0] else None)
+
+        rec.ops.append(when_queried(mesh.refit))
+        rec.ops.append(when_queried(self.vn_now.zero_))
+        nf = int(self.faces.shape[0])
+        if not cuda:  # (CPU: the normals' launch sized 0 when nothing is queried)
+            fc = self.fcount.numpy()
+            rec.ops.append(lambda: fc.__setitem__(0, nf if q[0] else 0))
+        rec.launch(vertex_normals, nf, [state.x, self.faces], [self.vn_now], count=None if cuda else self.fcount)
         rec.launch(broadphase, self.n_skin,
-                   [mesh.id, state.x, self.rest, self.faces, self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap),
-                    self.vn_now, float(FOLD_GAP)],
-                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts])
+                   [self.qcount, self.qlist, reach, self.slack, mesh.id, state.x, self.rest, self.faces, self.rest_ball,
+                    float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP)],
+                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts],
+                   count=self.qcount)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
 
@@ -353,5 +496,11 @@ class SelfContact:
     def report(self) -> dict:
         """The last frame's figures: listed vertices and pairs, corrections made (summed over passes)."""
         c = self.counts.numpy()
-        return dict(self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
+        q = int(self.qcount.numpy()[0])
+        cfg = self.config
+        # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
+        # thread past its list returning): the motion bound's four, the query's four with any
+        # vertex queried, the substeps' 2 x passes with any pair listed
+        ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] else 0)
+        return dict(self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
                     self_corrections=int(self.active.numpy()[0]))
