@@ -287,36 +287,14 @@ def vertex_normals(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), vn:
     wp.atomic_add(vn, c, n)
 
 
-@wp.kernel
-def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-            vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
-            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
-            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
-    """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
-    else the one kept by the substep's first pass); closer than ``thickness`` in front (or behind
-    it, up to ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
-    i = wp.tid()
-    if i >= n[0]:
-        return
-    v = vlist[i]
+@wp.func
+def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+             thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
+             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+    """Vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
+    ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
     p = x[v]
-    best = int(-1)
-    if pick != 0:
-        bd = float(1.0e30)
-        for k in range(cand_n[v]):
-            t = cand[v, k]
-            uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
-            q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
-            d = wp.length(p - q)
-            if d < bd:
-                bd = d
-                best = t
-        nearest[v] = best
-    else:
-        best = nearest[v]
-    if best < 0:
-        return
     a = faces[best, 0]
     b = faces[best, 1]
     c = faces[best, 2]
@@ -358,6 +336,38 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
         wp.atomic_add(delta, c, -wc * inv_mass[c] * dl * nrm)
         wp.atomic_add(hits, c, 1)
     wp.atomic_add(active, 0, 1)
+
+
+@wp.kernel
+def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+            vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
+            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
+            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+    """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
+    else the one kept by the substep's first pass), the correction (:func:`_correct`)."""
+    i = wp.tid()
+    if i >= n[0]:
+        return
+    v = vlist[i]
+    p = x[v]
+    best = int(-1)
+    if pick != 0:
+        bd = float(1.0e30)
+        for k in range(cand_n[v]):
+            t = cand[v, k]
+            uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
+            q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
+            d = wp.length(p - q)
+            if d < bd:
+                bd = d
+                best = t
+        nearest[v] = best
+    else:
+        best = nearest[v]
+    if best < 0:
+        return
+    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, delta, hits, active)
 
 
 @wp.kernel
