@@ -3,26 +3,37 @@ outward side of another's.
 
 Found once a frame, resolved every substep (docs/self_collision.md):
 
-    frame start   the skin's BVH (a wp.Mesh over the state's positions) refit; per skin vertex the
-                  skin triangles within ``self_margin`` (mesh_query_aabb, then the exact distance),
-                  minus the rest filter, kept in a per-vertex table of SLOTS; the vertices with any
-                  listed in a compact list, and every vertex a listed pair touches in another
+    frame start   the query slack: per skin vertex its move since the last frame in its bone's
+                  frame, per pair of bones the change of their relative pose applied to the
+                  second's skin (local_motion, body_motion); a vertex whose slack (how much nearer
+                  a kept triangle may come before it is within the margin) they used up is queried
+                  (pick_queries), the others keep an empty list. For the queried (CPU: only when
+                  there are any): the skin's BVH (a wp.Mesh over the state's positions) refit, the
+                  skin's normals, per vertex the skin triangles within ``self_margin`` + REACH
+                  (mesh_query_aabb, then the exact distance), minus the rest filter, those within
+                  ``self_margin`` kept in a per-vertex table of SLOTS, the nearest kept one setting
+                  the slack; the vertices with any listed in a compact list, and every vertex a
+                  listed pair touches in another
     each substep  after the constraint groups (and before the object contact stage): per listed
                   vertex, its nearest listed triangle now; where the vertex lies less than
                   ``self_thickness`` in front of it (or behind it), an XPBD vertex-triangle
                   correction (hard, mass-weighted between the vertex and the triangle's three
-                  vertices by the closest point's barycentrics) toward ``self_thickness`` in front;
-                  corrections summed by atomics and averaged per vertex (Jacobi), ``self_passes``
-                  times; the flesh behind follows through the tets in the next substep
+                  vertices by the closest point's barycentrics) toward ``self_thickness`` in front,
+                  cut short by ``Tuning.self_tet_keep`` where set; corrections summed by atomics and
+                  averaged per vertex (Jacobi), ``self_passes`` times; the flesh behind follows
+                  through the tets in the next substep
 
 The rest filter (computed from the rest shape, per candidate, no table): a pair is never listed
-where the vertex is one of the triangle's or lies within ``self_rest_gap`` of it at rest: the webs,
-the skin around a crease, a vertex and the triangles near it along the surface. At rest the nearest
-skin of another finger lies 9.7 mm away (the middle and ring fingers' middle phalanges) and the
-webs' two sides 2.1-2.6 mm, so the open hand lists nothing.
+where the vertex is one of the triangle's or lies within FOLD_GAP of it at rest, nor within
+``self_rest_gap`` unless the skin has folded there (the fold rule: the vertex's normal and the
+triangle's now more than a right angle apart: a crease closed by flexion). At rest the nearest skin
+of another finger lies 9.7 mm away (the middle and ring fingers' middle phalanges), the webs' two
+sides 2.1-2.6 mm, and nothing is folded, so the open hand lists nothing.
 
 A frame whose list is empty runs no substep work (CPU: list launches of zero threads are skipped;
-``Solver.last_activity["self_pairs"]`` reports the count).
+``Solver.last_activity``'s ``self_queried``, ``self_pairs`` and ``self_ops_run`` report it).
+CUDA: every launch has a fixed shape (list launches bounded by their device-side count, no host
+read inside the frame); there the refit, the normals and the query's launch run every frame.
 """
 
 from __future__ import annotations
