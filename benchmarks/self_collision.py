@@ -1,6 +1,6 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
-    python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--out F.json]
+    python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K] [--out F.json]
 
 Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
@@ -8,7 +8,9 @@ measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1
 lie inside the closed skin, and inverted tets. Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
-process.
+process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs. Reported with the option on: the
+last frame's vertices queried (``self_queried``), self-collision launches run (``self_ops_run``),
+listed vertices and pairs, corrections.
 """
 
 import argparse
@@ -49,7 +51,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
                cpu_ms_frame=float(np.median(cpu[1:]) * 1e3) if frames > 1 else None,
                finite=bool(np.all(np.isfinite(x))), guard_inverted=int(res.get("inverted", -1)))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
-    for k in ("self_vertices", "self_pairs", "self_corrections", "ops_run"):
+    for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:
             out[k] = res[k]
     return out
@@ -61,12 +63,14 @@ def main():
     ap.add_argument("--frames", type=int, default=36)
     ap.add_argument("--modes", default="off,on")
     ap.add_argument("--device", default=None)
+    ap.add_argument("--tet-keep", type=float, default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     rows = []
     for key in a.keys.split(","):
         for mode in a.modes.split(","):
-            r = run(key, a.frames, mode == "on", a.device)
+            extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else None
+            r = run(key, a.frames, mode == "on", a.device, extra=extra)
             print(json.dumps(r), flush=True)
             rows.append(r)
     if a.out:

@@ -73,7 +73,10 @@ class Tuning:
         pair (m; webs, creases, the surface around the vertex);
       self_depth: a vertex deeper than this behind its nearest triangle is left alone (m; past it the
         nearest triangle is no longer the side it came in through);
-      self_passes: correction passes per substep (count).
+      self_passes: correction passes per substep (count);
+      self_tet_keep: 0 (default): the hard correction; above 0, a correction is cut short where it
+        would flatten a tet of a moved skin vertex below this share of its rest volume (fewer
+        inverted tets where the bones leave the flesh no room, more skin left inside; 0 to 1).
     """
 
     scheme: Scheme = Scheme.JACOBI
@@ -105,6 +108,7 @@ class Tuning:
     self_rest_gap: float = 4.0e-3
     self_depth: float = 5.0e-3
     self_passes: int = 4
+    self_tet_keep: float = 0.0
 
 
 @dataclass
@@ -349,6 +353,8 @@ def _check(s) -> None:
         pos(name)
     if not (isinstance(s.self_passes, (int, np.integer)) and not isinstance(s.self_passes, bool) and s.self_passes >= 1):
         raise ValueError(f"Config.tuning.self_passes must be an integer >= 1, got {s.self_passes!r}")
+    if not (0.0 <= s.self_tet_keep < 1.0):
+        raise ValueError(f"Config.tuning.self_tet_keep must lie in [0, 1), got {s.self_tet_keep!r}")
     if s.self_collision and s.self_margin <= s.self_thickness:
         raise ValueError(f"Config.tuning.self_margin ({s.self_margin} m) must exceed Config.tuning.self_thickness "
                          f"({s.self_thickness} m)")

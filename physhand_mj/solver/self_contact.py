@@ -3,26 +3,37 @@ outward side of another's.
 
 Found once a frame, resolved every substep (docs/self_collision.md):
 
-    frame start   the skin's BVH (a wp.Mesh over the state's positions) refit; per skin vertex the
-                  skin triangles within ``self_margin`` (mesh_query_aabb, then the exact distance),
-                  minus the rest filter, kept in a per-vertex table of SLOTS; the vertices with any
-                  listed in a compact list, and every vertex a listed pair touches in another
+    frame start   the query slack: per skin vertex its move since the last frame in its bone's
+                  frame, per pair of bones the change of their relative pose applied to the
+                  second's skin (local_motion, body_motion); a vertex whose slack (how much nearer
+                  a kept triangle may come before it is within the margin) they used up is queried
+                  (pick_queries), the others keep an empty list. For the queried (CPU: only when
+                  there are any): the skin's BVH (a wp.Mesh over the state's positions) refit, the
+                  skin's normals, per vertex the skin triangles within ``self_margin`` + REACH
+                  (mesh_query_aabb, then the exact distance), minus the rest filter, those within
+                  ``self_margin`` kept in a per-vertex table of SLOTS, the nearest kept one setting
+                  the slack; the vertices with any listed in a compact list, and every vertex a
+                  listed pair touches in another
     each substep  after the constraint groups (and before the object contact stage): per listed
                   vertex, its nearest listed triangle now; where the vertex lies less than
                   ``self_thickness`` in front of it (or behind it), an XPBD vertex-triangle
                   correction (hard, mass-weighted between the vertex and the triangle's three
-                  vertices by the closest point's barycentrics) toward ``self_thickness`` in front;
-                  corrections summed by atomics and averaged per vertex (Jacobi), ``self_passes``
-                  times; the flesh behind follows through the tets in the next substep
+                  vertices by the closest point's barycentrics) toward ``self_thickness`` in front,
+                  cut short by ``Tuning.self_tet_keep`` where set; corrections summed by atomics and
+                  averaged per vertex (Jacobi), ``self_passes`` times; the flesh behind follows
+                  through the tets in the next substep
 
 The rest filter (computed from the rest shape, per candidate, no table): a pair is never listed
-where the vertex is one of the triangle's or lies within ``self_rest_gap`` of it at rest: the webs,
-the skin around a crease, a vertex and the triangles near it along the surface. At rest the nearest
-skin of another finger lies 9.7 mm away (the middle and ring fingers' middle phalanges) and the
-webs' two sides 2.1-2.6 mm, so the open hand lists nothing.
+where the vertex is one of the triangle's or lies within FOLD_GAP of it at rest, nor within
+``self_rest_gap`` unless the skin has folded there (the fold rule: the vertex's normal and the
+triangle's now more than a right angle apart: a crease closed by flexion). At rest the nearest skin
+of another finger lies 9.7 mm away (the middle and ring fingers' middle phalanges), the webs' two
+sides 2.1-2.6 mm, and nothing is folded, so the open hand lists nothing.
 
 A frame whose list is empty runs no substep work (CPU: list launches of zero threads are skipped;
-``Solver.last_activity["self_pairs"]`` reports the count).
+``Solver.last_activity``'s ``self_queried``, ``self_pairs`` and ``self_ops_run`` report it).
+CUDA: every launch has a fixed shape (list launches bounded by their device-side count, no host
+read inside the frame); there the refit, the normals and the query's launch run every frame.
 """
 
 from __future__ import annotations
@@ -33,6 +44,20 @@ import warp as wp
 from physhand_mj.contact.closest import closest_on_triangle
 
 wp.set_module_options({"enable_backward": False})
+
+# The fold rule (docs/self_collision.md): a vertex and a triangle nearer than self_rest_gap at rest
+# are still a pair where the skin has folded onto itself (the vertex's normal and the triangle's
+# now at more than a right angle: cos < FOLD_COS) and they lay at least FOLD_GAP apart at rest.
+# Power grasp: 61 -> 37 vertices inside at 0.2 mm, inverted tets 572 -> 546 (the rest shape is flat
+# there: nothing folded, the open hand lists nothing).
+FOLD_COS = wp.constant(0.0)
+FOLD_SOON = wp.constant(0.5)  # (a fold this close counts for the query slack below)
+# The frame query's reach beyond self_margin: a vertex whose nearest kept triangle lay beyond the
+# margin by s (its slack, at most REACH) is queried again only once the moves since could have used
+# it up: its own in its bone's frame plus the largest any skin near that bone may have made seen from
+# that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Cost").
+REACH = 5.0e-4
+FOLD_GAP = 1.0e-3  # m: ~ a third of a skin edge; closer at rest is the vertex's own one-ring
 
 SLOTS = 16  # listed triangles per skin vertex at most (the nearest kept: 3 mm around a vertex holds ~6-12)
 
@@ -52,18 +77,104 @@ def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), cou
         involved[s] = i
 
 
+@wp.func
+def _pose(body_pose: wp.array2d(dtype=wp.transform), b: int) -> wp.transform:
+    if b < 0:
+        return wp.transform_identity()
+    return body_pose[0, b]
+
+
 @wp.kernel
-def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
+def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
+                 y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float), body_move: wp.array(dtype=float),
+                 body_reach: wp.array(dtype=float)):
+    """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
+    deformation, not the bones' motion), per bone the largest (``body_move``) and the skin's farthest
+    point from the bone's origin (``body_reach``); slot B: the vertices without a bone (world frame)."""
+    v = wp.tid()
+    b = skin_body[v]
+    y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
+    m = wp.length(y - y_last[v])
+    y_last[v] = y
+    mu[v] = m
+    k = b
+    if b < 0:
+        k = body_move.shape[0] - 1
+    wp.atomic_max(body_move, k, m)
+    wp.atomic_max(body_reach, k, wp.length(y))
+
+
+@wp.kernel
+def body_motion(body_pose: wp.array2d(dtype=wp.transform), rel_last: wp.array2d(dtype=wp.transform),
+                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
+                near_move: wp.array(dtype=float)):
+    """Per pair of bones (slot B: the world frame) how far the skin of the second may have moved,
+    seen from the first, since the last frame's start: the change of their relative pose applied to
+    the second's skin (|dt| + 2 sin(angle / 2) x its reach) plus its own deformation; per bone the
+    largest over the second (``near_move``)."""
+    i, j = wp.tid()
+    nb = near_move.shape[0] - 1
+    bi = i
+    bj = j
+    if i == nb:
+        bi = -1
+    if j == nb:
+        bj = -1
+    rel = wp.transform_multiply(wp.transform_inverse(_pose(body_pose, bi)), _pose(body_pose, bj))
+    last = rel_last[i, j]
+    rel_last[i, j] = rel
+    dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
+    half = wp.min(wp.abs(dq[3]), 1.0)
+    sin_half = wp.sqrt(wp.max(1.0 - half * half, 0.0))  # sin(angle / 2)
+    dt = wp.length(wp.transform_get_translation(rel) - wp.transform_get_translation(last))
+    # bones whose skins' bounding balls (about the bone's origin) lie ``far`` apart now do not count:
+    # their skins are farther apart than any slack allows (slack + margin <= far)
+    gap = wp.length(wp.transform_get_translation(rel)) - body_reach[i] - body_reach[j]
+    if i != j and i != nb and j != nb and gap >= far:
+        return
+    d = body_move[j]
+    if i != j:
+        d = d + dt + 2.0 * sin_half * body_reach[j]
+    wp.atomic_max(near_move, i, d)
+
+
+@wp.kernel
+def pick_queries(skin_body: wp.array(dtype=int), mu: wp.array(dtype=float), near_move: wp.array(dtype=float),
+                 slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
+                 qcount: wp.array(dtype=int)):
+    """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
+    come before it is within the margin) the moves since used up (the vertex's own in its bone's
+    frame and the largest any skin may have made seen from that bone); the others keep an empty list."""
+    v = wp.tid()
+    b = skin_body[v]
+    if b < 0:
+        b = near_move.shape[0] - 1
+    sl = slack[v] - mu[v] - near_move[b]
+    slack[v] = sl
+    if sl <= 0.0:
+        qlist[wp.atomic_add(qcount, 0, 1)] = v
+    else:
+        cand_n[v] = 0
+
+
+@wp.kernel
+def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
+               mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
                faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
+               vn_now: wp.array(dtype=wp.vec3), fold_gap: float,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
                counts: wp.array(dtype=int)):
     """Per skin vertex, the skin triangles within ``margin`` that the rest filter keeps (the nearest
     SLOTS); counts: [listed vertices, involved vertices, pairs, pairs dropped for want of a slot]."""
-    v = wp.tid()
+    i = wp.tid()
+    if i >= nq[0]:
+        return
+    v = qlist[i]
     p = x[v]
     pr = rest[v]
-    r = wp.vec3(margin, margin, margin)
+    r = wp.vec3(reach, reach, reach)
+    nearest_kept = reach  # for the slack: the nearest triangle kept or about to fold
     q = wp.mesh_query_aabb(mesh, p - r, p + r)
     t = int(0)
     n = int(0)
@@ -73,19 +184,43 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
         c = faces[t, 2]
         if a == v or b == v or c == v:
             continue
-        # the rest filter's cheap half first: a triangle whose rest bounding ball lies within
-        # rest_gap of the vertex at rest (the surface around it: most of what the box holds)
+        # the rest filter's cheap half first: a triangle whose rest bounding ball lies within fold_gap
+        # (rest_gap unless folded) of the vertex at rest (the surface around it: most of what the box holds)
         ball = rest_ball[t]
-        if wp.length(pr - wp.vec3(ball[0], ball[1], ball[2])) + ball[3] < rest_gap:
+        rfar = wp.length(pr - wp.vec3(ball[0], ball[1], ball[2])) + ball[3]  # an upper bound on the rest distance
+        if rfar < fold_gap:
             continue
+        # the fold rule: the skin folded onto itself (a crease closed by flexion), the vertex's normal
+        # now against the triangle's, is a pair from fold_gap apart at rest (flat there: none at rest)
+        folded = False
+        soon = False  # (for the slack: a fold that a little more motion could close)
+        judged = rfar < rest_gap
+        if judged:
+            fnow = wp.cross(x[b] - x[a], x[c] - x[a])
+            cosn = wp.dot(vn_now[v], fnow) / wp.max(wp.length(vn_now[v]) * wp.length(fnow), 1.0e-30)
+            folded = cosn < FOLD_COS
+            soon = cosn < FOLD_SOON
+            if not soon:
+                continue
         uv = closest_on_triangle(x[a], x[b], x[c], p)
         d = wp.length(p - (uv[0] * x[a] + uv[1] * x[b] + (1.0 - uv[0] - uv[1]) * x[c]))
-        if d > margin:
+        if d > reach:
             continue
         # the rest filter: pairs near each other at rest (webs, creases, the surface around the vertex)
         ur = closest_on_triangle(rest[a], rest[b], rest[c], pr)
-        dr = wp.length(pr - (ur[0] * rest[a] + ur[1] * rest[b] + (1.0 - ur[0] - ur[1]) * rest[c]))
-        if dr < rest_gap:
+        qr = ur[0] * rest[a] + ur[1] * rest[b] + (1.0 - ur[0] - ur[1]) * rest[c]
+        dr = wp.length(pr - qr)
+        if dr < fold_gap:
+            continue
+        if dr < rest_gap and not judged:  # (the bound let it through: the normals decide now)
+            fnow = wp.cross(x[b] - x[a], x[c] - x[a])
+            cosn = wp.dot(vn_now[v], fnow) / wp.max(wp.length(vn_now[v]) * wp.length(fnow), 1.0e-30)
+            folded = cosn < FOLD_COS
+            soon = cosn < FOLD_SOON
+            if not soon:
+                continue
+        nearest_kept = wp.min(nearest_kept, d)
+        if d > margin or (dr < rest_gap and not folded):
             continue
         if n < SLOTS:
             cand[v, n] = t
@@ -101,6 +236,7 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
                 cand_d[v, far] = d
             wp.atomic_add(counts, 3, 1)
     cand_n[v] = n
+    slack[v] = nearest_kept - margin
     if n > 0:
         s = wp.atomic_add(counts, 0, 1)
         vlist[s] = v
@@ -113,35 +249,63 @@ def broadphase(mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype
             _touch(faces[tk, 2], mark, involved, counts)
 
 
+@wp.func
+def _room(i: int, dp: wp.vec3, x: wp.array(dtype=wp.vec3), vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+          tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), keep: float) -> float:
+    """The share t in [0, 1] of the move dp of vertex i that keeps each of its tets' signed volume at
+    least ``keep`` x its rest volume (the volume is linear in one vertex's position)."""
+    t = float(1.0)
+    for k in range(vt_off[i], vt_off[i + 1]):
+        e = vt[k]
+        a = tets[e, 0]
+        b = tets[e, 1]
+        c = tets[e, 2]
+        d = tets[e, 3]
+        v = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
+        v1 = v
+        if i == a:
+            v1 = wp.dot(x[b] - x[a] - dp, wp.cross(x[c] - x[a] - dp, x[d] - x[a] - dp))
+        elif i == b:
+            v1 = wp.dot(x[b] + dp - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
+        elif i == c:
+            v1 = wp.dot(x[b] - x[a], wp.cross(x[c] + dp - x[a], x[d] - x[a]))
+        else:
+            v1 = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] + dp - x[a]))
+        s0 = vol0[e]
+        lo = keep * s0
+        # in the rest volume's sign: v, v1 against lo
+        if s0 < 0.0:
+            v = -v
+            v1 = -v1
+            lo = -lo
+        if v1 < lo and v1 < v:
+            tt = float(0.0)
+            if v > lo:
+                tt = (v - lo) / (v - v1)
+            t = wp.min(t, tt)
+    return t
+
+
 @wp.kernel
-def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-            vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
-            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int),
-            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
-    """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
-    else the one kept by the substep's first pass); closer than ``thickness`` in front (or behind
-    it, up to ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
-    i = wp.tid()
-    if i >= n[0]:
-        return
-    v = vlist[i]
+def vertex_normals(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), vn: wp.array(dtype=wp.vec3)):
+    t = wp.tid()
+    a = faces[t, 0]
+    b = faces[t, 1]
+    c = faces[t, 2]
+    n = wp.cross(x[b] - x[a], x[c] - x[a])
+    wp.atomic_add(vn, a, n)
+    wp.atomic_add(vn, b, n)
+    wp.atomic_add(vn, c, n)
+
+
+@wp.func
+def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+             thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
+             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+    """Vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
+    ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
     p = x[v]
-    best = int(-1)
-    if pick != 0:
-        bd = float(1.0e30)
-        for k in range(cand_n[v]):
-            t = cand[v, k]
-            uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
-            q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
-            d = wp.length(p - q)
-            if d < bd:
-                bd = d
-                best = t
-        nearest[v] = best
-    else:
-        best = nearest[v]
-    if best < 0:
-        return
     a = faces[best, 0]
     b = faces[best, 1]
     c = faces[best, 2]
@@ -165,6 +329,12 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
     if w <= 0.0:
         return
     dl = (thickness - s) / w
+    if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
+        tk = _room(v, inv_mass[v] * dl * nrm, x, vt_off, vt, tets, vol0, keep)
+        tk = wp.min(tk, _room(a, -wa * inv_mass[a] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        tk = wp.min(tk, _room(b, -wb * inv_mass[b] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        tk = wp.min(tk, _room(c, -wc * inv_mass[c] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        dl = dl * tk
     wp.atomic_add(delta, v, inv_mass[v] * dl * nrm)
     wp.atomic_add(hits, v, 1)
     if inv_mass[a] > 0.0:
@@ -177,6 +347,38 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
         wp.atomic_add(delta, c, -wc * inv_mass[c] * dl * nrm)
         wp.atomic_add(hits, c, 1)
     wp.atomic_add(active, 0, 1)
+
+
+@wp.kernel
+def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+            vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
+            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
+            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+    """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
+    else the one kept by the substep's first pass), the correction (:func:`_correct`)."""
+    i = wp.tid()
+    if i >= n[0]:
+        return
+    v = vlist[i]
+    p = x[v]
+    best = int(-1)
+    if pick != 0:
+        bd = float(1.0e30)
+        for k in range(cand_n[v]):
+            t = cand[v, k]
+            uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
+            q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
+            d = wp.length(p - q)
+            if d < bd:
+                bd = d
+                best = t
+        nearest[v] = best
+    else:
+        best = nearest[v]
+    if best < 0:
+        return
+    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, delta, hits, active)
 
 
 @wp.kernel
@@ -211,6 +413,20 @@ class SelfContact:
         self.indices = wp.array(faces.astype(np.int32).ravel(), dtype=int, device=d)
         rest = model.rest_x.numpy()[:ns].astype(np.float64)
         self.rest = wp.array(rest, dtype=wp.vec3, device=d)
+        self.vn_now = wp.zeros(ns, dtype=wp.vec3, device=d)  # the skin's area-weighted normals at the frame's start
+        # the query slack: the skin at the last frame's start, its largest move since, per vertex the slack
+        nb = int(model.n_bodies) + 1  # (slot nb: the world frame, for skin without a bone)
+        self.skin_body = model.skin_body
+        self.y_last = wp.zeros(ns, dtype=wp.vec3, device=d)
+        self.mu = wp.zeros(ns, dtype=float, device=d)
+        self.body_move = wp.zeros(nb, dtype=float, device=d)
+        self.body_reach = wp.zeros(nb, dtype=float, device=d)
+        self.near_move = wp.zeros(nb, dtype=float, device=d)
+        self.rel_last = wp.zeros((nb, nb), dtype=wp.transform, device=d)
+        self.slack = wp.zeros(ns, dtype=float, device=d)
+        self.qlist = wp.zeros(ns, dtype=int, device=d)
+        self.qcount = wp.zeros(1, dtype=int, device=d)
+        self.fcount = wp.zeros(1, dtype=int, device=d)
         centre = rest[faces].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
         radius = np.linalg.norm(rest[faces] - centre[:, None], axis=2).max(axis=1)
         self.rest_ball = wp.array(np.hstack([centre, radius[:, None]]).astype(np.float32), dtype=wp.vec4, device=d)
@@ -229,6 +445,19 @@ class SelfContact:
         self.vcount = wp.zeros(1, dtype=int, device=d)  # (the list launches read their length here)
         self.icount = wp.zeros(1, dtype=int, device=d)
         self._meshes: dict = {}
+        # Tuning.self_tet_keep: every tet of every skin vertex (CSR: vt_off, vt) and its rest volume
+        tets = np.asarray(model.tet_ids.numpy()).reshape(-1, 4)
+        self.tets = wp.array(tets.astype(np.int32), dtype=int, device=d)
+        rx = model.rest_x.numpy().astype(np.float64)
+        A, B, C, D = (rx[tets[:, k]] for k in range(4))
+        self.vol0 = wp.array(np.einsum("ij,ij->i", B - A, np.cross(C - A, D - A)).astype(np.float32), dtype=float, device=d)
+        sk = tets < ns
+        tv = np.repeat(np.arange(len(tets)), 4)[sk.ravel()]
+        vv = tets.ravel()[sk.ravel()]
+        order = np.argsort(vv, kind="stable")
+        cnt = np.bincount(vv, minlength=ns)
+        self.vt_off = wp.array(np.concatenate([[0], np.cumsum(cnt)]).astype(np.int32), dtype=int, device=d)
+        self.vt = wp.array(tv[order].astype(np.int32), dtype=int, device=d)
 
     def mesh(self, state) -> wp.Mesh:
         """The skin's BVH over ``state.x`` (made once per state; refit every frame)."""
@@ -238,16 +467,39 @@ class SelfContact:
         return m
 
     def record_frame(self, rec, state) -> None:
-        """The frame's list: last frame's marks cleared, the BVH refit, the broadphase."""
+        """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
+        for them (CPU: only when there are any) the BVH refit, the normals, the broadphase."""
         cfg, d = self.config, self.device
         mesh = self.mesh(state)
+        cuda = wp.get_device(d).is_cuda
         rec.launch(clear_marks, self.n_skin, [self.icount, self.involved], [self.mark], count=self.icount)
-        rec.ops.append(lambda: self.counts.zero_())
-        rec.ops.append(lambda: self.active.zero_())
-        rec.ops.append(mesh.refit)
+        rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.qcount.zero_(), self.body_move.zero_(),
+                                self.body_reach.zero_(), self.near_move.zero_()))
+        nb = self.near_move.shape[0]
+        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose],
+                   [self.y_last, self.mu, self.body_move, self.body_reach])
+        reach = float(cfg.self_margin) + REACH
+        rec.launch(body_motion, (nb, nb), [state.body_pose],
+                   [self.rel_last, self.body_move, self.body_reach, reach, self.near_move])
+        rec.launch(pick_queries, self.n_skin, [self.skin_body, self.mu, self.near_move],
+                   [self.slack, self.cand_n, self.qlist, self.qcount])
+        q = self.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
+
+        def when_queried(op):
+            return op if cuda else (lambda: op() if q[0] else None)
+
+        rec.ops.append(when_queried(mesh.refit))
+        rec.ops.append(when_queried(self.vn_now.zero_))
+        nf = int(self.faces.shape[0])
+        if not cuda:  # (CPU: the normals' launch sized 0 when nothing is queried)
+            fc = self.fcount.numpy()
+            rec.ops.append(lambda: fc.__setitem__(0, nf if q[0] else 0))
+        rec.launch(vertex_normals, nf, [state.x, self.faces], [self.vn_now], count=None if cuda else self.fcount)
         rec.launch(broadphase, self.n_skin,
-                   [mesh.id, state.x, self.rest, self.faces, self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap)],
-                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts])
+                   [self.qcount, self.qlist, reach, self.slack, mesh.id, state.x, self.rest, self.faces, self.rest_ball,
+                    float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP)],
+                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts],
+                   count=self.qcount)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
 
@@ -257,12 +509,19 @@ class SelfContact:
         for k in range(cfg.self_passes):
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
-                        float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest],
+                        float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
+                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0],
                        [self.delta, self.hits, self.active], count=self.vcount)
             rec.launch(apply, self.n_skin, [self.icount, self.involved], [state.x, self.delta, self.hits], count=self.icount)
 
     def report(self) -> dict:
         """The last frame's figures: listed vertices and pairs, corrections made (summed over passes)."""
         c = self.counts.numpy()
-        return dict(self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
+        q = int(self.qcount.numpy()[0])
+        cfg = self.config
+        # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
+        # thread past its list returning): the motion bound's four, the query's four with any
+        # vertex queried, the substeps' 2 x passes with any pair listed
+        ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] else 0)
+        return dict(self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
                     self_corrections=int(self.active.numpy()[0]))
