@@ -69,6 +69,8 @@ class Exchange:
     sub_load: wp.array(dtype=float)
     load: wp.array(dtype=float)
     fr_obj: wp.array(dtype=int)
+    stick: wp.array(dtype=wp.vec3)
+    slack: float
     obj_vel: wp.array(dtype=wp.vec3)
     obj_omega: wp.array(dtype=wp.vec3)
     obj_fric: wp.array(dtype=wp.vec3)
@@ -122,6 +124,8 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     ns = model.n_skin if on else 0
     e.sub_load, e.load = wp.zeros(ns, dtype=float, device=d), wp.zeros(ns, dtype=float, device=d)
     e.fr_obj = wp.full(ns, -1, dtype=int, device=d)
+    e.stick = wp.zeros(ns, dtype=wp.vec3, device=d)
+    e.slack = float(STICK_SLACK)
     e.obj_inv_inertia = wp.zeros(k, dtype=wp.mat33, device=d)
     e.steps = wp.zeros(k, dtype=int, device=d)
     e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
@@ -142,6 +146,9 @@ def touch_load(ex: Exchange, i: int, obj: int, dxn: wp.vec3):
 # the running mean's weight of a substep's normal correction: the skin under a resting object is
 # pushed out in some substeps and not in others, and its friction bound is the mean normal impulse
 LOAD_RATE = wp.constant(0.25)
+# m: the longest slip a sticking skin vertex keeps owing (exchange.stick); past it the vertex slides and
+# its anchor is dragged along
+STICK_SLACK = 1.0e-4
 # m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
 # feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
 TOUCH_GAP = wp.constant(5.0e-4)
@@ -190,6 +197,7 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
     if (sub <= 0.0 and phi > TOUCH_GAP) or load <= 0.0:
         ex.load[i] = 0.0
         ex.fr_obj[i] = -1
+        ex.stick[i] = wp.vec3(0.0)
         return
     ex.load[i] = load
     r = xi - ex.obj_com[k] - ex.shift[k]
@@ -208,7 +216,7 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
             vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
             jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
             record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
-    u = xi - x_start[i] - vel * ex.h
+    u = ex.stick[i] + xi - x_start[i] - vel * ex.h
     ut = u - n * wp.dot(u, n)
     s = wp.length(ut)
     lim = ex.obj_mu[k] * load
@@ -218,6 +226,11 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
     dx = held_move(hold, i, xi, dxf)
     record(ex, i, k, xi, dx, dx)
     x[i] = xi + dx
+    owe = ut + dx
+    left = wp.length(owe)
+    if left > ex.slack:
+        owe = owe * (ex.slack / left)
+    ex.stick[i] = owe
 
 
 @wp.func
