@@ -143,8 +143,10 @@ class PinchRig:
     def hold(self, frames: int = 200, ramp: int = 40) -> dict:
         """Gravity on, ramped up over ``ramp`` frames (a sudden load would swing the flesh's shear past
         its static value), for ``frames`` in all: returns ``drop`` (m the box fell), ``speed`` (m/s down
-        over the last 10 frames), ``normal`` (N per side, mean over the ramp's last 10 frames) and the
-        final state."""
+        over the last 10 frames), ``normal`` (N per side while the full weight first hangs on the pads:
+        the mean over the 20 frames after the ramp, those before the box fell 5 mm; the flesh's shear
+        lowers it from the squeeze's), ``normal_ramp`` (the mean over the ramp's last 10 frames),
+        ``zs`` (m, the box's height each frame) and the final state."""
         z0 = self.state()["z"]
         zs, ns = [], []
         for f in range(frames):
@@ -154,4 +156,8 @@ class PinchRig:
             ns.append(s["normal"].mean())
         dt = self.model.opt.timestep
         speed = (zs[-11] - zs[-1]) / (10 * dt) if len(zs) > 10 else 0.0
-        return dict(drop=z0 - zs[-1], speed=speed, normal=float(np.mean(ns[max(ramp - 10, 0): max(ramp, 10)])), state=s)
+        # N while the pads hold the full weight: the 20 frames after the ramp, those before the box fell
+        # 5 mm (a box sliding out of the pads unloads them)
+        held = [n for n, z in zip(ns[ramp: ramp + 20], zs[ramp: ramp + 20]) if z0 - z < 5.0e-3]
+        return dict(drop=z0 - zs[-1], speed=speed, normal=float(np.mean(held or ns[max(ramp - 10, 0): max(ramp, 10)])),
+                    normal_ramp=float(np.mean(ns[max(ramp - 10, 0): max(ramp, 10)])), zs=np.array(zs), state=s)
