@@ -66,13 +66,14 @@ def main():
         out["creep"].append(dict(x_squeeze_bound=r, **pad_run(pads, r * bound, args.device, extra=200)))
         print(out["creep"][-1], flush=True)
     if not args.no_hand:
-        for mu in (0.2, 0.22, 0.235, 0.25, 0.3, 0.5):
+        for mu in (0.2, 0.22, 0.25, 0.265, 0.28, 0.3, 0.5):
             h = HandPinch(mu=mu, mass=MASS, config=ph.Config(two_way=True, device=args.device))
             moved = h.settle(60)
             o = h.hold(200, ramp=40)
             slipped = bool(o["drop"] > 0.01 or o["speed"] > 0.02)
             out["hand"].append(dict(mu=mu, N=round(o["normal"], 4), ratio=round(mu / (MASS * G / (2 * o["normal"])), 3),
                                     slipped=slipped, fell_mm=round(o["drop"] * 1e3, 2), settled_mm=round(moved * 1e3, 2),
+                                    turned_deg=round(o["turned"], 2),
                                     proxy_contacts=o["proxy_contacts"]))
             print(out["hand"][-1], flush=True)
     for name in ("pads", "hand"):

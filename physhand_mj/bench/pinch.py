@@ -244,18 +244,21 @@ class HandPinch:
         """Gravity on, ramped over ``ramp`` frames, ``frames`` in all: ``drop`` (m the card fell),
         ``speed`` (m/s down over the last 10 frames), ``normal`` (N per side while the full weight
         hangs on the tips: the mean over the 20 frames after the ramp, those before it fell 5 mm),
-        ``fall`` (m, how far it has fallen each frame) and ``proxy_contacts`` (MuJoCo contacts with the
-        card at the end: 0 when the skin alone holds it)."""
-        p0 = self.data.xpos[self.card].copy()
-        zs, ns = [], []
+        ``fall`` (m, how far it has fallen each frame), ``turned`` (degrees the card has turned 20
+        frames after the ramp) and ``proxy_contacts`` (MuJoCo contacts with the card at the end: 0
+        when the skin alone holds it)."""
+        p0, q0 = self.data.xpos[self.card].copy(), self.data.xquat[self.card].copy()
+        zs, ns, turn = [], [], []
         for f in range(frames):
             self.model.opt.gravity[:] = self.g * min(1.0, (f + 1) / max(ramp, 1))
             self.step()
             zs.append(float(p0[2] - self.data.xpos[self.card][2]))
             ns.append(float(self.normal().mean()))
+            turn.append(2.0 * np.degrees(np.arccos(min(1.0, abs(float(self.data.xquat[self.card] @ q0))))))
         held = [n for n, z in zip(ns[ramp: ramp + 20], zs[ramp: ramp + 20]) if z < 5.0e-3]
         dt = self.model.opt.timestep
         d = self.data
         return dict(drop=zs[-1], speed=(zs[-1] - zs[-11]) / (10 * dt) if len(zs) > 10 else 0.0,
                     normal=float(np.mean(held or ns[max(ramp - 10, 0): max(ramp, 10)])), fall=np.array(zs),
+                    turned=turn[ramp + 19] if len(turn) > ramp + 19 else turn[-1],
                     proxy_contacts=sum(1 for i in range(d.ncon) if self.card_geom in (d.contact[i].geom1, d.contact[i].geom2)))
