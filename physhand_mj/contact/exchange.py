@@ -21,11 +21,8 @@ the bones, the objects moved by them within the frame, and the skin's Coulomb fr
   step's velocity change (gravity's g dt) at once at the frame's start, more than a substep's
   friction can take, and a per-substep bound let the object slip a little every frame (a box held
   at 1.2 x the bound crept 8 mm/s).
-- **Damping** (``Config.contact_damping``): at each touching skin vertex the object's surface
-  velocity along the normal there, relative to the vertex's bone, decays over that time (the
-  object's mass shared over the touching vertices by load): it damps bouncing and rocking, and
-  nothing along a surface (a pinch's opposed normals no longer leave a residual direction whose
-  damping braked a sliding object).
+- **Damping** (``Config.contact_damping``): a touching object's normal velocity relative to the
+  bones under the skin decays over that time, shared over the touching vertices by load.
 - **Host traffic**: one packed upload and one read-back a frame (:func:`unpack_inputs`,
   :func:`pack_outputs`); :func:`frame_wrenches` turns the sums into mean forces and torques over the
   frame's s substeps, about each object's and bone's centre of mass c:
@@ -69,8 +66,8 @@ class Exchange:
     current substep's; obj_fric (K,): the friction corrections' share of obj_lin.
     The bones, set per frame: bone_com, bone_vel, bone_omega (B,).
     Damping: damp: the share of the normal velocity taken per substep (1 - exp(-h / contact_damping));
-    agg_load (K,): the touching skin's summed load this substep; prev_load: the previous substep's.
-    h s: the substep."""
+    agg_load / agg_n / agg_vb (K,): the touching skin's summed load, load-weighted normals and bone
+    velocities this substep; prev_*: the previous substep's. h s: the substep."""
 
     mass: wp.array(dtype=float)
     body: wp.array(dtype=int)
@@ -100,7 +97,11 @@ class Exchange:
     bone_omega: wp.array(dtype=wp.vec3)
     damp: float
     agg_load: wp.array(dtype=float)
+    agg_n: wp.array(dtype=wp.vec3)
+    agg_vb: wp.array(dtype=wp.vec3)
     prev_load: wp.array(dtype=float)
+    prev_n: wp.array(dtype=wp.vec3)
+    prev_vb: wp.array(dtype=wp.vec3)
     obj_lin: wp.array(dtype=wp.vec3)
     obj_ang: wp.array(dtype=wp.vec3)
     bone_lin: wp.array(dtype=wp.vec3)
@@ -119,7 +120,8 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     e.body = model.skin_body if on else wp.zeros(0, dtype=int, device=d)
     e.h = float(h)
     vec = {name: wp.zeros(k, dtype=wp.vec3, device=d) for name in (
-        "obj_vel", "obj_omega", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang")}
+        "obj_vel", "obj_omega", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang",
+        "agg_n", "agg_vb", "prev_n", "prev_vb")}
     vec.update({name: wp.zeros(b, dtype=wp.vec3, device=d) for name in ("bone_com", "bone_vel", "bone_omega", "bone_lin",
                                                                         "bone_ang")})
     for name, arr in vec.items():
@@ -213,17 +215,19 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
     r = xi - ex.obj_com[k] - ex.shift[k]
     vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
     b = ex.body[i]
-    if b >= 0 and ex.damp > 0.0:  # the flesh's damping: at each touching vertex, the object's surface
-        # velocity along the normal there relative to the vertex's bone decays, the object's mass shared
-        # by load (the previous substep's total)
+    if b >= 0 and ex.damp > 0.0:  # the flesh's damping: the object's normal velocity relative to the
+        # bones under it (the previous substep's load-weighted means) decays, shared by load
         vb = ex.bone_vel[b] + wp.cross(ex.bone_omega[b], xi - ex.bone_com[b])
         wp.atomic_add(ex.agg_load, k, load)
+        wp.atomic_add(ex.agg_n, k, n * load)
+        wp.atomic_add(ex.agg_vb, k, vb * load)
         pl = ex.prev_load[k]
         im = ex.obj_inv_mass[k]
         if pl > 0.0 and im > 0.0 and ex.mass[i] > 0.0:
-            vn = wp.dot(vel - vb, n)
-            jn = -ex.damp * vn / im * (load / pl)  # N s on the object along n
-            record(ex, i, k, xi, n * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
+            nk = wp.normalize(ex.prev_n[k])
+            vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
+            jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
+            record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
     u = ex.stick[i] + xi - x_start[i] - vel * ex.h
     ut = u - n * wp.dot(u, n)
     s = wp.length(ut)
@@ -285,7 +289,11 @@ def take_impulses(ex: Exchange):
     ex.sub_lin[k] = wp.vec3(0.0)
     ex.sub_ang[k] = wp.vec3(0.0)
     ex.prev_load[k] = ex.agg_load[k]
+    ex.prev_n[k] = ex.agg_n[k]
+    ex.prev_vb[k] = ex.agg_vb[k]
     ex.agg_load[k] = 0.0
+    ex.agg_n[k] = wp.vec3(0.0)
+    ex.agg_vb[k] = wp.vec3(0.0)
     im = ex.obj_inv_mass[k]
     if im <= 0.0:
         return
