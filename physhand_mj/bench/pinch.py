@@ -260,5 +260,5 @@ class HandPinch:
         d = self.data
         return dict(drop=zs[-1], speed=(zs[-1] - zs[-11]) / (10 * dt) if len(zs) > 10 else 0.0,
                     normal=float(np.mean(held or ns[max(ramp - 10, 0): max(ramp, 10)])), fall=np.array(zs),
-                    turned=turn[ramp + 19] if len(turn) > ramp + 19 else turn[-1],
+                    turned=float(turn[ramp + 19] if len(turn) > ramp + 19 else turn[-1]),
                     proxy_contacts=sum(1 for i in range(d.ncon) if self.card_geom in (d.contact[i].geom1, d.contact[i].geom2)))
