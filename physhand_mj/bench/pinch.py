@@ -143,8 +143,10 @@ class PinchRig:
     def hold(self, frames: int = 200, ramp: int = 40) -> dict:
         """Gravity on, ramped up over ``ramp`` frames (a sudden load would swing the flesh's shear past
         its static value), for ``frames`` in all: returns ``drop`` (m the box fell), ``speed`` (m/s down
-        over the last 10 frames), ``normal`` (N per side, mean over the ramp's last 10 frames) and the
-        final state."""
+        over the last 10 frames), ``normal`` (N per side while the full weight first hangs on the pads:
+        the mean over the 20 frames after the ramp, those before the box fell 5 mm; the flesh's shear
+        lowers it from the squeeze's), ``normal_ramp`` (the mean over the ramp's last 10 frames),
+        ``zs`` (m, the box's height each frame) and the final state."""
         z0 = self.state()["z"]
         zs, ns = [], []
         for f in range(frames):
@@ -154,4 +156,109 @@ class PinchRig:
             ns.append(s["normal"].mean())
         dt = self.model.opt.timestep
         speed = (zs[-11] - zs[-1]) / (10 * dt) if len(zs) > 10 else 0.0
-        return dict(drop=z0 - zs[-1], speed=speed, normal=float(np.mean(ns[max(ramp - 10, 0): max(ramp, 10)])), state=s)
+        # N while the pads hold the full weight: the 20 frames after the ramp, those before the box fell
+        # 5 mm (a box sliding out of the pads unloads them)
+        held = [n for n, z in zip(ns[ramp: ramp + 20], zs[ramp: ramp + 20]) if z0 - z < 5.0e-3]
+        return dict(drop=z0 - zs[-1], speed=speed, normal=float(np.mean(held or ns[max(ramp - 10, 0): max(ramp, 10)])),
+                    normal_ramp=float(np.mean(ns[max(ramp - 10, 0): max(ramp, 10)])), zs=np.array(zs), state=s)
+
+
+class HandPinch:
+    """The hand's own pinch: ``hand_only``'s ``pinch`` keyframe (thumb and index tips facing) with a
+    free card (a box ``size`` m wide, ``thick`` m thick, ``mass`` kg, friction ``mu``) placed midway
+    between the two tips' proxies, its faces across the line joining them; the hand's actuators hold
+    the keyframe's targets and the hand's bodies are gravity-compensated. No proxy touches the card:
+    the skin alone holds it. N per side is the bones' force along the card's normal (the thumb's
+    three bones against the index's three): the part of each tip's push that presses the card.
+
+        rig = HandPinch(mu=0.3)
+        rig.settle(60)         # gravity off: the card settles where the tips' pushes balance
+        out = rig.hold(200)    # gravity ramped in over 40 frames"""
+
+    THUMB = ("distal_thumb_r", "proximal_thumb_r", "firstmc_r")
+    INDEX = ("distph2_r", "midph2_r", "2proxph_r")
+
+    def __init__(self, mu: float = 0.5, mass: float = 0.01, size: float = 0.016, thick: float = 0.003, config=None):
+        import physhand_mj as ph
+        from physhand_mj.hand_mjcf import SCENES_DIR
+
+        self.mass, self.mu = float(mass), float(mu)
+        path = str(SCENES_DIR / "hand_only.xml")
+        m0 = mujoco.MjModel.from_xml_path(path)
+        d0 = mujoco.MjData(m0)
+        key = m0.key("pinch").id
+        mujoco.mj_resetDataKeyframe(m0, d0, key)
+        mujoco.mj_forward(m0, d0)
+        ft = np.zeros(6)
+        mujoco.mj_geomDistance(m0, d0, m0.geom("distal_thumb_r_proxy").id, m0.geom("distph2_r_proxy").id, 0.1, ft)
+        a, b = ft[:3], ft[3:]
+        c = 0.5 * (a + b)
+        z = (b - a) / np.linalg.norm(b - a)  # the card's normal: from the thumb's proxy to the index's
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        q = np.zeros(4)
+        mujoco.mju_mat2Quat(q, np.c_[x, np.cross(z, x), z].ravel())
+        spec = mujoco.MjSpec.from_file(path)
+        body = spec.worldbody.add_body(name="card", pos=c.tolist(), quat=q.tolist())
+        body.add_freejoint(name="card_free")
+        body.add_geom(name="card", type=mujoco.mjtGeom.mjGEOM_BOX, size=[size / 2, size / 2, thick / 2], mass=mass,
+                      friction=[mu, 0.005, 0.0001])
+        self.model = m = spec.compile()
+        self.data = d = mujoco.MjData(m)
+        nh = m0.nq
+        d.qpos[:nh] = m0.key_qpos[key]
+        d.qpos[nh: nh + 3], d.qpos[nh + 3: nh + 7] = c, q
+        d.ctrl[:] = np.clip(m0.key_ctrl[key], m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1])
+        self.g = m.opt.gravity.copy()
+        m.opt.gravity[:] = 0.0
+        mujoco.mj_forward(m, d)
+        self.hand = ph.SoftHand(m, d, config or ph.Config(two_way=True), object_bodies=["card"], settle_frames=20)
+        self.hand.skin_friction = 0.0  # (MuJoCo's rule: the card's mu)
+        self.hand.solver.warn_feature_slack = False
+        self.card = m.body("card").id
+        self.card_geom = m.geom("card").id
+        names = [m.body(int(bb)).name for bb in self.hand.bones]
+        self.thumb = [i for i, n in enumerate(names) if n in self.THUMB]
+        self.index = [i for i, n in enumerate(names) if n in self.INDEX]
+
+    def normal(self) -> np.ndarray:
+        """(2,) N: the thumb's and the index's bones' force along the card's normal (pressing it)."""
+        w = self.hand._wrenches
+        if w is None:
+            return np.zeros(2)
+        n = self.data.xmat[self.card].reshape(3, 3)[:, 2]
+        return np.array([-(w["bones"][self.thumb, :3].sum(0) @ n), w["bones"][self.index, :3].sum(0) @ n])
+
+    def step(self) -> None:
+        mujoco.mj_step(self.model, self.data)
+        self.hand.step()
+
+    def settle(self, frames: int = 60) -> float:
+        """Gravity off for ``frames``: the card moves to where the tips' pushes balance; returns how far (m)."""
+        p0 = self.data.xpos[self.card].copy()
+        for _ in range(frames):
+            self.step()
+        return float(np.linalg.norm(self.data.xpos[self.card] - p0))
+
+    def hold(self, frames: int = 200, ramp: int = 40) -> dict:
+        """Gravity on, ramped over ``ramp`` frames, ``frames`` in all: ``drop`` (m the card fell),
+        ``speed`` (m/s down over the last 10 frames), ``normal`` (N per side while the full weight
+        hangs on the tips: the mean over the 20 frames after the ramp, those before it fell 5 mm),
+        ``fall`` (m, how far it has fallen each frame), ``turned`` (degrees the card has turned 20
+        frames after the ramp) and ``proxy_contacts`` (MuJoCo contacts with the card at the end: 0
+        when the skin alone holds it)."""
+        p0, q0 = self.data.xpos[self.card].copy(), self.data.xquat[self.card].copy()
+        zs, ns, turn = [], [], []
+        for f in range(frames):
+            self.model.opt.gravity[:] = self.g * min(1.0, (f + 1) / max(ramp, 1))
+            self.step()
+            zs.append(float(p0[2] - self.data.xpos[self.card][2]))
+            ns.append(float(self.normal().mean()))
+            turn.append(2.0 * np.degrees(np.arccos(min(1.0, abs(float(self.data.xquat[self.card] @ q0))))))
+        held = [n for n, z in zip(ns[ramp: ramp + 20], zs[ramp: ramp + 20]) if z < 5.0e-3]
+        dt = self.model.opt.timestep
+        d = self.data
+        return dict(drop=zs[-1], speed=(zs[-1] - zs[-11]) / (10 * dt) if len(zs) > 10 else 0.0,
+                    normal=float(np.mean(held or ns[max(ramp - 10, 0): max(ramp, 10)])), fall=np.array(zs),
+                    turned=float(turn[ramp + 19] if len(turn) > ramp + 19 else turn[-1]),
+                    proxy_contacts=sum(1 for i in range(d.ncon) if self.card_geom in (d.contact[i].geom1, d.contact[i].geom2)))

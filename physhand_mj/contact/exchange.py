@@ -15,7 +15,12 @@ the bones, the objects moved by them within the frame, and the skin's Coulomb fr
   (:func:`take_impulses`). ``SoftHand`` hands the frame's pose, velocity change and the bones'
   reaction back to MuJoCo.
 - **Friction** (:func:`skin_friction`, after each stage): each touching vertex's slip against the
-  object's surface motion is undone within mu x its running normal load, else cut by that much.
+  object's surface motion, plus what it still owes from earlier substeps, is undone within mu x its
+  running normal load, else cut by that much and the rest owed (up to STICK_SLACK; past it the vertex
+  slides). Owing the slip makes sticking a position constraint: MuJoCo gives a free object its
+  step's velocity change (gravity's g dt) at once at the frame's start, more than a substep's
+  friction can take, and a per-substep bound let the object slip a little every frame (a box held
+  at 1.2 x the bound crept 8 mm/s).
 - **Damping** (``Config.contact_damping``): a touching object's normal velocity relative to the
   bones under the skin decays over that time, shared over the touching vertices by load.
 - **Host traffic**: one packed upload and one read-back a frame (:func:`unpack_inputs`,
@@ -45,7 +50,9 @@ class Exchange:
 
     The skin: mass (S,) kg; body (S,) the bone that carries each vertex (Model.skin_body; -1: none);
     sub_load (S,) m: its normal correction in the current substep; load (S,) m: the running mean of
-    that (friction's bound is mu m load / h); fr_obj (S,): the object it touches (-1: none).
+    that (friction's bound is mu m load / h); fr_obj (S,): the object it touches (-1: none); stick
+    (S,) m: the tangential slip against it that its friction has not undone yet (kept while it
+    touches); slack m: the longest such slip (STICK_SLACK).
     The objects, set per frame: obj_com, obj_vel, obj_omega (K,): centre of mass, its velocity (after
     MuJoCo's step), angular velocity; obj_inv_mass (K,) 1/kg and obj_inv_inertia (K,) 1/(kg m^2): a
     free object's (0: the skin does not move it within the frame); obj_mu (K,): its friction
@@ -69,6 +76,8 @@ class Exchange:
     sub_load: wp.array(dtype=float)
     load: wp.array(dtype=float)
     fr_obj: wp.array(dtype=int)
+    stick: wp.array(dtype=wp.vec3)
+    slack: float
     obj_vel: wp.array(dtype=wp.vec3)
     obj_omega: wp.array(dtype=wp.vec3)
     obj_fric: wp.array(dtype=wp.vec3)
@@ -122,6 +131,8 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     ns = model.n_skin if on else 0
     e.sub_load, e.load = wp.zeros(ns, dtype=float, device=d), wp.zeros(ns, dtype=float, device=d)
     e.fr_obj = wp.full(ns, -1, dtype=int, device=d)
+    e.stick = wp.zeros(ns, dtype=wp.vec3, device=d)
+    e.slack = float(STICK_SLACK)
     e.obj_inv_inertia = wp.zeros(k, dtype=wp.mat33, device=d)
     e.steps = wp.zeros(k, dtype=int, device=d)
     e.turn = wp.array(np.tile(np.array([0, 0, 0, 1.0], np.float32), (k, 1)), dtype=wp.quat, device=d)
@@ -142,6 +153,12 @@ def touch_load(ex: Exchange, i: int, obj: int, dxn: wp.vec3):
 # the running mean's weight of a substep's normal correction: the skin under a resting object is
 # pushed out in some substeps and not in others, and its friction bound is the mean normal impulse
 LOAD_RATE = wp.constant(0.25)
+# m: the longest slip a touching skin vertex owes (Exchange.stick); past it the vertex slides and the
+# point it sticks to is dragged along. Within a frame an object held at its friction bound moves
+# about g dt^2 / 2 (0.12 mm at 5 ms) against the skin and back, since MuJoCo's step gives it gravity's
+# g dt at the frame's start (physhand_mj/bench/pinch.py, a 10 g box at 1.25 x the bound: 30 um left it
+# creeping 1 mm/s, 0.1 mm less than 0.1 mm/s)
+STICK_SLACK = 1.0e-4
 # m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
 # feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
 TOUCH_GAP = wp.constant(5.0e-4)
@@ -167,9 +184,11 @@ def object_phi(x: wp.vec3, k: int, geoms: GeomSet, base: int, n: int):
 def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, vertex_world: wp.array(dtype=int),
                   geoms_per_world: int, x_start: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3)):
     """After a substep's contact: Coulomb friction of every skin vertex touching an object. Its slip
-    over the substep (its motion less the object's surface motion there, tangent to the surface) is
-    undone where within mu x its mean normal correction (sticking), else cut by that much (sliding);
-    the correction's impulse goes to the object and the bones (:func:`record`). A vertex that was
+    over the substep (its motion less the object's surface motion there, tangent to the surface)
+    plus the slip it still owes (``ex.stick``) is undone where within mu x its mean normal correction
+    (sticking), else cut by that much (sliding) and the rest owed, at most ``ex.slack`` (beyond it the
+    point it sticks to is dragged along: it slides); the correction's impulse goes to the object and
+    the bones (:func:`record`). A vertex that was
     pushed recently but not this substep still holds (its mean load decays); one that left the object
     (farther than TOUCH_GAP) lets go. Batched worlds (``geoms_per_world`` > 0): the object's geoms
     are looked for among the vertex's world's only (one world: all ``n_geoms``)."""
@@ -190,13 +209,17 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
     if (sub <= 0.0 and phi > TOUCH_GAP) or load <= 0.0:
         ex.load[i] = 0.0
         ex.fr_obj[i] = -1
+        ex.stick[i] = wp.vec3(0.0)
         return
     ex.load[i] = load
     r = xi - ex.obj_com[k] - ex.shift[k]
     vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
     b = ex.body[i]
     if b >= 0 and ex.damp > 0.0:  # the flesh's damping: the object's normal velocity relative to the
-        # bones under it (the previous substep's load-weighted means) decays, shared by load
+        # bones under it (the previous substep's load-weighted means) decays, shared by load. (Damped at
+        # each vertex along its own normal instead, a box on the slab stopped rocking, but one sliding was
+        # braked by the contacts at its leading edge: mu 0.6 slid 2.4 deg past atan(mu). Of a pinch's
+        # opposed contacts the mean normal is a residual: up in the hand's pinch, braking a card's fall.)
         vb = ex.bone_vel[b] + wp.cross(ex.bone_omega[b], xi - ex.bone_com[b])
         wp.atomic_add(ex.agg_load, k, load)
         wp.atomic_add(ex.agg_n, k, n * load)
@@ -208,7 +231,7 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
             vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
             jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
             record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
-    u = xi - x_start[i] - vel * ex.h
+    u = ex.stick[i] + xi - x_start[i] - vel * ex.h
     ut = u - n * wp.dot(u, n)
     s = wp.length(ut)
     lim = ex.obj_mu[k] * load
@@ -218,6 +241,11 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
     dx = held_move(hold, i, xi, dxf)
     record(ex, i, k, xi, dx, dx)
     x[i] = xi + dx
+    owe = ut + dx
+    left = wp.length(owe)
+    if left > ex.slack:
+        owe = owe * (ex.slack / left)
+    ex.stick[i] = owe
 
 
 @wp.func
