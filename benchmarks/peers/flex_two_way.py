@@ -18,9 +18,10 @@ coefficient are set to 0, so mu decides on both sides).
   steps a frame: at the hand's 0.1 ms the slab's flex diverged in its first step), the box on a free joint; the tilt is the gravity turned by -angle about x (the
   same load in the slab's frame, since its core is pinned).
 
-Protocol (each peer, each mu, each angle atan(mu) -/+ 2 degrees): 40 frames level (the box starts
-1 mm over the skin), 40 frames turning to the angle, ``--hold`` frames held; ``slid_mm`` is the box's
-move down the slope over the hold. Drop: the box from 1 mm, 200 frames level; ``rest_force_over_mg``
+Protocol (each peer, each mu, each angle atan(mu) -/+ 2 degrees): ``--level`` frames level (the box
+starts 1 mm over the skin), ``--turn`` frames turning to the angle at a steady rate, ``--hold``
+frames held; ``slid_mm`` is the box's move down the slope over the hold, ``speed_mm_s`` its speed
+over the last 5 frames. Drop: the box from 1 mm, 200 frames level; ``rest_force_over_mg``
 (physhand_mj: the skin's force on the box, its report; flex: MuJoCo's contact forces on the box, summed
 over its contacts), ``peaks_mm`` (the box's heights over its rest at the local maxima after the first
 contact: bounces decay when they fall), and both penetration measures at the end
@@ -44,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import physhand_mj as ph  # noqa: E402
 from mujoco_flex import flex_spec  # noqa: E402
+from physhand_mj.bench import device_name  # noqa: E402
 from physhand_mj.bench.slab import SlabRig, soft_slab  # noqa: E402
 from physhand_mj.types import GeomType  # noqa: E402
 
@@ -186,20 +188,23 @@ class PhysSlab:
         return bool(np.all(np.isfinite(self.rig.data.qpos)))
 
 
-def ramp(make, asset, mu: float, angle: float, hold: int) -> dict:
+def ramp(make, asset, mu: float, angle: float, hold: int, level: int = 40, turn: int = 200) -> dict:
     sim = make(asset, mu)
     ms = []
-    for _ in range(40):
+    for _ in range(level):
         ms.append(sim.frame())
-    for k in range(40):
-        sim.tilt(angle * (k + 1) / 40)
+    for k in range(turn):
+        sim.tilt(angle * (k + 1) / turn)
         ms.append(sim.frame())
     y0 = float(sim.box_pos()[1])
+    ys = []
     for _ in range(hold):
         ms.append(sim.frame())
-    y1 = float(sim.box_pos()[1])
-    return dict(mu=mu, angle_deg=float(np.degrees(angle)), slid_mm=(y0 - y1) * 1e3, finite=sim.finite,
-                ms_frame=float(np.median(ms)), frames=len(ms))
+        ys.append(float(sim.box_pos()[1]))
+    y1 = ys[-1]
+    speed = (ys[-6] - ys[-1]) / (5 * 0.005) if len(ys) > 5 else float("nan")
+    return dict(mu=mu, angle_deg=float(np.degrees(angle)), slid_mm=(y0 - y1) * 1e3, speed_mm_s=speed * 1e3,
+                finite=sim.finite, ms_frame=float(np.median(ms)), frames=len(ms))
 
 
 def drop(make, asset, meas: BoxMeasure, frames: int = 200) -> dict:
@@ -225,23 +230,27 @@ def main():
     ap.add_argument("--slab", default=None, help="a saved slab asset (.npz); default: built here (TetGen)")
     ap.add_argument("--mu", default="0.3,0.6,1.0", help="friction coefficients (comma-separated)")
     ap.add_argument("--hold", type=int, default=120, help="frames held at the angle (5 ms each)")
+    ap.add_argument("--level", type=int, default=40, help="frames level before turning (5 ms each)")
+    ap.add_argument("--turn", type=int, default=200, help="frames turning to the angle (5 ms each)")
+    ap.add_argument("--drop", type=int, default=200, help="frames of the drop (5 ms each)")
+    ap.add_argument("--flex-mu", default="0.6", help="the flex's friction coefficients (its frames cost ~1 s on a CPU)")
     ap.add_argument("--peers", default="physhand_mj,mujoco_flex", help="which to run (comma-separated)")
     ap.add_argument("--out", default=str(ROOT / "docs/benchmarks/flex_two_way_cpu.json"), help="JSON path")
     args = ap.parse_args()
     asset = ph.load_asset(args.slab) if args.slab else soft_slab()
     meas = BoxMeasure(asset)
     makes = {"physhand_mj": PhysSlab, "mujoco_flex": FlexSlab}
-    out = dict(device="cpu", mass_kg=MASS, box_half_m=list(HALF), flex=dict(young=3.0e4, poisson=0.3, timestep=0.005 / STEPS,
+    out = dict(device="cpu", cpu=device_name("cpu"), args=vars(args), mass_kg=MASS, box_half_m=list(HALF), flex=dict(young=3.0e4, poisson=0.3, timestep=0.005 / STEPS,
                integrator="euler"), ramps=[], drops=[])
     for peer in args.peers.split(","):
         make = makes[peer]
-        d = drop(make, asset, meas)
+        d = drop(make, asset, meas, args.drop)
         d["peer"] = peer
         out["drops"].append(d)
         print(json.dumps(d), flush=True)
-        for mu in [float(v) for v in args.mu.split(",")]:
+        for mu in [float(v) for v in (args.flex_mu if peer == "mujoco_flex" else args.mu).split(",")]:
             for sign in (-1, 1):
-                r = ramp(make, asset, mu, np.arctan(mu) + sign * np.radians(2.0), args.hold)
+                r = ramp(make, asset, mu, np.arctan(mu) + sign * np.radians(2.0), args.hold, args.level, args.turn)
                 r["peer"] = peer
                 out["ramps"].append(r)
                 print(json.dumps(r), flush=True)
