@@ -53,3 +53,38 @@ def test_two_way_holds_what_one_way_drops():
     for obj in ("apple", "box"):
         worst, _ = hold(obj, ph.Config(two_way=True))
         assert worst < 0.02, (obj, worst)
+
+
+@pytest.mark.soak  # 10,000 frames (5,000 env steps; ~15 min on a shared 2-core CPU): `pytest -m soak tests/test_dmc_two_way.py`
+def test_the_skin_holds_the_apple_for_10000_frames():
+    """The apple held by the skin (two-way, gravity down, the reset's ctrl held) for 50 s of simulated
+    time: finite; no drift (under 2 mm between frames 1,000 and 10,000, after the first settling
+    under gravity); no jitter growing (the apple's velocity RMS over the last 1,000 frames no more
+    than over frames 1,000-2,000, plus 0.1 mm/s); still within 2 cm of its start."""
+    env = suite.load("hand_hold", "apple", task_kwargs=dict(random=0, gravity="down", config=ph.Config(two_way=True),
+                                                           time_limit=50.0))
+    ts = env.reset()
+    act = env.task.normalise_ctrl(env.physics, env.physics.data.ctrl.copy())
+    qa, va = env.task._qadr, env.task._vadr
+    d = env.physics.data
+    pos, vel = [], []
+    while not ts.last():  # an env step is 2 frames: sample k holds frame 2 (k + 1)
+        ts = env.step(act)
+        pos.append(d.qpos[qa: qa + 3].copy())
+        vel.append(d.qvel[va: va + 3].copy())
+    pos, vel = np.array(pos), np.array(vel)
+    assert len(pos) == 5000 and np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))
+    rms = lambda v: float(np.sqrt(np.mean(np.sum(v * v, axis=1))))  # noqa: E731
+    drift = float(np.linalg.norm(pos[-1] - pos[499]))
+    first, last = rms(vel[500:1000]), rms(vel[-500:])
+    offset = float(np.linalg.norm(pos - env.task._start, axis=1).max())
+    m = env.physics.soft.metrics()
+    c = env.physics.soft.contacts()["objects"]["apple"]
+    print(f"apple soak: drift {drift * 1e3:.3f} mm (frames 1,000-10,000), largest offset {offset * 1e3:.2f} mm, "
+          f"velocity RMS {first * 1e3:.4f} mm/s (frames 1,000-2,000) -> {last * 1e3:.4f} mm/s (last 1,000), "
+          f"skin force {np.round(c['force'], 3)} N, skin samples in the apple {m['penetration_count']} "
+          f"(deepest {m['penetration_max_um']:.0f} um), apple points in the skin {m['object_in_skin_count']} "
+          f"(deepest {m['object_in_skin_max_um']:.0f} um)")
+    assert drift < 2.0e-3, drift
+    assert last <= first + 1.0e-4, (first, last)
+    assert offset < 0.02, offset
