@@ -77,11 +77,16 @@ def test_the_skin_holds_the_apple_for_10000_frames():
     rms = lambda v: float(np.sqrt(np.mean(np.sum(v * v, axis=1))))  # noqa: E731
     drift = float(np.linalg.norm(pos[-1] - pos[499]))
     first, last = rms(vel[500:1000]), rms(vel[-500:])
+    # the motion itself: velocity from positions an env step apart, and the positions' spread
+    step = np.diff(pos, axis=0) / env.control_timestep()
+    moved = rms(step[500:999]), rms(step[-499:])
+    spread = float(np.linalg.norm(pos[500:1000].std(0))), float(np.linalg.norm(pos[-500:].std(0)))
     offset = float(np.linalg.norm(pos - env.task._start, axis=1).max())
     m = env.physics.soft.metrics()
     c = env.physics.soft.contacts()["objects"]["apple"]
     print(f"apple soak: drift {drift * 1e3:.3f} mm (frames 1,000-10,000), largest offset {offset * 1e3:.2f} mm, "
           f"velocity RMS {first * 1e3:.4f} mm/s (frames 1,000-2,000) -> {last * 1e3:.4f} mm/s (last 1,000), "
+          f"from positions {moved[0] * 1e3:.4f} -> {moved[1] * 1e3:.4f} mm/s, spread {spread[0] * 1e6:.1f} -> {spread[1] * 1e6:.1f} um, "
           f"skin force {np.round(c['force'], 3)} N, skin samples in the apple {m['penetration_count']} "
           f"(deepest {m['penetration_max_um']:.0f} um), apple points in the skin {m['object_in_skin_count']} "
           f"(deepest {m['object_in_skin_max_um']:.0f} um)")
