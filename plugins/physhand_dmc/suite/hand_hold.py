@@ -13,11 +13,15 @@ gravity 20 cm from the palm catches a dropped object.
 
 Holding by the skin (``Config(two_way=True)``, docs/coupling.md): the HOI keyframes start with the
 skin 2.5-3.8 mm into the object, which the skin, now pushing, would throw out of an unbalanced grasp.
-So with two-way coupling the reset by default (1) sets the position targets to ``squeeze`` (1.2) x
-the keyframe's joint angles, so the actuators press the fingers onto the object, and (2) runs
-``float_frames`` (60: 0.3 s) with gravity off, in which the object settles where the skin's and the
-proxies' pushes balance; the episode (and its start position) begins there. One-way coupling keeps
-the keyframe as it was (squeeze 1, no float). ``object_proxies=False`` takes the object out of the
+So with two-way coupling the reset by default (1) starts from the object's holding grasp where it
+has one (``grasp="hold"``: glass1, glass2, the phone, the toothpaste, whose HOI keyframes touch the
+object on the palm's side only; a second keyframe ``hold`` from ``hand_hold_grasps.json``, made by
+``benchmarks/hold_grasps.py``: the object on the palm, the hand closed round it, the thumb opposing),
+else from the HOI keyframe with the position targets at ``squeeze`` (1.2) x its joint angles, so the
+actuators press the fingers onto the object, and (2) runs ``float_frames`` (60: 0.3 s) with gravity
+off, in which the object settles where the skin's and the proxies' pushes balance; the episode (and
+its start position) begins there. One-way coupling keeps the HOI keyframe as it was (squeeze 1, no
+float); every option can be set either way. ``object_proxies=False`` takes the object out of the
 proxies' MuJoCo collisions (the skin alone holds it).
 
 Reward (in [0, 1]): ``hold * (0.5 + 0.5 * firm) * no_penetration`` with ``hold`` = 1 while the
