@@ -57,7 +57,7 @@ def test_holding_grasps_are_reachable_targets():
         hand_hold.build_model("apple", "down", grasp="hold")
     with pytest.raises(ValueError, match="grasp must be"):
         hand_hold.build_model("glass1", "down", grasp="fist")
-    obj = sorted(hand_hold.HOLD_GRASPS)[0]
+    obj = min(hand_hold.HOLD_GRASPS)
     env = suite.load("hand_hold", obj, task_kwargs=dict(random=0, config=ph.Config(two_way=True)))
     assert env.task.grasp == "hold" and env.task.squeeze == 1.0
 
@@ -112,7 +112,10 @@ def test_the_skin_holds_the_apple_for_10000_frames():
         vel.append(d.qvel[va: va + 3].copy())
     pos, vel = np.array(pos), np.array(vel)
     assert len(pos) == 5000 and np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))
-    rms = lambda v: float(np.sqrt(np.mean(np.sum(v * v, axis=1))))  # noqa: E731
+
+    def rms(v):
+        return float(np.sqrt(np.mean(np.sum(v * v, axis=1))))
+
     drift = float(np.linalg.norm(pos[-1] - pos[499]))
     first, last = rms(vel[500:1000]), rms(vel[-500:])
     # the motion itself: velocity from positions an env step apart, and the positions' spread
