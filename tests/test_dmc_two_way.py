@@ -93,7 +93,7 @@ def test_the_skin_holds_from_the_holding_grasp(obj):
     assert env.physics.soft.contacts()["objects"][obj]["force"][2] > 0.3
 
 
-@pytest.mark.soak  # 10,000 frames (5,000 env steps; ~23 min on the shared 2-core CPU): `pytest -m soak tests/test_dmc_two_way.py`
+@pytest.mark.soak  # 10,000 frames (5,000 env steps; 11-23 min on the shared 2-core CPU): `pytest -m soak tests/test_dmc_two_way.py`
 def test_the_skin_holds_the_apple_for_10000_frames():
     """The apple held by the skin (two-way, gravity down, the reset's ctrl held) for 50 s of simulated
     time: finite; no drift (under 2 mm between frames 1,000 and 10,000, after the first settling
