@@ -13,11 +13,15 @@ gravity 20 cm from the palm catches a dropped object.
 
 Holding by the skin (``Config(two_way=True)``, docs/coupling.md): the HOI keyframes start with the
 skin 2.5-3.8 mm into the object, which the skin, now pushing, would throw out of an unbalanced grasp.
-So with two-way coupling the reset by default (1) sets the position targets to ``squeeze`` (1.2) x
-the keyframe's joint angles, so the actuators press the fingers onto the object, and (2) runs
-``float_frames`` (60: 0.3 s) with gravity off, in which the object settles where the skin's and the
-proxies' pushes balance; the episode (and its start position) begins there. One-way coupling keeps
-the keyframe as it was (squeeze 1, no float). ``object_proxies=False`` takes the object out of the
+So with two-way coupling the reset by default (1) starts from the object's holding grasp where it
+has one (``grasp="hold"``: glass1, glass2, the phone, the toothpaste, whose HOI keyframes touch the
+object on the palm's side only; a second keyframe ``hold`` from ``hand_hold_grasps.json``, made by
+``benchmarks/hold_grasps.py``: the object on the palm, the hand closed round it, the thumb opposing),
+else from the HOI keyframe with the position targets at ``squeeze`` (1.2) x its joint angles, so the
+actuators press the fingers onto the object, and (2) runs ``float_frames`` (60: 0.3 s) with gravity
+off, in which the object settles where the skin's and the proxies' pushes balance; the episode (and
+its start position) begins there. One-way coupling keeps the HOI keyframe as it was (squeeze 1, no
+float); every option can be set either way. ``object_proxies=False`` takes the object out of the
 proxies' MuJoCo collisions (the skin alone holds it).
 
 Reward (in [0, 1]): ``hold * (0.5 + 0.5 * firm) * no_penetration`` with ``hold`` = 1 while the
@@ -28,6 +32,7 @@ while the skin's deepest penetrating sample is < 0.05 mm (0.1 at 1.05 mm).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mujoco
@@ -40,6 +45,10 @@ from physhand_dmc.task import SoftTask, check_nonneg, check_positive, make_envir
 from physhand_mj.hand_mjcf import SCENES_DIR
 
 XML = Path(__file__).with_suffix(".xml")
+# Holding grasps (a second keyframe "hold") for the objects whose HOI keyframe the skin cannot hold
+# against gravity along the palm: hand qpos, ctrl targets and the object's pose (benchmarks/hold_grasps.py).
+HOLD_GRASPS = json.loads(Path(__file__).with_name("hand_hold_grasps.json").read_text())
+GRASPS = ("hoi", "hold")
 OBJECTS = ("apple", "bowl", "box", "glass1", "glass2", "phone", "toothpaste")
 # Object masses (kg): light household objects (an empty glass, a small apple, ...).
 MASS = dict(apple=0.12, bowl=0.15, box=0.10, glass1=0.15, glass2=0.15, phone=0.15, toothpaste=0.10)
@@ -52,8 +61,9 @@ SQUEEZE, FLOAT_FRAMES = 1.2, 60
 SUITE = containers.TaggedTasks()
 
 
-def build_model(obj: str, gravity: str = "palm") -> mujoco.MjModel:
-    """The domain XML with ``obj`` (free, colliding with the hand's proxies) and its grasp keyframe."""
+def build_model(obj: str, gravity: str = "palm", grasp: str = "hoi") -> mujoco.MjModel:
+    """The domain XML with ``obj`` (free, colliding with the hand's proxies) and its grasp keyframe
+    ``grasp`` (the HOI scene's); ``grasp="hold"`` adds the holding grasp as a second keyframe ``hold``."""
     if obj not in OBJECTS:
         raise ValueError(f"unknown object {obj!r}; choose one of {list(OBJECTS)}")
     if gravity not in GRAVITY:
@@ -83,6 +93,14 @@ def build_model(obj: str, gravity: str = "palm") -> mujoco.MjModel:
     nq_hand = len(key.qpos)
     spec.add_key(name="grasp", qpos=list(key.qpos)[:nq_hand] + list(src.pos) + list(src.quat),
                  ctrl=list(key.ctrl), mpos=list(key.mpos), mquat=list(key.mquat))
+    if grasp not in GRASPS:
+        raise ValueError(f"grasp must be one of {list(GRASPS)}, got {grasp!r}")
+    if grasp == "hold":
+        if obj not in HOLD_GRASPS:
+            raise ValueError(f"no holding grasp for {obj!r} (have {sorted(HOLD_GRASPS)}); use grasp='hoi'")
+        h = HOLD_GRASPS[obj]
+        spec.add_key(name="hold", qpos=h["qpos"] + h["pos"] + h["quat"], ctrl=h["ctrl"], mpos=list(key.mpos),
+                     mquat=list(key.mquat))
     return spec.compile()
 
 
@@ -96,8 +114,8 @@ def without_proxies(model: mujoco.MjModel, obj: str) -> None:
             model.geom_contype[g], model.geom_conaffinity[g] = 3, 3
 
 
-def make_physics(obj: str, gravity: str, config, object_proxies: bool = True) -> SoftPhysics:
-    model = build_model(obj, gravity)
+def make_physics(obj: str, gravity: str, config, object_proxies: bool = True, grasp: str = "hoi") -> SoftPhysics:
+    model = build_model(obj, gravity, grasp)
     if not object_proxies:
         without_proxies(model, obj)
     physics = SoftPhysics.from_model(wrapper.MjModel(model))
@@ -110,9 +128,12 @@ class Hold(SoftTask):
     """Keep the object in the hand, in firm soft contact, without penetration."""
 
     def __init__(self, obj: str, random=None, settle_frames: int = 20, object_jitter: float = 0.002,
-                 min_force: float = 1.0, squeeze: float = 1.0, float_frames: int = 0):
+                 min_force: float = 1.0, squeeze: float = 1.0, float_frames: int = 0, grasp: str = "hoi"):
         super().__init__(random=random, settle_frames=settle_frames)
         self.obj = obj
+        if grasp not in GRASPS:
+            raise ValueError(f"grasp must be one of {list(GRASPS)}, got {grasp!r}")
+        self.grasp = grasp
         self.squeeze = check_positive("squeeze", squeeze, "x the keyframe's joint angles")
         if not (isinstance(float_frames, (int, np.integer)) and float_frames >= 0):
             raise ValueError(f"float_frames must be an integer >= 0 (MuJoCo steps), got {float_frames!r}")
@@ -130,7 +151,7 @@ class Hold(SoftTask):
     def initialize_episode(self, physics):
         m, d = physics.model, physics.data
         self._bind_once(physics)
-        mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0)
+        mujoco.mj_resetDataKeyframe(m.ptr, d.ptr, 0 if self.grasp == "hoi" else m.name2id("hold", "key"))
         if self.squeeze != 1.0:  # the fingers pressed onto the object: targets past the keyframe's pose
             d.ctrl[:] = np.clip(d.ctrl * self.squeeze, m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1])
         d.qpos[self._qadr: self._qadr + 3] += self.random.uniform(-self.object_jitter, self.object_jitter, 3)
@@ -165,14 +186,16 @@ class Hold(SoftTask):
 def _task(obj: str):
     def task(time_limit=_DEFAULT_TIME_LIMIT, random=None, environment_kwargs=None, *, settle_frames=20,
              object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP,
-             squeeze=None, float_frames=None, object_proxies=True):
+             squeeze=None, float_frames=None, object_proxies=True, grasp=None):
         check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
         two_way = bool(getattr(config, "two_way", False))
-        squeeze = (SQUEEZE if two_way else 1.0) if squeeze is None else squeeze
+        if grasp is None:  # two-way: the holding grasp where the object has one
+            grasp = "hold" if two_way and obj in HOLD_GRASPS else "hoi"
+        squeeze = (SQUEEZE if two_way and grasp == "hoi" else 1.0) if squeeze is None else squeeze
         float_frames = (FLOAT_FRAMES if two_way else 0) if float_frames is None else float_frames
         t = Hold(obj, random=random, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force,
-                 squeeze=squeeze, float_frames=float_frames)
-        physics = make_physics(obj, gravity, config, object_proxies)
+                 squeeze=squeeze, float_frames=float_frames, grasp=grasp)
+        physics = make_physics(obj, gravity, config, object_proxies, grasp)
         return make_environment(physics, t, time_limit, control_timestep, environment_kwargs)
 
     task.__name__ = task.__qualname__ = obj
