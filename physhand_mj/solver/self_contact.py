@@ -163,7 +163,6 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
                faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
                vn_now: wp.array(dtype=wp.vec3), fold_gap: float,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
-               cand_side: wp.array2d(dtype=float), thickness: float,
                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
                counts: wp.array(dtype=int)):
     """Per skin vertex, the skin triangles within ``margin`` that the rest filter keeps (the nearest
@@ -223,14 +222,9 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
         nearest_kept = wp.min(nearest_kept, d)
         if d > margin or (dr < rest_gap and not folded):
             continue
-        q3 = uv[0] * x[a] + uv[1] * x[b] + (1.0 - uv[0] - uv[1]) * x[c]
-        sd = float(1.0)  # the side the vertex lies on at listing (for an experiment)
-        if wp.dot(p - q3, wp.cross(x[b] - x[a], x[c] - x[a])) < -thickness * wp.length(wp.cross(x[b] - x[a], x[c] - x[a])):
-            sd = -1.0
         if n < SLOTS:
             cand[v, n] = t
             cand_d[v, n] = d
-            cand_side[v, n] = sd
             n += 1
         else:  # full: replace the farthest if this one is nearer
             far = int(0)
@@ -240,7 +234,6 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
             if d < cand_d[v, far]:
                 cand[v, far] = t
                 cand_d[v, far] = d
-                cand_side[v, far] = sd
             wp.atomic_add(counts, 3, 1)
     cand_n[v] = n
     slack[v] = nearest_kept - margin
@@ -308,8 +301,7 @@ def vertex_normals(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), vn:
 @wp.func
 def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
              thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3), vmode: int,
-             side: float,
+             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
              delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
              dprev: wp.array(dtype=wp.vec3)):
     """Vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
@@ -331,8 +323,7 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
     wb = bu[1]
     wc = 1.0 - bu[0] - bu[1]
     q = wa * xa + wb * xb + wc * xc
-    s = wp.dot(p - q, nrm) * side
-    nrm = nrm * side
+    s = wp.dot(p - q, nrm)
     if s >= thickness or s < -depth:
         return
     w = inv_mass[v] + wa * wa * inv_mass[a] + wb * wb * inv_mass[b] + wc * wc * inv_mass[c]
@@ -345,12 +336,12 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
         tk = wp.min(tk, _room(b, -wb * inv_mass[b] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
         tk = wp.min(tk, _room(c, -wc * inv_mass[c] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
         dl = dl * tk
-    fr = float(0.0)  # the share of the correction that moves x_prev too (adds no velocity)
-    if vmode == 1:
-        fr = 1.0
-    elif vmode == 2:  # the depth the pair already had at the substep's start: resolved without velocity
-        s0 = wp.dot(x_prev[v] - (wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]), nrm)
-        fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
+    # The share of the correction that resolves the depth the pair already had at the substep's start
+    # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
+    # substep with no relative normal velocity instead of flying apart at depth / h. Without it the
+    # held fist's skin jumps up to ~5 mm a frame (docs/self_collision.md "A held fist").
+    s0 = wp.dot(x_prev[v] - (wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]), nrm)
+    fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
     if fr > 0.0:
         wp.atomic_add(dprev, v, fr * inv_mass[v] * dl * nrm)
         wp.atomic_add(dprev, a, -fr * wa * inv_mass[a] * dl * nrm)
@@ -374,8 +365,7 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
 def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
             vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
             thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3), vmode: int,
-            cand_side: wp.array2d(dtype=float), use_side: int,
+            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
             dprev: wp.array(dtype=wp.vec3)):
     """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
@@ -386,7 +376,6 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
     v = vlist[i]
     p = x[v]
     best = int(-1)
-    bk = int(-1)
     if pick != 0:
         bd = float(1.0e30)
         for k in range(cand_n[v]):
@@ -397,22 +386,17 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
             if d < bd:
                 bd = d
                 best = t
-                bk = k
-        nearest[v] = bk
+        nearest[v] = best
     else:
-        bk = nearest[v]
-    if bk < 0:
+        best = nearest[v]
+    if best < 0:
         return
-    best = cand[v, bk]
-    side = float(1.0)
-    if use_side != 0:
-        side = cand_side[v, bk]
-    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev, vmode, side,
+    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev,
              delta, hits, active, dprev)
 
 
 @wp.kernel
-def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), relax: float, x: wp.array(dtype=wp.vec3),
+def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), x: wp.array(dtype=wp.vec3),
           delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), x_prev: wp.array(dtype=wp.vec3),
           dprev: wp.array(dtype=wp.vec3)):
     """The pass's corrections, averaged per vertex (over the involved list), then zeroed."""
@@ -422,8 +406,8 @@ def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), relax: float, x
     i = involved[k]
     h = hits[i]
     if h > 0:
-        x[i] = x[i] + delta[i] * (relax / float(h))
-        x_prev[i] = x_prev[i] + dprev[i] * (relax / float(h))
+        x[i] = x[i] + delta[i] / float(h)
+        x_prev[i] = x_prev[i] + dprev[i] / float(h)
         delta[i] = wp.vec3()
         dprev[i] = wp.vec3()
         hits[i] = 0
@@ -466,7 +450,6 @@ class SelfContact:
         self.cand = wp.zeros((ns, SLOTS), dtype=int, device=d)
         self.cand_d = wp.zeros((ns, SLOTS), dtype=float, device=d)
         self.cand_n = wp.zeros(ns, dtype=int, device=d)
-        self.cand_side = wp.zeros((ns, SLOTS), dtype=float, device=d)
         self.dprev = wp.zeros(ns, dtype=wp.vec3, device=d)
         self.vlist = wp.zeros(ns, dtype=int, device=d)
         self.involved = wp.zeros(ns, dtype=int, device=d)
@@ -533,7 +516,7 @@ class SelfContact:
         rec.launch(broadphase, self.n_skin,
                    [self.qcount, self.qlist, reach, self.slack, mesh.id, state.x, self.rest, self.faces, self.rest_ball,
                     float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP)],
-                   [self.cand, self.cand_d, self.cand_n, self.cand_side, float(cfg.self_thickness), self.vlist, self.involved, self.mark, self.counts],
+                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts],
                    count=self.qcount)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
@@ -541,18 +524,13 @@ class SelfContact:
     def record_stage(self, rec, state, inv_mass) -> None:
         """A substep's correction: ``self_passes`` x (resolve, apply) over the frame's lists."""
         cfg = self.config
-        import os
-        vmode = int(os.environ.get("SC_VMODE", "0"))
-        relax = float(os.environ.get("SC_RELAX", "1"))
-        use_side = int(os.environ.get("SC_SIDE", "0"))
         for k in range(cfg.self_passes):
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
                         float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
-                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0, state.x_prev, vmode,
-                        self.cand_side, use_side],
+                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0, state.x_prev],
                        [self.delta, self.hits, self.active, self.dprev], count=self.vcount)
-            rec.launch(apply, self.n_skin, [self.icount, self.involved, relax],
+            rec.launch(apply, self.n_skin, [self.icount, self.involved],
                        [state.x, self.delta, self.hits, state.x_prev, self.dprev], count=self.icount)
 
     def report(self) -> dict:
