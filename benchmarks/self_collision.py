@@ -10,7 +10,8 @@ first (which compiles), wall and the calling thread's CPU time (Warp's CPU kerne
 figure other processes on a shared host disturb least); modes run one after the other in the same
 process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs. Reported with the option on: the
 last frame's vertices queried (``self_queried``), self-collision launches run (``self_ops_run``),
-listed vertices and pairs, corrections.
+listed vertices and pairs, corrections. Every run: the skin's move over the last frame (vertices
+moving more than 0.5 mm, the largest; a held fist: ``--keys power --modes on --frames 120``).
 """
 
 import argparse
@@ -38,18 +39,24 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     cfg = ph.Config.from_dict(opts)
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
     times, cpu, res = [], [], {}
-    for _ in range(frames):
+    ns, last = hand.asset.n_skin, None
+    for f in range(frames):
         mujoco.mj_step(model, data)
         t, c = time.perf_counter(), time.thread_time()
         res = hand.step()
         times.append(time.perf_counter() - t)
         cpu.append(time.thread_time() - c)
+        if f == frames - 2:
+            last = hand.state.x.numpy()[:ns].astype(float)
     x = hand.solver.state_positions(hand.state) if hasattr(hand.solver, "state_positions") else hand.state.x.numpy()
     a = hand.asset
     out = dict(key=key, self_collision=self_collision, frames=frames,
                ms_frame=float(np.median(times[1:]) * 1e3) if frames > 1 else None,
                cpu_ms_frame=float(np.median(cpu[1:]) * 1e3) if frames > 1 else None,
                finite=bool(np.all(np.isfinite(x))), guard_inverted=int(res.get("inverted", -1)))
+    if last is not None:  # the skin's move over the last frame (a held pose at rest: ~0)
+        mv = np.linalg.norm(np.asarray(x, float)[:ns] - last, axis=1)
+        out.update(skin_moved_over_05mm=int((mv > 5e-4).sum()), skin_move_max_mm=round(float(mv.max()) * 1e3, 3))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:

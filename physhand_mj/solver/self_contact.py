@@ -301,8 +301,9 @@ def vertex_normals(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), vn:
 @wp.func
 def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
              thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
-             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
+             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
+             dprev: wp.array(dtype=wp.vec3)):
     """Vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
     ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
     p = x[v]
@@ -335,6 +336,17 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
         tk = wp.min(tk, _room(b, -wb * inv_mass[b] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
         tk = wp.min(tk, _room(c, -wc * inv_mass[c] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
         dl = dl * tk
+    # The share of the correction that resolves the depth the pair already had at the substep's start
+    # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
+    # substep with no relative normal velocity instead of flying apart at depth / h. Without it the
+    # held fist's skin jumps up to ~5 mm a frame (docs/self_collision.md "A held fist").
+    s0 = wp.dot(x_prev[v] - (wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]), nrm)
+    fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
+    if fr > 0.0:
+        wp.atomic_add(dprev, v, fr * inv_mass[v] * dl * nrm)
+        wp.atomic_add(dprev, a, -fr * wa * inv_mass[a] * dl * nrm)
+        wp.atomic_add(dprev, b, -fr * wb * inv_mass[b] * dl * nrm)
+        wp.atomic_add(dprev, c, -fr * wc * inv_mass[c] * dl * nrm)
     wp.atomic_add(delta, v, inv_mass[v] * dl * nrm)
     wp.atomic_add(hits, v, 1)
     if inv_mass[a] > 0.0:
@@ -353,8 +365,9 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
 def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
             vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
             thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float),
-            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int)):
+            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
+            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
+            dprev: wp.array(dtype=wp.vec3)):
     """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
     else the one kept by the substep's first pass), the correction (:func:`_correct`)."""
     i = wp.tid()
@@ -378,12 +391,14 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
         best = nearest[v]
     if best < 0:
         return
-    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, delta, hits, active)
+    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev,
+             delta, hits, active, dprev)
 
 
 @wp.kernel
-def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3),
-          hits: wp.array(dtype=int)):
+def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), x: wp.array(dtype=wp.vec3),
+          delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), x_prev: wp.array(dtype=wp.vec3),
+          dprev: wp.array(dtype=wp.vec3)):
     """The pass's corrections, averaged per vertex (over the involved list), then zeroed."""
     k = wp.tid()
     if k >= n[0]:
@@ -392,7 +407,9 @@ def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), x: wp.array(dty
     h = hits[i]
     if h > 0:
         x[i] = x[i] + delta[i] / float(h)
+        x_prev[i] = x_prev[i] + dprev[i] / float(h)
         delta[i] = wp.vec3()
+        dprev[i] = wp.vec3()
         hits[i] = 0
 
 
@@ -433,6 +450,7 @@ class SelfContact:
         self.cand = wp.zeros((ns, SLOTS), dtype=int, device=d)
         self.cand_d = wp.zeros((ns, SLOTS), dtype=float, device=d)
         self.cand_n = wp.zeros(ns, dtype=int, device=d)
+        self.dprev = wp.zeros(ns, dtype=wp.vec3, device=d)
         self.vlist = wp.zeros(ns, dtype=int, device=d)
         self.involved = wp.zeros(ns, dtype=int, device=d)
         self.mark = wp.zeros(ns, dtype=int, device=d)
@@ -510,9 +528,10 @@ class SelfContact:
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
                         float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
-                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0],
-                       [self.delta, self.hits, self.active], count=self.vcount)
-            rec.launch(apply, self.n_skin, [self.icount, self.involved], [state.x, self.delta, self.hits], count=self.icount)
+                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0, state.x_prev],
+                       [self.delta, self.hits, self.active, self.dprev], count=self.vcount)
+            rec.launch(apply, self.n_skin, [self.icount, self.involved],
+                       [state.x, self.delta, self.hits, state.x_prev, self.dprev], count=self.icount)
 
     def report(self) -> dict:
         """The last frame's figures: listed vertices and pairs, corrections made (summed over passes)."""
