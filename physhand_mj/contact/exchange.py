@@ -53,8 +53,9 @@ class Exchange:
     that (friction's bound is mu m load / h); fr_obj (S,): the object it touches (-1: none); stick
     (S,) m: the tangential slip against it that its friction has not undone yet (kept while it
     touches); slack m: the longest such slip (STICK_SLACK).
-    The objects, set per frame: obj_com, obj_vel, obj_omega (K,): centre of mass, its velocity (after
-    MuJoCo's step), angular velocity; obj_inv_mass (K,) 1/kg and obj_inv_inertia (K,) 1/(kg m^2): a
+    The objects, set per frame: obj_com, obj_vel, obj_omega (K,): centre of mass, its velocity and angular
+    velocity at the frame's start (before MuJoCo's step); obj_acc, obj_alpha (K,): the step's own linear
+    and angular acceleration (its velocity change over the frame, spread over the substeps); obj_inv_mass (K,) 1/kg and obj_inv_inertia (K,) 1/(kg m^2): a
     free object's (0: the skin does not move it within the frame); obj_mu (K,): its friction
     coefficient against the skin; base_pose (G,): the geoms' poses at the frame's start.
     Their motion in the frame: dv, dw (K,): the velocity the skin has given each so far; shift (K,) m
@@ -80,6 +81,8 @@ class Exchange:
     slack: float
     obj_vel: wp.array(dtype=wp.vec3)
     obj_omega: wp.array(dtype=wp.vec3)
+    obj_acc: wp.array(dtype=wp.vec3)
+    obj_alpha: wp.array(dtype=wp.vec3)
     obj_fric: wp.array(dtype=wp.vec3)
     obj_com: wp.array(dtype=wp.vec3)
     obj_inv_mass: wp.array(dtype=float)
@@ -120,7 +123,7 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     e.body = model.skin_body if on else wp.zeros(0, dtype=int, device=d)
     e.h = float(h)
     vec = {name: wp.zeros(k, dtype=wp.vec3, device=d) for name in (
-        "obj_vel", "obj_omega", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang",
+        "obj_vel", "obj_omega", "obj_acc", "obj_alpha", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang",
         "agg_n", "agg_vb", "prev_n", "prev_vb")}
     vec.update({name: wp.zeros(b, dtype=wp.vec3, device=d) for name in ("bone_com", "bone_vel", "bone_omega", "bone_lin",
                                                                         "bone_ang")})
@@ -162,6 +165,19 @@ STICK_SLACK = 1.0e-4
 # m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
 # feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
 TOUCH_GAP = wp.constant(5.0e-4)
+
+
+@wp.func
+def obj_lin_vel(ex: Exchange, k: int):
+    """Object ``k``'s velocity in the current substep (the ``steps``-th): its frame's start velocity,
+    the physics step's acceleration over the substeps so far and the skin's impulses so far."""
+    return ex.obj_vel[k] + ex.obj_acc[k] * (float(ex.steps[k]) * ex.h) + ex.dv[k]
+
+
+@wp.func
+def obj_ang_vel(ex: Exchange, k: int):
+    """Object ``k``'s angular velocity in the current substep (as :func:`obj_lin_vel`)."""
+    return ex.obj_omega[k] + ex.obj_alpha[k] * (float(ex.steps[k]) * ex.h) + ex.dw[k]
 
 
 @wp.func
@@ -213,7 +229,8 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
         return
     ex.load[i] = load
     r = xi - ex.obj_com[k] - ex.shift[k]
-    vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
+    vo = obj_lin_vel(ex, k)
+    vel = vo + wp.cross(obj_ang_vel(ex, k), r)
     b = ex.body[i]
     if b >= 0 and ex.damp > 0.0:  # the flesh's damping: the object's normal velocity relative to the
         # bones under it (the previous substep's load-weighted means) decays, shared by load. (Damped at
@@ -228,7 +245,7 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
         im = ex.obj_inv_mass[k]
         if pl > 0.0 and im > 0.0 and ex.mass[i] > 0.0:
             nk = wp.normalize(ex.prev_n[k])
-            vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
+            vn = wp.dot(vo - ex.prev_vb[k] / pl, nk)
             jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
             record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
     u = ex.stick[i] + xi - x_start[i] - vel * ex.h
@@ -306,16 +323,17 @@ def take_impulses(ex: Exchange):
 
 @wp.kernel
 def move_objects(ex: Exchange):
-    """Before a substep's contact: each movable object moves over the substep with its velocity
-    (MuJoCo's after its step, plus what the skin has changed in the frame so far). Its frame pose is
-    the one MuJoCo's step started from, so its whole motion in the frame is integrated here, at the
-    substep rate, with the skin's force in it."""
+    """Before a substep's contact: each movable object moves over the substep with its velocity (its
+    velocity at the frame's start, plus the physics step's acceleration over the substeps so far and
+    what the skin has changed in the frame so far: :func:`obj_lin_vel`). Its frame pose is the one
+    MuJoCo's step started from, so its whole motion in the frame is integrated here, at the substep
+    rate, with the skin's force in it."""
     k = wp.tid()
     if ex.obj_inv_mass[k] <= 0.0:
         return
     ex.steps[k] = ex.steps[k] + 1
-    ex.shift[k] = ex.shift[k] + (ex.obj_vel[k] + ex.dv[k]) * ex.h
-    w = ex.obj_omega[k] + ex.dw[k]
+    ex.shift[k] = ex.shift[k] + obj_lin_vel(ex, k) * ex.h
+    w = obj_ang_vel(ex, k)
     a = wp.length(w) * ex.h
     if a > 0.0:
         ex.turn[k] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(w), a) * ex.turn[k])
@@ -352,10 +370,10 @@ def zero_ops(ex: Exchange, objects=None) -> list:
 
 
 # the per-frame traffic with the host, packed (one upload and one read-back a frame: on CUDA each
-# array's own copy cost a sync): per object [com 3, vel 3, omega 3, inv_mass, inv_inertia 9, mu] in,
+# array's own copy cost a sync): per object [com 3, vel 3, omega 3, inv_mass, inv_inertia 9, mu, acc 3, alpha 3] in,
 # [lin 3, ang 3, fric 3, dv 3, dw 3, shift 3, turn 4, steps] out; per bone [com 3, vel 3, omega 3] in, [lin 3,
 # ang 3] out
-IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 20, 9, 23, 6
+IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 26, 9, 23, 6
 
 
 @wp.func
@@ -383,6 +401,8 @@ def unpack_inputs(ex: Exchange, buf: wp.array(dtype=float), n_obj: int, n_bone: 
         ex.obj_inv_inertia[t] = wp.mat33(buf[a + 10], buf[a + 11], buf[a + 12], buf[a + 13], buf[a + 14], buf[a + 15],
                                          buf[a + 16], buf[a + 17], buf[a + 18])
         ex.obj_mu[t] = buf[a + 19]
+        ex.obj_acc[t] = _v3(buf, a + 20)
+        ex.obj_alpha[t] = _v3(buf, a + 23)
     if t < n_bone:
         a = n_obj * IN_OBJ + t * IN_BONE
         ex.bone_com[t] = _v3(buf, a)
@@ -474,10 +494,12 @@ class TwoWay:
             rec.launch(take_impulses, self.n_obj, [self.data], [])
 
     def set_state(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None,
-                  bone_vel=None, bone_omega=None) -> None:
+                  bone_vel=None, bone_omega=None, obj_acc=None, obj_alpha=None) -> None:
         """The objects' state for the next frame (world frame, ``Objects.object_names`` order): centres
         of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular velocities
-        ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body order), about
+        ``obj_omega`` (K, 3) rad/s at the frame's start; ``obj_acc`` / ``obj_alpha`` (K, 3) m/s^2,
+        rad/s^2: the physics step's own acceleration of each, spread over the frame's substeps (None:
+        0, the velocity as given for the whole frame); the bones' centres ``bone_com`` (B, 3) m (asset body order), about
         which torques are taken; ``obj_mu`` (K,): friction coefficients; ``inv_mass`` (K,) 1/kg and
         ``inv_inertia`` (K, 3, 3) 1/(kg m^2): the objects the skin moves within the frame (0: none);
         ``bone_vel`` / ``bone_omega`` (B, 3): the bones' velocities, m/s at their centres and rad/s
@@ -489,6 +511,8 @@ class TwoWay:
         bo = self._in[k * IN_OBJ:].reshape(b, IN_BONE)
         n = len(np.asarray(obj_com).reshape(-1, 3))
         o[:n, 0:3], o[:n, 3:6], o[:n, 6:9] = (np.asarray(v, np.float32).reshape(-1, 3) for v in (obj_com, obj_vel, obj_omega))
+        o[:n, 20:23] = 0.0 if obj_acc is None else np.asarray(obj_acc, np.float32).reshape(-1, 3)
+        o[:n, 23:26] = 0.0 if obj_alpha is None else np.asarray(obj_alpha, np.float32).reshape(-1, 3)
         nb = len(np.asarray(bone_com).reshape(-1, 3))
         bo[:nb, 0:3] = np.asarray(bone_com, np.float32).reshape(-1, 3)
         if obj_mu is not None:
