@@ -674,7 +674,7 @@ class BatchTwoWay:
         shift = np.where(touched[..., None], shift, 0.0)
         turn = np.where(touched[..., None], turn, np.array([1.0, 0.0, 0.0, 0.0]))
         t = (h * (s - done))[..., None]
-        ramp = (h * h * (s * (s + 1) - done * (done + 1)) / 2)[..., None]
+        ramp = (h * h * (s * (s - 1) - done * (done - 1)) / 2)[..., None]
         vr = np.where(touched[..., None], f["start"] + dv, f["vel"]) + np.where(touched[..., None], f["acc"], 0.0) * (
             ramp / np.maximum(t, 1e-30))
         late = moved & (s - done > 0)

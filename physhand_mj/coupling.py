@@ -333,7 +333,7 @@ class SoftHand:
             if done < s:  # substeps without a stage (Config.contact_every > 1, or nothing near): the
                 # object moves on over them with its velocity there (the step's acceleration spread on)
                 h = self.config.frame_dt / s
-                t, ramp = h * (s - done), h * h * (s * (s + 1) - done * (done + 1)) / 2  # sum of j h h, j > done
+                t, ramp = h * (s - done), h * h * (s * (s - 1) - done * (done - 1)) / 2  # sum of (j - 1) h h, j > done
                 start = self._obj_vel[k] - self._obj_acc[k] * self.config.frame_dt
                 shift += (start[3:] + w["dv"][k]) * t + self._obj_acc[k, 3:] * ramp
                 omega = start[:3] + w["dw"][k] + self._obj_acc[k, :3] * (ramp / t)

@@ -169,15 +169,16 @@ TOUCH_GAP = wp.constant(5.0e-4)
 
 @wp.func
 def obj_lin_vel(ex: Exchange, k: int):
-    """Object ``k``'s velocity in the current substep (the ``steps``-th): its frame's start velocity,
-    the physics step's acceleration over the substeps so far and the skin's impulses so far."""
-    return ex.obj_vel[k] + ex.obj_acc[k] * (float(ex.steps[k]) * ex.h) + ex.dv[k]
+    """Object ``k``'s velocity in the current substep (the ``steps``-th): its frame's start velocity
+    plus what the physics step's acceleration and the skin's impulses gave it in the substeps before
+    (both act at the end of their substep: an object resting on the skin ends the frame at rest)."""
+    return ex.obj_vel[k] + ex.obj_acc[k] * (float(ex.steps[k] - 1) * ex.h) + ex.dv[k]
 
 
 @wp.func
 def obj_ang_vel(ex: Exchange, k: int):
     """Object ``k``'s angular velocity in the current substep (as :func:`obj_lin_vel`)."""
-    return ex.obj_omega[k] + ex.obj_alpha[k] * (float(ex.steps[k]) * ex.h) + ex.dw[k]
+    return ex.obj_omega[k] + ex.obj_alpha[k] * (float(ex.steps[k] - 1) * ex.h) + ex.dw[k]
 
 
 @wp.func
