@@ -9,18 +9,20 @@ the bones, the objects moved by them within the frame, and the skin's Coulomb fr
   correction to the sums as ``query.apply_vertex`` applies it; each correction lands once on each
   side, so the forces on objects and on bones sum to zero to float rounding. The object of a
   correction is the one the vertex's last push in that pass came from (``PushSums.vertex_obj``).
-- **Objects moved at the substep rate.** A free object's frame starts from the pose MuJoCo's step
-  started from; before each stage it moves with MuJoCo's velocity plus what the skin has given it so
-  far (:func:`move_objects`, :func:`pose_objects`), after each stage it takes the stage's impulses
-  (:func:`take_impulses`). ``SoftHand`` hands the frame's pose, velocity change and the bones'
-  reaction back to MuJoCo.
+- **Objects moved at the substep rate.** A free object's frame starts from the pose and velocity
+  MuJoCo's step started from; before each stage it moves with that velocity plus what the step's own
+  acceleration (gravity and MuJoCo's other forces, ``qacc``) and the skin have given it in the
+  substeps before (:func:`move_objects`, :func:`pose_objects`), after each stage it takes the
+  stage's impulses (:func:`take_impulses`). The step's velocity change is so spread over the
+  substeps, as the skin's is, instead of landing whole at the frame's start. ``SoftHand`` hands the
+  frame's pose, velocity change and the bones' reaction back to MuJoCo.
 - **Friction** (:func:`skin_friction`, after each stage): each touching vertex's slip against the
   object's surface motion, plus what it still owes from earlier substeps, is undone within mu x its
   running normal load, else cut by that much and the rest owed (up to STICK_SLACK; past it the vertex
-  slides). Owing the slip makes sticking a position constraint: MuJoCo gives a free object its
-  step's velocity change (gravity's g dt) at once at the frame's start, more than a substep's
-  friction can take, and a per-substep bound let the object slip a little every frame (a box held
-  at 1.2 x the bound crept 8 mm/s).
+  slides). Owing the slip makes sticking a position constraint: with the step's velocity change
+  (gravity's g dt) given at once at the frame's start, more than a substep's friction can take, a
+  per-substep bound let the object slip a little every frame (a box held at 1.2 x the bound crept
+  8 mm/s); spread over the substeps as now, the slack is kept for the flesh's own motion.
 - **Damping** (``Config.contact_damping``): a touching object's normal velocity relative to the
   bones under the skin decays over that time, shared over the touching vertices by load.
 - **Host traffic**: one packed upload and one read-back a frame (:func:`unpack_inputs`,
@@ -157,10 +159,10 @@ def touch_load(ex: Exchange, i: int, obj: int, dxn: wp.vec3):
 # pushed out in some substeps and not in others, and its friction bound is the mean normal impulse
 LOAD_RATE = wp.constant(0.25)
 # m: the longest slip a touching skin vertex owes (Exchange.stick); past it the vertex slides and the
-# point it sticks to is dragged along. Within a frame an object held at its friction bound moves
-# about g dt^2 / 2 (0.12 mm at 5 ms) against the skin and back, since MuJoCo's step gives it gravity's
-# g dt at the frame's start (physhand_mj/bench/pinch.py, a 10 g box at 1.25 x the bound: 30 um left it
-# creeping 1 mm/s, 0.1 mm less than 0.1 mm/s)
+# point it sticks to is dragged along. (Chosen when MuJoCo's step gave the object gravity's g dt at
+# the frame's start, which moved an object held at its bound about g dt^2 / 2, 0.12 mm at 5 ms,
+# against the skin and back within the frame: physhand_mj/bench/pinch.py, a 10 g box at 1.25 x the
+# bound: 30 um left it creeping 1 mm/s, 0.1 mm less than 0.1 mm/s)
 STICK_SLACK = 1.0e-4
 # m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
 # feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
