@@ -539,7 +539,11 @@ class BatchTwoWay:
     MuJoCo body. Per frame it takes, for every world (its frame; world frame of a MuJoCo model):
 
     - ``object_vel`` (W, n, 6): [linear m/s of its centre of mass, angular rad/s] after the
-      physics step (a MuJoCo free joint: qvel[0:3] + w x (xipos - xpos), xmat qvel[3:6]);
+      physics step (a MuJoCo free joint: qvel[0:3] + w x (xipos - xpos), xmat qvel[3:6]), and
+      ``object_vel_start`` (W, n, 6): the same before the step (qvel before ``mj_step``, or its qvel -
+      qacc dt after it, as ``SoftHand`` takes it): the step's velocity change is spread over the
+      frame's substeps (default: ``object_vel``, the step's whole velocity change at the frame's
+      start, which the skin's friction must take back within the frame);
     - ``object_com`` (W, n, 3) m: its centre of mass (default: its first geom's position), and
       ``object_iquat`` (W, n, 4) w x y z: its inertial frame (default: its first geom's orientation);
     - ``bone_com`` (W, B, 3) m: the bones' centres, about which their reaction torques are taken
@@ -598,7 +602,7 @@ class BatchTwoWay:
         self._bones_prev = None
 
     def frame_state(self, pos, quat, object_pos, object_quat, object_vel=None, object_com=None, object_iquat=None,
-                    bone_com=None, bone_vel=None) -> dict:
+                    bone_com=None, bone_vel=None, object_vel_start=None) -> dict:
         """The next frame's inputs, checked (see the class), on the host; :meth:`send` uploads them."""
         W, n, B = self.hands.worlds, self.n, self.n_bodies
         op = np.asarray(object_pos, float).reshape(W, -1, 3)
@@ -606,8 +610,9 @@ class BatchTwoWay:
         com = op[:, self.first] if object_com is None else np.asarray(object_com, float)
         iq = oq[:, self.first] if object_iquat is None else np.asarray(object_iquat, float)
         vel = np.zeros((W, n, 6)) if object_vel is None else np.asarray(object_vel, float)
+        v0 = vel if object_vel_start is None else np.asarray(object_vel_start, float)
         for name, a, shape in (("object_com", com, (W, n, 3)), ("object_iquat", iq, (W, n, 4)),
-                               ("object_vel", vel, (W, n, 6))):
+                               ("object_vel", vel, (W, n, 6)), ("object_vel_start", v0, (W, n, 6))):
             if a.shape != shape:
                 raise ValueError(f"Config.two_way: {name} must be {shape} (worlds, objects: {self.names}), got {a.shape}")
         bc = pos if bone_com is None else np.asarray(bone_com, float)
@@ -626,15 +631,16 @@ class BatchTwoWay:
             lin = ang = np.zeros((W, B, 3))
         r = quat_to_mat(iq)  # the world inverse inertia R diag(1/I) R^T of each object
         inv_i = np.einsum("wkij,wkj,wklj->wkil", r, self.inv_inertia, r)
-        return dict(com=com, vel=vel, bone_com=bc, bone_quat=np.array(quat, float), bone_lin=lin, bone_ang=ang,
+        return dict(com=com, vel=vel, start=v0, acc=(vel - v0) / dt, bone_com=bc, bone_quat=np.array(quat, float), bone_lin=lin, bone_ang=ang,
                     inv_i=inv_i)
 
     def send(self, frame: dict) -> None:
         """Upload a frame's inputs (:meth:`frame_state`; after the frame before it finished)."""
         ex = self.exchange
-        ex.set_state(frame["com"].reshape(-1, 3), frame["vel"][..., :3].reshape(-1, 3), frame["vel"][..., 3:].reshape(-1, 3),
-                     frame["bone_com"].reshape(-1, 3), self.mu.reshape(-1), self.inv_mass.reshape(-1),
-                     frame["inv_i"].reshape(-1, 3, 3), frame["bone_lin"].reshape(-1, 3), frame["bone_ang"].reshape(-1, 3))
+        ex.set_state(frame["com"].reshape(-1, 3), frame["start"][..., :3].reshape(-1, 3),
+                     frame["start"][..., 3:].reshape(-1, 3), frame["bone_com"].reshape(-1, 3), self.mu.reshape(-1),
+                     self.inv_mass.reshape(-1), frame["inv_i"].reshape(-1, 3, 3), frame["bone_lin"].reshape(-1, 3),
+                     frame["bone_ang"].reshape(-1, 3), frame["acc"][..., :3].reshape(-1, 3), frame["acc"][..., 3:].reshape(-1, 3))
         self._bones_prev = (frame["bone_com"], frame["bone_quat"])
         self._frame = frame
 
@@ -658,17 +664,26 @@ class BatchTwoWay:
         turn = w["turn"][: W * n].reshape(W, n, 4)[..., [3, 0, 1, 2]]  # x y z w -> w x y z
         dv = np.concatenate([w["dv"][: W * n], w["dw"][: W * n]], 1).reshape(W, n, 6)
         vel = f["vel"] + np.where(moved[..., None], dv, 0.0)
-        rest = cfg.substeps - w["steps"][: W * n].reshape(W, n)
-        t = (cfg.frame_dt / cfg.substeps * rest)[..., None]
-        # substeps without a stage (nothing near, Config.contact_every > 1): an object moves on with its
-        # velocity over them, as the physics step would have moved it (SoftHand._apply_wrenches)
-        late = moved & (rest > 0)
-        shift = np.where(late[..., None], shift + vel[..., :3] * t, shift)
-        spins = late & (np.linalg.norm(vel[..., 3:], axis=-1) * t[..., 0] > 0)
-        turn = np.where(spins[..., None], _qmul(_quat_turn(vel[..., 3:], t), turn), turn)
+        wrench = w["objects"][: W * n].reshape(W, n, 6)
+        touched = np.any(wrench != 0, axis=-1)
+        s, h = cfg.substeps, cfg.frame_dt / cfg.substeps
+        done = np.where(touched, w["steps"][: W * n].reshape(W, n), 0)
+        # substeps without a stage (Config.contact_every > 1, nothing near): an object moves on over them
+        # with its velocity there (the step's acceleration spread on; SoftHand._apply_wrenches); an
+        # untouched one as the physics step moved it (its velocity after the step over the whole frame)
+        shift = np.where(touched[..., None], shift, 0.0)
+        turn = np.where(touched[..., None], turn, np.array([1.0, 0.0, 0.0, 0.0]))
+        t = (h * (s - done))[..., None]
+        ramp = (h * h * (s * (s - 1) - done * (done - 1)) / 2)[..., None]
+        vr = np.where(touched[..., None], f["start"] + dv, f["vel"]) + np.where(touched[..., None], f["acc"], 0.0) * (
+            ramp / np.maximum(t, 1e-30))
+        late = moved & (s - done > 0)
+        shift = np.where(late[..., None], shift + vr[..., :3] * t, shift)
+        spins = late & (np.linalg.norm(vr[..., 3:], axis=-1) * t[..., 0] > 0)
+        turn = np.where(spins[..., None], _qmul(_quat_turn(vr[..., 3:], t), turn), turn)
         shift = np.where(moved[..., None], shift, 0.0)
         turn = np.where(moved[..., None], turn, np.array([1.0, 0.0, 0.0, 0.0]))
-        return dict(wrench=w["objects"][: W * n].reshape(W, n, 6), friction=w["friction"][: W * n].reshape(W, n, 3),
+        return dict(wrench=wrench, friction=w["friction"][: W * n].reshape(W, n, 3),
                     bones=w["bones"][: W * B].reshape(W, B, 6), com=f["com"] + shift, shift=shift, turn=turn, vel=vel,
                     moved=moved.copy())
 

@@ -119,7 +119,8 @@ class SoftHand:
         self.object_bodies = object_body_ids(model, self.object_geoms, self.objects)
         self._mu = None  # (K,) friction coefficients, read from the model at the first two-way frame
         self._bones_prev = None  # (centres, quats) of the bones at the last two-way frame
-        self._obj_vel = None  # (K, 6) [angular, linear] the objects' velocities sent for the frame
+        self._obj_vel = None  # (K, 6) [angular, linear] the objects' velocities after the frame's mj_step
+        self._obj_acc = None  # (K, 6) and their accelerations in it (qacc)
         # the skin's sliding friction coefficient (None: the skin geom's, or MuJoCo's default 1 without one)
         self.skin_friction = None
         self._free = free_qpos(model, self.object_bodies)  # (K,) qpos address of a free object's joint, else -1
@@ -229,12 +230,20 @@ class SoftHand:
         inertia, and the bones' centres, to the contact for the next frame."""
         m, d, bodies = self.model, self.data, self.object_bodies
         vel = np.zeros((len(bodies), 6))  # [angular, linear at the centre], world frame
+        acc = np.zeros((len(bodies), 6))  # a free body's acceleration in the step, the same way
         for k, b in enumerate(bodies):
             a = self._free[k]
             if a >= 0:  # a free body: the velocity its step ended with (qvel; data.cvel is the step's start)
                 dof = m.jnt_dofadr[m.body_jntadr[b]]
-                w = d.xmat[b].reshape(3, 3) @ d.qvel[dof + 3: dof + 6]
-                vel[k] = np.r_[w, d.qvel[dof: dof + 3] + np.cross(w, d.xipos[b] - d.xpos[b])]
+                rot, r = d.xmat[b].reshape(3, 3), d.xipos[b] - d.xpos[b]
+                w = rot @ d.qvel[dof + 3: dof + 6]
+                vel[k] = np.r_[w, d.qvel[dof: dof + 3] + np.cross(w, r)]
+                # the step's own velocity change, qacc dt (data.qacc: what mj_step integrated; exactly so
+                # for Euler, to the gyroscopic terms for the implicit integrators), to spread over the
+                # frame's substeps: the object starts the frame with its velocity before the step
+                # (exchange.obj_lin_vel) instead of taking the whole step's gravity at once
+                al = rot @ d.qacc[dof + 3: dof + 6]
+                acc[k] = np.r_[al, d.qacc[dof: dof + 3] + np.cross(al, r)]
             else:
                 mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
         mu = None
@@ -263,8 +272,10 @@ class SoftHand:
                 mujoco.mju_mulQuat(dq, quat[j], back)
                 mujoco.mju_quat2Vel(bw[j], dq, self.config.frame_dt)
         self._bones_prev = (com, quat)
-        self._obj_vel = vel
-        self.solver.contact.two_way.set_state(d.xipos[bodies], vel[:, 3:], vel[:, :3], com, mu, inv_m, inv_i, bv, bw)
+        self._obj_vel, self._obj_acc = vel, acc
+        start = vel - acc * self.config.frame_dt
+        self.solver.contact.two_way.set_state(d.xipos[bodies], start[:, 3:], start[:, :3], com, mu, inv_m, inv_i, bv, bw,
+                                              acc[:, 3:], acc[:, :3])
 
     def applied_wrenches(self) -> dict:
         """``Config.two_way``: per object (by name, as in :meth:`contacts`), what the skin applied to
@@ -309,20 +320,23 @@ class SoftHand:
             d.qvel[:] += dq
         for k, b in enumerate(self.object_bodies):
             a = self._free[k]
-            if a < 0:
+            if a < 0 or not np.any(w["objects"][k]):  # untouched: MuJoCo's own step moved it (qpos)
                 continue
             # a free object ends where the frame took it: from the pose its step started at (data's
-            # kinematics after mj_step), moved at the substep rate with MuJoCo's velocity plus the
-            # skin's (exchange.move_objects); MuJoCo's own move of it in the step is replaced
+            # kinematics after mj_step), moved at the substep rate from its velocity before the step
+            # with the step's acceleration and the skin's impulses (exchange.move_objects); MuJoCo's
+            # own move of it in the step is replaced
             c = d.xipos[b]
             q = w["turn"][k][[3, 0, 1, 2]]  # x y z w -> w x y z
             shift = w["shift"][k].copy()
-            rest = self.config.substeps - int(w["steps"][k])
-            if rest > 0:  # substeps without a stage (nothing near, or Config.contact_every > 1): the
-                # object moves on with its velocity over them, as MuJoCo's step would have moved it
-                t = self.config.frame_dt / self.config.substeps * rest
-                shift += (self._obj_vel[k, 3:] + w["dv"][k]) * t
-                omega = self._obj_vel[k, :3] + w["dw"][k]
+            s, done = self.config.substeps, int(w["steps"][k])
+            if done < s:  # substeps without a stage (Config.contact_every > 1, or nothing near): the
+                # object moves on over them with its velocity there (the step's acceleration spread on)
+                h = self.config.frame_dt / s
+                t, ramp = h * (s - done), h * h * (s * (s - 1) - done * (done - 1)) / 2  # sum of (j - 1) h h, j > done
+                start = self._obj_vel[k] - self._obj_acc[k] * self.config.frame_dt
+                shift += (start[3:] + w["dv"][k]) * t + self._obj_acc[k, 3:] * ramp
+                omega = start[:3] + w["dw"][k] + self._obj_acc[k, :3] * (ramp / t)
                 ang = float(np.linalg.norm(omega)) * t
                 if ang > 0:
                     spin, turned = np.r_[np.cos(ang / 2), omega / np.linalg.norm(omega) * np.sin(ang / 2)], np.zeros(4)

@@ -31,12 +31,13 @@ def rigs(slab):
     return [SlabRig(slab, mass=m, mu=mu, gap=gap) for m, gap, _, mu in WORLDS]
 
 
-def free_velocity(m, d, b):
+def free_velocity(m, d, b, start=False):
     """[linear m/s of the centre, angular rad/s], world frame, of free body ``b`` after mj_step
-    (as SoftHand._send_objects reads it)."""
+    (as SoftHand._send_objects reads it); ``start``: before it (qvel - qacc dt)."""
     dof = m.jnt_dofadr[m.body_jntadr[b]]
-    w = d.xmat[b].reshape(3, 3) @ d.qvel[dof + 3: dof + 6]
-    return np.r_[d.qvel[dof: dof + 3] + np.cross(w, d.xipos[b] - d.xpos[b]), w]
+    qv = d.qvel - d.qacc * m.opt.timestep if start else d.qvel
+    w = d.xmat[b].reshape(3, 3) @ qv[dof + 3: dof + 6]
+    return np.r_[qv[dof: dof + 3] + np.cross(w, d.xipos[b] - d.xpos[b]), w]
 
 
 def quat_of(mat):
@@ -98,6 +99,7 @@ def run_batched(slab):
         out = hands.step(*bone(), np.array([[r.data.geom_xpos[g]] for r in rs]),
                          np.array([[quat_of(r.data.geom_xmat[g])] for r in rs]),
                          object_vel=np.array([[free_velocity(r.model, r.data, r.box)] for r in rs]),
+                         object_vel_start=np.array([[free_velocity(r.model, r.data, r.box, True)] for r in rs]),
                          object_com=np.array([[r.data.xipos[r.box]] for r in rs]),
                          object_iquat=np.array([[quat_of(r.data.ximat[r.box])] for r in rs]),
                          bone_com=np.array([[r.data.xipos[table]] for r in rs]))

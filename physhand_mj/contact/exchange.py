@@ -9,18 +9,20 @@ the bones, the objects moved by them within the frame, and the skin's Coulomb fr
   correction to the sums as ``query.apply_vertex`` applies it; each correction lands once on each
   side, so the forces on objects and on bones sum to zero to float rounding. The object of a
   correction is the one the vertex's last push in that pass came from (``PushSums.vertex_obj``).
-- **Objects moved at the substep rate.** A free object's frame starts from the pose MuJoCo's step
-  started from; before each stage it moves with MuJoCo's velocity plus what the skin has given it so
-  far (:func:`move_objects`, :func:`pose_objects`), after each stage it takes the stage's impulses
-  (:func:`take_impulses`). ``SoftHand`` hands the frame's pose, velocity change and the bones'
-  reaction back to MuJoCo.
+- **Objects moved at the substep rate.** A free object's frame starts from the pose and velocity
+  MuJoCo's step started from; before each stage it moves with that velocity plus what the step's own
+  acceleration (gravity and MuJoCo's other forces, ``qacc``) and the skin have given it in the
+  substeps before (:func:`move_objects`, :func:`pose_objects`), after each stage it takes the
+  stage's impulses (:func:`take_impulses`). The step's velocity change is so spread over the
+  substeps, as the skin's is, instead of landing whole at the frame's start. ``SoftHand`` hands the
+  frame's pose, velocity change and the bones' reaction back to MuJoCo.
 - **Friction** (:func:`skin_friction`, after each stage): each touching vertex's slip against the
   object's surface motion, plus what it still owes from earlier substeps, is undone within mu x its
   running normal load, else cut by that much and the rest owed (up to STICK_SLACK; past it the vertex
-  slides). Owing the slip makes sticking a position constraint: MuJoCo gives a free object its
-  step's velocity change (gravity's g dt) at once at the frame's start, more than a substep's
-  friction can take, and a per-substep bound let the object slip a little every frame (a box held
-  at 1.2 x the bound crept 8 mm/s).
+  slides). Owing the slip makes sticking a position constraint: with the step's velocity change
+  (gravity's g dt) given at once at the frame's start, more than a substep's friction can take, a
+  per-substep bound let the object slip a little every frame (a box held at 1.2 x the bound crept
+  8 mm/s); spread over the substeps as now, the slack is kept for the flesh's own motion.
 - **Damping** (``Config.contact_damping``): a touching object's normal velocity relative to the
   bones under the skin decays over that time, shared over the touching vertices by load.
 - **Host traffic**: one packed upload and one read-back a frame (:func:`unpack_inputs`,
@@ -53,8 +55,9 @@ class Exchange:
     that (friction's bound is mu m load / h); fr_obj (S,): the object it touches (-1: none); stick
     (S,) m: the tangential slip against it that its friction has not undone yet (kept while it
     touches); slack m: the longest such slip (STICK_SLACK).
-    The objects, set per frame: obj_com, obj_vel, obj_omega (K,): centre of mass, its velocity (after
-    MuJoCo's step), angular velocity; obj_inv_mass (K,) 1/kg and obj_inv_inertia (K,) 1/(kg m^2): a
+    The objects, set per frame: obj_com, obj_vel, obj_omega (K,): centre of mass, its velocity and angular
+    velocity at the frame's start (before MuJoCo's step); obj_acc, obj_alpha (K,): the step's own linear
+    and angular acceleration (its velocity change over the frame, spread over the substeps); obj_inv_mass (K,) 1/kg and obj_inv_inertia (K,) 1/(kg m^2): a
     free object's (0: the skin does not move it within the frame); obj_mu (K,): its friction
     coefficient against the skin; base_pose (G,): the geoms' poses at the frame's start.
     Their motion in the frame: dv, dw (K,): the velocity the skin has given each so far; shift (K,) m
@@ -80,6 +83,8 @@ class Exchange:
     slack: float
     obj_vel: wp.array(dtype=wp.vec3)
     obj_omega: wp.array(dtype=wp.vec3)
+    obj_acc: wp.array(dtype=wp.vec3)
+    obj_alpha: wp.array(dtype=wp.vec3)
     obj_fric: wp.array(dtype=wp.vec3)
     obj_com: wp.array(dtype=wp.vec3)
     obj_inv_mass: wp.array(dtype=float)
@@ -120,7 +125,7 @@ def make_exchange(model, n_objects: int, on: bool, h: float, g_count: int = 0, d
     e.body = model.skin_body if on else wp.zeros(0, dtype=int, device=d)
     e.h = float(h)
     vec = {name: wp.zeros(k, dtype=wp.vec3, device=d) for name in (
-        "obj_vel", "obj_omega", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang",
+        "obj_vel", "obj_omega", "obj_acc", "obj_alpha", "obj_fric", "obj_com", "sub_lin", "sub_ang", "dv", "dw", "shift", "obj_lin", "obj_ang",
         "agg_n", "agg_vb", "prev_n", "prev_vb")}
     vec.update({name: wp.zeros(b, dtype=wp.vec3, device=d) for name in ("bone_com", "bone_vel", "bone_omega", "bone_lin",
                                                                         "bone_ang")})
@@ -154,14 +159,28 @@ def touch_load(ex: Exchange, i: int, obj: int, dxn: wp.vec3):
 # pushed out in some substeps and not in others, and its friction bound is the mean normal impulse
 LOAD_RATE = wp.constant(0.25)
 # m: the longest slip a touching skin vertex owes (Exchange.stick); past it the vertex slides and the
-# point it sticks to is dragged along. Within a frame an object held at its friction bound moves
-# about g dt^2 / 2 (0.12 mm at 5 ms) against the skin and back, since MuJoCo's step gives it gravity's
-# g dt at the frame's start (physhand_mj/bench/pinch.py, a 10 g box at 1.25 x the bound: 30 um left it
-# creeping 1 mm/s, 0.1 mm less than 0.1 mm/s)
+# point it sticks to is dragged along. (Chosen when MuJoCo's step gave the object gravity's g dt at
+# the frame's start, which moved an object held at its bound about g dt^2 / 2, 0.12 mm at 5 ms,
+# against the skin and back within the frame: physhand_mj/bench/pinch.py, a 10 g box at 1.25 x the
+# bound: 30 um left it creeping 1 mm/s, 0.1 mm less than 0.1 mm/s)
 STICK_SLACK = 1.0e-4
 # m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
 # feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
 TOUCH_GAP = wp.constant(5.0e-4)
+
+
+@wp.func
+def obj_lin_vel(ex: Exchange, k: int):
+    """Object ``k``'s velocity in the current substep (the ``steps``-th): its frame's start velocity
+    plus what the physics step's acceleration and the skin's impulses gave it in the substeps before
+    (both act at the end of their substep: an object resting on the skin ends the frame at rest)."""
+    return ex.obj_vel[k] + ex.obj_acc[k] * (float(ex.steps[k] - 1) * ex.h) + ex.dv[k]
+
+
+@wp.func
+def obj_ang_vel(ex: Exchange, k: int):
+    """Object ``k``'s angular velocity in the current substep (as :func:`obj_lin_vel`)."""
+    return ex.obj_omega[k] + ex.obj_alpha[k] * (float(ex.steps[k] - 1) * ex.h) + ex.dw[k]
 
 
 @wp.func
@@ -213,7 +232,8 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
         return
     ex.load[i] = load
     r = xi - ex.obj_com[k] - ex.shift[k]
-    vel = ex.obj_vel[k] + ex.dv[k] + wp.cross(ex.obj_omega[k] + ex.dw[k], r)
+    vo = obj_lin_vel(ex, k)
+    vel = vo + wp.cross(obj_ang_vel(ex, k), r)
     b = ex.body[i]
     if b >= 0 and ex.damp > 0.0:  # the flesh's damping: the object's normal velocity relative to the
         # bones under it (the previous substep's load-weighted means) decays, shared by load. (Damped at
@@ -228,7 +248,7 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
         im = ex.obj_inv_mass[k]
         if pl > 0.0 and im > 0.0 and ex.mass[i] > 0.0:
             nk = wp.normalize(ex.prev_n[k])
-            vn = wp.dot(ex.obj_vel[k] + ex.dv[k] - ex.prev_vb[k] / pl, nk)
+            vn = wp.dot(vo - ex.prev_vb[k] / pl, nk)
             jn = -ex.damp * vn / im * (load / pl)  # N s on the object along nk
             record(ex, i, k, xi, nk * (-jn * ex.h / ex.mass[i]), wp.vec3(0.0))
     u = ex.stick[i] + xi - x_start[i] - vel * ex.h
@@ -306,16 +326,17 @@ def take_impulses(ex: Exchange):
 
 @wp.kernel
 def move_objects(ex: Exchange):
-    """Before a substep's contact: each movable object moves over the substep with its velocity
-    (MuJoCo's after its step, plus what the skin has changed in the frame so far). Its frame pose is
-    the one MuJoCo's step started from, so its whole motion in the frame is integrated here, at the
-    substep rate, with the skin's force in it."""
+    """Before a substep's contact: each movable object moves over the substep with its velocity (its
+    velocity at the frame's start, plus the physics step's acceleration over the substeps so far and
+    what the skin has changed in the frame so far: :func:`obj_lin_vel`). Its frame pose is the one
+    MuJoCo's step started from, so its whole motion in the frame is integrated here, at the substep
+    rate, with the skin's force in it."""
     k = wp.tid()
     if ex.obj_inv_mass[k] <= 0.0:
         return
     ex.steps[k] = ex.steps[k] + 1
-    ex.shift[k] = ex.shift[k] + (ex.obj_vel[k] + ex.dv[k]) * ex.h
-    w = ex.obj_omega[k] + ex.dw[k]
+    ex.shift[k] = ex.shift[k] + obj_lin_vel(ex, k) * ex.h
+    w = obj_ang_vel(ex, k)
     a = wp.length(w) * ex.h
     if a > 0.0:
         ex.turn[k] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(w), a) * ex.turn[k])
@@ -352,10 +373,10 @@ def zero_ops(ex: Exchange, objects=None) -> list:
 
 
 # the per-frame traffic with the host, packed (one upload and one read-back a frame: on CUDA each
-# array's own copy cost a sync): per object [com 3, vel 3, omega 3, inv_mass, inv_inertia 9, mu] in,
+# array's own copy cost a sync): per object [com 3, vel 3, omega 3, inv_mass, inv_inertia 9, mu, acc 3, alpha 3] in,
 # [lin 3, ang 3, fric 3, dv 3, dw 3, shift 3, turn 4, steps] out; per bone [com 3, vel 3, omega 3] in, [lin 3,
 # ang 3] out
-IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 20, 9, 23, 6
+IN_OBJ, IN_BONE, OUT_OBJ, OUT_BONE = 26, 9, 23, 6
 
 
 @wp.func
@@ -383,6 +404,8 @@ def unpack_inputs(ex: Exchange, buf: wp.array(dtype=float), n_obj: int, n_bone: 
         ex.obj_inv_inertia[t] = wp.mat33(buf[a + 10], buf[a + 11], buf[a + 12], buf[a + 13], buf[a + 14], buf[a + 15],
                                          buf[a + 16], buf[a + 17], buf[a + 18])
         ex.obj_mu[t] = buf[a + 19]
+        ex.obj_acc[t] = _v3(buf, a + 20)
+        ex.obj_alpha[t] = _v3(buf, a + 23)
     if t < n_bone:
         a = n_obj * IN_OBJ + t * IN_BONE
         ex.bone_com[t] = _v3(buf, a)
@@ -474,10 +497,12 @@ class TwoWay:
             rec.launch(take_impulses, self.n_obj, [self.data], [])
 
     def set_state(self, obj_com, obj_vel, obj_omega, bone_com, obj_mu=None, inv_mass=None, inv_inertia=None,
-                  bone_vel=None, bone_omega=None) -> None:
+                  bone_vel=None, bone_omega=None, obj_acc=None, obj_alpha=None) -> None:
         """The objects' state for the next frame (world frame, ``Objects.object_names`` order): centres
         of mass ``obj_com`` (K, 3) m, velocities there ``obj_vel`` (K, 3) m/s, angular velocities
-        ``obj_omega`` (K, 3) rad/s; the bones' centres ``bone_com`` (B, 3) m (asset body order), about
+        ``obj_omega`` (K, 3) rad/s at the frame's start; ``obj_acc`` / ``obj_alpha`` (K, 3) m/s^2,
+        rad/s^2: the physics step's own acceleration of each, spread over the frame's substeps (None:
+        0, the velocity as given for the whole frame); the bones' centres ``bone_com`` (B, 3) m (asset body order), about
         which torques are taken; ``obj_mu`` (K,): friction coefficients; ``inv_mass`` (K,) 1/kg and
         ``inv_inertia`` (K, 3, 3) 1/(kg m^2): the objects the skin moves within the frame (0: none);
         ``bone_vel`` / ``bone_omega`` (B, 3): the bones' velocities, m/s at their centres and rad/s
@@ -489,6 +514,8 @@ class TwoWay:
         bo = self._in[k * IN_OBJ:].reshape(b, IN_BONE)
         n = len(np.asarray(obj_com).reshape(-1, 3))
         o[:n, 0:3], o[:n, 3:6], o[:n, 6:9] = (np.asarray(v, np.float32).reshape(-1, 3) for v in (obj_com, obj_vel, obj_omega))
+        o[:n, 20:23] = 0.0 if obj_acc is None else np.asarray(obj_acc, np.float32).reshape(-1, 3)
+        o[:n, 23:26] = 0.0 if obj_alpha is None else np.asarray(obj_alpha, np.float32).reshape(-1, 3)
         nb = len(np.asarray(bone_com).reshape(-1, 3))
         bo[:nb, 0:3] = np.asarray(bone_com, np.float32).reshape(-1, 3)
         if obj_mu is not None:
