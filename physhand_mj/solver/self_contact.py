@@ -157,6 +157,14 @@ def pick_queries(skin_body: wp.array(dtype=int), mu: wp.array(dtype=float), near
         cand_n[v] = 0
 
 
+@wp.func
+def _normals_cos(vn: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
+    """cos of the angle between a vertex's normal ``vn`` and triangle (a, b, c)'s normal now (the
+    fold rule: a crease folded onto itself has them opposed)."""
+    f = wp.cross(b - a, c - a)
+    return wp.dot(vn, f) / wp.max(wp.length(vn) * wp.length(f), 1.0e-30)
+
+
 @wp.kernel
 def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
                mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
@@ -196,8 +204,7 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
         soon = False  # (for the slack: a fold that a little more motion could close)
         judged = rfar < rest_gap
         if judged:
-            fnow = wp.cross(x[b] - x[a], x[c] - x[a])
-            cosn = wp.dot(vn_now[v], fnow) / wp.max(wp.length(vn_now[v]) * wp.length(fnow), 1.0e-30)
+            cosn = _normals_cos(vn_now[v], x[a], x[b], x[c])
             folded = cosn < FOLD_COS
             soon = cosn < FOLD_SOON
             if not soon:
@@ -213,8 +220,7 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
         if dr < fold_gap:
             continue
         if dr < rest_gap and not judged:  # (the bound let it through: the normals decide now)
-            fnow = wp.cross(x[b] - x[a], x[c] - x[a])
-            cosn = wp.dot(vn_now[v], fnow) / wp.max(wp.length(vn_now[v]) * wp.length(fnow), 1.0e-30)
+            cosn = _normals_cos(vn_now[v], x[a], x[b], x[c])
             folded = cosn < FOLD_COS
             soon = cosn < FOLD_SOON
             if not soon:
