@@ -18,22 +18,14 @@ import time
 import numpy as np
 
 import physhand_mj as ph
-from physhand_dmc import suite
 from physhand_dmc.suite import hand_hold
 
 
 def run(obj: str, two_way: bool, seconds: float = 2.0) -> dict:
     grasp = "hold" if obj in hand_hold.HOLD_GRASPS else "hoi"
-    kw = dict(random=0, gravity="down", config=ph.Config(two_way=two_way), grasp=grasp,
-              squeeze=hand_hold.SQUEEZE if grasp == "hoi" else 1.0, float_frames=hand_hold.FLOAT_FRAMES,
-              time_limit=seconds)
-    env = suite.load("hand_hold", obj, task_kwargs=kw)
-    ts = env.reset()
-    act = env.task.normalise_ctrl(env.physics, env.physics.data.ctrl.copy())
-    worst = 0.0
-    while not ts.last():
-        ts = env.step(act)
-        worst = max(worst, float(np.linalg.norm(ts.observation["object_offset"])))
+    worst, env = hand_hold.hold_still(obj, seconds, config=ph.Config(two_way=two_way), grasp=grasp,
+                                      squeeze=hand_hold.SQUEEZE if grasp == "hoi" else 1.0,
+                                      float_frames=hand_hold.FLOAT_FRAMES)
     h = env.physics.soft
     c, mt = h.contacts()["objects"][obj], h.metrics()
     return dict(grasp=grasp, worst_mm=worst * 1e3, force=np.asarray(c.get("force", np.zeros(3))),

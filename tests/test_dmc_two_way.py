@@ -15,14 +15,7 @@ from physhand_dmc.suite import hand_hold  # noqa: E402
 
 def hold(obj, config=None, seconds=2.0, **kw):
     """Run the episode holding the reset's ctrl: (largest offset from the start, m; the env)."""
-    env = suite.load("hand_hold", obj, task_kwargs=dict(random=0, gravity="down", config=config, time_limit=seconds, **kw))
-    ts = env.reset()
-    act = env.task.normalise_ctrl(env.physics, env.physics.data.ctrl.copy())
-    worst = 0.0
-    while not ts.last():
-        ts = env.step(act)
-        worst = max(worst, float(np.linalg.norm(ts.observation["object_offset"])))
-    return worst, env
+    return hand_hold.hold_still(obj, seconds, config=config, **kw)
 
 
 def test_one_way_defaults_are_unchanged():

@@ -114,6 +114,24 @@ def without_proxies(model: mujoco.MjModel, obj: str) -> None:
             model.geom_contype[g], model.geom_conaffinity[g] = 3, 3
 
 
+def hold_still(obj: str, seconds: float = 2.0, **task_kwargs):
+    """An episode of ``hand_hold`` with ``obj`` (``random=0``, ``gravity="down"`` unless given in
+    ``task_kwargs``) that holds the reset's ctrl for ``seconds`` s: (the object's largest offset from
+    its start, m; the environment at the episode's end). The holding measure of docs/dm_control.md."""
+    from physhand_dmc import suite
+
+    kw = dict(random=0, gravity="down", time_limit=seconds)
+    kw.update(task_kwargs)
+    env = suite.load("hand_hold", obj, task_kwargs=kw)
+    ts = env.reset()
+    act = env.task.normalise_ctrl(env.physics, env.physics.data.ctrl.copy())
+    worst = 0.0
+    while not ts.last():
+        ts = env.step(act)
+        worst = max(worst, float(np.linalg.norm(ts.observation["object_offset"])))
+    return worst, env
+
+
 def make_physics(obj: str, gravity: str, config, object_proxies: bool = True, grasp: str = "hoi") -> SoftPhysics:
     model = build_model(obj, gravity, grasp)
     if not object_proxies:
