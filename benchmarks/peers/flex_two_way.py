@@ -44,6 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import physhand_mj as ph  # noqa: E402
+from common import Measure  # noqa: E402
 from mujoco_flex import flex_spec  # noqa: E402
 from physhand_mj.bench import device_name  # noqa: E402
 from physhand_mj.bench.slab import SlabRig, soft_slab  # noqa: E402
@@ -57,8 +58,9 @@ STEPS = 100  # flex steps a 5 ms frame (0.05 ms, Euler: at 0.1 ms the slab's fle
 SOLREF = (0.0002, 1.0)  # the flex contact's time constant (s) and damping ratio: as docs/peers.md's runs
 
 
-class BoxMeasure:
-    """Both penetration measures of a slab's vertex positions against the box (physhand_mj's kernels)."""
+class BoxMeasure(Measure):
+    """Both penetration measures of a slab's vertex positions against the box (common.Measure's,
+    on the box instead of a case's object)."""
 
     def __init__(self, asset):
         from physhand_mj.contact import Objects
@@ -68,18 +70,7 @@ class BoxMeasure:
         self.objects.add(GeomType.BOX, HALF, np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]), name="box")
         self.solver = ph.Solver(ph.make_model(asset, cfg), cfg, objects=self.objects)
         self.state = self.solver.make_state()
-
-    def __call__(self, x, pos, quat) -> dict:
-        from physhand_mj.contact.metrics import summarize
-
-        self.state.x.assign(np.asarray(x, np.float32))
-        self.objects.set_poses(np.asarray(pos, float)[None], np.asarray(quat, float)[None])
-        c = self.solver.contact
-        m5 = summarize(c.measure(self.state, order=5))
-        m9 = summarize(c.measure(self.state, order=9, objects_side=False))
-        return dict(skin_count=m5["penetration_count"], skin_max_um=m5["penetration_max_um"],
-                    dense_count=m9["penetration_count"], dense_max_um=m9["penetration_max_um"],
-                    obj_count=m5["object_in_skin_count"], obj_max_um=m5["object_in_skin_max_um"])
+        self.n = asset.n_vertices
 
 
 class FlexSlab:
