@@ -121,7 +121,9 @@ def test_killed_worker_is_retried_then_an_exception_fails_after_its_retries(loca
 
 
 def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp_path):
-    """Two long runs on the two workers, a third waiting: SIGINT on the driver once both logged 3 frames."""
+    """Two long runs on the two workers, a third waiting: SIGINT on the driver once both logged 3 frames.
+    The hand never sleeps here (sleep_speed=0): asleep, the box's 400 frames ran in seconds, before the
+    apple had logged its 3 frames, and that run was not interrupted."""
     out = tmp_path / "c"
     logs = [out / "hoi_apple-grasp" / "log.csv", out / "hoi_box-grasp" / "log.csv"]
     done = threading.Event()
@@ -138,7 +140,7 @@ def test_ctrl_c_cancels_keeps_partial_logs_and_writes_the_summary(local_ray, tmp
     try:
         threading.Thread(target=interrupt, daemon=True).start()
         rows = rollout_ray([(APPLE, "grasp"), (BOX, "grasp"), (GLASS, "grasp")], out, steps=400, device="cpu",
-                           num_workers=2, progress=False)
+                           num_workers=2, progress=False, config={"sleep_speed": 0.0})
     finally:
         done.set()
         signal.signal(signal.SIGINT, old)
