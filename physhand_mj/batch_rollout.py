@@ -11,7 +11,9 @@ same time step) share a batch; the others go to batches of their own. A batch is
 one solver frame advances every world (stepping MuJoCo world by world costs 28-87 us a world-frame
 on an H100 host, a few percent of a batch: benchmarks/mujoco_side.py, docs/scale.md). The frames
 are pipelined (:meth:`~physhand_mj.batch.BatchedHands.submit`): MuJoCo's next step and the last
-frame's log rows run on the host while the device runs a frame. Each run then
+frame's log rows run on the host while the device runs a frame (not with ``Config.two_way``: there
+each frame's wrenches go into every world's MuJoCo before its next step, as ``SoftHand`` does, and
+each run writes ``forces.csv`` too). Each run then
 writes what the serial
 :func:`~physhand_mj.rollout.rollout` writes (``log.csv``, ``counters.csv``, ``skin_final.ply``, its
 summary row, its JSON line), from per-world measures: every world is measured against its own objects.
@@ -36,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from physhand_mj.rollout import (LOG_COLUMNS, bone_clearances, carry_object_side, check_counts, check_measure_every, failed_row,
+from physhand_mj.rollout import (FORCE_COLUMNS, LOG_COLUMNS, bone_clearances, carry_object_side, check_counts, check_measure_every, failed_row,
                                  frame_rows, load_rollout_scene, measured, rollout_config, run_names, start_row,
                                  summary_row, write_summary)
 
@@ -79,6 +81,7 @@ class _Run:
         self.error: str | None = None
         self.file = self.log = None  # log.csv
         self.cfile = self.counters = None  # counters.csv
+        self.ffile = self.forces = None  # forces.csv (Config.two_way)
 
     def signature(self) -> tuple:
         """What a batch must share: the frame (time step) and the objects' geoms."""
@@ -276,10 +279,15 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         mujoco.mj_kinematics(r.model, r.data)
         poses.append(r.bone_poses())
     place = [rest_placement(asset, p[0][0], p[1][0]) for p in poses]
-    hands = BatchedHands(asset, W, cfg, np.array([p for p, _ in place]), np.array([q for _, q in place]),
-                         objects=runs[0].specs, spacing=spacing)
-    hands.settle(np.stack([p for p, _ in poses]), np.stack([q for _, q in poses]))
     k = len(runs[0].geoms)
+    two_way = cfg.two_way and k > 0  # the exchange (forces.csv and the summary's keys: cfg.two_way, as serial)
+    mj_side = [_TwoWaySide(r, cfg) for r in runs] if two_way else None
+    hands = BatchedHands(asset, W, cfg, np.array([p for p, _ in place]), np.array([q for _, q in place]),
+                         objects=runs[0].specs, spacing=spacing,
+                         **(_TwoWaySide.batch_kwargs(mj_side) if two_way else {}))
+    hands.settle(np.stack([p for p, _ in poses]), np.stack([q for _, q in poses]))
+    if two_way and mj_side[0].names != hands.two_way.names:  # (both group the geoms by body, in order)
+        raise RuntimeError(f"two-way objects {hands.two_way.names} != {mj_side[0].names}")
     if k:
         hands.set_object_poses(*(np.stack(a) for a in zip(*(r.object_poses() for r in runs))))
     if on_start is not None:
@@ -301,6 +309,11 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         r.counters = csv.writer(r.cfile)
         r.counters.writerow(COUNTER_COLUMNS)
         r.cfile.flush()
+        if cfg.two_way:
+            r.ffile = open(r.out / "forces.csv", "w", newline="")
+            r.forces = csv.writer(r.ffile)
+            r.forces.writerow(FORCE_COLUMNS)
+            r.ffile.flush()
     first = runs[0].index + 1
     bar = tqdm(total=steps, desc=f"batch of {W} (runs {first}-{runs[-1].index + 1} of {total})", unit="frame",
                file=sys.stderr, disable=not progress, leave=False)
@@ -308,6 +321,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     frame_pos = [p for p in poses]
     frame_obj = [r.object_poses() for r in runs]
     flight = None  # the frame in flight (BatchedHands.submit): (step, worlds in it, MuJoCo times, s in submit)
+    frame_tw = [mj_side[w].frame_state() for w in range(W)] if two_way else None  # per world: two-way inputs
 
     def land(step, members, times, t_submit):
         """Frame ``step`` (in flight) ended: its measures, then each member world's nonfinite check;
@@ -320,9 +334,12 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         both = hands.penetration() if measured(step, steps, measure_every) else None  # (not timed)
         subrows = c.read_metrics_worlds(synchronize=False) if c is not None else None
         counts = c.stage_counts_worlds() if c is not None else None
+        touched = _touching(c, W, asset.n_skin, hands.two_way.n) if two_way else None
         logged = []
         for w in members:
             world = dict(res, **res["worlds"][w])  # the batch frame's activity, this world's measures
+            if two_way:  # the skin's impulses into this world's MuJoCo before its next step
+                world["forces"] = mj_side[w].apply(res["two_way"], w, touched[w])
             logged.append((w, world))
             last[w], obj_frame[w] = carry_object_side(world, both and both[w], last[w], step, obj_frame[w])
             if world["nonfinite"]:
@@ -337,6 +354,9 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
             r.log.writerows(frame_rows(step, _At(times[w]), cfg, None if subrows is None else subrows[w][:-1],
                                        None if counts is None else counts[w], dt, both and both[w]))
             r.counters.writerow(counter_row(step, world))
+            if "forces" in world:
+                r.forces.writerows([[step, round(times[w], 6), *row] for row in world["forces"]])
+                r.ffile.flush()
             r.file.flush()
             r.cfile.flush()
             r.times.append(dt)
@@ -374,17 +394,25 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
             if any(alive):
                 pos, quat = np.stack([p for p, _ in frame_pos]), np.stack([q for _, q in frame_pos])
                 t0 = time.perf_counter()
-                if k:
+                if two_way:  # each world's objects and bones as its MuJoCo step left them
+                    for w in new:
+                        if alive[w]:
+                            frame_tw[w] = mj_side[w].frame_state()
+                    hands.submit(pos, quat, np.stack([o for o, _ in frame_obj]), np.stack([q for _, q in frame_obj]),
+                                 **{key: np.stack([f[key] for f in frame_tw]) for key in frame_tw[0]})
+                elif k:
                     hands.submit(pos, quat, np.stack([o for o, _ in frame_obj]), np.stack([q for _, q in frame_obj]))
                 else:
                     hands.submit(pos, quat)
                 flight = (step, [w for w in range(W) if alive[w]], times, time.perf_counter() - t0)
+                if two_way:  # two-way: the frame's wrenches act on MuJoCo before its next step (no pipeline)
+                    landed, flight = land(*flight), None
             if landed is not None:
                 pending, landed = landed, None  # (cleared first: a stop inside write writes no row twice)
                 write(*pending)
                 done = pending[0]
                 bar.update(1)
-            if flight is None:
+            if not any(alive):
                 break
         if flight is not None:
             landed, flight = land(*flight), None
@@ -410,7 +438,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     finally:
         bar.close()
         for r in runs:
-            for f in (r.file, r.cfile):
+            for f in (r.file, r.cfile, r.ffile):
                 if f is not None:
                     f.close()
     d = str(hands.solver.device)
@@ -425,8 +453,86 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
         rows[r.index] = summary_row(r.scene, r.key, r.times, substeps, contact, starts[w], last[w],
                                     bool(np.all(np.isfinite(skin))), d, interrupted, r.out / "log.csv", skin_path,
                                     object_frame=obj_frame[w], bones=(bones0[w], bones1[w]))
+        if cfg.two_way:  # (as the serial two-way rollout's row)
+            rows[r.index].update(two_way=True, forces=str(r.out / "forces.csv"))
     hands.close()  # the batch's device memory back before the next batch allocates
     return interrupted
+
+
+class _TwoWaySide:
+    """Config.two_way in a batch: one world's MuJoCo side of the exchange, what SoftHand does for its
+    model (coupling.object_motion / apply_impulses): the objects' and bones' state after the world's
+    ``mj_step`` in (BatchTwoWay.frame_state's keywords), the frame's wrenches out into its qvel and a
+    free object the skin touched at the pose the frame moved it to."""
+
+    def __init__(self, run: _Run, cfg):
+        from physhand_mj.coupling import check_two_way, free_qpos, friction_coefficients
+        from physhand_mj.hand_mjcf import skin_geom_id
+
+        check_two_way(run.model, cfg)
+        self.run, self.dt = run, float(cfg.frame_dt)
+        m = run.model
+        firsts = {}  # each object (its geoms' body, as BatchedHands groups them) -> its first geom
+        for i, spec in enumerate(run.specs):
+            firsts.setdefault(spec["obj"], i)
+        self.names = list(firsts)
+        self.bodies = np.array([int(m.geom_bodyid[run.geoms[i]]) for i in firsts.values()], np.int64)
+        self.free = free_qpos(m, self.bodies)
+        index = {name: j for j, name in enumerate(firsts)}
+        self.mu = friction_coefficients(m, skin_geom_id(m, ""), run.geoms, [index[s["obj"]] for s in run.specs],
+                                        len(self.bodies))
+        self.mass = np.where(self.free >= 0, m.body_mass[self.bodies], 0.0)
+        self.inertia = m.body_inertia[self.bodies].copy()
+        self._vel = None
+
+    @staticmethod
+    def batch_kwargs(sides) -> dict:
+        """BatchedHands' per-world object masses, inertias and friction coefficients."""
+        return dict(object_mass=np.stack([s.mass for s in sides]), object_inertia=np.stack([s.inertia for s in sides]),
+                    object_friction=np.stack([s.mu for s in sides]))
+
+    def frame_state(self) -> dict:
+        """The objects' velocities ([linear, angular]: BatchTwoWay's order), centres and inertial
+        frames and the bones' centres, as the world's last ``mj_step`` left them."""
+        from physhand_mj.coupling import _mat_to_quat, object_motion
+
+        m, d, b = self.run.model, self.run.data, self.bodies
+        vel, acc = object_motion(m, d, b, self.free)  # [angular, linear]
+        start = vel - acc * self.dt
+        self._vel = vel
+        return dict(object_vel=np.c_[vel[:, 3:], vel[:, :3]], object_vel_start=np.c_[start[:, 3:], start[:, :3]],
+                    object_com=d.xipos[b].copy(), object_iquat=_mat_to_quat(d.ximat[b].reshape(-1, 9)),
+                    bone_com=d.xipos[self.run.bones].copy())
+
+    def apply(self, report: dict, w: int, contacts) -> list:
+        """World ``w``'s part of the batch frame's two-way ``report`` (BatchTwoWay.report) into its
+        MuJoCo data; returns its forces.csv rows (without step and time)."""
+        from physhand_mj.batch import BatchTwoWay
+        from physhand_mj.coupling import apply_impulses
+
+        m, d, b = self.run.model, self.run.data, self.bodies
+        wrench = report["wrench"][w]
+        apply_impulses(m, d, b, wrench, self.run.bones, report["bones"][w], self.dt)
+        one = {key: v[w: w + 1] for key, v in report.items()}
+        pos, quat = BatchTwoWay.moved_poses(one, d.xpos[b][None], d.xquat[b][None])
+        for j, a in enumerate(self.free):
+            if a >= 0 and np.any(wrench[j]):  # untouched: MuJoCo's own step moved it (qpos)
+                d.qpos[a: a + 3], d.qpos[a + 3: a + 7] = pos[0, j], quat[0, j]
+        return [[name, *(round(float(v), 6) + 0.0 for v in wrench[j, :3]), *(round(float(v), 7) + 0.0 for v in wrench[j, 3:]),
+                 *(round(float(v), 6) + 0.0 for v in report["friction"][w, j]), int(contacts[j])]
+                for j, name in enumerate(self.names)]
+
+
+def _touching(contact, worlds: int, n_skin: int, n: int) -> np.ndarray:
+    """(W, n) skin vertices of each world touching each of its ``n`` objects in the last frame
+    (forces.csv's ``contacts``, as rollout.force_rows counts them): world w's skin is vertices
+    [w n_skin, (w + 1) n_skin), its objects [w n, (w + 1) n)."""
+    obj = contact.vertex_obj.numpy()[: worlds * n_skin]
+    push = contact.push.numpy()[: worlds * n_skin] > 0
+    w = np.arange(worlds * n_skin) // n_skin
+    out = np.zeros((worlds, n), np.int64)
+    np.add.at(out, (w[push], obj[push] - w[push] * n), 1)
+    return out
 
 
 class _At:

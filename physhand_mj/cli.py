@@ -273,10 +273,6 @@ def _rollout(args):
     kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device,
               measure_every=args.measure_every)
     if args.two_way:  # Config.two_way (the rollout's frame is the scene's time step, as it needs)
-        if args.batch is not None:
-            raise ValueError("--two-way with --batch: not yet (a batch steps MuJoCo for the next frame while the "
-                             "solver runs this one, and two-way coupling needs each frame's wrenches applied "
-                             "first); run the list without --batch, or with --ray")
         kw["config"] = {"two_way": True}
     src = _scene_arg(args.scene)
     if not src.exists():
@@ -370,7 +366,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--two-way", action="store_true",
                    help="two-way coupling (Config.two_way, experimental): the skin's contact pushes and holds the "
                         "objects, with friction; DIR/forces.csv logs each object's force, torque and friction "
-                        "per frame (not with --batch)")
+                        "per frame (with --batch: each frame's wrenches reach MuJoCo before its next step, so "
+                        "MuJoCo's steps no longer overlap the solver's frames)")
     p.set_defaults(run=_rollout)
     bench = sub.add_parser("bench", help="timings (one JSON line)").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("solver", help="XPBD frame time on the embedded hand, no contact")

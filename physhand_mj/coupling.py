@@ -229,48 +229,14 @@ class SoftHand:
         """Config.two_way: the objects' centres, velocities, friction and, for free bodies, mass and
         inertia, and the bones' centres, to the contact for the next frame."""
         m, d, bodies = self.model, self.data, self.object_bodies
-        vel = np.zeros((len(bodies), 6))  # [angular, linear at the centre], world frame
-        acc = np.zeros((len(bodies), 6))  # a free body's acceleration in the step, the same way
-        for k, b in enumerate(bodies):
-            a = self._free[k]
-            if a >= 0:  # a free body: the velocity its step ended with (qvel; data.cvel is the step's start)
-                dof = m.jnt_dofadr[m.body_jntadr[b]]
-                rot, r = d.xmat[b].reshape(3, 3), d.xipos[b] - d.xpos[b]
-                w = rot @ d.qvel[dof + 3: dof + 6]
-                vel[k] = np.r_[w, d.qvel[dof: dof + 3] + np.cross(w, r)]
-                # the step's own velocity change, qacc dt (data.qacc: what mj_step integrated; exactly so
-                # for Euler, to the gyroscopic terms for the implicit integrators), to spread over the
-                # frame's substeps: the object starts the frame with its velocity before the step
-                # (exchange.obj_lin_vel) instead of taking the whole step's gravity at once
-                al = rot @ d.qacc[dof + 3: dof + 6]
-                acc[k] = np.r_[al, d.qacc[dof: dof + 3] + np.cross(al, r)]
-            else:
-                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
+        vel, acc = object_motion(m, d, bodies, self._free)
         mu = None
-        if self._mu is None:  # MuJoCo's rule for two geoms of equal priority: the larger coefficient
-            skin = self.skin_friction if self.skin_friction is not None else (
-                float(m.geom_friction[self.skin_geom][0]) if self.skin_geom >= 0 else 1.0)
-            mu = np.full(len(bodies), skin)
-            for k, g in zip(self.objects.geom_objects, self.object_geoms):
-                mu[k] = max(mu[k], float(m.geom_friction[g][0]))
-            self._mu = mu
-        inv_m = np.zeros(len(bodies))
-        inv_i = np.zeros((len(bodies), 3, 3))
-        for k, b in enumerate(bodies):
-            if self._free[k] >= 0:  # a free body: the skin moves it within the frame (exchange.move_objects)
-                inv_m[k] = 1.0 / m.body_mass[b]
-                r = d.ximat[b].reshape(3, 3)
-                inv_i[k] = r @ np.diag(1.0 / np.maximum(m.body_inertia[b], 1e-12)) @ r.T
-        # the bones' velocities from their poses a frame apart (mocap bones included, whose qvel is 0)
+        if self._mu is None:
+            mu = self._mu = friction_coefficients(m, self.skin_geom, self.object_geoms, self.objects.geom_objects,
+                                                  len(bodies), self.skin_friction)
+        inv_m, inv_i = inverse_inertia(m, d, bodies, self._free)
         com, quat = d.xipos[self.bones].copy(), d.xquat[self.bones].copy()
-        bv, bw = np.zeros((len(self.bones), 3)), np.zeros((len(self.bones), 3))
-        if self._bones_prev is not None:
-            bv = (com - self._bones_prev[0]) / self.config.frame_dt
-            for j in range(len(self.bones)):
-                dq = np.zeros(4)
-                back = self._bones_prev[1][j] * np.array([1.0, -1.0, -1.0, -1.0])
-                mujoco.mju_mulQuat(dq, quat[j], back)
-                mujoco.mju_quat2Vel(bw[j], dq, self.config.frame_dt)
+        bv, bw = bone_velocities(com, quat, self._bones_prev, self.config.frame_dt)
         self._bones_prev = (com, quat)
         self._obj_vel, self._obj_acc = vel, acc
         start = vel - acc * self.config.frame_dt
@@ -305,19 +271,7 @@ class SoftHand:
         object takes the pose the frame moved it to."""
         m, d = self.model, self.data
         w = self.solver.contact.two_way.wrenches()
-        T = self.config.frame_dt
-        qimp = np.zeros(m.nv)
-        for k, b in enumerate(self.object_bodies):
-            if m.body_weldid[b] != 0 and m.body_mocapid[b] < 0:
-                imp = w["objects"][k] * T
-                mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
-        for j, b in enumerate(self.bones):
-            imp = w["bones"][j] * T
-            mujoco.mj_applyFT(m, d, imp[:3], imp[3:], d.xipos[b], int(b), qimp)
-        if m.nv:
-            dq = np.zeros(m.nv)
-            mujoco.mj_solveM(m, d, dq.reshape(1, -1), qimp.reshape(1, -1))
-            d.qvel[:] += dq
+        apply_impulses(m, d, self.object_bodies, w["objects"], self.bones, w["bones"], self.config.frame_dt)
         for k, b in enumerate(self.object_bodies):
             a = self._free[k]
             if a < 0 or not np.any(w["objects"][k]):  # untouched: MuJoCo's own step moved it (qpos)
@@ -594,6 +548,90 @@ def check_two_way(model, config) -> None:
     if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
         raise ValueError("Config.two_way: MuJoCo's RK4 integrator leaves data's kinematics at its last stage, not "
                          "the step's start; use Euler or implicitfast (model.opt.integrator)")
+
+
+# -- the MuJoCo side of two-way coupling (Config.two_way), per MjModel / MjData: SoftHand's and the
+# batched rollout's (batch_rollout.py, one call per world) ----------------------------------------
+def object_motion(model, data, bodies, free) -> tuple[np.ndarray, np.ndarray]:
+    """(vel, acc), each (K, 6) [angular rad/s, linear m/s at the centre of mass], world frame, of the
+    object ``bodies`` after ``mj_step``: a free body's velocity is the one its step ended with (qvel;
+    data.cvel is the step's start) and ``acc`` the step's own velocity change per second (data.qacc:
+    what mj_step integrated; exactly so for Euler, to the gyroscopic terms for the implicit
+    integrators), spread over the frame's substeps by the exchange (an object starts the frame with
+    ``vel - acc dt`` instead of taking the whole step's gravity at once); other bodies: their velocity
+    (mj_objectVelocity) and no acceleration. ``free``: :func:`free_qpos`."""
+    vel = np.zeros((len(bodies), 6))
+    acc = np.zeros((len(bodies), 6))
+    for k, b in enumerate(bodies):
+        if free[k] >= 0:
+            dof = model.jnt_dofadr[model.body_jntadr[b]]
+            rot, r = data.xmat[b].reshape(3, 3), data.xipos[b] - data.xpos[b]
+            w = rot @ data.qvel[dof + 3: dof + 6]
+            vel[k] = np.r_[w, data.qvel[dof: dof + 3] + np.cross(w, r)]
+            al = rot @ data.qacc[dof + 3: dof + 6]
+            acc[k] = np.r_[al, data.qacc[dof: dof + 3] + np.cross(al, r)]
+        else:
+            mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, int(b), vel[k], 0)
+    return vel, acc
+
+
+def friction_coefficients(model, skin_geom: int, geoms, geom_objects, n_objects: int, skin_friction=None) -> np.ndarray:
+    """(K,) each object's friction coefficient against the skin, by MuJoCo's rule for two geoms of
+    equal priority (the larger sliding coefficient): the skin's (``skin_friction``, else the skin
+    geom's, else MuJoCo's default 1) against each of the object's ``geoms`` (``geom_objects``: the
+    object of each)."""
+    skin = skin_friction if skin_friction is not None else (
+        float(model.geom_friction[skin_geom][0]) if skin_geom >= 0 else 1.0)
+    mu = np.full(n_objects, skin)
+    for k, g in zip(geom_objects, geoms):
+        mu[k] = max(mu[k], float(model.geom_friction[g][0]))
+    return mu
+
+
+def inverse_inertia(model, data, bodies, free) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) inverse masses 1/kg and (K, 3, 3) world inverse inertias of the free ``bodies`` (the skin
+    moves those within the frame: exchange.move_objects); zero for the others."""
+    inv_m = np.zeros(len(bodies))
+    inv_i = np.zeros((len(bodies), 3, 3))
+    for k, b in enumerate(bodies):
+        if free[k] >= 0:
+            inv_m[k] = 1.0 / model.body_mass[b]
+            r = data.ximat[b].reshape(3, 3)
+            inv_i[k] = r @ np.diag(1.0 / np.maximum(model.body_inertia[b], 1e-12)) @ r.T
+    return inv_m, inv_i
+
+
+def bone_velocities(com, quat, prev, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(linear m/s, angular rad/s), each (B, 3), of bones at centres ``com`` (B, 3) and orientations
+    ``quat`` (B, 4) w x y z from their poses a frame earlier (``prev``: (com, quat), None: at rest);
+    from poses because mocap bones have no qvel."""
+    bv, bw = np.zeros((len(com), 3)), np.zeros((len(com), 3))
+    if prev is not None:
+        bv = (com - prev[0]) / dt
+        for j in range(len(com)):
+            dq = np.zeros(4)
+            mujoco.mju_mulQuat(dq, quat[j], prev[1][j] * np.array([1.0, -1.0, -1.0, -1.0]))
+            mujoco.mju_quat2Vel(bw[j], dq, dt)
+    return bv, bw
+
+
+def apply_impulses(model, data, object_bodies, object_wrench, bones, bone_wrench, dt: float) -> None:
+    """A two-way frame's contact impulses into MuJoCo as one velocity change, qvel += M^-1 J^T
+    [impulses] (mj_applyFT at the bodies' centres of mass, mj_solveM): ``object_wrench`` (K, 6) [N,
+    N m] on every object body that can move (not welded to the world, not mocap) and the bones'
+    reaction ``bone_wrench`` (B, 6), each times ``dt`` (s)."""
+    qimp = np.zeros(model.nv)
+    for k, b in enumerate(object_bodies):
+        if model.body_weldid[b] != 0 and model.body_mocapid[b] < 0:
+            imp = object_wrench[k] * dt
+            mujoco.mj_applyFT(model, data, imp[:3], imp[3:], data.xipos[b], int(b), qimp)
+    for j, b in enumerate(bones):
+        imp = bone_wrench[j] * dt
+        mujoco.mj_applyFT(model, data, imp[:3], imp[3:], data.xipos[b], int(b), qimp)
+    if model.nv:
+        dq = np.zeros(model.nv)
+        mujoco.mj_solveM(model, data, dq.reshape(1, -1), qimp.reshape(1, -1))
+        data.qvel[:] += dq
 
 
 def free_qpos(model, bodies) -> np.ndarray:
