@@ -56,6 +56,7 @@ from physhand_mj.solver.fused_tile import (add2, add2_fixed, add_corners, add_co
                                            apply_group_fixed, block_sync, corners2, corners4, fixed_to_float,
                                            keep_multiplier, shared_set, shared_set_int)
 from physhand_mj.solver.fused_tile import row4i
+from physhand_mj.solver.fused_self import FusedSelf, self_passes
 from physhand_mj.solver.integrate import count_guard, fast_vertex, finish_substep, start_substep
 from physhand_mj.solver.smooth import dihedral_correction
 from physhand_mj.solver.tet import six_volume, tet_correction
@@ -116,6 +117,10 @@ FOLD_END = True
 # rows alone: its position is its bone's, kept in shared memory; its velocity never changes (w = 0),
 # and its x^i and x are read only after the frame (written in the last substep, as before).
 SKIP_BONES = True
+# Whether Config.self_collision's substep passes run inside the fused kernel, after the three groups
+# (solver/fused_self.py: a frame without objects stays one frame launch), or as self_contact.py's
+# 2 x self_passes launches a substep after it (False: the frame then takes a launch per substep).
+SELF_IN_KERNEL = True
 CPU_ARENA = 256 * 1024  # bytes: Warp's CPU tile arena (warp/native/tile.h WP_MAX_CPU_SHARED)
 TILE_ALIGN = 16  # bytes: Warp aligns each shared tile to this
 
@@ -202,15 +207,17 @@ def family_pass(family: str, gather: bool, fixed: bool):
 
 
 def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False,
-                   fixed: bool = False, row_mass: bool = False, pin: bool = False, vec: bool = False):
+                   fixed: bool = False, row_mass: bool = False, pin: bool = False, vec: bool = False,
+                   self_contact: bool = False):
     """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
     launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
     time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
     size and block); ``strided``: the families come permuted (``ORDER``) with each row's asset index
-    for its multiplier; ``fixed``: ACCUM "fixed"; ``row_mass``: MASS "row" (both SUM "scatter" only)."""
+    for its multiplier; ``fixed``: ACCUM "fixed"; ``row_mass``: MASS "row" (both SUM "scatter" only);
+    ``self_contact``: the skin self-contact passes as a fourth group (solver/fused_self.py)."""
     key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather,
            bool(fixed) and not gather, bool(row_mass) and not gather, bool(pin) and not gather,
-           bool(vec) and bool(row_mass) and not gather)
+           bool(vec) and bool(row_mass) and not gather, bool(self_contact))
     if key in _KERNELS:
         return _KERNELS[key]
     N = key[0]
@@ -226,6 +233,8 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
     STRIDED_I = int(STRIDED)
     ACC = wp.vec3i if FIXED else wp.vec3
     edges, tets, dihedrals = (family_pass(f, GATHER, FIXED) for f in ("edges", "tets", "dihedrals"))
+    SELF = key[9]
+    self_group = self_passes(FIXED)
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
     def solve_substep_shared(
@@ -291,6 +300,29 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         speed_limit: float,
         vertex_carrier: wp.array(dtype=int),
         guard_tets: wp.array2d(dtype=int),
+        # Skin self-contact (SELF: Config.self_collision, solver/fused_self.py's FusedSelf.inputs; else
+        # empty): the frame's list and buffers (self_contact.SelfContact's), the Tuning's self_*
+        # figures, the x_prev share's accumulator and the fixed-point sum's (scale, step, bound)
+        self_count: wp.array(dtype=int),
+        self_vlist: wp.array(dtype=int),
+        self_cand: wp.array2d(dtype=int),
+        self_cand_n: wp.array(dtype=int),
+        self_nearest: wp.array(dtype=int),
+        self_icount: wp.array(dtype=int),
+        self_involved: wp.array(dtype=int),
+        skin_faces: wp.array2d(dtype=int),
+        self_pass_count: int,
+        self_thickness: float,
+        self_depth: float,
+        self_keep: float,
+        self_vt_off: wp.array(dtype=int),
+        self_vt: wp.array(dtype=int),
+        self_tets: wp.array2d(dtype=int),
+        self_vol0: wp.array(dtype=float),
+        self_hits: wp.array(dtype=int),
+        self_dprev: wp.array(dtype=ACC),
+        self_active: wp.array(dtype=int),
+        self_fx: wp.vec3,
     ):
         w, lane = wp.tid()
         bd = wp.block_dim()
@@ -359,15 +391,25 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                         else:
                             dsum = ds[l]
                         p = p + dsum * (relaxation / c)
-                    if sub == count - 1 and end == 0:
+                    if sub == count - 1 and end == 0 and not wp.static(SELF):
                         x[shifted_id(l, w, N, ns, worlds)] = p
-                    else:  # (the next substep, or the frame's end, starts from shared memory, its accumulator zeroed)
-                        shared_set(xs, l, p, True)
+                    else:  # (the next substep, the self-contact group or the frame's end starts from shared
+                        shared_set(xs, l, p, True)  # memory, its accumulator zeroed)
                         if wp.static(FIXED):
                             shared_set_int(ds, l, wp.vec3i(0), True)
                         else:
                             shared_set(ds, l, wp.vec3(0.0), True)
             block_sync()
+            if wp.static(SELF):  # group 3: skin self-contact (solver/fused_self.py), then the soft vertices back
+                self_group(xs, ds, NS, lane, bd, inv_mass, skin_faces, self_count, self_vlist, self_cand, self_cand_n,
+                           self_nearest, self_icount, self_involved, self_pass_count, self_thickness, self_depth,
+                           self_keep, self_vt_off, self_vt, self_tets, self_vol0, x_prev, self_hits, self_dprev,
+                           self_active, self_fx)
+                if sub == count - 1 and end == 0:
+                    for k in range((NS + bd - 1) // bd):
+                        l = k * bd + lane
+                        if l < NS:
+                            x[shifted_id(l, w, N, ns, worlds)] = xs[l]
         if end != 0:  # the frame's end: integrate.advance's last launch, per vertex of the world
             for k in range((N + bd - 1) // bd):
                 l = k * bd + lane
@@ -475,6 +517,15 @@ class FusedSubstep:
         self._vec = wp.empty(0, dtype=wp.vec3, device=dev)
         self._sub = wp.empty((0, 0), dtype=wp.transform, device=dev)
         self.device = dev
+        self.self_contact = None  # (attach_self: the skin self-contact group's inputs, solver/fused_self.py)
+        self._no_self = FusedSelf.empty_inputs(dev, self.fixed)
+
+    def attach_self(self, selfc) -> None:
+        """Run ``selfc``'s (a :class:`~physhand_mj.solver.self_contact.SelfContact`) substep passes in
+        the kernel, after the three groups (solver/fused_self.py); one world."""
+        if self.worlds != 1:
+            raise ValueError("Config.self_collision in the fused substep runs one world")
+        self.self_contact = FusedSelf(selfc, self.fixed, self.n_soft)
 
     @property
     def kernel(self):
@@ -484,7 +535,7 @@ class FusedSubstep:
         if ORDER not in ("asset", "strided"):
             raise ValueError(f"physhand_mj.solver.fused.ORDER must be 'asset' or 'strided', got {ORDER!r}")
         return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided(), self.fixed,
-                              self.row_mass, self.pin, self._vec_ok())
+                              self.row_mass, self.pin, self._vec_ok(), self.self_contact is not None)
 
     def _vec_ok(self) -> bool:
         """VEC_LOADS where the arrays the kernel reads rows of are contiguous and 16-byte aligned."""
@@ -573,7 +624,8 @@ class FusedSubstep:
                 state.lam_dih,
                 int(start), int(finish), float(h), float(damp), gravity if gravity is not None else wp.vec3(0.0),
                 *kin, state.v, state.x_prev, state.x_safe, state.guard, int(bool(end)), int(self.skip_bones),
-                float(speed_limit), model.vertex_carrier if end else self._none, self.guard_tets]
+                float(speed_limit), model.vertex_carrier if end else self._none, self.guard_tets,
+                *(self.self_contact.inputs() if self.self_contact is not None else self._no_self)]
 
 
 def block_bytes(n: int, n_soft: int, cuda: bool) -> int:

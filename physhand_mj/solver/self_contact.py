@@ -38,6 +38,8 @@ read inside the frame); there the refit, the normals and the query's launch run 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -256,10 +258,11 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
 
 
 @wp.func
-def _room(i: int, dp: wp.vec3, x: wp.array(dtype=wp.vec3), vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+def _room(i: int, dp: wp.vec3, x: Any, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
           tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), keep: float) -> float:
     """The share t in [0, 1] of the move dp of vertex i that keeps each of its tets' signed volume at
-    least ``keep`` x its rest volume (the volume is linear in one vertex's position)."""
+    least ``keep`` x its rest volume (the volume is linear in one vertex's position). ``x``: the positions
+    (an array, or the fused substep's shared tile: solver/fused_self.py)."""
     t = float(1.0)
     for k in range(vt_off[i], vt_off[i + 1]):
         e = vt[k]
@@ -305,13 +308,32 @@ def vertex_normals(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), vn:
 
 
 @wp.func
-def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-             thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
-             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
-             dprev: wp.array(dtype=wp.vec3)):
+def nearest_listed(v: int, x: Any, faces: wp.array2d(dtype=int), cand: wp.array2d(dtype=int),
+                   cand_n: wp.array(dtype=int)) -> int:
+    """Vertex v's nearest listed triangle now (-1: none listed); ``x`` an array or a shared tile."""
+    p = x[v]
+    best = int(-1)
+    bd = float(1.0e30)
+    for k in range(cand_n[v]):
+        t = cand[v, k]
+        uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
+        q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
+        d = wp.length(p - q)
+        if d < bd:
+            bd = d
+            best = t
+    return best
+
+
+@wp.func
+def pair_correction(v: int, best: int, x: Any, inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+                    thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+                    tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3)):
     """Vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
-    ``depth``): the hard vertex-triangle correction into ``delta`` / ``hits``."""
+    ``depth``), the hard vertex-triangle correction. Returns (moves, a, b, c, the moves of v, a, b, c,
+    the share ``fr`` of them that x_prev takes too); ``x``: the positions (an array, or the fused
+    substep's shared tile: solver/fused_self.py). The caller adds them up (Jacobi: :func:`_correct`)."""
+    z = wp.vec3(0.0)
     p = x[v]
     a = faces[best, 0]
     b = faces[best, 1]
@@ -323,7 +345,7 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
     nrm = wp.cross(xb - xa, xc - xa)
     ln = wp.length(nrm)
     if ln < 1.0e-12:
-        return
+        return 0, a, b, c, z, z, z, z, 0.0
     nrm = nrm / ln
     wa = bu[0]
     wb = bu[1]
@@ -331,10 +353,10 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
     q = wa * xa + wb * xb + wc * xc
     s = wp.dot(p - q, nrm)
     if s >= thickness or s < -depth:
-        return
+        return 0, a, b, c, z, z, z, z, 0.0
     w = inv_mass[v] + wa * wa * inv_mass[a] + wb * wb * inv_mass[b] + wc * wc * inv_mass[c]
     if w <= 0.0:
-        return
+        return 0, a, b, c, z, z, z, z, 0.0
     dl = (thickness - s) / w
     if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
         tk = _room(v, inv_mass[v] * dl * nrm, x, vt_off, vt, tets, vol0, keep)
@@ -348,21 +370,37 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
     # held fist's skin jumps up to ~5 mm a frame (docs/self_collision.md "A held fist").
     s0 = wp.dot(x_prev[v] - (wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]), nrm)
     fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
+    return (1, a, b, c, inv_mass[v] * dl * nrm, -wa * inv_mass[a] * dl * nrm, -wb * inv_mass[b] * dl * nrm,
+            -wc * inv_mass[c] * dl * nrm, fr)
+
+
+@wp.func
+def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+             thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
+             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
+             dprev: wp.array(dtype=wp.vec3)):
+    """:func:`pair_correction` added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``)
+    by atomics: the non-fused passes' sum."""
+    moves, a, b, c, dv, da, db, dc, fr = pair_correction(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off,
+                                                         vt, tets, vol0, x_prev)
+    if moves == 0:
+        return
     if fr > 0.0:
-        wp.atomic_add(dprev, v, fr * inv_mass[v] * dl * nrm)
-        wp.atomic_add(dprev, a, -fr * wa * inv_mass[a] * dl * nrm)
-        wp.atomic_add(dprev, b, -fr * wb * inv_mass[b] * dl * nrm)
-        wp.atomic_add(dprev, c, -fr * wc * inv_mass[c] * dl * nrm)
-    wp.atomic_add(delta, v, inv_mass[v] * dl * nrm)
+        wp.atomic_add(dprev, v, fr * dv)
+        wp.atomic_add(dprev, a, fr * da)
+        wp.atomic_add(dprev, b, fr * db)
+        wp.atomic_add(dprev, c, fr * dc)
+    wp.atomic_add(delta, v, dv)
     wp.atomic_add(hits, v, 1)
     if inv_mass[a] > 0.0:
-        wp.atomic_add(delta, a, -wa * inv_mass[a] * dl * nrm)
+        wp.atomic_add(delta, a, da)
         wp.atomic_add(hits, a, 1)
     if inv_mass[b] > 0.0:
-        wp.atomic_add(delta, b, -wb * inv_mass[b] * dl * nrm)
+        wp.atomic_add(delta, b, db)
         wp.atomic_add(hits, b, 1)
     if inv_mass[c] > 0.0:
-        wp.atomic_add(delta, c, -wc * inv_mass[c] * dl * nrm)
+        wp.atomic_add(delta, c, dc)
         wp.atomic_add(hits, c, 1)
     wp.atomic_add(active, 0, 1)
 
@@ -380,18 +418,9 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
     if i >= n[0]:
         return
     v = vlist[i]
-    p = x[v]
     best = int(-1)
     if pick != 0:
-        bd = float(1.0e30)
-        for k in range(cand_n[v]):
-            t = cand[v, k]
-            uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
-            q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
-            d = wp.length(p - q)
-            if d < bd:
-                bd = d
-                best = t
+        best = nearest_listed(v, x, faces, cand, cand_n)
         nearest[v] = best
     else:
         best = nearest[v]
@@ -469,6 +498,7 @@ class SelfContact:
         self.vcount = wp.zeros(1, dtype=int, device=d)  # (the list launches read their length here)
         self.icount = wp.zeros(1, dtype=int, device=d)
         self._meshes: dict = {}
+        self.in_kernel = False  # (the substep passes run inside the fused kernel: solver/fused_self.py)
         # Tuning.self_tet_keep: every tet of every skin vertex (CSR: vt_off, vt) and its rest volume
         tets = np.asarray(model.tet_ids.numpy()).reshape(-1, 4)
         self.tets = wp.array(tets.astype(np.int32), dtype=int, device=d)
@@ -547,6 +577,7 @@ class SelfContact:
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's four, the query's four with any
         # vertex queried, the substeps' 2 x passes with any pair listed
-        ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] else 0)
+        # (inside the fused kernel, the substep passes launch nothing of their own)
+        ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
         return dict(self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
                     self_corrections=int(self.active.numpy()[0]))

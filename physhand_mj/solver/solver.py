@@ -88,6 +88,12 @@ class Solver:
         self.guard_worlds = np.zeros((model.worlds, 4), int)  # the last frame's guard counts per world
         self.warn_feature_slack = True  # warn (once) when the skin outran the feature lists' slack (slack.py)
         self._fused = fused_choice.choose(model, self.config, self.device)  # Config.execution.fused_substep
+        # Config.self_collision with the fused substep: its substep passes inside the fused kernel, a fourth
+        # group (solver/fused_self.py; fused.SELF_IN_KERNEL False: self_contact.py's launches after it)
+        self._self_fused = self.selfc is not None and self._fused is not None and fused_launch.SELF_IN_KERNEL
+        if self._self_fused:
+            self._fused.attach_self(self.selfc)
+            self.selfc.in_kernel = True
         # per-region sleeping (physhand_mj/solver/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
@@ -425,8 +431,9 @@ class Solver:
         region_args = [rs.vertex_region, rs.fast] if rs is not None else [no_int, no_int]
         if rs is not None:
             rs.record_start(launch)
+        solo = self.selfc is None or self._self_fused  # (no self-contact launch between the substeps)
         end_folded = (self._fused is not None and self._fused.frame_launch and self._fused.fold_end
-                      and self.contact is None and self.selfc is None and rs is None)
+                      and self.contact is None and solo and rs is None)
         for s in range(cfg.substeps + 1):
             contact = self.contact
             # Config.contact_every: the contact stages of this substep (the last substep always has them)
@@ -454,8 +461,7 @@ class Solver:
             elif hold and not hold_after:
                 gated(lambda sub: contact.record_hold(rec, state), 1)
             # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
-            whole = (self._fused is not None and self._fused.frame_launch and self.contact is None
-                     and self.selfc is None)
+            whole = self._fused is not None and self._fused.frame_launch and self.contact is None and solo
             if self._fused is not None and (s == 0 or not whole):  # the three groups, each averaged, in one launch
                 fz = self._fused
                 inputs = fz.inputs(self._inv_h2, cfg.relaxation, state, start=s if fold else -1, finish=int(s > 0),
@@ -485,7 +491,8 @@ class Solver:
                                    count=order[1] if order else None)
                     if jacobi:
                         pending = row
-            if self.selfc is not None:  # self-contact after the constraints, before the object contact (its last word)
+            if self.selfc is not None and not self._self_fused:  # self-contact after the constraints, before the
+                # object contact (its last word; fused: inside the fused launch)
                 if pending >= 0:
                     apply(pending)
                     pending = -1
