@@ -1,0 +1,161 @@
+"""Config.self_collision's substep passes inside the fused substep kernel (solver/fused_self.py): the
+same positions as self_contact.py's launches (bit for bit on the CPU: one lane, the listed vertices
+in order, the same float sums), the same lists, the same independent measure, and a frame without
+objects one frame launch again (docs/self_collision.md "How it runs")."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+import physhand_mj as ph
+from physhand_mj.config import Execution
+from physhand_mj.contact.self_measures import self_penetration
+from physhand_mj.solver import fused
+
+FIELDS = ("x", "x_prev", "v", "lam_edge", "lam_tet", "lam_dih")
+
+
+def _run(key: str, frames: int, fused_substep=None, self_collision: bool = True):
+    """``hand_only``'s keyframe ``key`` rolled out as ``physhand rollout`` does (SoftHand, MuJoCo
+    stepping its targets), ``frames`` frames on the CPU; the hand, the last report, each frame's pairs."""
+    import mujoco
+
+    from physhand_mj.rollout import load_rollout_scene
+
+    model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), key)
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=self_collision,
+                    execution=Execution(fused_substep=fused_substep))
+    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    res, pairs = {}, []
+    for _ in range(frames):
+        mujoco.mj_step(model, data)
+        res = hand.step()
+        pairs.append(res.get("self_pairs"))
+    return hand, res, pairs
+
+
+def _same_state(a, b) -> None:
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(a.state, name).numpy(), getattr(b.state, name).numpy(), err_msg=name)
+
+
+@pytest.mark.parametrize("key", ["pinch", "power"])
+def test_fused_self_passes_equal_the_launches(key, monkeypatch):
+    """The CPU's default (the fused substep) runs the passes inside the kernel: bit for bit the
+    non-fused solver's (fused_substep=False: the five-launch substep and self_contact's launches) and
+    the fused kernel followed by self_contact's launches (fused.SELF_IN_KERNEL False), with the same
+    pairs every frame; the frame is one frame launch plus the self-contact query's once-a-frame ops:
+    2 x self_passes x substeps launches, the last advance and the inverted-tet count fewer than the
+    fused kernel with the launches after it (pinch / power: 28 ops against 108; non-fused 168)."""
+    frames = 4
+    fz, res, pairs = _run(key, frames)
+    assert fz.solver.fused_substep and fz.solver._self_fused  # (the CPU default takes the fused self path)
+    assert min(pairs) > 0 and res["self_corrections"] > 0
+    ref, ref_res, ref_pairs = _run(key, frames, fused_substep=False)
+    assert not ref.solver.fused_substep
+    monkeypatch.setattr(fused, "SELF_IN_KERNEL", False)
+    out, out_res, out_pairs = _run(key, frames)
+    assert out.solver.fused_substep and not out.solver._self_fused
+    assert pairs == ref_pairs == out_pairs
+    for other in (ref, out):
+        _same_state(fz, other)
+    cfg = fz.config
+    passes = 2 * cfg.self_passes * cfg.substeps
+    # (hand_only's SoftHand has a contact stage, gated off: a launch per substep either way)
+    assert out_res["ops_run"] - res["ops_run"] == passes
+    assert res["self_ops_run"] == 8 and out_res["self_ops_run"] == 8 + passes  # (a queried frame: slack and query)
+    assert res["self_corrections"] == ref_res["self_corrections"] == out_res["self_corrections"]
+
+
+def _solver_run(frames: int, fused_substep=None, self_collision: bool = True):
+    """A bare Solver (no objects: no contact stage) closing the hand from ``open`` to ``power`` over
+    6 frames, then holding it; the solver, its state, the last report, each frame's pairs."""
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.solver import Solver, make_model
+
+    asset, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    q0, q1 = model.key("open").qpos.copy(), model.key("power").qpos.copy()
+    cfg = ph.Config(device="cpu", self_collision=self_collision, execution=Execution(fused_substep=fused_substep))
+    solver = Solver(make_model(asset, cfg), cfg)
+    state = solver.make_state(*mount_pose(model, data))
+    res, pairs = {}, []
+    for f in range(frames):
+        a = min((f + 1) / 6, 1.0)
+        solver.set_body_poses(state, *bone_poses_at(model, data, (1 - a) * q0 + a * q1, ids))
+        res = solver.step(state)
+        pairs.append(res.get("self_pairs"))
+    return solver, state, res, pairs
+
+
+def test_fused_self_frame_is_one_launch(monkeypatch):
+    """Without objects the fused self path's frame is the option-off frame plus the query's
+    once-a-frame ops (one frame launch: no launch a substep), bit for bit the non-fused solver's and
+    the fused kernel's with self_contact's launches after it (closing to the power grasp, ops a frame:
+    off 2; on 13, against 104 with the launches and 164 non-fused)."""
+    fz, st, res, pairs = _solver_run(10)
+    assert fz.fused_substep and fz._self_fused and max(pairs) > 0
+    ref, st_ref, ref_res, ref_pairs = _solver_run(10, fused_substep=False)
+    monkeypatch.setattr(fused, "SELF_IN_KERNEL", False)
+    out, st_out, out_res, out_pairs = _solver_run(10)
+    assert pairs == ref_pairs == out_pairs
+    for other in (st_ref, st_out):
+        for name in FIELDS:
+            np.testing.assert_array_equal(getattr(st, name).numpy(), getattr(other, name).numpy(), err_msg=name)
+    off, _, off_res, _ = _solver_run(1, self_collision=False)
+    cfg = fz.config
+    assert res["ops_run"] == off_res["ops_run"] + 11  # (the slack's 4 and the query's 7: self_contact.record_frame)
+    # with the launches: a fused launch per substep (frame launch off), the passes, the last advance and the count
+    assert out_res["ops_run"] - res["ops_run"] == 2 * cfg.self_passes * cfg.substeps + cfg.substeps - 1 + 2
+    assert ref_res["ops_run"] > out_res["ops_run"]
+
+
+@pytest.mark.parametrize("lanes", [1, 64])
+def test_fused_self_fixed_point_sum_in_any_order(lanes, monkeypatch):
+    """ACCUM "fixed" (CUDA's default) on the CPU: the self passes' moves and x_prev shares added as
+    int32 steps, so one lane and Warp's 64-lane CPU blocks (a GPU block's lanes meeting at the
+    barriers) give the same bits and pairs. (Against the float sum the closing pinch differs by up to
+    ~0.4 mm after its 20 settle frames and 3 more: the contact's choices amplify rounding, as the float
+    sum in 64 lanes' order does, ~0.3 mm; without self-collision the two sums stay within 1 um.)"""
+    if lanes > 1 and not hasattr(wp.config, "enable_cpu_blocks"):
+        pytest.skip("this Warp has no multi-lane CPU blocks (wp.config.enable_cpu_blocks)")
+    monkeypatch.setattr(fused, "ACCUM", "fixed")
+    block = fused.BLOCK_DIM
+
+    def run(k):
+        if hasattr(wp.config, "enable_cpu_blocks"):
+            monkeypatch.setattr(wp.config, "enable_cpu_blocks", k > 1)
+        monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else block)
+        hand, res, pairs = _run("pinch", 3, fused_substep=True)
+        assert hand.solver._fused.fixed and hand.solver._self_fused
+        return hand, pairs
+
+    one, one_pairs = run(1)
+    assert min(one_pairs) > 0
+    if lanes > 1:
+        many, many_pairs = run(lanes)
+        assert many_pairs == one_pairs
+        _same_state(one, many)
+
+
+@pytest.mark.slow  # 36 frames of the power grasp twice, and the measure (brute-force winding numbers)
+def test_fused_self_measure_power():
+    """The independent measure after the power grasp's 36 frames: the fused self path's (the CPU's
+    default) as the non-fused one's (the same bits), and with the fixed-point sum at most the bound
+    the launches' test holds (100 of 698 inside at 0.2 mm)."""
+    fz, _, _ = _run("power", 36)
+    ref, _, _ = _run("power", 36, fused_substep=False)
+    faces = np.asarray(fz.asset.skin_faces)
+    a, b = (self_penetration(h.state.x.numpy(), faces) for h in (fz, ref))
+    assert a == b and a["inside_200um"] <= 100, (a, b)
+
+
+@pytest.mark.slow
+def test_fused_self_fixed_point_measure_power(monkeypatch):
+    """The fixed-point sum (CUDA's) through the power grasp: finite, at most 100 vertices inside."""
+    monkeypatch.setattr(fused, "ACCUM", "fixed")
+    hand, res, _ = _run("power", 36, fused_substep=True)
+    x = hand.state.x.numpy()
+    assert np.all(np.isfinite(x)) and res["nonfinite"] == 0
+    m = self_penetration(x, np.asarray(hand.asset.skin_faces))
+    assert m["inside_200um"] <= 100, m
