@@ -1,6 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
-    python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K] [--out F.json]
+    python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
+        [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
 
 Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
@@ -8,7 +9,10 @@ measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1
 lie inside the closed skin, and inverted tets. Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
-process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs. Reported with the option on: the
+process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs. ``--fused``: Config.execution.fused_substep
+(auto: None, the default: the fused substep on the CPU, the five-launch substep for one hand on CUDA;
+on: True, also on CUDA, one block on one SM; off: False); ``--self-launches``: the self-contact passes as
+self_contact.py's launches after the fused kernel (fused.SELF_IN_KERNEL False) instead of inside it. Reported with the option on: the
 last frame's vertices queried (``self_queried``), self-collision launches run (``self_ops_run``),
 listed vertices and pairs, corrections. Every run: the skin's move over the last frame (vertices
 moving more than 0.5 mm, the largest; a held fist: ``--keys power --modes on --frames 120``).
@@ -58,6 +62,8 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         mv = np.linalg.norm(np.asarray(x, float)[:ns] - last, axis=1)
         out.update(skin_moved_over_05mm=int((mv > 5e-4).sum()), skin_move_max_mm=round(float(mv.max()) * 1e3, 3))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
+    out["fused_substep"] = bool(hand.solver.fused_substep)
+    out["self_in_kernel"] = bool(getattr(hand.solver, "_self_fused", False))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:
             out[k] = res[k]
@@ -71,12 +77,21 @@ def main():
     ap.add_argument("--modes", default="off,on")
     ap.add_argument("--device", default=None)
     ap.add_argument("--tet-keep", type=float, default=None)
+    ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
+    ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    if a.self_launches:
+        from physhand_mj.solver import fused
+
+        fused.SELF_IN_KERNEL = False
+    fz = {"auto": None, "on": True, "off": False}[a.fused]
     rows = []
     for key in a.keys.split(","):
         for mode in a.modes.split(","):
-            extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else None
+            extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}
+            if fz is not None:
+                extra["fused_substep"] = fz
             r = run(key, a.frames, mode == "on", a.device, extra=extra)
             print(json.dumps(r), flush=True)
             rows.append(r)
