@@ -20,6 +20,11 @@ the frame (FOLD_END: the last substep's velocities, x_safe and fast vertices, th
 tets counted from shared memory) and keeps the skeleton's positions in shared memory between its
 first and last substeps (SKIP_BONES).
 
+With ``Config.self_collision`` (``SELF_IN_KERNEL``) a fourth group follows the three: the skin
+self-contact passes over the frame's pair list (solver/fused_self.py), so such a frame stays one
+launch too; their x_prev shares go to global memory, which this substep's start wrote and the next
+substep's start reads (barriers between, one block per world).
+
 A group's corrections are summed per vertex with shared-memory atomics (``SUM = "scatter"``, the
 default) or by each vertex recomputing its constraints in a fixed order (``SUM = "gather"``:
 solver/fused_gather.py).
