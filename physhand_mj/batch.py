@@ -416,14 +416,18 @@ class BatchedHands:
         if not self.config.frame_metrics:  # nothing measured in the frame (Config.frame_metrics): no columns
             rows = rows[:, :0]
         over = c.feature_motion_worlds(self.solver.activity.last_open1) if c is not None else None
-        return g, rows, over
+        sc = self.solver.selfc  # Config.self_collision: the frame's pairs per world
+        return g, rows, over, (sc.report_worlds() if sc is not None else None)
 
-    def _world_rows(self, g, rows, over) -> list[dict]:
+    def _world_rows(self, g, rows, over, selfw=None) -> list[dict]:
         from physhand_mj.contact.metrics import summarize_rows
 
         out = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
                for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(),
                                              summarize_rows(rows))]
+        if selfw is not None:  # (Solver.step's self_vertices / _pairs / _pairs_over / _corrections, per world)
+            for row, (nv, npairs, nover, ncorr) in zip(out, selfw.tolist()):
+                row.update(self_vertices=nv, self_pairs=npairs, self_pairs_over=nover, self_corrections=ncorr)
         if over is not None:  # this world's feature lists' check (Config.tuning.feature_slack), where it has feature points
             for row, o in zip(out, over):
                 row["feature_slack_exceeded"] = o
