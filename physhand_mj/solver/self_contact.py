@@ -172,6 +172,13 @@ def _normals_cos(vn: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
     return wp.dot(vn, f) / wp.max(wp.length(vn) * wp.length(f), 1.0e-30)
 
 
+@wp.kernel
+def group_roots(bvh: wp.uint64, roots: wp.array(dtype=int)):
+    """Per world its subtree's root in the grouped BVH (fixed by the build: a refit keeps it)."""
+    w = wp.tid()
+    roots[w] = wp.bvh_get_group_root(bvh, w)
+
+
 @wp.func
 def _after(d0: float, t0: int, d1: float, t1: int) -> bool:
     """Whether (distance d0, triangle t0) comes after (d1, t1): by distance, equal ones by triangle."""
@@ -180,7 +187,8 @@ def _after(d0: float, t0: int, d1: float, t1: int) -> bool:
 
 @wp.kernel
 def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
-               bvh: wp.uint64, ns: int, nf: int, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
+               bvh: wp.uint64, roots: wp.array(dtype=int), ns: int, nf: int, x: wp.array(dtype=wp.vec3),
+               rest: wp.array(dtype=wp.vec3),
                faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
                vn_now: wp.array(dtype=wp.vec3), fold_gap: float,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
@@ -203,7 +211,7 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
     r = wp.vec3(reach, reach, reach)
     nearest_kept = reach  # for the slack: the nearest triangle kept or about to fold
     # the BVH's group w: world w's triangles only (the worlds overlap in space: every world is solved at the origin)
-    q = wp.bvh_query_aabb(bvh, p - r, p + r, wp.bvh_get_group_root(bvh, w))
+    q = wp.bvh_query_aabb(bvh, p - r, p + r, roots[w])
     t = int(0)
     n = int(0)
     while wp.bvh_query_next(q, t):
@@ -502,6 +510,7 @@ class SelfContact:
         self.uppers = wp.zeros(nf, dtype=wp.vec3, device=d)
         self.groups = wp.array(np.repeat(np.arange(W, dtype=np.int32), self.nf1), dtype=wp.int32, device=d)
         self.bvh = None  # (built at the first frame recorded, from its state's skin)
+        self.roots = wp.zeros(W, dtype=int, device=d)  # per world its subtree's root in the BVH
         # the query slack: the skin at the last frame's start, its largest move since, per vertex the slack;
         # per world nb1 + 1 bone slots (slot nb1: the world frame, for skin without a bone)
         nbw = W * (self.nb1 + 1)
@@ -561,6 +570,7 @@ class SelfContact:
             wp.launch(skin_bounds, self.faces.shape[0], inputs=[state.x, self.faces, 0, self.vn_now],
                       outputs=[self.lowers, self.uppers], device=self.device)
             self.bvh = wp.Bvh(self.lowers, self.uppers, groups=self.groups)
+            wp.launch(group_roots, self.worlds, inputs=[self.bvh.id], outputs=[self.roots], device=self.device)
         return self.bvh
 
     def record_frame(self, rec, state) -> None:
@@ -595,7 +605,7 @@ class SelfContact:
                    count=None if cuda else self.fcount)
         rec.ops.append(when_queried(bvh.refit))
         rec.launch(broadphase, self.n_skin,
-                   [self.qcount, self.qlist, reach, self.slack, bvh.id, ns1, self.nf1, state.x, self.rest, self.faces,
+                   [self.qcount, self.qlist, reach, self.slack, bvh.id, self.roots, ns1, self.nf1, state.x, self.rest, self.faces,
                     self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP)],
                    [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts, self.wcounts],
                    count=self.qcount)
