@@ -105,3 +105,14 @@ def test_overlapping_worlds_never_pair_across(setup):
     for w in range(2):
         np.testing.assert_array_equal(bp[:, w], sp)
         assert np.abs(batch.positions(w) - x).max() <= 1e-7
+
+
+def test_batched_tet_keep_equals_one_hand(setup):
+    """Tuning.self_tet_keep in batched worlds: the tet guard walks each world's own tets (one world's
+    lists shifted by the world's offsets): world 1 (power) ends as the hand alone."""
+    asset = setup[0]
+    cfg = Config(device="cpu", self_collision=True, tuning=ph.Tuning(self_tet_keep=0.02))
+    batch, frames, bp = _batched(setup, cfg, ("pinch", "power"))
+    x, sp = _serial(setup, cfg, "power", frames, 1)
+    np.testing.assert_array_equal(bp[:, 1], sp)
+    assert np.abs(batch.positions(1) - x).max() <= 1e-7
