@@ -2,6 +2,8 @@
 
     python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
         [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+    python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
+        [--device cuda] [--fused auto|on|off] [--self-launches]
 
 Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
@@ -16,6 +18,14 @@ self_contact.py's launches after the fused kernel (fused.SELF_IN_KERNEL False) i
 last frame's vertices queried (``self_queried``), self-collision launches run (``self_ops_run``),
 listed vertices and pairs, corrections. Every run: the skin's move over the last frame (vertices
 moving more than 0.5 mm, the largest; a held fist: ``--keys power --modes on --frames 120``).
+
+``--worlds W[,W2...]``: batched throughput instead (BatchedHands, no objects): world w holds keyframe
+``keys[w % len(keys)]`` (its bones settled there over 20 frames, BatchedHands.settle, then held; the
+hand never sleeps: Config.sleep_speed 0), 2 warm-up frames, then ``frames`` frames timed one
+``step`` (one host sync) each: ms a frame and hand-frames/s, per mode; with the option on the last
+frame's queried vertices, launches run and pairs (every world's), and per keyframe its first world's
+pairs and the independent measure (those worlds' skins, on the host). ``--fused`` / ``--self-launches``
+as above (a CUDA batch of W >= 0.3 x the SMs takes the fused substep by default: fused_choice.cuda_auto).
 """
 
 import argparse
@@ -70,6 +80,52 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     return out
 
 
+def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, device=None, fused=None) -> dict:
+    """``--worlds``: one batch of ``worlds`` worlds holding ``keys`` in turn, timed (module docstring);
+    ``fused``: Config.execution.fused_substep (None: the default)."""
+    import physhand_mj as ph
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.contact.self_measures import self_penetration
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+
+    asset, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    held = [bone_poses_at(model, data, model.key(k).qpos.copy(), ids) for k in keys]
+    pick = np.arange(worlds) % len(keys)
+    pos, quat = np.stack([p for p, _ in held])[pick], np.stack([q for _, q in held])[pick]
+    opts = dict(frame_dt=float(model.opt.timestep), substeps=10, device=device, sleep_speed=0.0,
+                self_collision=self_collision)
+    if fused is not None:
+        opts["fused_substep"] = fused
+    cfg = ph.Config.from_dict(opts)
+    t = time.perf_counter()
+    hands = BatchedHands(asset, worlds, cfg, *mount_pose(model, data))
+    hands.settle(pos, quat)
+    setup_s = time.perf_counter() - t
+    for _ in range(2):  # (compilation, recording, the graph's capture)
+        hands.step(pos, quat)
+    times = []
+    for _ in range(frames):
+        t = time.perf_counter()
+        res = hands.step(pos, quat)
+        times.append(time.perf_counter() - t)
+    ms = float(np.median(times) * 1e3)
+    out = dict(worlds=worlds, keys=keys, self_collision=self_collision, frames=frames, ms_frame=round(ms, 3),
+               hand_frames_per_s=round(worlds / ms * 1e3, 1), setup_s=round(setup_s, 2),
+               nonfinite=int(res["nonfinite"]), inverted=int(res["inverted"]),
+               fused_substep=bool(hands.solver.fused_substep), self_in_kernel=bool(getattr(hands.solver, "_self_fused", False)))
+    for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
+        if k in res:
+            out[k] = res[k]
+    faces = np.asarray(asset.skin_faces)
+    for w in range(min(worlds, len(keys))):  # each keyframe's first world: its pairs and the measure
+        row = {k: v for k, v in res["worlds"][w].items() if k.startswith("self_")}
+        row.update(self_penetration(hands.skin(w), faces))
+        out[keys[w]] = row
+    hands.close()
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--keys", default="open,pinch,power")
@@ -80,6 +136,7 @@ def main():
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
     ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--worlds", default=None, help="comma-separated world counts: batched throughput instead")
     a = ap.parse_args()
     if a.self_launches:
         from physhand_mj.solver import fused
@@ -87,6 +144,15 @@ def main():
         fused.SELF_IN_KERNEL = False
     fz = {"auto": None, "on": True, "off": False}[a.fused]
     rows = []
+    if a.worlds:
+        for w in [int(v) for v in a.worlds.split(",")]:
+            for mode in a.modes.split(","):
+                r = run_worlds(w, a.keys.split(","), a.frames, mode == "on", a.device, fused=fz)
+                print(json.dumps(r), flush=True)
+                rows.append(r)
+        if a.out:
+            Path(a.out).write_text(json.dumps(rows, indent=1))
+        return
     for key in a.keys.split(","):
         for mode in a.modes.split(","):
             extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}

@@ -388,7 +388,8 @@ class BatchedHands:
         out = self.solver.finish(self.state)
         if self.two_way is not None:
             out["two_way"] = self.two_way.report()
-        self._unclaimed = (out, self._world_arrays())
+        self._asleep = bool(out.get("asleep", False))  # (frame_worlds' too: a sleeping frame ran no self-contact)
+        self._unclaimed = (out, self._world_arrays(self._asleep))
 
     def _claim(self) -> dict | None:
         if self._unclaimed is None:
@@ -406,24 +407,30 @@ class BatchedHands:
         lists' check failed (``feature_slack_exceeded``, 0 or 1): what ``Solver.step`` reports for
         one hand."""
         self._complete()
-        return self._world_rows(*self._world_arrays())
+        return self._world_rows(*self._world_arrays(getattr(self, "_asleep", False)))
 
-    def _world_arrays(self):
-        """The last frame's per-world guard counts, skin-measure rows and feature checks (copies)."""
+    def _world_arrays(self, asleep: bool = False):
+        """The last frame's per-world guard counts, skin-measure rows, feature checks and self-contact
+        figures (copies; ``asleep``: the frame ran no self-contact, zeros)."""
         g = self.solver.guard_worlds  # (a copy per frame: Solver._read_guard_worlds)
         c = self.solver.contact
         rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3] if c is not None else np.zeros((self.worlds, 3))
         if not self.config.frame_metrics:  # nothing measured in the frame (Config.frame_metrics): no columns
             rows = rows[:, :0]
         over = c.feature_motion_worlds(self.solver.activity.last_open1) if c is not None else None
-        return g, rows, over
+        sc = self.solver.selfc  # Config.self_collision: the frame's pairs per world
+        selfw = None if sc is None else (np.zeros((self.worlds, 4), int) if asleep else sc.report_worlds())
+        return g, rows, over, selfw
 
-    def _world_rows(self, g, rows, over) -> list[dict]:
+    def _world_rows(self, g, rows, over, selfw=None) -> list[dict]:
         from physhand_mj.contact.metrics import summarize_rows
 
         out = [dict(nonfinite=nf, inverted=inv, tethered=teth, **pen)
                for nf, inv, teth, pen in zip(g[:, 0].tolist(), g[:, 1].tolist(), g[:, 2].tolist(),
                                              summarize_rows(rows))]
+        if selfw is not None:  # (Solver.step's self_vertices / _pairs / _pairs_over / _corrections, per world)
+            for row, (nv, npairs, nover, ncorr) in zip(out, selfw.tolist()):
+                row.update(self_vertices=nv, self_pairs=npairs, self_pairs_over=nover, self_corrections=ncorr)
         if over is not None:  # this world's feature lists' check (Config.tuning.feature_slack), where it has feature points
             for row, o in zip(out, over):
                 row["feature_slack_exceeded"] = o

@@ -494,14 +494,14 @@ class _TwoWaySide:
     def frame_state(self) -> dict:
         """The objects' velocities ([linear, angular]: BatchTwoWay's order), centres and inertial
         frames and the bones' centres, as the world's last ``mj_step`` left them."""
-        from physhand_mj.coupling import _mat_to_quat, object_motion
+        from physhand_mj.coupling import inertia_quats, object_motion
 
         m, d, b = self.run.model, self.run.data, self.bodies
         vel, acc = object_motion(m, d, b, self.free)  # [angular, linear]
         start = vel - acc * self.dt
         self._vel = vel
         return dict(object_vel=np.c_[vel[:, 3:], vel[:, :3]], object_vel_start=np.c_[start[:, 3:], start[:, :3]],
-                    object_com=d.xipos[b].copy(), object_iquat=_mat_to_quat(d.ximat[b].reshape(-1, 9)),
+                    object_com=d.xipos[b].copy(), object_iquat=inertia_quats(d, b),
                     bone_com=d.xipos[self.run.bones].copy())
 
     def apply(self, report: dict, w: int, contacts) -> list:

@@ -194,7 +194,7 @@ class Config:
       sleep_speed: the hand sleeps after calm frames with no soft vertex faster than this (m/s; 0:
         never); asleep, a frame is one launch and the skin rides its bones.
       region_sleep: the palm, the thumb and each finger sleep alone (one world).
-    Self-collision (opt-in, one hand; docs/self_collision.md):
+    Self-collision (opt-in; one hand or batched worlds, not region_sleep; docs/self_collision.md):
       self_collision: keep one part of the hand's skin out of another's (fingers, thumb, palm):
         vertex-triangle contact found once a frame, resolved every substep (Tuning's ``self_*``).
     Expert groups: tuning (:class:`Tuning`), execution (:class:`Execution`).

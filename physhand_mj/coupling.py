@@ -653,6 +653,11 @@ def object_body_ids(model, geoms, objects) -> np.ndarray:
     return out
 
 
+def inertia_quats(data, bodies) -> np.ndarray:
+    """(k, 4) w x y z orientations of ``bodies``' inertial frames (data.ximat) as ``data`` has them now."""
+    return _mat_to_quat(data.ximat[bodies].reshape(-1, 9))
+
+
 def geom_quats(data, geoms) -> np.ndarray:
     """(k, 4) w x y z orientations of ``geoms`` as ``data`` has them now."""
     return _mat_to_quat(data.geom_xmat[geoms])

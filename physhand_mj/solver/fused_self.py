@@ -86,13 +86,13 @@ def self_passes(fixed: bool):
                         v = vlist[i]
                         best = int(-1)
                         if k == 0:
-                            best = nearest_listed(v, xs, faces, cand, cand_n)
+                            best = nearest_listed(v, 0, xs, faces, cand, cand_n)
                             nearest[v] = best
                         else:
                             best = nearest[v]
                         if best >= 0:
                             moves, a, b, c, dv, da, db, dc, fr = pair_correction(
-                                v, best, xs, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev)
+                                v, best, 0, 0, 0, xs, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev)
                             if moves != 0:
                                 if fr > 0.0:
                                     wp.static(PREV_ADD)(dprev, v, fr * dv, fx[0], fx[2])

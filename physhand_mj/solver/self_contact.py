@@ -8,9 +8,9 @@ Found once a frame, resolved every substep (docs/self_collision.md):
                   second's skin (local_motion, body_motion); a vertex whose slack (how much nearer
                   a kept triangle may come before it is within the margin) they used up is queried
                   (pick_queries), the others keep an empty list. For the queried (CPU: only when
-                  there are any): the skin's BVH (a wp.Mesh over the state's positions) refit, the
-                  skin's normals, per vertex the skin triangles within ``self_margin`` + REACH
-                  (mesh_query_aabb, then the exact distance), minus the rest filter, those within
+                  there are any): the skin's normals and triangle boxes, its BVH (grouped by world)
+                  refit, per vertex its world's skin triangles within ``self_margin`` + REACH
+                  (bvh_query_aabb, then the exact distance), minus the rest filter, those within
                   ``self_margin`` kept in a per-vertex table of SLOTS, the nearest kept one setting
                   the slack; the vertices with any listed in a compact list, and every vertex a
                   listed pair touches in another
@@ -73,10 +73,15 @@ def clear_marks(n: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.
 
 
 @wp.func
-def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), counts: wp.array(dtype=int)):
+def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), counts: wp.array(dtype=int),
+           seg: int, w: int, vo: int, winvolved: wp.array(dtype=int), wcounts: wp.array2d(dtype=int)):
+    """Vertex i (of world w, its first skin vertex ``vo``) into the involved list once (``seg``: into its
+    world's segment of ``winvolved`` too)."""
     if wp.atomic_add(mark, i, 1) == 0:
         s = wp.atomic_add(counts, 1, 1)
         involved[s] = i
+        if seg != 0:
+            winvolved[vo + wp.atomic_add(wcounts, w, 4, 1)] = i
 
 
 @wp.func
@@ -86,72 +91,79 @@ def _pose(body_pose: wp.array2d(dtype=wp.transform), b: int) -> wp.transform:
     return body_pose[0, b]
 
 
+@wp.func
+def _slot(b: int, w: int, nb: int) -> int:
+    """Bone ``b`` (a model bone index, -1: none) of world ``w`` in the per-world bone tables: world w's
+    ``nb`` bones, then its slot for the skin without a bone (the world frame)."""
+    if b < 0:
+        return w * (nb + 1) + nb
+    return b + w  # (b = w nb + its bone in the world: w (nb + 1) + that)
+
+
 @wp.kernel
 def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
-                 y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float), body_move: wp.array(dtype=float),
-                 body_reach: wp.array(dtype=float)):
+                 ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
+                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float)):
     """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
     deformation, not the bones' motion), per bone the largest (``body_move``) and the skin's farthest
-    point from the bone's origin (``body_reach``); slot B: the vertices without a bone (world frame)."""
+    point from the bone's origin (``body_reach``); per world (``ns`` skin vertices, ``nb`` bones each)
+    the slots :func:`_slot` names (the last: the vertices without a bone, in the world frame)."""
     v = wp.tid()
     b = skin_body[v]
     y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
     m = wp.length(y - y_last[v])
     y_last[v] = y
     mu[v] = m
-    k = b
-    if b < 0:
-        k = body_move.shape[0] - 1
+    k = _slot(b, v // ns, nb)
     wp.atomic_max(body_move, k, m)
     wp.atomic_max(body_reach, k, wp.length(y))
 
 
 @wp.kernel
-def body_motion(body_pose: wp.array2d(dtype=wp.transform), rel_last: wp.array2d(dtype=wp.transform),
+def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
                 near_move: wp.array(dtype=float)):
-    """Per pair of bones (slot B: the world frame) how far the skin of the second may have moved,
-    seen from the first, since the last frame's start: the change of their relative pose applied to
-    the second's skin (|dt| + 2 sin(angle / 2) x its reach) plus its own deformation; per bone the
-    largest over the second (``near_move``)."""
-    i, j = wp.tid()
-    nb = near_move.shape[0] - 1
-    bi = i
-    bj = j
+    """Per world w and pair of its bones (slot ``nb``: the world frame) how far the skin of the
+    second may have moved, seen from the first, since the last frame's start: the change of their
+    relative pose applied to the second's skin (|dt| + 2 sin(angle / 2) x its reach) plus its own
+    deformation; per bone the largest over the second (``near_move``). Bones of different worlds
+    are never paired (each world's skin lists only its own triangles)."""
+    w, i, j = wp.tid()
+    o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
+    bi = w * nb + i
+    bj = w * nb + j
     if i == nb:
         bi = -1
     if j == nb:
         bj = -1
     rel = wp.transform_multiply(wp.transform_inverse(_pose(body_pose, bi)), _pose(body_pose, bj))
-    last = rel_last[i, j]
-    rel_last[i, j] = rel
+    last = rel_last[o + i, j]
+    rel_last[o + i, j] = rel
     dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
     half = wp.min(wp.abs(dq[3]), 1.0)
     sin_half = wp.sqrt(wp.max(1.0 - half * half, 0.0))  # sin(angle / 2)
     dt = wp.length(wp.transform_get_translation(rel) - wp.transform_get_translation(last))
     # bones whose skins' bounding balls (about the bone's origin) lie ``far`` apart now do not count:
     # their skins are farther apart than any slack allows (slack + margin <= far)
-    gap = wp.length(wp.transform_get_translation(rel)) - body_reach[i] - body_reach[j]
+    gap = wp.length(wp.transform_get_translation(rel)) - body_reach[o + i] - body_reach[o + j]
     if i != j and i != nb and j != nb and gap >= far:
         return
-    d = body_move[j]
+    d = body_move[o + j]
     if i != j:
-        d = d + dt + 2.0 * sin_half * body_reach[j]
-    wp.atomic_max(near_move, i, d)
+        d = d + dt + 2.0 * sin_half * body_reach[o + j]
+    wp.atomic_max(near_move, o + i, d)
 
 
 @wp.kernel
 def pick_queries(skin_body: wp.array(dtype=int), mu: wp.array(dtype=float), near_move: wp.array(dtype=float),
-                 slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
+                 ns: int, nb: int, slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
     """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
     come before it is within the margin) the moves since used up (the vertex's own in its bone's
-    frame and the largest any skin may have made seen from that bone); the others keep an empty list."""
+    frame and the largest any skin of its world may have made seen from that bone); the others keep
+    an empty list."""
     v = wp.tid()
-    b = skin_body[v]
-    if b < 0:
-        b = near_move.shape[0] - 1
-    sl = slack[v] - mu[v] - near_move[b]
+    sl = slack[v] - mu[v] - near_move[_slot(skin_body[v], v // ns, nb)]
     slack[v] = sl
     if sl <= 0.0:
         qlist[wp.atomic_add(qcount, 0, 1)] = v
@@ -168,27 +180,51 @@ def _normals_cos(vn: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
 
 
 @wp.kernel
+def group_roots(bvh: wp.uint64, roots: wp.array(dtype=int)):
+    """Per world its subtree's root in the grouped BVH (fixed by the build: a refit keeps it)."""
+    w = wp.tid()
+    roots[w] = wp.bvh_get_group_root(bvh, w)
+
+
+@wp.func
+def _after(d0: float, t0: int, d1: float, t1: int) -> bool:
+    """Whether (distance d0, triangle t0) comes after (d1, t1): by distance, equal ones by triangle."""
+    return d0 > d1 or (d0 == d1 and t0 > t1)
+
+
+@wp.kernel
 def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
-               mesh: wp.uint64, x: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3),
+               bvh: wp.uint64, roots: wp.array(dtype=int), ns: int, nf: int, x: wp.array(dtype=wp.vec3),
+               rest: wp.array(dtype=wp.vec3),
                faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
-               vn_now: wp.array(dtype=wp.vec3), fold_gap: float,
+               vn_now: wp.array(dtype=wp.vec3), fold_gap: float, seg: int,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
-               counts: wp.array(dtype=int)):
-    """Per skin vertex, the skin triangles within ``margin`` that the rest filter keeps (the nearest
-    SLOTS); counts: [listed vertices, involved vertices, pairs, pairs dropped for want of a slot]."""
+               counts: wp.array(dtype=int), wcounts: wp.array2d(dtype=int), wvlist: wp.array(dtype=int),
+               winvolved: wp.array(dtype=int)):
+    """Per skin vertex, the skin triangles of its own world within ``margin`` that the rest filter
+    keeps (the nearest SLOTS); counts: [listed vertices, involved vertices, pairs, pairs dropped for
+    want of a slot]; per world (``wcounts``): [listed vertices, pairs, pairs dropped, corrections,
+    involved vertices]; ``seg``: the listed and involved vertices also per world (``wvlist``,
+    ``winvolved``: world w's from w ns on; the fused substep's blocks read them).
+    World w's skin is vertices [w ns, (w + 1) ns) and triangles [w nf, (w + 1) nf); ``rest`` and
+    ``rest_ball`` hold one world's (the rest shape is every world's)."""
     i = wp.tid()
     if i >= nq[0]:
         return
     v = qlist[i]
+    w = v // ns
+    vo = w * ns  # (world w's first skin vertex and triangle: the offsets to one world's rest arrays)
+    to = w * nf
     p = x[v]
-    pr = rest[v]
+    pr = rest[v - vo]
     r = wp.vec3(reach, reach, reach)
     nearest_kept = reach  # for the slack: the nearest triangle kept or about to fold
-    q = wp.mesh_query_aabb(mesh, p - r, p + r)
+    # the BVH's group w: world w's triangles only (the worlds overlap in space: every world is solved at the origin)
+    q = wp.bvh_query_aabb(bvh, p - r, p + r, roots[w])
     t = int(0)
     n = int(0)
-    while wp.mesh_query_aabb_next(q, t):
+    while wp.bvh_query_next(q, t):
         a = faces[t, 0]
         b = faces[t, 1]
         c = faces[t, 2]
@@ -196,7 +232,7 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
             continue
         # the rest filter's cheap half first: a triangle whose rest bounding ball lies within fold_gap
         # (rest_gap unless folded) of the vertex at rest (the surface around it: most of what the box holds)
-        ball = rest_ball[t]
+        ball = rest_ball[t - to]
         rfar = wp.length(pr - wp.vec3(ball[0], ball[1], ball[2])) + ball[3]  # an upper bound on the rest distance
         if rfar < fold_gap:
             continue
@@ -216,8 +252,11 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
         if d > reach:
             continue
         # the rest filter: pairs near each other at rest (webs, creases, the surface around the vertex)
-        ur = closest_on_triangle(rest[a], rest[b], rest[c], pr)
-        qr = ur[0] * rest[a] + ur[1] * rest[b] + (1.0 - ur[0] - ur[1]) * rest[c]
+        ra = rest[a - vo]
+        rb = rest[b - vo]
+        rc = rest[c - vo]
+        ur = closest_on_triangle(ra, rb, rc, pr)
+        qr = ur[0] * ra + ur[1] * rb + (1.0 - ur[0] - ur[1]) * rc
         dr = wp.length(pr - qr)
         if dr < fold_gap:
             continue
@@ -235,41 +274,52 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
             cand_d[v, n] = d
             n += 1
         else:  # full: replace the farthest if this one is nearer
+            # (ordered by distance, then triangle: the list does not depend on the BVH's traversal order,
+            # which differs between builds, e.g. one world's and W worlds')
             far = int(0)
             for k in range(1, SLOTS):
-                if cand_d[v, k] > cand_d[v, far]:
+                if _after(cand_d[v, k], cand[v, k], cand_d[v, far], cand[v, far]):
                     far = k
-            if d < cand_d[v, far]:
+            if _after(cand_d[v, far], cand[v, far], d, t):
                 cand[v, far] = t
                 cand_d[v, far] = d
             wp.atomic_add(counts, 3, 1)
+            wp.atomic_add(wcounts, w, 2, 1)
     cand_n[v] = n
     slack[v] = nearest_kept - margin
     if n > 0:
         s = wp.atomic_add(counts, 0, 1)
         vlist[s] = v
         wp.atomic_add(counts, 2, n)
-        _touch(v, mark, involved, counts)
+        sw = wp.atomic_add(wcounts, w, 0, 1)
+        if seg != 0:
+            wvlist[vo + sw] = v
+        wp.atomic_add(wcounts, w, 1, n)
+        _touch(v, mark, involved, counts, seg, w, vo, winvolved, wcounts)
         for k in range(n):
             tk = cand[v, k]
-            _touch(faces[tk, 0], mark, involved, counts)
-            _touch(faces[tk, 1], mark, involved, counts)
-            _touch(faces[tk, 2], mark, involved, counts)
+            _touch(faces[tk, 0], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            _touch(faces[tk, 1], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            _touch(faces[tk, 2], mark, involved, counts, seg, w, vo, winvolved, wcounts)
 
 
 @wp.func
-def _room(i: int, dp: wp.vec3, x: Any, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-          tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), keep: float) -> float:
+def _room(i: int, il: int, dp: wp.vec3, x: Any, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+          tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), keep: float, to: int) -> float:
     """The share t in [0, 1] of the move dp of vertex i that keeps each of its tets' signed volume at
-    least ``keep`` x its rest volume (the volume is linear in one vertex's position). ``x``: the positions
-    (an array, or the fused substep's shared tile: solver/fused_self.py)."""
+    least ``keep`` x its rest volume (the volume is linear in one vertex's position). ``vt_off``,
+    ``vt`` and ``vol0`` are one world's: ``il`` is the vertex's index in its world's skin, ``to`` the
+    world's first row in ``tets``; ``i`` the vertex as those rows and ``x`` name it (the launches:
+    every world's positions, the world's tets; the fused substep: its block's shared tile, one
+    world's indices, world 0's tets: solver/fused_self.py)."""
     t = float(1.0)
-    for k in range(vt_off[i], vt_off[i + 1]):
+    for k in range(vt_off[il], vt_off[il + 1]):
         e = vt[k]
-        a = tets[e, 0]
-        b = tets[e, 1]
-        c = tets[e, 2]
-        d = tets[e, 3]
+        ge = e + to
+        a = tets[ge, 0]
+        b = tets[ge, 1]
+        c = tets[ge, 2]
+        d = tets[ge, 3]
         v = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
         v1 = v
         if i == a:
@@ -296,51 +346,69 @@ def _room(i: int, dp: wp.vec3, x: Any, vt_off: wp.array(dtype=int), vt: wp.array
 
 
 @wp.kernel
-def vertex_normals(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), vn: wp.array(dtype=wp.vec3)):
+def skin_bounds(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), normals: int, vn: wp.array(dtype=wp.vec3),
+                lowers: wp.array(dtype=wp.vec3), uppers: wp.array(dtype=wp.vec3)):
+    """Per skin triangle its bounding box now (the BVH's leaves, refit next) and, with ``normals``,
+    its area-weighted normal added to its corners' (the fold rule's vertex normals)."""
     t = wp.tid()
     a = faces[t, 0]
     b = faces[t, 1]
     c = faces[t, 2]
-    n = wp.cross(x[b] - x[a], x[c] - x[a])
-    wp.atomic_add(vn, a, n)
-    wp.atomic_add(vn, b, n)
-    wp.atomic_add(vn, c, n)
+    xa = x[a]
+    xb = x[b]
+    xc = x[c]
+    lowers[t] = wp.min(wp.min(xa, xb), xc)
+    uppers[t] = wp.max(wp.max(xa, xb), xc)
+    if normals != 0:
+        n = wp.cross(xb - xa, xc - xa)
+        wp.atomic_add(vn, a, n)
+        wp.atomic_add(vn, b, n)
+        wp.atomic_add(vn, c, n)
 
 
 @wp.func
-def nearest_listed(v: int, x: Any, faces: wp.array2d(dtype=int), cand: wp.array2d(dtype=int),
+def nearest_listed(v: int, xo: int, x: Any, faces: wp.array2d(dtype=int), cand: wp.array2d(dtype=int),
                    cand_n: wp.array(dtype=int)) -> int:
-    """Vertex v's nearest listed triangle now (-1: none listed); ``x`` an array or a shared tile."""
-    p = x[v]
+    """Skin vertex v's nearest listed triangle now (-1: none listed; equal distances, e.g. across a
+    shared edge: the lower triangle, so the choice does not depend on the list's order). ``x``: the
+    positions of vertex ``g`` at ``g - xo`` (the launches: every world's, xo 0; the fused substep:
+    its block's shared tile, xo the world's first skin vertex)."""
+    p = x[v - xo]
     best = int(-1)
     bd = float(1.0e30)
     for k in range(cand_n[v]):
         t = cand[v, k]
-        uv = closest_on_triangle(x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]], p)
-        q = uv[0] * x[faces[t, 0]] + uv[1] * x[faces[t, 1]] + (1.0 - uv[0] - uv[1]) * x[faces[t, 2]]
+        xa = x[faces[t, 0] - xo]
+        xb = x[faces[t, 1] - xo]
+        xc = x[faces[t, 2] - xo]
+        uv = closest_on_triangle(xa, xb, xc, p)
+        q = uv[0] * xa + uv[1] * xb + (1.0 - uv[0] - uv[1]) * xc
         d = wp.length(p - q)
-        if d < bd:
+        if _after(bd, best, d, t):
             bd = d
             best = t
     return best
 
 
 @wp.func
-def pair_correction(v: int, best: int, x: Any, inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-                    thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-                    tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3)):
-    """Vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
+def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_mass: wp.array(dtype=float),
+                    faces: wp.array2d(dtype=int), thickness: float, depth: float, keep: float,
+                    vt_off: wp.array(dtype=int), vt: wp.array(dtype=int), tets: wp.array2d(dtype=int),
+                    vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3)):
+    """Skin vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
     ``depth``), the hard vertex-triangle correction. Returns (moves, a, b, c, the moves of v, a, b, c,
-    the share ``fr`` of them that x_prev takes too); ``x``: the positions (an array, or the fused
-    substep's shared tile: solver/fused_self.py). The caller adds them up (Jacobi: :func:`_correct`)."""
+    the share ``fr`` of them that x_prev takes too); the caller adds them up (the launches:
+    :func:`_correct`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
+    returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
+    (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`_room`'s."""
     z = wp.vec3(0.0)
-    p = x[v]
     a = faces[best, 0]
     b = faces[best, 1]
     c = faces[best, 2]
-    xa = x[a]
-    xb = x[b]
-    xc = x[c]
+    p = x[v - xo]
+    xa = x[a - xo]
+    xb = x[b - xo]
+    xc = x[c - xo]
     bu = closest_on_triangle(xa, xb, xc, p)
     nrm = wp.cross(xb - xa, xc - xa)
     ln = wp.length(nrm)
@@ -354,15 +422,19 @@ def pair_correction(v: int, best: int, x: Any, inv_mass: wp.array(dtype=float), 
     s = wp.dot(p - q, nrm)
     if s >= thickness or s < -depth:
         return 0, a, b, c, z, z, z, z, 0.0
-    w = inv_mass[v] + wa * wa * inv_mass[a] + wb * wb * inv_mass[b] + wc * wc * inv_mass[c]
+    mv = inv_mass[v - xo]
+    ma = inv_mass[a - xo]
+    mb = inv_mass[b - xo]
+    mc = inv_mass[c - xo]
+    w = mv + wa * wa * ma + wb * wb * mb + wc * wc * mc
     if w <= 0.0:
         return 0, a, b, c, z, z, z, z, 0.0
     dl = (thickness - s) / w
     if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
-        tk = _room(v, inv_mass[v] * dl * nrm, x, vt_off, vt, tets, vol0, keep)
-        tk = wp.min(tk, _room(a, -wa * inv_mass[a] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
-        tk = wp.min(tk, _room(b, -wb * inv_mass[b] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
-        tk = wp.min(tk, _room(c, -wc * inv_mass[c] * dl * nrm, x, vt_off, vt, tets, vol0, keep))
+        tk = _room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
+        tk = wp.min(tk, _room(a - xo, a - vo, -wa * ma * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+        tk = wp.min(tk, _room(b - xo, b - vo, -wb * mb * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+        tk = wp.min(tk, _room(c - xo, c - vo, -wc * mc * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
         dl = dl * tk
     # The share of the correction that resolves the depth the pair already had at the substep's start
     # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
@@ -370,8 +442,7 @@ def pair_correction(v: int, best: int, x: Any, inv_mass: wp.array(dtype=float), 
     # held fist's skin jumps up to ~5 mm a frame (docs/self_collision.md "A held fist").
     s0 = wp.dot(x_prev[v] - (wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]), nrm)
     fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
-    return (1, a, b, c, inv_mass[v] * dl * nrm, -wa * inv_mass[a] * dl * nrm, -wb * inv_mass[b] * dl * nrm,
-            -wc * inv_mass[c] * dl * nrm, fr)
+    return 1, a, b, c, mv * dl * nrm, -wa * ma * dl * nrm, -wb * mb * dl * nrm, -wc * mc * dl * nrm, fr
 
 
 @wp.func
@@ -379,11 +450,12 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
              thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
              tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
              delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
-             dprev: wp.array(dtype=wp.vec3)):
-    """:func:`pair_correction` added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``)
-    by atomics: the non-fused passes' sum."""
-    moves, a, b, c, dv, da, db, dc, fr = pair_correction(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off,
-                                                         vt, tets, vol0, x_prev)
+             dprev: wp.array(dtype=wp.vec3), world: int, vo: int, to: int, wcounts: wp.array2d(dtype=int)):
+    """:func:`pair_correction` of vertex v (of world ``world``: its first skin vertex ``vo``, first
+    tet ``to``) added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``) by atomics: the
+    launches' sum; the correction counted in ``active`` and the world's ``wcounts`` row."""
+    moves, a, b, c, dv, da, db, dc, fr = pair_correction(v, best, 0, vo, to, x, inv_mass, faces, thickness, depth,
+                                                         keep, vt_off, vt, tets, vol0, x_prev)
     if moves == 0:
         return
     if fr > 0.0:
@@ -403,31 +475,34 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
         wp.atomic_add(delta, c, dc)
         wp.atomic_add(hits, c, 1)
     wp.atomic_add(active, 0, 1)
+    wp.atomic_add(wcounts, world, 3, 1)
 
 
 @wp.kernel
 def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
             vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
             thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
-            delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
-            dprev: wp.array(dtype=wp.vec3)):
-    """Per listed vertex: its nearest listed triangle now (``pick``: found and kept in ``nearest``,
-    else the one kept by the substep's first pass), the correction (:func:`_correct`)."""
+            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3), ns: int,
+            nt: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
+            dprev: wp.array(dtype=wp.vec3), wcounts: wp.array2d(dtype=int)):
+    """Per listed vertex (of every world: ``ns`` skin vertices, ``nt`` tets each): its nearest listed
+    triangle now (``pick``: found and kept in ``nearest``, else the one kept by the substep's first
+    pass), the correction (:func:`_correct`)."""
     i = wp.tid()
     if i >= n[0]:
         return
     v = vlist[i]
+    w = v // ns
     best = int(-1)
     if pick != 0:
-        best = nearest_listed(v, x, faces, cand, cand_n)
+        best = nearest_listed(v, 0, x, faces, cand, cand_n)
         nearest[v] = best
     else:
         best = nearest[v]
     if best < 0:
         return
     _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev,
-             delta, hits, active, dprev)
+             delta, hits, active, dprev, w, w * ns, w * nt, wcounts)
 
 
 @wp.kernel
@@ -449,38 +524,62 @@ def apply(n: wp.array(dtype=int), involved: wp.array(dtype=int), x: wp.array(dty
 
 
 class SelfContact:
-    """The self-collision's buffers and launches for one body of one world (Solver holds one where
-    ``Config.self_collision``): :meth:`record_frame` (the frame's list) and :meth:`record_stage`
-    (a substep's correction) record into the solver's frame."""
+    """The self-collision's buffers and launches for one body of W worlds (Solver holds one where
+    ``Config.self_collision``; one hand: W = 1): :meth:`record_frame` (the frame's list) and
+    :meth:`record_stage` (a substep's correction) record into the solver's frame, each stage one
+    launch over every world's skin (the batched layout, solver/worlds.py: world w's skin vertices
+    ``w ns`` on, its skin triangles ``w nf`` on, its bones ``w nb`` on, its tets ``w nt`` on).
+
+    A vertex pairs only with its own world's triangles: one BVH over every world's skin triangles,
+    grouped by world (``wp.Bvh(groups=...)``), queried from the vertex's world's subtree
+    (``bvh_get_group_root``). Batched worlds all lie at the origin (BatchedHands), so a filter on
+    the query's results would walk all W worlds' triangles near the vertex; per-world meshes would
+    refit W times a frame. The query slack's bone tables are per world ((nb + 1) slots each, bone
+    pairs only within a world). The rest filter's arrays are one world's (the rest shape is every
+    world's), indexed by the world's offsets."""
 
     def __init__(self, model, config, device):
-        if int(getattr(model, "worlds", 1)) != 1:
-            raise ValueError("Config.self_collision runs on one hand (a Solver of one world), not batched worlds")
         self.model, self.config, self.device = model, config, device
         d = device
+        W = int(getattr(model, "worlds", 1))
+        self.worlds = W
         ns = int(model.n_skin)
         self.n_skin = ns
-        faces = np.asarray(model.skin_faces.numpy() if hasattr(model.skin_faces, "numpy") else model.skin_faces)
-        self.faces = wp.array(faces.astype(np.int32), dtype=int, device=d)
-        self.indices = wp.array(faces.astype(np.int32).ravel(), dtype=int, device=d)
-        rest = model.rest_x.numpy()[:ns].astype(np.float64)
-        self.rest = wp.array(rest, dtype=wp.vec3, device=d)
+        self.ns1 = ns // W  # (one world's skin vertices, bones, skin triangles, tets)
+        self.nb1 = int(model.n_bodies) // W
+        faces = model.skin_faces
+        if not (isinstance(faces, wp.array) and faces.dtype == wp.int32 and faces.ndim == 2 and faces.device == wp.get_device(d)
+                and faces.is_contiguous):
+            faces = wp.array(np.asarray(faces.numpy() if hasattr(faces, "numpy") else faces).astype(np.int32), dtype=int, device=d)
+        self.faces = faces  # (every world's, as the model holds them: no W-wide copy)
+        nf = int(faces.shape[0])
+        self.nf1 = nf // W
+        faces1 = faces[: self.nf1].numpy()  # world 0's: one world's vertex indices (skins lead)
+        rest = model.rest_x.numpy()[: self.ns1].astype(np.float64)
+        self.rest = wp.array(rest, dtype=wp.vec3, device=d)  # one world's rest skin
         self.vn_now = wp.zeros(ns, dtype=wp.vec3, device=d)  # the skin's area-weighted normals at the frame's start
-        # the query slack: the skin at the last frame's start, its largest move since, per vertex the slack
-        nb = int(model.n_bodies) + 1  # (slot nb: the world frame, for skin without a bone)
+        # the skin triangles' bounding boxes (the BVH's leaves, refit every frame) and their worlds (its groups)
+        self.lowers = wp.zeros(nf, dtype=wp.vec3, device=d)
+        self.uppers = wp.zeros(nf, dtype=wp.vec3, device=d)
+        self.groups = wp.array(np.repeat(np.arange(W, dtype=np.int32), self.nf1), dtype=wp.int32, device=d)
+        self.bvh = None  # (built at the first frame recorded, from its state's skin)
+        self.roots = wp.zeros(W, dtype=int, device=d)  # per world its subtree's root in the BVH
+        # the query slack: the skin at the last frame's start, its largest move since, per vertex the slack;
+        # per world nb1 + 1 bone slots (slot nb1: the world frame, for skin without a bone)
+        nbw = W * (self.nb1 + 1)
         self.skin_body = model.skin_body
         self.y_last = wp.zeros(ns, dtype=wp.vec3, device=d)
         self.mu = wp.zeros(ns, dtype=float, device=d)
-        self.body_move = wp.zeros(nb, dtype=float, device=d)
-        self.body_reach = wp.zeros(nb, dtype=float, device=d)
-        self.near_move = wp.zeros(nb, dtype=float, device=d)
-        self.rel_last = wp.zeros((nb, nb), dtype=wp.transform, device=d)
+        self.body_move = wp.zeros(nbw, dtype=float, device=d)
+        self.body_reach = wp.zeros(nbw, dtype=float, device=d)
+        self.near_move = wp.zeros(nbw, dtype=float, device=d)
+        self.rel_last = wp.zeros((nbw, self.nb1 + 1), dtype=wp.transform, device=d)
         self.slack = wp.zeros(ns, dtype=float, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
         self.qcount = wp.zeros(1, dtype=int, device=d)
         self.fcount = wp.zeros(1, dtype=int, device=d)
-        centre = rest[faces].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
-        radius = np.linalg.norm(rest[faces] - centre[:, None], axis=2).max(axis=1)
+        centre = rest[faces1].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
+        radius = np.linalg.norm(rest[faces1] - centre[:, None], axis=2).max(axis=1)
         self.rest_ball = wp.array(np.hstack([centre, radius[:, None]]).astype(np.float32), dtype=wp.vec4, device=d)
         self.cand = wp.zeros((ns, SLOTS), dtype=int, device=d)
         self.cand_d = wp.zeros((ns, SLOTS), dtype=float, device=d)
@@ -495,89 +594,114 @@ class SelfContact:
         # [listed vertices, involved vertices, pairs, pairs over SLOTS]; [corrections this frame]
         self.counts = wp.zeros(4, dtype=int, device=d)
         self.active = wp.zeros(1, dtype=int, device=d)
+        # per world: [listed vertices, pairs, pairs over SLOTS, corrections this frame, involved vertices]
+        self.wcounts = wp.zeros((W, 5), dtype=int, device=d)
         self.vcount = wp.zeros(1, dtype=int, device=d)  # (the list launches read their length here)
         self.icount = wp.zeros(1, dtype=int, device=d)
-        self._meshes: dict = {}
-        self.in_kernel = False  # (the substep passes run inside the fused kernel: solver/fused_self.py)
-        # Tuning.self_tet_keep: every tet of every skin vertex (CSR: vt_off, vt) and its rest volume
-        tets = np.asarray(model.tet_ids.numpy()).reshape(-1, 4)
-        self.tets = wp.array(tets.astype(np.int32), dtype=int, device=d)
+        # (the substep passes run inside the fused kernel, solver/fused_self.py: set before the first frame
+        # is recorded, the broadphase then also lists per world, a block reading its world's segment)
+        self.in_kernel = False
+        # per world its listed and involved vertices from w ns1 on (wcounts' columns 0 and 4 long)
+        self.wvlist = wp.zeros(ns, dtype=int, device=d)
+        self.winvolved = wp.zeros(ns, dtype=int, device=d)
+        # Tuning.self_tet_keep: every tet of every skin vertex of one world (CSR: vt_off, vt) and its rest
+        # volume; world w's are the same shifted by its offsets (the model's tets: world by world)
+        self.tets = model.tet_ids
+        if not (isinstance(self.tets, wp.array) and self.tets.dtype == wp.int32 and self.tets.ndim == 2):
+            self.tets = wp.array(np.asarray(model.tet_ids.numpy()).reshape(-1, 4).astype(np.int32), dtype=int, device=d)
+        self.nt1 = int(self.tets.shape[0]) // W
+        tets = np.asarray(self.tets[: self.nt1].numpy()).reshape(-1, 4)  # world 0's
         rx = model.rest_x.numpy().astype(np.float64)
         A, B, C, D = (rx[tets[:, k]] for k in range(4))
         self.vol0 = wp.array(np.einsum("ij,ij->i", B - A, np.cross(C - A, D - A)).astype(np.float32), dtype=float, device=d)
-        sk = tets < ns
+        sk = tets < self.ns1
         tv = np.repeat(np.arange(len(tets)), 4)[sk.ravel()]
         vv = tets.ravel()[sk.ravel()]
         order = np.argsort(vv, kind="stable")
-        cnt = np.bincount(vv, minlength=ns)
+        cnt = np.bincount(vv, minlength=self.ns1)
         self.vt_off = wp.array(np.concatenate([[0], np.cumsum(cnt)]).astype(np.int32), dtype=int, device=d)
         self.vt = wp.array(tv[order].astype(np.int32), dtype=int, device=d)
 
-    def mesh(self, state) -> wp.Mesh:
-        """The skin's BVH over ``state.x`` (made once per state; refit every frame)."""
-        m = self._meshes.get(id(state))
-        if m is None:
-            m = self._meshes[id(state)] = wp.Mesh(points=state.x, indices=self.indices)
-        return m
+    def build(self, state) -> wp.Bvh:
+        """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
+        frame refits it to its state's skin: a second state's frames refit the same tree)."""
+        if self.bvh is None:
+            wp.launch(skin_bounds, self.faces.shape[0], inputs=[state.x, self.faces, 0, self.vn_now],
+                      outputs=[self.lowers, self.uppers], device=self.device)
+            self.bvh = wp.Bvh(self.lowers, self.uppers, groups=self.groups)
+            wp.launch(group_roots, self.worlds, inputs=[self.bvh.id], outputs=[self.roots], device=self.device)
+        return self.bvh
 
     def record_frame(self, rec, state) -> None:
         """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
-        for them (CPU: only when there are any) the BVH refit, the normals, the broadphase."""
+        for them (CPU: only when there are any) the normals and the triangles' boxes, the BVH refit,
+        the broadphase. Each a launch over every world."""
         cfg, d = self.config, self.device
-        mesh = self.mesh(state)
+        bvh = self.build(state)
         cuda = wp.get_device(d).is_cuda
         rec.launch(clear_marks, self.n_skin, [self.icount, self.involved], [self.mark], count=self.icount)
         rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.qcount.zero_(), self.body_move.zero_(),
-                                self.body_reach.zero_(), self.near_move.zero_()))
-        nb = self.near_move.shape[0]
-        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose],
+                                self.body_reach.zero_(), self.near_move.zero_(), self.wcounts.zero_()))
+        W, ns1, nb1 = self.worlds, self.ns1, self.nb1
+        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
                    [self.y_last, self.mu, self.body_move, self.body_reach])
         reach = float(cfg.self_margin) + REACH
-        rec.launch(body_motion, (nb, nb), [state.body_pose],
+        rec.launch(body_motion, (W, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
                    [self.rel_last, self.body_move, self.body_reach, reach, self.near_move])
-        rec.launch(pick_queries, self.n_skin, [self.skin_body, self.mu, self.near_move],
+        rec.launch(pick_queries, self.n_skin, [self.skin_body, self.mu, self.near_move, ns1, nb1],
                    [self.slack, self.cand_n, self.qlist, self.qcount])
         q = self.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
 
         def when_queried(op):
             return op if cuda else (lambda: op() if q[0] else None)
 
-        rec.ops.append(when_queried(mesh.refit))
         rec.ops.append(when_queried(self.vn_now.zero_))
         nf = int(self.faces.shape[0])
-        if not cuda:  # (CPU: the normals' launch sized 0 when nothing is queried)
+        if not cuda:  # (CPU: the normals' and boxes' launch sized 0 when nothing is queried)
             fc = self.fcount.numpy()
             rec.ops.append(lambda: fc.__setitem__(0, nf if q[0] else 0))
-        rec.launch(vertex_normals, nf, [state.x, self.faces], [self.vn_now], count=None if cuda else self.fcount)
+        rec.launch(skin_bounds, nf, [state.x, self.faces, 1, self.vn_now], [self.lowers, self.uppers],
+                   count=None if cuda else self.fcount)
+        rec.ops.append(when_queried(bvh.refit))
         rec.launch(broadphase, self.n_skin,
-                   [self.qcount, self.qlist, reach, self.slack, mesh.id, state.x, self.rest, self.faces, self.rest_ball,
-                    float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP)],
-                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts],
+                   [self.qcount, self.qlist, reach, self.slack, bvh.id, self.roots, ns1, self.nf1, state.x, self.rest, self.faces,
+                    self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP),
+                    int(self.in_kernel)],
+                   [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts, self.wcounts,
+                    self.wvlist, self.winvolved],
                    count=self.qcount)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
 
     def record_stage(self, rec, state, inv_mass) -> None:
-        """A substep's correction: ``self_passes`` x (resolve, apply) over the frame's lists."""
+        """A substep's correction: ``self_passes`` x (resolve, apply) over the frame's lists (every world's)."""
         cfg = self.config
         for k in range(cfg.self_passes):
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
                         float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
-                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0, state.x_prev],
-                       [self.delta, self.hits, self.active, self.dprev], count=self.vcount)
+                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0, state.x_prev,
+                        self.ns1, self.nt1],
+                       [self.delta, self.hits, self.active, self.dprev, self.wcounts], count=self.vcount)
             rec.launch(apply, self.n_skin, [self.icount, self.involved],
                        [state.x, self.delta, self.hits, state.x_prev, self.dprev], count=self.icount)
 
     def report(self) -> dict:
-        """The last frame's figures: listed vertices and pairs, corrections made (summed over passes)."""
+        """The last frame's figures (every world's together): vertices queried, listed vertices and
+        pairs, corrections made (summed over passes); per world: :meth:`report_worlds`."""
         c = self.counts.numpy()
         q = int(self.qcount.numpy()[0])
         cfg = self.config
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's four, the query's four with any
-        # vertex queried, the substeps' 2 x passes with any pair listed
-        # (inside the fused kernel, the substep passes launch nothing of their own)
+        # vertex queried, the substeps' 2 x passes with any pair listed (however many worlds; inside the
+        # fused kernel the substep passes launch nothing of their own)
         ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
         return dict(self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
                     self_corrections=int(self.active.numpy()[0]))
+
+    def report_worlds(self) -> np.ndarray:
+        """(W, 4) the last frame's per-world figures: listed vertices, pairs, pairs over SLOTS,
+        corrections (:meth:`report`'s ``self_vertices``, ``self_pairs``, ``self_pairs_over``,
+        ``self_corrections`` of each world)."""
+        return self.wcounts.numpy()[:, :4].copy()
