@@ -159,3 +159,88 @@ def test_fused_self_fixed_point_measure_power(monkeypatch):
     assert np.all(np.isfinite(x)) and res["nonfinite"] == 0
     m = self_penetration(x, np.asarray(hand.asset.skin_faces))
     assert m["inside_200um"] <= 100, m
+
+
+def _batch_run(keys, fused_substep=None, self_collision: bool = True):
+    """BatchedHands of len(keys) worlds on the CPU, world w closing from ``open`` to ``keys[w]`` over 6
+    frames and holding it 3 more (test_self_collision_batch's schedule); the batch, its last report,
+    each frame's per-world (listed vertices, pairs, corrections)."""
+    from physhand_mj.batch import BatchedHands
+    from test_self_collision_batch import _schedule, open_hand_scene, body_ids, mount_pose
+
+    asset, model, data = open_hand_scene("hand_only", "open")
+    setup = (asset, model, data, body_ids(model, asset.body_names), mount_pose(model, data))
+    cfg = ph.Config(device="cpu", self_collision=self_collision, execution=Execution(fused_substep=fused_substep))
+    batch = BatchedHands(asset, len(keys), cfg, *setup[4])
+    out, rows = {}, []
+    frames = _schedule(setup, keys)
+    for poses in frames:
+        out = batch.step(np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]))
+        assert out["nonfinite"] == 0
+        if self_collision:
+            rows.append([(r["self_vertices"], r["self_pairs"], r["self_corrections"]) for r in out["worlds"]])
+    return batch, out, np.array(rows), setup, frames
+
+
+def _same_batch_state(a, b) -> None:
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(a.state, name).numpy(), getattr(b.state, name).numpy(), err_msg=name)
+
+
+@pytest.mark.parametrize("keys", [("open", "pinch", "power"), ("power", "pinch")], ids=["open-pinch-power", "power-pinch"])
+def test_batched_fused_self_equals_the_launches(keys, monkeypatch):
+    """Batched worlds (BatchedHands, no objects) on the CPU's default take the passes inside the fused
+    kernel, a block per world reading its world's segment of the lists: bit for bit the fused kernel
+    with self_contact's launches after it (fused.SELF_IN_KERNEL False) and the non-fused solver
+    (fused_substep=False), the same per-world pairs every frame, and each world bit for bit one hand
+    alone through its poses; the frame stays one frame launch (the option-off frame plus the query's
+    11 once-a-frame ops, however many worlds)."""
+    from test_self_collision_batch import _serial
+
+    fz, res, rows, setup, frames = _batch_run(keys)
+    assert fz.solver.fused_substep and fz.solver._self_fused and rows[:, :, 1].max() > 0
+    ref, ref_res, ref_rows, *_ = _batch_run(keys, fused_substep=False)
+    assert not ref.solver.fused_substep
+    monkeypatch.setattr(fused, "SELF_IN_KERNEL", False)
+    out, out_res, out_rows, *_ = _batch_run(keys)
+    monkeypatch.undo()
+    assert out.solver.fused_substep and not out.solver._self_fused
+    np.testing.assert_array_equal(rows, ref_rows)
+    np.testing.assert_array_equal(rows, out_rows)
+    for other in (ref, out):
+        _same_batch_state(fz, other)
+    off, off_res, *_ = _batch_run(keys, self_collision=False)
+    assert res["ops_run"] == off_res["ops_run"] + 11
+    cfg = fz.config
+    assert out_res["ops_run"] - res["ops_run"] == 2 * cfg.self_passes * cfg.substeps + cfg.substeps - 1 + 2
+    for w, key in enumerate(keys):  # each world as one hand alone (the fused self path too: the CPU's default)
+        x, sp = _serial(setup, fz.config, key, frames, w)
+        np.testing.assert_array_equal(rows[:, w], sp, err_msg=key)
+        np.testing.assert_array_equal(fz.positions(w), x, err_msg=key)
+
+
+def test_batched_fused_self_fixed_point_sum(monkeypatch):
+    """ACCUM "fixed" (CUDA's default) in batched worlds on the CPU: each world bit for bit the same
+    world run as a batch of one (its block reads only its own world's lists and buffers), and, where
+    this Warp has multi-lane CPU blocks, 64 lanes give the one lane's bits."""
+    monkeypatch.setattr(fused, "ACCUM", "fixed")
+    block = fused.BLOCK_DIM
+
+    def run(keys, lanes):
+        if hasattr(wp.config, "enable_cpu_blocks"):
+            monkeypatch.setattr(wp.config, "enable_cpu_blocks", lanes > 1)
+        monkeypatch.setattr(fused, "BLOCK_DIM", 64 if lanes > 1 else block)
+        b, _, rows, *_ = _batch_run(keys, fused_substep=True)
+        assert b.solver._fused.fixed and b.solver._self_fused
+        return b, rows
+
+    both, rows = run(("pinch", "power"), 1)
+    assert rows[-1, :, 1].min() > 0
+    for w, key in enumerate(("pinch", "power")):
+        one, one_rows = run((key,), 1)
+        np.testing.assert_array_equal(rows[:, w], one_rows[:, 0], err_msg=key)
+        np.testing.assert_array_equal(both.positions(w), one.positions(0), err_msg=key)
+    if hasattr(wp.config, "enable_cpu_blocks"):
+        many, many_rows = run(("pinch", "power"), 64)
+        np.testing.assert_array_equal(rows, many_rows)
+        _same_batch_state(both, many)

@@ -22,8 +22,9 @@ first and last substeps (SKIP_BONES).
 
 With ``Config.self_collision`` (``SELF_IN_KERNEL``) a fourth group follows the three: the skin
 self-contact passes over the frame's pair list (solver/fused_self.py), so such a frame stays one
-launch too; their x_prev shares go to global memory, which this substep's start wrote and the next
-substep's start reads (barriers between, one block per world).
+launch too; each block walks its own world's listed and involved vertices (per-world segments of
+the frame's lists); their x_prev shares go to global memory, which this substep's start wrote and
+the next substep's start reads (barriers between, one block per world).
 
 A group's corrections are summed per vertex with shared-memory atomics (``SUM = "scatter"``, the
 default) or by each vertex recomputing its constraints in a fixed order (``SUM = "gather"``:
@@ -306,14 +307,15 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         vertex_carrier: wp.array(dtype=int),
         guard_tets: wp.array2d(dtype=int),
         # Skin self-contact (SELF: Config.self_collision, solver/fused_self.py's FusedSelf.inputs; else
-        # empty): the frame's list and buffers (self_contact.SelfContact's), the Tuning's self_*
-        # figures, the x_prev share's accumulator and the fixed-point sum's (scale, step, bound)
-        self_count: wp.array(dtype=int),
+        # empty): the frame's per-world lists and buffers (self_contact.SelfContact's; a world's skin
+        # self_ns long), the Tuning's self_* figures, the x_prev share's accumulator and the fixed-point
+        # sum's (scale, step, bound)
+        self_wcounts: wp.array2d(dtype=int),
+        self_ns: int,
         self_vlist: wp.array(dtype=int),
         self_cand: wp.array2d(dtype=int),
         self_cand_n: wp.array(dtype=int),
         self_nearest: wp.array(dtype=int),
-        self_icount: wp.array(dtype=int),
         self_involved: wp.array(dtype=int),
         skin_faces: wp.array2d(dtype=int),
         self_pass_count: int,
@@ -406,8 +408,8 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
                             shared_set(ds, l, wp.vec3(0.0), True)
             block_sync()
             if wp.static(SELF):  # group 3: skin self-contact (solver/fused_self.py), then the soft vertices back
-                self_group(xs, ds, NS, lane, bd, inv_mass, skin_faces, self_count, self_vlist, self_cand, self_cand_n,
-                           self_nearest, self_icount, self_involved, self_pass_count, self_thickness, self_depth,
+                self_group(xs, ds, NS, w, lane, bd, inv_mass, skin_faces, self_wcounts, self_ns, self_vlist, self_cand,
+                           self_cand_n, self_nearest, self_involved, self_pass_count, self_thickness, self_depth,
                            self_keep, self_vt_off, self_vt, self_tets, self_vol0, x_prev, self_hits, self_dprev,
                            self_active, self_fx)
                 if sub == count - 1 and end == 0:
@@ -527,9 +529,7 @@ class FusedSubstep:
 
     def attach_self(self, selfc) -> None:
         """Run ``selfc``'s (a :class:`~physhand_mj.solver.self_contact.SelfContact`) substep passes in
-        the kernel, after the three groups (solver/fused_self.py); one world."""
-        if self.worlds != 1:
-            raise ValueError("Config.self_collision in the fused substep runs one world")
+        the kernel, after the three groups (solver/fused_self.py); each block its own world's."""
         self.self_contact = FusedSelf(selfc, self.fixed, self.n_soft)
 
     @property

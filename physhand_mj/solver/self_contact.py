@@ -310,8 +310,8 @@ def _room(i: int, il: int, dp: wp.vec3, x: Any, vt_off: wp.array(dtype=int), vt:
     least ``keep`` x its rest volume (the volume is linear in one vertex's position). ``vt_off``,
     ``vt`` and ``vol0`` are one world's: ``il`` is the vertex's index in its world's skin, ``to`` the
     world's first row in ``tets``; ``i`` the vertex as those rows and ``x`` name it (the launches:
-    every world's positions, the world's tets; the fused substep: its block's shared tile, one
-    world's indices, world 0's tets: solver/fused_self.py)."""
+    every world's positions, the world's tets; the fused substep: its block's shared tile and one
+    world's tets in the world's own indices, ``to`` 0: solver/fused_self.py)."""
     t = float(1.0)
     for k in range(vt_off[il], vt_off[il + 1]):
         e = vt[k]

@@ -90,12 +90,9 @@ class Solver:
         self._fused = fused_choice.choose(model, self.config, self.device)  # Config.execution.fused_substep
         # Config.self_collision with the fused substep: its substep passes inside the fused kernel, a fourth
         # group (solver/fused_self.py; fused.SELF_IN_KERNEL False: self_contact.py's launches after it)
-        # (one world: batched worlds run the passes as launches)
-        self._self_fused = (self.selfc is not None and self._fused is not None and fused_launch.SELF_IN_KERNEL
-                            and int(getattr(model, "worlds", 1)) == 1)
+        self._self_fused = self.selfc is not None and self._fused is not None and fused_launch.SELF_IN_KERNEL
         if self._self_fused:
-            self._fused.attach_self(self.selfc)
-            self.selfc.in_kernel = True
+            self._fused.attach_self(self.selfc)  # (SelfContact.in_kernel set: it lists per world too)
         # per-region sleeping (physhand_mj/solver/regions.py; one world)
         self.regions = None
         if self.config.region_sleep and int(getattr(model, "worlds", 1)) == 1 and model.n_bodies:
