@@ -39,8 +39,8 @@ KICKS = ((0, 0, 0.003, 0, 0, 0), (0, 0, 0, 0.05, -0.05, 0.1))
 """Object perturbations (m, m/s) the grasp must also hold through: lifted 3 mm; pushed up and sideways
 (two-way, the compressed palm skin pushes the object up ~2.4 N and towards the fingers' side ~3.4 N in
 the first frame, 10 mm in 60 ms: MuJoCo's capsules had let it sit into the skin's rest surface)."""
-TILT_FREE, TILT_COST = 0.1, 0.1  # rad, m/rad: the palm turning more than 0.1 rad from up costs 10 mm/0.1 rad
-MOVE_FREE, MOVE_COST = 0.01, 0.5  # m, m/m: the palm moving more than 10 mm costs half of it
+TILT_FREE, TILT_COST = 0.15, 0.1  # rad, m/rad: the palm turning more than 0.15 rad from up costs 10 mm/0.1 rad
+MOVE_FREE, MOVE_COST = 0.02, 0.5  # m, m/m: the palm moving more than 20 mm costs half of it
 FINGERS = {"thumb": ("firstmc", "proximal_thumb", "distal_thumb"),
            **{f"f{k}": (f"proxph{k}", f"midph{k}", f"distph{k}") for k in (2, 3, 4, 5)}}
 
