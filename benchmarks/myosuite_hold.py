@@ -23,7 +23,9 @@ on it, m g, both penetration measures at the end and MyoSuite's ``solved``.
 
 Run: ``python benchmarks/myosuite_hold.py [--modes one,two,skin,one-skin] [--seconds 2]`` (CPU:
 a two-way run is 1,000 soft frames, ~2-3 min on 2 shared cores);
-``python benchmarks/myosuite_hold.py --search --generations 60 --seed 1 [--write]``.
+``python benchmarks/myosuite_hold.py --search --generations 60 --seed 1 [--write | --out PATH]``
+(``--restart``: from the stored grasp; ``--shrink M``: the hand's capsules M m thinner in the search,
+nearer the skin's smoother surface); ``--grasp PATH`` runs the table with another grasp record.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -46,12 +49,11 @@ FINGERS = {"thumb": ("firstmc", "proximal_thumb", "distal_thumb"),
 
 
 def search(generations: int, seed: int, seconds: float, start=None, sigma: float = 0.5, lift: float = 0.0,
-           verbose=True) -> dict:
+           shrink: float = 0.0, verbose=True) -> dict:
     """The evolution strategy of the module docstring, MuJoCo alone; returns the grasp record."""
     import gymnasium
     import mujoco
     import myosuite  # noqa: F401  (registers the envs)
-
     from physhand_myosuite import hold
 
     env = gymnasium.make(ENV)
@@ -60,6 +62,9 @@ def search(generations: int, seed: int, seconds: float, start=None, sigma: float
     names = [m.actuator(i).name for i in range(m.nu)]
     ob = m.body("object").id
     palm = m.body("thirdmc").id
+    for g in range(m.ngeom):  # shrink: the hand's capsules thinner (m), nearer the skin's smoother surface
+        if shrink and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE and m.body_rootid[m.geom_bodyid[g]] != 0:
+            m.geom_size[g, 0] -= shrink
     fid = {f: {m.body(b).id for b in bs} for f, bs in FINGERS.items()}
     steps = int(round(seconds / u.dt))
 
@@ -139,7 +144,6 @@ def search(generations: int, seed: int, seconds: float, start=None, sigma: float
 def run(mode: str, seconds: float, grasp=None) -> dict:
     import gymnasium
     import myosuite  # noqa: F401
-
     import physhand_myosuite as pm
     from physhand_myosuite import hold
 
@@ -163,23 +167,28 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--restart", action="store_true", help="--search from the stored grasp (sigma 0.2)")
     p.add_argument("--write", action="store_true", help="store the searched grasp in the JSON file")
+    p.add_argument("--out", help="with --search: write the grasp record here instead")
+    p.add_argument("--grasp", help="the table with this grasp record (JSON) instead of the stored one")
+    p.add_argument("--shrink", type=float, default=0.0, help="with --search: the hand's capsules this much thinner (m)")
     a = p.parse_args()
     from physhand_myosuite import hold
 
     if a.search:
         start = hold.load_grasp()["action"] if a.restart else None
-        g = search(a.generations, a.seed, a.seconds, start=start, sigma=0.2 if a.restart else 0.5, lift=hold.LIFT)
+        g = search(a.generations, a.seed, a.seconds, start=start, sigma=0.2 if a.restart else 0.5, lift=hold.LIFT,
+                   shrink=a.shrink)
         print(json.dumps({k: g[k] for k in ("how", "mujoco_cost_mm", "touching")}))
-        if a.write:
-            hold.GRASP_PATH.write_text(json.dumps(g, indent=1) + "\n")
-            print(f"wrote {hold.GRASP_PATH}")
+        if a.write or a.out:
+            out = a.out or hold.GRASP_PATH
+            Path(out).write_text(json.dumps(g, indent=1) + "\n")
+            print(f"wrote {out}")
         return
     print("| mode | worst offset mm | end mm | drift last half mm | within 2 cm | skin force N (x, y, z) | "
           "friction N | contact vertices | MuJoCo contact force N (z) | m g N | skin in object (n, max um) | "
           "object in skin (n, max um) | solved | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for mode in a.modes.split(","):
-        r = run(mode, a.seconds)
+        r = run(mode, a.seconds, hold.load_grasp(a.grasp) if a.grasp else None)
         f, fr = r["force_n"], r["friction_n"]
         print(f"| {mode} | {r['worst_mm']:.1f} | {r['end_mm']:.1f} | {r['hold_mm']:.1f} | "
               f"{'yes' if r['worst_mm'] < 20 else 'no'} | ({f[0]:.2f}, {f[1]:.2f}, {f[2]:.2f}) | "

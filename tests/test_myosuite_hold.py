@@ -1,8 +1,8 @@
 """MyoSuite's ObjHold held by the skin (physhand_myosuite.hold, benchmarks/myosuite_hold.py): the stored
 grasp is an action of the env; with the object out of MyoHand's capsule collisions nothing in MuJoCo
 holds it, and with two-way coupling the skin alone carries it (0.2 s). The stored grasp holds the
-object 2 s on MyoHand's capsules (one-way) but not on the skin alone (docs/tasks.md: the hand's
-wrist swings it out within a second), so no 2 s skin hold is asserted."""
+object 2 s on MyoHand's capsules (one-way) but not on the skin alone (docs/tasks.md: it rolls off
+the palm after ~0.7 s), so no 2 s skin hold is asserted."""
 
 import mujoco
 import numpy as np
@@ -10,9 +10,8 @@ import pytest
 
 pm = pytest.importorskip("physhand_myosuite")
 pytest.importorskip("myosuite")
-import gymnasium  # noqa: E402
-
-from physhand_myosuite import hold  # noqa: E402
+import gymnasium
+from physhand_myosuite import hold
 
 ENV = "myoHandObjHoldFixed-v0"
 

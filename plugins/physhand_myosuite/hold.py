@@ -9,9 +9,10 @@ The grasp (``objhold_grasp.json``, made by ``benchmarks/myosuite_hold.py --searc
 vector of MyoSuite's normalised action space ([-1, 1] per muscle; MyoSuite maps it to the activation
 1 / (1 + exp(-5 (a - 0.5)))), held constant from the reset: a policy reaches it by outputting it. It
 was searched with MuJoCo alone, MyoHand's own contact capsules holding the object (they lie on the
-skin's surface: median distance from the skin 0 mm, up to 3-6 mm outside it on the palm side), so
-it transfers to the skin; :func:`skin_only` takes the object out of the capsules' collisions so that
-only the skin (``two_way=True``) can hold it. docs/tasks.md has the measured table.
+skin's surface: median distance from the skin 0 mm, up to 3-6 mm outside it on the palm side);
+:func:`skin_only` takes the object out of the capsules' collisions so that only the skin
+(``two_way=True``) can hold it. Measured (docs/tasks.md): the grasp holds 2 s on the capsules
+(one-way); the skin alone carries the object's weight for ~0.6 s, then lets it roll off.
 """
 
 from __future__ import annotations
