@@ -1,8 +1,7 @@
 """MyoSuite's ObjHold held by the skin (physhand_myosuite.hold, benchmarks/myosuite_hold.py): the stored
 grasp is an action of the env; with the object out of MyoHand's capsule collisions nothing in MuJoCo
-holds it, and with two-way coupling the skin alone carries it (0.2 s). The stored grasp holds the
-object 2 s on MyoHand's capsules (one-way) but not on the skin alone (docs/tasks.md: it rolls off
-the palm after ~0.7 s), so no 2 s skin hold is asserted."""
+holds it, and with two-way coupling the skin alone carries it (0.2 s, default set) and holds it
+for 2 s (slow); the grasp holds it 2 s on MyoHand's capsules in MuJoCo alone (what one-way gets)."""
 
 import mujoco
 import numpy as np
@@ -95,17 +94,32 @@ def _carry(two_way: bool, steps: int = 10, average: int = 5):
 
 def test_skin_alone_carries_the_object_two_way_not_one_way():
     """0.2 s of the grasp (100 soft frames): two-way, the skin alone holds the object up (it moves
-    < 15 mm while the hand closes: measured 6 mm) and over the last 0.1 s the force it applies
-    carries the weight (vertical part within 30 % of m g, measured 1.09 N against 1.11 N; the
-    object nearly at rest), reported with its friction part and the contact points; one-way, the
-    same action, it falls through the skin."""
+    < 15 mm while the hand closes) and over the last 0.1 s pushes it up with a force of the order of
+    its weight (measured 0.76 N against m g = 1.11 N: the object is still rolling towards the thumb;
+    the slow test checks the balance once it rests), reported with its friction part and the contact
+    points; one-way, the same action, it falls through the skin."""
     two = _carry(True)
     assert np.linalg.norm(two["offset"]) < 0.015, two["offset"]
     f = two["force"]
-    assert abs(f[2] - two["weight"]) < 0.3 * two["weight"] and np.linalg.norm(f[:2]) < two["weight"], f
+    assert 0.5 * two["weight"] < f[2] < 1.5 * two["weight"] and np.linalg.norm(f[:2]) < two["weight"], f
     c = two["contact"]
     assert c["points"].shape == (len(c["vertices"]), 3) and len(c["vertices"]) > 10
     assert np.all(np.isfinite(c["friction"])) and np.linalg.norm(c["friction"]) < np.linalg.norm(c["force"]) + 1e-9
     one = _carry(False)
     assert -one["offset"][2] > 0.1, one["offset"]  # free fall: 0.2 m in 0.2 s
     assert "force" not in one["contact"]
+
+
+@pytest.mark.slow
+def test_skin_alone_holds_objhold_for_two_seconds():
+    """The grasp held 2 s (1,000 soft frames), the object out of the capsules' collisions, two-way:
+    the skin alone keeps it in the hand (it rolls towards the thumb while the hand closes, measured
+    42 mm, then stays: 2.3 mm over the last second) and over the last 0.5 s its force carries the
+    weight (measured 1.11 N against m g = 1.11 N), no MuJoCo contact helping."""
+    env = _env(True)
+    r = hold.hold_still(env, hold.grasp_action(env), 2.0)
+    env.close()
+    assert r["finite"]
+    assert r["worst_mm"] < 60.0 and r["hold_mm"] < 10.0, r
+    assert abs(r["force_n"][2] - r["weight_n"]) < 0.1 * r["weight_n"] and np.linalg.norm(r["force_n"][:2]) < 0.2, r
+    assert np.abs(r["capsule_n"]).max() < 1e-9 and r["points"] > 50, r
