@@ -123,3 +123,17 @@ def test_skin_alone_holds_objhold_for_two_seconds():
     assert r["worst_mm"] < 60.0 and r["hold_mm"] < 10.0, r
     assert abs(r["force_n"][2] - r["weight_n"]) < 0.1 * r["weight_n"] and np.linalg.norm(r["force_n"][:2]) < 0.2, r
     assert np.abs(r["capsule_n"]).max() < 1e-9 and r["points"] > 50, r
+
+
+def test_two_way_warns_when_the_hands_capsules_also_push_the_object():
+    """Two-way with MyoHand's capsules still colliding with the free object: a RuntimeWarning naming
+    the object and what to do (both would push it: the object was lost); none once the object is out
+    of their collisions (skin_only), none one-way."""
+    import warnings
+
+    with pytest.warns(RuntimeWarning, match=r"collide with object: .*skin_only"):
+        _env(True, skin_only=False, settle_frames=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        _env(True, skin_only=True, settle_frames=1)
+        _env(False, skin_only=False, settle_frames=1)

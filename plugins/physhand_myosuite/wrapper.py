@@ -32,6 +32,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import time
+import warnings
 from pathlib import Path
 
 import gymnasium
@@ -62,6 +63,43 @@ def colliding_objects(model, bones) -> list[int]:
     roots = {int(model.body_rootid[b]) for b in bones}
     return [g for g in range(model.ngeom) if int(model.body_rootid[model.geom_bodyid[g]]) not in roots
             and (model.geom_contype[g] or model.geom_conaffinity[g])]
+
+
+def hand_collisions(model, bones, objects) -> dict[str, list[str]]:
+    """Per free object body among ``objects``' geoms (ids or names): the names of the hand's own
+    MuJoCo collision geoms (on the arm that carries ``bones``) that can collide with it by MuJoCo's
+    contype/conaffinity rule."""
+    from physhand_mj.coupling import free_qpos
+
+    roots = {int(model.body_rootid[b]) for b in bones}
+    hand = [g for g in range(model.ngeom) if int(model.body_rootid[model.geom_bodyid[g]]) in roots
+            and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    out: dict[str, list[str]] = {}
+    for g in objects:
+        g = model.geom(g).id
+        b = int(model.geom_bodyid[g])
+        if free_qpos(model, [b])[0] < 0:
+            continue  # (a static or jointed object is not moved within the frame)
+        hits = [model.geom(h).name or f"geom{h}" for h in hand
+                if (model.geom_contype[g] & model.geom_conaffinity[h]) or (model.geom_contype[h] & model.geom_conaffinity[g])]
+        if hits:
+            out.setdefault(model.body(b).name or f"body{b}", []).extend(hits)
+    return out
+
+
+def warn_double_push(model, bones, objects) -> None:
+    """Two-way coupling with a free object that MyoHand's own collision geoms also touch: a
+    RuntimeWarning saying what to change. MyoHand's capsules lie on the skin (not inside it, as
+    physhand's proxies do), so both push the object (ObjHold's object was lost that way:
+    docs/tasks.md)."""
+    hits = hand_collisions(model, bones, objects)
+    if hits:
+        which = "; ".join(f"{body}: {len(g)} hand geoms ({', '.join(g[:3])}{', ...' if len(g) > 3 else ''})"
+                          for body, g in hits.items())
+        warnings.warn(f"two-way coupling: MyoHand's own collision geoms also collide with {which} in MuJoCo, and they "
+                      "lie on the soft skin, so both push the object (docs/tasks.md, ObjHold: the object was lost). "
+                      "For the skin alone to hold it, take the object out of their collisions before wrapping, e.g. "
+                      "physhand_myosuite.hold.skin_only(env.unwrapped.model, BODY)", RuntimeWarning, stacklevel=3)
 
 
 class SoftSkin(gymnasium.Wrapper):
@@ -121,6 +159,8 @@ class SoftSkin(gymnasium.Wrapper):
         nm = resolve_naming([self.model.body(b).name for b in range(self.model.nbody)], naming, asset)
         bones = [self.model.body(b).id for b in nm.bones]
         objects = colliding_objects(self.model, bones) if object_geoms is None else list(object_geoms)
+        if self.two_way:
+            warn_double_push(self.model, bones, objects)
         mujoco.mj_forward(self.model, self.data)
         self.hand = SensedHand(self.model, self.data, self.config, asset=asset, naming=nm, writeback=False,
                                object_geoms=objects, settle_frames=0)  # reset() settles
