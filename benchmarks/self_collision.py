@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
-        [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+        [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json] [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--device cuda] [--fused auto|on|off] [--self-launches]
 
@@ -39,7 +39,8 @@ import numpy as np
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 
-def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "hand_only", extra=None) -> dict:
+def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "hand_only", extra=None,
+        picture: bool = False) -> dict:
     import mujoco
 
     import physhand_mj as ph
@@ -77,7 +78,30 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:
             out[k] = res[k]
+    if picture:  # the skin with its vertices whose 0.2 mm offset lies inside the hand marked
+        out["pixels"] = picture_of(model, data, hand, np.asarray(x, float)[:ns])
     return out
+
+
+def picture_of(model, data, hand, skin: np.ndarray, width: int = 640, height: int = 520) -> np.ndarray:
+    """The hand seen from the palm's side, the skin vertices whose 0.2 mm outward offset lies inside
+    the closed skin (the independent measure) in magenta."""
+    from physhand_mj.contact.self_measures import offsets_inside
+    from physhand_mj.figures import render_marked_skin
+    from physhand_mj.render import look_at_camera, make_renderer
+
+    inside = offsets_inside(skin, np.asarray(hand.asset.skin_faces), 2e-4)
+    hand._write_back()  # (the skin mesh as the state has it)
+    renderer = make_renderer(model, width, height)
+    g = hand.skin_geom
+    alpha = float(model.geom_rgba[g, 3])
+    model.geom_rgba[g, 3] = 0.55  # translucent: the marks lie between the fingers and the palm
+    try:
+        cam = look_at_camera(skin.mean(axis=0), 0.24, -90.0, -30.0)  # the thumb's side, a little above
+        return render_marked_skin(renderer, model, data, hand, cam, skin[inside], radius=0.0014).copy()
+    finally:
+        model.geom_rgba[g, 3] = alpha
+        renderer.close()
 
 
 def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, device=None, fused=None) -> dict:
@@ -137,13 +161,15 @@ def main():
     ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
     ap.add_argument("--worlds", default=None, help="comma-separated world counts: batched throughput instead")
+    ap.add_argument("--picture", default=None, help="PNG: each keyframe's skin per mode side by side (rows: keys), "
+                    "the vertices the measure finds inside marked")
     a = ap.parse_args()
     if a.self_launches:
         from physhand_mj.solver import fused
 
         fused.SELF_IN_KERNEL = False
     fz = {"auto": None, "on": True, "off": False}[a.fused]
-    rows = []
+    rows, tiles = [], []
     if a.worlds:
         for w in [int(v) for v in a.worlds.split(",")]:
             for mode in a.modes.split(","):
@@ -158,11 +184,20 @@ def main():
             extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}
             if fz is not None:
                 extra["fused_substep"] = fz
-            r = run(key, a.frames, mode == "on", a.device, extra=extra)
+            r = run(key, a.frames, mode == "on", a.device, extra=extra, picture=bool(a.picture))
+            pixels = r.pop("pixels", None)
+            if pixels is not None:
+                tiles.append(pixels)
             print(json.dumps(r), flush=True)
             rows.append(r)
     if a.out:
         Path(a.out).write_text(json.dumps(rows, indent=1))
+    if a.picture:
+        from physhand_mj.render import write_png
+
+        m = len(a.modes.split(","))
+        write_png(np.concatenate([np.concatenate(tiles[i: i + m], axis=1) for i in range(0, len(tiles), m)], axis=0),
+                  a.picture)
 
 
 if __name__ == "__main__":

@@ -161,6 +161,25 @@ def render_penetration_frame(renderer, model, data, hand, camera, max_marks: int
     return renderer.render()
 
 
+def render_marked_skin(renderer, model, data, hand, camera, points: np.ndarray,
+                       rgba=(0.95, 0.1, 0.85, 1.0), radius: float = 0.0012) -> np.ndarray:
+    """One frame: the skin as it is (uploaded to this renderer), objects shown, bones and proxies
+    hidden, and ``points`` (k, 3) m marked as dots (as many as the scene holds): e.g. the skin
+    vertices a self-penetration measure finds inside the hand (benchmarks/self_collision.py --picture)."""
+    import mujoco
+
+    mujoco.mjr_uploadMesh(model, renderer._mjr_context, hand.skin_mesh_id)
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = [1, 0, 1, 0, 0, 0]  # objects (0) and skin (2); bones and proxies hidden
+    renderer.update_scene(data, camera=camera, scene_option=opt)
+    scene = renderer.scene
+    for p in np.asarray(points, float)[: scene.maxgeom - scene.ngeom]:
+        mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, np.array([radius, 0, 0]), p,
+                            np.eye(3).ravel(), np.array(rgba, np.float32))
+        scene.ngeom += 1
+    return renderer.render()
+
+
 def render_grasp_view(model, data, hand, width: int = 640, height: int = 480) -> np.ndarray:
     """Pixels of the hand's object (the first non-world object body) and the skin as it is now,
     seen from above with the object made translucent and the penetrating samples marked
