@@ -1,6 +1,6 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
-    python benchmarks/self_collision.py [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
+    python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
         [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json] [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--device cuda] [--fused auto|on|off] [--self-launches]
@@ -65,7 +65,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
             last = hand.state.x.numpy()[:ns].astype(float)
     x = hand.solver.state_positions(hand.state) if hasattr(hand.solver, "state_positions") else hand.state.x.numpy()
     a = hand.asset
-    out = dict(key=key, self_collision=self_collision, frames=frames,
+    out = dict(scene=scene, key=key, self_collision=self_collision, frames=frames,
                ms_frame=float(np.median(times[1:]) * 1e3) if frames > 1 else None,
                cpu_ms_frame=float(np.median(cpu[1:]) * 1e3) if frames > 1 else None,
                finite=bool(np.all(np.isfinite(x))), guard_inverted=int(res.get("inverted", -1)))
@@ -153,6 +153,7 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--keys", default="open,pinch,power")
+    ap.add_argument("--scene", default="hand_only", help="a shipped scene (hoi_box, ...) whose keyframes --keys names")
     ap.add_argument("--frames", type=int, default=36)
     ap.add_argument("--modes", default="off,on")
     ap.add_argument("--device", default=None)
@@ -184,7 +185,7 @@ def main():
             extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}
             if fz is not None:
                 extra["fused_substep"] = fz
-            r = run(key, a.frames, mode == "on", a.device, extra=extra, picture=bool(a.picture))
+            r = run(key, a.frames, mode == "on", a.device, scene=a.scene, extra=extra, picture=bool(a.picture))
             pixels = r.pop("pixels", None)
             if pixels is not None:
                 tiles.append(pixels)
