@@ -180,8 +180,8 @@ class Config:
       two_way: the skin acts back on the scene (experimental): its contact impulses and Coulomb
         friction act on the objects, free ones moved within the frame at the substep rate, and the
         reaction on the bones; SoftHand hands the objects' poses and everyone's velocity change to
-        MuJoCo (contact/exchange.py, docs/coupling.md; one hand, not BatchedHands; ``frame_dt`` must
-        equal MuJoCo's timestep).
+        MuJoCo (contact/exchange.py, docs/coupling.md; BatchedHands per world through
+        ``batch.BatchTwoWay``; ``frame_dt`` must equal MuJoCo's timestep).
       contact_damping: with two_way, the flesh's damping at contacts (s): a touching object's normal
         velocity relative to the bones under the skin decays over this time (the flesh's own
         velocity damping leaves a box on the skin ringing for seconds); 0: none.
