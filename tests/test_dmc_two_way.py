@@ -1,7 +1,8 @@
 """hand_hold with Config(two_way=True) (issue 52, item 5): the skin holds the object against gravity
 along the palm (``gravity="down"``), from the reset's squeezed, floated HOI grasp (the apple, the box)
 or the holding grasp (glass1, glass2, the toothpaste, the phone; hand_hold.py); with one-way coupling
-the same grasp lets the apple fall, and one-way defaults stay as they were."""
+the same grasp lets the apple fall; two-way is the default with gravity down and no config, one-way
+otherwise."""
 
 import numpy as np
 import pytest
@@ -55,6 +56,17 @@ def test_holding_grasps_are_reachable_targets():
     assert env.task.grasp == "hold" and env.task.squeeze == 1.0
 
 
+def test_gravity_down_defaults_to_two_way():
+    """hand_hold with gravity along the palm and no config holds by the skin (Config(two_way=True), its
+    holding grasp where the object has one); gravity into the palm keeps one-way; a given config wins."""
+    env = suite.load("hand_hold", "glass2", task_kwargs=dict(random=0, gravity="down", settle_frames=1))
+    assert env.physics.soft.config.two_way and env.task.grasp == "hold" and env.task.float_frames == hand_hold.FLOAT_FRAMES
+    env = suite.load("hand_hold", "glass2", task_kwargs=dict(random=0, settle_frames=1))
+    assert not env.physics.soft.config.two_way and env.task.grasp == "hoi"
+    env = suite.load("hand_hold", "glass2", task_kwargs=dict(random=0, gravity="down", settle_frames=1, config=ph.Config()))
+    assert not env.physics.soft.config.two_way and env.task.grasp == "hoi"
+
+
 def test_the_skin_holds_the_apple_with_gravity_along_the_palm():
     """Two-way: the apple stays within 2 cm for 1 s, carried by the skin (its force on the apple
     points up), and not entered by the skin's samples."""
@@ -69,7 +81,7 @@ def test_the_skin_holds_the_apple_with_gravity_along_the_palm():
 def test_two_way_holds_what_one_way_drops():
     """The same squeezed, floated grasp for 2 s: one-way coupling drops the apple, two-way holds the
     apple and the box within 2 cm."""
-    worst, _ = hold("apple", None, squeeze=hand_hold.SQUEEZE, float_frames=hand_hold.FLOAT_FRAMES)
+    worst, _ = hold("apple", ph.Config(), squeeze=hand_hold.SQUEEZE, float_frames=hand_hold.FLOAT_FRAMES)
     assert worst > 0.05, worst
     for obj in ("apple", "box"):
         worst, _ = hold(obj, ph.Config(two_way=True))

@@ -11,7 +11,9 @@ fingers cradle the object and must keep it from rolling off; ``gravity="down"`` 
 scenes' -z, along the palm, where the grasp must hold by friction alone. A floor perpendicular to
 gravity 20 cm from the palm catches a dropped object.
 
-Holding by the skin (``Config(two_way=True)``, docs/coupling.md): the HOI keyframes start with the
+Holding by the skin (``Config(two_way=True)``, docs/coupling.md; the default with ``gravity="down"``
+and no ``config``: along the palm one-way coupling holds none of the seven from their HOI keyframes
+and two from the holding grasps, two-way six): the HOI keyframes start with the
 skin 2.5-3.8 mm into the object, which the skin, now pushing, would throw out of an unbalanced grasp.
 So with two-way coupling the reset by default (1) starts from the object's holding grasp where it
 has one (``grasp="hold"``: glass1, glass2, the phone, the toothpaste, whose HOI keyframes touch the
@@ -42,6 +44,7 @@ from dm_control.utils import containers, rewards
 
 from physhand_dmc.physics import SoftPhysics
 from physhand_dmc.task import SoftTask, check_nonneg, check_positive, make_environment, solver_config
+from physhand_mj import Config
 from physhand_mj.hand_mjcf import SCENES_DIR
 
 XML = Path(__file__).with_suffix(".xml")
@@ -206,6 +209,8 @@ def _task(obj: str):
              object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP,
              squeeze=None, float_frames=None, object_proxies=True, grasp=None):
         check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
+        if config is None and gravity == "down":  # along the palm one-way holds nothing: the skin holds
+            config = Config(two_way=True)
         two_way = bool(getattr(config, "two_way", False))
         if grasp is None:  # two-way: the holding grasp where the object has one
             grasp = "hold" if two_way and obj in HOLD_GRASPS else "hoi"
