@@ -75,6 +75,14 @@ def search(obj: str, margin: float, thumb_force: float, verbose: bool = True) ->
         mujoco.mj_kinematics(m, dk)
         return min(mujoco.mj_geomDistance(m, dk, g, o, 0.05, ft) for g in geoms for o in ogeoms)
 
+    def thumb_grid(q, n):
+        """(thumb joint values, hand qpos ``q`` with them) over an n^4 grid of the thumb's joint ranges."""
+        for q4 in itertools.product(*[np.linspace(*m.jnt_range[jid[j]], n) for j in TJ]):
+            qh = q.copy()
+            for j, v in zip(TJ, q4):
+                qh[jadr[j]] = v
+            yield q4, qh
+
     # A: fingers open, the object onto the palm (thumb left out), the thumb out of its way
     q_open = key[:nh].copy()
     for js in FJ.values():
@@ -90,10 +98,7 @@ def search(obj: str, margin: float, thumb_force: float, verbose: bool = True) ->
     dy = hi
     thumb_key = np.array([key[jadr[j]] for j in TJ])
     best = None
-    for q4 in itertools.product(*[np.linspace(*m.jnt_range[jid[j]], 7) for j in TJ]):
-        qh = q_open.copy()
-        for j, v in zip(TJ, q4):
-            qh[jadr[j]] = v
+    for q4, qh in thumb_grid(q_open, 7):
         s = (-min(round(mind(qh, p_key + [0, dy, 0], thumbg), 3), 0.004), float(np.abs(np.array(q4) - thumb_key).sum()))
         if best is None or s < best[0]:
             best = (s, qh)
@@ -181,10 +186,7 @@ def search(obj: str, margin: float, thumb_force: float, verbose: bool = True) ->
     qcur = d.qpos[:nh].copy()
     th0 = np.array([qcur[jadr[j]] for j in TJ])
     bt = None
-    for q4 in itertools.product(*[np.linspace(*m.jnt_range[jid[j]], 9) for j in TJ]):
-        qh = qcur.copy()
-        for j, v in zip(TJ, q4):
-            qh[jadr[j]] = v
+    for q4, qh in thumb_grid(qcur, 9):
         if not (-0.003 <= mind(qh, q_obj[:3], tgeoms) <= -0.001) or mind(qh, q_obj[:3], tip) > 0:
             continue
         mujoco.mj_geomDistance(m, dk, tip[0], ogeoms[0], 0.05, ft)

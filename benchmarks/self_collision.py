@@ -90,8 +90,7 @@ def picture_of(model, data, hand, skin: np.ndarray, width: int = 640, height: in
     from physhand_mj.figures import render_marked_skin
     from physhand_mj.render import look_at_camera, make_renderer
 
-    inside = offsets_inside(skin, np.asarray(hand.asset.skin_faces), 2e-4)
-    hand._write_back()  # (the skin mesh as the state has it)
+    inside = offsets_inside(skin, np.asarray(hand.asset.skin_faces), 2e-4)  # (SoftHand.step wrote the skin mesh)
     renderer = make_renderer(model, width, height)
     g = hand.skin_geom
     alpha = float(model.geom_rgba[g, 3])
