@@ -279,6 +279,41 @@ class BatchedHands:
             settler.set_body_poses(self.state, (1 - a) * rest_pos + a * target, nlerp(rest_quat, quat.reshape(-1, 4), a))
             settler.step(self.state)
 
+    def restart(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        """A new episode in every world, as ``SoftHand.reset`` starts one before its settling frames:
+        each world's rest shape placed by its own ``pos`` (W, 3) m / ``quat`` (W, 4) w x y z (its
+        frame; :func:`~physhand_mj.coupling.rest_placement` of its first bone), velocities, multipliers
+        and guards zeroed, the solver awake, the bones' two-way velocities forgotten. The bones are then
+        moved to the episode's pose by the caller's settling frames."""
+        self._alive()
+        self._complete()
+        self._unclaimed = None
+        import warp as wp
+
+        pos, quat = np.asarray(pos, float), np.asarray(quat, float)
+        if pos.shape != (self.worlds, 3) or quat.shape != (self.worlds, 4):
+            raise ValueError(f"restart: placements must be {(self.worlds, 3)} positions (m) and {(self.worlds, 4)} "
+                             f"quaternions (w x y z), got {pos.shape} and {quat.shape}")
+        fresh = self.solver.make_state()
+        for name in ("v", "delta", "lam_edge", "lam_tet", "lam_dih", "body_sub", "guard"):
+            wp.copy(getattr(self.state, name), getattr(fresh, name))
+        self.state.pose_fresh, self.state.time, self.state.frames = fresh.pose_fresh, 0.0, 0
+        self._place(pos, quat, vertex_world(self.solver.model.n_vertices, self.solver.model.n_skin, self.worlds))
+        self.solver.wake(self.state)
+        if self.two_way is not None:
+            self.two_way.forget_bones()
+
+    def last_penetration(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per world, the last frame's skin samples inside objects (the solver's frame metric, the
+        paper's 21-sample measure): counts (W,) and deepest (W,) um; zeros without contact or with
+        Config.frame_metrics off. Arrays, no per-world dicts (a batched environment's observations)."""
+        self._alive()
+        c = self.solver.contact
+        if c is None or not self.config.frame_metrics:
+            return np.zeros(self.worlds, np.int64), np.zeros(self.worlds)
+        rows = c.read_metrics_worlds(synchronize=False)[:, -1, :3].astype(np.float64)
+        return np.rint(rows[:, 0]).astype(np.int64), rows[:, 2] * 1e6
+
     @staticmethod
     def two_way_poses(report: dict, pos, quat) -> tuple[np.ndarray, np.ndarray]:
         """Body poses (W, n, 3) m / (W, n, 4) w x y z at a two-way frame's start moved as that frame

@@ -145,31 +145,40 @@ def pool(
 
 
 class SoftSensor:
-    """Preallocated buffers and launches of the pooling for one SoftHand (see the module docstring)."""
+    """Preallocated buffers and launches of the pooling for one SoftHand (see the module docstring), or
+    for the W worlds of a :class:`~physhand_mj.batch.BatchedHands` (``worlds``): world w's skin is
+    vertices [w n_skin, (w + 1) n_skin), its regions rows [w R, (w + 1) R) of ``region_host`` and its
+    objects rows [w n, (w + 1) n) of ``obj_host`` (the batch's object order); one launch pools all."""
 
-    def __init__(self, hand: SoftHand):
+    def __init__(self, hand, worlds: int = 1):
         a = hand.asset
         n = a.n_skin
-        self.n = n
+        W = int(worlds)
+        self.n, self.worlds = n, W
         self.region_names, region = regions(a)
         bone, local = rest_local(a)
+        R, B = len(self.region_names), len(a.body_names)
+        k = np.repeat(np.arange(W), n)  # (each world's rows: regions, bones and faces shifted by it)
+        region, bone, local = np.tile(region, W) + k * R, np.tile(bone, W) + k * B, np.tile(local, (W, 1))
+        faces = np.concatenate([np.asarray(a.skin_faces) + w * n for w in range(W)])
         d = hand.solver.model.device
         self.device = wp.get_device(d)
-        self.mass = wp.array(np.asarray(a.mass[:n], np.float32), dtype=float, device=d)
+        self.mass = wp.array(np.tile(np.asarray(a.mass[:n], np.float32), W), dtype=float, device=d)
         self.region = wp.array(region.astype(np.int32), dtype=int, device=d)
         self.bone = wp.array(bone.astype(np.int32), dtype=int, device=d)
         self.local = wp.array(local.astype(np.float32), dtype=wp.vec3, device=d)
-        self.faces = wp.array(np.asarray(a.skin_faces, np.int32), dtype=int, device=d)
-        self.area = wp.zeros(n, dtype=float, device=d)
+        self.faces = wp.array(faces.astype(np.int32), dtype=int, device=d)
+        self.area = wp.zeros(n * W, dtype=float, device=d)
         n_obj = max(len(hand.objects.object_names), 1) if hand.solver.contact is not None else 1
         self.object_names = tuple(hand.objects.object_names) if hand.solver.contact is not None else ()
-        self.region_out = wp.zeros((len(self.region_names), 4), dtype=float, device=d)
+        self.region_out = wp.zeros((R * W, 4), dtype=float, device=d)
         self.obj_out = wp.zeros((n_obj, 3), dtype=float, device=d)
         cfg = hand.config
         self.force_scale = float(1.0 / (cfg.substep_dt ** 2 * cfg.substeps))
         contact = hand.solver.contact
-        self.push = contact.push if contact is not None else wp.zeros(a.n_vertices, dtype=float, device=d)
-        self.vertex_obj = contact.vertex_obj if contact is not None else wp.full(a.n_vertices, -1, dtype=int, device=d)
+        n_all = hand.solver.model.n_vertices
+        self.push = contact.push if contact is not None else wp.zeros(n_all, dtype=float, device=d)
+        self.vertex_obj = contact.vertex_obj if contact is not None else wp.full(n_all, -1, dtype=int, device=d)
         if self.device.is_cpu:  # host memory already: the numpy views alias the outputs
             self._region_host, self._obj_host = self.region_out, self.obj_out
         else:
@@ -189,7 +198,7 @@ class SoftSensor:
         self.obj_out.zero_()
         x = hand.state.x
         wp.launch(vertex_area, self.faces.shape[0], inputs=[self.faces, x], outputs=[self.area], device=d)
-        wp.launch(pool, self.n, inputs=[self.mass, self.region, self.bone, self.local, self.force_scale, x, self.area,
+        wp.launch(pool, self.n * self.worlds, inputs=[self.mass, self.region, self.bone, self.local, self.force_scale, x, self.area,
                                         self.push, self.vertex_obj, hand.state.body_pose],
                   outputs=[self.region_out, self.obj_out], device=d)
         if not d.is_cpu:

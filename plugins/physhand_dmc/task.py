@@ -48,6 +48,19 @@ def solver_config(config, timestep: float) -> Config:
     return config.validate()
 
 
+def batch_config(config, timestep: float, device) -> Config:
+    """:func:`solver_config` for a batch (physhand_dmc.vector) on ``device`` (None: the config's, else
+    Warp's default); a batch's worlds reset themselves when their skin turns non-finite
+    (``NonFinite.RECOVER``: BatchedHands needs it)."""
+    import dataclasses
+
+    from physhand_mj.types import NonFinite
+
+    cfg = solver_config(config, timestep)
+    return dataclasses.replace(cfg, device=device if device is not None else cfg.device,
+                               nonfinite=NonFinite.RECOVER).validate()
+
+
 class SoftTask(base.Task):
     """Base of the suite's tasks. Subclasses set ``self._actuators`` (ids, or None for all) in
     ``initialize_episode`` or ``__init__`` and implement ``_task_observations`` and ``get_reward``."""

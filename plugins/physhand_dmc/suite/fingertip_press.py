@@ -27,7 +27,9 @@ from dm_control.utils import containers, rewards
 
 from physhand_dmc.physics import SoftPhysics
 from physhand_dmc.sensing import regions, rigid_skin
-from physhand_dmc.task import SoftTask, check_positive, make_environment, solver_config
+from physhand_dmc.batch_physics import BatchPhysics
+from physhand_dmc.task import SoftTask, batch_config, check_positive, make_environment, solver_config
+from physhand_dmc.vector import BatchTask
 from physhand_mj.asset import load_asset
 from physhand_mj.hand_mjcf import SCENES_DIR, body_ids
 
@@ -95,9 +97,59 @@ class Press(SoftTask):
 
     def get_reward(self, physics):
         force = float(physics.soft.sensor.obj_host[0, 1])
-        tol = self.force_tolerance
-        on = rewards.tolerance(force, bounds=(self.target - tol, self.target + tol), margin=0.5 * self.target)
-        return float(on * self.no_penetration(physics))
+        depth = float(physics.soft._last.get("penetration_max_um", 0.0)) * 1e-3
+        return float(press_reward(force, self.target, self.force_tolerance, depth))
+
+
+def press_reward(force, target, tolerance: float, depth_mm):
+    """``on_target * no_penetration`` (see the module docstring) of soft-contact forces ``force`` N,
+    targets ``target`` N and deepest penetrations ``depth_mm``: scalars or (W,) arrays alike (the
+    single task and the batched one share it)."""
+    force, target, depth_mm = np.asarray(force, float), np.asarray(target, float), np.asarray(depth_mm, float)
+    out = (force - (target + tolerance)).clip(0) + ((target - tolerance) - force).clip(0)  # distance from the band
+    scale = np.sqrt(-2 * np.log(0.1))  # dm_control's gaussian tolerance: 0.1 at one margin
+    on = np.exp(-0.5 * (out / (0.5 * target) * scale) ** 2)
+    return on * rewards.tolerance(depth_mm, bounds=(0.0, 0.05), margin=1.0)
+
+
+class BatchPress(BatchTask):
+    """:class:`Press` on W worlds (physhand_dmc.vector): the same episodes, observations and reward."""
+
+    def __init__(self, physics, settle_frames: int = 20, force_range=(0.1, 0.25), force_tolerance: float = 0.03):
+        super().__init__(physics, settle_frames)
+        probe = Press(force_range=force_range, force_tolerance=force_tolerance, settle_frames=settle_frames)  # (checks)
+        self.force_range, self.force_tolerance = probe.force_range, probe.force_tolerance
+        self.target = np.full(physics.worlds, self.force_range[0])
+
+    def initialize_episodes(self, mask):
+        p = self.physics
+        import warp as wp
+
+        with wp.ScopedDevice(p.device):
+            p.mjw.reset_data_keyframe(p.m, p.d, wp.array(np.where(mask, 0, -1).astype(np.int32), dtype=int))
+        for w in np.flatnonzero(mask):  # (each world's own RNG, drawn as the single task draws)
+            self.target[w] = self.random[w].uniform(*self.force_range)
+        p.restart_soft(self.settle_frames)
+
+    def task_observations(self, obs):
+        obs["joint_pos"] = self.physics.host("qpos")
+        obs["joint_vel"] = self.physics.host("qvel")
+        obs["target_force"] = self.target[:, None].copy()
+
+    def rewards(self):
+        p = self.physics
+        force = p.sensor.obj_host.reshape(p.worlds, -1, 3)[:, 0, 1].astype(float)
+        return press_reward(force, self.target, self.force_tolerance, self.depth_mm())
+
+
+def batch_task(task, num_envs, device=None, *, time_limit=_DEFAULT_TIME_LIMIT, settle_frames=20,
+               force_range=(0.1, 0.25), force_tolerance=0.03, config=None, control_timestep=_CONTROL_TIMESTEP):
+    """The batched ``index`` task (physhand_dmc.vector.load_batch): (BatchPress, time_limit, control_timestep)."""
+    check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
+    model = build_model()
+    cfg = batch_config(config, float(model.opt.timestep), device)
+    physics = BatchPhysics(model, num_envs, cfg, object_bodies=["plate"])
+    return BatchPress(physics, settle_frames, force_range, force_tolerance), time_limit, control_timestep
 
 
 def make_physics(config) -> SoftPhysics:

@@ -43,7 +43,9 @@ from dm_control.mujoco import wrapper
 from dm_control.utils import containers, rewards
 
 from physhand_dmc.physics import SoftPhysics
-from physhand_dmc.task import SoftTask, check_nonneg, check_positive, make_environment, solver_config
+from physhand_dmc.batch_physics import BatchPhysics
+from physhand_dmc.task import SoftTask, batch_config, check_nonneg, check_positive, make_environment, solver_config
+from physhand_dmc.vector import BatchTask
 from physhand_mj import Config
 from physhand_mj.hand_mjcf import SCENES_DIR
 
@@ -197,11 +199,93 @@ class Hold(SoftTask):
     def get_reward(self, physics):
         d = physics.data
         offset = float(np.linalg.norm(d.qpos[self._qadr: self._qadr + 3] - self._start))
-        hold = rewards.tolerance(offset, bounds=(0.0, 0.01), margin=0.05)
         force = float(physics.soft.sensor.obj_host[0, 1])
-        firm = rewards.tolerance(force, bounds=(self.min_force, np.inf), margin=self.min_force, sigmoid="linear",
-                                 value_at_margin=0.0)
-        return float(hold * (0.5 + 0.5 * firm) * self.no_penetration(physics))
+        depth = float(physics.soft._last.get("penetration_max_um", 0.0)) * 1e-3
+        return float(hold_reward(offset, force, depth, self.min_force))
+
+
+def hold_reward(offset, force, depth_mm, min_force: float):
+    """``hold * (0.5 + 0.5 * firm) * no_penetration`` (the module docstring) of the object's offsets
+    from its start (m), soft-contact forces (N) and deepest penetrations (mm): scalars or (W,) arrays
+    alike (the single task and the batched one share it)."""
+    hold = rewards.tolerance(np.asarray(offset, float), bounds=(0.0, 0.01), margin=0.05)
+    firm = rewards.tolerance(np.asarray(force, float), bounds=(min_force, np.inf), margin=min_force, sigmoid="linear",
+                             value_at_margin=0.0)
+    return hold * (0.5 + 0.5 * firm) * rewards.tolerance(np.asarray(depth_mm, float), bounds=(0.0, 0.05), margin=1.0)
+
+
+class BatchHold(BatchTask):
+    """:class:`Hold` on W worlds (physhand_dmc.vector): the same episodes, observations and reward."""
+
+    def __init__(self, physics, obj: str, settle_frames: int = 20, object_jitter: float = 0.002, min_force: float = 1.0,
+                 squeeze: float = 1.0, float_frames: int = 0, grasp: str = "hoi"):
+        super().__init__(physics, settle_frames)
+        probe = Hold(obj, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force, squeeze=squeeze,
+                     float_frames=float_frames, grasp=grasp)  # (the options' checks)
+        self.obj, self.grasp, self.squeeze = obj, grasp, probe.squeeze
+        self.float_frames, self.object_jitter, self.min_force = probe.float_frames, probe.object_jitter, probe.min_force
+        m = physics.model
+        j = int(m.body_jntadr[m.body(obj).id])
+        self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        self._key = 0 if grasp == "hoi" else m.key("hold").id
+        self._start = np.zeros((physics.worlds, 3))
+
+    def initialize_episodes(self, mask):
+        import warp as wp
+
+        p, m = self.physics, self.physics.model
+        with wp.ScopedDevice(p.device):
+            p.mjw.reset_data_keyframe(p.m, p.d, wp.array(np.where(mask, self._key, -1).astype(np.int32), dtype=int))
+        if self.squeeze != 1.0:
+            ctrl = p.host("ctrl")
+            lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
+            ctrl[mask] = np.clip(np.asarray(m.key(self._key).ctrl) * self.squeeze, lo, hi)
+            p.set_ctrl(ctrl)
+        qpos = p.host("qpos")
+        a = self._qadr
+        for w in np.flatnonzero(mask):  # (each world's own RNG, drawn as the single task draws)
+            qpos[w, a: a + 3] += self.random[w].uniform(-self.object_jitter, self.object_jitter, 3)
+        p.set_host("qpos", qpos)
+        p.restart_soft(self.settle_frames)
+        if self.float_frames:  # gravity off while the object settles into the grasp
+            g = p.m.opt.gravity.numpy().copy()
+            p.m.opt.gravity.assign(np.zeros_like(g))
+            try:
+                p.step(self.float_frames)
+            finally:
+                p.m.opt.gravity.assign(g)
+            time = p.host("time")
+            time[mask] = 0.0
+            p.set_host("time", time)
+        self._start[mask] = p.host("qpos")[mask, a: a + 3]
+
+    def task_observations(self, obs):
+        p, a, v = self.physics, self._qadr, self._vadr
+        qpos, qvel = p.host("qpos"), p.host("qvel")
+        obs["joint_pos"] = qpos[:, :a]
+        obs["joint_vel"] = qvel[:, :a]
+        obs["object_offset"] = qpos[:, a: a + 3] - self._start
+        obs["object_quat"] = qpos[:, a + 3: a + 7]
+        obs["object_vel"] = qvel[:, v: v + 6]
+
+    def rewards(self):
+        p = self.physics
+        offset = np.linalg.norm(p.host("qpos")[:, self._qadr: self._qadr + 3] - self._start, axis=1)
+        force = p.sensor.obj_host.reshape(p.worlds, -1, 3)[:, 0, 1].astype(float)
+        return hold_reward(offset, force, self.depth_mm(), self.min_force)
+
+
+def _options(obj: str, gravity: str, config, grasp, squeeze, float_frames):
+    """The task's resolved (config, grasp, squeeze, float_frames): two-way by default along the palm,
+    the holding grasp, squeeze and float with two-way (the module docstring)."""
+    if config is None and gravity == "down":  # along the palm one-way holds nothing: the skin holds
+        config = Config(two_way=True)
+    two_way = bool(getattr(config, "two_way", False))
+    if grasp is None:  # two-way: the holding grasp where the object has one
+        grasp = "hold" if two_way and obj in HOLD_GRASPS else "hoi"
+    squeeze = (SQUEEZE if two_way and grasp == "hoi" else 1.0) if squeeze is None else squeeze
+    float_frames = (FLOAT_FRAMES if two_way else 0) if float_frames is None else float_frames
+    return config, grasp, squeeze, float_frames
 
 
 def _task(obj: str):
@@ -209,13 +293,7 @@ def _task(obj: str):
              object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP,
              squeeze=None, float_frames=None, object_proxies=True, grasp=None):
         check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
-        if config is None and gravity == "down":  # along the palm one-way holds nothing: the skin holds
-            config = Config(two_way=True)
-        two_way = bool(getattr(config, "two_way", False))
-        if grasp is None:  # two-way: the holding grasp where the object has one
-            grasp = "hold" if two_way and obj in HOLD_GRASPS else "hoi"
-        squeeze = (SQUEEZE if two_way and grasp == "hoi" else 1.0) if squeeze is None else squeeze
-        float_frames = (FLOAT_FRAMES if two_way else 0) if float_frames is None else float_frames
+        config, grasp, squeeze, float_frames = _options(obj, gravity, config, grasp, squeeze, float_frames)
         t = Hold(obj, random=random, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force,
                  squeeze=squeeze, float_frames=float_frames, grasp=grasp)
         physics = make_physics(obj, gravity, config, object_proxies, grasp)
@@ -228,3 +306,19 @@ def _task(obj: str):
 
 for _obj in OBJECTS:
     globals()[_obj] = SUITE.add("benchmarking", "hoi")(_task(_obj))
+
+
+def batch_task(task, num_envs, device=None, *, time_limit=_DEFAULT_TIME_LIMIT, settle_frames=20, object_jitter=0.002,
+               min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP, squeeze=None,
+               float_frames=None, object_proxies=True, grasp=None):
+    """The batched task ``task`` (an object; physhand_dmc.vector.load_batch): (BatchHold, time_limit,
+    control_timestep), options as the single task's."""
+    check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
+    config, grasp, squeeze, float_frames = _options(task, gravity, config, grasp, squeeze, float_frames)
+    model = build_model(task, gravity, grasp)
+    if not object_proxies:
+        without_proxies(model, task)
+    cfg = batch_config(config, float(model.opt.timestep), device)
+    physics = BatchPhysics(model, num_envs, cfg, object_bodies=[task])
+    t = BatchHold(physics, task, settle_frames, object_jitter, min_force, squeeze, float_frames, grasp)
+    return t, time_limit, control_timestep

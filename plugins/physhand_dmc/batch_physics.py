@@ -1,0 +1,316 @@
+"""``BatchPhysics``: W copies of a suite domain stepped together, MuJoCo by MuJoCo Warp and the soft
+hands by one :class:`~physhand_mj.batch.BatchedHands`, coupled world by world as
+:class:`~physhand_dmc.physics.SoftPhysics` couples one (issue 54).
+
+- MuJoCo's side: ``mujoco_warp`` (``mjw.put_model``, ``mjw.put_data(..., nworld=W)``, ``mjw.step``)
+  on the solver's device, float32. Chosen over MuJoCo's threaded C rollout (``mujoco.rollout``):
+  the two-way exchange needs each world's kinematics at the step's start, its mass matrix factor
+  and ``M^-1 J^T`` of the skin's impulses, which MuJoCo Warp keeps for every world on the device
+  (``apply_ft``, ``solve_m``) and the rollout's state vectors do not (docs/training.md, the
+  measured step costs of both).
+- Per MuJoCo step: ``mjw.step``; one-way: ``mjw.kinematics`` after it (dm_control's legacy step
+  leaves data's kinematics at the step's end: the soft frame follows the bones there); two-way:
+  the step's start (as ``SoftPhysics`` with ``mj_step``). Then one soft frame of every world: the
+  bones' and objects' poses (and two-way: the objects' velocities, the step's acceleration, the
+  inertial frames) in, and two-way: ``qvel += M^-1 J^T [impulses]`` and a touched free object's
+  pose out (``SoftHand._apply_wrenches`` for all worlds at once: ``coupling.apply_impulses``).
+- ``sensor``: the soft signals of every world (:class:`~physhand_dmc.sensing.SoftSensor` with
+  ``worlds``), pooled after each frame.
+- ``reset_worlds(mask, ...)``: a new episode in the masked worlds only (the rest keep their state:
+  MuJoCo's and the soft tissue's are put back after the reset's frames).
+
+Worlds never interact (their objects are their own; BatchedHands solves each at its own place).
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import mujoco
+import numpy as np
+import warp as wp
+
+from physhand_dmc.sensing import SoftSensor
+from physhand_mj.asset import load_asset
+from physhand_mj.batch import BatchedHands
+from physhand_mj.coupling import (check_two_way, free_qpos, friction_coefficients, geom_spec, rest_placement,
+                                  select_object_geoms, _settling)
+from physhand_mj.hand_mjcf import body_ids, skin_geom_id
+from physhand_mj.rotations import nlerp
+
+# the soft tissue's per-vertex state a reset of some worlds puts back in the others
+_SOFT_ARRAYS = ("x", "v", "x_prev", "x_safe", "delta")
+# MuJoCo Warp's per-world state a reset of some worlds puts back in the others
+_MJ_ARRAYS = ("qpos", "qvel", "act", "ctrl", "qacc_warmstart", "mocap_pos", "mocap_quat", "time", "qacc",
+              "xfrc_applied", "qfrc_applied")
+
+
+def mat_to_quat(mats: np.ndarray) -> np.ndarray:
+    """(..., 4) w x y z unit quaternions of rotation matrices (..., 3, 3) (Shepperd's method, every
+    branch computed and the stable one kept: vectorised ``mju_mat2Quat``)."""
+    m = np.asarray(mats, np.float64)
+    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    cands = np.stack([
+        np.stack([1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
+        np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                  m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
+        np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0],
+                  1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], m[..., 1, 2] + m[..., 2, 1]], -1),
+        np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1],
+                  1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], -1)], -2)
+    diag = np.stack([tr, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
+    pick = np.argmax(diag, -1)
+    q = np.take_along_axis(cands, pick[..., None, None], -2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+class BatchPhysics:
+    """W worlds of one compiled MuJoCo ``model`` (a suite domain's), each with the soft hand; see the
+    module docstring. ``config``: the soft hand's (``frame_dt`` = the model's timestep; its
+    ``device`` runs both MuJoCo Warp and the solver); ``object_bodies``: the bodies the skin
+    collides with (as ``SoftHand``'s). ``nconmax`` / ``njmax``: MuJoCo Warp's contact and
+    constraint rows per world (None: its defaults)."""
+
+    def __init__(self, model: mujoco.MjModel, worlds: int, config, object_bodies=None, *, asset=None,
+                 nconmax: int | None = None, njmax: int | None = None):
+        import mujoco_warp as mjw
+
+        self.mjw = mjw
+        self.model, self.worlds = model, int(worlds)
+        self.config = config.validate()
+        self.two_way = bool(self.config.two_way)
+        if self.two_way:
+            check_two_way(model, self.config)
+        self.asset = asset if asset is not None else load_asset()
+        self.device = wp.get_device(self.config.device)
+        data = mujoco.MjData(model)
+        mujoco.mj_resetDataKeyframe(model, data, 0) if model.nkey else mujoco.mj_resetData(model, data)
+        mujoco.mj_forward(model, data)
+        self.bones = body_ids(model, [str(b) for b in self.asset.body_names])
+        skin = skin_geom_id(model, "")
+        self.geoms = select_object_geoms(model, self.bones, skin, bodies=object_bodies)
+        specs = [geom_spec(model, data, g) for g in self.geoms]
+        first: dict[str, int] = {}  # each object (a MuJoCo body, as BatchedHands groups geoms) -> its first geom
+        for i, s in enumerate(specs):
+            first.setdefault(s["obj"], i)
+        index = {name: j for j, name in enumerate(first)}
+        self.object_names = list(first)
+        self.object_bodies = np.array([int(model.geom_bodyid[self.geoms[i]]) for i in first.values()], np.int64)
+        self.free = free_qpos(model, self.object_bodies)
+        static = model.body_weldid[self.object_bodies] == 0
+        if np.any((self.free < 0) & ~static):
+            bad = [model.body(int(b)).name for b, f, s in zip(self.object_bodies, self.free, static) if f < 0 and not s]
+            raise ValueError(f"BatchPhysics: objects {bad} are neither free nor fixed to the world (mocap or jointed "
+                             "objects are not batched yet): use SoftPhysics")
+        self.free_dof = np.array([model.jnt_dofadr[model.body_jntadr[b]] if f >= 0 else -1
+                                  for b, f in zip(self.object_bodies, self.free)], np.int64)
+        W = self.worlds
+        mu = friction_coefficients(model, skin, self.geoms, [index[s["obj"]] for s in specs], len(self.object_bodies))
+        mass = np.where(self.free >= 0, model.body_mass[self.object_bodies], 0.0)
+        two_way = dict(object_mass=np.tile(mass, (W, 1)), object_inertia=np.tile(model.body_inertia[self.object_bodies],
+                                                                                  (W, 1, 1)),
+                       object_friction=np.tile(mu, (W, 1))) if self.two_way and specs else {}
+        place = rest_placement(self.asset, data.xpos[self.bones[0]], data.xquat[self.bones[0]])
+        self.hands = BatchedHands(self.asset, W, self.config, np.tile(place[0], (W, 1)), np.tile(place[1], (W, 1)),
+                                  objects=specs, **two_way)
+        self.sensor = SoftSensor(self.hands, W)
+        with wp.ScopedDevice(self.device):
+            self.m = mjw.put_model(model)
+            self.d = mjw.put_data(model, data, nworld=W, nconmax=nconmax, njmax=njmax)
+            self._qfrc = wp.zeros((W, model.nv), dtype=float)
+            self._dq = wp.zeros((W, model.nv), dtype=float)
+        self.dt = float(model.opt.timestep)
+        self.frames = 0
+        self.bad = np.zeros(W, bool)  # worlds whose MuJoCo state turned non-finite (the env ends their episode)
+        self._good = None  # the last finite poses of every world (a bad world's frame keeps them)
+
+    # -- MuJoCo Warp's arrays, on the host ---------------------------------------------------------
+    def host(self, name: str) -> np.ndarray:
+        """MuJoCo Warp data field ``name`` of every world as float64 NumPy (a copy)."""
+        return getattr(self.d, name).numpy().astype(np.float64)
+
+    def set_host(self, name: str, value: np.ndarray) -> None:
+        arr = getattr(self.d, name)
+        arr.assign(wp.array(np.asarray(value, np.float32).reshape(arr.shape), dtype=arr.dtype, device="cpu"))
+
+    def set_ctrl(self, ctrl: np.ndarray) -> None:
+        """Each world's actuator controls (W, nu), in the actuators' units."""
+        self.set_host("ctrl", np.asarray(ctrl, np.float64).reshape(self.worlds, self.model.nu))
+
+    # -- stepping ----------------------------------------------------------------------------------
+    def step(self, nstep: int = 1) -> None:
+        """``nstep`` MuJoCo steps of every world, each followed by one soft frame (SoftPhysics.step)."""
+        for _ in range(int(nstep)):
+            with wp.ScopedDevice(self.device):
+                self.mjw.step(self.m, self.d)
+                if not self.two_way:  # (dm_control's legacy step: kinematics at the step's end)
+                    self.mjw.kinematics(self.m, self.d)
+            self._soft_frame()
+
+    def forward(self) -> None:
+        """MuJoCo Warp's forward dynamics of every world (kinematics of qpos, as ``mj_forward``)."""
+        with wp.ScopedDevice(self.device):
+            self.mjw.forward(self.m, self.d)
+
+    def _poses(self):
+        """Every world's body poses and the bones' and object geoms' (a world whose MuJoCo state is
+        not finite keeps its last finite poses and is marked in ``bad``)."""
+        xpos, xquat = self.host("xpos"), self.host("xquat")
+        gpos = self.host("geom_xpos")[:, self.geoms]
+        gmat = self.host("geom_xmat")[:, self.geoms].reshape(self.worlds, -1, 3, 3)
+        ok = np.isfinite(xpos).all((1, 2)) & np.isfinite(xquat).all((1, 2)) & np.isfinite(gpos).all((1, 2)) & \
+            np.isfinite(gmat).all((1, 2, 3))
+        if not ok.all():
+            if self._good is None:
+                raise FloatingPointError(f"non-finite MuJoCo state in worlds {np.flatnonzero(~ok).tolist()} before any "
+                                         "frame: check the model's keyframe / qpos")
+            self.bad |= ~ok
+            for a, g in zip((xpos, xquat, gpos, gmat), self._good):
+                a[~ok] = g[~ok]
+        self._good = (xpos, xquat, gpos, gmat)
+        gquat = mat_to_quat(gmat)
+        return xpos, xquat, xpos[:, self.bones], xquat[:, self.bones], gpos, gquat
+
+    def _soft_frame(self) -> dict:
+        xpos, xquat, pos, quat, gpos, gquat = self._poses()
+        if not (self.two_way and self.hands.two_way is not None):
+            out = self.hands.step(pos, quat, gpos, gquat)
+        else:
+            b = self.object_bodies
+            xipos = self.host("xipos")
+            vel, acc = self._object_motion(xpos, xipos)
+            out = self.hands.step(pos, quat, gpos, gquat, object_vel=vel, object_vel_start=vel - acc * self.dt,
+                                  object_com=xipos[:, b],
+                                  object_iquat=mat_to_quat(self.host("ximat")[:, b].reshape(self.worlds, -1, 3, 3)),
+                                  bone_com=xipos[:, self.bones])
+            self._apply(out["two_way"], xpos[:, b], xquat[:, b])
+        self.sensor.launch(self.hands)
+        self.frames += 1
+        self.last = out
+        return out
+
+    def _object_motion(self, xpos, xipos):
+        """(vel, acc) (W, n, 6) [linear at the centre of mass, angular], world frame, of each object
+        after the step (``coupling.object_motion`` for every world: a free body's qvel / qacc; fixed
+        objects 0)."""
+        W, n = self.worlds, len(self.object_bodies)
+        vel, acc = np.zeros((W, n, 6)), np.zeros((W, n, 6))
+        if not np.any(self.free >= 0):
+            return vel, acc
+        qvel, qacc = self.host("qvel"), self.host("qacc")
+        xmat = self.host("xmat").reshape(W, -1, 3, 3)
+        for j in np.flatnonzero(self.free >= 0):  # (objects, not worlds: one or two)
+            b, dof = self.object_bodies[j], self.free_dof[j]
+            rot, r = xmat[:, b], xipos[:, b] - xpos[:, b]
+            w = np.einsum("wij,wj->wi", rot, qvel[:, dof + 3: dof + 6])
+            al = np.einsum("wij,wj->wi", rot, qacc[:, dof + 3: dof + 6])
+            vel[:, j] = np.c_[qvel[:, dof: dof + 3] + np.cross(w, r), w]
+            acc[:, j] = np.c_[qacc[:, dof: dof + 3] + np.cross(al, r), al]
+        return vel, acc
+
+    def _apply(self, rep: dict, obj_xpos, obj_xquat) -> None:
+        """The frame's impulses into every world's qvel (``M^-1 J^T``, MuJoCo Warp's ``apply_ft`` at
+        the bodies' centres of mass and ``solve_m`` with the step's factor) and touched free objects
+        to the poses the frame moved them to (``coupling.apply_impulses``, ``SoftHand._apply_wrenches``)."""
+        from mujoco_warp._src import support
+
+        m = self.model
+        W = self.worlds
+        ft = np.zeros((W, m.nbody, 6))
+        movable = (m.body_weldid[self.object_bodies] != 0) & (m.body_mocapid[self.object_bodies] < 0)
+        ft[:, self.object_bodies[movable]] += rep["wrench"][:, movable] * self.dt
+        ft[:, self.bones] += rep["bones"] * self.dt
+        with wp.ScopedDevice(self.device):
+            fta = wp.array(ft.astype(np.float32), dtype=wp.spatial_vector, device=self.device)
+            support.apply_ft(self.m, self.d, fta, self._qfrc, False)
+            self.mjw.solve_m(self.m, self.d, self._dq, self._qfrc)
+        qvel = self.host("qvel") + self._dq.numpy().astype(np.float64)
+        self.set_host("qvel", qvel)
+        touched = np.any(rep["wrench"] != 0, axis=-1) & (self.free >= 0)[None]
+        if np.any(touched):
+            p, q = BatchedHands.two_way_poses(rep, obj_xpos, obj_xquat)
+            qpos = self.host("qpos")
+            for j in np.flatnonzero(np.any(touched, axis=0)):
+                a, t = self.free[j], touched[:, j]
+                qpos[t, a: a + 3], qpos[t, a + 3: a + 7] = p[t, j], q[t, j]
+            self.set_host("qpos", qpos)
+
+    # -- episodes ----------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def keep_others(self, mask: np.ndarray):
+        """Worlds outside ``mask`` (W,) bool come out of the block as they went in (MuJoCo Warp's state
+        and the soft tissue's), whatever the block ran in every world (a reset's frames)."""
+        mask = np.asarray(mask, bool)
+        if mask.all():
+            yield
+            return
+        keep = ~mask
+        mj = {k: getattr(self.d, k).numpy().copy() for k in _MJ_ARRAYS if hasattr(self.d, k)}
+        st = self.hands.state
+        from physhand_mj.solver.model import vertex_world
+
+        vw = vertex_world(self.hands.solver.model.n_vertices, self.hands.solver.model.n_skin, self.worlds)
+        soft = {k: getattr(st, k).numpy().copy() for k in _SOFT_ARRAYS}
+        body = st.body_pose.numpy().copy()
+        host = st.pose_host.copy()
+        tw = self.hands.two_way
+        prev = None if tw is None or tw._bones_prev is None else tuple(a.copy() for a in tw._bones_prev)
+        sensor = (self.sensor.region_host.copy(), self.sensor.obj_host.copy())
+        try:
+            yield
+        finally:
+            for k, a in mj.items():
+                now = getattr(self.d, k).numpy().copy()
+                now[keep] = a[keep]
+                getattr(self.d, k).assign(wp.array(now, dtype=getattr(self.d, k).dtype, device="cpu"))
+            rows = keep[vw]
+            for k, a in soft.items():
+                now = getattr(st, k).numpy().copy()
+                now[rows] = a[rows]
+                getattr(st, k).assign(wp.array(now, dtype=wp.vec3, device="cpu"))
+            B = len(self.asset.body_names)
+            brow = np.repeat(keep, B)
+            now = st.body_pose.numpy().copy()
+            now[:, brow] = body[:, brow]
+            st.body_pose.assign(wp.array(now, dtype=wp.transform, device="cpu"))
+            st.pose_host[:, brow] = host[:, brow]
+            if tw is not None and prev is not None and tw._bones_prev is not None:
+                tw._bones_prev = tuple(np.where(keep[:, None, None], p, c) for p, c in zip(prev, tw._bones_prev))
+            R = len(self.sensor.region_names)
+            self.sensor.region_host[np.repeat(keep, R)] = sensor[0][np.repeat(keep, R)]
+            n = self.sensor.obj_host.shape[0] // self.worlds
+            self.sensor.obj_host[np.repeat(keep, n)] = sensor[1][np.repeat(keep, n)]
+
+    def restart_soft(self, settle_frames: int) -> None:
+        """The soft tissue of every world back to rest at its bones' current pose, then
+        ``settle_frames`` frames moving the bones there with contact (``SoftHand.reset``)."""
+        self.forward()
+        xpos, xquat, pos, quat, gpos, gquat = self._poses()
+        place = [rest_placement(self.asset, pos[w, 0], quat[w, 0]) for w in range(self.worlds)]
+        self.hands.restart(np.array([p[0] for p in place]), np.array([p[1] for p in place]))
+        self.hands.set_object_poses(gpos, gquat)
+        solver, state = self.hands.solver, self.hands.state
+        hp = state.pose_host[1]
+        rest_pos = hp[:, :3].astype(float)
+        rest_quat = hp[:, [6, 3, 4, 5]].astype(float)  # x y z w -> w x y z
+        target_pos, target_quat = pos.reshape(-1, 3), quat.reshape(-1, 4)
+        with _settling(solver):
+            for k in range(settle_frames):
+                a = (k + 1) / settle_frames
+                solver.set_body_poses(state, (1 - a) * rest_pos + a * target_pos, nlerp(rest_quat, target_quat, a))
+                solver.step(state)
+        self.sensor.launch(self.hands)
+        self.sync()
+
+    def sync(self) -> None:
+        """Wait for the device (the sensor's copies to the host buffers)."""
+        if not self.device.is_cpu:
+            wp.synchronize_device(self.device)
+
+    def penetration(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per world, the last frame's penetrating skin samples (W,) and deepest (W,) um."""
+        return self.hands.last_penetration()
+
+    def close(self) -> None:
+        self.hands.close()

@@ -1,0 +1,233 @@
+"""The suite's tasks as batched environments: W copies of a task stepped together on one device
+(issue 54; docs/training.md).
+
+    from physhand_dmc import vector
+    env = vector.make("fingertip_press", "index", num_envs=1024, device="cuda:0")
+    obs, info = env.reset(seed=0)                     # obs (W, obs_dim) float32
+    obs, reward, terminated, truncated, info = env.step(actions)   # actions (W, nu) in [-1, 1]
+
+- :func:`make` returns a ``gymnasium.vector.VectorEnv`` (:class:`SoftVectorEnv`) with flat Box
+  observations (the single task's observation dict flattened in its key order, as dm_control's
+  ``flat_observation=True``; ``env.obs_keys`` / ``env.obs_slices`` name the parts) and actions in
+  [-1, 1] per actuator (the suite's normalised actions). Autoreset: ``SAME_STEP`` (a world whose
+  episode ended is reset within the step that ended it; ``info["final_obs"]`` holds its last
+  observation). The suite's tasks end by their time limit (``truncated``), so every world ends
+  together unless ``reset(options={"reset_mask": m})`` restarted some.
+- World k with seed s + k and the same actions is the single environment
+  ``suite.load(domain, task, task_kwargs={"random": s + k, ...})`` step for step: the same task
+  code (:class:`BatchTask`: resets, observations and rewards on (W, ...) arrays), the soft hands
+  batched (BatchedHands), MuJoCo's side in MuJoCo Warp (float32; the single environment's is
+  MuJoCo's float64 C step): equal within float32 rounding over the compared steps (tests/test_vector_env.py).
+- ``device_arrays=True``: ``step`` / ``reset`` return Warp arrays on the device (DLPack and
+  ``__cuda_array_interface__``: ``torch.from_dlpack(obs)``, ``jax.dlpack``) instead of host NumPy.
+- Per-episode randomisation through ``task_kwargs`` (each world from its own seed): the object's
+  start offset (``object_jitter`` m), and in hand_hold its mass (``mass_range`` kg) and friction
+  (``friction_range``), in fingertip_press the target force (``force_range`` N).
+"""
+
+from __future__ import annotations
+
+import collections
+import inspect
+
+import numpy as np
+
+from physhand_dmc.batch_physics import BatchPhysics
+
+_DOMAINS = ("fingertip_press", "hand_hold")
+
+
+class BatchTask:
+    """What the batched tasks share (:class:`~physhand_dmc.task.SoftTask` on (W, ...) arrays): the
+    action mapping, per-world RNGs, the soft observations. Subclasses implement
+    ``initialize_episodes(mask)``, ``task_observations(obs)`` and ``rewards()``."""
+
+    def __init__(self, physics: BatchPhysics, settle_frames: int = 20):
+        self.physics = physics
+        self.settle_frames = int(settle_frames)
+        self.random = [np.random.RandomState(k) for k in range(physics.worlds)]
+        lo, hi = physics.model.actuator_ctrlrange.T
+        self._centre, self._half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+    def seed(self, seeds) -> None:
+        """Each world's task RNG (as the single task's ``random``): ``np.random.RandomState(seeds[w])``."""
+        self.random = [np.random.RandomState(int(s)) for s in seeds]
+
+    def ctrl(self, action: np.ndarray) -> np.ndarray:
+        """(W, nu) controls of normalised actions (``SoftTask.before_step``)."""
+        return self._centre + np.clip(np.asarray(action, np.float64), -1.0, 1.0) * self._half
+
+    def normalise_ctrl(self, ctrl) -> np.ndarray:
+        return np.clip((np.asarray(ctrl, float) - self._centre) / self._half, -1.0, 1.0)
+
+    def soft_observations(self, obs) -> None:
+        """``region_contact`` (W, R, 4) and ``object_contact`` (W, 4) as ``SoftTask.get_observation``."""
+        p = self.physics
+        p.sync()
+        s = p.sensor
+        W = p.worlds
+        reg = s.region_host.reshape(W, -1, 4)
+        region = np.empty(reg.shape)
+        region[..., 0] = reg[..., 0] * 1e4  # m^2 -> cm^2
+        region[..., 1:3] = reg[..., 1:3]
+        region[..., 3] = reg[..., 3] * 1e3  # m -> mm
+        obs["region_contact"] = region
+        o = s.obj_host.reshape(W, -1, 3)[:, 0]
+        count, deep = p.penetration()
+        obs["object_contact"] = np.stack([o[:, 0] * 1e4, o[:, 1], count.astype(float), deep * 1e-3], axis=1)
+
+    def observations(self) -> collections.OrderedDict:
+        obs = collections.OrderedDict()
+        self.task_observations(obs)
+        self.soft_observations(obs)
+        return obs
+
+    def depth_mm(self) -> np.ndarray:
+        return self.physics.penetration()[1] * 1e-3
+
+    def initialize_episodes(self, mask: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def task_observations(self, obs) -> None:
+        raise NotImplementedError
+
+    def rewards(self) -> np.ndarray:
+        raise NotImplementedError
+
+
+def load_batch(domain: str, task: str, num_envs: int, task_kwargs=None, device=None):
+    """(BatchTask, time_limit s, control_timestep s) of ``domain`` / ``task`` with ``num_envs``
+    worlds on ``device`` (a Warp device name; None: Warp's default), ``task_kwargs`` as
+    ``suite.load``'s (``random``: the first world's seed, world k's is ``random + k``)."""
+    from physhand_dmc import suite
+
+    if domain not in _DOMAINS:
+        raise ValueError(f"batched domains: {list(_DOMAINS)} (got {domain!r}; jaco_lift is single-env only)")
+    if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
+        raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+    module = suite._DOMAINS[domain]
+    if task not in module.SUITE:
+        raise ValueError(f"unknown task {task!r} in domain {domain!r}; tasks: {sorted(module.SUITE)}")
+    kwargs = dict(task_kwargs or {})
+    accepted = ["random"] + [p for p in inspect.signature(module.batch_task).parameters
+                             if p not in ("task", "num_envs", "device")]
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown:
+        raise TypeError(f"unknown task_kwargs {unknown} for batched {domain}/{task}; accepted: {accepted}")
+    seed = kwargs.pop("random", None)
+    out = module.batch_task(task, int(num_envs), device=device, **kwargs)
+    if seed is not None:
+        out[0].seed(int(seed) + np.arange(num_envs))
+    return out
+
+
+def make(domain: str, task: str, num_envs: int, task_kwargs=None, device=None, device_arrays: bool = False):
+    """A :class:`SoftVectorEnv` of ``num_envs`` copies of the suite task (see the module docstring)."""
+    t, time_limit, control_timestep = load_batch(domain, task, num_envs, task_kwargs, device)
+    return SoftVectorEnv(t, time_limit, control_timestep, device_arrays=device_arrays, name=f"{domain}-{task}")
+
+
+def flatten(obs: collections.OrderedDict) -> np.ndarray:
+    """(W, obs_dim) the observation dict's arrays flattened per world in key order."""
+    return np.concatenate([np.asarray(v, np.float64).reshape(v.shape[0], -1) for v in obs.values()], axis=1)
+
+
+def _vector_env_base():
+    import gymnasium
+
+    return gymnasium.vector.VectorEnv
+
+
+class SoftVectorEnv(_vector_env_base()):
+    """``gymnasium.vector.VectorEnv`` over a :class:`BatchTask` (see the module docstring)."""
+
+    def __init__(self, task: BatchTask, time_limit: float, control_timestep: float, *, device_arrays: bool = False,
+                 name: str = "physhand"):
+        import gymnasium
+        from dm_control.rl.control import compute_n_steps
+        from gymnasium.vector import AutoresetMode
+
+        self.task = task
+        self.physics = task.physics
+        self.num_envs = task.physics.worlds
+        self.n_sub_steps = compute_n_steps(control_timestep, self.physics.dt)
+        self.step_limit = time_limit / (self.physics.dt * self.n_sub_steps)  # dm_control's Environment
+        self.device_arrays = bool(device_arrays)
+        self.metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "name": name}
+        self.render_mode = None
+        self.steps = np.zeros(self.num_envs, np.int64)
+        self._ready = False
+        obs = task.observations()  # (shapes: the batch as built)
+        self.obs_keys = list(obs)
+        sizes = [int(np.prod(v.shape[1:])) for v in obs.values()]
+        ends = np.cumsum(sizes)
+        self.obs_slices = {k: slice(int(e - s), int(e)) for k, s, e in zip(self.obs_keys, sizes, ends)}
+        dim, nu = int(ends[-1]), self.physics.model.nu
+        self.single_observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
+        self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (nu,), np.float32)
+        self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
+
+    def _out(self, a: np.ndarray):
+        a = np.ascontiguousarray(a, np.float32)
+        if not self.device_arrays:
+            return a
+        import warp as wp
+
+        return wp.array(a, dtype=wp.float32, device=self.physics.device)
+
+    def _reset_worlds(self, mask: np.ndarray) -> None:
+        with self.physics.keep_others(mask):
+            self.task.initialize_episodes(mask)
+        self.steps[mask] = 0
+
+    def reset(self, *, seed=None, options=None):
+        """Every world (or ``options["reset_mask"]``'s) starts an episode; ``seed``: world k's RNG
+        seed is ``seed + k`` (an int) or ``seed[k]`` (a sequence)."""
+        super().reset(seed=None)
+        if seed is not None:
+            seeds = seed + np.arange(self.num_envs) if np.isscalar(seed) else np.asarray(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed: an int or {self.num_envs} ints, got {len(seeds)}")
+            self.task.seed(seeds)
+        mask = np.ones(self.num_envs, bool)
+        if options and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], bool)
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"reset_mask must be ({self.num_envs},) bool, got {mask.shape}")
+        before = flatten(self.task.observations()) if self._ready and not mask.all() else None
+        self._reset_worlds(mask)
+        self.physics.bad[mask] = False
+        self._ready = True
+        obs = flatten(self.task.observations())
+        if before is not None:  # (the others' observations as they were: the reset's frames ran in them too)
+            obs = np.where(mask[:, None], obs, before)
+        return self._out(obs), {}
+
+    def step(self, actions):
+        if not self._ready:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(actions.numpy() if hasattr(actions, "numpy") else actions, np.float64)
+        if a.shape != (self.num_envs, self.physics.model.nu):
+            raise ValueError(f"actions must be ({self.num_envs}, {self.physics.model.nu}) in [-1, 1], got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("actions hold NaN or inf")
+        self.physics.set_ctrl(self.task.ctrl(a))
+        self.physics.step(self.n_sub_steps)
+        self.steps += 1
+        obs = flatten(self.task.observations())
+        reward = self.task.rewards()
+        truncated = self.steps >= self.step_limit
+        terminated = self.physics.bad.copy()
+        info = {}
+        done = truncated | terminated
+        if np.any(done):
+            info["final_obs"] = obs.astype(np.float32)
+            info["_final_obs"] = done
+            self._reset_worlds(done)
+            self.physics.bad[done] = False
+            obs = np.where(done[:, None], flatten(self.task.observations()), obs)
+        return (self._out(obs), reward.astype(np.float32), terminated, truncated, info)
+
+    def close_extras(self, **kwargs):
+        self.physics.close()
