@@ -1,7 +1,7 @@
 """The rigid MuJoCo step of the suite's scenes batched two ways, for the batched environment's MuJoCo side.
 
-Scenes: ``hand_hold`` (``build_model("apple", "down", "hoi")``: the hand's capsule proxies, the free
-apple, the floor) and ``fingertip_press`` (``build_model()``: the proxies and the fixed plate), each
+Scenes: ``hand_hold`` (``build_model("apple", "down", "hoi")``: the hand's capsule proxies and palm box,
+the free apple (a sphere geom; ``--object bowl`` for the one mesh object), the floor 20 cm below) and ``fingertip_press`` (``build_model()``: the proxies and the fixed plate), each
 from keyframe 0 with ctrl = the keyframe's ctrl held. One env step is the tasks' control step (0.01 s:
 2 MuJoCo steps of 5 ms). The soft hand is not stepped: this is MuJoCo's side alone.
 
@@ -31,7 +31,7 @@ flags (``Data.overflow``) after the run are reported, as are the collision pairs
 hand's skin and bone meshes have contype = conaffinity = 0: they should not appear).
 
     python benchmarks/mujoco_side.py [--device cpu|cuda] [--worlds 1,16,256,1024,4096] [--steps N]
-        [--scenes hand_hold,fingertip_press] [--backends serial,rollout,rollout_long,mjwarp,mjwarp_io]
+        [--scenes hand_hold,fingertip_press] [--object apple] [--backends serial,rollout,rollout_long,mjwarp,mjwarp_io]
         [--threads T] [--out results.json]
 
 Defaults: on the CPU worlds 1,4,16 and 10 steps (the small check, < 2 min on 2 cores once Warp's
@@ -56,15 +56,15 @@ STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 # ctrl and the mocap mount: without the mocap bits the C rollout puts the mount at the model's body pose
 CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS | mujoco.mjtState.mjSTATE_MOCAP_QUAT
 SCENES = {
-    "hand_hold": (lambda: hand_hold.build_model("apple", "down", "hoi"), hand_hold._CONTROL_TIMESTEP),
-    "fingertip_press": (fingertip_press.build_model, fingertip_press._CONTROL_TIMESTEP),
+    "hand_hold": (lambda obj: hand_hold.build_model(obj, "down", "hoi"), hand_hold._CONTROL_TIMESTEP),
+    "fingertip_press": (lambda obj: fingertip_press.build_model(), fingertip_press._CONTROL_TIMESTEP),
 }
 BACKENDS = ("serial", "rollout", "rollout_long", "mjwarp", "mjwarp_io")
 
 
-def load(name):
+def load(name, obj):
     build, control_dt = SCENES[name]
-    m = build()
+    m = build(obj)
     d = mujoco.MjData(m)
     mujoco.mj_resetDataKeyframe(m, d, 0)
     nsub = int(round(control_dt / m.opt.timestep))
@@ -164,7 +164,7 @@ class MJWarp:
                 and mjm.geom_contype[g] == 0 and mjm.geom_conaffinity[g] == 0}
         types = {}
         for g1, g2 in pairs:
-            key = "-".join(sorted((mujoco.mjtGeom(mjm.geom_type[g1]).name[8:], mujoco.mjtGeom(mjm.geom_type[g2]).name[8:])))
+            key = "-".join(sorted((mujoco.mjtGeom(mjm.geom_type[g1]).name[7:].lower(), mujoco.mjtGeom(mjm.geom_type[g2]).name[7:].lower())))
             types[key] = types.get(key, 0) + 1
         return {"npairs_all": len(np.asarray(m.nxn_geom_pair).reshape(-1, 2)), "npairs_kept": len(pairs),
                 "pair_types": types, "pairs_with_noncolliding_meshes": int(sum(g1 in mesh or g2 in mesh for g1, g2 in pairs)),
@@ -227,6 +227,8 @@ def main():
     ap.add_argument("--steps", type=int, default=None, help="timed env steps (default: 10 cpu, 100 cuda)")
     ap.add_argument("--warmup", type=int, default=2, help="untimed env steps first (>= 1)")
     ap.add_argument("--scenes", default=",".join(SCENES))
+    ap.add_argument("--object", default="apple", choices=hand_hold.OBJECTS,
+                    help="hand_hold's object (apple: a sphere; bowl: the one mesh, 706 vertices)")
     ap.add_argument("--backends", default=",".join(BACKENDS))
     ap.add_argument("--threads", type=int, default=os.cpu_count(), help="C rollout threads (default: all cores)")
     ap.add_argument("--nconmax", type=int, default=None, help="MJWarp contacts per world (default: see docstring)")
@@ -256,9 +258,10 @@ def main():
                     device_name=wp.get_device(a.device).name)
     print(f"device {a.device} ({meta.get('device_name', meta['host_cpu'])}), {os.cpu_count()} CPU cores, "
           f"rollout threads {a.threads}; MuJoCo {mujoco.__version__}; {warmup} warm-up + {steps} timed env steps")
+    meta["hand_hold_object"] = a.object
     results = {"meta": meta, "scenes": {}}
     for name in a.scenes.split(","):
-        m, d0, nsub = load(name)
+        m, d0, nsub = load(name, a.object)
         nenv = warmup + steps
         ref, ncon, nefc = serial_reference(m, d0, nsub, nenv, zero_warmstart=False)
         ref0, _, _ = serial_reference(m, d0, nsub, nenv, zero_warmstart=True)
