@@ -156,7 +156,21 @@ class Agent:
         return mean + np.exp(self.log_std) * (rng or np.random.default_rng()).standard_normal(mean.shape)
 
     def save(self, path) -> None:
-        np.savez(path, *self.params, obs_mean=self.obs_rms.mean, obs_var=self.obs_rms.var)
+        """An .npz of params (arr_0 ... arr_12, in params' order), obs_mean, obs_var, obs_count."""
+        np.savez(path, *self.params, obs_mean=self.obs_rms.mean, obs_var=self.obs_rms.var,
+                 obs_count=self.obs_rms.count, norm_obs=self.norm_obs)
+
+    @classmethod
+    def load(cls, path) -> "Agent":
+        """The agent :meth:`save` wrote."""
+        z = np.load(path)
+        params = [z[f"arr_{i}"] for i in range(13)]
+        agent = cls(params[0].shape[0], params[6].shape[0], hidden=params[0].shape[1])
+        for p, q in zip(agent.params, params):
+            p[...] = q
+        agent.obs_rms.mean, agent.obs_rms.var, agent.obs_rms.count = z["obs_mean"], z["obs_var"], float(z["obs_count"])
+        agent.norm_obs = bool(z["norm_obs"])
+        return agent
 
 
 def log_prob(mean: np.ndarray, log_std: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -285,6 +299,21 @@ def gradient_check(seed: int = 0, batch: int = 16, corrupt: float = 0.0) -> dict
         value=finite_difference_error(bad(lambda: value_loss(agent, obs, returns, old_v, 0.2)), agent.vf.params))
 
 
+def gae(rewards, values, next_values, terminated, ended, gamma: float, lam: float) -> np.ndarray:
+    """Generalised advantage estimates (Schulman et al. 2016, eq. 16), all arrays (T, num_envs).
+
+    next_values[t]: V of the observation step t led to (the final one where an episode ended), so a
+    truncated episode bootstraps from it and a terminated one (terminated[t]) does not; ended[t]
+    (terminated or truncated) stops the sum from running into the next episode.
+    """
+    adv, last = np.zeros_like(values), np.zeros_like(values[0])
+    for t in reversed(range(len(values))):
+        delta = rewards[t] + gamma * ~terminated[t] * next_values[t] - values[t]
+        last = delta + gamma * lam * ~ended[t] * last
+        adv[t] = last
+    return adv
+
+
 def _autoreset_mode(env) -> str:
     mode = env.metadata.get("autoreset_mode", "NextStep")
     mode = getattr(mode, "value", mode)  # gymnasium.vector.AutoresetMode or its string
@@ -302,7 +331,8 @@ def train(env, total_steps: int, seed: int = 0, config: PPOConfig | None = None,
     update, global_step (env steps so far), episode_return / episode_length (means over the episodes
     that ended in this rollout, undiscounted raw rewards; NaN when none ended), episodes, reward_mean
     (raw reward per env step), policy_loss, value_loss, entropy, approx_kl, clipfrac,
-    explained_variance, learning_rate, grad_norm, sps (env steps per second), wall_s (since start).
+    explained_variance, learning_rate, grad_norm, sps (env steps per second over the update, rollout and
+    optimisation), update_s (seconds in the optimisation), wall_s (seconds since start).
     """
     cfg = config or PPOConfig()
     mode = _autoreset_mode(env)
@@ -360,23 +390,19 @@ def train(env, total_steps: int, seed: int = 0, config: PPOConfig | None = None,
             if mode == "NextStep":
                 pending_reset = done
         global_step += batch
-        # ---- GAE (Schulman et al. 2016, eq. 16), cut at episode ends ----
+        # ---- advantages; each step's value target is adv + V ----
         last_val = agent.value(agent.normalize(obs))
         next_vals = np.concatenate([val_b[1:], last_val[None]])
         if mode == "SameStep":
             next_vals = np.where(done_b, next_val_b, next_vals)
-        adv, last = np.zeros((T, n_envs)), np.zeros(n_envs)
-        for t in reversed(range(T)):
-            delta = rew_b[t] + cfg.gamma * ~term_b[t] * next_vals[t] - val_b[t]
-            last = delta + cfg.gamma * cfg.gae_lambda * ~done_b[t] * last
-            adv[t] = last
+        adv = gae(rew_b, val_b, next_vals, term_b, done_b, cfg.gamma, cfg.gae_lambda)
         ret = adv + val_b
         # ---- optimise over the valid transitions (NEXT_STEP's reset steps are left out) ----
         keep = valid_b.reshape(-1)
         b_obs, b_act = obs_b.reshape(-1, obs_dim)[keep], act_b.reshape(-1, act_dim)[keep]
         b_logp, b_adv, b_ret, b_val = (x.reshape(-1)[keep] for x in (logp_b, adv, ret, val_b))
         n, mb = len(b_obs), max(1, keep.sum() // cfg.num_minibatches)
-        stats = []
+        stats, t_opt = [], time.perf_counter()
         for epoch in range(cfg.update_epochs):
             order = rng.permutation(n)
             for s in range(0, n, mb):
@@ -400,6 +426,7 @@ def train(env, total_steps: int, seed: int = 0, config: PPOConfig | None = None,
                    **{k: float(np.mean([s[k] for s in stats])) for k in stats[0]},
                    explained_variance=float(1 - (b_ret - b_val).var() / var_y) if var_y > 0 else float("nan"),
                    learning_rate=opt.lr, sps=batch / (time.perf_counter() - t0),
+                   update_s=time.perf_counter() - t_opt,
                    wall_s=time.perf_counter() - start)
         history.append(rec)
         if log is not None:
@@ -409,5 +436,5 @@ def train(env, total_steps: int, seed: int = 0, config: PPOConfig | None = None,
 
 HISTORY_FIELDS = ("update", "global_step", "episode_return", "episode_length", "episodes", "reward_mean",
                   "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "explained_variance",
-                  "learning_rate", "grad_norm", "sps", "wall_s")
+                  "learning_rate", "grad_norm", "sps", "update_s", "wall_s")
 CONFIG_FIELDS = tuple(f.name for f in fields(PPOConfig))
