@@ -122,7 +122,7 @@ def main(argv=None) -> dict:
           f"({history[-1]['global_step'] / wall:.0f} steps/s); last mean episode return "
           f"{sum(last) / len(last) if last else float('nan'):.3g}; {args.out / 'history.csv'}"
           + (f", {png}" if png else ""))
-    return dict(history=history, agent=agent, csv=args.out / "history.csv", plot=png)
+    return {"history": history, "agent": agent, "csv": args.out / "history.csv", "plot": png}
 
 
 def test_final(tmp_path=None):
@@ -130,7 +130,8 @@ def test_final(tmp_path=None):
     out = Path(tmp_path or "example_out") / "ppo"
     res = main(["--gym", "Pendulum-v1", "--num-envs", "4", "--total-steps", "1024", "--num-steps", "64",
                 "--num-minibatches", "4", "--update-epochs", "2", "--out", str(out), "--quiet"])
-    rows = list(csv.DictReader(open(res["csv"])))
+    with open(res["csv"]) as fh:
+        rows = list(csv.DictReader(fh))
     assert len(rows) == 4 and all(math.isfinite(float(r["policy_loss"])) for r in rows), rows
     assert res["plot"] is None or res["plot"].stat().st_size > 5_000
     assert (out / "agent.npz").exists()

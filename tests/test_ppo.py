@@ -8,7 +8,7 @@ import pytest
 
 gym = pytest.importorskip("gymnasium")
 
-from physhand_dmc import ppo  # noqa: E402
+from physhand_dmc import ppo
 
 GRAD_RTOL = 1e-5  # central differences (h = 1e-6) in float64 agree to ~1e-9 when the backward is right
 

@@ -34,7 +34,7 @@ one CPU core, small beside a soft-hand env step); no recurrent policies; only Bo
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -62,6 +62,12 @@ class PPOConfig:
     norm_obs: bool = True          # running mean/var observation normalisation, clipped to +-10
     norm_reward: bool = True       # rewards divided by the discounted return's running std, clipped to +-10
     hidden: int = 64               # width of both hidden layers of both networks
+
+
+# train()'s record per update (the columns of examples/train_ppo.py's history.csv)
+HISTORY_FIELDS = ("update", "global_step", "episode_return", "episode_length", "episodes", "reward_mean",
+                  "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "explained_variance",
+                  "learning_rate", "grad_norm", "sps", "update_s", "wall_s")
 
 
 class RunningMeanStd:
@@ -161,7 +167,7 @@ class Agent:
                  obs_count=self.obs_rms.count, norm_obs=self.norm_obs)
 
     @classmethod
-    def load(cls, path) -> "Agent":
+    def load(cls, path) -> Agent:
         """The agent :meth:`save` wrote."""
         z = np.load(path)
         params = [z[f"arr_{i}"] for i in range(13)]
@@ -199,8 +205,8 @@ def policy_loss(agent: Agent, obs_n, actions, old_logp, adv, clip_coef: float, e
     z = (actions - mean) / std
     d_mean = d_logp[:, None] * z / std                      # d logp / d mean = (a - mu) / sigma^2
     d_log_std = (d_logp[:, None] * (z * z - 1.0)).sum(0) - ent_coef
-    stats = dict(approx_kl=float(((ratio - 1.0) - logratio).mean()),  # Schulman's k3 estimator
-                 clipfrac=float((np.abs(ratio - 1.0) > clip_coef).mean()), entropy=float(entropy))
+    stats = {"approx_kl": float(((ratio - 1.0) - logratio).mean()),  # Schulman's k3 estimator
+                 "clipfrac": float((np.abs(ratio - 1.0) > clip_coef).mean()), "entropy": float(entropy)}
     return float(loss), [*agent.pi.backward(cache, d_mean), d_log_std], stats
 
 
@@ -294,9 +300,9 @@ def gradient_check(seed: int = 0, batch: int = 16, corrupt: float = 0.0) -> dict
         return wrapped
 
     pi_params = [*agent.pi.params, agent.log_std]
-    return dict(
-        policy=finite_difference_error(bad(lambda: policy_loss(agent, obs, actions, old_logp, adv, 0.2, 0.01)[:2]), pi_params),
-        value=finite_difference_error(bad(lambda: value_loss(agent, obs, returns, old_v, 0.2)), agent.vf.params))
+    return {
+        "policy": finite_difference_error(bad(lambda: policy_loss(agent, obs, actions, old_logp, adv, 0.2, 0.01)[:2]), pi_params),
+        "value": finite_difference_error(bad(lambda: value_loss(agent, obs, returns, old_v, 0.2)), agent.vf.params)}
 
 
 def gae(rewards, values, next_values, terminated, ended, gamma: float, lam: float) -> np.ndarray:
@@ -336,9 +342,11 @@ def train(env, total_steps: int, seed: int = 0, config: PPOConfig | None = None,
     """
     cfg = config or PPOConfig()
     mode = _autoreset_mode(env)
+    if len(env.single_observation_space.shape) != 1 or len(env.single_action_space.shape) != 1:
+        raise ValueError(f"flat Box spaces only: observations {env.single_observation_space}, "
+                         f"actions {env.single_action_space} (flatten them with a wrapper)")
     n_envs = env.num_envs
-    obs_dim = int(np.prod(env.single_observation_space.shape))
-    act_dim = int(np.prod(env.single_action_space.shape))
+    (obs_dim,), (act_dim,) = env.single_observation_space.shape, env.single_action_space.shape
     low, high = env.single_action_space.low, env.single_action_space.high
     agent = agent or Agent(obs_dim, act_dim, seed=seed, hidden=cfg.hidden)
     agent.norm_obs = cfg.norm_obs
@@ -432,9 +440,3 @@ def train(env, total_steps: int, seed: int = 0, config: PPOConfig | None = None,
         if log is not None:
             log(rec)
     return history
-
-
-HISTORY_FIELDS = ("update", "global_step", "episode_return", "episode_length", "episodes", "reward_mean",
-                  "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "explained_variance",
-                  "learning_rate", "grad_norm", "sps", "update_s", "wall_s")
-CONFIG_FIELDS = tuple(f.name for f in fields(PPOConfig))
