@@ -57,7 +57,7 @@ def plot(history: list[dict], path: Path, title: str) -> Path | None:
         ax.plot(steps, returns, "-o", ms=2)
         top = ax.secondary_xaxis("top", functions=(lambda s: s * walls[-1] / steps[-1],
                                                    lambda w: w * steps[-1] / walls[-1]))
-        top.set_xlabel("wall time (s)")
+        top.set_xlabel("wall time (s, at the run's mean rate)")
     ax.set_xlabel("env steps")
     ax.set_ylabel("mean episode return")
     ax.set_title(title, fontsize=9)

@@ -27,8 +27,13 @@ Autoreset modes: NEXT_STEP (gymnasium's default: the step after an episode ends 
 that transition is masked out of the loss) and SAME_STEP (the true final observation, from
 ``info["final_obs"]``, bootstraps truncated episodes). DISABLED is refused.
 
-Known limits: one process, host NumPy (a 2 x 64 MLP's update is ~0.1 s for a 2,048-step batch on
-one CPU core, small beside a soft-hand env step); no recurrent policies; only Box spaces.
+Current figures (2-core AMD EPYC, default PPOConfig): the optimisation phase takes 0.11 s for a
+2,048-step batch, 0.3 s for 16,384 and 2 s for 65,536 (1,024 / 4,096 envs x 16 steps; obs 2-D);
+Pendulum-v1 with 8 envs runs at 11,500-14,000 env steps/s overall and goes from about -1,200 to
+about -150 mean episode return within 100k-150k env steps (1M steps: 87 s, level at -100 to -200).
+
+Known limits: one process, host NumPy (device arrays from the env are copied to the host each
+step); flat Box spaces only; no recurrent policies.
 """
 
 from __future__ import annotations
