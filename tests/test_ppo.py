@@ -68,6 +68,46 @@ class Reach1D(gym.vector.VectorEnv):
         return self._obs(), reward, term, trunc, info
 
 
+class Tick(Reach1D):
+    """Observation [1, c], reward 1 + c every step, c = +1 and -1 in alternate episodes, truncated
+    every LIMIT steps, never terminated: bootstrapping each truncation from its final observation,
+    V = (1 + c) / (1 - gamma), i.e. 4 and 0 for gamma = 0.5."""
+
+    LIMIT = 3
+
+    def _obs(self):
+        return np.stack([np.ones(self.num_envs), self.c], 1).astype(np.float32)
+
+    def step(self, actions):
+        c = self.c.copy()
+        obs, _, _, trunc, info = super().step(actions)  # Reach1D's clock and autoreset, Tick's reward
+        reward = 1.0 + c
+        if self.mode == "NextStep":
+            reward[self.t == 0] = 0.0  # gymnasium's convention for the reset step (which PPO must drop)
+        return obs, reward, np.zeros(self.num_envs, bool), trunc, info
+
+    def reset(self, *, seed=None, options=None):
+        self.c = -np.ones(self.num_envs)  # the first episodes have c = +1
+        return super().reset(seed=seed, options=options)
+
+    def _reset(self, mask):
+        super()._reset(mask)
+        self.target[:] = 10.0  # out of reach: no terminations
+        self.c[mask] *= -1
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_value_bootstraps_truncations_from_the_final_obs_and_skips_reset_steps(mode):
+    """Bootstrapping from the next episode's first observation, or keeping NEXT_STEP's reward-0 reset
+    steps, moves V(c = +1) well below 4."""
+    cfg = ppo.PPOConfig(num_steps=32, num_minibatches=2, update_epochs=10, gamma=0.5, learning_rate=1e-2,
+                        clip_vloss=False, norm_obs=False, norm_reward=False)
+    agent = ppo.Agent(2, 1, seed=0)
+    ppo.train(Tick(num_envs=4, autoreset_mode=mode), total_steps=60 * 32 * 4, seed=0, config=cfg, agent=agent)
+    v = agent.value(np.array([[1.0, 1.0], [1.0, -1.0]]))
+    np.testing.assert_allclose(v, [4.0, 0.0], atol=0.05)
+
+
 def test_manual_backward_matches_finite_differences():
     errs = ppo.gradient_check(seed=0)
     assert errs["policy"] < GRAD_RTOL and errs["value"] < GRAD_RTOL, errs
