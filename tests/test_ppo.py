@@ -1,5 +1,6 @@
-"""physhand_dmc.ppo: the manual backward against finite differences, updates on a gymnasium vector
-env, and learning on a 1-D reach task (both autoreset modes). CPU, NumPy only."""
+"""physhand_dmc.ppo: the manual backward against finite differences, GAE by hand, value targets
+across truncations and autoresets (both modes), updates on a gymnasium vector env, and learning
+(a 1-D reach, both modes; Pendulum-v1 in the slow set). CPU, NumPy only: ~6 s, Pendulum 11 s more."""
 
 import math
 
