@@ -126,13 +126,17 @@ def main(argv=None) -> dict:
 
 
 def test_final(tmp_path=None):
-    # a gymnasium env, so the example's plumbing is tested where physhand_dmc.vector is not built
+    # the soft-hand task itself on the CPU: two updates of 2 envs x 8 steps, episodes of 4 steps
+    # (time_limit 0.04 s), so both updates finish episodes: losses finite, returns finite and moving
     out = Path(tmp_path or "example_out") / "ppo"
-    res = main(["--gym", "Pendulum-v1", "--num-envs", "4", "--total-steps", "1024", "--num-steps", "64",
-                "--num-minibatches", "4", "--update-epochs", "2", "--out", str(out), "--quiet"])
+    res = main(["--domain", "fingertip_press", "--task", "index", "--num-envs", "2", "--total-steps", "32",
+                "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "2", "--device", "cpu",
+                "--task-kwargs", '{"time_limit": 0.04}', "--out", str(out), "--quiet"])
     with open(res["csv"]) as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 4 and all(math.isfinite(float(r["policy_loss"])) for r in rows), rows
+    assert len(rows) == 2 and all(math.isfinite(float(r[k])) for r in rows for k in ("policy_loss", "value_loss")), rows
+    returns = [float(r["episode_return"]) for r in rows]
+    assert all(math.isfinite(x) for x in returns) and returns[0] != returns[1], returns
     assert res["plot"] is None or res["plot"].stat().st_size > 5_000
     assert (out / "agent.npz").exists()
 

@@ -45,6 +45,52 @@ _MJ_ARRAYS = ("qpos", "qvel", "act", "ctrl", "qacc_warmstart", "mocap_pos", "moc
               "xfrc_applied", "qfrc_applied")
 
 
+@wp.kernel
+def _gather_vec3(src: wp.array2d(dtype=wp.vec3), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    v = src[w, idx[i]]
+    for c in range(3):
+        out[w, col + 3 * i + c] = v[c]
+
+
+@wp.kernel
+def _gather_quat(src: wp.array2d(dtype=wp.quat), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    v = src[w, idx[i]]
+    for c in range(4):
+        out[w, col + 4 * i + c] = v[c]
+
+
+@wp.kernel
+def _gather_mat(src: wp.array2d(dtype=wp.mat33), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    m = src[w, idx[i]]
+    for r in range(3):
+        for c in range(3):
+            out[w, col + 9 * i + 3 * r + c] = m[r, c]
+
+
+@wp.kernel
+def _gather_float(src: wp.array2d(dtype=float), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    out[w, col + i] = src[w, idx[i]]
+
+
+@wp.kernel
+def _add_rows(dst: wp.array2d(dtype=float), add: wp.array2d(dtype=float)):
+    w, i = wp.tid()
+    dst[w, i] = dst[w, i] + add[w, i]
+
+
+@wp.kernel
+def _set_masked(dst: wp.array2d(dtype=float), idx: wp.array(dtype=int), value: wp.array2d(dtype=float),
+                mask: wp.array2d(dtype=int)):
+    """dst[w, idx[i]] = value[w, i] where mask[w, i] (a touched free object's qpos)."""
+    w, i = wp.tid()
+    if mask[w, i] != 0:
+        dst[w, idx[i]] = value[w, i]
+
+
 def mat_to_quat(mats: np.ndarray) -> np.ndarray:
     """(..., 4) w x y z unit quaternions of rotation matrices (..., 3, 3) (Shepperd's method, every
     branch computed and the stable one kept: vectorised ``mju_mat2Quat``)."""
@@ -121,9 +167,49 @@ class BatchPhysics:
             self._qfrc = wp.zeros((W, model.nv), dtype=float)
             self._dq = wp.zeros((W, model.nv), dtype=float)
         self.dt = float(model.opt.timestep)
+        self._plan()
+        self._graph = None  # CUDA: the MuJoCo step captured once (launch-bound otherwise)
         self.frames = 0
         self.bad = np.zeros(W, bool)  # worlds whose MuJoCo state turned non-finite (the env ends their episode)
         self._good = None  # the last finite poses of every world (a bad world's frame keeps them)
+
+    def _plan(self) -> None:
+        """What a frame reads of MuJoCo Warp, gathered on the device into one (W, F) buffer (one copy
+        to the host a frame instead of a copy of every field)."""
+        b, g, o = self.bones, np.asarray(self.geoms, np.int64), self.object_bodies
+        dofs = np.concatenate([np.arange(d, d + 6) for d in self.free_dof if d >= 0] or [np.zeros(0, np.int64)])
+        plan = [("xpos", b, 3), ("xquat", b, 4), ("geom_xpos", g, 3), ("geom_xmat", g, 9)]
+        if self.two_way:
+            plan += [("xpos", o, 3, "obj_xpos"), ("xquat", o, 4, "obj_xquat"), ("xipos", o, 3, "obj_xipos"),
+                     ("ximat", o, 9, "obj_ximat"), ("xmat", o, 9, "obj_xmat"), ("xipos", b, 3, "bone_xipos"),
+                     ("qvel", dofs, 1, "qvel"), ("qacc", dofs, 1, "qacc")]
+        self._gathers, col = [], 0
+        kernels = {3: _gather_vec3, 4: _gather_quat, 9: _gather_mat, 1: _gather_float}
+        for field, idx, width, *key in plan:
+            key = key[0] if key else field
+            self._gathers.append((key, field, wp.array(np.asarray(idx, np.int32), dtype=int, device=self.device),
+                                  kernels[width], col, len(idx), width))
+            col += len(idx) * width
+        self._buf = wp.zeros((self.worlds, max(col, 1)), dtype=float, device=self.device)
+        self._buf_host = wp.zeros(self._buf.shape, dtype=float, device="cpu", pinned=self.device.is_cuda)
+        self._free_cols = np.concatenate([np.arange(a, a + 7) for a in self.free if a >= 0] or [np.zeros(0, np.int64)])
+        self._free_idx = wp.array(self._free_cols.astype(np.int32), dtype=int, device=self.device)
+
+    def _gather(self) -> dict:
+        """The frame's inputs of every world (see _plan), float64 host arrays shaped (W, n, width)."""
+        for key, field, idx, kernel, col, n, width in self._gathers:
+            if n:
+                wp.launch(kernel, (self.worlds, n), inputs=[getattr(self.d, field), idx, col], outputs=[self._buf],
+                          device=self.device)
+        wp.copy(self._buf_host, self._buf)
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+        buf = self._buf_host.numpy().astype(np.float64)
+        out = {}
+        for key, field, idx, kernel, col, n, width in self._gathers:
+            a = buf[:, col: col + n * width].reshape(self.worlds, n, width)
+            out[key] = a[..., 0] if width == 1 else (a.reshape(self.worlds, n, 3, 3) if width == 9 else a)
+        return out
 
     # -- MuJoCo Warp's arrays, on the host ---------------------------------------------------------
     def host(self, name: str) -> np.ndarray:
@@ -142,71 +228,82 @@ class BatchPhysics:
     def step(self, nstep: int = 1) -> None:
         """``nstep`` MuJoCo steps of every world, each followed by one soft frame (SoftPhysics.step)."""
         for _ in range(int(nstep)):
-            with wp.ScopedDevice(self.device):
-                self.mjw.step(self.m, self.d)
-                if not self.two_way:  # (dm_control's legacy step: kinematics at the step's end)
-                    self.mjw.kinematics(self.m, self.d)
-            self._soft_frame()
+            self.step_mujoco()
+            self.soft_frame()
+
+    def step_mujoco(self) -> None:
+        """One MuJoCo Warp step of every world (one-way: with the kinematics of its end after it)."""
+        if self.device.is_cuda:
+            if self._graph is None:
+                with wp.ScopedDevice(self.device), wp.ScopedCapture() as cap:
+                    self._mujoco_ops()
+                self._graph = cap.graph
+            wp.capture_launch(self._graph)
+        else:
+            self._mujoco_ops()
+
+    def _mujoco_ops(self) -> None:
+        with wp.ScopedDevice(self.device):
+            self.mjw.step(self.m, self.d)
+            if not self.two_way:  # (dm_control's legacy step: kinematics at the step's end)
+                self.mjw.kinematics(self.m, self.d)
 
     def forward(self) -> None:
         """MuJoCo Warp's forward dynamics of every world (kinematics of qpos, as ``mj_forward``)."""
         with wp.ScopedDevice(self.device):
             self.mjw.forward(self.m, self.d)
 
-    def _poses(self):
-        """Every world's body poses and the bones' and object geoms' (a world whose MuJoCo state is
-        not finite keeps its last finite poses and is marked in ``bad``)."""
-        xpos, xquat = self.host("xpos"), self.host("xquat")
-        gpos = self.host("geom_xpos")[:, self.geoms]
-        gmat = self.host("geom_xmat")[:, self.geoms].reshape(self.worlds, -1, 3, 3)
-        ok = np.isfinite(xpos).all((1, 2)) & np.isfinite(xquat).all((1, 2)) & np.isfinite(gpos).all((1, 2)) & \
-            np.isfinite(gmat).all((1, 2, 3))
+    def _poses(self, g: dict | None = None):
+        """The bones' poses (W, B, 3) / (W, B, 4) and the object geoms' (W, k, 3) / (W, k, 4), and the
+        gathered frame inputs (a world whose MuJoCo state is not finite keeps its last finite poses
+        and is marked in ``bad``)."""
+        g = self._gather() if g is None else g
+        keys = ("xpos", "xquat", "geom_xpos", "geom_xmat")
+        ok = np.ones(self.worlds, bool)
+        for k in keys:
+            ok &= np.isfinite(g[k].reshape(self.worlds, -1)).all(1)
         if not ok.all():
             if self._good is None:
                 raise FloatingPointError(f"non-finite MuJoCo state in worlds {np.flatnonzero(~ok).tolist()} before any "
                                          "frame: check the model's keyframe / qpos")
             self.bad |= ~ok
-            for a, g in zip((xpos, xquat, gpos, gmat), self._good):
-                a[~ok] = g[~ok]
-        self._good = (xpos, xquat, gpos, gmat)
-        gquat = mat_to_quat(gmat)
-        return xpos, xquat, xpos[:, self.bones], xquat[:, self.bones], gpos, gquat
+            for k in keys:
+                g[k][~ok] = self._good[k][~ok]
+        self._good = {k: g[k] for k in keys}
+        return g["xpos"], g["xquat"], g["geom_xpos"], mat_to_quat(g["geom_xmat"]), g
 
-    def _soft_frame(self) -> dict:
-        xpos, xquat, pos, quat, gpos, gquat = self._poses()
+    def soft_frame(self) -> dict:
+        """One soft frame of every world with the bones and objects where MuJoCo Warp has them (two-way:
+        and the exchange back into MuJoCo Warp's qvel / qpos); the sensor pooled after it."""
+        pos, quat, gpos, gquat, g = self._poses()
         if not (self.two_way and self.hands.two_way is not None):
             out = self.hands.step(pos, quat, gpos, gquat)
         else:
-            b = self.object_bodies
-            xipos = self.host("xipos")
-            vel, acc = self._object_motion(xpos, xipos)
+            vel, acc = self._object_motion(g)
             out = self.hands.step(pos, quat, gpos, gquat, object_vel=vel, object_vel_start=vel - acc * self.dt,
-                                  object_com=xipos[:, b],
-                                  object_iquat=mat_to_quat(self.host("ximat")[:, b].reshape(self.worlds, -1, 3, 3)),
-                                  bone_com=xipos[:, self.bones])
-            self._apply(out["two_way"], xpos[:, b], xquat[:, b])
+                                  object_com=g["obj_xipos"], object_iquat=mat_to_quat(g["obj_ximat"]),
+                                  bone_com=g["bone_xipos"])
+            self._apply(out["two_way"], g["obj_xpos"], g["obj_xquat"])
         self.sensor.launch(self.hands)
         self.frames += 1
         self.last = out
         return out
 
-    def _object_motion(self, xpos, xipos):
+    def _object_motion(self, g: dict):
         """(vel, acc) (W, n, 6) [linear at the centre of mass, angular], world frame, of each object
         after the step (``coupling.object_motion`` for every world: a free body's qvel / qacc; fixed
         objects 0)."""
         W, n = self.worlds, len(self.object_bodies)
         vel, acc = np.zeros((W, n, 6)), np.zeros((W, n, 6))
-        if not np.any(self.free >= 0):
-            return vel, acc
-        qvel, qacc = self.host("qvel"), self.host("qacc")
-        xmat = self.host("xmat").reshape(W, -1, 3, 3)
+        k = 0
         for j in np.flatnonzero(self.free >= 0):  # (objects, not worlds: one or two)
-            b, dof = self.object_bodies[j], self.free_dof[j]
-            rot, r = xmat[:, b], xipos[:, b] - xpos[:, b]
-            w = np.einsum("wij,wj->wi", rot, qvel[:, dof + 3: dof + 6])
-            al = np.einsum("wij,wj->wi", rot, qacc[:, dof + 3: dof + 6])
-            vel[:, j] = np.c_[qvel[:, dof: dof + 3] + np.cross(w, r), w]
-            acc[:, j] = np.c_[qacc[:, dof: dof + 3] + np.cross(al, r), al]
+            rot, r = g["obj_xmat"][:, j], g["obj_xipos"][:, j] - g["obj_xpos"][:, j]
+            qv, qa = g["qvel"][:, k: k + 6], g["qacc"][:, k: k + 6]
+            k += 6
+            w = np.einsum("wij,wj->wi", rot, qv[:, 3:])
+            al = np.einsum("wij,wj->wi", rot, qa[:, 3:])
+            vel[:, j] = np.c_[qv[:, :3] + np.cross(w, r), w]
+            acc[:, j] = np.c_[qa[:, :3] + np.cross(al, r), al]
         return vel, acc
 
     def _apply(self, rep: dict, obj_xpos, obj_xquat) -> None:
@@ -225,16 +322,16 @@ class BatchPhysics:
             fta = wp.array(ft.astype(np.float32), dtype=wp.spatial_vector, device=self.device)
             support.apply_ft(self.m, self.d, fta, self._qfrc, False)
             self.mjw.solve_m(self.m, self.d, self._dq, self._qfrc)
-        qvel = self.host("qvel") + self._dq.numpy().astype(np.float64)
-        self.set_host("qvel", qvel)
+            wp.launch(_add_rows, (W, m.nv), inputs=[self.d.qvel, self._dq])
         touched = np.any(rep["wrench"] != 0, axis=-1) & (self.free >= 0)[None]
         if np.any(touched):
             p, q = BatchedHands.two_way_poses(rep, obj_xpos, obj_xquat)
-            qpos = self.host("qpos")
-            for j in np.flatnonzero(np.any(touched, axis=0)):
-                a, t = self.free[j], touched[:, j]
-                qpos[t, a: a + 3], qpos[t, a + 3: a + 7] = p[t, j], q[t, j]
-            self.set_host("qpos", qpos)
+            free = np.flatnonzero(self.free >= 0)
+            value = np.concatenate([np.c_[p[:, j], q[:, j]] for j in free], axis=1)  # (W, 7 per free object)
+            mask = np.repeat(touched[:, free], 7, axis=1).astype(np.int32)
+            wp.launch(_set_masked, (W, value.shape[1]), inputs=[self.d.qpos, self._free_idx,
+                                                                wp.array(value.astype(np.float32), dtype=float, device=self.device),
+                                                                wp.array(mask, dtype=int, device=self.device)], device=self.device)
 
     # -- episodes ----------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -286,7 +383,7 @@ class BatchPhysics:
         """The soft tissue of every world back to rest at its bones' current pose, then
         ``settle_frames`` frames moving the bones there with contact (``SoftHand.reset``)."""
         self.forward()
-        xpos, xquat, pos, quat, gpos, gquat = self._poses()
+        pos, quat, gpos, gquat, _ = self._poses()
         place = [rest_placement(self.asset, pos[w, 0], quat[w, 0]) for w in range(self.worlds)]
         self.hands.restart(np.array([p[0] for p in place]), np.array([p[1] for p in place]))
         self.hands.set_object_poses(gpos, gquat)

@@ -29,7 +29,7 @@ from physhand_dmc.physics import SoftPhysics
 from physhand_dmc.sensing import regions, rigid_skin
 from physhand_dmc.batch_physics import BatchPhysics
 from physhand_dmc.task import SoftTask, batch_config, check_positive, make_environment, solver_config
-from physhand_dmc.vector import BatchTask
+from physhand_dmc.batch_task import BatchTask
 from physhand_mj.asset import load_asset
 from physhand_mj.hand_mjcf import SCENES_DIR, body_ids
 

@@ -45,7 +45,7 @@ from dm_control.utils import containers, rewards
 from physhand_dmc.physics import SoftPhysics
 from physhand_dmc.batch_physics import BatchPhysics
 from physhand_dmc.task import SoftTask, batch_config, check_nonneg, check_positive, make_environment, solver_config
-from physhand_dmc.vector import BatchTask
+from physhand_dmc.batch_task import BatchTask
 from physhand_mj import Config
 from physhand_mj.hand_mjcf import SCENES_DIR
 
