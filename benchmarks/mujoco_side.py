@@ -160,14 +160,15 @@ class MJWarp:
     def info(self):
         """Collision pairs MJWarp keeps, and whether any is a hand mesh (skin, bones)."""
         m, mjm = self.m, self.mjm
-        pairs = np.asarray(m.nxn_geom_pair_filtered).reshape(-1, 2)
+        host = lambda a: a.numpy() if hasattr(a, "numpy") else np.asarray(a)  # noqa: E731  (CUDA arrays: copy)
+        pairs = host(m.nxn_geom_pair_filtered).reshape(-1, 2)
         mesh = {g for g in range(mjm.ngeom) if mjm.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
                 and mjm.geom_contype[g] == 0 and mjm.geom_conaffinity[g] == 0}
         types = {}
         for g1, g2 in pairs:
             key = "-".join(sorted((mujoco.mjtGeom(mjm.geom_type[g1]).name[7:].lower(), mujoco.mjtGeom(mjm.geom_type[g2]).name[7:].lower())))
             types[key] = types.get(key, 0) + 1
-        return {"npairs_all": len(np.asarray(m.nxn_geom_pair).reshape(-1, 2)), "npairs_kept": len(pairs),
+        return {"npairs_all": len(host(m.nxn_geom_pair).reshape(-1, 2)), "npairs_kept": len(pairs),
                 "pair_types": types, "pairs_with_noncolliding_meshes": int(sum(g1 in mesh or g2 in mesh for g1, g2 in pairs)),
                 "noncolliding_mesh_geoms": len(mesh), "mesh_vertices_on_device": int(mjm.nmeshvert),
                 "is_sparse": bool(m.is_sparse), "broadphase": str(m.opt.broadphase.name),
