@@ -162,12 +162,15 @@ def test_mujoco_warp_steps_each_world_with_its_own_mass_inertia_and_friction(bat
     p = env.physics
     env.reset(seed=[1, 2])
     b, a, v = env.task._body, env.task._qadr, env.task._vadr
+    qpos = p.host("qpos")
+    p.set_host("qpos", qpos[[1, 1]])  # (one pose in both worlds: the same contacts, each with its friction)
     p.forward()
     nacon = int(p.d.nacon.numpy()[0])
     geom = p.d.contact.geom.numpy()[:nacon]
     world = p.d.contact.worldid.numpy()[:nacon]
     fric = p.d.contact.friction.numpy()[:nacon, 0]
     mu = p.model_field("geom_friction")[:, env.task._geoms[0], 0]
+    assert abs(mu[0] - mu[1]) > 0.01
     on = np.isin(geom, env.task._geoms).any(1)
     for w in range(2):
         assert np.any(on & (world == w)) and np.allclose(fric[on & (world == w)], mu[w], rtol=1e-6)

@@ -155,6 +155,37 @@ def make_physics(obj: str, gravity: str, config, object_proxies: bool = True, gr
     return physics
 
 
+class MassFields:
+    """The model's fields that follow the free object's mass, kept at the model's values to scale
+    from (never compounding episode to episode): its mass, its principal moments (x m / m0), the
+    subtree masses (its own, the world's: + m - m0; MuJoCo's centre-of-mass frames read them) and its
+    body's and dofs' inverse weights (x m0 / m) and its dofs' diagonal inertias ``dof_M0`` (x m / m0;
+    both set the constraints' softness), as the compiler computes them for a body alone in its
+    kinematic tree: the model compiled with that mass (the trajectory alike to the digit, MuJoCo C;
+    only the solver statistic ``stat.meaninertia`` and the cameras' ``poscom0`` keep the model's).
+    MuJoCo Warp has no ``dof_M0`` (BatchHold batches the others)."""
+
+    FIELDS = ("body_mass", "body_inertia", "body_subtreemass", "body_invweight0", "dof_invweight0", "dof_M0")
+
+    def __init__(self, model, body: int, dof: int):
+        if model.body_parentid[body] != 0 or np.any(np.asarray(model.body_parentid[1:]) == body):
+            raise ValueError("mass_range: the object must be a child of the world without bodies of its own")
+        self.body, self.dofs = int(body), np.arange(dof, dof + 6)
+        self.mass0, self.inertia0 = float(model.body_mass[body]), np.array(model.body_inertia[body], float)
+        self.world0 = float(model.body_subtreemass[0])
+        self.iw0, self.dof_iw0 = np.array(model.body_invweight0[body], float), np.array(model.dof_invweight0[self.dofs])
+        self.dof_m0 = np.array(model.dof_M0[self.dofs], float)
+
+    def values(self, mass: float) -> dict:
+        """name -> (indices, values) of the fields with the object's mass ``mass`` kg."""
+        s = mass / self.mass0
+        b = self.body
+        return dict(body_mass=(b, mass), body_inertia=(b, self.inertia0 * s),
+                    body_subtreemass=([b, 0], [mass, self.world0 + mass - self.mass0]),
+                    body_invweight0=(b, self.iw0 / s), dof_invweight0=(self.dofs, self.dof_iw0 / s),
+                    dof_M0=(self.dofs, self.dof_m0 * s))
+
+
 def check_range(name: str, value, unit: str):
     """None, or ``value`` as a (lo, hi) pair of floats with 0 < lo <= hi, both finite."""
     if value is None:
@@ -196,16 +227,14 @@ class Hold(SoftTask):
         self._hand_q = np.arange(self._qadr)  # the hand's hinge joints precede the object's free joint
         b = self._body = int(m.name2id(self.obj, "body"))
         self._geoms = np.flatnonzero(m.geom_bodyid == b)
-        # the model's values, which the randomisation scales from (never compounding episode to episode)
-        self._mass0, self._inertia0 = float(m.body_mass[b]), np.array(m.body_inertia[b])
+        self._mass = MassFields(m, b, self._vadr) if self.mass_range is not None else None
 
     def randomise(self, physics):
         """This episode's object mass and friction into the model (see the module docstring)."""
         m = physics.model
         if self.mass_range is not None:
-            mass = self.random.uniform(*self.mass_range)
-            m.body_mass[self._body] = mass
-            m.body_inertia[self._body] = self._inertia0 * (mass / self._mass0)
+            for name, (idx, value) in self._mass.values(self.random.uniform(*self.mass_range)).items():
+                getattr(m, name)[idx] = value
         if self.friction_range is not None:
             m.geom_friction[self._geoms, 0] = self.random.uniform(*self.friction_range)
             physics.soft.refresh_friction()  # (SoftHand reads the coefficients once otherwise)
@@ -269,14 +298,15 @@ class BatchHold(BatchTask):
         m = physics.model
         b = self._body = m.body(obj).id
         self._geoms = np.flatnonzero(m.geom_bodyid == b)
-        self._mass0, self._inertia0 = float(m.body_mass[b]), np.array(m.body_inertia[b])
-        # per-world fields allocated now, before the first step captures MuJoCo Warp's step (CUDA graph)
-        if self.mass_range is not None:
-            physics.batch_model_fields("body_mass", "body_inertia")
-        if self.friction_range is not None:
-            physics.batch_model_fields("geom_friction")
         j = int(m.body_jntadr[b])
         self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        self._mass = MassFields(m, b, self._vadr) if self.mass_range is not None else None
+        # per-world fields allocated now, before the first step captures MuJoCo Warp's step (CUDA graph)
+        self._mass_fields = [name for name in MassFields.FIELDS if hasattr(physics.m, name)]
+        if self.mass_range is not None:
+            physics.batch_model_fields(*self._mass_fields)
+        if self.friction_range is not None:
+            physics.batch_model_fields("geom_friction")
         self._key = 0 if grasp == "hoi" else m.key("hold").id
         self._start = np.zeros((physics.worlds, 3))
 
@@ -302,11 +332,13 @@ class BatchHold(BatchTask):
                 friction[w] = self.random[w].uniform(*self.friction_range)
         p.set_host("qpos", qpos)
         if self.mass_range is not None:  # (Hold.randomise, per world: the masked worlds' values only)
-            body_mass, inertia = p.model_field("body_mass"), p.model_field("body_inertia")
-            body_mass[:, self._body] = mass
-            inertia[:, self._body] = self._inertia0 * (mass / self._mass0)[:, None]
-            p.set_model_field("body_mass", body_mass, mask)
-            p.set_model_field("body_inertia", inertia, mask)
+            fields = {name: p.model_field(name) for name in self._mass_fields}
+            for w in np.flatnonzero(mask):
+                for name, (idx, value) in self._mass.values(mass[w]).items():
+                    if name in fields:
+                        fields[name][w, idx] = value
+            for name, value in fields.items():
+                p.set_model_field(name, value, mask)
         if self.friction_range is not None:
             gf = p.model_field("geom_friction")
             gf[:, self._geoms, 0] = friction[:, None]
