@@ -28,7 +28,8 @@ proxies' MuJoCo collisions (the skin alone holds it).
 
 Domain randomisation (per episode, from the task's RNG after the start offset's draw; None, the
 default: the model's values, nothing drawn): ``mass_range=(lo, hi)`` kg draws the object's mass
-uniformly (its principal moments of inertia scale with it, from the model's), then
+uniformly (its principal moments of inertia scale with it from the model's, and so do the fields
+MuJoCo derives from the mass: :class:`MassFields`, the model compiled with that mass), then
 ``friction_range=(lo, hi)`` its geoms' sliding friction coefficient. MuJoCo's rule (the larger of
 two geoms' coefficients) applies to every contact, the skin's included: against the hand's
 coefficient 1 (skin and proxies) only draws above 1 change a grasp (the floor's is 1 too).
