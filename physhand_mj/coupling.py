@@ -243,6 +243,12 @@ class SoftHand:
         self.solver.contact.two_way.set_state(d.xipos[bodies], start[:, 3:], start[:, :3], com, mu, inv_m, inv_i, bv, bw,
                                               acc[:, 3:], acc[:, :3])
 
+    def refresh_friction(self) -> None:
+        """Config.two_way: read the friction coefficients (the objects' and the skin's
+        ``geom_friction``, ``skin_friction``) from the model again at the next frame; call after
+        changing them (they are read once otherwise: a task's per-episode randomisation)."""
+        self._mu = None
+
     def applied_wrenches(self) -> dict:
         """``Config.two_way``: per object (by name, as in :meth:`contacts`), what the skin applied to
         it over the last frame, world frame: ``force`` (3,) N, ``torque`` (3,) N m about its centre of

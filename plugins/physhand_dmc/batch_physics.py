@@ -152,7 +152,8 @@ class BatchPhysics:
         self.free_dof = np.array([model.jnt_dofadr[model.body_jntadr[b]] if f >= 0 else -1
                                   for b, f in zip(self.object_bodies, self.free)], np.int64)
         W = self.worlds
-        mu = friction_coefficients(model, skin, self.geoms, [index[s["obj"]] for s in specs], len(self.object_bodies))
+        self._skin, self._geom_objects = skin, [index[s["obj"]] for s in specs]
+        mu = friction_coefficients(model, skin, self.geoms, self._geom_objects, len(self.object_bodies))
         mass = np.where(self.free >= 0, model.body_mass[self.object_bodies], 0.0)
         two_way = dict(object_mass=np.tile(mass, (W, 1)), object_inertia=np.tile(model.body_inertia[self.object_bodies],
                                                                                   (W, 1, 1)),
@@ -169,6 +170,7 @@ class BatchPhysics:
         self.dt = float(model.opt.timestep)
         self._plan()
         self._graph = None  # CUDA: the MuJoCo step captured once (launch-bound otherwise)
+        self._fields: dict[str, np.ndarray] = {}  # batch_model_fields: each world's values (float64, as written)
         self.frames = 0
         self.bad = np.zeros(W, bool)  # worlds whose MuJoCo state turned non-finite (the env ends their episode)
         self._good = None  # the last finite poses of every world (a bad world's frame keeps them)
@@ -223,6 +225,77 @@ class BatchPhysics:
     def set_ctrl(self, ctrl: np.ndarray) -> None:
         """Each world's actuator controls (W, nu), in the actuators' units."""
         self.set_host("ctrl", np.asarray(ctrl, np.float64).reshape(self.worlds, self.model.nu))
+
+    # -- per-world model fields (a task's per-episode randomisation) -----------------------------
+    def batch_model_fields(self, *names: str) -> None:
+        """MuJoCo Warp model fields ``names`` with one row per world (batchable fields, shaped
+        ``("*", ...)`` in ``mujoco_warp.Model``: ``body_mass``, ``body_inertia``, ``geom_friction``,
+        ...; MuJoCo Warp's kernels read row ``world % rows``), each the model's value until
+        :meth:`set_model_field` writes it. Allocated once: later writes go into the same arrays (a
+        captured CUDA graph holds their pointers); a new allocation drops the graph, captured again
+        at the next step."""
+        import dataclasses
+
+        from mujoco_warp._src import types
+
+        specs = {f.name: f.type for f in dataclasses.fields(types.Model)}
+        for name in names:
+            if name in self._fields:
+                continue
+            shape = getattr(specs.get(name), "shape", ())
+            if not shape or shape[0] != "*":
+                raise ValueError(f"MuJoCo Warp model field {name!r} is not batchable (its shape is not ('*', ...))")
+            arr = getattr(self.m, name)
+            host = np.array(getattr(self.model, name), np.float64)
+            host = np.broadcast_to(host.reshape((1,) + host.shape), (self.worlds,) + host.shape).copy()
+            new = wp.array(host.astype(np.float32), dtype=arr.dtype, device=self.device)
+            new._is_batched = True  # (as mujoco_warp.put_model marks its batched arrays)
+            setattr(self.m, name, new)
+            self._fields[name] = host
+            self._graph = None
+
+    def model_field(self, name: str) -> np.ndarray:
+        """(W, ...) each world's value of MuJoCo model field ``name`` (float64, as written: MuJoCo Warp
+        holds it in float32); the model's, tiled, for a field not batched."""
+        if name in self._fields:
+            return self._fields[name].copy()
+        host = np.array(getattr(self.model, name), np.float64)
+        return np.broadcast_to(host.reshape((1,) + host.shape), (self.worlds,) + host.shape).copy()
+
+    def set_model_field(self, name: str, value, mask=None) -> None:
+        """Write ``value`` (W, ...), or what broadcasts to it, into MuJoCo Warp model field ``name``
+        in the worlds of ``mask`` (W,) bool (None: all; the others keep theirs), batching the field
+        first (:meth:`batch_model_fields`). Two-way: the soft side's object masses, inertias and
+        friction coefficients follow (as SoftHand reads MuJoCo's)."""
+        self.batch_model_fields(name)
+        host = self._fields[name]
+        value = np.broadcast_to(np.asarray(value, np.float64), host.shape)
+        if mask is None:
+            host[:] = value
+        else:
+            mask = np.asarray(mask, bool)
+            host[mask] = value[mask]
+        arr = getattr(self.m, name)
+        arr.assign(wp.array(host.astype(np.float32), dtype=arr.dtype, device="cpu"))  # (in place)
+        if name in ("body_mass", "body_inertia", "geom_friction"):
+            self._objects_from_model()
+
+    def _objects_from_model(self) -> None:
+        """Two-way: each world's object masses, inertias (``body_mass`` / ``body_inertia``) and friction
+        coefficients (MuJoCo's rule on ``geom_friction``: ``coupling.friction_coefficients``) to the
+        soft side, from the per-world fields."""
+        tw = self.hands.two_way
+        if not (self.two_way and tw is not None):
+            return
+        b = self.object_bodies
+        mass = np.where(self.free >= 0, self.model_field("body_mass")[:, b], 0.0)
+        tw.set_mass(mass, self.model_field("body_inertia")[:, b])
+        skin = float(self.model.geom_friction[self._skin][0]) if self._skin >= 0 else 1.0
+        gf = self.model_field("geom_friction")[:, np.asarray(self.geoms, np.int64), 0]
+        mu = np.full((self.worlds, len(b)), skin)
+        for i, k in enumerate(self._geom_objects):
+            mu[:, k] = np.maximum(mu[:, k], gf[:, i])
+        tw.mu = mu
 
     # -- stepping ----------------------------------------------------------------------------------
     def step(self, nstep: int = 1) -> None:

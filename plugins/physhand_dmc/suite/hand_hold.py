@@ -26,6 +26,14 @@ its start position) begins there. One-way coupling keeps the HOI keyframe as it 
 float); every option can be set either way. ``object_proxies=False`` takes the object out of the
 proxies' MuJoCo collisions (the skin alone holds it).
 
+Domain randomisation (per episode, from the task's RNG after the start offset's draw; None, the
+default: the model's values, nothing drawn): ``mass_range=(lo, hi)`` kg draws the object's mass
+uniformly (its principal moments of inertia scale with it from the model's, and so do the fields
+MuJoCo derives from the mass: :class:`MassFields`, the model compiled with that mass), then
+``friction_range=(lo, hi)`` its geoms' sliding friction coefficient. MuJoCo's rule (the larger of
+two geoms' coefficients) applies to every contact, the skin's included: against the hand's
+coefficient 1 (skin and proxies) only draws above 1 change a grasp (the floor's is 1 too).
+
 Reward (in [0, 1]): ``hold * (0.5 + 0.5 * firm) * no_penetration`` with ``hold`` = 1 while the
 object is within 1 cm of its start (Gaussian tail to 0.1 at 6 cm), ``firm`` = 1 from
 ``min_force`` N of soft-contact normal force on the object (linear below), ``no_penetration`` = 1
@@ -62,6 +70,7 @@ _DEFAULT_TIME_LIMIT = 2.0  # s
 _CONTROL_TIMESTEP = 0.01  # s: two MuJoCo steps (and two soft-hand frames) per env step
 # Config(two_way=True)'s reset: targets 1.2 x the keyframe's angles, 0.3 s settling with gravity off
 SQUEEZE, FLOAT_FRAMES = 1.2, 60
+_MU_UNIT = "(sliding friction coefficient, no unit)"
 
 SUITE = containers.TaggedTasks()
 
@@ -147,11 +156,56 @@ def make_physics(obj: str, gravity: str, config, object_proxies: bool = True, gr
     return physics
 
 
+class MassFields:
+    """The model's fields that follow the free object's mass, kept at the model's values to scale
+    from (never compounding episode to episode): its mass, its principal moments (x m / m0), the
+    subtree masses (its own, the world's: + m - m0; MuJoCo's centre-of-mass frames read them) and its
+    body's and dofs' inverse weights (x m0 / m) and its dofs' diagonal inertias ``dof_M0`` (x m / m0;
+    both set the constraints' softness), as the compiler computes them for a body alone in its
+    kinematic tree: the model compiled with that mass (the trajectory alike to the digit, MuJoCo C;
+    only the solver statistic ``stat.meaninertia`` and the cameras' ``poscom0`` keep the model's).
+    MuJoCo Warp has no ``dof_M0`` (BatchHold batches the others)."""
+
+    FIELDS = ("body_mass", "body_inertia", "body_subtreemass", "body_invweight0", "dof_invweight0", "dof_M0")
+
+    def __init__(self, model, body: int, dof: int):
+        if model.body_parentid[body] != 0 or np.any(np.asarray(model.body_parentid[1:]) == body):
+            raise ValueError("mass_range: the object must be a child of the world without bodies of its own")
+        self.body, self.dofs = int(body), np.arange(dof, dof + 6)
+        self.mass0, self.inertia0 = float(model.body_mass[body]), np.array(model.body_inertia[body], float)
+        self.world0 = float(model.body_subtreemass[0])
+        self.iw0, self.dof_iw0 = np.array(model.body_invweight0[body], float), np.array(model.dof_invweight0[self.dofs])
+        self.dof_m0 = np.array(model.dof_M0[self.dofs], float)
+
+    def values(self, mass: float) -> dict:
+        """name -> (indices, values) of the fields with the object's mass ``mass`` kg."""
+        s = mass / self.mass0
+        b = self.body
+        return dict(body_mass=(b, mass), body_inertia=(b, self.inertia0 * s),
+                    body_subtreemass=([b, 0], [mass, self.world0 + mass - self.mass0]),
+                    body_invweight0=(b, self.iw0 / s), dof_invweight0=(self.dofs, self.dof_iw0 / s),
+                    dof_M0=(self.dofs, self.dof_m0 * s))
+
+
+def check_range(name: str, value, unit: str):
+    """None, or ``value`` as a (lo, hi) pair of floats with 0 < lo <= hi, both finite."""
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be None or (lo, hi) in {unit}, got {value!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= hi):
+        raise ValueError(f"{name} must be None or (lo, hi) {unit} with 0 < lo <= hi, both finite, got {value!r}")
+    return lo, hi
+
+
 class Hold(SoftTask):
     """Keep the object in the hand, in firm soft contact, without penetration."""
 
     def __init__(self, obj: str, random=None, settle_frames: int = 20, object_jitter: float = 0.002,
-                 min_force: float = 1.0, squeeze: float = 1.0, float_frames: int = 0, grasp: str = "hoi"):
+                 min_force: float = 1.0, squeeze: float = 1.0, float_frames: int = 0, grasp: str = "hoi",
+                 mass_range=None, friction_range=None):
         super().__init__(random=random, settle_frames=settle_frames)
         self.obj = obj
         if grasp not in GRASPS:
@@ -163,6 +217,8 @@ class Hold(SoftTask):
         self.float_frames = int(float_frames)
         self.object_jitter = check_nonneg("object_jitter", object_jitter, "m")
         self.min_force = check_positive("min_force", min_force, "N")
+        self.mass_range = check_range("mass_range", mass_range, "kg")
+        self.friction_range = check_range("friction_range", friction_range, _MU_UNIT)
         self._start = np.zeros(3)
 
     def bind(self, physics):
@@ -170,6 +226,19 @@ class Hold(SoftTask):
         j = int(m.body_jntadr[m.name2id(self.obj, "body")])
         self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         self._hand_q = np.arange(self._qadr)  # the hand's hinge joints precede the object's free joint
+        b = self._body = int(m.name2id(self.obj, "body"))
+        self._geoms = np.flatnonzero(m.geom_bodyid == b)
+        self._mass = MassFields(m, b, self._vadr) if self.mass_range is not None else None
+
+    def randomise(self, physics):
+        """This episode's object mass and friction into the model (see the module docstring)."""
+        m = physics.model
+        if self.mass_range is not None:
+            for name, (idx, value) in self._mass.values(self.random.uniform(*self.mass_range)).items():
+                getattr(m, name)[idx] = value
+        if self.friction_range is not None:
+            m.geom_friction[self._geoms, 0] = self.random.uniform(*self.friction_range)
+            physics.soft.refresh_friction()  # (SoftHand reads the coefficients once otherwise)
 
     def initialize_episode(self, physics):
         m, d = physics.model, physics.data
@@ -178,6 +247,7 @@ class Hold(SoftTask):
         if self.squeeze != 1.0:  # the fingers pressed onto the object: targets past the keyframe's pose
             d.ctrl[:] = np.clip(d.ctrl * self.squeeze, m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1])
         d.qpos[self._qadr: self._qadr + 3] += self.random.uniform(-self.object_jitter, self.object_jitter, 3)
+        self.randomise(physics)
         self.finish_reset(physics)
         if self.float_frames:  # gravity off while the object settles into the grasp
             g = m.opt.gravity.copy()
@@ -218,15 +288,26 @@ class BatchHold(BatchTask):
     """:class:`Hold` on W worlds (physhand_dmc.vector): the same episodes, observations and reward."""
 
     def __init__(self, physics, obj: str, settle_frames: int = 20, object_jitter: float = 0.002, min_force: float = 1.0,
-                 squeeze: float = 1.0, float_frames: int = 0, grasp: str = "hoi"):
+                 squeeze: float = 1.0, float_frames: int = 0, grasp: str = "hoi", mass_range=None, friction_range=None):
         super().__init__(physics, settle_frames)
         probe = Hold(obj, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force, squeeze=squeeze,
-                     float_frames=float_frames, grasp=grasp)  # (the options' checks)
+                     float_frames=float_frames, grasp=grasp, mass_range=mass_range,
+                     friction_range=friction_range)  # (the options' checks)
         self.obj, self.grasp, self.squeeze = obj, grasp, probe.squeeze
         self.float_frames, self.object_jitter, self.min_force = probe.float_frames, probe.object_jitter, probe.min_force
+        self.mass_range, self.friction_range = probe.mass_range, probe.friction_range
         m = physics.model
-        j = int(m.body_jntadr[m.body(obj).id])
+        b = self._body = m.body(obj).id
+        self._geoms = np.flatnonzero(m.geom_bodyid == b)
+        j = int(m.body_jntadr[b])
         self._qadr, self._vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        self._mass = MassFields(m, b, self._vadr) if self.mass_range is not None else None
+        # per-world fields allocated now, before the first step captures MuJoCo Warp's step (CUDA graph)
+        self._mass_fields = [name for name in MassFields.FIELDS if hasattr(physics.m, name)]
+        if self.mass_range is not None:
+            physics.batch_model_fields(*self._mass_fields)
+        if self.friction_range is not None:
+            physics.batch_model_fields("geom_friction")
         self._key = 0 if grasp == "hoi" else m.key("hold").id
         self._start = np.zeros((physics.worlds, 3))
 
@@ -243,9 +324,26 @@ class BatchHold(BatchTask):
             p.set_ctrl(ctrl)
         qpos = p.host("qpos")
         a = self._qadr
+        mass, friction = np.zeros(p.worlds), np.zeros(p.worlds)
         for w in np.flatnonzero(mask):  # (each world's own RNG, drawn as the single task draws)
             qpos[w, a: a + 3] += self.random[w].uniform(-self.object_jitter, self.object_jitter, 3)
+            if self.mass_range is not None:
+                mass[w] = self.random[w].uniform(*self.mass_range)
+            if self.friction_range is not None:
+                friction[w] = self.random[w].uniform(*self.friction_range)
         p.set_host("qpos", qpos)
+        if self.mass_range is not None:  # (Hold.randomise, per world: the masked worlds' values only)
+            fields = {name: p.model_field(name) for name in self._mass_fields}
+            for w in np.flatnonzero(mask):
+                for name, (idx, value) in self._mass.values(mass[w]).items():
+                    if name in fields:
+                        fields[name][w, idx] = value
+            for name, value in fields.items():
+                p.set_model_field(name, value, mask)
+        if self.friction_range is not None:
+            gf = p.model_field("geom_friction")
+            gf[:, self._geoms, 0] = friction[:, None]
+            p.set_model_field("geom_friction", gf, mask)
         p.restart_soft(self.settle_frames)
         if self.float_frames:  # gravity off while the object settles into the grasp
             g = p.m.opt.gravity.numpy().copy()
@@ -291,11 +389,13 @@ def _options(obj: str, gravity: str, config, grasp, squeeze, float_frames):
 def _task(obj: str):
     def task(time_limit=_DEFAULT_TIME_LIMIT, random=None, environment_kwargs=None, *, settle_frames=20,
              object_jitter=0.002, min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP,
-             squeeze=None, float_frames=None, object_proxies=True, grasp=None):
+             squeeze=None, float_frames=None, object_proxies=True, grasp=None, mass_range=None, friction_range=None):
         check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
+        check_range("mass_range", mass_range, "kg"), check_range("friction_range", friction_range, _MU_UNIT)
         config, grasp, squeeze, float_frames = _options(obj, gravity, config, grasp, squeeze, float_frames)
         t = Hold(obj, random=random, settle_frames=settle_frames, object_jitter=object_jitter, min_force=min_force,
-                 squeeze=squeeze, float_frames=float_frames, grasp=grasp)
+                 squeeze=squeeze, float_frames=float_frames, grasp=grasp, mass_range=mass_range,
+                 friction_range=friction_range)
         physics = make_physics(obj, gravity, config, object_proxies, grasp)
         return make_environment(physics, t, time_limit, control_timestep, environment_kwargs)
 
@@ -310,15 +410,17 @@ for _obj in OBJECTS:
 
 def batch_task(task, num_envs, device=None, *, time_limit=_DEFAULT_TIME_LIMIT, settle_frames=20, object_jitter=0.002,
                min_force=1.0, gravity="palm", config=None, control_timestep=_CONTROL_TIMESTEP, squeeze=None,
-               float_frames=None, object_proxies=True, grasp=None):
+               float_frames=None, object_proxies=True, grasp=None, mass_range=None, friction_range=None):
     """The batched task ``task`` (an object; physhand_dmc.vector.load_batch): (BatchHold, time_limit,
     control_timestep), options as the single task's."""
     check_positive("time_limit", time_limit, "s"), check_positive("control_timestep", control_timestep, "s")
+    check_range("mass_range", mass_range, "kg"), check_range("friction_range", friction_range, _MU_UNIT)
     config, grasp, squeeze, float_frames = _options(task, gravity, config, grasp, squeeze, float_frames)
     model = build_model(task, gravity, grasp)
     if not object_proxies:
         without_proxies(model, task)
     cfg = batch_config(config, float(model.opt.timestep), device)
     physics = BatchPhysics(model, num_envs, cfg, object_bodies=[task])
-    t = BatchHold(physics, task, settle_frames, object_jitter, min_force, squeeze, float_frames, grasp)
+    t = BatchHold(physics, task, settle_frames, object_jitter, min_force, squeeze, float_frames, grasp, mass_range,
+                  friction_range)
     return t, time_limit, control_timestep
