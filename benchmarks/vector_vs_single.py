@@ -53,13 +53,14 @@ def single_run(domain, name, kw, acts, perturb: float = 0.0, seed: int = 0):
     return np.array(o), np.array(rr)
 
 
-def compare(task: str, worlds: int, steps: int, device: str, seed: int = 3, perturb: float = 6e-8) -> dict:
+def compare(task: str, worlds: int, steps: int, device: str, seed: int = 3, perturb: float = 6e-8,
+            extra: dict | None = None) -> dict:
     import physhand_mj as ph
     from physhand_dmc import vector
 
     domain, name, kwargs = TASKS[task]
     cfg = ph.Config(frame_dt=0.005, device=device, two_way=domain == "hand_hold")
-    kw = dict(kwargs, config=cfg)
+    kw = dict(kwargs, config=cfg, **(extra or {}))
     env = vector.make(domain, name, num_envs=worlds, task_kwargs=kw, device=device)
     obs, _ = env.reset(seed=seed)
     acts = actions(env.task.normalise_ctrl(env.physics.host("ctrl")), steps)
@@ -95,9 +96,10 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=6, help="env steps compared")
     ap.add_argument("--perturb", type=float, default=6e-8,
                     help="also the single env against itself with qpos x (1 + perturb N(0, 1)) (0: not)")
+    ap.add_argument("--task-kwargs", default="{}", help='JSON, e.g. \'{"mass_range": [0.08, 0.3], "float_frames": 0}\'')
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
-    res = compare(a.task, a.worlds, a.steps, a.device, perturb=a.perturb)
+    res = compare(a.task, a.worlds, a.steps, a.device, perturb=a.perturb, extra=json.loads(a.task_kwargs))
     for row in res["rows"]:
         print(" ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
     if a.out:
