@@ -300,6 +300,8 @@ class BatchedHands:
         self.state.pose_fresh, self.state.time, self.state.frames = fresh.pose_fresh, 0.0, 0
         self._place(pos, quat, vertex_world(self.solver.model.n_vertices, self.solver.model.n_skin, self.worlds))
         self.solver.wake(self.state)
+        if self.solver.contact is not None:  # (the feature lists' slack, the two-way exchange: SoftHand.reset)
+            self.solver.contact.new_episode()
         if self.two_way is not None:
             self.two_way.forget_bones()
 
@@ -621,6 +623,7 @@ class BatchTwoWay:
         if not (np.all(np.isfinite(self.mu)) and np.all(self.mu >= 0)):
             raise ValueError(f"object_friction must be finite and >= 0, got {self.mu}")
         self._bones_prev = None  # (centres, quats) of the bones at the last frame
+        self._fresh = np.zeros(W, bool)  # worlds whose bones start over (forget_bones(worlds)): velocity 0
         self._frame = None  # the inputs of the frame in flight (its report's motion starts from them)
 
     def set_mass(self, mass, inertia) -> None:
@@ -639,9 +642,14 @@ class BatchTwoWay:
         else:
             self.inv_inertia = np.zeros((W, n, 3))
 
-    def forget_bones(self) -> None:
-        """The bones' velocities start over (a settle or a new episode: the next frame's are 0)."""
-        self._bones_prev = None
+    def forget_bones(self, worlds=None) -> None:
+        """The bones' velocities start over (a settle or a new episode: the next frame's are 0), in
+        every world or in the worlds of the (W,) bool mask ``worlds``."""
+        if worlds is None:
+            self._bones_prev = None
+            self._fresh[:] = False
+        else:
+            self._fresh |= np.asarray(worlds, bool)
 
     def frame_state(self, pos, quat, object_pos, object_quat, object_vel=None, object_com=None, object_iquat=None,
                     bone_com=None, bone_vel=None, object_vel_start=None) -> dict:
@@ -669,6 +677,8 @@ class BatchTwoWay:
         elif self._bones_prev is not None:  # from the poses a frame apart (mocap-like bones have no velocity)
             lin = (bc - self._bones_prev[0]) / dt
             ang = _quat_rate(quat, self._bones_prev[1], dt)
+            if self._fresh.any():
+                lin, ang = (np.where(self._fresh[:, None, None], 0.0, a) for a in (lin, ang))
         else:
             lin = ang = np.zeros((W, B, 3))
         r = quat_to_mat(iq)  # the world inverse inertia R diag(1/I) R^T of each object
@@ -684,6 +694,7 @@ class BatchTwoWay:
                      self.inv_mass.reshape(-1), frame["inv_i"].reshape(-1, 3, 3), frame["bone_lin"].reshape(-1, 3),
                      frame["bone_ang"].reshape(-1, 3), frame["acc"][..., :3].reshape(-1, 3), frame["acc"][..., 3:].reshape(-1, 3))
         self._bones_prev = (frame["bone_com"], frame["bone_quat"])
+        self._fresh[:] = False
         self._frame = frame
 
     def report(self) -> dict:

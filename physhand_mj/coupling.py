@@ -362,6 +362,9 @@ class SoftHand:
         self.solver.wake(self.state)  # a new episode settles before it may sleep
         self._bones_prev = None  # (Config.two_way: the bones' velocities start over with the episode,
         self._wrenches = None  # and the last episode's applied wrenches are gone)
+        if self.solver.contact is not None:  # (its settling frames as the first episode's: no slack, object
+            self.solver.contact.new_episode()  # velocity or friction anchor carried over; the friction
+            self._mu = None  # coefficients are sent again with the first frame's state)
         with _settling(self.solver):
             for k in range(settle_frames):
                 a = (k + 1) / settle_frames

@@ -230,6 +230,15 @@ class Contact:
         """The closed skin of ``state`` as a mesh (:meth:`QuerySpace.volume`)."""
         return self.space.volume(state, winding)
 
+    def new_episode(self) -> None:
+        """What a new episode starts over (SoftHand.reset, BatchedHands.restart): the feature lists'
+        slack and, with two-way coupling, the exchange's object and bone state and the skin's friction
+        anchors: an episode does not depend on the one before it."""
+        if self.slack_check is not None:
+            self.slack_check.restart()
+        if self.two_way is not None:
+            self.two_way.clear()
+
     def set_query_offsets(self, offsets) -> None:
         """Batched worlds solved at one origin, queried apart (:meth:`QuerySpace.set_offsets`)."""
         self.space.set_offsets(offsets)

@@ -533,6 +533,19 @@ class TwoWay:
         self._dev_in.assign(self._in)
         wp.launch(unpack_inputs, max(k, b), [self.data, self._dev_in, k, b], device=self.model.device)
 
+    def clear(self) -> None:
+        """A new episode: every object's and bone's state zeroed (the friction coefficients too: the
+        next set_state must give them) and the skin's friction anchors and loads forgotten, as after construction (the next frames run as the first episode's did until
+        :meth:`set_state`: a reset's settling frames do not carry the last episode's velocities)."""
+        if not self.on:
+            return
+        self._in[:] = 0.0
+        self._dev_in.assign(self._in)
+        wp.launch(unpack_inputs, max(self.n_obj, self.n_bone), [self.data, self._dev_in, self.n_obj, self.n_bone],
+                  device=self.model.device)
+        self.data.stick.zero_()
+        self.data.load.zero_()
+
     def wrenches(self) -> dict:
         """The last frame's mean contact wrenches and the objects' in-frame motion (:func:`frame_wrenches`;
         one launch and one read-back)."""

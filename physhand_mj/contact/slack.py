@@ -259,6 +259,11 @@ class SlackCheck:
         self.data = make_slack_buffers(model, config, points, worlds)
         self.warned = False  # (feature_motion warns once)
 
+    def restart(self) -> None:
+        """A new episode: every world lists with contact_frame_margin again (its first frame's slack),
+        as after construction (so an episode does not depend on how fast the last one moved)."""
+        self.data.slack.fill_(float(self.config.contact_frame_margin))
+
     def start_ops(self, state) -> list:
         """The frame start's ops, before the feature list: the per-frame resets and the skin's copy."""
         b = self.data

@@ -340,9 +340,12 @@ class BatchPhysics:
                 raise FloatingPointError(f"non-finite MuJoCo state in worlds {np.flatnonzero(~ok).tolist()} before any "
                                          "frame: check the model's keyframe / qpos")
             self.bad |= ~ok
-            for k in keys:
-                g[k][~ok] = self._good[k][~ok]
-        self._good = {k: g[k] for k in keys}
+            for k in g:  # (every input of the frame: the two-way exchange's too; a bad world's
+                if k in ("qvel", "qacc"):  # object stands still in it until the env resets the world)
+                    g[k][~ok] = 0.0
+                else:
+                    g[k][~ok] = self._good[k][~ok]
+        self._good = {k: g[k].copy() for k in g}
         return g["xpos"], g["xquat"], g["geom_xpos"], mat_to_quat(g["geom_xmat"]), g
 
     def soft_frame(self) -> dict:
@@ -426,7 +429,14 @@ class BatchPhysics:
         host = st.pose_host.copy()
         tw = self.hands.two_way
         prev = None if tw is None or tw._bones_prev is None else tuple(a.copy() for a in tw._bones_prev)
+        fresh = None if tw is None else tw._fresh.copy()
         sensor = (self.sensor.region_host.copy(), self.sensor.obj_host.copy())
+        bad, good = self.bad.copy(), None if self._good is None else {k: v.copy() for k, v in self._good.items()}
+        c = self.hands.solver.contact
+        slack = None if c is None or c.slack_check is None else {
+            k: getattr(c.slack_check.data, k).numpy().copy() for k in ("slack", "near_motion")}
+        ex = None if tw is None else tw.exchange.data  # the skin's friction anchors and loads (two-way)
+        anchors = None if ex is None else {k: getattr(ex, k).numpy().copy() for k in ("stick", "load")}
         try:
             yield
         finally:
@@ -445,8 +455,31 @@ class BatchPhysics:
             now[:, brow] = body[:, brow]
             st.body_pose.assign(wp.array(now, dtype=wp.transform, device="cpu"))
             st.pose_host[:, brow] = host[:, brow]
-            if tw is not None and prev is not None and tw._bones_prev is not None:
-                tw._bones_prev = tuple(np.where(keep[:, None, None], p, c) for p, c in zip(prev, tw._bones_prev))
+            if tw is not None and prev is not None:  # the kept worlds' bones go on from their last pose
+                if tw._bones_prev is None:  # (no frame since the reset: the reset worlds start at rest)
+                    tw._bones_prev = prev
+                    tw._fresh[:] = fresh
+                    tw.forget_bones(mask)
+                else:
+                    tw._bones_prev = tuple(np.where(keep[:, None, None], p, q) for p, q in zip(prev, tw._bones_prev))
+                    tw._fresh[keep] = fresh[keep]
+            self.bad[keep] = bad[keep]
+            if good is not None and self._good is not None:
+                for k in self._good:
+                    self._good[k][keep] = good[k][keep]
+            if anchors is not None:
+                srow = np.repeat(keep, self.asset.n_skin)
+                for k, a in anchors.items():
+                    arr = getattr(ex, k)
+                    now = arr.numpy().copy()
+                    now[srow] = a[srow]
+                    arr.assign(wp.array(now, dtype=arr.dtype, device="cpu"))
+            if slack is not None:  # (the feature lists' slack per world: the kept worlds' own)
+                for k, a in slack.items():
+                    arr = getattr(c.slack_check.data, k)
+                    now = arr.numpy().copy()
+                    now[keep] = a[keep]
+                    arr.assign(wp.array(now, dtype=arr.dtype, device="cpu"))
             R = len(self.sensor.region_names)
             self.sensor.region_host[np.repeat(keep, R)] = sensor[0][np.repeat(keep, R)]
             n = self.sensor.obj_host.shape[0] // self.worlds

@@ -319,7 +319,8 @@ def gae(rewards, values, next_values, terminated, ended, gamma: float, lam: floa
     """
     adv, last = np.zeros_like(values), np.zeros_like(values[0])
     for t in reversed(range(len(values))):
-        delta = rewards[t] + gamma * ~terminated[t] * next_values[t] - values[t]
+        # (where, not a product: a terminated step's next value may be non-finite, 0 * nan = nan)
+        delta = rewards[t] + gamma * np.where(terminated[t], 0.0, next_values[t]) - values[t]
         last = delta + gamma * lam * ~ended[t] * last
         adv[t] = last
     return adv

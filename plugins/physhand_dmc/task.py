@@ -56,9 +56,12 @@ def batch_config(config, timestep: float, device) -> Config:
 
     from physhand_mj.types import NonFinite
 
+    import warp as wp
+
     cfg = solver_config(config, timestep)
-    return dataclasses.replace(cfg, device=device if device is not None else cfg.device,
-                               nonfinite=NonFinite.RECOVER).validate()
+    # a device by name (None: Warp's default): the batch's objects, solver and MuJoCo Warp on one
+    dev = str(wp.get_device(device if device is not None else cfg.device))
+    return dataclasses.replace(cfg, device=dev, nonfinite=NonFinite.RECOVER).validate()
 
 
 class SoftTask(base.Task):

@@ -70,6 +70,7 @@ class SoftVectorEnv(_vector_env_base()):
         self.render_mode = None
         self.steps = np.zeros(self.num_envs, np.int64)
         self._ready = False
+        self._last_obs = None  # (W, dim): what the last reset / step returned
         obs = task.observations()  # (shapes: the batch as built)
         self.obs_keys = list(obs)
         sizes = [int(np.prod(v.shape[1:])) for v in obs.values()]
@@ -108,13 +109,15 @@ class SoftVectorEnv(_vector_env_base()):
             mask = np.asarray(options["reset_mask"], bool)
             if mask.shape != (self.num_envs,):
                 raise ValueError(f"reset_mask must be ({self.num_envs},) bool, got {mask.shape}")
-        before = flatten(self.task.observations()) if self._ready and not mask.all() else None
+        if not mask.all() and not self._ready:
+            raise ValueError("reset_mask: the first reset() must start every world (no reset_mask)")
         self._reset_worlds(mask)
         self.physics.bad[mask] = False
         self._ready = True
         obs = flatten(self.task.observations())
-        if before is not None:  # (the others' observations as they were: the reset's frames ran in them too)
-            obs = np.where(mask[:, None], obs, before)
+        if not mask.all():  # (the others' observations as last returned: the reset's frames ran in them too)
+            obs = np.where(mask[:, None], obs, self._last_obs)
+        self._last_obs = obs
         return self._out(obs), {}
 
     def step(self, actions):
@@ -132,14 +135,22 @@ class SoftVectorEnv(_vector_env_base()):
         reward = self.task.rewards()
         truncated = self.steps >= self.step_limit
         terminated = self.physics.bad.copy()
+        if terminated.any():  # (a world whose MuJoCo state turned non-finite: no NaN to the learner)
+            reward = np.where(terminated, 0.0, reward)
+            obs = np.where(terminated[:, None], np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0), obs)
         info = {}
         done = truncated | terminated
-        if np.any(done):
-            info["final_obs"] = obs.astype(np.float32)
-            info["_final_obs"] = done
+        if np.any(done):  # gymnasium's SAME_STEP convention: object arrays, None where not ended
+            final = np.full(self.num_envs, None, dtype=object)
+            for w in np.flatnonzero(done):
+                final[w] = obs[w].astype(np.float32)
+            info["final_obs"], info["_final_obs"] = final, done.copy()
+            info["final_info"] = np.array([{} if d else None for d in done], dtype=object)
+            info["_final_info"] = done.copy()
             self._reset_worlds(done)
             self.physics.bad[done] = False
             obs = np.where(done[:, None], flatten(self.task.observations()), obs)
+        self._last_obs = obs
         return (self._out(obs), reward.astype(np.float32), terminated, truncated, info)
 
     def close_extras(self, **kwargs):

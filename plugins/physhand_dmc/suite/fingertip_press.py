@@ -138,6 +138,7 @@ class BatchPress(BatchTask):
 
     def rewards(self):
         p = self.physics
+        p.sync()  # (the sensor's pinned host rows: their copies complete)
         force = p.sensor.obj_host.reshape(p.worlds, -1, 3)[:, 0, 1].astype(float)
         return press_reward(force, self.target, self.force_tolerance, self.depth_mm())
 

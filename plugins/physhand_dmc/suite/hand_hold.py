@@ -368,6 +368,7 @@ class BatchHold(BatchTask):
 
     def rewards(self):
         p = self.physics
+        p.sync()  # (the sensor's pinned host rows: their copies complete)
         offset = np.linalg.norm(p.host("qpos")[:, self._qadr: self._qadr + 3] - self._start, axis=1)
         force = p.sensor.obj_host.reshape(p.worlds, -1, 3)[:, 0, 1].astype(float)
         return hold_reward(offset, force, self.depth_mm(), self.min_force)
