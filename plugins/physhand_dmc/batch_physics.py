@@ -46,34 +46,12 @@ _MJ_ARRAYS = ("qpos", "qvel", "act", "ctrl", "qacc_warmstart", "mocap_pos", "moc
 
 
 @wp.kernel
-def _gather_vec3(src: wp.array2d(dtype=wp.vec3), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
-    w, i = wp.tid()
-    v = src[w, idx[i]]
-    for c in range(3):
-        out[w, col + 3 * i + c] = v[c]
-
-
-@wp.kernel
-def _gather_quat(src: wp.array2d(dtype=wp.quat), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
-    w, i = wp.tid()
-    v = src[w, idx[i]]
-    for c in range(4):
-        out[w, col + 4 * i + c] = v[c]
-
-
-@wp.kernel
-def _gather_mat(src: wp.array2d(dtype=wp.mat33), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
-    w, i = wp.tid()
-    m = src[w, idx[i]]
-    for r in range(3):
-        for c in range(3):
-            out[w, col + 9 * i + 3 * r + c] = m[r, c]
-
-
-@wp.kernel
-def _gather_float(src: wp.array2d(dtype=float), idx: wp.array(dtype=int), col: int, out: wp.array2d(dtype=float)):
-    w, i = wp.tid()
-    out[w, col + i] = src[w, idx[i]]
+def _gather(src: wp.array2d(dtype=float), idx: wp.array(dtype=int), width: int, col: int, out: wp.array2d(dtype=float)):
+    """out[w, col + j] = component j % width of element idx[j // width] of world w's row of ``src``
+    (a MuJoCo Warp field seen as floats: vec3 3, quat 4, mat33 9 row-major, float 1 per element)."""
+    w, j = wp.tid()
+    i = j // width
+    out[w, col + j] = src[w, idx[i] * width + j - i * width]
 
 
 @wp.kernel
@@ -186,29 +164,40 @@ class BatchPhysics:
                      ("ximat", o, 9, "obj_ximat"), ("xmat", o, 9, "obj_xmat"), ("xipos", b, 3, "bone_xipos"),
                      ("qvel", dofs, 1, "qvel"), ("qacc", dofs, 1, "qacc")]
         self._gathers, col = [], 0
-        kernels = {3: _gather_vec3, 4: _gather_quat, 9: _gather_mat, 1: _gather_float}
         for field, idx, width, *key in plan:
-            key = key[0] if key else field
-            self._gathers.append((key, field, wp.array(np.asarray(idx, np.int32), dtype=int, device=self.device),
-                                  kernels[width], col, len(idx), width))
+            src = getattr(self.d, field)
+            if not src.is_contiguous:
+                raise RuntimeError(f"MuJoCo Warp's {field} is not contiguous: the frame's gather reads it as floats")
+            flat = wp.array(ptr=src.ptr, dtype=float, shape=(self.worlds, src.shape[1] * width), device=self.device)
+            self._gathers.append((key[0] if key else field, flat, wp.array(np.asarray(idx, np.int32), dtype=int,
+                                                                          device=self.device), col, len(idx), width))
             col += len(idx) * width
         self._buf = wp.zeros((self.worlds, max(col, 1)), dtype=float, device=self.device)
         self._buf_host = wp.zeros(self._buf.shape, dtype=float, device="cpu", pinned=self.device.is_cuda)
         self._free_cols = np.concatenate([np.arange(a, a + 7) for a in self.free if a >= 0] or [np.zeros(0, np.int64)])
         self._free_idx = wp.array(self._free_cols.astype(np.int32), dtype=int, device=self.device)
+        # the exchange's uploads a frame, allocated once: impulses per body, touched free objects' poses
+        pin = self.device.is_cuda
+        self._ft = wp.zeros((self.worlds, self.model.nbody), dtype=wp.spatial_vector, device=self.device)
+        self._ft_host = wp.zeros(self._ft.shape, dtype=wp.spatial_vector, device="cpu", pinned=pin)
+        nf = max(len(self._free_cols), 1)
+        self._moved = wp.zeros((self.worlds, nf), dtype=float, device=self.device)
+        self._moved_host = wp.zeros((self.worlds, nf), dtype=float, device="cpu", pinned=pin)
+        self._touched = wp.zeros((self.worlds, nf), dtype=int, device=self.device)
+        self._touched_host = wp.zeros((self.worlds, nf), dtype=int, device="cpu", pinned=pin)
 
     def _gather(self) -> dict:
         """The frame's inputs of every world (see _plan), float64 host arrays shaped (W, n, width)."""
-        for key, field, idx, kernel, col, n, width in self._gathers:
+        for key, flat, idx, col, n, width in self._gathers:
             if n:
-                wp.launch(kernel, (self.worlds, n), inputs=[getattr(self.d, field), idx, col], outputs=[self._buf],
+                wp.launch(_gather, (self.worlds, n * width), inputs=[flat, idx, width, col], outputs=[self._buf],
                           device=self.device)
         wp.copy(self._buf_host, self._buf)
         if self.device.is_cuda:
             wp.synchronize_device(self.device)
         buf = self._buf_host.numpy().astype(np.float64)
         out = {}
-        for key, field, idx, kernel, col, n, width in self._gathers:
+        for key, flat, idx, col, n, width in self._gathers:
             a = buf[:, col: col + n * width].reshape(self.worlds, n, width)
             out[key] = a[..., 0] if width == 1 else (a.reshape(self.worlds, n, 3, 3) if width == 9 else a)
         return out
@@ -390,24 +379,33 @@ class BatchPhysics:
 
         m = self.model
         W = self.worlds
-        ft = np.zeros((W, m.nbody, 6))
+        ft = self._ft_host.numpy()  # (W, nbody, 6) float32 view of the pinned buffer (the last frame's
+        ft[:] = 0.0  # upload finished: _gather synchronised since)
         movable = (m.body_weldid[self.object_bodies] != 0) & (m.body_mocapid[self.object_bodies] < 0)
         ft[:, self.object_bodies[movable]] += rep["wrench"][:, movable] * self.dt
         ft[:, self.bones] += rep["bones"] * self.dt
         with wp.ScopedDevice(self.device):
-            fta = wp.array(ft.astype(np.float32), dtype=wp.spatial_vector, device=self.device)
-            support.apply_ft(self.m, self.d, fta, self._qfrc, False)
+            wp.copy(self._ft, self._ft_host)
+            support.apply_ft(self.m, self.d, self._ft, self._qfrc, False)
             self.mjw.solve_m(self.m, self.d, self._dq, self._qfrc)
             wp.launch(_add_rows, (W, m.nv), inputs=[self.d.qvel, self._dq])
         touched = np.any(rep["wrench"] != 0, axis=-1) & (self.free >= 0)[None]
         if np.any(touched):
             p, q = BatchedHands.two_way_poses(rep, obj_xpos, obj_xquat)
             free = np.flatnonzero(self.free >= 0)
-            value = np.concatenate([np.c_[p[:, j], q[:, j]] for j in free], axis=1)  # (W, 7 per free object)
-            mask = np.repeat(touched[:, free], 7, axis=1).astype(np.int32)
-            wp.launch(_set_masked, (W, value.shape[1]), inputs=[self.d.qpos, self._free_idx,
-                                                                wp.array(value.astype(np.float32), dtype=float, device=self.device),
-                                                                wp.array(mask, dtype=int, device=self.device)], device=self.device)
+            self._moved_host.numpy()[:] = np.concatenate([np.c_[p[:, j], q[:, j]] for j in free], axis=1)  # 7 each
+            self._touched_host.numpy()[:] = np.repeat(touched[:, free], 7, axis=1)
+            wp.copy(self._moved, self._moved_host)
+            wp.copy(self._touched, self._touched_host)
+            wp.launch(_set_masked, (W, self._moved.shape[1]), inputs=[self.d.qpos, self._free_idx, self._moved,
+                                                                       self._touched], device=self.device)
+
+    def reset_keyframe(self, key: int, mask) -> None:
+        """The worlds of ``mask`` (W,) bool to MuJoCo keyframe ``key`` (``mj_resetDataKeyframe``: the
+        rest of their data zeroed); the others untouched."""
+        keys = np.where(np.asarray(mask, bool), int(key), -1).astype(np.int32)
+        with wp.ScopedDevice(self.device):
+            self.mjw.reset_data_keyframe(self.m, self.d, wp.array(keys, dtype=int))
 
     # -- episodes ----------------------------------------------------------------------------------
     @contextlib.contextmanager

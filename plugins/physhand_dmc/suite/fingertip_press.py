@@ -123,10 +123,7 @@ class BatchPress(BatchTask):
 
     def initialize_episodes(self, mask):
         p = self.physics
-        import warp as wp
-
-        with wp.ScopedDevice(p.device):
-            p.mjw.reset_data_keyframe(p.m, p.d, wp.array(np.where(mask, 0, -1).astype(np.int32), dtype=int))
+        p.reset_keyframe(0, mask)
         for w in np.flatnonzero(mask):  # (each world's own RNG, drawn as the single task draws)
             self.target[w] = self.random[w].uniform(*self.force_range)
         p.restart_soft(self.settle_frames)

@@ -312,11 +312,8 @@ class BatchHold(BatchTask):
         self._start = np.zeros((physics.worlds, 3))
 
     def initialize_episodes(self, mask):
-        import warp as wp
-
         p, m = self.physics, self.physics.model
-        with wp.ScopedDevice(p.device):
-            p.mjw.reset_data_keyframe(p.m, p.d, wp.array(np.where(mask, self._key, -1).astype(np.int32), dtype=int))
+        p.reset_keyframe(self._key, mask)
         if self.squeeze != 1.0:
             ctrl = p.host("ctrl")
             lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
