@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
-        [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json] [--picture F.png]
+        [--friction MU] [--slip] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json] [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--device cuda] [--fused auto|on|off] [--self-launches]
 
@@ -11,7 +11,10 @@ measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1
 lie inside the closed skin, and inverted tets. Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
-process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs. ``--fused``: Config.execution.fused_substep
+process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs; ``--friction``: Tuning.self_friction
+for them (Coulomb coefficient); ``--slip``: also the skin's slip at touching pairs over the last 10
+frames (each listed vertex within 1 mm of its nearest listed triangle: its motion less the motion of
+the triangle's point under it, along the triangle; median and 90th percentile, um a frame). ``--fused``: Config.execution.fused_substep
 (auto: None, the default: the fused substep on the CPU, the five-launch substep for one hand on CUDA;
 on: True, also on CUDA, one block on one SM; off: False); ``--self-launches``: the self-contact passes as
 self_contact.py's launches after the fused kernel (fused.SELF_IN_KERNEL False) instead of inside it. Reported with the option on: the
@@ -39,8 +42,32 @@ import numpy as np
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 
+def slip_at_pairs(hand, x: np.ndarray, prev: np.ndarray) -> np.ndarray:
+    """The slip (m) over one frame of each listed vertex within 1 mm of its nearest listed triangle
+    (the solver's list; the motion from positions ``prev`` -> ``x``): its move less the move of the
+    triangle's point under it (the projection's barycentrics now), along the triangle."""
+    import trimesh
+
+    sc = hand.solver.selfc
+    n = int(sc.counts.numpy()[0])
+    v = sc.vlist.numpy()[:n]
+    t = sc.nearest.numpy()[v]
+    v, t = v[t >= 0], t[t >= 0]
+    f = np.asarray(hand.asset.skin_faces)[t]
+    A, B, C = (x[f[:, k]] for k in range(3))
+    nrm = np.cross(B - A, C - A)
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    gap = ((x[v] - A) * nrm).sum(1)
+    bc = trimesh.triangles.points_to_barycentric(np.stack([A, B, C], 1), x[v] - gap[:, None] * nrm)
+    q = (bc[:, :, None] * np.stack([A, B, C], 1)).sum(1)
+    qp = (bc[:, :, None] * prev[f]).sum(1)
+    rel = (x[v] - prev[v]) - (q - qp)
+    rel -= (rel * nrm).sum(1)[:, None] * nrm
+    return np.linalg.norm(rel[np.abs(gap) < 1e-3], axis=1)
+
+
 def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "hand_only", extra=None,
-        picture: bool = False) -> dict:
+        picture: bool = False, slip: bool = False) -> dict:
     import mujoco
 
     import physhand_mj as ph
@@ -55,6 +82,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
     times, cpu, res = [], [], {}
     ns, last = hand.asset.n_skin, None
+    slips, before = [], None
     for f in range(frames):
         mujoco.mj_step(model, data)
         t, c = time.perf_counter(), time.thread_time()
@@ -63,6 +91,11 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         cpu.append(time.thread_time() - c)
         if f == frames - 2:
             last = hand.state.x.numpy()[:ns].astype(float)
+        if slip and f >= frames - 11:  # (outside the timed call)
+            now = hand.state.x.numpy()[:ns].astype(float)
+            if before is not None:
+                slips.append(slip_at_pairs(hand, now, before))
+            before = now
     x = hand.solver.state_positions(hand.state) if hasattr(hand.solver, "state_positions") else hand.state.x.numpy()
     a = hand.asset
     out = dict(scene=scene, key=key, self_collision=self_collision, frames=frames,
@@ -73,6 +106,10 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         mv = np.linalg.norm(np.asarray(x, float)[:ns] - last, axis=1)
         out.update(skin_moved_over_05mm=int((mv > 5e-4).sum()), skin_move_max_mm=round(float(mv.max()) * 1e3, 3))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
+    if slips:
+        s = np.concatenate(slips) * 1e6
+        out.update(slip_pairs=int(len(s)), slip_median_um=round(float(np.median(s)), 1),
+                   slip_p90_um=round(float(np.percentile(s, 90)), 1))
     out["fused_substep"] = bool(hand.solver.fused_substep)
     out["self_in_kernel"] = bool(getattr(hand.solver, "_self_fused", False))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
@@ -157,6 +194,8 @@ def main():
     ap.add_argument("--modes", default="off,on")
     ap.add_argument("--device", default=None)
     ap.add_argument("--tet-keep", type=float, default=None)
+    ap.add_argument("--friction", type=float, default=None, help="Tuning.self_friction for the 'on' runs (coefficient)")
+    ap.add_argument("--slip", action="store_true", help="also the slip at touching pairs (um a frame)")
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
     ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
@@ -182,9 +221,12 @@ def main():
     for key in a.keys.split(","):
         for mode in a.modes.split(","):
             extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}
+            if a.friction is not None and mode == "on":
+                extra["self_friction"] = a.friction
             if fz is not None:
                 extra["fused_substep"] = fz
-            r = run(key, a.frames, mode == "on", a.device, scene=a.scene, extra=extra, picture=bool(a.picture))
+            r = run(key, a.frames, mode == "on", a.device, scene=a.scene, extra=extra, picture=bool(a.picture),
+                    slip=a.slip and mode == "on")
             pixels = r.pop("pixels", None)
             if pixels is not None:
                 tiles.append(pixels)

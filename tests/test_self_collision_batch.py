@@ -116,3 +116,13 @@ def test_batched_tet_keep_equals_one_hand(setup):
     x, sp = _serial(setup, cfg, "power", frames, 1)
     np.testing.assert_array_equal(bp[:, 1], sp)
     assert np.abs(batch.positions(1) - x).max() <= 1e-7
+
+
+def test_batched_friction_equals_one_hand(setup):
+    """Tuning.self_friction in batched worlds (the fused substep's passes, each world's x_prev): world 1
+    (power) ends as the hand alone, with the same pairs every frame."""
+    cfg = Config(device="cpu", self_collision=True, tuning=ph.Tuning(self_friction=0.5))
+    batch, frames, bp = _batched(setup, cfg, ("pinch", "power"))
+    x, sp = _serial(setup, cfg, "power", frames, 1)
+    np.testing.assert_array_equal(bp[:, 1], sp)
+    assert np.abs(batch.positions(1) - x).max() <= 1e-7

@@ -322,6 +322,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
         self_thickness: float,
         self_depth: float,
         self_keep: float,
+        self_friction: float,
         self_vt_off: wp.array(dtype=int),
         self_vt: wp.array(dtype=int),
         self_tets: wp.array2d(dtype=int),
@@ -410,7 +411,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
             if wp.static(SELF):  # group 3: skin self-contact (solver/fused_self.py), then the soft vertices back
                 self_group(xs, ds, NS, w, lane, bd, inv_mass, skin_faces, self_wcounts, self_ns, self_vlist, self_cand,
                            self_cand_n, self_nearest, self_involved, self_pass_count, self_thickness, self_depth,
-                           self_keep, self_vt_off, self_vt, self_tets, self_vol0, x_prev, self_hits, self_dprev,
+                           self_keep, self_friction, self_vt_off, self_vt, self_tets, self_vol0, x_prev, self_hits, self_dprev,
                            self_active, self_fx)
                 if sub == count - 1 and end == 0:
                     for k in range((NS + bd - 1) // bd):

@@ -77,7 +77,7 @@ def self_passes(fixed: bool):
                         faces: wp.array2d(dtype=int), wcounts: wp.array2d(dtype=int), ns: int,
                         vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
                         nearest: wp.array(dtype=int), involved: wp.array(dtype=int), passes: int, thickness: float,
-                        depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+                        depth: float, keep: float, mu: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
                         tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
                         hits: wp.array(dtype=int), dprev: Any, active: wp.array(dtype=int), fx: wp.vec3):
         # world w: its skin vertices are w ns on (every world's indices: vlist, cand, faces, hits, x_prev,
@@ -100,18 +100,18 @@ def self_passes(fixed: bool):
                             best = nearest[v]
                         if best >= 0:
                             # (the tile's indices: the world's own less vo; FusedSelf.tets: one world's, to 0)
-                            moves, a, b, c, dv, da, db, dc, fr = pair_correction(
-                                v, best, vo, vo, 0, xs, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0,
-                                x_prev)
+                            moves, a, b, c, dv, da, db, dc, pv, pa, pb, pc = pair_correction(
+                                v, best, vo, vo, 0, xs, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets,
+                                vol0, x_prev)
                             if moves != 0:
                                 la = a - vo
                                 lb = b - vo
                                 lc = c - vo
-                                if fr > 0.0:
-                                    wp.static(PREV_ADD)(dprev, v, fr * dv, fx[0], fx[2])
-                                    wp.static(PREV_ADD)(dprev, a, fr * da, fx[0], fx[2])
-                                    wp.static(PREV_ADD)(dprev, b, fr * db, fx[0], fx[2])
-                                    wp.static(PREV_ADD)(dprev, c, fr * dc, fx[0], fx[2])
+                                if wp.length_sq(pv) + wp.length_sq(pa) + wp.length_sq(pb) + wp.length_sq(pc) > 0.0:
+                                    wp.static(PREV_ADD)(dprev, v, pv, fx[0], fx[2])
+                                    wp.static(PREV_ADD)(dprev, a, pa, fx[0], fx[2])
+                                    wp.static(PREV_ADD)(dprev, b, pb, fx[0], fx[2])
+                                    wp.static(PREV_ADD)(dprev, c, pc, fx[0], fx[2])
                                 if wp.static(FIXED):
                                     shared_add_fixed(ds, v - vo, dv, v - vo < n_soft, fx[0], fx[2])
                                     shared_add_fixed(ds, la, da, inv_mass[la] > 0.0, fx[0], fx[2])
@@ -182,7 +182,7 @@ class FusedSelf:
         sc, cfg = self.selfc, self.selfc.config
         return [sc.wcounts, int(sc.ns1), sc.wvlist, sc.cand, sc.cand_n, sc.nearest, sc.winvolved, sc.faces,
                 int(cfg.self_passes), float(cfg.self_thickness), float(cfg.self_depth), float(cfg.self_tet_keep),
-                sc.vt_off, sc.vt, self.tets, sc.vol0, sc.hits, self.dprev, sc.active, self.fx]
+                float(cfg.self_friction), sc.vt_off, sc.vt, self.tets, sc.vol0, sc.hits, self.dprev, sc.active, self.fx]
 
     @staticmethod
     def empty_inputs(device, fixed: bool) -> list:
@@ -191,5 +191,5 @@ class FusedSelf:
         i2 = wp.empty((0, 0), dtype=int, device=device)
         f1 = wp.empty(0, dtype=float, device=device)
         acc = wp.empty(0, dtype=wp.vec3i if fixed else wp.vec3, device=device)
-        return [i2, 0, i1, i2, i1, i1, i1, i2, 0, 0.0, 0.0, 0.0, i1, i1, i2, f1, i1, acc, i1, wp.vec3(0.0)]
+        return [i2, 0, i1, i2, i1, i1, i1, i2, 0, 0.0, 0.0, 0.0, 0.0, i1, i1, i2, f1, i1, acc, i1, wp.vec3(0.0)]
 

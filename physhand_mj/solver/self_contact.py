@@ -392,12 +392,15 @@ def nearest_listed(v: int, xo: int, x: Any, faces: wp.array2d(dtype=int), cand: 
 
 @wp.func
 def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_mass: wp.array(dtype=float),
-                    faces: wp.array2d(dtype=int), thickness: float, depth: float, keep: float,
+                    faces: wp.array2d(dtype=int), thickness: float, depth: float, keep: float, mu: float,
                     vt_off: wp.array(dtype=int), vt: wp.array(dtype=int), tets: wp.array2d(dtype=int),
                     vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3)):
     """Skin vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
-    ``depth``), the hard vertex-triangle correction. Returns (moves, a, b, c, the moves of v, a, b, c,
-    the share ``fr`` of them that x_prev takes too); the caller adds them up (the launches:
+    ``depth``), the hard vertex-triangle correction, and with ``mu`` > 0 its Coulomb friction: the
+    pair's slip along the triangle over the substep (from ``x_prev``) undone up to ``mu`` x the
+    normal correction. Returns (moves, a, b, c, the moves of v, a, b, c, the parts of them that
+    x_prev takes too: the normal correction's share that resolves the depth the pair had at the
+    substep's start); the caller adds them up (the launches:
     :func:`_correct`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
     returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
     (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`_room`'s."""
@@ -413,7 +416,7 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     nrm = wp.cross(xb - xa, xc - xa)
     ln = wp.length(nrm)
     if ln < 1.0e-12:
-        return 0, a, b, c, z, z, z, z, 0.0
+        return 0, a, b, c, z, z, z, z, z, z, z, z
     nrm = nrm / ln
     wa = bu[0]
     wb = bu[1]
@@ -421,14 +424,14 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     q = wa * xa + wb * xb + wc * xc
     s = wp.dot(p - q, nrm)
     if s >= thickness or s < -depth:
-        return 0, a, b, c, z, z, z, z, 0.0
+        return 0, a, b, c, z, z, z, z, z, z, z, z
     mv = inv_mass[v - xo]
     ma = inv_mass[a - xo]
     mb = inv_mass[b - xo]
     mc = inv_mass[c - xo]
     w = mv + wa * wa * ma + wb * wb * mb + wc * wc * mc
     if w <= 0.0:
-        return 0, a, b, c, z, z, z, z, 0.0
+        return 0, a, b, c, z, z, z, z, z, z, z, z
     dl = (thickness - s) / w
     if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
         tk = _room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
@@ -440,29 +443,51 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
     # substep with no relative normal velocity instead of flying apart at depth / h. Without it the
     # held fist's skin jumps up to ~5 mm a frame (docs/self_collision.md "A held fist").
-    s0 = wp.dot(x_prev[v] - (wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]), nrm)
+    qp = wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]
+    s0 = wp.dot(x_prev[v] - qp, nrm)
     fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
-    return 1, a, b, c, mv * dl * nrm, -wa * ma * dl * nrm, -wb * mb * dl * nrm, -wc * mc * dl * nrm, fr
+    dv = mv * dl * nrm
+    da = -wa * ma * dl * nrm
+    db = -wb * mb * dl * nrm
+    dc = -wc * mc * dl * nrm
+    pv = fr * dv
+    pa = fr * da
+    pb = fr * db
+    pc = fr * dc
+    if mu > 0.0:  # Coulomb friction (position-based, as Macklin et al. 2014): the pair's relative slip
+        # along the triangle over the substep, undone up to mu x the normal correction's length; it
+        # changes the velocity (x_prev not moved), as friction must
+        slip = (p - x_prev[v]) - (q - qp)
+        slip = slip - nrm * wp.dot(slip, nrm)
+        sl = wp.length(slip)
+        lim = mu * dl * w  # (dl w: the normal correction's length, thickness - s, as cut by the tet guard)
+        if sl > 0.0:
+            f = -slip * (wp.min(sl, lim) / (sl * w))
+            dv = dv + mv * f
+            da = da - wa * ma * f
+            db = db - wb * mb * f
+            dc = dc - wc * mc * f
+    return 1, a, b, c, dv, da, db, dc, pv, pa, pb, pc
 
 
 @wp.func
 def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-             thickness: float, depth: float, keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+             thickness: float, depth: float, keep: float, mu: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
              tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
              delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
              dprev: wp.array(dtype=wp.vec3), world: int, vo: int, to: int, wcounts: wp.array2d(dtype=int)):
     """:func:`pair_correction` of vertex v (of world ``world``: its first skin vertex ``vo``, first
     tet ``to``) added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``) by atomics: the
     launches' sum; the correction counted in ``active`` and the world's ``wcounts`` row."""
-    moves, a, b, c, dv, da, db, dc, fr = pair_correction(v, best, 0, vo, to, x, inv_mass, faces, thickness, depth,
-                                                         keep, vt_off, vt, tets, vol0, x_prev)
+    moves, a, b, c, dv, da, db, dc, pv, pa, pb, pc = pair_correction(v, best, 0, vo, to, x, inv_mass, faces, thickness,
+                                                                     depth, keep, mu, vt_off, vt, tets, vol0, x_prev)
     if moves == 0:
         return
-    if fr > 0.0:
-        wp.atomic_add(dprev, v, fr * dv)
-        wp.atomic_add(dprev, a, fr * da)
-        wp.atomic_add(dprev, b, fr * db)
-        wp.atomic_add(dprev, c, fr * dc)
+    if wp.length_sq(pv) + wp.length_sq(pa) + wp.length_sq(pb) + wp.length_sq(pc) > 0.0:
+        wp.atomic_add(dprev, v, pv)
+        wp.atomic_add(dprev, a, pa)
+        wp.atomic_add(dprev, b, pb)
+        wp.atomic_add(dprev, c, pc)
     wp.atomic_add(delta, v, dv)
     wp.atomic_add(hits, v, 1)
     if inv_mass[a] > 0.0:
@@ -481,7 +506,8 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
 @wp.kernel
 def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
             vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
-            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, mu: float,
+            vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3), ns: int,
             nt: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
             dprev: wp.array(dtype=wp.vec3), wcounts: wp.array2d(dtype=int)):
@@ -501,7 +527,7 @@ def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.arr
         best = nearest[v]
     if best < 0:
         return
-    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, vt_off, vt, tets, vol0, x_prev,
+    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets, vol0, x_prev,
              delta, hits, active, dprev, w, w * ns, w * nt, wcounts)
 
 
@@ -680,7 +706,8 @@ class SelfContact:
             rec.launch(resolve, self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
                         float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
-                        float(cfg.self_tet_keep), self.vt_off, self.vt, self.tets, self.vol0, state.x_prev,
+                        float(cfg.self_tet_keep), float(cfg.self_friction), self.vt_off, self.vt, self.tets, self.vol0,
+                        state.x_prev,
                         self.ns1, self.nt1],
                        [self.delta, self.hits, self.active, self.dprev, self.wcounts], count=self.vcount)
             rec.launch(apply, self.n_skin, [self.icount, self.involved],
