@@ -140,9 +140,10 @@ def picture_of(model, data, hand, skin: np.ndarray, width: int = 640, height: in
         renderer.close()
 
 
-def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, device=None, fused=None) -> dict:
+def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, device=None, fused=None,
+               friction=None) -> dict:
     """``--worlds``: one batch of ``worlds`` worlds holding ``keys`` in turn, timed (module docstring);
-    ``fused``: Config.execution.fused_substep (None: the default)."""
+    ``fused``: Config.execution.fused_substep (None: the default); ``friction``: Tuning.self_friction."""
     import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.contact.self_measures import self_penetration
@@ -157,6 +158,8 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
                 self_collision=self_collision)
     if fused is not None:
         opts["fused_substep"] = fused
+    if friction is not None:
+        opts["self_friction"] = friction
     cfg = ph.Config.from_dict(opts)
     t = time.perf_counter()
     hands = BatchedHands(asset, worlds, cfg, *mount_pose(model, data))
@@ -212,7 +215,8 @@ def main():
     if a.worlds:
         for w in [int(v) for v in a.worlds.split(",")]:
             for mode in a.modes.split(","):
-                r = run_worlds(w, a.keys.split(","), a.frames, mode == "on", a.device, fused=fz)
+                r = run_worlds(w, a.keys.split(","), a.frames, mode == "on", a.device, fused=fz,
+                               friction=a.friction if mode == "on" else None)
                 print(json.dumps(r), flush=True)
                 rows.append(r)
         if a.out:
