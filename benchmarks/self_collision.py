@@ -110,6 +110,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         s = np.concatenate(slips) * 1e6
         out.update(slip_pairs=int(len(s)), slip_median_um=round(float(np.median(s)), 1),
                    slip_p90_um=round(float(np.percentile(s, 90)), 1))
+    out["self_friction"] = float(cfg.tuning.self_friction) if self_collision else None
     out["fused_substep"] = bool(hand.solver.fused_substep)
     out["self_in_kernel"] = bool(getattr(hand.solver, "_self_fused", False))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
@@ -176,6 +177,7 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
     out = dict(worlds=worlds, keys=keys, self_collision=self_collision, frames=frames, ms_frame=round(ms, 3),
                hand_frames_per_s=round(worlds / ms * 1e3, 1), setup_s=round(setup_s, 2),
                nonfinite=int(res["nonfinite"]), inverted=int(res["inverted"]),
+               self_friction=float(cfg.tuning.self_friction) if self_collision else None,
                fused_substep=bool(hands.solver.fused_substep), self_in_kernel=bool(getattr(hands.solver, "_self_fused", False)))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:

@@ -77,7 +77,7 @@ class Tuning:
       self_tet_keep: 0 (default): the hard correction; above 0, a correction is cut short where it
         would flatten a tet of a moved skin vertex below this share of its rest volume (fewer
         inverted tets where the bones leave the flesh no room, more skin left inside; 0 to 1);
-      self_friction: Coulomb friction between touching parts of the skin (coefficient, >= 0; 0: none):
+      self_friction: Coulomb friction between touching parts of the skin (coefficient, 0 to 2; 0: none):
         a pair's slip along the triangle within a substep is undone up to this times the pair's
         normal correction in each pass.
     """
@@ -357,8 +357,9 @@ def _check(s) -> None:
         pos(name)
     if not (isinstance(s.self_passes, (int, np.integer)) and not isinstance(s.self_passes, bool) and s.self_passes >= 1):
         raise ValueError(f"Config.tuning.self_passes must be an integer >= 1, got {s.self_passes!r}")
-    if not (np.isfinite(s.self_friction) and s.self_friction >= 0.0):
-        raise ValueError(f"Config.tuning.self_friction must be a finite coefficient >= 0, got {s.self_friction!r}")
+    if not (np.isfinite(s.self_friction) and 0.0 <= s.self_friction <= 2.0):
+        raise ValueError(f"Config.tuning.self_friction must be a coefficient in [0, 2] (skin on skin: ~0.5), got "
+                         f"{s.self_friction!r}")
     if not (0.0 <= s.self_tet_keep < 1.0):
         raise ValueError(f"Config.tuning.self_tet_keep must lie in [0, 1), got {s.self_tet_keep!r}")
     if s.self_collision and s.self_margin <= s.self_thickness:

@@ -18,29 +18,32 @@ def _one_pair(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), inv_m
               faces: wp.array2d(dtype=int), mu: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
               tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), out: wp.array(dtype=wp.vec3),
               moved: wp.array(dtype=int)):
-    moves, a, b, c, dv, da, db, dc, pv, pa, pb, pc = pair_correction(3, 0, 0, 0, 0, x, inv_mass, faces, THICK, 5.0e-3,
-                                                                     0.0, mu, vt_off, vt, tets, vol0, x_prev)
+    moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = pair_correction(3, 0, 0, 0, 0, x, inv_mass, faces, THICK,
+                                                                         5.0e-3, 0.0, mu, vt_off, vt, tets, vol0, x_prev)
     moved[0] = moves
-    out[0] = dv
-    out[1] = da
-    out[2] = db
-    out[3] = dc
-    out[4] = pv
-    out[5] = pa
-    out[6] = pb
-    out[7] = pc
+    # (the moves applied: normal + friction; the x_prev parts: the normal moves' share fr)
+    out[0] = dv + fv
+    out[1] = da + fa
+    out[2] = db + fb
+    out[3] = dc + fc
+    out[4] = fr * dv
+    out[5] = fr * da
+    out[6] = fr * db
+    out[7] = fr * dc
 
 
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 
-def _pair(mu: float, slide: float, gap: float = 2.0e-4, gap0: float = 6.0e-4, masses=(1.0, 1.0, 1.0, 1.0), device="cpu"):
+def _pair(mu: float, slide: float, gap: float = 2.0e-4, gap0: float = 6.0e-4, masses=(1.0, 1.0, 1.0, 1.0), device="cpu",
+          carry=(0.0, 0.0)):
     """Triangle (0, 1, 2) in the z = 0 plane (normal +z), vertex 3 ``gap`` m in front of it, having slid
-    ``slide`` m along x over the substep from ``gap0`` m in front; returns (moves (4, 3), x_prev parts
-    (4, 3), positions after, positions before, x_prev)."""
+    ``slide`` m along x over the substep from ``gap0`` m in front, while the triangle moved by ``carry``
+    (m, along x and y); returns (moves (4, 3), x_prev parts (4, 3), positions after, positions before,
+    x_prev)."""
     tri = np.array([[0.0, 0.0, 0.0], [1e-2, 0.0, 0.0], [0.0, 1e-2, 0.0]])
     x = np.vstack([tri, [2e-3, 2e-3, gap]])
-    xp = np.vstack([tri, [2e-3 - slide, 2e-3, gap0]])
+    xp = np.vstack([tri - [carry[0], carry[1], 0.0], [2e-3 - slide - carry[0], 2e-3 - carry[1], gap0]])
     d = device
     out = wp.zeros(8, dtype=wp.vec3, device=d)
     moved = wp.zeros(1, dtype=int, device=d)
@@ -95,6 +98,24 @@ def test_sliding_pair_loses_mu_times_the_normal_correction(masses, device):
     np.testing.assert_allclose(_slip(after, xp), [1.0e-3 - 0.5 * (THICK - 2.0e-4), 0.0, 0.0], atol=1e-9)
     m = 1.0 / np.asarray(masses)  # (masses of vertices 0-3: the corners, then the vertex, as the moves)
     np.testing.assert_allclose((m[:, None] * moves).sum(axis=0), 0.0, atol=1e-9)
+
+
+def test_friction_acts_on_the_relative_slip():
+    """The triangle moving with the vertex (both 2 mm along x and 1 mm along y over the substep, the
+    vertex 1 mm further along x) is a 1 mm relative slip: cut by mu x the correction as on a still
+    triangle; the common motion is no slip."""
+    moves, prev, after, _, xp = _pair(0.5, 1.0e-3, carry=(2.0e-3, 1.0e-3))
+    np.testing.assert_allclose(_slip(after, xp), [1.0e-3 - 0.5 * (THICK - 2.0e-4), 0.0, 0.0], atol=1e-9)
+    moves, prev, after, _, xp = _pair(10.0, 0.0, carry=(2.0e-3, 1.0e-3))
+    np.testing.assert_allclose(moves[:, :2], 0.0, atol=1e-9)  # (float32: the slip's rounding, ~1e-10 m)
+
+
+def test_config_checks_friction():
+    """self_friction must be a coefficient in [0, 2]."""
+    ph.Config(self_collision=True, tuning=ph.Tuning(self_friction=0.5)).validate()
+    for bad in (-0.1, float("nan"), 2.5):
+        with pytest.raises(ValueError, match="self_friction"):
+            ph.Config(self_collision=True, tuning=ph.Tuning(self_friction=bad)).validate()
 
 
 def test_x_prev_takes_only_the_normal_share():

@@ -15,16 +15,17 @@ from physhand_mj.solver import fused
 FIELDS = ("x", "x_prev", "v", "lam_edge", "lam_tet", "lam_dih")
 
 
-def _run(key: str, frames: int, fused_substep=None, self_collision: bool = True):
+def _run(key: str, frames: int, fused_substep=None, self_collision: bool = True, friction: float = 0.0):
     """``hand_only``'s keyframe ``key`` rolled out as ``physhand rollout`` does (SoftHand, MuJoCo
-    stepping its targets), ``frames`` frames on the CPU; the hand, the last report, each frame's pairs."""
+    stepping its targets), ``frames`` frames on the CPU (``friction``: Tuning.self_friction); the hand,
+    the last report, each frame's pairs."""
     import mujoco
 
     from physhand_mj.rollout import load_rollout_scene
 
     model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), key)
     cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=self_collision,
-                    execution=Execution(fused_substep=fused_substep))
+                    execution=Execution(fused_substep=fused_substep), tuning=ph.Tuning(self_friction=friction))
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
     res, pairs = {}, []
     for _ in range(frames):
@@ -110,8 +111,9 @@ def test_fused_self_frame_is_one_launch(monkeypatch):
     assert ref_res["ops_run"] > out_res["ops_run"]
 
 
+@pytest.mark.parametrize("friction", [0.0, 0.5])
 @pytest.mark.parametrize("lanes", [1, 64])
-def test_fused_self_fixed_point_sum_in_any_order(lanes, monkeypatch):
+def test_fused_self_fixed_point_sum_in_any_order(lanes, friction, monkeypatch):
     """ACCUM "fixed" (CUDA's default) on the CPU: the self passes' moves and x_prev shares added as
     int32 steps, so one lane and Warp's 64-lane CPU blocks (a GPU block's lanes meeting at the
     barriers) give the same bits and pairs. (Against the float sum the closing pinch differs by up to
@@ -126,7 +128,7 @@ def test_fused_self_fixed_point_sum_in_any_order(lanes, monkeypatch):
         if hasattr(wp.config, "enable_cpu_blocks"):
             monkeypatch.setattr(wp.config, "enable_cpu_blocks", k > 1)
         monkeypatch.setattr(fused, "BLOCK_DIM", 64 if k > 1 else block)
-        hand, res, pairs = _run("pinch", 3, fused_substep=True)
+        hand, res, pairs = _run("pinch", 3, fused_substep=True, friction=friction)
         assert hand.solver._fused.fixed and hand.solver._self_fused
         return hand, pairs
 
@@ -244,3 +246,17 @@ def test_batched_fused_self_fixed_point_sum(monkeypatch):
         many, many_rows = run(("pinch", "power"), 64)
         np.testing.assert_array_equal(rows, many_rows)
         _same_batch_state(both, many)
+
+
+def test_friction_passes_equal_the_launches():
+    """Tuning.self_friction in the passes inside the fused kernel (float sum): bit for bit the
+    five-launch substep's launches on the CPU, the same pairs (the fixed-point sum with friction:
+    test_fused_self_fixed_point_sum_in_any_order)."""
+    frames = 4
+    fz, res, pairs = _run("power", frames, friction=0.5)
+    assert fz.solver._self_fused and res["self_corrections"] > 0
+    ref, ref_res, ref_pairs = _run("power", frames, fused_substep=False, friction=0.5)
+    assert pairs == ref_pairs
+    _same_state(fz, ref)
+    plain, *_ = _run("power", frames)
+    assert np.abs(plain.state.x.numpy() - fz.state.x.numpy()).max() > 1e-6  # (friction changed the result)

@@ -36,7 +36,8 @@ wp.set_module_options({"enable_backward": False})
 # a correction from every listed vertex in one pass (n_skin at most: no smaller bound holds), so each
 # component is clamped to 0.99 x 2^31 steps / n_skin (one world's; 25 mm for the hand's 5,000 skin vertices, 5 x
 # the largest correction self_depth + self_thickness allows a vertex); at FIXED_BITS' 2^-28 that
-# bound would be 1.6 mm, under the corrections a fist makes (up to 2.3 mm).
+# bound would be 1.6 mm, under the corrections a fist makes (up to 2.3 mm). With Tuning.self_friction mu a
+# correction reaches (1 + mu) x that at most: the bound holds to mu ~3.5 (validate() allows up to 2).
 SELF_FIXED_BITS = 24
 
 _PASSES: dict = {}
@@ -100,18 +101,23 @@ def self_passes(fixed: bool):
                             best = nearest[v]
                         if best >= 0:
                             # (the tile's indices: the world's own less vo; FusedSelf.tets: one world's, to 0)
-                            moves, a, b, c, dv, da, db, dc, pv, pa, pb, pc = pair_correction(
+                            moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = pair_correction(
                                 v, best, vo, vo, 0, xs, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets,
                                 vol0, x_prev)
                             if moves != 0:
                                 la = a - vo
                                 lb = b - vo
                                 lc = c - vo
-                                if wp.length_sq(pv) + wp.length_sq(pa) + wp.length_sq(pb) + wp.length_sq(pc) > 0.0:
-                                    wp.static(PREV_ADD)(dprev, v, pv, fx[0], fx[2])
-                                    wp.static(PREV_ADD)(dprev, a, pa, fx[0], fx[2])
-                                    wp.static(PREV_ADD)(dprev, b, pb, fx[0], fx[2])
-                                    wp.static(PREV_ADD)(dprev, c, pc, fx[0], fx[2])
+                                if fr > 0.0:
+                                    wp.static(PREV_ADD)(dprev, v, fr * dv, fx[0], fx[2])
+                                    wp.static(PREV_ADD)(dprev, a, fr * da, fx[0], fx[2])
+                                    wp.static(PREV_ADD)(dprev, b, fr * db, fx[0], fx[2])
+                                    wp.static(PREV_ADD)(dprev, c, fr * dc, fx[0], fx[2])
+                                if mu > 0.0:  # (Tuning.self_friction: its moves change the velocity, x_prev keeps them out)
+                                    dv = dv + fv
+                                    da = da + fa
+                                    db = db + fb
+                                    dc = dc + fc
                                 if wp.static(FIXED):
                                     shared_add_fixed(ds, v - vo, dv, v - vo < n_soft, fx[0], fx[2])
                                     shared_add_fixed(ds, la, da, inv_mass[la] > 0.0, fx[0], fx[2])

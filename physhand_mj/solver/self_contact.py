@@ -398,9 +398,10 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     """Skin vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
     ``depth``), the hard vertex-triangle correction, and with ``mu`` > 0 its Coulomb friction: the
     pair's slip along the triangle over the substep (from ``x_prev``) undone up to ``mu`` x the
-    normal correction. Returns (moves, a, b, c, the moves of v, a, b, c, the parts of them that
-    x_prev takes too: the normal correction's share that resolves the depth the pair had at the
-    substep's start); the caller adds them up (the launches:
+    normal correction (the tet guard, ``keep``, checks the normal correction only). Returns (moves,
+    a, b, c, the normal moves of v, a, b, c, the share ``fr`` of them that x_prev takes too, the
+    friction moves of v, a, b, c, which x_prev does not take: they change the velocity); the caller
+    adds them up (the launches:
     :func:`_correct`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
     returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
     (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`_room`'s."""
@@ -416,7 +417,7 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     nrm = wp.cross(xb - xa, xc - xa)
     ln = wp.length(nrm)
     if ln < 1.0e-12:
-        return 0, a, b, c, z, z, z, z, z, z, z, z
+        return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
     nrm = nrm / ln
     wa = bu[0]
     wb = bu[1]
@@ -424,14 +425,14 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     q = wa * xa + wb * xb + wc * xc
     s = wp.dot(p - q, nrm)
     if s >= thickness or s < -depth:
-        return 0, a, b, c, z, z, z, z, z, z, z, z
+        return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
     mv = inv_mass[v - xo]
     ma = inv_mass[a - xo]
     mb = inv_mass[b - xo]
     mc = inv_mass[c - xo]
     w = mv + wa * wa * ma + wb * wb * mb + wc * wc * mc
     if w <= 0.0:
-        return 0, a, b, c, z, z, z, z, z, z, z, z
+        return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
     dl = (thickness - s) / w
     if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
         tk = _room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
@@ -446,14 +447,10 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     qp = wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]
     s0 = wp.dot(x_prev[v] - qp, nrm)
     fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
-    dv = mv * dl * nrm
-    da = -wa * ma * dl * nrm
-    db = -wb * mb * dl * nrm
-    dc = -wc * mc * dl * nrm
-    pv = fr * dv
-    pa = fr * da
-    pb = fr * db
-    pc = fr * dc
+    fv = wp.vec3(0.0)
+    fa = wp.vec3(0.0)
+    fb = wp.vec3(0.0)
+    fc = wp.vec3(0.0)
     if mu > 0.0:  # Coulomb friction (position-based, as Macklin et al. 2014): the pair's relative slip
         # along the triangle over the substep, undone up to mu x the normal correction's length; it
         # changes the velocity (x_prev not moved), as friction must
@@ -463,11 +460,11 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
         lim = mu * dl * w  # (dl w: the normal correction's length, thickness - s, as cut by the tet guard)
         if sl > 0.0:
             f = -slip * (wp.min(sl, lim) / (sl * w))
-            dv = dv + mv * f
-            da = da - wa * ma * f
-            db = db - wb * mb * f
-            dc = dc - wc * mc * f
-    return 1, a, b, c, dv, da, db, dc, pv, pa, pb, pc
+            fv = mv * f
+            fa = -wa * ma * f
+            fb = -wb * mb * f
+            fc = -wc * mc * f
+    return 1, a, b, c, mv * dl * nrm, -wa * ma * dl * nrm, -wb * mb * dl * nrm, -wc * mc * dl * nrm, fr, fv, fa, fb, fc
 
 
 @wp.func
@@ -479,15 +476,20 @@ def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(d
     """:func:`pair_correction` of vertex v (of world ``world``: its first skin vertex ``vo``, first
     tet ``to``) added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``) by atomics: the
     launches' sum; the correction counted in ``active`` and the world's ``wcounts`` row."""
-    moves, a, b, c, dv, da, db, dc, pv, pa, pb, pc = pair_correction(v, best, 0, vo, to, x, inv_mass, faces, thickness,
-                                                                     depth, keep, mu, vt_off, vt, tets, vol0, x_prev)
+    moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = pair_correction(
+        v, best, 0, vo, to, x, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets, vol0, x_prev)
     if moves == 0:
         return
-    if wp.length_sq(pv) + wp.length_sq(pa) + wp.length_sq(pb) + wp.length_sq(pc) > 0.0:
-        wp.atomic_add(dprev, v, pv)
-        wp.atomic_add(dprev, a, pa)
-        wp.atomic_add(dprev, b, pb)
-        wp.atomic_add(dprev, c, pc)
+    if fr > 0.0:
+        wp.atomic_add(dprev, v, fr * dv)
+        wp.atomic_add(dprev, a, fr * da)
+        wp.atomic_add(dprev, b, fr * db)
+        wp.atomic_add(dprev, c, fr * dc)
+    if mu > 0.0:  # (mu 0: the moves as before friction, bit for bit)
+        dv = dv + fv
+        da = da + fa
+        db = db + fb
+        dc = dc + fc
     wp.atomic_add(delta, v, dv)
     wp.atomic_add(hits, v, 1)
     if inv_mass[a] > 0.0:
