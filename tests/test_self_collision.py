@@ -119,6 +119,20 @@ def test_power_grasp_self_penetration_drops():
     assert res["self_pairs"] > 0
 
 
+def test_pinch_free_of_itself_by_both_counts():
+    """The pinch keyframe after 36 frames: without the option the thumb passes into the index (55
+    vertices' 0.2 mm offsets inside, 115 skin edges through another triangle: measured); with it no
+    offset inside and no skin edge through another triangle, by code the stage does not share."""
+    off, _ = _run("pinch", False, 36)
+    on, res = _run("pinch", True, 36)
+    faces = np.asarray(on.asset.skin_faces)
+    a = self_penetration(off.state.x.numpy(), faces)
+    b = self_penetration(on.state.x.numpy(), faces)
+    assert a["inside_200um"] > 20 and a["crossing_edges"] > 20, a
+    assert b["inside_200um"] == 0 and b["crossing_edges"] == 0, b
+    assert res["self_pairs"] > 0
+
+
 @pytest.mark.slow  # two 36-frame rollouts of the power grasp
 def test_tet_keep_holds_inverted_tets():
     """Tuning.self_tet_keep: the power grasp's inverted tets no more than without the option (282;
@@ -129,3 +143,26 @@ def test_tet_keep_holds_inverted_tets():
     assert np.all(np.isfinite(x))
     m = self_penetration(x, np.asarray(hand.asset.skin_faces), np.asarray(hand.asset.tets), hand.solver.model.rest_x.numpy())
     assert m["inverted_tets"] <= 300 and m["inside_200um"] <= 350, m
+
+
+def test_crossing_edges_analytic():
+    """The measure's second count: a closed sphere has no skin edge through another triangle; one
+    vertex pushed through to the far side makes its fan cross the far side (its edges, and the far
+    side's edges through its fan), a dent does not; the rest hand has none."""
+    import trimesh
+
+    from physhand_mj.contact.self_measures import crossing_edges, skin_edges
+
+    m = trimesh.creation.icosphere(subdivisions=2, radius=0.01)
+    x, faces = np.asarray(m.vertices), np.asarray(m.faces)
+    assert not crossing_edges(x, faces).any()
+    through = x.copy()
+    through[0] = -1.5 * x[0]
+    c = crossing_edges(through, faces)
+    edges = skin_edges(faces)
+    assert c.sum() > 0 and np.any(edges[c] == 0, axis=1).any()
+    dent = x.copy()
+    dent[0] = 0.5 * x[0]
+    assert not crossing_edges(dent, faces).any()
+    asset = ph.load_asset()
+    assert not crossing_edges(np.asarray(asset.skin_vertices), np.asarray(asset.skin_faces)).any()

@@ -7,10 +7,15 @@ Strackee's formula, no BVH, no approximation), so folds, turned-over triangles a
 rest filter cannot hide a penetration. At rest (the open hand) no offset point is inside at
 0.2 mm; a fingertip pressed into the palm has its 0.2 mm and 1 mm offsets inside.
 
-Also counted: inverted tets (signed volume below zero where the rest volume is positive).
+Also counted: inverted tets (signed volume below zero where the rest volume is positive), and skin
+edges that pass through a skin triangle they share no vertex with (the skin intersecting itself:
+every skin edge against every skin triangle, an exact segment-triangle test, brute force as well;
+the closed skin at rest has none).
 
     offsets_inside(x, faces, offset)   -> (V,) bool: the skin vertices whose offset point is inside
-    self_penetration(x, faces, tets)   -> dict of counts at 0.2 mm and 1 mm, and inverted tets
+    crossing_edges(x, faces)           -> (E,) bool over the skin's edges: through another triangle
+    self_penetration(x, faces, tets)   -> dict of counts at 0.2 mm and 1 mm, crossing edges, and
+                                          inverted tets
 """
 
 from __future__ import annotations
@@ -87,6 +92,73 @@ def offsets_inside(x: np.ndarray, faces: np.ndarray, offset: float) -> np.ndarra
     return (w > 0.5) & used
 
 
+@wp.kernel
+def _crossing(x: wp.array(dtype=wp.vec3), edges: wp.array2d(dtype=int), faces: wp.array2d(dtype=int),
+              lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3), out: wp.array(dtype=int)):
+    e = wp.tid()
+    i = edges[e, 0]
+    j = edges[e, 1]
+    p = x[i]
+    q = x[j]
+    elo = wp.min(p, q)
+    ehi = wp.max(p, q)
+    d = q - p
+    for t in range(faces.shape[0]):
+        l = lo[t]
+        h = hi[t]
+        if h[0] < elo[0] or l[0] > ehi[0] or h[1] < elo[1] or l[1] > ehi[1] or h[2] < elo[2] or l[2] > ehi[2]:
+            continue
+        a = faces[t, 0]
+        b = faces[t, 1]
+        c = faces[t, 2]
+        if a == i or a == j or b == i or b == j or c == i or c == j:
+            continue
+        # Moller-Trumbore: p + s d = x_a + u (x_b - x_a) + v (x_c - x_a), 0 < s < 1, u, v >= 0, u + v <= 1
+        e1 = x[b] - x[a]
+        e2 = x[c] - x[a]
+        pv = wp.cross(d, e2)
+        det = wp.dot(e1, pv)
+        if wp.abs(det) < 1.0e-20:
+            continue
+        inv = 1.0 / det
+        tv = p - x[a]
+        u = wp.dot(tv, pv) * inv
+        if u < 0.0 or u > 1.0:
+            continue
+        qv = wp.cross(tv, e1)
+        v = wp.dot(d, qv) * inv
+        if v < 0.0 or u + v > 1.0:
+            continue
+        sv = wp.dot(e2, qv) * inv
+        if sv > 0.0 and sv < 1.0:
+            out[e] = 1
+            return
+
+
+def skin_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) the skin's edges (each once, the lower vertex first)."""
+    f = np.asarray(faces, np.int64)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    return np.unique(e, axis=0)
+
+
+def crossing_edges(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(E,) bool over :func:`skin_edges`: the edge passes through the interior of a skin triangle
+    that shares no vertex with it (exact segment-triangle test, float32, brute force on the CPU)."""
+    d = "cpu"
+    x = np.asarray(x, np.float32)
+    faces = np.ascontiguousarray(faces, np.int32)
+    tri = x[faces]
+    edges = skin_edges(faces).astype(np.int32)
+    out = wp.zeros(len(edges), dtype=int, device=d)
+    wp.launch(_crossing, len(edges), inputs=[wp.array(x, dtype=wp.vec3, device=d), wp.array(edges, dtype=int, device=d),
+                                            wp.array(faces, dtype=int, device=d),
+                                            wp.array(tri.min(axis=1), dtype=wp.vec3, device=d),
+                                            wp.array(tri.max(axis=1), dtype=wp.vec3, device=d)],
+              outputs=[out], device=d)
+    return out.numpy().astype(bool)
+
+
 def inverted_tets(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> int:
     """Tets whose signed volume has the opposite sign of (or is zero against) their rest volume."""
     def vol(p):
@@ -102,10 +174,12 @@ def inverted_tets(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> int:
 def self_penetration(x: np.ndarray, faces: np.ndarray, tets: np.ndarray | None = None,
                      rest_x: np.ndarray | None = None, offsets=OFFSETS) -> dict:
     """The measure's counts: ``inside_<um>um`` (skin vertices whose offset point is inside the closed
-    skin) per offset, and with ``tets`` and ``rest_x`` (all vertices, skin first) ``inverted_tets``."""
+    skin) per offset, ``crossing_edges`` (skin edges through another skin triangle), and with ``tets``
+    and ``rest_x`` (all vertices, skin first) ``inverted_tets``."""
     ns = int(faces.max()) + 1
     out = {f"inside_{int(round(o * 1e6))}um": int(offsets_inside(np.asarray(x)[:ns], faces, o).sum())
            for o in offsets}
+    out["crossing_edges"] = int(crossing_edges(np.asarray(x)[:ns], faces).sum())
     if tets is not None and rest_x is not None:
         out["inverted_tets"] = inverted_tets(x, tets, rest_x)
     return out
