@@ -130,25 +130,34 @@ def test_x_prev_takes_only_the_normal_share():
     assert np.abs(moves[:, 0]).max() > 0.0
 
 
+def _rollout(key: str, device: str, frames: int):
+    """``hand_only``'s keyframe ``key`` rolled out ``frames`` frames as ``physhand rollout`` does, with
+    self-collision and self_friction 0.5; the hand and the last report."""
+    import mujoco
+
+    from physhand_mj.rollout import load_rollout_scene
+
+    model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), key)
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device=device, self_collision=True,
+                    tuning=ph.Tuning(self_friction=0.5))
+    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    res = {}
+    for _ in range(frames):
+        mujoco.mj_step(model, data)
+        res = hand.step()
+    x = hand.state.x.numpy()
+    assert np.all(np.isfinite(x)) and res["self_corrections"] > 0
+    return hand, x
+
+
 @pytest.mark.slow
 def test_pinch_with_friction_stays_clean():
     """hand_only's pinch rolled out 36 frames with self_friction 0.5: finite, no skin vertex's 0.2 mm
     offset inside the closed skin (the independent measure), as without friction, and no more
     inverted tets than without it (23) but two."""
-    import mujoco
-
     from physhand_mj.contact.self_measures import self_penetration
-    from physhand_mj.rollout import load_rollout_scene
 
-    model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), "pinch")
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True,
-                    tuning=ph.Tuning(self_friction=0.5))
-    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
-    for _ in range(36):
-        mujoco.mj_step(model, data)
-        res = hand.step()
-    x = hand.state.x.numpy()
-    assert np.all(np.isfinite(x)) and res["self_corrections"] > 0
+    hand, x = _rollout("pinch", "cpu", 36)
     m = self_penetration(x, np.asarray(hand.asset.skin_faces), np.asarray(hand.asset.tets),
                          hand.solver.model.rest_x.numpy())
     assert m["inside_200um"] == 0 and m["inverted_tets"] <= 25
@@ -159,18 +168,7 @@ def test_power_with_friction_on_cuda():
     """The power grasp with self_friction 0.5 on CUDA (one hand: the five-launch substep and the
     passes as launches) for 12 frames: finite, pairs corrected, at most 100 vertices inside at 0.2 mm
     (the CPU: 28)."""
-    import mujoco
-
     from physhand_mj.contact.self_measures import self_penetration
-    from physhand_mj.rollout import load_rollout_scene
 
-    model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), "power")
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cuda:0", self_collision=True,
-                    tuning=ph.Tuning(self_friction=0.5))
-    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
-    for _ in range(12):
-        mujoco.mj_step(model, data)
-        res = hand.step()
-    x = hand.state.x.numpy()
-    assert np.all(np.isfinite(x)) and res["self_corrections"] > 0
+    hand, x = _rollout("power", "cuda:0", 12)
     assert self_penetration(x, np.asarray(hand.asset.skin_faces))["inside_200um"] <= 100
