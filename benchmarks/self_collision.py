@@ -1,7 +1,8 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
-        [--friction MU] [--slip] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json] [--picture F.png]
+        [--friction MU] [--slip] [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+        [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--device cuda] [--fused auto|on|off] [--self-launches]
 
@@ -12,7 +13,8 @@ lie inside the closed skin, and inverted tets. Frame times are the median of the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
 process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs; ``--friction``: Tuning.self_friction
-for them (Coulomb coefficient); ``--slip``: also the skin's slip at touching pairs over the last 10
+for them (Coulomb coefficient); ``--stretch-only``: Config.skin_compression False in every run (both
+modes: the skin's material, not part of the option); ``--slip``: also the skin's slip at touching pairs over the last 10
 frames (each listed vertex within 1 mm of its nearest listed triangle: its motion less the motion of
 the triangle's point under it, along the triangle; median and 90th percentile, um a frame). ``--fused``: Config.execution.fused_substep
 (auto: None, the default: the fused substep on the CPU, the five-launch substep for one hand on CUDA;
@@ -111,6 +113,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         out.update(slip_pairs=int(len(s)), slip_median_um=round(float(np.median(s)), 1),
                    slip_p90_um=round(float(np.percentile(s, 90)), 1))
     out["self_friction"] = float(cfg.tuning.self_friction) if self_collision else None
+    out["skin_compression"] = bool(cfg.skin_compression)
     out["fused_substep"] = bool(hand.solver.fused_substep)
     out["self_in_kernel"] = bool(getattr(hand.solver, "_self_fused", False))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
@@ -142,9 +145,10 @@ def picture_of(model, data, hand, skin: np.ndarray, width: int = 640, height: in
 
 
 def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, device=None, fused=None,
-               friction=None) -> dict:
+               friction=None, skin_compression: bool = True) -> dict:
     """``--worlds``: one batch of ``worlds`` worlds holding ``keys`` in turn, timed (module docstring);
-    ``fused``: Config.execution.fused_substep (None: the default); ``friction``: Tuning.self_friction."""
+    ``fused``: Config.execution.fused_substep (None: the default); ``friction``: Tuning.self_friction;
+    ``skin_compression``: Config.skin_compression."""
     import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.contact.self_measures import self_penetration
@@ -156,7 +160,7 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
     pick = np.arange(worlds) % len(keys)
     pos, quat = np.stack([p for p, _ in held])[pick], np.stack([q for _, q in held])[pick]
     opts = dict(frame_dt=float(model.opt.timestep), substeps=10, device=device, sleep_speed=0.0,
-                self_collision=self_collision)
+                self_collision=self_collision, skin_compression=skin_compression)
     if fused is not None:
         opts["fused_substep"] = fused
     if friction is not None:
@@ -178,7 +182,7 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
                hand_frames_per_s=round(worlds / ms * 1e3, 1), setup_s=round(setup_s, 2),
                nonfinite=int(res["nonfinite"]), inverted=int(res["inverted"]),
                self_friction=float(cfg.tuning.self_friction) if self_collision else None,
-               fused_substep=bool(hands.solver.fused_substep), self_in_kernel=bool(getattr(hands.solver, "_self_fused", False)))
+               skin_compression=bool(cfg.skin_compression), fused_substep=bool(hands.solver.fused_substep), self_in_kernel=bool(getattr(hands.solver, "_self_fused", False)))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
         if k in res:
             out[k] = res[k]
@@ -201,6 +205,8 @@ def main():
     ap.add_argument("--tet-keep", type=float, default=None)
     ap.add_argument("--friction", type=float, default=None, help="Tuning.self_friction for the 'on' runs (coefficient)")
     ap.add_argument("--slip", action="store_true", help="also the slip at touching pairs (um a frame)")
+    ap.add_argument("--stretch-only", action="store_true", help="Config.skin_compression False in every run "
+                    "(the skin's edges resist stretch only)")
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
     ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
@@ -218,7 +224,7 @@ def main():
         for w in [int(v) for v in a.worlds.split(",")]:
             for mode in a.modes.split(","):
                 r = run_worlds(w, a.keys.split(","), a.frames, mode == "on", a.device, fused=fz,
-                               friction=a.friction if mode == "on" else None)
+                               friction=a.friction if mode == "on" else None, skin_compression=not a.stretch_only)
                 print(json.dumps(r), flush=True)
                 rows.append(r)
         if a.out:
@@ -231,6 +237,8 @@ def main():
                 extra["self_friction"] = a.friction
             if fz is not None:
                 extra["fused_substep"] = fz
+            if a.stretch_only:
+                extra["skin_compression"] = False
             r = run(key, a.frames, mode == "on", a.device, scene=a.scene, extra=extra, picture=bool(a.picture),
                     slip=a.slip and mode == "on")
             pixels = r.pop("pixels", None)

@@ -164,6 +164,11 @@ class Config:
     Physics:
       gravity: (3,) m/s^2 in the solver's world frame; damping: velocity damping rate (1/s).
       edge_compliance_skin / edge_compliance_flesh: Eq. 2 (m/N), skin-skin edges / the others.
+      skin_compression: whether skin-skin edges resist compression as well as stretch (True: Eq. 2
+        both ways, the paper's). False: stretch only; compressed skin shortens in its plane, as skin
+        does by wrinkling finer than the mesh, instead of buckling into millimetre folds that pass
+        through the skin beside them (with self_collision the grasps' remaining self-intersections
+        drop 2-6 x: docs/self_collision.md "Skin that gives in compression").
       volume_compliance: Eq. 3 per unit volume (1/Pa: inverse bulk modulus).
       attach_compliance: Eq. 4-5 (m/N); smooth_compliance: Eq. 6 (1/(N m)).
       nonfinite: :class:`NonFinite`: RECOVER (reset the vertex, report it) or RAISE.
@@ -213,6 +218,7 @@ class Config:
     damping: float = 2.0
     edge_compliance_skin: float = 1.0e-3
     edge_compliance_flesh: float = 1.0e-2
+    skin_compression: bool = True
     volume_compliance: float = 1.0e-6
     attach_compliance: float = 1.0e-3
     smooth_compliance: float = 10.0
@@ -353,6 +359,7 @@ def _check(s) -> None:
                          f"got {b!r}")
     flag("region_sleep")
     flag("self_collision")
+    flag("skin_compression")
     for name in ("self_thickness", "self_margin", "self_rest_gap", "self_depth"):
         pos(name)
     if not (isinstance(s.self_passes, (int, np.integer)) and not isinstance(s.self_passes, bool) and s.self_passes >= 1):

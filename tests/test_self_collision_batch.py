@@ -126,3 +126,14 @@ def test_batched_friction_equals_one_hand(setup):
     x, sp = _serial(setup, cfg, "power", frames, 1)
     np.testing.assert_array_equal(bp[:, 1], sp)
     assert np.abs(batch.positions(1) - x).max() <= 1e-7
+
+
+def test_batched_stretch_only_skin_equals_one_hand(setup):
+    """Config.skin_compression False in batched worlds (each world's skin edges stretch-only, their
+    rest lengths tiled with their sign): world 1 (power) ends as the hand alone."""
+    cfg = Config(device="cpu", self_collision=True, skin_compression=False)
+    batch, frames, bp = _batched(setup, cfg, ("pinch", "power"))
+    x, sp = _serial(setup, cfg, "power", frames, 1)
+    np.testing.assert_array_equal(bp[:, 1], sp)
+    assert np.abs(batch.positions(1) - x).max() <= 1e-7
+    assert not np.array_equal(x, _serial(setup, Config(device="cpu", self_collision=True), "power", frames, 1)[0])

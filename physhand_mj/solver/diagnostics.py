@@ -35,9 +35,10 @@ def residuals(model: Model, state: State, config: Config) -> dict[str, float]:
         if not len(ids):
             continue
         rest = rest.numpy().astype(np.float64)
-        if name == "edge":
-            c = np.linalg.norm(x[ids[:, 0]] - x[ids[:, 1]], axis=1) - rest
-            scale = rest
+        if name == "edge":  # (a negative rest: stretch only, no residual while shorter)
+            c = np.linalg.norm(x[ids[:, 0]] - x[ids[:, 1]], axis=1) - np.abs(rest)
+            c = np.where(rest < 0, np.maximum(c, 0.0), c)
+            scale = np.abs(rest)
         elif name == "tet":
             c = signed_volumes6(x, ids) - rest
             scale = rest

@@ -87,7 +87,10 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
         e = keep(asset.edges)
         ids = asset.edges[e]
         skin = (layer[ids] == Layer.SKIN).all(axis=1)
-        edges = ids, asset.edge_rest_length[e], np.where(skin, cfg.edge_compliance_skin, cfg.edge_compliance_flesh)
+        rest = asset.edge_rest_length[e]
+        if not cfg.skin_compression:  # stretch only: a negative rest length (edge.edge_correction)
+            rest = np.where(skin, -rest, rest)
+        edges = ids, rest, np.where(skin, cfg.edge_compliance_skin, cfg.edge_compliance_flesh)
     att = attachment_pairs(asset, cfg)
     # Eq. 4 is an edge constraint: attachments ride in the edge family, after the tet edges
     fam["edge"] = tuple(np.concatenate([a, b]) for a, b in zip(edges, att))
