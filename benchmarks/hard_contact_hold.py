@@ -38,10 +38,14 @@ PRESS_FRAMES = 15  # press_case's: the object holds still from here on
 
 
 def path_config(device: str, over: dict, path: int, perturb: float):
-    """Config(device, **over) on path ``path``: contact_offset x (1 + path x perturb)."""
+    """Config.from_dict(device, **over) (any Config, Tuning or Execution option, flat) on path ``path``:
+    Tuning.contact_offset x (1 + path x perturb)."""
+    import dataclasses
+
     over = dict(over)
-    offset = over.pop("contact_offset", ph.Config().contact_offset)
-    return ph.Config(device=device, **over, tuning=ph.Tuning(contact_offset=offset * (1.0 + path * perturb)))
+    offset = over.pop("contact_offset", ph.Tuning().contact_offset)
+    cfg = ph.Config.from_dict(dict(device=device, **over))
+    return dataclasses.replace(cfg, tuning=dataclasses.replace(cfg.tuning, contact_offset=offset * (1.0 + path * perturb)))
 
 
 def held_residue(r: dict, frames: int) -> tuple:
@@ -76,7 +80,7 @@ def run_variant(asset, device: str, frames: int, over: dict, progress=None, path
                               skin_um=np.round(skin, 1).tolist(), object_um=np.round(obj, 1).tolist()))
         if progress:
             progress()
-    return dict(config=dict(over, contact_offset=path_config(device, over, 0, perturb).contact_offset), paths=paths, perturb=perturb if paths > 1 else 0.0,
+    return dict(config=dict(over, contact_offset=path_config(device, over, 0, perturb).tuning.contact_offset), paths=paths, perturb=perturb if paths > 1 else 0.0,
                 held_frames=total, held_with_residue=held, runs=paths * len(KINDS) * 4,
                 runs_with_residue=dirty_runs, skin_frames=skin_frames, object_frames=obj_frames,
                 worst_um=round(worst, 2), cases_dirty_at_end=dirty_end, median_ms=round(float(np.median(ms)), 2),
