@@ -26,7 +26,7 @@ CONFIGS = {"(a) edge + tet": dict(attachment=False, smoothness=False),
 
 
 def run(asset, model, data, ids, setting: str, **kw) -> dict:
-    cfg = ph.Config(device="cpu", **kw)
+    cfg = ph.Config.from_dict(dict(device="cpu", **kw))  # (flat: the families are Tuning options)
     solver = ph.Solver(ph.make_model(asset, cfg), cfg)
     q_open, q_power = model.key("open").qpos, model.key("power").qpos
     poses = ph.bone_poses_at(model, data, q_open, ids)
