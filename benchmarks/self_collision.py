@@ -4,7 +4,7 @@
         [--friction MU] [--slip] [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
         [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
-        [--device cuda] [--fused auto|on|off] [--self-launches]
+        [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches]
 
 Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
