@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
-        [--friction MU] [--slip] [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+        [--friction MU] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
         [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches]
@@ -14,7 +14,8 @@ first (which compiles), wall and the calling thread's CPU time (Warp's CPU kerne
 figure other processes on a shared host disturb least); modes run one after the other in the same
 process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs; ``--friction``: Tuning.self_friction
 for them (Coulomb coefficient); ``--stretch-only``: Config.skin_compression False in every run (both
-modes: the skin's material, not part of the option); ``--slip``: also the skin's slip at touching pairs over the last 10
+modes: the skin's material, not part of the option); ``--flesh-stretch-only``: Config.flesh_compression
+False likewise; ``--slip``: also the skin's slip at touching pairs over the last 10
 frames (each listed vertex within 1 mm of its nearest listed triangle: its motion less the motion of
 the triangle's point under it, along the triangle; median and 90th percentile, um a frame). ``--fused``: Config.execution.fused_substep
 (auto: None, the default: the fused substep on the CPU, the five-launch substep for one hand on CUDA;
@@ -114,6 +115,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
                    slip_p90_um=round(float(np.percentile(s, 90)), 1))
     out["self_friction"] = float(cfg.tuning.self_friction) if self_collision else None
     out["skin_compression"] = bool(cfg.skin_compression)
+    out["flesh_compression"] = bool(cfg.flesh_compression)
     out["fused_substep"] = bool(hand.solver.fused_substep)
     out["self_in_kernel"] = bool(getattr(hand.solver, "_self_fused", False))
     for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
@@ -207,6 +209,8 @@ def main():
     ap.add_argument("--slip", action="store_true", help="also the slip at touching pairs (um a frame)")
     ap.add_argument("--stretch-only", action="store_true", help="Config.skin_compression False in every run "
                     "(the skin's edges resist stretch only)")
+    ap.add_argument("--flesh-stretch-only", action="store_true", help="Config.flesh_compression False in every run "
+                    "(the flesh's tet edges resist stretch only)")
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
     ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
@@ -239,6 +243,8 @@ def main():
                 extra["fused_substep"] = fz
             if a.stretch_only:
                 extra["skin_compression"] = False
+            if a.flesh_stretch_only:
+                extra["flesh_compression"] = False
             r = run(key, a.frames, mode == "on", a.device, scene=a.scene, extra=extra, picture=bool(a.picture),
                     slip=a.slip and mode == "on")
             pixels = r.pop("pixels", None)

@@ -169,6 +169,10 @@ class Config:
         does by wrinkling finer than the mesh, instead of buckling into millimetre folds that pass
         through the skin beside them (with self_collision the grasps' remaining self-intersections
         drop 2-6 x: docs/self_collision.md "Skin that gives in compression").
+      flesh_compression: the same for the flesh's (tet) edges (True: Eq. 2 both ways). False: their
+        compression is held by the tets' volumes (Eq. 3) alone, so squeezed flesh bulges more freely
+        (with self_collision and skin_compression False the HOI grasps end without a skin edge
+        through the skin, and fewer tets invert; the flesh attachments, Eq. 4, resist both ways).
       volume_compliance: Eq. 3 per unit volume (1/Pa: inverse bulk modulus).
       attach_compliance: Eq. 4-5 (m/N); smooth_compliance: Eq. 6 (1/(N m)).
       nonfinite: :class:`NonFinite`: RECOVER (reset the vertex, report it) or RAISE.
@@ -219,6 +223,7 @@ class Config:
     edge_compliance_skin: float = 1.0e-3
     edge_compliance_flesh: float = 1.0e-2
     skin_compression: bool = True
+    flesh_compression: bool = True
     volume_compliance: float = 1.0e-6
     attach_compliance: float = 1.0e-3
     smooth_compliance: float = 10.0
@@ -360,6 +365,7 @@ def _check(s) -> None:
     flag("region_sleep")
     flag("self_collision")
     flag("skin_compression")
+    flag("flesh_compression")
     for name in ("self_thickness", "self_margin", "self_rest_gap", "self_depth"):
         pos(name)
     if not (isinstance(s.self_passes, (int, np.integer)) and not isinstance(s.self_passes, bool) and s.self_passes >= 1):

@@ -39,7 +39,7 @@ class Model:
         nearest skeleton vertex (the skin vertex's *anchor*) in the same bone's frame (m): where an
         object holds it, no contact push moves the skin vertex (contact/bones.py).
       edge_ids: (E, 2) int; edge_rest: (E,) float (m; negative: a stretch-only edge of that length,
-        Config.skin_compression False); edge_alpha: (E,) float (m/N). The edge family holds the tet
+        Config.skin_compression / flesh_compression False); edge_alpha: (E,) float (m/N). The edge family holds the tet
         edges (Eq. 2) and the flesh attachments (Eq. 4, an edge constraint); edge_is_att: (E,) numpy
         bool marks the attachments.
       tet_ids: (T, 4) int; tet_rest6v: (T,) float, 6 x rest volume (m^3); tet_alpha: (T,) float.

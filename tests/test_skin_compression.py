@@ -64,6 +64,26 @@ def test_model_marks_only_skin_edges():
         ph.Config(skin_compression=0).validate()
 
 
+def test_model_marks_flesh_edges_and_keeps_attachments():
+    """flesh_compression False makes every other tet edge stretch-only; the flesh attachments (Eq. 4)
+    keep resisting both ways; with skin_compression False too, every tet edge is stretch-only."""
+    from physhand_mj.solver import make_model
+
+    asset = ph.load_asset()
+    on = make_model(asset, ph.Config(device="cpu").validate())
+    flesh = make_model(asset, ph.Config(device="cpu", flesh_compression=False).validate())
+    both = make_model(asset, ph.Config(device="cpu", skin_compression=False, flesh_compression=False).validate())
+    ids, r_on = on.edge_ids.numpy(), on.edge_rest.numpy()
+    att = np.asarray(on.edge_is_att)
+    skin = (np.asarray(asset.layer)[ids] == Layer.SKIN).all(axis=1) & ~att
+    np.testing.assert_array_equal(flesh.edge_rest.numpy()[~skin & ~att], -r_on[~skin & ~att])
+    np.testing.assert_array_equal(flesh.edge_rest.numpy()[skin | att], r_on[skin | att])
+    np.testing.assert_array_equal(both.edge_rest.numpy()[~att], -r_on[~att])
+    assert att.any() and np.all(both.edge_rest.numpy()[att] > 0)
+    with pytest.raises(ValueError, match="flesh_compression"):
+        ph.Config(flesh_compression="no").validate()
+
+
 def test_stretch_only_skin_clears_the_glass_grasp():
     """hoi_glass1's grasp with self-collision, 36 frames (CPU): with the skin's edges stretch-only the
     skin's buckled folds are gone (measured: 2 vertices' 0.2 mm offsets inside the skin and 9 skin edges
@@ -84,5 +104,30 @@ def test_stretch_only_skin_clears_the_glass_grasp():
     assert np.all(np.isfinite(x))
     m = self_penetration(x, np.asarray(hand.asset.skin_faces))
     assert m["inside_200um"] <= 4 and m["crossing_edges"] <= 18, m
+    p = hand.penetration(order=9, check=True)
+    assert p["penetration_count"] == 0 and p["object_in_skin_count"] == 0, p
+
+
+def test_stretch_only_tissue_clears_the_toothpaste_grasp():
+    """hoi_toothpaste's grasp with self-collision and every tet edge stretch-only (skin and flesh), 36
+    frames (CPU): no skin edge through another skin triangle and no vertex's 0.2 mm offset inside
+    (measured 0 / 0; 6 / 36 with the paper's edges, 2 / 6 with stretch-only skin alone), the object
+    out of the skin by both of its measures."""
+    import mujoco
+
+    from physhand_mj.contact.self_measures import self_penetration
+    from physhand_mj.rollout import load_rollout_scene
+
+    model, data, _ = load_rollout_scene(ph.scene_path("hoi_toothpaste"), "grasp")
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True, skin_compression=False,
+                    flesh_compression=False)
+    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    for _ in range(36):
+        mujoco.mj_step(model, data)
+        hand.step()
+    x = hand.state.x.numpy()
+    assert np.all(np.isfinite(x))
+    m = self_penetration(x, np.asarray(hand.asset.skin_faces))
+    assert m["inside_200um"] <= 2 and m["crossing_edges"] <= 3, m
     p = hand.penetration(order=9, check=True)
     assert p["penetration_count"] == 0 and p["object_in_skin_count"] == 0, p

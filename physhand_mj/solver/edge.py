@@ -11,8 +11,8 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 def edge_correction(x1: wp.vec3, x2: wp.vec3, w1: float, w2: float, rest: float, at: float, lam_j: float):
     """Eq. 2's XPBD step for one edge: (moves, dlam, dx1, dx2); ``at`` = alpha / h^2, ``lam_j`` its
     lambda so far. moves = 0 for a degenerate edge or two kinematic vertices (nothing moves). A
-    negative ``rest`` is a stretch-only edge of length -rest (Config.skin_compression False): shorter
-    than that, it does nothing."""
+    negative ``rest`` is a stretch-only edge of length -rest (Config.skin_compression /
+    flesh_compression False): shorter than that, it does nothing."""
     d = x1 - x2
     length = wp.length(d)
     a = w1 + w2 + at

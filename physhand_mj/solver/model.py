@@ -88,8 +88,10 @@ def model_arrays(asset, cfg: Config, batch: bool = False) -> dict:
         ids = asset.edges[e]
         skin = (layer[ids] == Layer.SKIN).all(axis=1)
         rest = asset.edge_rest_length[e]
-        if not cfg.skin_compression:  # stretch only: a negative rest length (edge.edge_correction)
-            rest = np.where(skin, -rest, rest)
+        # stretch only (Config.skin_compression / flesh_compression False): a negative rest length
+        # (edge.edge_correction); the attachments below resist both ways
+        stretch_only = np.where(skin, not cfg.skin_compression, not cfg.flesh_compression)
+        rest = np.where(stretch_only, -rest, rest)
         edges = ids, rest, np.where(skin, cfg.edge_compliance_skin, cfg.edge_compliance_flesh)
     att = attachment_pairs(asset, cfg)
     # Eq. 4 is an edge constraint: attachments ride in the edge family, after the tet edges
