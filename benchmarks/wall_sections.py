@@ -3,7 +3,7 @@ after the frames, through the band where the penetrating samples lie.
 
     python benchmarks/wall_sections.py [--frames 20,14] [--out docs/images/thin_wall_fold_sections.png]
 
-Two cases of tests/test_thin_walls.py's ``wall_case`` (a 1 mm box plate face-first into the palm, CPU,
+Two ``bench.cases.wall_case`` plates (a 1 mm box plate face-first into the palm, CPU,
 default Config): the 24 mm plate pressed 4 mm in from 2 mm outside over 10 frames and held, and the
 30 mm plate 4 mm deep from the start (``test_wide_wall_deep_at_the_palm``). Each row: the skin
 (black) cut by a plane across the plate through the penetrating samples' band, in the plate's frame
@@ -19,18 +19,6 @@ from pathlib import Path
 import numpy as np
 
 sys.path.append(str(Path(__file__).resolve().parents[1]))
-
-
-def plate(half: float, depth: float, start=None):
-    """tests/test_thin_walls.py's wall_case: a 1 mm square plate of half extent ``half`` (m) ``depth`` m
-    into the rest palm, embedded from the start (``start`` None) or pressed in from ``start`` m out
-    over 10 frames."""
-    from physhand_mj.bench.cases import Case
-    from physhand_mj.types import GeomType
-
-    emb = start is None
-    return Case("wall", GeomType.BOX, (half, half, 0.0005), lead=0.0005, site="palm", depth=depth,
-                start=-depth if emb else start, press_frames=1 if emb else 10)
 
 
 def section_lines(points: np.ndarray, faces: np.ndarray, x_cut: float) -> list:
@@ -76,8 +64,10 @@ def main():
     faces = np.asarray(ph.load_asset().skin_faces)
     ns = int(ph.load_asset().n_skin)
     f_press, f_emb = (int(v) for v in a.frames.split(","))
-    runs = [(run(plate(0.012, 0.004, start=0.002), f_press), "24 mm plate pressed 4 mm in from 2 mm out, held"),
-            (run(plate(0.015, 0.004), f_emb), "30 mm plate 4 mm deep from the start")]
+    from physhand_mj.bench.cases import wall_case
+
+    runs = [(run(wall_case(0.012, 0.001, 0.004, start=0.002), f_press), "24 mm plate pressed 4 mm in from 2 mm out, held"),
+            (run(wall_case(0.015, 0.001, 0.004), f_emb), "30 mm plate 4 mm deep from the start")]
     fig, axes = plt.subplots(len(runs), 2, figsize=(13, 5.2 * len(runs)), squeeze=False)
     for row, (r, title) in zip(axes, runs):
         s = r["samples"]

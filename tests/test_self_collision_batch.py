@@ -107,31 +107,18 @@ def test_overlapping_worlds_never_pair_across(setup):
         assert np.abs(batch.positions(w) - x).max() <= 1e-7
 
 
-def test_batched_tet_keep_equals_one_hand(setup):
-    """Tuning.self_tet_keep in batched worlds: the tet guard walks each world's own tets (one world's
-    lists shifted by the world's offsets): world 1 (power) ends as the hand alone."""
-    asset = setup[0]
-    cfg = Config(device="cpu", self_collision=True, tuning=ph.Tuning(self_tet_keep=0.02))
-    batch, frames, bp = _batched(setup, cfg, ("pinch", "power"))
-    x, sp = _serial(setup, cfg, "power", frames, 1)
-    np.testing.assert_array_equal(bp[:, 1], sp)
-    assert np.abs(batch.positions(1) - x).max() <= 1e-7
-
-
-def test_batched_friction_equals_one_hand(setup):
-    """Tuning.self_friction in batched worlds (the fused substep's passes, each world's x_prev): world 1
-    (power) ends as the hand alone, with the same pairs every frame."""
-    cfg = Config(device="cpu", self_collision=True, tuning=ph.Tuning(self_friction=0.5))
-    batch, frames, bp = _batched(setup, cfg, ("pinch", "power"))
-    x, sp = _serial(setup, cfg, "power", frames, 1)
-    np.testing.assert_array_equal(bp[:, 1], sp)
-    assert np.abs(batch.positions(1) - x).max() <= 1e-7
-
-
-def test_batched_stretch_only_skin_equals_one_hand(setup):
-    """Config.skin_compression False in batched worlds (each world's skin edges stretch-only, their
-    rest lengths tiled with their sign): world 1 (power) ends as the hand alone."""
-    cfg = Config(device="cpu", self_collision=True, skin_compression=False)
+@pytest.mark.parametrize("options", [
+    # Tuning.self_tet_keep: the tet guard walks each world's own tets (one world's lists shifted by its offsets)
+    dict(tuning=ph.Tuning(self_tet_keep=0.02)),
+    # Tuning.self_friction: the fused substep's passes read each world's x_prev
+    dict(tuning=ph.Tuning(self_friction=0.5)),
+    # Config.skin_compression False: each world's skin edges stretch-only, their rest lengths tiled with their sign
+    dict(skin_compression=False),
+], ids=["tet_keep", "friction", "stretch_only_skin"])
+def test_batched_options_equal_one_hand(setup, options):
+    """Each self-collision option in batched worlds: world 1 (power) ends as the hand alone, with the
+    same pairs every frame; and the option changes that hand (it is not a no-op)."""
+    cfg = Config(device="cpu", self_collision=True, **options)
     batch, frames, bp = _batched(setup, cfg, ("pinch", "power"))
     x, sp = _serial(setup, cfg, "power", frames, 1)
     np.testing.assert_array_equal(bp[:, 1], sp)

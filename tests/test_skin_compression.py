@@ -84,27 +84,33 @@ def test_model_marks_flesh_edges_and_keeps_attachments():
         ph.Config(flesh_compression="no").validate()
 
 
-def test_stretch_only_skin_clears_the_glass_grasp():
-    """hoi_glass1's grasp with self-collision, 36 frames (CPU): with the skin's edges stretch-only the
-    skin's buckled folds are gone (measured: 2 vertices' 0.2 mm offsets inside the skin and 9 skin edges
-    through another triangle, against 8 and 36 with the paper's two-sided edges), and the object stays
-    out of the skin by both of its measures."""
+def _grasp(scene: str, **options):
+    """``scene``'s grasp keyframe with self-collision and ``options``, 36 frames (CPU): the
+    self-penetration measure (contact/self_measures.py) and the object's two measures (order-9 skin
+    samples and the denser check points)."""
     import mujoco
 
     from physhand_mj.contact.self_measures import self_penetration
     from physhand_mj.rollout import load_rollout_scene
 
-    model, data, _ = load_rollout_scene(ph.scene_path("hoi_glass1"), "grasp")
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True, skin_compression=False)
+    model, data, _ = load_rollout_scene(ph.scene_path(scene), "grasp")
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True, **options)
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
     for _ in range(36):
         mujoco.mj_step(model, data)
         hand.step()
     x = hand.state.x.numpy()
     assert np.all(np.isfinite(x))
-    m = self_penetration(x, np.asarray(hand.asset.skin_faces))
+    return self_penetration(x, np.asarray(hand.asset.skin_faces)), hand.penetration(order=9, check=True)
+
+
+def test_stretch_only_skin_clears_the_glass_grasp():
+    """hoi_glass1's grasp with self-collision, 36 frames (CPU): with the skin's edges stretch-only the
+    skin's buckled folds are gone (measured: 2 vertices' 0.2 mm offsets inside the skin and 9 skin edges
+    through another triangle, against 8 and 36 with the paper's two-sided edges), and the object stays
+    out of the skin by both of its measures."""
+    m, p = _grasp("hoi_glass1", skin_compression=False)
     assert m["inside_200um"] <= 4 and m["crossing_edges"] <= 18, m
-    p = hand.penetration(order=9, check=True)
     assert p["penetration_count"] == 0 and p["object_in_skin_count"] == 0, p
 
 
@@ -113,21 +119,6 @@ def test_stretch_only_tissue_clears_the_toothpaste_grasp():
     frames (CPU): no skin edge through another skin triangle and no vertex's 0.2 mm offset inside
     (measured 0 / 0; 6 / 36 with the paper's edges, 2 / 6 with stretch-only skin alone), the object
     out of the skin by both of its measures."""
-    import mujoco
-
-    from physhand_mj.contact.self_measures import self_penetration
-    from physhand_mj.rollout import load_rollout_scene
-
-    model, data, _ = load_rollout_scene(ph.scene_path("hoi_toothpaste"), "grasp")
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True, skin_compression=False,
-                    flesh_compression=False)
-    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
-    for _ in range(36):
-        mujoco.mj_step(model, data)
-        hand.step()
-    x = hand.state.x.numpy()
-    assert np.all(np.isfinite(x))
-    m = self_penetration(x, np.asarray(hand.asset.skin_faces))
+    m, p = _grasp("hoi_toothpaste", skin_compression=False, flesh_compression=False)
     assert m["inside_200um"] <= 2 and m["crossing_edges"] <= 3, m
-    p = hand.penetration(order=9, check=True)
     assert p["penetration_count"] == 0 and p["object_in_skin_count"] == 0, p

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import physhand_mj as ph
-from physhand_mj.bench.cases import Case, run_case
+from physhand_mj.bench.cases import run_case, wall_case
 from physhand_mj.types import GeomType, Layer
 
 BONE_CLEAR = 3.0e-4  # m: the bones' least clearance from the wall for a placement to count as feasible
@@ -28,15 +28,6 @@ def bone_clearance(asset, x, pos, quat, size) -> float:
     loc = (sk - pos) @ quat_matrix(quat)
     q = np.abs(loc) - np.asarray(size)
     return float((np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)).min())
-
-
-def wall_case(half, thick, depth, site="palm", start=None, tilt=0.0):
-    """A square plate of half extent ``half`` and thickness ``thick`` (m), face-first ``depth`` m into
-    the rest skin at ``site``: embedded from the start (``start`` None) or pressed in from ``start`` m
-    outside over 10 frames."""
-    emb = start is None
-    return Case("wall", GeomType.BOX, (half, half, thick / 2), lead=thick / 2, site=site, depth=depth,
-                start=-depth if emb else start, press_frames=1 if emb else 10, tilt=np.radians(tilt))
 
 
 def run_wall(case, frames):

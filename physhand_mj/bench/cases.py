@@ -141,6 +141,16 @@ def cone_mesh(angle_deg=30.0, height=0.015, sections=24):
     return v, m.faces.copy()
 
 
+def wall_case(half: float, thick: float, depth: float, site: str = "palm", start=None, tilt: float = 0.0) -> Case:
+    """A square plate (a thin box) of half extent ``half`` and thickness ``thick`` (m), face-first
+    ``depth`` m into the rest skin at ``site``: embedded from the start (``start`` None) or pressed in
+    from ``start`` m outside over 10 frames; ``tilt`` (degrees) slants it (tests/test_thin_walls.py,
+    benchmarks/wall_sections.py)."""
+    emb = start is None
+    return Case("wall", GeomType.BOX, (half, half, thick / 2), lead=thick / 2, site=site, depth=depth,
+                start=-depth if emb else start, press_frames=1 if emb else 10, tilt=np.radians(tilt))
+
+
 def press_case(kind: str, site: str = "fingertip", depth: float = 0.003, start: float = 0.002) -> Case:
     """Named cases: ``cone_tip`` (analytic cone, 2 x 17 degree half-angle), ``mesh_cone`` (a
     30-degree cone mesh, 24 sections), ``knife`` (30-degree wedge mesh), ``plate`` (a 1 mm box
