@@ -4,10 +4,12 @@ outward side of another's.
 Found once a frame, resolved every substep (docs/self_collision.md):
 
     frame start   the query slack: per skin vertex its move since the last frame in its bone's
-                  frame, per pair of bones the change of their relative pose applied to the
-                  second's skin (local_motion, body_motion); a vertex whose slack (how much nearer
-                  a kept triangle may come before it is within the margin) they used up is queried
-                  (pick_queries), the others keep an empty list. For the queried (CPU: only when
+                  frame, per pair of bones the change of their relative pose (local_motion,
+                  body_motion), applied per vertex to the other bones' skin that could come within
+                  reach of it (their skin's box grown by its longest edge; the turn at the vertex's
+                  distance from the bone); a vertex whose slack (how much nearer a kept triangle may
+                  come before it is within the margin) they used up is queried (pick_queries), the
+                  others keep an empty list. For the queried (CPU: only when
                   there are any): the skin's normals and triangle boxes, its BVH (grouped by world)
                   refit, per vertex its world's skin triangles within ``self_margin`` + REACH
                   (bvh_query_aabb, then the exact distance), minus the rest filter, those within
@@ -103,11 +105,16 @@ def _slot(b: int, w: int, nb: int) -> int:
 @wp.kernel
 def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
                  ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
-                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float)):
+                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), nbr_off: wp.array(dtype=int),
+                 nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int)):
     """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
-    deformation, not the bones' motion), per bone the largest (``body_move``) and the skin's farthest
-    point from the bone's origin (``body_reach``); per world (``ns`` skin vertices, ``nb`` bones each)
-    the slots :func:`_slot` names (the last: the vertices without a bone, in the world frame)."""
+    deformation, not the bones' motion), per bone the largest (``body_move``), the skin's farthest
+    point from the bone's origin (``body_reach``), its bounding box now (``box``: lower x, y, z, then
+    minus the upper; in whole um, rounded outward: native integer atomics) and the longest skin edge
+    at a vertex of its skin (``bone_edge``, um; ``nbr``: one world's skin neighbours from
+    ``nbr_off[v]``), so that the box grown by it holds every skin triangle with a corner on the bone;
+    per world (``ns`` skin vertices, ``nb`` bones each) the slots :func:`_slot` names (the last: the
+    vertices without a bone, in the world frame)."""
     v = wp.tid()
     b = skin_body[v]
     y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
@@ -117,17 +124,28 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     k = _slot(b, v // ns, nb)
     wp.atomic_max(body_move, k, m)
     wp.atomic_max(body_reach, k, wp.length(y))
+    p = x[v]
+    for c in range(3):
+        wp.atomic_min(box, k, c, int(wp.floor(p[c] * 1.0e6)))
+        wp.atomic_min(box, k, c + 3, -int(wp.ceil(p[c] * 1.0e6)))
+    vo = (v // ns) * ns
+    e = float(0.0)
+    for n in range(nbr_off[v - vo], nbr_off[v - vo + 1]):
+        e = wp.max(e, wp.length(x[nbr[n] + vo] - p))
+    wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
 
 
 @wp.kernel
 def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
-                near_move: wp.array(dtype=float)):
-    """Per world w and pair of its bones (slot ``nb``: the world frame) how far the skin of the
-    second may have moved, seen from the first, since the last frame's start: the change of their
-    relative pose applied to the second's skin (|dt| + 2 sin(angle / 2) x its reach) plus its own
-    deformation; per bone the largest over the second (``near_move``). Bones of different worlds
-    are never paired (each world's skin lists only its own triangles)."""
+                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float)):
+    """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
+    pose since the last frame's start, seen from the first: how far the second's origin moved
+    (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
+    from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
+    ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
+    bones' origins more than ``far`` (>= slack + margin) plus the second's largest such move apart.
+    Bones of different worlds are never paired (each world's skin lists only its own triangles)."""
     w, i, j = wp.tid()
     o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
     bi = w * nb + i
@@ -141,29 +159,61 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     rel_last[o + i, j] = rel
     dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
     half = wp.min(wp.abs(dq[3]), 1.0)
-    sin_half = wp.sqrt(wp.max(1.0 - half * half, 0.0))  # sin(angle / 2)
     dt = wp.length(wp.transform_get_translation(rel) - wp.transform_get_translation(last))
-    # bones whose skins' bounding balls (about the bone's origin) lie ``far`` apart now do not count:
-    # their skins are farther apart than any slack allows (slack + margin <= far)
+    turn = 2.0 * wp.sqrt(wp.max(1.0 - half * half, 0.0))  # 2 sin(angle / 2)
+    pair_turn[o + i, j] = turn
     gap = wp.length(wp.transform_get_translation(rel)) - body_reach[o + i] - body_reach[o + j]
-    if i != j and i != nb and j != nb and gap >= far:
-        return
-    d = body_move[o + j]
-    if i != j:
-        d = d + dt + 2.0 * sin_half * body_reach[o + j]
-    wp.atomic_max(near_move, o + i, d)
+    if i != j and i != nb and j != nb and gap > far + body_move[o + j] + dt + turn * body_reach[o + j]:
+        dt = -1.0
+    pair_dt[o + i, j] = dt
 
 
 @wp.kernel
-def pick_queries(skin_body: wp.array(dtype=int), mu: wp.array(dtype=float), near_move: wp.array(dtype=float),
-                 ns: int, nb: int, slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
+def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
+                 mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
+                 box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
+                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), far: float, ns: int, nb: int,
+                 slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
     """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
-    come before it is within the margin) the moves since used up (the vertex's own in its bone's
-    frame and the largest any skin of its world may have made seen from that bone); the others keep
+    come before it is within the margin) the moves since used up: the vertex's own in its bone's frame
+    (``mu``), its bone's skin's deformation (``body_move``: a fold of its own skin) and, per other bone
+    of its world, how far that bone's skin near the vertex may have moved seen from the vertex's bone
+    (its deformation + the pair's motion, body_motion, applied at a radius). Only triangles that could
+    end within ``far`` (>= slack + margin) of the vertex matter: with G the most any skin of the
+    world moved seen from the vertex's bone, such a triangle lay within far + G of the vertex at the
+    frame's start and its corners within far + G + its longest edge; every bone it has a corner on
+    holds it in its skin's box grown by that bone's longest edge (local_motion). So a bone whose grown
+    box lies farther than far + G counts nothing, and the others count their pair's turn at
+    |vertex - the bone's origin| + far + G + that edge (or the skin's reach, if less). The others keep
     an empty list."""
     v = wp.tid()
-    sl = slack[v] - mu[v] - near_move[_slot(skin_body[v], v // ns, nb)]
+    w = v // ns
+    o = w * (nb + 1)
+    il = _slot(skin_body[v], w, nb) - o  # (the vertex's bone in its world's tables; nb: none)
+    p = x[v]
+    g = body_move[o + il]
+    for j in range(nb + 1):
+        dt = pair_dt[o + il, j]
+        if j != il and dt >= 0.0:
+            g = wp.max(g, body_move[o + j] + dt + pair_turn[o + il, j] * body_reach[o + j])
+    m = body_move[o + il]
+    for j in range(nb + 1):
+        dt = pair_dt[o + il, j]
+        if j == il or dt < 0.0:
+            continue
+        r = body_reach[o + j]
+        if j != nb and il != nb:
+            # (the nearest point of the box of bone j's triangles: its skin's box grown by its longest edge)
+            ej = float(bone_edge[o + j]) * 1.0e-6
+            q = wp.vec3(0.0)
+            for c in range(3):
+                q[c] = wp.clamp(p[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
+            if wp.length(p - q) > far + g:
+                continue
+            r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + g + ej)
+        m = wp.max(m, body_move[o + j] + dt + pair_turn[o + il, j] * r)
+    sl = slack[v] - mu[v] - m
     slack[v] = sl
     if sl <= 0.0:
         qlist[wp.atomic_add(qcount, 0, 1)] = v
@@ -600,7 +650,17 @@ class SelfContact:
         self.mu = wp.zeros(ns, dtype=float, device=d)
         self.body_move = wp.zeros(nbw, dtype=float, device=d)
         self.body_reach = wp.zeros(nbw, dtype=float, device=d)
-        self.near_move = wp.zeros(nbw, dtype=float, device=d)
+        # per bone its skin's box and longest edge at the frame's start (local_motion; pick_queries)
+        self.box = wp.zeros((nbw, 6), dtype=int, device=d)
+        self.bone_edge = wp.zeros(nbw, dtype=int, device=d)
+        e = np.unique(np.sort(np.concatenate([faces1[:, [0, 1]], faces1[:, [1, 2]], faces1[:, [2, 0]]]), axis=1), axis=0)
+        e = np.concatenate([e, e[:, ::-1]])
+        e = e[np.lexsort((e[:, 1], e[:, 0]))]  # (one world's skin edges both ways, by their first vertex)
+        self.nbr_off = wp.array(np.concatenate([[0], np.cumsum(np.bincount(e[:, 0], minlength=self.ns1))]).astype(np.int32),
+                                dtype=int, device=d)
+        self.nbr = wp.array(e[:, 1].astype(np.int32), dtype=int, device=d)
+        self.pair_dt = wp.zeros((nbw, self.nb1 + 1), dtype=float, device=d)  # per bone pair its motion (body_motion)
+        self.pair_turn = wp.zeros((nbw, self.nb1 + 1), dtype=float, device=d)
         self.rel_last = wp.zeros((nbw, self.nb1 + 1), dtype=wp.transform, device=d)
         self.slack = wp.zeros(ns, dtype=float, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
@@ -669,14 +729,16 @@ class SelfContact:
         cuda = wp.get_device(d).is_cuda
         rec.launch(clear_marks, self.n_skin, [self.icount, self.involved], [self.mark], count=self.icount)
         rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.qcount.zero_(), self.body_move.zero_(),
-                                self.body_reach.zero_(), self.near_move.zero_(), self.wcounts.zero_()))
+                                self.body_reach.zero_(), self.wcounts.zero_(), self.box.fill_(2**31 - 1), self.bone_edge.zero_()))
         W, ns1, nb1 = self.worlds, self.ns1, self.nb1
         rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
-                   [self.y_last, self.mu, self.body_move, self.body_reach])
+                   [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge])
         reach = float(cfg.self_margin) + REACH
         rec.launch(body_motion, (W, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
-                   [self.rel_last, self.body_move, self.body_reach, reach, self.near_move])
-        rec.launch(pick_queries, self.n_skin, [self.skin_body, self.mu, self.near_move, ns1, nb1],
+                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn])
+        rec.launch(pick_queries, self.n_skin,
+                   [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
+                    self.bone_edge, self.pair_dt, self.pair_turn, reach, ns1, nb1],
                    [self.slack, self.cand_n, self.qlist, self.qcount])
         q = self.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
 
