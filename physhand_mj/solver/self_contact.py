@@ -144,7 +144,7 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
     from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
     ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
-    bones' origins more than ``far`` (>= slack + margin) plus the second's largest such move apart.
+    bones' origins more than ``far`` (>= slack + margin) plus both skins' largest such moves apart.
     Bones of different worlds are never paired (each world's skin lists only its own triangles)."""
     w, i, j = wp.tid()
     o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
@@ -163,7 +163,9 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     turn = 2.0 * wp.sqrt(wp.max(1.0 - half * half, 0.0))  # 2 sin(angle / 2)
     pair_turn[o + i, j] = turn
     gap = wp.length(wp.transform_get_translation(rel)) - body_reach[o + i] - body_reach[o + j]
-    if i != j and i != nb and j != nb and gap > far + body_move[o + j] + dt + turn * body_reach[o + j]:
+    # (the first's skin moved at most body_move[i] in its frame, the second's at most its deformation +
+    # the pair's motion at its reach: apart by more than that plus far, no point of either comes near)
+    if i != j and i != nb and j != nb and gap > far + body_move[o + i] + body_move[o + j] + dt + turn * body_reach[o + j]:
         dt = -1.0
     pair_dt[o + i, j] = dt
 
