@@ -89,11 +89,13 @@ def _run(key: str, self_collision: bool, frames: int, every_frame=None, **tuning
     return hand, res
 
 
-def test_query_slack_misses_nothing():
+@pytest.mark.parametrize("key", ["pinch", "power"])
+def test_query_slack_misses_nothing(key):
     """The frame query skips the vertices whose slack the moves since have not used up: the pinch
-    grasp with every vertex queried every frame (the slack zeroed) moves bit for bit the same."""
-    gated, res = _run("pinch", True, 12)
-    full, _ = _run("pinch", True, 12, every_frame=lambda h: h.solver.selfc.slack.zero_())
+    and power grasps closing with every vertex queried every frame (the slack zeroed) move bit for
+    bit the same."""
+    gated, res = _run(key, True, 12)
+    full, _ = _run(key, True, 12, every_frame=lambda h: h.solver.selfc.slack.zero_())
     assert res["self_pairs"] > 0
     np.testing.assert_array_equal(gated.state.x.numpy(), full.state.x.numpy())
 
