@@ -46,6 +46,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
+from physhand_mj.contact.self_measures import skin_edges
 
 wp.set_module_options({"enable_backward": False})
 
@@ -138,14 +139,16 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
 @wp.kernel
 def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
-                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float)):
+                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float)):
     """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
     pose since the last frame's start, seen from the first: how far the second's origin moved
     (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
     from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
     ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
     bones' origins more than ``far`` (>= slack + margin) plus both skins' largest such moves apart.
-    Bones of different worlds are never paired (each world's skin lists only its own triangles)."""
+    Per first bone the most any skin of its world moved seen from it (``most_move``: its own skin's
+    deformation, the others' at their reach; pick_queries' G). Bones of different worlds are never
+    paired (each world's skin lists only its own triangles)."""
     w, i, j = wp.tid()
     o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
     bi = w * nb + i
@@ -165,16 +168,22 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     gap = wp.length(wp.transform_get_translation(rel)) - body_reach[o + i] - body_reach[o + j]
     # (the first's skin moved at most body_move[i] in its frame, the second's at most its deformation +
     # the pair's motion at its reach: apart by more than that plus far, no point of either comes near)
-    if i != j and i != nb and j != nb and gap > far + body_move[o + i] + body_move[o + j] + dt + turn * body_reach[o + j]:
+    big = body_move[o + j] + dt + turn * body_reach[o + j]
+    if i != j and i != nb and j != nb and gap > far + body_move[o + i] + big:
         dt = -1.0
     pair_dt[o + i, j] = dt
+    if i == j:
+        wp.atomic_max(most_move, o + i, body_move[o + i])
+    elif dt >= 0.0:
+        wp.atomic_max(most_move, o + i, big)
 
 
 @wp.kernel
 def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
                  mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
                  box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
-                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), far: float, ns: int, nb: int,
+                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float),
+                 far: float, ns: int, nb: int,
                  slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
     """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
@@ -194,11 +203,7 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     o = w * (nb + 1)
     il = _slot(skin_body[v], w, nb) - o  # (the vertex's bone in its world's tables; nb: none)
     p = x[v]
-    g = body_move[o + il]
-    for j in range(nb + 1):
-        dt = pair_dt[o + il, j]
-        if j != il and dt >= 0.0:
-            g = wp.max(g, body_move[o + j] + dt + pair_turn[o + il, j] * body_reach[o + j])
+    g = most_move[o + il]
     m = body_move[o + il]
     for j in range(nb + 1):
         dt = pair_dt[o + il, j]
@@ -655,7 +660,7 @@ class SelfContact:
         # per bone its skin's box and longest edge at the frame's start (local_motion; pick_queries)
         self.box = wp.zeros((nbw, 6), dtype=int, device=d)
         self.bone_edge = wp.zeros(nbw, dtype=int, device=d)
-        e = np.unique(np.sort(np.concatenate([faces1[:, [0, 1]], faces1[:, [1, 2]], faces1[:, [2, 0]]]), axis=1), axis=0)
+        e = skin_edges(faces1)
         e = np.concatenate([e, e[:, ::-1]])
         e = e[np.lexsort((e[:, 1], e[:, 0]))]  # (one world's skin edges both ways, by their first vertex)
         self.nbr_off = wp.array(np.concatenate([[0], np.cumsum(np.bincount(e[:, 0], minlength=self.ns1))]).astype(np.int32),
@@ -663,6 +668,7 @@ class SelfContact:
         self.nbr = wp.array(e[:, 1].astype(np.int32), dtype=int, device=d)
         self.pair_dt = wp.zeros((nbw, self.nb1 + 1), dtype=float, device=d)  # per bone pair its motion (body_motion)
         self.pair_turn = wp.zeros((nbw, self.nb1 + 1), dtype=float, device=d)
+        self.most_move = wp.zeros(nbw, dtype=float, device=d)  # per bone the most any skin moved seen from it
         self.rel_last = wp.zeros((nbw, self.nb1 + 1), dtype=wp.transform, device=d)
         self.slack = wp.zeros(ns, dtype=float, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
@@ -731,16 +737,17 @@ class SelfContact:
         cuda = wp.get_device(d).is_cuda
         rec.launch(clear_marks, self.n_skin, [self.icount, self.involved], [self.mark], count=self.icount)
         rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.qcount.zero_(), self.body_move.zero_(),
-                                self.body_reach.zero_(), self.wcounts.zero_(), self.box.fill_(2**31 - 1), self.bone_edge.zero_()))
+                                self.body_reach.zero_(), self.wcounts.zero_(), self.box.fill_(2**31 - 1), self.bone_edge.zero_(),
+                                self.most_move.zero_()))
         W, ns1, nb1 = self.worlds, self.ns1, self.nb1
         rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
                    [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge])
         reach = float(cfg.self_margin) + REACH
         rec.launch(body_motion, (W, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
-                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn])
+                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn, self.most_move])
         rec.launch(pick_queries, self.n_skin,
                    [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
-                    self.bone_edge, self.pair_dt, self.pair_turn, reach, ns1, nb1],
+                    self.bone_edge, self.pair_dt, self.pair_turn, self.most_move, reach, ns1, nb1],
                    [self.slack, self.cand_n, self.qlist, self.qcount])
         q = self.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
 
