@@ -80,6 +80,11 @@ class Tuning:
       self_friction: Coulomb friction between touching parts of the skin (coefficient, 0 to 2; 0: none):
         a pair's slip along the triangle within a substep is undone up to this times the pair's
         normal correction in each pass.
+      self_proxies: SoftHand also turns on the hand model's self proxies (the collision proxies'
+        copies of MJCF class ``self_proxy``, which collide only with each other): MuJoCo then keeps
+        two parts' bones from coming nearer than where their rest skins would meet, instead of
+        squeezing the flesh between them past what any skin can take (True; a model without them:
+        nothing to turn on).
     """
 
     scheme: Scheme = Scheme.JACOBI
@@ -113,6 +118,7 @@ class Tuning:
     self_passes: int = 4
     self_tet_keep: float = 0.0
     self_friction: float = 0.0
+    self_proxies: bool = True
 
 
 @dataclass
@@ -364,6 +370,7 @@ def _check(s) -> None:
                          f"got {b!r}")
     flag("region_sleep")
     flag("self_collision")
+    flag("self_proxies")
     flag("skin_compression")
     flag("flesh_compression")
     for name in ("self_thickness", "self_margin", "self_rest_gap", "self_depth"):

@@ -25,7 +25,7 @@ from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
 from physhand_mj.contact.bones import BONE_CAP
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
-from physhand_mj.hand_mjcf import SKIN_GEOM, body_ids, skin_geom_id
+from physhand_mj.hand_mjcf import SKIN_GEOM, body_ids, enable_self_proxies, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
 from physhand_mj.rotations import nlerp, quat_to_mat
 from physhand_mj.types import Config, GeomType
@@ -106,6 +106,9 @@ class SoftHand:
         else:
             self.bones = body_ids(model, self.naming.bones)
         self.prefix = prefix
+        # Config.self_collision: MuJoCo keeps the parts' bones a flesh apart (hand_mjcf.enable_self_proxies)
+        self.self_proxies = (enable_self_proxies(model, self.bones) if self.config.self_collision and self.config.self_proxies
+                             else np.zeros(0, dtype=int))
         mujoco.mj_kinematics(model, data)
         self.object_geoms = self._select_objects(object_geoms, object_bodies, object_groups)
         self.objects = Objects(str(self._device()), max(len(self.object_geoms), 1))

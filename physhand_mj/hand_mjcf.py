@@ -12,6 +12,8 @@ HAND_XML = MJCF_DIR / "hand" / "myohand.xml"
 SCENES_DIR = MJCF_DIR / "scenes"
 SKIN_GEOM = "physhand_skin"
 MOUNT_BODY = "hand_mount"
+SELF_PROXY_SUFFIX = "_proxy_self"  # a collision proxy's self copy (MJCF class self_proxy, build/mjcf.py)
+SELF_PROXY_BIT = 1 << 29  # their contype as shipped; their conaffinity too once turned on (no shipped geom uses it)
 
 
 def scene_path(name: str) -> Path:
@@ -112,6 +114,22 @@ def body_ids(model, names) -> np.ndarray:
     if missing:
         raise ValueError(f"the MuJoCo model lacks the hand's bone bodies {missing}: include "
                          f"mjcf/hand/myohand.xml or build an asset for this model (physhand build-hand)")
+    return ids
+
+
+def enable_self_proxies(model, bones) -> np.ndarray:
+    """Turn on the self proxies of the bodies ``bones`` (ids): each collision proxy's copy, of class
+    ``self_proxy``, inert as shipped, then colliding with the other copies only (``SELF_PROXY_BIT``),
+    with a margin of 2.5 mm each, so MuJoCo keeps two parts' bones from coming nearer than where their
+    rest skins would meet over the proxies (docs/self_collision.md, "The bones keep the flesh's room").
+    MuJoCo's own rules still apply: a body and its parent do not collide. Edits ``model`` in place;
+    returns the geom ids turned on (empty: the model has none, e.g. a model built elsewhere)."""
+    bodies = {int(b) for b in np.asarray(bones).reshape(-1)}
+    ids = np.array([g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in bodies
+                    and (model.geom(g).name or "").endswith(SELF_PROXY_SUFFIX)], dtype=int)
+    # (shipped with the bit in contype only; MuJoCo also filters by body: its bodies' OR of their geoms')
+    model.geom_conaffinity[ids] |= SELF_PROXY_BIT
+    model.body_conaffinity[model.geom_bodyid[ids]] |= SELF_PROXY_BIT
     return ids
 
 
