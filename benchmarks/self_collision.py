@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
-        [--friction MU] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+        [--friction MU] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
         [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches]
@@ -15,7 +15,10 @@ figure other processes on a shared host disturb least); modes run one after the 
 process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs; ``--friction``: Tuning.self_friction
 for them (Coulomb coefficient); ``--stretch-only``: Config.skin_compression False in every run (both
 modes: the skin's material, not part of the option); ``--flesh-stretch-only``: Config.flesh_compression
-False likewise; ``--slip``: also the skin's slip at touching pairs over the last 10
+False likewise; ``--no-self-proxies``: Tuning.self_proxies False for them (with the
+option SoftHand turns on the hand model's self proxies, so MuJoCo stops the parts' bones where their
+rest skins meet: reported ``self_proxies``, their contacts in the last step, and the joints' largest
+change from the keyframe, ``pose_change_rad``); ``--slip``: also the skin's slip at touching pairs over the last 10
 frames (each listed vertex within 1 mm of its nearest listed triangle: its motion less the motion of
 the triangle's point under it, along the triangle; median and 90th percentile, um a frame). ``--fused``: Config.execution.fused_substep
 (auto: None, the default: the fused substep on the CPU, the five-launch substep for one hand on CUDA;
@@ -83,6 +86,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         opts["self_collision"] = True
     cfg = ph.Config.from_dict(opts)
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    q0 = data.qpos.copy()
     times, cpu, res = [], [], {}
     ns, last = hand.asset.n_skin, None
     slips, before = [], None
@@ -114,6 +118,12 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         out.update(slip_pairs=int(len(s)), slip_median_um=round(float(np.median(s)), 1),
                    slip_p90_um=round(float(np.percentile(s, 90)), 1))
     out["self_friction"] = float(cfg.tuning.self_friction) if self_collision else None
+    # the self proxies SoftHand turned on (MuJoCo keeping the parts' bones apart), their contacts in the
+    # last step, and how far MuJoCo's joints ended from the keyframe (rad)
+    on = set(hand.self_proxies.tolist())
+    out["self_proxies"] = len(on)
+    out["self_proxy_contacts"] = sum(1 for c in data.contact[:data.ncon] if c.geom1 in on and c.geom2 in on)
+    out["pose_change_rad"] = round(float(np.abs(data.qpos - q0).max()), 4)
     out["skin_compression"] = bool(cfg.skin_compression)
     out["flesh_compression"] = bool(cfg.flesh_compression)
     out["fused_substep"] = bool(hand.solver.fused_substep)
@@ -211,6 +221,8 @@ def main():
                     "(the skin's edges resist stretch only)")
     ap.add_argument("--flesh-stretch-only", action="store_true", help="Config.flesh_compression False in every run "
                     "(the flesh's tet edges resist stretch only)")
+    ap.add_argument("--no-self-proxies", action="store_true", help="Config.tuning.self_proxies False for the 'on' "
+                    "runs (MuJoCo's fingers as without the option)")
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
     ap.add_argument("--self-launches", action="store_true")
     ap.add_argument("--out", default=None)
@@ -239,6 +251,8 @@ def main():
             extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}
             if a.friction is not None and mode == "on":
                 extra["self_friction"] = a.friction
+            if a.no_self_proxies and mode == "on":
+                extra["self_proxies"] = False
             if fz is not None:
                 extra["fused_substep"] = fz
             if a.stretch_only:
