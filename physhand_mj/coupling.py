@@ -106,9 +106,9 @@ class SoftHand:
         else:
             self.bones = body_ids(model, self.naming.bones)
         self.prefix = prefix
-        # Config.self_collision: MuJoCo keeps the parts' bones a flesh apart (hand_mjcf.enable_self_proxies)
-        self.self_proxies = (enable_self_proxies(model, self.bones) if self.config.self_collision and self.config.self_proxies
-                             else np.zeros(0, dtype=int))
+        # Config.self_collision: MuJoCo keeps the parts' bones a flesh apart (hand_mjcf.enable_self_proxies;
+        # turned off again without it, so the model follows the last SoftHand made on it)
+        self.self_proxies = enable_self_proxies(model, self.bones, self.config.self_collision and self.config.self_proxies)
         mujoco.mj_kinematics(model, data)
         self.object_geoms = self._select_objects(object_geoms, object_bodies, object_groups)
         self.objects = Objects(str(self._device()), max(len(self.object_geoms), 1))

@@ -117,20 +117,26 @@ def body_ids(model, names) -> np.ndarray:
     return ids
 
 
-def enable_self_proxies(model, bones) -> np.ndarray:
-    """Turn on the self proxies of the bodies ``bones`` (ids): each collision proxy's copy, of class
-    ``self_proxy``, inert as shipped, then colliding with the other copies only (``SELF_PROXY_BIT``),
-    with a margin of 2.5 mm each, so MuJoCo keeps two parts' bones from coming nearer than where their
-    rest skins would meet over the proxies (docs/self_collision.md, "The bones keep the flesh's room").
-    MuJoCo's own rules still apply: a body and its parent do not collide. Edits ``model`` in place;
-    returns the geom ids turned on (empty: the model has none, e.g. a model built elsewhere)."""
+def enable_self_proxies(model, bones, on: bool = True) -> np.ndarray:
+    """Turn on (``on``) or off the self proxies of the bodies ``bones`` (ids): each collision proxy's
+    copy, of class ``self_proxy``, inert as shipped, then colliding with the other copies only
+    (``SELF_PROXY_BIT``), with a margin of 2.5 mm each, so MuJoCo keeps two parts' bones from coming
+    nearer than where their rest skins would meet over the proxies (docs/self_collision.md, "The
+    bones keep the flesh's room"). MuJoCo's own rules still apply: a body and its parent do not
+    collide. Edits ``model`` in place; returns the geom ids turned on (empty when turning off, or for
+    a model without them, e.g. one built elsewhere)."""
     bodies = {int(b) for b in np.asarray(bones).reshape(-1)}
     ids = np.array([g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in bodies
                     and (model.geom(g).name or "").endswith(SELF_PROXY_SUFFIX)], dtype=int)
     # (shipped with the bit in contype only; MuJoCo also filters by body: its bodies' OR of their geoms')
-    model.geom_conaffinity[ids] |= SELF_PROXY_BIT
-    model.body_conaffinity[model.geom_bodyid[ids]] |= SELF_PROXY_BIT
-    return ids
+    owners = model.geom_bodyid[ids]
+    if on:
+        model.geom_conaffinity[ids] |= SELF_PROXY_BIT
+        model.body_conaffinity[owners] |= SELF_PROXY_BIT
+        return ids
+    model.geom_conaffinity[ids] &= ~SELF_PROXY_BIT
+    model.body_conaffinity[owners] &= ~SELF_PROXY_BIT
+    return np.zeros(0, dtype=int)
 
 
 def body_poses(data, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

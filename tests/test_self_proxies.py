@@ -101,6 +101,24 @@ def test_soft_hand_turns_them_on_with_self_collision(self_collision, self_proxie
     assert len(lit) == expect
 
 
+def test_a_soft_hand_without_the_option_turns_them_off():
+    """The model follows the last SoftHand made on it: one without self-collision turns the copies
+    off again, geoms and bodies (MuJoCo's body filter) alike, and the power keyframe then has no
+    self-proxy contact."""
+    model, data = _scene("power")
+    ph.SoftHand(model, data, ph.Config(frame_dt=0.005, self_collision=True), settle_frames=0)
+    mujoco.mj_forward(model, data)
+    selfs = set(_self_geoms(model))
+    assert any(c.geom1 in selfs and c.geom2 in selfs for c in data.contact[:data.ncon])
+    body_bits = model.body_conaffinity.copy()
+    hand = ph.SoftHand(model, data, ph.Config(frame_dt=0.005), settle_frames=0)
+    assert len(hand.self_proxies) == 0
+    assert not any(model.geom_conaffinity[g] & SELF_PROXY_BIT for g in selfs)
+    assert not np.any(model.body_conaffinity & SELF_PROXY_BIT) and np.any(body_bits & SELF_PROXY_BIT)
+    mujoco.mj_forward(model, data)
+    assert not any(c.geom1 in selfs or c.geom2 in selfs for c in data.contact[:data.ncon])
+
+
 def test_tuning_checks_the_flag():
     with pytest.raises(ValueError, match="self_proxies"):
         ph.Config(tuning=ph.Tuning(self_proxies="yes")).validate()
