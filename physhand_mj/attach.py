@@ -69,7 +69,8 @@ class Naming:
 class SkinAttachment:
     """What :func:`add_skin` added: the skin ``geom`` / ``mesh`` names, the ``naming`` to give
     ``SoftHand(naming=...)``, and the measured frame offset: ``offset_mm`` / ``offset_deg`` (worst
-    bone, after the joint fit if ``fitted``), ``worst_bone``."""
+    bone, after the joint fit if ``fitted``), ``worst_bone``; ``self_proxies``: the self proxies'
+    geom names it added (empty where the model had them or they were not asked for)."""
 
     geom: str
     mesh: str
@@ -78,6 +79,7 @@ class SkinAttachment:
     offset_deg: float
     worst_bone: str
     fitted: bool
+    self_proxies: tuple = ()
 
 
 def _scheme_names(scheme: str, asset_names) -> list[str]:
@@ -232,8 +234,33 @@ def check_rest_frames(model, naming: Naming, asset) -> dict:
     return off
 
 
+def _add_self_proxies(spec, nm: Naming, asset) -> tuple:
+    """Copy ``mjcf/hand/myohand.xml``'s self proxies (class ``self_proxy``: inert until SoftHand turns
+    them on with Config.self_collision, hand_mjcf.enable_self_proxies) onto ``spec``'s bones as
+    ``nm`` names them, in the same body frames (the frame check holds the bones to the asset's);
+    none where a bone of the hand already carries one. Returns the names added."""
+    import mujoco
+
+    from physhand_mj.hand_mjcf import HAND_XML, SELF_PROXY_SUFFIX
+
+    model_name = dict(zip((str(b) for b in asset.body_names), nm.bones))
+    if any(g.name.endswith(SELF_PROXY_SUFFIX) and g.parent.name in set(nm.bones) for g in spec.geoms):
+        return ()
+    added, hand = [], mujoco.MjSpec.from_file(str(HAND_XML))  # (kept alive: its geoms point into it)
+    for g in hand.geoms:
+        if not g.name.endswith(SELF_PROXY_SUFFIX) or g.parent.name not in model_name:
+            continue
+        c = spec.body(model_name[g.parent.name]).add_geom()
+        c.name = nm.prefix + g.name
+        for field in ("type", "size", "fromto", "pos", "quat", "contype", "conaffinity", "group", "density", "margin",
+                      "friction", "rgba"):
+            setattr(c, field, getattr(g, field))
+        added.append(c.name)
+    return tuple(added)
+
+
 def add_skin(spec, naming="auto", asset=None, *, prefix: str = "", check_frames: bool = True,
-             rgba=(0.87, 0.68, 0.58, 1.0), group: int = 2) -> SkinAttachment:
+             rgba=(0.87, 0.68, 0.58, 1.0), group: int = 2, self_proxies: bool = True) -> SkinAttachment:
     """Add the asset's skin mesh and its mesh geom to ``spec`` (a ``mujoco.MjSpec`` whose model has
     the hand's bones); returns a :class:`SkinAttachment`.
 
@@ -243,6 +270,9 @@ def add_skin(spec, naming="auto", asset=None, *, prefix: str = "", check_frames:
     ``SoftHand(model, data, naming=result.naming)`` drives it after ``spec.compile()``. The spec is
     compiled once here to check the bones (``check_frames``: :func:`check_rest_frames`). Note that
     ids of geoms on bodies after the world body shift by one (compile afresh, look names up).
+    ``self_proxies``: also copy the hand MJCF's self proxies onto the bones (inert until a SoftHand
+    with ``Config.self_collision`` turns them on: docs/self_collision.md, "The bones keep the
+    flesh's room"), unless the hand's bones carry them already; their names in the result.
 
     Raises ValueError: bones missing or ambiguous (listed), bone frames off the asset's rest frames
     (worst bone and offset in mm / degrees), the skin already added (geom or mesh of that name)."""
@@ -269,8 +299,9 @@ def add_skin(spec, naming="auto", asset=None, *, prefix: str = "", check_frames:
                   inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)
     spec.worldbody.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, contype=0, conaffinity=0,
                             group=group, density=0, rgba=list(rgba))
+    added = _add_self_proxies(spec, nm, asset) if self_proxies else ()
     return SkinAttachment(geom=name, mesh=name, naming=nm, offset_mm=off["mm"], offset_deg=off["deg"],
-                          worst_bone=nm.bones[off["bone_mm"]], fitted=off["fitted"])
+                          worst_bone=nm.bones[off["bone_mm"]], fitted=off["fitted"], self_proxies=added)
 
 
 def draw_skin(scene, vertices: np.ndarray, faces: np.ndarray, rgba=(0.87, 0.68, 0.58, 1.0)) -> int:

@@ -162,3 +162,35 @@ def test_compiled_model_path_leaves_the_model_alone(asset):
     assert np.allclose(corner, hand.skin_vertices[f[1]], atol=1e-6)
     with pytest.raises(ValueError, match="max_geom >="):
         draw_skin(mujoco.MjvScene(model, maxgeom=10), hand.skin_vertices, asset.skin_faces)
+
+
+def test_self_proxies_are_copied_onto_a_model_without_them(asset):
+    """A hand built elsewhere (here the hand MJCF without its self proxies, with MyoSuite's older bone
+    names): add_skin copies the self proxies onto its bones, where the hand MJCF has its own (the same
+    world poses and shapes at the same joint angles), inert; SoftHand with self-collision turns them
+    on. A model that has them gets no second set."""
+    from physhand_mj.hand_mjcf import SELF_PROXY_BIT, SELF_PROXY_SUFFIX
+
+    bare = hand_part("myosuite_old")
+    for g in [g for g in bare.geoms if g.name.endswith(SELF_PROXY_SUFFIX)]:
+        bare.delete(g)
+    spec = scene((bare, "h_"))
+    att = ph.add_skin(spec, "myosuite_old", asset, prefix="h_")
+    assert len(att.self_proxies) == 16 and all(n.startswith("h_") for n in att.self_proxies)
+    ref_spec = scene((hand_part("myosuite_old"), "h_"))
+    assert ph.add_skin(ref_spec, "myosuite_old", asset, prefix="h_").self_proxies == ()
+    model, ref = spec.compile(), ref_spec.compile()
+    data, ref_data = mujoco.MjData(model), mujoco.MjData(ref)
+    key = np.random.default_rng(0).uniform(0.0, 0.5, model.nq)  # the same joint angles in both
+    data.qpos[:], ref_data.qpos[:] = key, key
+    mujoco.mj_forward(model, data)
+    mujoco.mj_forward(ref, ref_data)
+    for name in att.self_proxies:
+        g, r = model.geom(name), ref.geom(name)
+        np.testing.assert_allclose(data.geom_xpos[g.id], ref_data.geom_xpos[r.id], atol=1e-9)
+        np.testing.assert_allclose(data.geom_xmat[g.id], ref_data.geom_xmat[r.id], atol=1e-9)
+        np.testing.assert_array_equal(g.size, r.size)
+        assert g.type == r.type and g.margin == r.margin
+        assert g.contype == SELF_PROXY_BIT and g.conaffinity == 0
+    hand = ph.SoftHand(model, data, ph.Config(device="cpu", self_collision=True), naming=att.naming, settle_frames=0)
+    assert sorted(model.geom(int(g)).name for g in hand.self_proxies) == sorted(att.self_proxies)
