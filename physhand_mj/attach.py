@@ -244,7 +244,8 @@ def _add_self_proxies(spec, nm: Naming, asset) -> tuple:
     from physhand_mj.hand_mjcf import HAND_XML, SELF_PROXY_SUFFIX
 
     model_name = dict(zip((str(b) for b in asset.body_names), nm.bones))
-    if any(g.name.endswith(SELF_PROXY_SUFFIX) and g.parent.name in set(nm.bones) for g in spec.geoms):
+    bones = set(nm.bones)
+    if any(g.name.endswith(SELF_PROXY_SUFFIX) and g.parent.name in bones for g in spec.geoms):
         return ()
     added, hand = [], mujoco.MjSpec.from_file(str(HAND_XML))  # (kept alive: its geoms point into it)
     for g in hand.geoms:
