@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from physhand_mj.rollout import (FORCE_COLUMNS, LOG_COLUMNS, bone_clearances, carry_object_side, check_counts, check_measure_every, failed_row,
-                                 frame_rows, load_rollout_scene, measured, rollout_config, run_names, start_row,
-                                 summary_row, write_summary)
+                                 frame_rows, load_rollout_scene, measured, rollout_config, run_names, self_summary,
+                                 start_row, summary_row, write_summary)
 
 
 def scene_key(scene) -> tuple | None:
@@ -273,9 +273,12 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     from physhand_mj.solver import SolverError
 
     W = len(runs)
+    from physhand_mj.hand_mjcf import enable_self_proxies
+
     cfg = rollout_config(runs[0].model, substeps, contact, device, config)  # (validated)
-    poses = []
-    for r in runs:
+    poses, lit = [], []
+    for r in runs:  # (Config.self_collision: each world's MuJoCo keeps its bones apart, as SoftHand's does)
+        lit.append(len(enable_self_proxies(r.model, r.bones, cfg.self_collision and cfg.self_proxies)))
         mujoco.mj_kinematics(r.model, r.data)
         poses.append(r.bone_poses())
     place = [rest_placement(asset, p[0][0], p[1][0]) for p in poses]
@@ -455,6 +458,8 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
                                     object_frame=obj_frame[w], bones=(bones0[w], bones1[w]))
         if cfg.two_way:  # (as the serial two-way rollout's row)
             rows[r.index].update(two_way=True, forces=str(r.out / "forces.csv"))
+        if cfg.self_collision:  # (as the serial self-collision rollout's row)
+            rows[r.index].update(self_summary(hands.positions(w), asset), self_proxies=lit[w])
     hands.close()  # the batch's device memory back before the next batch allocates
     return interrupted
 

@@ -272,8 +272,13 @@ def _rollout(args):
 
     kw = dict(steps=args.steps, substeps=args.substeps, contact=args.contact, device=args.device,
               measure_every=args.measure_every)
+    config = {}
     if args.two_way:  # Config.two_way (the rollout's frame is the scene's time step, as it needs)
-        kw["config"] = {"two_way": True}
+        config["two_way"] = True
+    if args.self_collision:  # Config.self_collision (and the hand model's self proxies, through SoftHand)
+        config["self_collision"] = True
+    if config:
+        kw["config"] = config
     src = _scene_arg(args.scene)
     if not src.exists():
         raise FileNotFoundError(f"scene file not found: {src}{_bundled_hint()}")
@@ -363,6 +368,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="run the list W worlds at a time in one solver step (count of worlds per batch); runs whose "
                         "scenes hold the same objects share a batch; with --ray: one Ray task per batch "
                         "(docs/scale.md)")
+    p.add_argument("--self-collision", action="store_true",
+                   help="skin self-collision (Config.self_collision, experimental): fingers, thumb and palm kept "
+                        "out of each other's skin, MuJoCo keeping the parts' bones a flesh apart; the JSON line "
+                        "then adds the skin's self-penetration by the independent measure (docs/self_collision.md)")
     p.add_argument("--two-way", action="store_true",
                    help="two-way coupling (Config.two_way, experimental): the skin's contact pushes and holds the "
                         "objects, with friction; DIR/forces.csv logs each object's force, torque and friction "

@@ -165,7 +165,23 @@ def rollout(scene, keyframe: str | None = None, *, steps: int = 36, substeps: in
                       bones=(bones0, bone_clearances(hand.solver.contact, hand.state)[0]))
     if forces_path is not None:  # (two-way runs only: the default summary keeps its keys)
         row.update(two_way=True, forces=str(forces_path))
+    if cfg.self_collision:  # (self-collision runs only, as two_way's keys)
+        row.update(self_summary(hand.state.x.numpy(), hand.asset), self_proxies=int(len(hand.self_proxies)))
     return row
+
+
+def self_summary(x, asset) -> dict:
+    """Config.self_collision: the summary's skin-on-skin figures from the final positions ``x`` (all
+    vertices, skin first), by the independent measure (contact/self_measures.py, code the self-contact
+    stage does not share): ``self_inside_200um`` / ``self_inside_1000um`` (skin vertices whose 0.2 / 1
+    mm outward offset lies inside the closed skin), ``self_crossing_edges`` (skin edges through another
+    skin triangle) and ``inverted_tets``."""
+    from physhand_mj.contact.self_measures import self_penetration
+
+    m = self_penetration(np.asarray(x, float), np.asarray(asset.skin_faces), np.asarray(asset.tets),
+                         np.asarray(asset.positions, float))
+    return dict(self_collision=True, self_inside_200um=m["inside_200um"], self_inside_1000um=m["inside_1000um"],
+                self_crossing_edges=m["crossing_edges"], inverted_tets=m["inverted_tets"])
 
 
 def force_rows(step: int, data, hand) -> list:

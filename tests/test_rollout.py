@@ -227,3 +227,26 @@ def test_a_ctrl_c_inside_a_frames_commit_waits_for_its_end():
         assert done == ["rows", "count"]
     finally:
         signal.signal(signal.SIGINT, old)
+
+
+def test_self_collision_rollout_reports_the_skin_on_itself(tmp_path, capsys):
+    """`physhand rollout --self-collision` (Config.self_collision, the hand model's self proxies on):
+    the JSON line adds the skin's self-penetration by the independent measure. The pinch keyframe, 36
+    frames (CPU): without the option the thumb passes into the index (55 skin vertices' 0.2 mm offsets
+    inside, 115 skin edges through the skin: measured) and the line has no such keys; with it 0 / 0,
+    and a batch of two worlds (`--batch 2`, each its own MuJoCo) reports what the serial run does."""
+    def line(*args):
+        rc, out, err = _main(capsys, *args, "--keyframe", "pinch", "--device", "cpu")
+        assert rc == 0, err
+        return [json.loads(x) for x in out.strip().splitlines()]
+
+    off = line("hand_only", "--out", tmp_path / "off")[-1]
+    assert "self_inside_200um" not in off and "self_collision" not in off
+    on = line("hand_only", "--self-collision", "--out", tmp_path / "on")[-1]
+    assert on["self_collision"] is True and on["self_proxies"] == 16, on
+    assert on["self_inside_200um"] == 0 and on["self_crossing_edges"] == 0 and on["inverted_tets"] >= 0, on
+    runs = tmp_path / "runs.txt"
+    runs.write_text(f"{ph.scene_path('hand_only')} pinch\n{ph.scene_path('hand_only')} pinch\n")
+    batch = line(runs, "--batch", 2, "--self-collision", "--out", tmp_path / "batch")
+    keys = ("self_inside_200um", "self_inside_1000um", "self_crossing_edges", "inverted_tets", "self_proxies")
+    assert len(batch) == 2 and all({k: b[k] for k in keys} == {k: on[k] for k in keys} for b in batch), (batch, on)
