@@ -95,7 +95,7 @@ def test_query_slack_misses_nothing(key):
     and power grasps closing with every vertex queried every frame (the slack zeroed) move bit for
     bit the same."""
     gated, res = _run(key, True, 12)
-    full, _ = _run(key, True, 12, every_frame=lambda h: h.solver.selfc.slack.zero_())
+    full, _ = _run(key, True, 12, every_frame=lambda h: h.solver.selfc.query.slack.zero_())
     assert res["self_pairs"] > 0
     np.testing.assert_array_equal(gated.state.x.numpy(), full.state.x.numpy())
 
@@ -209,7 +209,7 @@ def _bending_index(frames: int, every_frame=None):
         pos, quat = bone_poses_at(model, data, q, ids)
         res = hands.step(pos[None], quat[None])
         if f >= 10:
-            queried.append(hands.solver.selfc.qlist.numpy()[: res["self_queried"]].copy())
+            queried.append(hands.solver.selfc.query.qlist.numpy()[: res["self_queried"]].copy())
         if every_frame is not None:
             every_frame(hands)
     return hands, queried
@@ -223,7 +223,7 @@ def test_query_slack_counts_only_skin_near_the_vertex():
     a bound per bone over its whole skin queried them in 61 %), and the hand moves bit for bit as
     with every vertex queried every frame."""
     gated, queried = _bending_index(24)
-    full, _ = _bending_index(24, every_frame=lambda h: h.solver.selfc.slack.zero_())
+    full, _ = _bending_index(24, every_frame=lambda h: h.solver.selfc.query.slack.zero_())
     np.testing.assert_array_equal(gated.state.x.numpy(), full.state.x.numpy())
     names = list(gated.asset.body_names)
     sb = gated.solver.model.skin_body.numpy()

@@ -3,13 +3,12 @@ outward side of another's.
 
 Found once a frame, resolved every substep (docs/self_collision.md):
 
-    frame start   the query slack: per skin vertex its move since the last frame in its bone's
-                  frame, per pair of bones the change of their relative pose (local_motion,
-                  body_motion), applied per vertex to the other bones' skin that could come within
-                  reach of it (their skin's box grown by its longest edge; the turn at the vertex's
-                  distance from the bone); a vertex whose slack (how much nearer a kept triangle may
-                  come before it is within the margin) they used up is queried (pick_queries), the
-                  others keep an empty list. For the queried (CPU: only when
+    frame start   the query slack (solver/self_slack.py): per skin vertex its move since the last
+                  frame in its bone's frame, per pair of bones the change of their relative pose,
+                  applied per vertex to the other bones' skin that could come within reach of it;
+                  a vertex whose slack (how much nearer a kept triangle may come before it is
+                  within the margin) they used up is queried, the others keep an empty list. For
+                  the queried (CPU: only when
                   there are any): the skin's normals and triangle boxes, its BVH (grouped by world)
                   refit, per vertex its world's skin triangles within ``self_margin`` + REACH
                   (bvh_query_aabb, then the exact distance), minus the rest filter, those within
@@ -46,7 +45,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.contact.self_measures import skin_edges
+from physhand_mj.solver.self_slack import REACH, QuerySlack
 
 wp.set_module_options({"enable_backward": False})
 
@@ -57,11 +56,6 @@ wp.set_module_options({"enable_backward": False})
 # there: nothing folded, the open hand lists nothing).
 FOLD_COS = wp.constant(0.0)
 FOLD_SOON = wp.constant(0.5)  # (a fold this close counts for the query slack below)
-# The frame query's reach beyond self_margin: a vertex whose nearest kept triangle lay beyond the
-# margin by s (its slack, at most REACH) is queried again only once the moves since could have used
-# it up: its own in its bone's frame plus the largest any skin near that bone may have made seen from
-# that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Cost").
-REACH = 5.0e-4
 FOLD_GAP = 1.0e-3  # m: ~ a third of a skin edge; closer at rest is the vertex's own one-ring
 
 SLOTS = 16  # listed triangles per skin vertex at most (the nearest kept: 3 mm around a vertex holds ~6-12)
@@ -85,147 +79,6 @@ def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), cou
         involved[s] = i
         if seg != 0:
             winvolved[vo + wp.atomic_add(wcounts, w, 4, 1)] = i
-
-
-@wp.func
-def _pose(body_pose: wp.array2d(dtype=wp.transform), b: int) -> wp.transform:
-    if b < 0:
-        return wp.transform_identity()
-    return body_pose[0, b]
-
-
-@wp.func
-def _slot(b: int, w: int, nb: int) -> int:
-    """Bone ``b`` (a model bone index, -1: none) of world ``w`` in the per-world bone tables: world w's
-    ``nb`` bones, then its slot for the skin without a bone (the world frame)."""
-    if b < 0:
-        return w * (nb + 1) + nb
-    return b + w  # (b = w nb + its bone in the world: w (nb + 1) + that)
-
-
-@wp.kernel
-def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
-                 ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
-                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), nbr_off: wp.array(dtype=int),
-                 nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int)):
-    """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
-    deformation, not the bones' motion), per bone the largest (``body_move``), the skin's farthest
-    point from the bone's origin (``body_reach``), its bounding box now (``box``: lower x, y, z, then
-    minus the upper; in whole um, rounded outward: native integer atomics) and the longest skin edge
-    at a vertex of its skin (``bone_edge``, um; ``nbr``: one world's skin neighbours from
-    ``nbr_off[v]``), so that the box grown by it holds every skin triangle with a corner on the bone;
-    per world (``ns`` skin vertices, ``nb`` bones each) the slots :func:`_slot` names (the last: the
-    vertices without a bone, in the world frame)."""
-    v = wp.tid()
-    b = skin_body[v]
-    y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
-    m = wp.length(y - y_last[v])
-    y_last[v] = y
-    mu[v] = m
-    k = _slot(b, v // ns, nb)
-    wp.atomic_max(body_move, k, m)
-    wp.atomic_max(body_reach, k, wp.length(y))
-    p = x[v]
-    for c in range(3):
-        wp.atomic_min(box, k, c, int(wp.floor(p[c] * 1.0e6)))
-        wp.atomic_min(box, k, c + 3, -int(wp.ceil(p[c] * 1.0e6)))
-    vo = (v // ns) * ns
-    e = float(0.0)
-    for n in range(nbr_off[v - vo], nbr_off[v - vo + 1]):
-        e = wp.max(e, wp.length(x[nbr[n] + vo] - p))
-    wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
-
-
-@wp.kernel
-def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
-                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
-                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float)):
-    """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
-    pose since the last frame's start, seen from the first: how far the second's origin moved
-    (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
-    from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
-    ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
-    bones' origins more than ``far`` (>= slack + margin) plus both skins' largest such moves apart.
-    Per first bone the most any skin of its world moved seen from it (``most_move``: its own skin's
-    deformation, the others' at their reach; pick_queries' G). Bones of different worlds are never
-    paired (each world's skin lists only its own triangles)."""
-    w, i, j = wp.tid()
-    o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
-    bi = w * nb + i
-    bj = w * nb + j
-    if i == nb:
-        bi = -1
-    if j == nb:
-        bj = -1
-    rel = wp.transform_multiply(wp.transform_inverse(_pose(body_pose, bi)), _pose(body_pose, bj))
-    last = rel_last[o + i, j]
-    rel_last[o + i, j] = rel
-    dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
-    half = wp.min(wp.abs(dq[3]), 1.0)
-    dt = wp.length(wp.transform_get_translation(rel) - wp.transform_get_translation(last))
-    turn = 2.0 * wp.sqrt(wp.max(1.0 - half * half, 0.0))  # 2 sin(angle / 2)
-    pair_turn[o + i, j] = turn
-    gap = wp.length(wp.transform_get_translation(rel)) - body_reach[o + i] - body_reach[o + j]
-    # (the first's skin moved at most body_move[i] in its frame, the second's at most its deformation +
-    # the pair's motion at its reach: apart by more than that plus far, no point of either comes near)
-    big = body_move[o + j] + dt + turn * body_reach[o + j]
-    if i != j and i != nb and j != nb and gap > far + body_move[o + i] + big:
-        dt = -1.0
-    pair_dt[o + i, j] = dt
-    if i == j:
-        wp.atomic_max(most_move, o + i, body_move[o + i])
-    elif dt >= 0.0:
-        wp.atomic_max(most_move, o + i, big)
-
-
-@wp.kernel
-def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
-                 mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
-                 box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
-                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float),
-                 far: float, ns: int, nb: int,
-                 slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
-                 qcount: wp.array(dtype=int)):
-    """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
-    come before it is within the margin) the moves since used up: the vertex's own in its bone's frame
-    (``mu``), its bone's skin's deformation (``body_move``: a fold of its own skin) and, per other bone
-    of its world, how far that bone's skin near the vertex may have moved seen from the vertex's bone
-    (its deformation + the pair's motion, body_motion, applied at a radius). Only triangles that could
-    end within ``far`` (>= slack + margin) of the vertex matter: with G the most any skin of the
-    world moved seen from the vertex's bone, such a triangle lay within far + G of the vertex at the
-    frame's start and its corners within far + G + its longest edge; every bone it has a corner on
-    holds it in its skin's box grown by that bone's longest edge (local_motion). So a bone whose grown
-    box lies farther than far + G counts nothing, and the others count their pair's turn at
-    |vertex - the bone's origin| + far + G + that edge (or the skin's reach, if less). The others keep
-    an empty list."""
-    v = wp.tid()
-    w = v // ns
-    o = w * (nb + 1)
-    il = _slot(skin_body[v], w, nb) - o  # (the vertex's bone in its world's tables; nb: none)
-    p = x[v]
-    g = most_move[o + il]
-    m = body_move[o + il]
-    for j in range(nb + 1):
-        dt = pair_dt[o + il, j]
-        if j == il or dt < 0.0:
-            continue
-        r = body_reach[o + j]
-        if j != nb and il != nb:
-            # (the nearest point of the box of bone j's triangles: its skin's box grown by its longest edge)
-            ej = float(bone_edge[o + j]) * 1.0e-6
-            q = wp.vec3(0.0)
-            for c in range(3):
-                q[c] = wp.clamp(p[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
-            if wp.length(p - q) > far + g:
-                continue
-            r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + g + ej)
-        m = wp.max(m, body_move[o + j] + dt + pair_turn[o + il, j] * r)
-    sl = slack[v] - mu[v] - m
-    slack[v] = sl
-    if sl <= 0.0:
-        qlist[wp.atomic_add(qcount, 0, 1)] = v
-    else:
-        cand_n[v] = 0
 
 
 @wp.func
@@ -649,30 +502,8 @@ class SelfContact:
         self.groups = wp.array(np.repeat(np.arange(W, dtype=np.int32), self.nf1), dtype=wp.int32, device=d)
         self.bvh = None  # (built at the first frame recorded, from its state's skin)
         self.roots = wp.zeros(W, dtype=int, device=d)  # per world its subtree's root in the BVH
-        # the query slack: the skin at the last frame's start, its largest move since, per vertex the slack;
-        # per world nb1 + 1 bone slots (slot nb1: the world frame, for skin without a bone)
-        nbw = W * (self.nb1 + 1)
-        self.skin_body = model.skin_body
-        self.y_last = wp.zeros(ns, dtype=wp.vec3, device=d)
-        self.mu = wp.zeros(ns, dtype=float, device=d)
-        self.body_move = wp.zeros(nbw, dtype=float, device=d)
-        self.body_reach = wp.zeros(nbw, dtype=float, device=d)
-        # per bone its skin's box and longest edge at the frame's start (local_motion; pick_queries)
-        self.box = wp.zeros((nbw, 6), dtype=int, device=d)
-        self.bone_edge = wp.zeros(nbw, dtype=int, device=d)
-        e = skin_edges(faces1)
-        e = np.concatenate([e, e[:, ::-1]])
-        e = e[np.lexsort((e[:, 1], e[:, 0]))]  # (one world's skin edges both ways, by their first vertex)
-        self.nbr_off = wp.array(np.concatenate([[0], np.cumsum(np.bincount(e[:, 0], minlength=self.ns1))]).astype(np.int32),
-                                dtype=int, device=d)
-        self.nbr = wp.array(e[:, 1].astype(np.int32), dtype=int, device=d)
-        self.pair_dt = wp.zeros((nbw, self.nb1 + 1), dtype=float, device=d)  # per bone pair its motion (body_motion)
-        self.pair_turn = wp.zeros((nbw, self.nb1 + 1), dtype=float, device=d)
-        self.most_move = wp.zeros(nbw, dtype=float, device=d)  # per bone the most any skin moved seen from it
-        self.rel_last = wp.zeros((nbw, self.nb1 + 1), dtype=wp.transform, device=d)
-        self.slack = wp.zeros(ns, dtype=float, device=d)
-        self.qlist = wp.zeros(ns, dtype=int, device=d)
-        self.qcount = wp.zeros(1, dtype=int, device=d)
+        # which skin vertices the frame queries (solver/self_slack.py: their slack, the list of them)
+        self.query = QuerySlack(model, W, self.ns1, self.nb1, faces1, d)
         self.fcount = wp.zeros(1, dtype=int, device=d)
         centre = rest[faces1].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
         radius = np.linalg.norm(rest[faces1] - centre[:, None], axis=2).max(axis=1)
@@ -736,20 +567,12 @@ class SelfContact:
         bvh = self.build(state)
         cuda = wp.get_device(d).is_cuda
         rec.launch(clear_marks, self.n_skin, [self.icount, self.involved], [self.mark], count=self.icount)
-        rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.qcount.zero_(), self.body_move.zero_(),
-                                self.body_reach.zero_(), self.wcounts.zero_(), self.box.fill_(2**31 - 1), self.bone_edge.zero_(),
-                                self.most_move.zero_()))
-        W, ns1, nb1 = self.worlds, self.ns1, self.nb1
-        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
-                   [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge])
+        qs = self.query
+        rec.ops.append(lambda: (self.counts.zero_(), self.active.zero_(), self.wcounts.zero_(), qs.zero()))
+        ns1 = self.ns1
         reach = float(cfg.self_margin) + REACH
-        rec.launch(body_motion, (W, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
-                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn, self.most_move])
-        rec.launch(pick_queries, self.n_skin,
-                   [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
-                    self.bone_edge, self.pair_dt, self.pair_turn, self.most_move, reach, ns1, nb1],
-                   [self.slack, self.cand_n, self.qlist, self.qcount])
-        q = self.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
+        qs.record(rec, state, reach, self.cand_n)
+        q = qs.qcount.numpy() if not cuda else None  # (CPU: a view, read when the frame runs)
 
         def when_queried(op):
             return op if cuda else (lambda: op() if q[0] else None)
@@ -763,12 +586,12 @@ class SelfContact:
                    count=None if cuda else self.fcount)
         rec.ops.append(when_queried(bvh.refit))
         rec.launch(broadphase, self.n_skin,
-                   [self.qcount, self.qlist, reach, self.slack, bvh.id, self.roots, ns1, self.nf1, state.x, self.rest, self.faces,
+                   [qs.qcount, qs.qlist, reach, qs.slack, bvh.id, self.roots, ns1, self.nf1, state.x, self.rest, self.faces,
                     self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP),
                     int(self.in_kernel)],
                    [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts, self.wcounts,
                     self.wvlist, self.winvolved],
-                   count=self.qcount)
+                   count=qs.qcount)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
 
@@ -790,7 +613,7 @@ class SelfContact:
         """The last frame's figures (every world's together): vertices queried, listed vertices and
         pairs, corrections made (summed over passes); per world: :meth:`report_worlds`."""
         c = self.counts.numpy()
-        q = int(self.qcount.numpy()[0])
+        q = int(self.query.qcount.numpy()[0])
         cfg = self.config
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's four, the query's four with any

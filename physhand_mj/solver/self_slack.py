@@ -1,0 +1,232 @@
+"""Which skin vertices the frame's self-contact query asks about (issue 53; solver/self_contact.py
+queries them): the query slack, per skin vertex how much nearer a kept skin triangle may come before
+it is within ``self_margin``, used up by the moves since it was set (docs/self_collision.md "How
+contact is found", step 1).
+
+Once a frame, from the positions at its start: per skin vertex its move since the last frame in its
+bone's frame (``local_motion``; per bone the largest, its skin's reach, its skin's box and longest
+edge), per pair of bones the change of their relative pose (``body_motion``), then per vertex the
+slack those moves could have used (``pick_queries``): its own, plus for every other bone whose skin's
+box (grown by its longest edge) lies within reach of the vertex that bone's skin's move, the pose
+change and the turn at the vertex's distance. A vertex whose slack is used up goes in the query list
+(``QuerySlack.qlist``, ``qcount`` long); the others keep an empty list. The broadphase sets the slack
+anew for the vertices it queries (the nearest kept triangle's distance beyond the margin, at most
+REACH). A hand whose skin moves rigidly with its bones queries nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from physhand_mj.contact.self_measures import skin_edges
+
+wp.set_module_options({"enable_backward": False})
+
+# The frame query's reach beyond self_margin: a vertex whose nearest kept triangle lay beyond the
+# margin by s (its slack, at most REACH) is queried again only once the moves since could have used
+# it up: its own in its bone's frame plus the largest any skin near that bone may have made seen from
+# that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Cost").
+REACH = 5.0e-4
+
+
+@wp.func
+def _pose(body_pose: wp.array2d(dtype=wp.transform), b: int) -> wp.transform:
+    if b < 0:
+        return wp.transform_identity()
+    return body_pose[0, b]
+
+
+@wp.func
+def _slot(b: int, w: int, nb: int) -> int:
+    """Bone ``b`` (a model bone index, -1: none) of world ``w`` in the per-world bone tables: world w's
+    ``nb`` bones, then its slot for the skin without a bone (the world frame)."""
+    if b < 0:
+        return w * (nb + 1) + nb
+    return b + w  # (b = w nb + its bone in the world: w (nb + 1) + that)
+
+
+@wp.kernel
+def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
+                 ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
+                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), nbr_off: wp.array(dtype=int),
+                 nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int)):
+    """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
+    deformation, not the bones' motion), per bone the largest (``body_move``), the skin's farthest
+    point from the bone's origin (``body_reach``), its bounding box now (``box``: lower x, y, z, then
+    minus the upper; in whole um, rounded outward: native integer atomics) and the longest skin edge
+    at a vertex of its skin (``bone_edge``, um; ``nbr``: one world's skin neighbours from
+    ``nbr_off[v]``), so that the box grown by it holds every skin triangle with a corner on the bone;
+    per world (``ns`` skin vertices, ``nb`` bones each) the slots :func:`_slot` names (the last: the
+    vertices without a bone, in the world frame)."""
+    v = wp.tid()
+    b = skin_body[v]
+    y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
+    m = wp.length(y - y_last[v])
+    y_last[v] = y
+    mu[v] = m
+    k = _slot(b, v // ns, nb)
+    wp.atomic_max(body_move, k, m)
+    wp.atomic_max(body_reach, k, wp.length(y))
+    p = x[v]
+    for c in range(3):
+        wp.atomic_min(box, k, c, int(wp.floor(p[c] * 1.0e6)))
+        wp.atomic_min(box, k, c + 3, -int(wp.ceil(p[c] * 1.0e6)))
+    vo = (v // ns) * ns
+    e = float(0.0)
+    for n in range(nbr_off[v - vo], nbr_off[v - vo + 1]):
+        e = wp.max(e, wp.length(x[nbr[n] + vo] - p))
+    wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
+
+
+@wp.kernel
+def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
+                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
+                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float)):
+    """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
+    pose since the last frame's start, seen from the first: how far the second's origin moved
+    (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
+    from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
+    ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
+    bones' origins more than ``far`` (>= slack + margin) plus both skins' largest such moves apart.
+    Per first bone the most any skin of its world moved seen from it (``most_move``: its own skin's
+    deformation, the others' at their reach; pick_queries' G). Bones of different worlds are never
+    paired (each world's skin lists only its own triangles)."""
+    w, i, j = wp.tid()
+    o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
+    bi = w * nb + i
+    bj = w * nb + j
+    if i == nb:
+        bi = -1
+    if j == nb:
+        bj = -1
+    rel = wp.transform_multiply(wp.transform_inverse(_pose(body_pose, bi)), _pose(body_pose, bj))
+    last = rel_last[o + i, j]
+    rel_last[o + i, j] = rel
+    dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
+    half = wp.min(wp.abs(dq[3]), 1.0)
+    dt = wp.length(wp.transform_get_translation(rel) - wp.transform_get_translation(last))
+    turn = 2.0 * wp.sqrt(wp.max(1.0 - half * half, 0.0))  # 2 sin(angle / 2)
+    pair_turn[o + i, j] = turn
+    gap = wp.length(wp.transform_get_translation(rel)) - body_reach[o + i] - body_reach[o + j]
+    # (the first's skin moved at most body_move[i] in its frame, the second's at most its deformation +
+    # the pair's motion at its reach: apart by more than that plus far, no point of either comes near)
+    big = body_move[o + j] + dt + turn * body_reach[o + j]
+    if i != j and i != nb and j != nb and gap > far + body_move[o + i] + big:
+        dt = -1.0
+    pair_dt[o + i, j] = dt
+    if i == j:
+        wp.atomic_max(most_move, o + i, body_move[o + i])
+    elif dt >= 0.0:
+        wp.atomic_max(most_move, o + i, big)
+
+
+@wp.kernel
+def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
+                 mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
+                 box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
+                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float),
+                 far: float, ns: int, nb: int,
+                 slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
+                 qcount: wp.array(dtype=int)):
+    """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
+    come before it is within the margin) the moves since used up: the vertex's own in its bone's frame
+    (``mu``), its bone's skin's deformation (``body_move``: a fold of its own skin) and, per other bone
+    of its world, how far that bone's skin near the vertex may have moved seen from the vertex's bone
+    (its deformation + the pair's motion, body_motion, applied at a radius). Only triangles that could
+    end within ``far`` (>= slack + margin) of the vertex matter: with G the most any skin of the
+    world moved seen from the vertex's bone, such a triangle lay within far + G of the vertex at the
+    frame's start and its corners within far + G + its longest edge; every bone it has a corner on
+    holds it in its skin's box grown by that bone's longest edge (local_motion). So a bone whose grown
+    box lies farther than far + G counts nothing, and the others count their pair's turn at
+    |vertex - the bone's origin| + far + G + that edge (or the skin's reach, if less). The others keep
+    an empty list."""
+    v = wp.tid()
+    w = v // ns
+    o = w * (nb + 1)
+    il = _slot(skin_body[v], w, nb) - o  # (the vertex's bone in its world's tables; nb: none)
+    p = x[v]
+    g = most_move[o + il]
+    m = body_move[o + il]
+    for j in range(nb + 1):
+        dt = pair_dt[o + il, j]
+        if j == il or dt < 0.0:
+            continue
+        r = body_reach[o + j]
+        if j != nb and il != nb:
+            # (the nearest point of the box of bone j's triangles: its skin's box grown by its longest edge)
+            ej = float(bone_edge[o + j]) * 1.0e-6
+            q = wp.vec3(0.0)
+            for c in range(3):
+                q[c] = wp.clamp(p[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
+            if wp.length(p - q) > far + g:
+                continue
+            r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + g + ej)
+        m = wp.max(m, body_move[o + j] + dt + pair_turn[o + il, j] * r)
+    sl = slack[v] - mu[v] - m
+    slack[v] = sl
+    if sl <= 0.0:
+        qlist[wp.atomic_add(qcount, 0, 1)] = v
+    else:
+        cand_n[v] = 0
+
+
+class QuerySlack:
+    """The query slack's buffers and launches for W worlds (solver/self_contact.SelfContact holds
+    one): :meth:`zero` (the frame's per-bone tables, with SelfContact's other counters) and
+    :meth:`record` (the three launches). ``slack`` (per skin vertex, m), ``qlist`` / ``qcount`` (the
+    vertices to query this frame) are what the broadphase reads; it writes ``slack`` for those it
+    queries. Per world (ns1 skin vertices, nb1 bones) nb1 + 1 bone slots, the last for skin without
+    a bone (the world frame)."""
+
+    def __init__(self, model, worlds: int, ns1: int, nb1: int, faces1: np.ndarray, device):
+        d = device
+        ns = worlds * ns1
+        nbw = worlds * (nb1 + 1)
+        self.n_skin, self.ns1, self.nb1, self.worlds = ns, ns1, nb1, worlds
+        self.skin_body = model.skin_body
+        # per vertex its position at the last frame's start in its bone's frame and its move since
+        self.y_last = wp.zeros(ns, dtype=wp.vec3, device=d)
+        self.mu = wp.zeros(ns, dtype=float, device=d)
+        # per bone its skin's largest move, its reach, its box and longest edge at the frame's start
+        self.body_move = wp.zeros(nbw, dtype=float, device=d)
+        self.body_reach = wp.zeros(nbw, dtype=float, device=d)
+        self.box = wp.zeros((nbw, 6), dtype=int, device=d)
+        self.bone_edge = wp.zeros(nbw, dtype=int, device=d)
+        e = skin_edges(faces1)
+        e = np.concatenate([e, e[:, ::-1]])
+        e = e[np.lexsort((e[:, 1], e[:, 0]))]  # (one world's skin edges both ways, by their first vertex)
+        self.nbr_off = wp.array(np.concatenate([[0], np.cumsum(np.bincount(e[:, 0], minlength=ns1))]).astype(np.int32),
+                                dtype=int, device=d)
+        self.nbr = wp.array(e[:, 1].astype(np.int32), dtype=int, device=d)
+        self.pair_dt = wp.zeros((nbw, nb1 + 1), dtype=float, device=d)  # per bone pair its motion (body_motion)
+        self.pair_turn = wp.zeros((nbw, nb1 + 1), dtype=float, device=d)
+        self.most_move = wp.zeros(nbw, dtype=float, device=d)  # per bone the most any skin moved seen from it
+        self.rel_last = wp.zeros((nbw, nb1 + 1), dtype=wp.transform, device=d)
+        self.slack = wp.zeros(ns, dtype=float, device=d)
+        self.qlist = wp.zeros(ns, dtype=int, device=d)
+        self.qcount = wp.zeros(1, dtype=int, device=d)
+
+    def zero(self) -> None:
+        """The frame's per-bone tables and query count back to their start (run inside the caller's
+        frame op, before :meth:`record`'s launches)."""
+        self.qcount.zero_()
+        self.body_move.zero_()
+        self.body_reach.zero_()
+        self.box.fill_(2**31 - 1)
+        self.bone_edge.zero_()
+        self.most_move.zero_()
+
+    def record(self, rec, state, reach: float, cand_n) -> None:
+        """The slack's three launches into the solver's frame recorder ``rec`` (each over every world);
+        ``reach``: self_margin + REACH (m); ``cand_n``: the per-vertex list lengths, emptied for the
+        vertices not queried."""
+        ns1, nb1 = self.ns1, self.nb1
+        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
+                   [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge])
+        rec.launch(body_motion, (self.worlds, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
+                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn, self.most_move])
+        rec.launch(pick_queries, self.n_skin,
+                   [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
+                    self.bone_edge, self.pair_dt, self.pair_turn, self.most_move, reach, ns1, nb1],
+                   [self.slack, cand_n, self.qlist, self.qcount])
