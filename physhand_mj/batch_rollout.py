@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from physhand_mj.hand_mjcf import enable_self_proxies
 from physhand_mj.rollout import (FORCE_COLUMNS, LOG_COLUMNS, bone_clearances, carry_object_side, check_counts, check_measure_every, failed_row,
                                  frame_rows, load_rollout_scene, measured, rollout_config, run_names, self_summary,
                                  start_row, summary_row, write_summary)
@@ -273,8 +274,6 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     from physhand_mj.solver import SolverError
 
     W = len(runs)
-    from physhand_mj.hand_mjcf import enable_self_proxies
-
     cfg = rollout_config(runs[0].model, substeps, contact, device, config)  # (validated)
     poses, lit = [], []
     for r in runs:  # (Config.self_collision: each world's MuJoCo keeps its bones apart, as SoftHand's does)
