@@ -53,6 +53,10 @@ class Tuning:
       bone_hold: where an object holds the bone under a skin vertex (its nearest skeleton vertex at
         rest), no contact push moves that vertex: no penetration-free skin exists there
         (contact/bones.py; the contact report names the bone and its depth).
+      flesh_carry: the share (0 to 1; 0, the default: off) of a contact stage's move of the skin that
+        the flesh right under it takes in the same stage (each movable flesh vertex sharing a tet
+        with skin: that share of its skin neighbours' mean move), so deep pushes do not shear the
+        skin layer's tets inside out (solver/carry.py; 0.5 measured: docs/contact.md).
     Contact (object side, the features: corners, tips and sharp edges smaller than a triangle):
       feature_offset: how far outside the skin a pushed feature point ends (m; 60 um; 80 um and more
         let a 1 mm plate tunnel); feature_last_offset: the stage's last push's (m; None: feature_offset);
@@ -103,6 +107,7 @@ class Tuning:
     opt_queries: int = 32
     side_aware: bool = True
     bone_hold: bool = True
+    flesh_carry: float = 0.0
     feature_offset: float = 6.0e-5
     feature_last_offset: float | None = None
     feature_spacing: float = 2.5e-4
@@ -380,6 +385,8 @@ def _check(s) -> None:
     if not (np.isfinite(s.self_friction) and 0.0 <= s.self_friction <= 2.0):
         raise ValueError(f"Config.tuning.self_friction must be a coefficient in [0, 2] (skin on skin: ~0.5), got "
                          f"{s.self_friction!r}")
+    if not (np.isfinite(s.flesh_carry) and 0.0 <= s.flesh_carry <= 1.0):
+        raise ValueError(f"Config.tuning.flesh_carry must be a share in [0, 1] (0: off; 0.5 measured), got {s.flesh_carry!r}")
     if not (0.0 <= s.self_tet_keep < 1.0):
         raise ValueError(f"Config.tuning.self_tet_keep must lie in [0, 1), got {s.self_tet_keep!r}")
     if s.self_collision and s.self_margin <= s.self_thickness:

@@ -29,6 +29,7 @@ import warp as wp
 from physhand_mj.solver import fused as fused_launch
 from physhand_mj.solver import fused_choice
 from physhand_mj.solver import integrate
+from physhand_mj.solver.carry import FleshCarry
 from physhand_mj.solver.edge import solve_edges
 from physhand_mj.solver.gather import GATHER_LANES
 from physhand_mj.rotations import compose_quat, quat_to_mat
@@ -59,6 +60,9 @@ class Solver:
             from physhand_mj.contact import Contact
 
             self.contact = Contact(model, objects, self.config)
+        # Tuning.flesh_carry: the flesh under contact-moved skin moves with it (solver/carry.py)
+        self.carry = FleshCarry(model, self.config.flesh_carry, self.device) \
+            if self.contact is not None and self.config.flesh_carry > 0 else None
         self.selfc = None  # Config.self_collision: the skin kept out of itself (solver/self_contact.py)
         if self.config.self_collision:
             from physhand_mj.solver.self_contact import SelfContact
@@ -423,6 +427,14 @@ class Solver:
             gated(lambda sub: contact.record_frame(rec, state), 0)
         if self.selfc is not None:  # the frame's self-contact list, from the positions at its start
             self.selfc.record_frame(rec, state)
+
+        def stage():
+            """A contact stage (Eq. 9 and the features); with Tuning.flesh_carry the flesh follows it."""
+            if self.carry is None:
+                contact.record(rec, state)
+            else:
+                self.carry.record(rec, state, inv_mass, lambda: contact.record(rec, state))
+
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
         inv_mass, vertex_body, body_local = ((rs.inv_mass, rs.vertex_body, rs.body_local) if rs is not None
@@ -456,7 +468,7 @@ class Solver:
             if s == cfg.substeps:
                 break
             if before:
-                gated(lambda sub: contact.record(rec, state), 1)
+                gated(lambda sub: stage(), 1)
             elif hold and not hold_after:
                 gated(lambda sub: contact.record_hold(rec, state), 1)
             # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
@@ -501,7 +513,7 @@ class Solver:
                     apply(pending)
                     pending = -1
                 if staged and contact.wants("after"):
-                    gated(lambda sub: contact.record(rec, state), 1)
+                    gated(lambda sub: stage(), 1)
                 elif hold_after:
                     gated(lambda sub: contact.record_hold(rec, state), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
