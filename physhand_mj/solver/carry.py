@@ -52,16 +52,20 @@ def flesh_neighbours(tets: np.ndarray, n_skin: int, inv_mass: np.ndarray):
     """(flesh vertices (F,), CSR offsets (F + 1,), their skin neighbours): every movable non-skin
     vertex sharing a tet with a skin vertex, and those skin vertices (each once, ascending)."""
     tets = np.asarray(tets, np.int64)
-    pairs = set()
-    for a in range(4):
+    movable = np.asarray(inv_mass) > 0
+    n = int(tets.max()) + 1 if tets.size else 1
+    keys = []
+    for a in range(4):  # (vectorised: a batch's tets are every world's)
         for b in range(4):
             if a != b:
                 f, s = tets[:, a], tets[:, b]
-                keep = (f >= n_skin) & (s < n_skin) & (np.asarray(inv_mass)[f] > 0)
-                pairs.update(zip(f[keep].tolist(), s[keep].tolist()))
-    if not pairs:
+                keep = (f >= n_skin) & (s < n_skin)
+                keep[keep] &= movable[f[keep]]
+                keys.append(f[keep] * n + s[keep])
+    key = np.unique(np.concatenate(keys))
+    if not key.size:
         return np.zeros(0, np.int32), np.zeros(1, np.int32), np.zeros(0, np.int32)
-    p = np.array(sorted(pairs), np.int64)
+    p = np.stack([key // n, key % n], axis=1)
     flesh, counts = np.unique(p[:, 0], return_counts=True)
     off = np.concatenate([[0], np.cumsum(counts)])
     return flesh.astype(np.int32), off.astype(np.int32), p[:, 1].astype(np.int32)
