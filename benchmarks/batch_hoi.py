@@ -225,7 +225,7 @@ def main() -> None:
     p.add_argument("--scenes", default="box,apple", help="HOI scenes (hoi_<name>), comma-separated")
     p.add_argument("--worlds", default="1,2,4", help="comma-separated world counts")
     p.add_argument("--frames", type=int, default=10, help="timed 5 ms frames per world count")
-    p.add_argument("--config", default="{}", help="Config fields as JSON")
+    p.add_argument("--config", default="{}", help="Config options as JSON (any group's keys flat: Config.from_dict)")
     p.add_argument("--profile", action="store_true", help="CUDA: the per-kernel GPU time of each frame (top 24)")
     p.add_argument("--modes", default="step",
                    help="how frames are run, comma-separated, alternated block by block: step "
@@ -277,7 +277,7 @@ def main() -> None:
             place = rest_placement(asset, bone_pos[0], bone_quat[0])
             for w in [int(s) for s in a.worlds.split(",")]:
                 # the rollout's Config (rollout_config) without its per-substep metrics (a log's, not timed here)
-                cfg = ph.Config(frame_dt=float(run.model.opt.timestep), substeps=10, device=a.device, **extra)
+                cfg = ph.Config.from_dict(dict(frame_dt=float(run.model.opt.timestep), substeps=10, device=a.device, **extra))
                 with warnings.catch_warnings(record=True) as said:  # the row keeps what its batch warned about
                     warnings.simplefilter("always")
                     t0 = time.perf_counter()
