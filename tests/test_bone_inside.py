@@ -60,14 +60,22 @@ def _check(asset, site, depth, radius):
 
 def _release(asset, r, frames=20):
     """The tets the press inverts are the object's, not the hand's: with the object gone (1 m away) the
-    hand has none left within 0.1 s (the rest hand has none) and its skin is back near rest."""
+    hand has none left within 0.1 s (the rest hand has none) and its skin is back near rest. The
+    released flesh rebounds and rings about its rest shape (2-10 mm at the palm for 0.2 s and more,
+    the period ~40 ms; Config.damping 2/s), so one frame's distance says which phase it is in: the
+    skin's mean over the frames is what must be near rest (no set kept), each frame bounded."""
     solver, state = r["solver"], r["state"]
     r["objects"].set_poses(np.array([[1.0, 1.0, 1.0]]), np.array([[1.0, 0.0, 0.0, 0.0]]))
-    inverted = [solver.step(state)["inverted"] for _ in range(frames)]
+    inverted, skins = [], []
+    for _ in range(frames):
+        inverted.append(solver.step(state)["inverted"])
+        skins.append(state.x.numpy()[: asset.n_skin].astype(float))
     assert inverted[-5:] == [0] * 5, inverted
-    x = state.x.numpy()
-    assert np.all(np.isfinite(x))
-    assert np.linalg.norm(x[: asset.n_skin] - asset.skin_vertices, axis=1).max() < 5.0e-3
+    assert np.all(np.isfinite(state.x.numpy()))
+    skins = np.asarray(skins)
+    assert np.linalg.norm(skins - asset.skin_vertices, axis=2).max() < 15.0e-3
+    mean_off = np.linalg.norm(skins.mean(axis=0) - asset.skin_vertices, axis=1).max()
+    assert mean_off < 2.5e-3, mean_off
 
 
 @pytest.mark.parametrize("site,depth,radius", [("fingertip", 0.005, 0.03), ("palm", 0.015, 0.03)])

@@ -107,7 +107,7 @@ def test_batched_worlds_carry_each_world_as_one_hand():
     top = skin[np.argmax(skin[:, 2])].astype(float)
     where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]]
     serial = []
-    for w, c in ((0, cfg), (1, cfg), (1, ph.Config(device="cpu"))):
+    for w, c in ((0, cfg), (1, cfg), (1, ph.Config(device="cpu", tuning=ph.Tuning(flesh_carry=0.0)))):
         objs = Objects("cpu", 1)
         objs.add(GeomType.SPHERE, (0.02, 0, 0), where[w], name="ball")
         s = Solver(make_model(asset, c), c, objects=objs)
