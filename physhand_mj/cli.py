@@ -62,8 +62,12 @@ def _demo(args) -> dict:
         if writer is not None:
             writer.close()
     m = hand.metrics()
+    # per touched object also how near the bones are (negative: a bone that deep inside, where no skin can
+    # be both outside the object and on its bone: the flesh between is squeezed flat; docs/quickstart.md)
     objects = {k: dict(contact_vertices=len(v["vertices"]), area_cm2=round(v["area_m2"] * 1e4, 2),
-                       force_n=round(v["force_n"], 3)) for k, v in hand.contacts()["objects"].items() if len(v["vertices"])}
+                       force_n=round(v["force_n"], 3), bone_clearance_mm=round(v["bone_clearance_mm"], 3),
+                       bones_inside=v["bones_inside"])
+               for k, v in hand.contacts()["objects"].items() if len(v["vertices"])}
     # the reference for inverted_tets: the same bone pose without the objects (settled from rest over
     # 20 frames, no contact; ~0.4 s on a CPU). The curled fingers' joint creases invert some tets by
     # themselves (docs/limitations.md); the rest are pressed inverted by the objects and recover when

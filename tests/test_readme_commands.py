@@ -8,6 +8,8 @@ import sys
 
 
 def test_physhand_demo_writes_picture(tmp_path):
+    import numpy as np
+
     exe = shutil.which("physhand") or None
     cmd = [exe] if exe else [sys.executable, "-m", "physhand_mj.cli"]
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "osmesa"))
@@ -18,6 +20,10 @@ def test_physhand_demo_writes_picture(tmp_path):
     assert line["picture"] == str(png)
     # the inverted-tet count comes with its reference: the same pose without the glass (joint creases)
     assert 0 <= line["inverted_tets_without_contact"] < line["inverted_tets"], line
+    # and with how near the glass holds the bones (a bone inside it: clearance < 0 and counted)
+    glass = line["objects"]["glass"]
+    assert np.isfinite(glass["bone_clearance_mm"]) and isinstance(glass["bones_inside"], list), glass
+    assert bool(glass["bones_inside"]) == (glass["bone_clearance_mm"] < 0), glass
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     # not a blank frame: decode rows and check the image has structure
