@@ -1,5 +1,5 @@
 """Thin walls pressed face-first into the hand (docs/contact.md "Thin walls"), with and without the
-flesh following the contact (``Config.tuning.flesh_carry``, solver/carry.py).
+flesh following the contact near a wall (``Config.tuning.wall_carry``, 0.5 by default; solver/carry.py).
 
     python benchmarks/thin_walls.py [--device cpu|cuda] [--shares 0,0.5] [--out F.json]
 
@@ -10,7 +10,7 @@ the order-5 skin samples inside the plate in every frame, the worst count over t
 the four penetration measures (order-5 and order-9 skin samples inside, object and check points
 inside the skin), the first frame from which all four stay 0, the bones' clearance from the plate
 (mm; the skeleton and a lattice on its triangles, physhand_mj/bench/heldout.py) and the median frame
-time (ms, after the first two). Writes docs/benchmarks/thin_walls_carry_<device>.json (device named).
+time (ms, after the first two). Writes docs/benchmarks/thin_walls_default_<device>.json (device named).
 """
 
 import argparse
@@ -47,8 +47,8 @@ WALLS = [
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cpu", help="Warp device (cpu, cuda)")
-    ap.add_argument("--shares", default="0,0.5", help="Tuning.flesh_carry values, comma-separated (shares 0-1)")
-    ap.add_argument("--out", default=None, help="JSON path (default: docs/benchmarks/thin_walls_carry_<device>.json)")
+    ap.add_argument("--shares", default="0,0.5", help="Tuning.wall_carry values, comma-separated (shares 0-1)")
+    ap.add_argument("--out", default=None, help="JSON path (default: docs/benchmarks/thin_walls_default_<device>.json)")
     args = ap.parse_args()
     from tqdm import tqdm
 
@@ -58,25 +58,25 @@ def main():
         case = wall_case(**kw)
         clear = round(clearance_mm(case, asset), 2)
         for share in (float(s) for s in args.shares.split(",")):
-            r = run_case(case, ph.Config(device=args.device, tuning=ph.Tuning(flesh_carry=share)), frames=frames,
+            r = run_case(case, ph.Config(device=args.device, tuning=ph.Tuning(wall_carry=share)), frames=frames,
                          asset=asset)
             dirty = [f for f in range(frames) if any(r[k][f] for k in MEASURES)]
-            rows.append(dict(wall=name, flesh_carry=share, frames=frames, bone_clearance_mm=clear,
+            rows.append(dict(wall=name, wall_carry=share, frames=frames, bone_clearance_mm=clear,
                              skin5_per_frame=r["skin_count"].astype(int).tolist(),
                              worst_last4={k: int(r[k][-4:].max()) for k in MEASURES},
                              clean_from=None if dirty and dirty[-1] == frames - 1 else (dirty[-1] + 1 if dirty else 0),
                              ms_median=round(float(np.median(r["ms"][2:])), 3), finite=bool(r["finite"])))
             print(rows[-1], flush=True)
     out = Path(args.out or Path(__file__).resolve().parents[1] / "docs" / "benchmarks"
-               / f"thin_walls_carry_{args.device.split(':')[0]}.json")
+               / f"thin_walls_default_{args.device.split(':')[0]}.json")
     out.write_text(json.dumps(dict(device=device_name(args.device), rows=rows), indent=1) + "\n")
     print(f"device: {device_name(args.device)}\n")
-    print("| wall | flesh_carry | worst over the last 4 frames (order 5 / 9 / object / check) | all four 0 from frame | "
+    print("| wall | wall_carry | worst over the last 4 frames (order 5 / 9 / object / check) | all four 0 from frame | "
           "bones clear (mm) |")
     print("|---|---|---|---|---|")
     for r in rows:
         w = r["worst_last4"]
-        print(f"| {r['wall']} | {r['flesh_carry']} | {'/'.join(str(w[k]) for k in MEASURES)} | "
+        print(f"| {r['wall']} | {r['wall_carry']} | {'/'.join(str(w[k]) for k in MEASURES)} | "
               f"{r['clean_from'] if r['clean_from'] is not None else 'never'} | {r['bone_clearance_mm']} |")
     print(f"\n{out}")
 

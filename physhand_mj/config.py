@@ -57,6 +57,11 @@ class Tuning:
         the flesh right under it takes in the same stage (each movable flesh vertex sharing a tet
         with skin: that share of its skin neighbours' mean move), so deep pushes do not shear the
         skin layer's tets inside out (solver/carry.py; 0.5 measured: docs/contact.md).
+      wall_carry: the same share (0 to 1; 0.5, the default) for the skin within the frame margin of
+        a broad wall (a plate or a shell at most 1.5 mm half-thick: contact/inside.py
+        ``wall_half_thickness``, ``wall_is_broad``), where the skin is dragged across the wall's face
+        and the flesh left behind pulls it back over the rims (docs/contact.md "Thin walls"); a scene
+        without one runs nothing for it. The larger of the two shares applies.
     Contact (object side, the features: corners, tips and sharp edges smaller than a triangle):
       feature_offset: how far outside the skin a pushed feature point ends (m; 60 um; 80 um and more
         let a 1 mm plate tunnel); feature_last_offset: the stage's last push's (m; None: feature_offset);
@@ -108,6 +113,7 @@ class Tuning:
     side_aware: bool = True
     bone_hold: bool = True
     flesh_carry: float = 0.0
+    wall_carry: float = 0.5
     feature_offset: float = 6.0e-5
     feature_last_offset: float | None = None
     feature_spacing: float = 2.5e-4
@@ -387,6 +393,8 @@ def _check(s) -> None:
                          f"{s.self_friction!r}")
     if not (np.isfinite(s.flesh_carry) and 0.0 <= s.flesh_carry <= 1.0):
         raise ValueError(f"Config.tuning.flesh_carry must be a share in [0, 1] (0: off; 0.5 measured), got {s.flesh_carry!r}")
+    if not (np.isfinite(s.wall_carry) and 0.0 <= s.wall_carry <= 1.0):
+        raise ValueError(f"Config.tuning.wall_carry must be a share in [0, 1] (0: off; 0.5, the default), got {s.wall_carry!r}")
     if not (0.0 <= s.self_tet_keep < 1.0):
         raise ValueError(f"Config.tuning.self_tet_keep must lie in [0, 1), got {s.self_tet_keep!r}")
     if s.self_collision and s.self_margin <= s.self_thickness:

@@ -34,11 +34,67 @@ def test_a_flesh_vertex_takes_the_share_of_its_skin_neighbours_mean_move(d):
     xw = wp.array(x, dtype=wp.vec3, device=d)
     wp.launch(carry_flesh, 2, inputs=[wp.array(flesh, dtype=int, device=d), wp.array(off, dtype=int, device=d),
                                       wp.array(skin, dtype=int, device=d), wp.array(before, dtype=wp.vec3, device=d),
-                                      wp.array(inv_mass, dtype=float, device=d), 0.5], outputs=[xw], device=d)
+                                      wp.array(inv_mass, dtype=float, device=d), 0.5,
+                                      wp.zeros(0, dtype=int, device=d), 0.5], outputs=[xw], device=d)
     out = xw.numpy()
     assert np.allclose(out[3], before[3] + [0, 0, 0.5 * (0.003 + 0.006) / 3], atol=1e-7)
     assert np.array_equal(out[4], before[4])
     assert np.array_equal(out[:3], x[:3])  # the skin (the contact's result) is untouched
+
+
+@pytest.mark.parametrize("d", DEVICES)
+def test_the_wall_share_applies_to_the_skin_near_a_wall_only(d):
+    # Tuning.wall_carry: skin vertex 1 lies near a wall (its move taken by 0.8), vertex 0 not (0.1)
+    before = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, -1]], np.float32)
+    x = before.copy()
+    x[0] += [0, 0, 0.003]
+    x[1] += [0, 0, 0.006]
+    xw = wp.array(x, dtype=wp.vec3, device=d)
+    wp.launch(carry_flesh, 1, inputs=[wp.array([3], dtype=int, device=d), wp.array([0, 3], dtype=int, device=d),
+                                      wp.array([0, 1, 2], dtype=int, device=d), wp.array(before, dtype=wp.vec3, device=d),
+                                      wp.array(np.ones(4, np.float32), dtype=float, device=d), 0.1,
+                                      wp.array([0, 1, 0], dtype=int, device=d), 0.8], outputs=[xw], device=d)
+    assert np.allclose(xw.numpy()[3], before[3] + [0, 0, (0.1 * 0.003 + 0.8 * 0.006) / 3], atol=1e-7)
+
+
+def test_mark_near_walls_reads_the_frame_lists_wall_bits():
+    # triangles 0 and 1 listed, triangle 0 near geom 1 (a wall), triangle 1 near geom 0 (not); a
+    # world of 40 geoms: triangle 2's bit 30 stands for geoms 30-39, of which 35 is a wall
+    from physhand_mj.contact.broadphase import tri_list
+    from physhand_mj.solver.carry import mark_near_walls
+
+    faces = wp.array(np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]]), dtype=int)
+    lst = tri_list(wp.array([0, 1, 2], dtype=int), wp.array([1 << 1, 1 << 0, 1 << 30], dtype=int))
+    wall = np.zeros(40, np.int32)
+    wall[[1, 35]] = 1
+    for count, expect in ((2, [1, 1, 1, 0, 0, 0, 0, 0, 0]), (3, [1, 1, 1, 0, 0, 0, 1, 1, 1])):
+        near = wp.zeros(9, dtype=int)
+        wp.launch(mark_near_walls, 3, inputs=[faces, lst, wp.array([count], dtype=int), 3, 40, wp.array(wall, dtype=int)],
+                  outputs=[near])
+        assert near.numpy().tolist() == expect
+
+
+def wall_or_sphere(wall: bool, wall_carry: float, frames: int = 3):
+    from physhand_mj.bench.cases import wall_case
+
+    case = wall_case(0.008, 0.001, 0.004) if wall else press_case("bone", site="palm", depth=0.003)
+    return run_case(case, ph.Config(device="cpu", tuning=ph.Tuning(wall_carry=wall_carry)), frames=frames)
+
+
+def test_wall_carry_acts_only_in_a_scene_with_a_wall():
+    """Tuning.wall_carry (on by default): a 16 mm plate 4 mm into the palm is a wall, its flesh
+    follows the pushed skin (the flesh ends elsewhere than with the share at 0); a sphere pressed
+    into the palm is none: its frames record no carry launch and end bit for bit as with the share
+    at 0."""
+    on, off = wall_or_sphere(True, 0.5), wall_or_sphere(True, 0.0)
+    carry = on["solver"].carry
+    assert carry.walls(on["solver"].contact) and carry.near_wall.numpy().sum() > 100
+    assert off["solver"].carry is None
+    n = on["solver"].model.n_skin
+    assert np.abs(on["state"].x.numpy()[n:] - off["state"].x.numpy()[n:]).max() > 1e-5
+    on, off = wall_or_sphere(False, 0.5), wall_or_sphere(False, 0.0)
+    assert not on["solver"].carry.acts(on["solver"].contact)
+    np.testing.assert_array_equal(on["state"].x.numpy(), off["state"].x.numpy())
 
 
 def test_flesh_carry_is_checked():
@@ -72,7 +128,7 @@ def press(share, device="cpu", frames=12):
 def test_the_palm_pressed_deep_keeps_its_tets_with_the_flesh_carried(device):
     r0, inv0 = press(0.0, device)
     r1, inv1 = press(0.5, device)
-    assert r0["solver"].carry is None and r1["solver"].carry is not None
+    assert not r0["solver"].carry.acts(r0["solver"].contact) and r1["solver"].carry.acts(r1["solver"].contact)
     assert r1["finite"]
     for key in ("skin_count", "dense_count", "obj_count", "check_count"):  # contact as good as without
         assert np.all(r1[key][-3:] == 0), (key, r1[key].tolist())
@@ -102,7 +158,7 @@ def test_batched_worlds_carry_each_world_as_one_hand():
     poses = bone_poses_at(model, data, model.key("open").qpos, ids)
     cfg = ph.Config(device="cpu", tuning=ph.Tuning(flesh_carry=0.5))
     batch = BatchedHands(asset, 2, cfg, *mount, objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
-    assert batch.solver.carry is not None
+    assert batch.solver.carry.acts(batch.solver.contact)
     skin = batch.skin(0)
     top = skin[np.argmax(skin[:, 2])].astype(float)
     where = [top + [0.0, 0.1, 0.05], top + [0.0, 0.0, 0.02 - 0.002]]

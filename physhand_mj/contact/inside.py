@@ -357,6 +357,9 @@ class ObjectPoints:
         # (wall_half_thickness: a thin geom's face can lie wholly inside the hand, where no skin
         # sample is inside it and no feature is near the skin; docs/contact.md "Thin walls")
         half = np.array([wall_half_thickness(objects, g) for g in range(self.n_geoms)] or [0.0])
+        # per geom: 1 a broad wall, a plate or a shell (Tuning.wall_carry: wall_is_broad)
+        self.wall_geom = np.array([int(half[g] > 0.0 and wall_is_broad(objects, g)) for g in range(self.n_geoms)],
+                                  np.int32)
         on_wall = (kind == int(PointKind.SURFACE)) & (half[self.geom_host] > 0.0) if total else np.zeros(0, bool)
         # per point its geom-local outward normal where it is a wall's face point (the push's gate,
         # features.push_feature), zero elsewhere; a point of the wall's rim (its thin sides, whose
@@ -440,6 +443,25 @@ def wall_half_thickness(objects, g: int) -> float:
     else:
         return 0.0
     return float(half) if 0.0 < half <= WALL_HALF and half <= WALL_ASPECT * across else 0.0
+
+
+def wall_is_broad(objects, g: int) -> bool:
+    """Whether wall ``g`` (:func:`wall_half_thickness` > 0) is broad, a plate or a shell, not a rod:
+    its second least half extent at least twice its half-thickness (a box's middle half extent, a
+    disc's radius; a capsule and a cylinder lying as a rod have a round section: never); a mesh's
+    breadth is not measured: broad. Across a broad wall's face the skin is dragged far enough to fold
+    over its rims (Tuning.wall_carry); round a rod it is not."""
+    h = objects._host
+    t = GeomType(int(h["gtype"][g]))
+    s = np.asarray(h["size"][g], float)
+    if t == GeomType.BOX:
+        e = np.sort(s)
+        return bool(e[1] >= 2.0 * e[0])
+    if t == GeomType.CYLINDER:
+        return bool(s[0] >= 2.0 * s[1])  # a disc: radius against half height
+    if t == GeomType.CAPSULE:
+        return False
+    return t == GeomType.MESH
 
 
 @wp.kernel

@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physhand_mj.contact.broadphase import TriList
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -33,19 +35,52 @@ def snapshot_skin(x: wp.array(dtype=wp.vec3), before: wp.array(dtype=wp.vec3)):
 @wp.kernel
 def carry_flesh(flesh: wp.array(dtype=int), off: wp.array(dtype=int), skin: wp.array(dtype=int),
                 before: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), share: float,
-                x: wp.array(dtype=wp.vec3)):
-    """Flesh vertex ``flesh[k]`` moves by ``share`` x the mean move of its skin neighbours
-    ``skin[off[k]:off[k + 1]]`` over the stage (none where it is kinematic now: a bone's, a sleeping
-    region's)."""
+                near_wall: wp.array(dtype=int), wall_share: float, x: wp.array(dtype=wp.vec3)):
+    """Flesh vertex ``flesh[k]`` moves by the mean over its skin neighbours ``skin[off[k]:off[k + 1]]``
+    of their moves over the stage, each taken by ``share``, or by ``wall_share`` where
+    ``near_wall`` (per skin vertex; empty: none) marks it (none where the flesh vertex is kinematic
+    now: a bone's, a sleeping region's)."""
     k = wp.tid()
     j = flesh[k]
     if inv_mass[j] == 0.0:
         return
     s = wp.vec3(0.0)
+    t = wp.vec3(0.0)
+    walls = near_wall.shape[0] > 0
     for q in range(off[k], off[k + 1]):
         i = skin[q]
-        s = s + (x[i] - before[i])
-    x[j] = x[j] + s * (share / float(off[k + 1] - off[k]))
+        if walls and near_wall[i] != 0:
+            t = t + (x[i] - before[i])
+        else:
+            s = s + (x[i] - before[i])
+    n = float(off[k + 1] - off[k])
+    x[j] = x[j] + s * (share / n) + t * (wall_share / n)
+
+
+@wp.kernel
+def mark_near_walls(faces: wp.array2d(dtype=int), cand: TriList, cand_count: wp.array(dtype=int),
+                    tris_per_world: int, geoms_per_world: int, wall: wp.array(dtype=int),
+                    near_wall: wp.array(dtype=int)):
+    """near_wall[v] = 1 for the corners of every triangle of the frame's contact list (``cand``, its
+    length ``cand_count[0]``) whose mask holds a wall geom (``wall``, per geom; the mask's bit 30
+    stands for the world's geoms from its 31st on: broadphase.reach_mask)."""
+    k = wp.tid()
+    if k >= cand_count[0]:
+        return
+    t = cand.tri[k]
+    mask = cand.mask[k]
+    g0 = (t // tris_per_world) * geoms_per_world
+    hit = int(0)
+    for b in range(30):
+        if (mask & (1 << b)) != 0 and b < geoms_per_world:
+            hit = hit | wall[g0 + b]
+    if (mask & (1 << 30)) != 0:
+        for g in range(30, geoms_per_world):
+            hit = hit | wall[g0 + g]
+    if hit != 0:
+        near_wall[faces[t, 0]] = 1
+        near_wall[faces[t, 1]] = 1
+        near_wall[faces[t, 2]] = 1
 
 
 def flesh_neighbours(tets: np.ndarray, n_skin: int, inv_mass: np.ndarray):
@@ -72,21 +107,58 @@ def flesh_neighbours(tets: np.ndarray, n_skin: int, inv_mass: np.ndarray):
 
 
 class FleshCarry:
-    """The carry's lists on the model's device and its snapshot buffer (one per solver)."""
+    """The carry's lists on the model's device, its snapshot buffer and, for ``wall_share``, the
+    frame's skin near walls (one per solver)."""
 
-    def __init__(self, model, share: float, device):
+    def __init__(self, model, share: float, device, wall_share: float = 0.0):
         d = device
         flesh, off, skin = flesh_neighbours(model.tet_ids.numpy(), model.n_skin, model.inv_mass.numpy())
         self.share = float(share)
+        self.wall_share = float(wall_share)
         self.flesh = wp.array(flesh, dtype=int, device=d)
         self.off = wp.array(off, dtype=int, device=d)
         self.skin = wp.array(skin, dtype=int, device=d)
         self.before = wp.zeros(model.n_skin, dtype=wp.vec3, device=d)
         self.n_skin = int(model.n_skin)
+        self.device = d
+        self.near_wall = wp.zeros(0, dtype=int, device=d)  # (per skin vertex, made once a wall is seen)
+        self._wall = None  # per geom of the contact's objects: 1 a wall (inside.wall_half_thickness)
+
+    def walls(self, contact) -> bool:
+        """Whether the wall share acts in ``contact``'s scene: it exceeds the share everywhere and
+        some object is a wall (read at recording, when the objects are final)."""
+        if self.wall_share <= self.share:
+            return False
+        if self._wall is None:
+            flags = np.zeros(max(int(contact.objects.capacity), 1), np.int32)
+            w = contact.points.wall_geom
+            flags[: len(w)] = w
+            self._wall = flags
+        return bool(self._wall.any())
+
+    def acts(self, contact) -> bool:
+        """Whether any stage's move carries flesh in ``contact``'s scene (else nothing is recorded)."""
+        return self.share > 0.0 or self.walls(contact)
+
+    def record_frame(self, rec, contact) -> None:
+        """Once per frame after the contact's broadphase: the skin near a wall (the corners of the
+        frame list's triangles within the frame margin of a wall), where ``wall_share`` applies."""
+        if not self.walls(contact):
+            return
+        if not self.near_wall.shape[0]:
+            self.near_wall = wp.zeros(self.n_skin, dtype=int, device=self.device)
+            self._wall_dev = wp.array(self._wall, dtype=int, device=self.device)
+        rec.ops.append(self.near_wall.zero_)
+        m = contact.model
+        rec.launch(mark_near_walls, contact.n_tris,
+                   [m.skin_faces, contact.lists.cand_tris, contact.cand_count, contact.tris_per_world,
+                    contact.geoms_per_world, self._wall_dev], [self.near_wall], count=contact.cand_count)
 
     def record(self, rec, state, inv_mass, stage) -> None:
         """Record the skin's snapshot, ``stage()`` (the contact stage's launches), then the carry."""
         rec.launch(snapshot_skin, self.n_skin, [state.x], [self.before])
         stage()
+        wall_share = max(self.wall_share, self.share)
         rec.launch(carry_flesh, int(self.flesh.shape[0]),
-                   [self.flesh, self.off, self.skin, self.before, inv_mass, self.share], [state.x])
+                   [self.flesh, self.off, self.skin, self.before, inv_mass, self.share, self.near_wall,
+                    wall_share], [state.x])

@@ -60,9 +60,11 @@ class Solver:
             from physhand_mj.contact import Contact
 
             self.contact = Contact(model, objects, self.config)
-        # Tuning.flesh_carry: the flesh under contact-moved skin moves with it (solver/carry.py)
-        self.carry = FleshCarry(model, self.config.flesh_carry, self.device) \
-            if self.contact is not None and self.config.flesh_carry > 0 else None
+        # Tuning.flesh_carry / wall_carry: the flesh under contact-moved skin moves with it (solver/carry.py;
+        # wall_carry only by the skin near a wall, and only in a scene that has one)
+        cfg = self.config
+        self.carry = FleshCarry(model, cfg.flesh_carry, self.device, cfg.wall_carry) \
+            if self.contact is not None and (cfg.flesh_carry > 0 or cfg.wall_carry > 0) else None
         self.selfc = None  # Config.self_collision: the skin kept out of itself (solver/self_contact.py)
         if self.config.self_collision:
             from physhand_mj.solver.self_contact import SelfContact
@@ -418,22 +420,30 @@ class Solver:
                    [state.x, state.delta] + lists(group) + [lanes])
         launch(integrate.begin_frame, (cfg.substeps, max(m.n_bodies, 1)), [state.body_pose],
                [state.body_sub, state.guard])
+        carry = None  # (the stage's flesh carry: Tuning.flesh_carry / wall_carry, where they act)
         if self.contact is not None:
             contact = self.contact
             contact.record_frame_planes(rec)  # (Config.contact_linear, every frame: contact/linear.py)
             if self.activity.gate_ahead:  # CUDA: the broadphase runs ahead of the frame's graph (step)
                 rec.ahead = self._pre[key] = []
             contact.zero_counters(rec)  # the frame's list lengths (the level-1 gates read one)
-            gated(lambda sub: contact.record_frame(rec, state), 0)
+            if self.carry is not None and self.carry.acts(contact):
+                carry = self.carry
+
+            def frame(sub):
+                contact.record_frame(rec, state)
+                if carry is not None:  # (Tuning.wall_carry: the skin near a wall, from the frame's list)
+                    rec.gated(lambda sub: carry.record_frame(rec, contact), 1)
+            gated(frame, 0)
         if self.selfc is not None:  # the frame's self-contact list, from the positions at its start
             self.selfc.record_frame(rec, state)
 
         def stage():
             """A contact stage (Eq. 9 and the features); with Tuning.flesh_carry the flesh follows it."""
-            if self.carry is None:
+            if carry is None:
                 contact.record(rec, state)
             else:
-                self.carry.record(rec, state, inv_mass, lambda: contact.record(rec, state))
+                carry.record(rec, state, inv_mass, lambda: contact.record(rec, state))
 
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
