@@ -50,7 +50,9 @@ def press_row(case, share: float, device: str, frames: int, asset) -> dict:
 
     Solver.step = step
     try:
-        r = run_case(case, ph.Config(device=device, tuning=ph.Tuning(flesh_carry=share)), frames=frames, asset=asset)
+        # (wall_carry 0: the plates here are broad walls, whose default carry would make share 0 no "off")
+        r = run_case(case, ph.Config(device=device, tuning=ph.Tuning(flesh_carry=share, wall_carry=0.0)),
+                     frames=frames, asset=asset)
     finally:
         Solver.step = orig
     return dict(case=case.name, site=case.site, depth_mm=round(case.depth * 1e3, 2), flesh_carry=share,

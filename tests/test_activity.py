@@ -372,3 +372,16 @@ def test_softhand_metrics_say_what_ran():
 
 
 # -- sleeping: a still hand with no object near costs one launch per frame --------------------------
+
+
+def test_the_wall_carry_records_nothing_without_a_wall(scene):
+    """Tuning.wall_carry (on by default) in a scene without a broad wall: the recorded launches are
+    those with the share at 0, none of the carry's."""
+    a_s, a_st, *_ = _solver(scene)
+    b_s, b_st, *_ = _solver(scene, wall_carry=0.0)
+    a, b = _recorded(a_s, a_st, scene[2]), _recorded(b_s, b_st, scene[2])
+    assert a == b and not any(n and n.startswith("physhand_mj.solver.carry") for n in a)
+    p_s, p_st, *_ = _solver(scene, GeomType.BOX, (0.008, 0.008, 0.0005))  # a plate: a broad wall
+    p = _recorded(p_s, p_st, scene[2])
+    # the frame's mark, and a snapshot and a carry around each of the frame's stages
+    assert sum(1 for n in p if n and n.startswith("physhand_mj.solver.carry")) == 1 + 2 * Config().substeps

@@ -72,6 +72,13 @@ def test_mark_near_walls_reads_the_frame_lists_wall_bits():
         wp.launch(mark_near_walls, 3, inputs=[faces, lst, wp.array([count], dtype=int), 3, 40, wp.array(wall, dtype=int)],
                   outputs=[near])
         assert near.numpy().tolist() == expect
+    # batched worlds of one triangle and two geoms each: bit b is geom b of the triangle's own world
+    # (world 1's geom 1, global 3, a wall; world 0's geom 1 none; world 2's geom 0 none, its geom 1 a wall)
+    lst = tri_list(wp.array([0, 1, 2], dtype=int), wp.array([1 << 1, 1 << 1, 1 << 0], dtype=int))
+    near = wp.zeros(9, dtype=int)
+    wp.launch(mark_near_walls, 3, inputs=[faces, lst, wp.array([3], dtype=int), 1, 2,
+                                          wp.array([0, 0, 0, 1, 0, 1], dtype=int)], outputs=[near])
+    assert near.numpy().tolist() == [0, 0, 0, 1, 1, 1, 0, 0, 0]
 
 
 def wall_or_sphere(wall: bool, wall_carry: float, frames: int = 3):
@@ -94,7 +101,18 @@ def test_wall_carry_acts_only_in_a_scene_with_a_wall():
     assert np.abs(on["state"].x.numpy()[n:] - off["state"].x.numpy()[n:]).max() > 1e-5
     on, off = wall_or_sphere(False, 0.5), wall_or_sphere(False, 0.0)
     assert not on["solver"].carry.acts(on["solver"].contact)
+    assert on["solver"].carry.flesh is None  # (its lists are not even built)
     np.testing.assert_array_equal(on["state"].x.numpy(), off["state"].x.numpy())
+
+
+def test_the_larger_share_applies():
+    """flesh_carry at or above wall_carry: every skin vertex takes flesh_carry, no wall is marked."""
+    from physhand_mj.bench.cases import wall_case
+
+    r = run_case(wall_case(0.008, 0.001, 0.004), ph.Config(device="cpu", tuning=ph.Tuning(flesh_carry=0.5)), frames=2)
+    assert not r["solver"].carry.walls(r["solver"].contact) and r["solver"].carry.near_wall.shape[0] == 0
+    with pytest.raises(ValueError, match="wall_carry"):
+        ph.Config(tuning=ph.Tuning(wall_carry=-0.1)).validate()
 
 
 def test_flesh_carry_is_checked():

@@ -62,8 +62,10 @@ def mark_near_walls(faces: wp.array2d(dtype=int), cand: TriList, cand_count: wp.
                     tris_per_world: int, geoms_per_world: int, wall: wp.array(dtype=int),
                     near_wall: wp.array(dtype=int)):
     """near_wall[v] = 1 for the corners of every triangle of the frame's contact list (``cand``, its
-    length ``cand_count[0]``) whose mask holds a wall geom (``wall``, per geom; the mask's bit 30
-    stands for the world's geoms from its 31st on: broadphase.reach_mask)."""
+    length ``cand_count[0]``) whose mask holds a wall geom (``wall``, per geom). The mask's bit 30
+    stands for all of the world's geoms from its 31st on (broadphase.reach_mask), so in a world of
+    more than 30 geoms a triangle near one of those counts as near a wall when any of them is one
+    (the share then applies a little wider than it must)."""
     k = wp.tid()
     if k >= cand_count[0]:
         return
@@ -107,58 +109,71 @@ def flesh_neighbours(tets: np.ndarray, n_skin: int, inv_mass: np.ndarray):
 
 
 class FleshCarry:
-    """The carry's lists on the model's device, its snapshot buffer and, for ``wall_share``, the
-    frame's skin near walls (one per solver)."""
+    """The carry's lists on the model's device (built when a frame first records a carry: a scene
+    where none acts pays nothing), its snapshot buffer and, for ``wall_share``, the frame's skin near
+    broad walls (one per solver)."""
 
     def __init__(self, model, share: float, device, wall_share: float = 0.0):
-        d = device
-        flesh, off, skin = flesh_neighbours(model.tet_ids.numpy(), model.n_skin, model.inv_mass.numpy())
+        self.model = model
         self.share = float(share)
         self.wall_share = float(wall_share)
+        self.n_skin = int(model.n_skin)
+        self.device = device
+        self.flesh = None  # (flesh vertices, CSR offsets, skin neighbours, snapshot: _build)
+        self.near_wall = wp.zeros(0, dtype=int, device=device)  # (per skin vertex, made once a wall is seen)
+        self._wall = None  # per geom of the contact's objects: 1 a broad wall, on the device
+        self._walls_now = False  # (whether the frame being recorded marks the skin near walls)
+        self._no_walls = self.near_wall
+
+    def _build(self) -> None:
+        if self.flesh is not None:
+            return
+        m, d = self.model, self.device
+        flesh, off, skin = flesh_neighbours(m.tet_ids.numpy(), m.n_skin, m.inv_mass.numpy())
         self.flesh = wp.array(flesh, dtype=int, device=d)
         self.off = wp.array(off, dtype=int, device=d)
         self.skin = wp.array(skin, dtype=int, device=d)
-        self.before = wp.zeros(model.n_skin, dtype=wp.vec3, device=d)
-        self.n_skin = int(model.n_skin)
-        self.device = d
-        self.near_wall = wp.zeros(0, dtype=int, device=d)  # (per skin vertex, made once a wall is seen)
-        self._wall = None  # per geom of the contact's objects: 1 a wall (inside.wall_half_thickness)
+        self.before = wp.zeros(m.n_skin, dtype=wp.vec3, device=d)
 
     def walls(self, contact) -> bool:
-        """Whether the wall share acts in ``contact``'s scene: it exceeds the share everywhere and
-        some object is a wall (read at recording, when the objects are final)."""
-        if self.wall_share <= self.share:
-            return False
-        if self._wall is None:
-            flags = np.zeros(max(int(contact.objects.capacity), 1), np.int32)
-            w = contact.points.wall_geom
-            flags[: len(w)] = w
-            self._wall = flags
-        return bool(self._wall.any())
+        """Whether the wall share acts in ``contact``'s scene as it is now: it exceeds the share
+        everywhere and some object is a broad wall (asked at every recording)."""
+        return self.wall_share > self.share and bool(contact.points.wall_geom.any())
 
     def acts(self, contact) -> bool:
         """Whether any stage's move carries flesh in ``contact``'s scene (else nothing is recorded)."""
         return self.share > 0.0 or self.walls(contact)
 
     def record_frame(self, rec, contact) -> None:
-        """Once per frame after the contact's broadphase: the skin near a wall (the corners of the
-        frame list's triangles within the frame margin of a wall), where ``wall_share`` applies."""
-        if not self.walls(contact):
+        """Once per frame after the contact's broadphase: the skin near a broad wall (the corners of
+        the frame list's triangles within the frame margin of one), where ``wall_share`` applies.
+        The walls are read here, at recording (a frame recorded again after the objects changed
+        reads them again)."""
+        self._build()
+        self._walls_now = self.walls(contact)
+        if not self._walls_now:
             return
+        flags = np.zeros(max(int(contact.objects.capacity), 1), np.int32)
+        w = contact.points.wall_geom
+        flags[: len(w)] = w
+        if self._wall is None or self._wall.shape[0] != flags.shape[0]:
+            self._wall = wp.array(flags, dtype=int, device=self.device)
+        else:
+            self._wall.assign(flags)
         if not self.near_wall.shape[0]:
             self.near_wall = wp.zeros(self.n_skin, dtype=int, device=self.device)
-            self._wall_dev = wp.array(self._wall, dtype=int, device=self.device)
         rec.ops.append(self.near_wall.zero_)
         m = contact.model
         rec.launch(mark_near_walls, contact.n_tris,
                    [m.skin_faces, contact.lists.cand_tris, contact.cand_count, contact.tris_per_world,
-                    contact.geoms_per_world, self._wall_dev], [self.near_wall], count=contact.cand_count)
+                    contact.geoms_per_world, self._wall], [self.near_wall], count=contact.cand_count)
 
     def record(self, rec, state, inv_mass, stage) -> None:
         """Record the skin's snapshot, ``stage()`` (the contact stage's launches), then the carry."""
+        self._build()
         rec.launch(snapshot_skin, self.n_skin, [state.x], [self.before])
         stage()
         wall_share = max(self.wall_share, self.share)
         rec.launch(carry_flesh, int(self.flesh.shape[0]),
-                   [self.flesh, self.off, self.skin, self.before, inv_mass, self.share, self.near_wall,
-                    wall_share], [state.x])
+                   [self.flesh, self.off, self.skin, self.before, inv_mass, self.share,
+                    self.near_wall if self._walls_now else self._no_walls, wall_share], [state.x])
