@@ -421,47 +421,44 @@ WALL_HALF = 1.5e-3
 WALL_ASPECT = 0.5
 
 
-def wall_half_thickness(objects, g: int) -> float:
-    """Half the thickness (m) of geom ``g`` of ``objects`` where it is a wall, else 0: a box's least
-    half extent (a plate or a rod), a cylinder's least of radius and half height (a disc or a rod), a
-    capsule's radius (a rod), a mesh's measured half-thickness (plates and shells of even
-    thickness: objects.mesh_half_thickness; 0 for others), at most WALL_HALF and at most
-    WALL_ASPECT x the geom's largest half extent (box, cylinder), its radius + half length
-    (capsule) or its bounding radius (mesh)."""
-    h = objects._host
-    t = GeomType(int(h["gtype"][g]))
-    s = np.asarray(h["size"][g], float)
-    if t == GeomType.BOX:  # a plate or a rod: its least half extent
-        e = np.sort(s)
-        half, across = e[0], e[2]
-    elif t == GeomType.CYLINDER:  # a disc or a rod: its least half extent
-        half, across = min(s[0], s[1]), max(s[0], s[1])
-    elif t == GeomType.CAPSULE:  # a rod
-        half, across = s[0], s[0] + s[1]
-    elif t == GeomType.MESH:
-        half, across = s[2], float(h["radius"][g])
-    else:
-        return 0.0
-    return float(half) if 0.0 < half <= WALL_HALF and half <= WALL_ASPECT * across else 0.0
-
-
-def wall_is_broad(objects, g: int) -> bool:
-    """Whether wall ``g`` (:func:`wall_half_thickness` > 0) is broad, a plate or a shell, not a rod:
-    its second least half extent at least twice its half-thickness (a box's middle half extent, a
-    disc's radius; a capsule and a cylinder lying as a rod have a round section: never); a mesh's
-    breadth is not measured: broad. Across a broad wall's face the skin is dragged far enough to fold
-    over its rims (Tuning.wall_carry); round a rod it is not."""
+def wall_extents(objects, g: int) -> tuple:
+    """(half-thickness, breadth, across) (m) of geom ``g`` of ``objects`` as a wall would have them:
+    a box's least, middle and largest half extent (a plate or a rod); a cylinder's least of radius
+    and half height, its radius (a disc's breadth; a rod's round section: its half-thickness again)
+    and the larger of the two; a capsule's radius, radius, and radius + half length (a rod); a mesh's
+    measured half-thickness (objects.mesh_half_thickness: plates and shells of even thickness; 0 for
+    others), an unmeasured breadth (inf) and its bounding radius; (0, 0, 0) for other types."""
     h = objects._host
     t = GeomType(int(h["gtype"][g]))
     s = np.asarray(h["size"][g], float)
     if t == GeomType.BOX:
         e = np.sort(s)
-        return bool(e[1] >= 2.0 * e[0])
+        return float(e[0]), float(e[1]), float(e[2])
     if t == GeomType.CYLINDER:
-        return bool(s[0] >= 2.0 * s[1])  # a disc: radius against half height
+        return float(min(s[0], s[1])), float(s[0]), float(max(s[0], s[1]))
     if t == GeomType.CAPSULE:
-        return False
-    return t == GeomType.MESH
+        return float(s[0]), float(s[0]), float(s[0] + s[1])
+    if t == GeomType.MESH:
+        return float(s[2]), float("inf"), float(h["radius"][g])
+    return 0.0, 0.0, 0.0
+
+
+def wall_half_thickness(objects, g: int) -> float:
+    """Half the thickness (m) of geom ``g`` of ``objects`` where it is a wall, else 0: its
+    half-thickness (:func:`wall_extents`) where that is at most WALL_HALF and at most WALL_ASPECT x
+    the geom's largest extent."""
+    half, _, across = wall_extents(objects, g)
+    return half if 0.0 < half <= WALL_HALF and half <= WALL_ASPECT * across else 0.0
+
+
+def wall_is_broad(objects, g: int) -> bool:
+    """Whether wall ``g`` (:func:`wall_half_thickness` > 0) is broad, a plate or a shell, not a rod:
+    its breadth at least twice its half-thickness (:func:`wall_extents`: a box's middle half extent,
+    a disc's radius; a rod's round section never; a mesh's breadth is not measured: broad). Across a
+    broad wall's face the skin is dragged far enough to fold over its rims (Tuning.wall_carry); round
+    a rod it is not."""
+    half, breadth, _ = wall_extents(objects, g)
+    return breadth >= 2.0 * half
 
 
 @wp.kernel
