@@ -17,6 +17,9 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
   leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
   (or than it already was) is not applied. Held skin stays inside the object: the penetration is
   the answer, stated by the report below. A bone less than HOLD_DEPTH inside grips nothing.
+  In a gripped world a push is also cut short where it would flatten one of the vertex's tets past
+  KEEP of its rest volume: held and pushed skin side by side otherwise shear the skin-layer tets
+  inside out (the palm with a bone 5 mm in a sphere: 389 inverted -> 6).
 - **The report** (:func:`bone_clearance`, :func:`bone_report`, on demand, not per frame): per
   skeleton vertex its clearance from the nearest object (m, negative inside) and that object's
   geom; ``SoftHand.contacts()`` gives per object the bones it holds and how deep, and how many
@@ -32,6 +35,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.sdf import FAR, GeomSet, geom_sdf
+from physhand_mj.solver.tet import skin_tet_lists, tet_room
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -69,6 +73,12 @@ REACH_SLACK = wp.constant(2.0e-3)
 # skin pushed out over it, as before the hold: the skin passes the bone's surface by that much,
 # which nothing sees, where a held fingertip showed 3.5 mm of skin inside the glass
 HOLD_DEPTH = wp.constant(2.0e-3)
+# share of its rest volume below which a push in a gripped world may not flatten a tet of the pushed
+# vertex (solver/tet.py tet_room: the push is cut short there, and a tet already below it may only
+# grow). Held and pushed skin side by side sheared the skin-layer tets inside out: 15-389 stayed
+# inverted while the object stayed (docs/contact.md "Bones inside objects"). 0.02 and 0.3 leave
+# the same few (0-17) as 0.1; a larger share keeps more skin inside the object.
+KEEP = 0.1
 
 
 @wp.struct
@@ -79,7 +89,10 @@ class BoneHold:
     the vertex at the frame's last bone pose (its rest offset, Model.skin_local); reach (S,) float
     m: how far from there a push may leave it in a gripped world; world (S,) int: its world
     (Model.vertex_world); gripped (W,) int: 1 for a world with a held vertex this frame; depth (1,)
-    float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never)."""
+    float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never);
+    keep: KEEP (0: the hold off); ns1, nt1, vt_off, vt, tets, vol0: one world's skin vertices and
+    tets per world, and the tets of each skin vertex with their rest 6 x volumes
+    (solver/tet.py skin_tet_lists), for the cut in a gripped world."""
 
     held: wp.array(dtype=int)
     carried: wp.array(dtype=wp.vec3)
@@ -87,6 +100,13 @@ class BoneHold:
     world: wp.array(dtype=int)
     gripped: wp.array(dtype=int)
     depth: wp.array(dtype=float)
+    keep: float
+    ns1: int
+    nt1: int
+    vt_off: wp.array(dtype=int)
+    vt: wp.array(dtype=int)
+    tets: wp.array2d(dtype=int)
+    vol0: wp.array(dtype=float)
 
 
 def make_bone_hold(model, on: bool = True) -> BoneHold:
@@ -99,14 +119,26 @@ def make_bone_hold(model, on: bool = True) -> BoneHold:
     h.world = model.vertex_world if on else wp.zeros(0, dtype=int, device=d)
     h.gripped = wp.zeros(model.worlds if on else 0, dtype=int, device=d)
     h.depth = wp.full(1, float(HOLD_DEPTH), dtype=float, device=d)
+    h.keep = float(KEEP) if on else 0.0
+    h.ns1 = int(model.n_skin) // max(int(model.worlds), 1)
+    if on and h.ns1:
+        h.tets, h.nt1, h.vol0, h.vt_off, h.vt = skin_tet_lists(model, h.ns1)
+    else:
+        h.nt1 = 0
+        h.tets = wp.zeros((0, 4), dtype=int, device=d)
+        h.vol0 = wp.zeros(0, dtype=float, device=d)
+        h.vt_off = wp.zeros(0, dtype=int, device=d)
+        h.vt = wp.zeros(0, dtype=int, device=d)
     return h
 
 
 @wp.func
-def held_move(hold: BoneHold, i: int, xi: wp.vec3, dx: wp.vec3):
+def held_move(hold: BoneHold, i: int, x: wp.array(dtype=wp.vec3), xi: wp.vec3, dx: wp.vec3):
     """Contact correction ``dx`` of skin vertex ``i`` (at ``xi``) where its bones allow it, else 0:
     not where an object holds its anchor, nor, in a gripped world, where it would leave the vertex
-    farther from where its bone carries it than its reach (or than it already was)."""
+    farther from where its bone carries it than its reach (or than it already was); and there cut
+    short where it would flatten one of the vertex's tets (at ``x``, every world's positions) past
+    KEEP of its rest volume."""
     if i >= hold.held.shape[0]:
         return dx
     if hold.held[i] != 0:
@@ -116,6 +148,9 @@ def held_move(hold: BoneHold, i: int, xi: wp.vec3, dx: wp.vec3):
     c = hold.carried[i]
     if wp.length(xi + dx - c) > wp.max(hold.reach[i], wp.length(xi - c)):
         return wp.vec3(0.0)
+    if hold.keep > 0.0:  # no push that flattens a tet of the vertex past KEEP of its rest volume
+        w = hold.world[i]
+        return dx * tet_room(i, i - w * hold.ns1, dx, x, hold.vt_off, hold.vt, hold.tets, hold.vol0, hold.keep, w * hold.nt1)
     return dx
 
 

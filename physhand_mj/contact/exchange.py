@@ -258,7 +258,7 @@ def skin_friction(ex: Exchange, hold: BoneHold, geoms: GeomSet, n_geoms: int, ve
     dxf = -ut
     if s > lim:
         dxf = -ut * (lim / s)
-    dx = held_move(hold, i, xi, dxf)
+    dx = held_move(hold, i, x, xi, dxf)
     record(ex, i, k, xi, dx, dx)
     x[i] = xi + dx
     owe = ut + dx

@@ -599,7 +599,7 @@ def apply_vertex(i: int, stamp: int, sums: PushSums, hold: BoneHold, ex: Exchang
     two-way coupling (``ex`` not empty) its impulse summed and its normal load kept for its friction
     (exchange.record, exchange.touch_load; the friction itself: exchange.skin_friction)."""
     obj = sums.vertex_obj[i]
-    dx = held_move(hold, i, x[i], sums.delta[i] * (1.0 / sums.hits[i]))
+    dx = held_move(hold, i, x, x[i], sums.delta[i] * (1.0 / sums.hits[i]))
     sums.delta[i] = wp.vec3(0.0)
     sums.hits[i] = 0.0
     touch_load(ex, i, obj, dx)

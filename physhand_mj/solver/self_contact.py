@@ -46,6 +46,7 @@ import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.solver.self_slack import REACH, QuerySlack
+from physhand_mj.solver.tet import skin_tet_lists, tet_room
 
 wp.set_module_options({"enable_backward": False})
 
@@ -213,48 +214,6 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
             _touch(faces[tk, 2], mark, involved, counts, seg, w, vo, winvolved, wcounts)
 
 
-@wp.func
-def _room(i: int, il: int, dp: wp.vec3, x: Any, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-          tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), keep: float, to: int) -> float:
-    """The share t in [0, 1] of the move dp of vertex i that keeps each of its tets' signed volume at
-    least ``keep`` x its rest volume (the volume is linear in one vertex's position). ``vt_off``,
-    ``vt`` and ``vol0`` are one world's: ``il`` is the vertex's index in its world's skin, ``to`` the
-    world's first row in ``tets``; ``i`` the vertex as those rows and ``x`` name it (the launches:
-    every world's positions, the world's tets; the fused substep: its block's shared tile and one
-    world's tets in the world's own indices, ``to`` 0: solver/fused_self.py)."""
-    t = float(1.0)
-    for k in range(vt_off[il], vt_off[il + 1]):
-        e = vt[k]
-        ge = e + to
-        a = tets[ge, 0]
-        b = tets[ge, 1]
-        c = tets[ge, 2]
-        d = tets[ge, 3]
-        v = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
-        v1 = v
-        if i == a:
-            v1 = wp.dot(x[b] - x[a] - dp, wp.cross(x[c] - x[a] - dp, x[d] - x[a] - dp))
-        elif i == b:
-            v1 = wp.dot(x[b] + dp - x[a], wp.cross(x[c] - x[a], x[d] - x[a]))
-        elif i == c:
-            v1 = wp.dot(x[b] - x[a], wp.cross(x[c] + dp - x[a], x[d] - x[a]))
-        else:
-            v1 = wp.dot(x[b] - x[a], wp.cross(x[c] - x[a], x[d] + dp - x[a]))
-        s0 = vol0[e]
-        lo = keep * s0
-        # in the rest volume's sign: v, v1 against lo
-        if s0 < 0.0:
-            v = -v
-            v1 = -v1
-            lo = -lo
-        if v1 < lo and v1 < v:
-            tt = float(0.0)
-            if v > lo:
-                tt = (v - lo) / (v - v1)
-            t = wp.min(t, tt)
-    return t
-
-
 @wp.kernel
 def skin_bounds(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), normals: int, vn: wp.array(dtype=wp.vec3),
                 lowers: wp.array(dtype=wp.vec3), uppers: wp.array(dtype=wp.vec3)):
@@ -314,7 +273,7 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     adds them up (the launches:
     :func:`_correct`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
     returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
-    (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`_room`'s."""
+    (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`~physhand_mj.solver.tet.tet_room`'s."""
     z = wp.vec3(0.0)
     a = faces[best, 0]
     b = faces[best, 1]
@@ -345,10 +304,10 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
         return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
     dl = (thickness - s) / w
     if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
-        tk = _room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
-        tk = wp.min(tk, _room(a - xo, a - vo, -wa * ma * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
-        tk = wp.min(tk, _room(b - xo, b - vo, -wb * mb * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
-        tk = wp.min(tk, _room(c - xo, c - vo, -wc * mc * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+        tk = tet_room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
+        tk = wp.min(tk, tet_room(a - xo, a - vo, -wa * ma * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+        tk = wp.min(tk, tet_room(b - xo, b - vo, -wb * mb * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+        tk = wp.min(tk, tet_room(c - xo, c - vo, -wc * mc * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
         dl = dl * tk
     # The share of the correction that resolves the depth the pair already had at the substep's start
     # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
@@ -533,21 +492,7 @@ class SelfContact:
         self.winvolved = wp.zeros(ns, dtype=int, device=d)
         # Tuning.self_tet_keep: every tet of every skin vertex of one world (CSR: vt_off, vt) and its rest
         # volume; world w's are the same shifted by its offsets (the model's tets: world by world)
-        self.tets = model.tet_ids
-        if not (isinstance(self.tets, wp.array) and self.tets.dtype == wp.int32 and self.tets.ndim == 2):
-            self.tets = wp.array(np.asarray(model.tet_ids.numpy()).reshape(-1, 4).astype(np.int32), dtype=int, device=d)
-        self.nt1 = int(self.tets.shape[0]) // W
-        tets = np.asarray(self.tets[: self.nt1].numpy()).reshape(-1, 4)  # world 0's
-        rx = model.rest_x.numpy().astype(np.float64)
-        A, B, C, D = (rx[tets[:, k]] for k in range(4))
-        self.vol0 = wp.array(np.einsum("ij,ij->i", B - A, np.cross(C - A, D - A)).astype(np.float32), dtype=float, device=d)
-        sk = tets < self.ns1
-        tv = np.repeat(np.arange(len(tets)), 4)[sk.ravel()]
-        vv = tets.ravel()[sk.ravel()]
-        order = np.argsort(vv, kind="stable")
-        cnt = np.bincount(vv, minlength=self.ns1)
-        self.vt_off = wp.array(np.concatenate([[0], np.cumsum(cnt)]).astype(np.int32), dtype=int, device=d)
-        self.vt = wp.array(tv[order].astype(np.int32), dtype=int, device=d)
+        self.tets, self.nt1, self.vol0, self.vt_off, self.vt = skin_tet_lists(model, self.ns1)
 
     def build(self, state) -> wp.Bvh:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
