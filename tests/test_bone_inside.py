@@ -118,3 +118,36 @@ def test_without_the_hold_the_skin_is_dragged_past_the_bone(asset):
     held, _, _ = _run(asset, "fingertip", 0.015, 0.03, hold=True)
     free, _, _ = _run(asset, "fingertip", 0.015, 0.03, hold=False)
     assert free["max_disp_mm"][-1] > 2.0 * held["max_disp_mm"][-1], (free["max_disp_mm"][-1], held["max_disp_mm"][-1])
+
+
+def test_batched_worlds_cut_their_own_tets(asset):
+    """BatchedHands: a world whose bone lies inside a sphere is gripped and its pushes cut by its own
+    tets (the batched layout's offsets), a world beside it is not; each world ends bit for bit as a
+    serial Solver with the same sphere (CPU)."""
+    from physhand_mj.contact import Objects
+    from physhand_mj.types import GeomType
+
+    _, model, data = ph.open_hand_scene("hand_only", "open")
+    ids, mount = ph.body_ids(model, asset.body_names), ph.mount_pose(model, data)
+    poses = ph.bone_poses_at(model, data, model.key("open").qpos, ids)
+    cfg = ph.Config(device="cpu")
+    batch = ph.BatchedHands(asset, 2, cfg, *mount, objects=[dict(gtype=GeomType.SPHERE, size=(0.02, 0, 0), name="ball")])
+    skin = batch.skin(0)
+    top = skin[np.argmax(skin[:, 2])].astype(float)
+    where = [top + [0.0, 0.0, 0.1], top + [0.0, 0.0, 0.012]]  # world 1: the sphere 8 mm under the top skin
+    serial = []
+    for w in range(2):
+        o = Objects("cpu", 1)
+        o.add(GeomType.SPHERE, (0.02, 0, 0), where[w], name="ball")
+        s = ph.Solver(ph.make_model(asset, cfg), cfg, objects=o)
+        serial.append((s, s.make_state(*mount)))
+    ident = np.array([[[1.0, 0.0, 0.0, 0.0]]] * 2)
+    for _ in range(3):
+        batch.step(np.stack([poses[0]] * 2), np.stack([poses[1]] * 2), np.stack(where)[:, None], ident)
+        for s, st in serial:
+            s.set_body_poses(st, *poses)
+            s.step(st)
+    assert batch.solver.contact.bone_hold.gripped.numpy().tolist() == [0, 1]
+    assert [int(s.contact.bone_hold.gripped.numpy()[0]) for s, _ in serial] == [0, 1]
+    for w in range(2):
+        assert np.array_equal(batch.positions(w), serial[w][1].x.numpy()), w
