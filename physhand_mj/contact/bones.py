@@ -35,7 +35,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.sdf import FAR, GeomSet, geom_sdf
-from physhand_mj.solver.tet import skin_tet_lists, tet_room
+from physhand_mj.contact.tet_room import skin_tet_lists, tet_room
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -74,7 +74,7 @@ REACH_SLACK = wp.constant(2.0e-3)
 # which nothing sees, where a held fingertip showed 3.5 mm of skin inside the glass
 HOLD_DEPTH = wp.constant(2.0e-3)
 # share of its rest volume below which a push in a gripped world may not flatten a tet of the pushed
-# vertex (solver/tet.py tet_room: the push is cut short there, and a tet already below it may only
+# vertex (contact/tet_room.py: the push is cut short there, and a tet already below it may only
 # grow). Held and pushed skin side by side sheared the skin-layer tets inside out: 15-389 stayed
 # inverted while the object stayed (docs/contact.md "Bones inside objects"). 0.02 and 0.3 leave
 # the same few (0-17) as 0.1; a larger share keeps more skin inside the object.
@@ -92,7 +92,7 @@ class BoneHold:
     float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never);
     keep: KEEP (0: the hold off); ns1, nt1, vt_off, vt, tets, vol0: one world's skin vertices and
     tets per world, and the tets of each skin vertex with their rest 6 x volumes
-    (solver/tet.py skin_tet_lists), for the cut in a gripped world."""
+    (contact/tet_room.py skin_tet_lists), for the cut in a gripped world."""
 
     held: wp.array(dtype=int)
     carried: wp.array(dtype=wp.vec3)

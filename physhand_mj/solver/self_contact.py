@@ -46,7 +46,7 @@ import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
 from physhand_mj.solver.self_slack import REACH, QuerySlack
-from physhand_mj.solver.tet import skin_tet_lists, tet_room
+from physhand_mj.contact.tet_room import skin_tet_lists, tet_room
 
 wp.set_module_options({"enable_backward": False})
 
@@ -273,7 +273,7 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     adds them up (the launches:
     :func:`_correct`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
     returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
-    (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`~physhand_mj.solver.tet.tet_room`'s."""
+    (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`~physhand_mj.contact.tet_room.tet_room`'s."""
     z = wp.vec3(0.0)
     a = faces[best, 0]
     b = faces[best, 1]
