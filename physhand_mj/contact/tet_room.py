@@ -64,6 +64,9 @@ def skin_tet_lists(model, ns1: int) -> tuple:
     if not (isinstance(tets, wp.array) and tets.dtype == wp.int32 and tets.ndim == 2):
         tets = wp.array(np.asarray(model.tet_ids.numpy()).reshape(-1, 4).astype(np.int32), dtype=int, device=d)
     nt1 = int(tets.shape[0]) // max(int(getattr(model, "worlds", 1)), 1)
+    if nt1 == 0:  # (a body without tets, such as a sheet: every vertex has none)
+        return (tets, 0, wp.zeros(0, dtype=float, device=d), wp.zeros(ns1 + 1, dtype=int, device=d),
+                wp.zeros(0, dtype=int, device=d))
     t0 = np.asarray(tets[:nt1].numpy()).reshape(-1, 4)  # world 0's
     flesh = t0[t0 >= ns1]
     lo = int(flesh.min()) if len(flesh) else ns1
