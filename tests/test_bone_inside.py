@@ -120,10 +120,12 @@ def test_without_the_hold_the_skin_is_dragged_past_the_bone(asset):
     assert free["max_disp_mm"][-1] > 2.0 * held["max_disp_mm"][-1], (free["max_disp_mm"][-1], held["max_disp_mm"][-1])
 
 
-def test_batched_worlds_cut_their_own_tets(asset):
+def test_batched_worlds_cut_their_own_tets(asset, monkeypatch):
     """BatchedHands: a world whose bone lies inside a sphere is gripped and its pushes cut by its own
     tets (the batched layout's offsets), a world beside it is not; each world ends bit for bit as a
-    serial Solver with the same sphere (CPU)."""
+    serial Solver with the same sphere (CPU), and the gripped one differs from a serial run without
+    the cut (so the cut acted)."""
+    import physhand_mj.contact.bones as bones
     from physhand_mj.contact import Objects
     from physhand_mj.types import GeomType
 
@@ -151,3 +153,12 @@ def test_batched_worlds_cut_their_own_tets(asset):
     assert [int(s.contact.bone_hold.gripped.numpy()[0]) for s, _ in serial] == [0, 1]
     for w in range(2):
         assert np.array_equal(batch.positions(w), serial[w][1].x.numpy()), w
+    monkeypatch.setattr(bones, "KEEP", 0.0)  # the same gripped world without the cut
+    o = Objects("cpu", 1)
+    o.add(GeomType.SPHERE, (0.02, 0, 0), where[1], name="ball")
+    s = ph.Solver(ph.make_model(asset, cfg), cfg, objects=o)
+    st = s.make_state(*mount)
+    for _ in range(3):
+        s.set_body_poses(st, *poses)
+        s.step(st)
+    assert np.abs(st.x.numpy() - serial[1][1].x.numpy()).max() > 1.0e-3

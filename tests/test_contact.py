@@ -458,3 +458,39 @@ def test_tiled_features_on_cuda_match_the_bvh_path(kind, site, start):
         hit = a[:, 0] >= 0
         assert np.abs(a[hit, 1] - b[hit, 1]).max(initial=0.0) < 1e-7
         assert np.array_equal(a[hit, 2], b[hit, 2])
+
+
+def test_objects_changed_after_the_first_frame_are_seen():
+    """A geom added to Objects after the first frame, or resized there (SoftHand.refresh_objects, as
+    MyoSuite's envs resize their object at reset), is seen by the contact's object points and both of
+    the object side's measures from the next frame on: the points are made again from the geoms as
+    they are (Objects.version), not kept from the first frame."""
+    from physhand_mj.bench.cases import rot_z_to, site_point
+    from physhand_mj.solver import Solver, make_model
+
+    asset = ph.load_asset()
+    cfg = ph.Config(device="cpu")
+    objs = Objects("cpu", 2)
+    objs.add(GeomType.SPHERE, (0.005, 0, 0), (0.3, 0.3, 0.3), name="far")
+    solver = Solver(make_model(asset, cfg), cfg, objects=objs)
+    state = solver.make_state()
+    for _ in range(2):
+        solver.step(state)
+    c = solver.contact
+    assert np.allclose(np.linalg.norm(c.points.pts_host, axis=1), 0.005, atol=1e-6)
+    # resized as SoftHand.refresh_objects does: the points lie on the new surface
+    objs._host["size"][0] = (0.008, 0, 0)
+    objs._host["radius"][0] = 0.008
+    objs.upload()
+    solver.step(state)
+    assert np.allclose(np.linalg.norm(c.points.pts_host, axis=1), 0.008, atol=1e-6)
+    assert np.allclose(np.linalg.norm(c.check_points.pts_host, axis=1), 0.008, atol=1e-6)
+    # a plate buried 0.5-2.5 mm under the fingertip's skin, added now: only the object side can see it
+    p0, n = site_point(asset, "fingertip")
+    objs.add(GeomType.BOX, (0.004, 0.004, 0.001), p0 - 0.0015 * n, rot_z_to(n), name="plate")
+    seen = c.measure(state)
+    assert (c.points.geom_host == 1).any() and (c.check_points.geom_host == 1).any()
+    assert seen[3] > 0 and c.measure(state, check=True)[3] > 0, seen
+    for _ in range(12):
+        solver.step(state)
+    assert c.measure(state)[3] == 0 and c.measure(state, check=True)[3] == 0

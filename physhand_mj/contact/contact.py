@@ -151,7 +151,8 @@ class Contact:
         tiled = config.tiled_contact if config.tiled_contact is not None else model.worlds == 1
         self.tiled = bool(wp.get_device(d).is_cuda and config.contact == Strategy.MULTIRES
                           and config.multires_samples < TILE_LANES and tiled)
-        self._points = None  # ObjectPoints, built at the first recording (objects are final then)
+        self._points = None  # ObjectPoints, built on first use from the geoms of Objects.version:
+        self._objects_version = objects.version  # (made again when that changes: sync_objects)
         # the object's side (features.py, the second measure) needs an inside: a closed skin
         # (batched worlds: world 0's faces, which name world 0's skin vertices; every world is a copy,
         # and the tolerance below is then the serial hand's to the bit)
@@ -588,9 +589,26 @@ class Contact:
         if self.lists.world_stage is not None:
             ops.append(self.lists.world_stage.zero_)
 
+    def sync_objects(self) -> bool:
+        """Whether the geoms changed since the object points were built (``Objects.version``: a geom
+        added, or a type or size changed by SoftHand.refresh_objects); if so the points, the feature
+        lists and the measures' check points are dropped, to be made again from the geoms as they
+        are now (the solver then records its frames again: Solver._queue_frame)."""
+        v = self.objects.version
+        if v == self._objects_version:
+            return False
+        self._objects_version = v
+        self._points = None
+        self.features = None
+        self.slack_check = None
+        self.measures.forget()
+        return True
+
     @property
     def points(self) -> ObjectPoints:
-        """The objects' surface points (built on first use)."""
+        """The objects' surface points (built on first use, and again after the geoms change:
+        :meth:`sync_objects`)."""
+        self.sync_objects()
         if self._points is None:
             self._points = ObjectPoints(self.objects, edge_spacing=self.config.feature_spacing)
         return self._points
@@ -600,6 +618,7 @@ class Contact:
     @property
     def check_points(self) -> ObjectPoints:
         """The denser object points the contact never uses (:attr:`ContactMeasures.check_points`)."""
+        self.sync_objects()
         return self.measures.check_points
 
     @property
@@ -634,6 +653,7 @@ class Contact:
 
     def _measured_points(self, check: bool) -> ObjectPoints | None:
         """The points a measure at once asks: :attr:`points` (built on first use) unless no skin or ``check``."""
+        self.sync_objects()  # (the check points too)
         return self.points if self.n_tris and not check else None
 
     @contextlib.contextmanager

@@ -385,6 +385,9 @@ class Objects:
     _mesh_cache: dict = field(default_factory=dict)  # the same vertices/faces/sign: one wp.Mesh (batched worlds)
     _host: dict = field(default_factory=dict)
     _pose_buf: object = None
+    # bumped by every upload of the geoms (add, SoftHand.refresh_objects): what is built from their
+    # types and sizes (the contact's object points and feature lists) is made again when it changes
+    version: int = 0
 
     def __post_init__(self):
         d, c = self.device, max(int(self.capacity), 1)
@@ -540,3 +543,4 @@ class Objects:
         self.mesh_exact.assign(h["mesh"] * np.array([1, 0], np.uint64))
         self._upload_pose()
         self.count.assign(np.array([len(self.names)], np.int32))
+        self.version += 1
