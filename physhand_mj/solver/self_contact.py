@@ -45,8 +45,8 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.solver.self_slack import REACH, QuerySlack
 from physhand_mj.contact.tet_room import skin_tet_lists, tet_room
+from physhand_mj.solver.self_slack import REACH, QuerySlack
 
 wp.set_module_options({"enable_backward": False})
 
