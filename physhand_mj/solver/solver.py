@@ -79,7 +79,7 @@ class Solver:
         self.last_graph = None
         self._pre: dict[tuple, list] = {}  # CUDA gates: the frame broadphase, run ahead of the graph
         # the objects' geoms and the contact's buffer replacements when the frames were recorded (_queue_frame)
-        self._recorded_geoms = (0, 0, 0)
+        self._recorded_geoms = (0, 0)
         self._tail: list = []  # ops run at the end of every frame, inside its graph (set_frame_tail)
         self._in_flight = None  # (state, ops or None asleep, rigid, frame poses) between launch and finish
         self._cand_host = wp.zeros(1, dtype=int, device="cpu", pinned=self.device.is_cuda)
@@ -220,7 +220,7 @@ class Solver:
         c = self.contact
         if c is not None:
             c.sync_objects()  # (a geom added or resized: its points made again)
-        geoms = (len(c.objects), c.reallocations, c.objects.version) if c is not None else (0, 0, 0)
+        geoms = (c.objects.version, c.reallocations) if c is not None else (0, 0)  # (version: every add counts)
         if geoms != self._recorded_geoms:  # a geom added or resized since the frames were recorded (which kernels a frame
             self._forget_recordings()  # launches depends on them: query_tiled.tiled_kernel_for), or a buffer
             self._recorded_geoms = geoms  # the frames read replaced (a grown patch pool): record again
