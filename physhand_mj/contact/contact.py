@@ -448,21 +448,29 @@ class Contact:
                        count=fl.count)
         else:
             skin = feat_count = None
-        prev: tuple = ()  # counter slots of the vertices the previous pass moved
-        flag = None  # the device flag the previous pass's keep_moved set from them (activity.py level 2)
-        for p in range(cfg.contact_passes):
-            if p:
-                box: dict = {}
-                gate = rec.gated(lambda sub, p=p: box.update(r=self._record_pass(rec, state, p, lst, skin,
-                                                                                 feat_count)), 2, prev, flag)
-                # (Config.tuning.contact_pass_tol: the CPU's host test)
-                if gate is not None and len(self.lists.pass_move):
-                    gate.moved_enough = self._moved_enough(prev[0], stage)
-                lst, prev, flag = box["r"]
-            else:
-                lst, prev, flag = self._record_pass(rec, state, p, lst, skin, feat_count)
+        lst, prev, flag = self._record_pass(rec, state, 0, lst, skin, feat_count)
+        self._record_later_passes(rec, state, 1, lst, prev, flag, skin, feat_count, stage)
         self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
         self.two_way.record_take(rec, state, self.bone_hold)
+
+    def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
+        """Passes ``p``.. of a stage, each recorded inside the gate of the one before (activity.py level
+        2: ``prev``, the counter slots of the vertices pass p - 1 moved; ``flag``, the device flag its
+        keep_moved set from them). Nested, a skipped pass skips every later one with it: one test
+        (CUDA: one conditional graph node) however many passes ``contact_passes`` allows. (A pass
+        after a skipped one could not run anyway: its counters and flag are set only by the skipped
+        pass, and zeroed with the frame.)"""
+        if p >= self.config.contact_passes:
+            return
+
+        def body(sub):
+            nxt = self._record_pass(rec, state, p, lst, skin, feat_count)
+            self._record_later_passes(rec, state, p + 1, *nxt, skin, feat_count, stage)
+
+        gate = rec.gated(body, 2, prev, flag)
+        # (Config.tuning.contact_pass_tol: the CPU's host test)
+        if gate is not None and len(self.lists.pass_move):
+            gate.moved_enough = self._moved_enough(prev[0], stage)
 
     def _record_pass(self, rec, state, p, lst, skin, feat_count):
         """One pass of a stage; returns the next pass's list, this pass's touched counter slots and
