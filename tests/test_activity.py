@@ -161,6 +161,14 @@ def test_conditional_contact_passes_change_no_result(scene):
         runs.append((state.x.numpy().copy(), outs, solver))
     (x1, o1, s1), (x2, o2, _) = runs
     assert any(g.cond is not None for g in s1.activity.gates)  # the passes were conditional
+    # each stage's later passes nest (a skipped pass skips the rest in one test): of a stage's level-2
+    # gates only its second pass's is outside another, and only its last holds none
+    passes = [g for g in s1.activity.gates if g.level == 2]
+    holds = [sum(op in passes for op in g.sub) for g in passes]
+    stages = len(passes) // (s1.config.contact_passes - 1)
+    assert len(passes) == stages * (s1.config.contact_passes - 1) and stages > 0
+    assert holds.count(0) == stages and set(holds) == {0, 1}
+    assert sum(any(g in h.sub for h in passes) for g in passes) == len(passes) - stages
     assert np.array_equal(x1, x2), float(np.abs(x1 - x2).max())
     keys = ("penetration_count", "penetration_max_um", "triangles_frame", "triangles_tested", "features_listed")
     assert [[o[k] for k in keys] for o in o1] == [[o[k] for k in keys] for o in o2]

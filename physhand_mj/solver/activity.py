@@ -19,7 +19,9 @@ recorded into *gated blocks* that run only when the scene calls for them:
              reads that pass's two counters. On CUDA (graphs on, tiled feature queries: no refit
              inside a pass) each such pass is a conditional graph node, ``wp.capture_if`` on a flag
              that the previous pass's last launch (thread 0 of ``broadphase.keep_moved``) sets
-             from those counters on the device.
+             from those counters on the device. Each pass's block sits inside the one before
+             (``Contact._record_later_passes``), so a skipped pass skips the rest with it: one test,
+             one node, however many passes ``Config.contact_passes`` allows.
 
 With no object within the frame margin no contact kernel runs (CPU: not even the frame
 broadphase; CUDA: the frame broadphase and one sync only). Nothing inside a closed block could change the
