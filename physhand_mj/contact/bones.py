@@ -19,7 +19,9 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
   the answer, stated by the report below. A bone less than HOLD_DEPTH inside grips nothing.
   In a gripped world a push is also cut short where it would flatten one of the vertex's tets past
   KEEP of its rest volume: held and pushed skin side by side otherwise shear the skin-layer tets
-  inside out (the palm with a bone 5 mm in a sphere: 389 inverted -> 6).
+  inside out (the palm with a bone 5 mm in a sphere: 389 inverted -> 6). After each contact stage
+  of a frame that holds skin, :func:`restore_tets` grows the skin-layer tets the substep flattened
+  past KEEP back to it (6 -> 0 there).
 - **The report** (:func:`bone_clearance`, :func:`bone_report`, on demand, not per frame): per
   skeleton vertex its clearance from the nearest object (m, negative inside) and that object's
   geom; ``SoftHand.contacts()`` gives per object the bones it holds and how deep, and how many
@@ -83,6 +85,10 @@ KEEP = 0.1
 # move changes its neighbours' room), so a stage there runs all its passes (CPU, the palm's 5 mm
 # bone: 8-13 % more time a frame); a push cut below 1 um and dropped did not change that.
 
+# rounds of restore_tets after each contact stage of a frame that holds skin (2 left the palm's 15 mm
+# bone one inverted tet in every frame from the 6th; 4: 0-1, docs/contact.md "Bones inside objects")
+RESTORE_ROUNDS = 4
+
 
 @wp.struct
 class BoneHold:
@@ -91,7 +97,9 @@ class BoneHold:
     vertex's anchor (no push moves it), 0 elsewhere; carried (S,) vec3 m: where its bone carries
     the vertex at the frame's last bone pose (its rest offset, Model.skin_local); reach (S,) float
     m: how far from there a push may leave it in a gripped world; world (S,) int: its world
-    (Model.vertex_world); gripped (W,) int: 1 for a world with a held vertex this frame; depth (1,)
+    (Model.vertex_world); gripped (W,) int: 1 for a world with a held vertex this frame; count (1,)
+    int: the skin vertices held this frame, all worlds (a slot of the contact's frame counters, zeroed
+    with them: the gate of restore_tets reads it); depth (1,)
     float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never);
     keep: KEEP (0: the hold off); ns1, nt1, vt_off, vt, tets, vol0: one world's skin vertices and
     tets per world, and the tets of each skin vertex with their rest 6 x volumes
@@ -102,6 +110,7 @@ class BoneHold:
     reach: wp.array(dtype=float)
     world: wp.array(dtype=int)
     gripped: wp.array(dtype=int)
+    count: wp.array(dtype=int)
     depth: wp.array(dtype=float)
     keep: float
     ns1: int
@@ -112,10 +121,12 @@ class BoneHold:
     vol0: wp.array(dtype=float)
 
 
-def make_bone_hold(model, on: bool = True) -> BoneHold:
-    """A :class:`BoneHold` for ``model``'s skin (``on`` False: empty arrays, no bound)."""
+def make_bone_hold(model, on: bool = True, count: wp.array | None = None) -> BoneHold:
+    """A :class:`BoneHold` for ``model``'s skin (``on`` False: empty arrays, no bound; ``count``: the
+    (1,) int array hold_skin counts the held vertices in, a new one if None)."""
     n, d = (model.n_skin if on else 0), model.device
     h = BoneHold()
+    h.count = count if count is not None else wp.zeros(1, dtype=int, device=d)
     h.held = wp.zeros(n, dtype=int, device=d)
     h.carried = wp.zeros(n, dtype=wp.vec3, device=d)
     h.reach = wp.zeros(n, dtype=float, device=d)
@@ -158,6 +169,67 @@ def held_move(hold: BoneHold, i: int, x: wp.array(dtype=wp.vec3), xi: wp.vec3, d
 
 
 @wp.kernel
+def restore_tets(hold: BoneHold, layer: wp.array(dtype=int), inv_mass: wp.array(dtype=float),
+                 x: wp.array(dtype=wp.vec3)):
+    """In a gripped world, after a contact stage: every skin-layer tet (``layer``: one world's tets
+    with a skin vertex; a thread per tet of every world) below KEEP of its rest volume is grown back
+    to it, its movable vertices (soft flesh and skin not held; ``inv_mass`` 0 for the bones) moved
+    along the volume's gradient by their inverse mass: one XPBD step of the inequality at infinite
+    stiffness, by atomic adds (the volume is cubic in the positions and neighbours share vertices,
+    so a round leaves a remainder: RESTORE_ROUNDS). The substep (prediction and constraints)
+    flattens skin-layer tets that the stage's cut pushes may not move: held skin beside pushed skin
+    is sheared."""
+    tid = wp.tid()
+    n1 = layer.shape[0]
+    w = tid / n1
+    if hold.keep <= 0.0 or hold.gripped[w] == 0:
+        return
+    e = layer[tid - w * n1]
+    ge = e + w * hold.nt1
+    a = hold.tets[ge, 0]
+    b = hold.tets[ge, 1]
+    c = hold.tets[ge, 2]
+    d = hold.tets[ge, 3]
+    xa = x[a]
+    ab = x[b] - xa
+    ac = x[c] - xa
+    ad = x[d] - xa
+    v = wp.dot(ab, wp.cross(ac, ad))
+    s0 = hold.vol0[e]
+    sg = float(1.0)
+    if s0 < 0.0:
+        sg = -1.0
+    lo = hold.keep * s0 * sg
+    if v * sg >= lo:
+        return
+    gb = wp.cross(ac, ad)
+    gc = wp.cross(ad, ab)
+    gd = wp.cross(ab, ac)
+    ga = -(gb + gc + gd)
+    wa = movable(hold, inv_mass, a)
+    wb = movable(hold, inv_mass, b)
+    wc = movable(hold, inv_mass, c)
+    wd = movable(hold, inv_mass, d)
+    den = wa * wp.dot(ga, ga) + wb * wp.dot(gb, gb) + wc * wp.dot(gc, gc) + wd * wp.dot(gd, gd)
+    if den <= 0.0:
+        return
+    lam = sg * (lo - v * sg) / den
+    wp.atomic_add(x, a, ga * (wa * lam))
+    wp.atomic_add(x, b, gb * (wb * lam))
+    wp.atomic_add(x, c, gc * (wc * lam))
+    wp.atomic_add(x, d, gd * (wd * lam))
+
+
+@wp.func
+def movable(hold: BoneHold, inv_mass: wp.array(dtype=float), j: int):
+    """Vertex j's inverse mass for restore_tets: 0 for held skin (and bones: their own 0)."""
+    if j < hold.held.shape[0]:
+        if hold.held[j] != 0:
+            return float(0.0)
+    return inv_mass[j]
+
+
+@wp.kernel
 def hold_skin(
     skin_body: wp.array(dtype=int),
     skin_local: wp.array(dtype=wp.vec3),
@@ -184,6 +256,7 @@ def hold_skin(
         if g >= 0:
             h = g + 1
             hold.gripped[vertex_world[i]] = 1
+            wp.atomic_add(hold.count, 0, 1)
         hold.carried[i] = wp.transform_point(pose, skin_local[i])
         hold.reach[i] = wp.length(skin_local[i] - skin_anchor[i]) + REACH_SLACK
     else:
