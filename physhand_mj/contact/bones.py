@@ -168,6 +168,15 @@ def held_move(hold: BoneHold, i: int, x: wp.array(dtype=wp.vec3), xi: wp.vec3, d
     return dx
 
 
+@wp.func
+def movable(hold: BoneHold, inv_mass: wp.array(dtype=float), j: int):
+    """Vertex j's inverse mass for restore_tets: 0 for held skin (and bones: their own 0)."""
+    if j < hold.held.shape[0]:
+        if hold.held[j] != 0:
+            return float(0.0)
+    return inv_mass[j]
+
+
 @wp.kernel
 def restore_tets(hold: BoneHold, layer: wp.array(dtype=int), inv_mass: wp.array(dtype=float),
                  x: wp.array(dtype=wp.vec3)):
@@ -218,15 +227,6 @@ def restore_tets(hold: BoneHold, layer: wp.array(dtype=int), inv_mass: wp.array(
     wp.atomic_add(x, b, gb * (wb * lam))
     wp.atomic_add(x, c, gc * (wc * lam))
     wp.atomic_add(x, d, gd * (wd * lam))
-
-
-@wp.func
-def movable(hold: BoneHold, inv_mass: wp.array(dtype=float), j: int):
-    """Vertex j's inverse mass for restore_tets: 0 for held skin (and bones: their own 0)."""
-    if j < hold.held.shape[0]:
-        if hold.held[j] != 0:
-            return float(0.0)
-    return inv_mass[j]
 
 
 @wp.kernel
