@@ -180,17 +180,19 @@ def test_check_points_are_denser_and_share_no_edge_point_with_the_features(asset
 @pytest.mark.parametrize("passes", [1, 8])
 def test_the_last_feature_push_has_its_counter_slot_and_moves_the_skin(asset, passes):
     """Config.tuning.feature_last adds one feature push (and one counter slot) per stage after the last
-    pass: the frame's counters are used up exactly with it and one slot per stage short without it;
-    on a knife edge starting 4 mm deep with one pass a stage (Eq. 9 has the last word then) the push
-    changes the skin (with 8 passes this first frame settles before the last pass, which the CPU then
-    skips with the push inside it)."""
+    pass: the frame's counters (but the held-skin count's last slot) are used up exactly with it and one
+    slot per stage short without it; on a knife edge starting 4 mm deep with one pass a stage (Eq. 9
+    has the last word then) the push changes the skin (with 8 passes this first frame settles before
+    the last pass, which the CPU then skips with the push inside it)."""
     skins = {}
     for last in (True, False):
         r = run_case(press_case("knife", site="fingertip", depth=0.004, start=-0.004),
                      ph.Config(device="cpu", contact_passes=passes, tuning=ph.Tuning(feature_last=last)), frames=1, asset=asset)
         c = r["solver"].contact
         stages = r["solver"].config.substeps
-        assert c._slot == c.counters.shape[0] - (0 if last else stages), (last, c._slot, c.counters.shape[0])
+        # (the last slot is the frame's held-skin count, bones.py: the stages' slots end before it)
+        assert c.held_slot == c.counters.shape[0] - 1
+        assert c._slot == c.held_slot - (0 if last else stages), (last, c._slot, c.counters.shape[0])
         assert r["finite"]
         skins[last] = np.asarray(r["skin"])
     if passes == 1:
