@@ -168,7 +168,8 @@ class PlaneBuffers:
 
 def make_frame_lists(model, config: Config, worlds: int, hold_slots: int) -> FrameLists:
     """The frame's lists for ``model``'s skin in ``worlds`` worlds (``hold_slots``: the counter
-    slots a frame's holds take, Config.contact_linear)."""
+    slots after the stages' (Config.contact_linear's holds, and the frame's held-skin count:
+    Contact.held_slot))."""
     d = model.device
     n_tris = model.skin_faces.shape[0]
     stages = contact_stages(config)
