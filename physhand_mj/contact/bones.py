@@ -99,7 +99,8 @@ class BoneHold:
     m: how far from there a push may leave it in a gripped world; world (S,) int: its world
     (Model.vertex_world); gripped (W,) int: 1 for a world with a held vertex this frame; count (1,)
     int: the skin vertices held this frame, all worlds (a slot of the contact's frame counters, zeroed
-    with them: the gate of restore_tets reads it); depth (1,)
+    with them: the gate of restore_tets reads it); layer (L,) int: one world's tets with a skin
+    vertex (restore_tets' rows); depth (1,)
     float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never);
     keep: KEEP (0: the hold off); ns1, nt1, vt_off, vt, tets, vol0: one world's skin vertices and
     tets per world, and the tets of each skin vertex with their rest 6 x volumes
@@ -111,6 +112,7 @@ class BoneHold:
     world: wp.array(dtype=int)
     gripped: wp.array(dtype=int)
     count: wp.array(dtype=int)
+    layer: wp.array(dtype=int)
     depth: wp.array(dtype=float)
     keep: float
     ns1: int
@@ -137,13 +139,30 @@ def make_bone_hold(model, on: bool = True, count: wp.array | None = None) -> Bon
     h.ns1 = int(model.n_skin) // max(int(model.worlds), 1)
     if on and h.ns1:
         h.tets, h.nt1, h.vol0, h.vt_off, h.vt = skin_tet_lists(model, h.ns1)
+        h.layer = wp.array(np.unique(h.vt.numpy()).astype(np.int32), dtype=int, device=d)
     else:
         h.nt1 = 0
         h.tets = wp.zeros((0, 4), dtype=int, device=d)
         h.vol0 = wp.zeros(0, dtype=float, device=d)
         h.vt_off = wp.zeros(0, dtype=int, device=d)
         h.vt = wp.zeros(0, dtype=int, device=d)
+    if not h.nt1:
+        h.layer = wp.zeros(0, dtype=int, device=d)
     return h
+
+
+def record_restore(rec, hold: BoneHold, slot: int, inv_mass, x) -> None:
+    """Record :func:`restore_tets` (RESTORE_ROUNDS launches over every world's skin-layer tets) in a
+    block that runs only in a frame that holds skin (``rec.gated`` level 2 on the held count, counter
+    slot ``slot``: activity.py; a CUDA conditional node). Nothing where the hold has no tets."""
+    if not hold.nt1:
+        return
+    n = hold.gripped.shape[0] * hold.layer.shape[0]  # (worlds x one world's skin-layer tets)
+
+    def restore(sub):
+        for _ in range(RESTORE_ROUNDS):
+            rec.launch(restore_tets, n, [hold, inv_mass], [x])
+    rec.gated(restore, 2, (slot,), hold.count)
 
 
 @wp.func
@@ -178,10 +197,9 @@ def movable(hold: BoneHold, inv_mass: wp.array(dtype=float), j: int):
 
 
 @wp.kernel
-def restore_tets(hold: BoneHold, layer: wp.array(dtype=int), inv_mass: wp.array(dtype=float),
-                 x: wp.array(dtype=wp.vec3)):
-    """In a gripped world, after a contact stage: every skin-layer tet (``layer``: one world's tets
-    with a skin vertex; a thread per tet of every world) below KEEP of its rest volume is grown back
+def restore_tets(hold: BoneHold, inv_mass: wp.array(dtype=float), x: wp.array(dtype=wp.vec3)):
+    """In a gripped world, after a contact stage: every skin-layer tet (``hold.layer``: one world's
+    tets with a skin vertex; a thread per tet of every world) below KEEP of its rest volume is grown back
     to it, its movable vertices (soft flesh and skin not held; ``inv_mass`` 0 for the bones) moved
     along the volume's gradient by their inverse mass: one XPBD step of the inequality at infinite
     stiffness, by atomic adds (the volume is cubic in the positions and neighbours share vertices,
@@ -189,11 +207,11 @@ def restore_tets(hold: BoneHold, layer: wp.array(dtype=int), inv_mass: wp.array(
     flattens skin-layer tets that the stage's cut pushes may not move: held skin beside pushed skin
     is sheared."""
     tid = wp.tid()
-    n1 = layer.shape[0]
+    n1 = hold.layer.shape[0]
     w = tid / n1
     if hold.keep <= 0.0 or hold.gripped[w] == 0:
         return
-    e = layer[tid - w * n1]
+    e = hold.layer[tid - w * n1]
     ge = e + w * hold.nt1
     a = hold.tets[ge, 0]
     b = hold.tets[ge, 1]

@@ -22,7 +22,7 @@ import warp as wp
 
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
-from physhand_mj.contact.bones import HOLD_DEPTH, RESTORE_ROUNDS, bone_report, hold_skin, make_bone_hold, restore_tets
+from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold, record_restore
 from physhand_mj.contact.exchange import TwoWay
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
@@ -202,10 +202,7 @@ class Contact:
         # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
         n = self.lists.counters.shape[0]
         self.held_slot = n - 1
-        self.bone_hold = h = make_bone_hold(model, config.bone_hold, self.lists.counters[n - 1: n])
-        # one world's tets with a skin vertex (bones.restore_tets, in gripped worlds)
-        self._layer_tets = wp.array(np.unique(h.vt.numpy()).astype(np.int32) if h.nt1 else np.zeros(0, np.int32),
-                                    dtype=int, device=model.device)
+        self.bone_hold = make_bone_hold(model, config.bone_hold, self.lists.counters[n - 1: n])
         # Config.two_way: the skin's impulses and friction on the objects and bones (exchange.py)
         self.two_way = TwoWay(model, objects, config, self.space, self.geoms_per_world)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
@@ -458,14 +455,9 @@ class Contact:
         self._record_later_passes(rec, state, 1, lst, prev, flag, skin, feat_count, stage)
         self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
         self.two_way.record_take(rec, state, self.bone_hold)
-        if cfg.bone_hold and self.bone_hold.nt1:  # a gripped world's flattened skin tets grown back (bones.py;
-            # after the two-way take: not a push on the object), only in a frame that holds skin (activity.py
-            # level 2 on the held count: a CUDA conditional node)
-            def restore(sub):
-                for _ in range(RESTORE_ROUNDS):
-                    rec.launch(restore_tets, m.worlds * self._layer_tets.shape[0],
-                               [self.bone_hold, self._layer_tets, m.inv_mass], [state.x])
-            rec.gated(restore, 2, (self.held_slot,), self.bone_hold.count)
+        if cfg.bone_hold:  # a gripped world's flattened skin tets grown back (bones.py; after the two-way
+            # take: not a push on the object)
+            record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x)
 
     def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
         """Passes ``p``.. of a stage, each recorded inside the gate of the one before (activity.py level
