@@ -29,7 +29,7 @@ from physhand_mj.bodies import soft_body  # noqa: E402
 from physhand_mj.coupling import SoftHand  # noqa: E402
 from physhand_mj.hand_mjcf import (  # noqa: E402
     HAND_XML, body_ids, bone_poses_at, enable_self_proxies, mount_pose, open_hand_scene, rest_skin_world, scene_path,
-    set_skin_vertices)
+    set_proxy_margin, set_skin_vertices)
 from physhand_mj.render import RenderUnavailable  # noqa: E402
 from physhand_mj.solver import Solver, SolverError, make_model  # noqa: E402
 from physhand_mj.types import (Config, Execution, Layer, Model, NonFinite, Placement, Scheme, Settings, State,  # noqa: E402
@@ -43,6 +43,6 @@ try:  # the installed distribution's version (pyproject.toml); a source tree nev
 except _NotInstalled:
     __version__ = "0+unknown"
 __all__ = ["add_skin", "SkinAttachment", "BatchedHands", "replicate_asset", "DEFAULT_ASSET", "HAND_XML", "SCHEMA_VERSION", "AssetError", "Config", "Execution", "Settings", "Tuning", "HandAsset", "Layer", "Model",
-           "NonFinite", "Placement", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at", "enable_self_proxies",
+           "NonFinite", "Placement", "RenderUnavailable", "Scheme", "SoftHand", "Solver", "SolverError", "State", "body_ids", "bone_poses_at", "enable_self_proxies", "set_proxy_margin",
            "load_asset", "make_model", "mount_pose", "open_hand_scene", "rest_skin_world", "scene_path",
            "set_skin_vertices", "soft_body", "Strategy"]

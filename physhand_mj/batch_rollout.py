@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from physhand_mj.hand_mjcf import enable_self_proxies
+from physhand_mj.hand_mjcf import enable_self_proxies, set_proxy_margin
 from physhand_mj.rollout import (FORCE_COLUMNS, LOG_COLUMNS, bone_clearances, carry_object_side, check_counts, check_measure_every, failed_row,
                                  frame_rows, load_rollout_scene, measured, rollout_config, run_names, self_summary,
                                  start_row, summary_row, write_summary)
@@ -269,7 +269,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     from tqdm import tqdm
 
     from physhand_mj.batch import BatchedHands
-    from physhand_mj.coupling import rest_placement
+    from physhand_mj.coupling import proxy_margin, rest_placement
     from physhand_mj.rollout import COUNTER_COLUMNS, counter_row
     from physhand_mj.solver import SolverError
 
@@ -278,6 +278,7 @@ def _run_batch(runs: list[_Run], asset, rows: list, total: int, *, steps, subste
     poses, lit = [], []
     for r in runs:  # (Config.self_collision: each world's MuJoCo keeps its bones apart, as SoftHand's does)
         lit.append(len(enable_self_proxies(r.model, r.bones, cfg.self_collision and cfg.self_proxies)))
+        set_proxy_margin(r.model, r.bones, proxy_margin(cfg))  # (and from objects, as SoftHand's)
         mujoco.mj_kinematics(r.model, r.data)
         poses.append(r.bone_poses())
     place = [rest_placement(asset, p[0][0], p[1][0]) for p in poses]

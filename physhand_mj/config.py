@@ -94,6 +94,12 @@ class Tuning:
         two parts' bones from coming nearer than where their rest skins would meet, instead of
         squeezing the flesh between them past what any skin can take (True; a model without them:
         nothing to turn on).
+      proxy_margin: MuJoCo contact margin SoftHand gives the hand's collision proxies against objects
+        (m; geoms ``*_proxy`` of the shipped hand), so MuJoCo stops a bone that much before its proxy
+        meets an object. None (default): 2.5 mm (hand_mjcf.PROXY_INSET: about where the rest skin
+        over the proxy would touch) with one-way coupling, where nothing else keeps a closing bone
+        from crushing the flesh past flat; the model's own with ``two_way``, where the skin's push on
+        the bones does. A number: that margin either way.
     """
 
     scheme: Scheme = Scheme.JACOBI
@@ -130,6 +136,7 @@ class Tuning:
     self_tet_keep: float = 0.0
     self_friction: float = 0.0
     self_proxies: bool = True
+    proxy_margin: float | None = None
 
 
 @dataclass
@@ -382,6 +389,8 @@ def _check(s) -> None:
     flag("region_sleep")
     flag("self_collision")
     flag("self_proxies")
+    if s.proxy_margin is not None:
+        nonneg("proxy_margin")
     flag("skin_compression")
     flag("flesh_compression")
     for name in ("self_thickness", "self_margin", "self_rest_gap", "self_depth"):

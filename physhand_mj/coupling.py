@@ -25,7 +25,7 @@ from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
 from physhand_mj.contact.bones import BONE_CAP
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
-from physhand_mj.hand_mjcf import SKIN_GEOM, body_ids, enable_self_proxies, skin_geom_id
+from physhand_mj.hand_mjcf import PROXY_INSET, SKIN_GEOM, body_ids, enable_self_proxies, set_proxy_margin, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
 from physhand_mj.rotations import nlerp, quat_to_mat
 from physhand_mj.types import Config, GeomType
@@ -109,6 +109,10 @@ class SoftHand:
         # Config.self_collision: MuJoCo keeps the parts' bones a flesh apart (hand_mjcf.enable_self_proxies;
         # turned off again without it, so the model follows the last SoftHand made on it)
         self.self_proxies = enable_self_proxies(model, self.bones, self.config.self_collision and self.config.self_proxies)
+        # and from objects: with one-way coupling MuJoCo's proxies alone stop a closing bone, so they keep
+        # the flesh's room (Config.tuning.proxy_margin; docs/coupling.md "The bones keep the flesh's room")
+        self.proxy_margin = proxy_margin(self.config)
+        self.proxies = set_proxy_margin(model, self.bones, self.proxy_margin)
         mujoco.mj_kinematics(model, data)
         self.object_geoms = self._select_objects(object_geoms, object_bodies, object_groups)
         self.objects = Objects(str(self._device()), max(len(self.object_geoms), 1))
@@ -486,6 +490,16 @@ class SoftHand:
         out.update(ms_sync=1e3 * tm["sync"] / n, ms_solver=1e3 * tm["solver"] / n, ms_writeback=1e3 * tm["writeback"] / n,
                    ms_per_frame=1e3 * (tm["sync"] + tm["solver"] + tm["writeback"]) / n, frames=tm["frames"])
         return out
+
+
+def proxy_margin(config) -> float | None:
+    """The MuJoCo contact margin (m) for the hand's object proxies under ``config``
+    (``Config.tuning.proxy_margin``; None: ``PROXY_INSET`` with one-way coupling, the model's own with
+    two-way)."""
+    m = config.proxy_margin
+    if m is None:
+        return None if config.two_way else PROXY_INSET
+    return float(m)
 
 
 def select_object_geoms(model, bones, skin_geom: int, names=None, bodies=None, groups=None) -> list[int]:

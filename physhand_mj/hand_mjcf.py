@@ -12,6 +12,8 @@ HAND_XML = MJCF_DIR / "hand" / "myohand.xml"
 SCENES_DIR = MJCF_DIR / "scenes"
 SKIN_GEOM = "physhand_skin"
 MOUNT_BODY = "hand_mount"
+PROXY_SUFFIX = "_proxy"  # a bone's collision proxy against objects (MJCF class proxy, build/mjcf.py)
+PROXY_INSET = 2.5e-3  # m between a collision proxy and the rest skin (build/mjcf.py fits them so)
 SELF_PROXY_SUFFIX = "_proxy_self"  # a collision proxy's self copy (MJCF class self_proxy, build/mjcf.py)
 SELF_PROXY_BIT = 1 << 29  # their contype as shipped; their conaffinity too once turned on (no shipped geom uses it)
 
@@ -137,6 +139,23 @@ def enable_self_proxies(model, bones, on: bool = True) -> np.ndarray:
     model.geom_conaffinity[ids] &= ~SELF_PROXY_BIT
     model.body_conaffinity[owners] &= ~SELF_PROXY_BIT
     return np.zeros(0, dtype=int)
+
+
+def set_proxy_margin(model, bones, margin: float | None) -> np.ndarray:
+    """Give the object collision proxies of the bodies ``bones`` (ids; geoms named ``*_proxy``, MJCF
+    class ``proxy``: the shipped hand's) MuJoCo contact margin ``margin`` (m), so MuJoCo stops a bone
+    that much before its proxy meets an object: ``PROXY_INSET`` stops it about where the rest skin
+    over the proxy would touch, leaving the flesh its room (docs/coupling.md "The bones keep the
+    flesh's room"; the self proxies' rule, ``enable_self_proxies``, for objects). ``None``: the
+    model is left as it is. Edits ``model`` in place; returns the geom ids set (empty for None, or a
+    model without such proxies, e.g. one with a skin attached by ``add_skin``)."""
+    if margin is None:
+        return np.zeros(0, dtype=int)
+    bodies = {int(b) for b in np.asarray(bones).reshape(-1)}
+    ids = np.array([g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in bodies
+                    and (model.geom(g).name or "").endswith(PROXY_SUFFIX)], dtype=int)
+    model.geom_margin[ids] = float(margin)
+    return ids
 
 
 def body_poses(data, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,10 +19,9 @@ from scipy.spatial.transform import Rotation
 
 from physhand_mj.asset import HandAsset
 from physhand_mj.build.myohand import FINGER_CHAINS, METACARPAL_BODIES, HandSource
-from physhand_mj.hand_mjcf import SELF_PROXY_BIT, SELF_PROXY_SUFFIX
+from physhand_mj.hand_mjcf import PROXY_INSET, SELF_PROXY_BIT, SELF_PROXY_SUFFIX
 from physhand_mj.types import Layer
 
-PROXY_INSET = 2.5e-3  # m between a collision proxy and the rest skin
 # Each proxy has a self copy (class ``self_proxy``): the same shape, colliding only with the other self
 # copies once SoftHand turns them on (Config.tuning.self_proxies with Config.self_collision:
 # hand_mjcf.enable_self_proxies), with a margin of PROXY_INSET each. MuJoCo adds two geoms' margins,
