@@ -91,12 +91,20 @@ def test_glass_grasp_contact_report(glass_grasp):
     assert m["penetration_max_um"] < 100.0, m
     p = report["pressure_pa"]
     assert p.shape == (hand.asset.n_skin,) and (p > 0).sum() == len(glass["vertices"])
-    # position control lets fingertip bones just inside the glass (contact/bones.py): reported, and
-    # shallower than HOLD_DEPTH, so no skin is held (the skin ends outside the glass, asserted above)
-    from physhand_mj.contact.bones import HOLD_DEPTH
-
-    assert -float(HOLD_DEPTH) * 1e3 < glass["bone_clearance_mm"] < 0.0 and glass["bones_inside"], glass
+    # the bones' clearance (contact/bones.py): with the proxies' margin (Config.tuning.proxy_margin, one-way:
+    # 2.5 mm) MuJoCo stops them clear of the glass (before it, two bones ended 0.64 mm inside); the report
+    # agrees with the skeleton's vertices measured against the glass's cylinder here, and no skin is held
+    model, data = glass_grasp[0], glass_grasp[1]
+    g = model.geom("glass").id
+    r, h = model.geom_size[g][:2]
+    q = hand.state.x.numpy()[np.asarray(hand.asset.layer) == 0] - data.geom_xpos[g]  # (the glass stands upright)
+    rad, ax = np.hypot(q[:, 0], q[:, 1]) - r, np.abs(q[:, 2]) - h
+    sdf = np.hypot(np.maximum(rad, 0), np.maximum(ax, 0)) + np.minimum(np.maximum(rad, ax), 0)
+    assert abs(glass["bone_clearance_mm"] - sdf.min() * 1e3) < 0.01, (glass["bone_clearance_mm"], sdf.min())
+    assert 1.0 < glass["bone_clearance_mm"] < 5.0 and not glass["bones_inside"], glass
     assert glass["skin_held"] == 0 and report["bone_clearance_mm"] == glass["bone_clearance_mm"]
+    assert hand.proxy_margin == ph.hand_mjcf.PROXY_INSET and len(hand.proxies) == 16
+    assert np.all(model.geom_margin[hand.proxies] == ph.hand_mjcf.PROXY_INSET)
 
 
 PAPER = dict(feature_contact=False, side_aware=False, skin_tether=0.0)  # the paper's contact: Eq. 9 at multires decision points
@@ -136,10 +144,10 @@ def closed():
     only read the runs (the box with the paper's contact serves both)."""
     runs = {}
 
-    def get(kind, paper=False, free=False):
-        key = (kind, paper)
+    def get(kind, paper=False, free=False, bare=False):
+        key = (kind, paper, bare)  # (bare: the proxies without their margin, Config.tuning.proxy_margin 0)
         if key not in runs or (free and runs[key][3] is None):
-            runs[key] = _close_on(kind, free=free, **(PAPER if paper else {}))
+            runs[key] = _close_on(kind, free=free, **(PAPER if paper else {}), **(dict(proxy_margin=0.0) if bare else {}))
         return runs[key]
 
     yield get
@@ -175,7 +183,7 @@ def test_closing_on_a_static_object_ends_without_penetration(closed, kind):
         local = (hand.skin_vertices[touched["vertices"]] - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
         q = np.abs(local) - model.geom_size[g]
         near_handle = np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0) < 1e-3
-        assert near_handle.sum() > 10 and (~near_handle).sum() > 100, near_handle.sum()
+        assert near_handle.sum() > 10 and (~near_handle).sum() > 50, (near_handle.sum(), (~near_handle).sum())
         return
     # away from the contact (> 15 mm from the object) the skin is where the contact-free run has it
     g = model.geom("glass").id
@@ -195,7 +203,9 @@ def test_closing_on_a_static_object_ends_without_penetration(closed, kind):
 def test_closing_by_both_measures(closed, kind):
     """The default contact (features + side-aware) against an order-9 lattice and the denser check
     points (Contact.check_points: none of them a feature the contact pushes). On the sphere both are
-    zero. On the box the position controller keeps closing the hand and MuJoCo's soft contacts let
+    zero. On the box, with the proxies' margin off (``proxy_margin=0``, the model as shipped; with
+    the one-way default of 2.5 mm MuJoCo stops every bone outside the box, asserted too), the
+    position controller keeps closing the hand and MuJoCo's soft contacts let
     the bones themselves into the box (at frame 50 the thumb's proximal bone mesh 5.1 mm, its
     collision proxy 4.1 mm, the ring fingertip's bone 0.8 mm): no penetration-free skin exists
     there, and the skin's residue follows how far the bones go in (the issue's "bone inside the
@@ -203,16 +213,22 @@ def test_closing_by_both_measures(closed, kind):
     mm per frame over frames 40-79 on the CPU, 0.35 mm at frame 50; 0.04-1.13 mm with the settings
     before 2026-11-25, when the bound was 0.3 mm at frame 50), and fewer object points in the skin
     than the paper's contact leaves."""
-    model, data, hand, _ = closed(kind)
+    box = kind == "box"
+    model, data, hand, _ = closed(kind, bare=box)
     m = hand.penetration(order=9, check=True)
     if kind == "sphere":
         assert m["penetration_count"] == 0 and m["object_in_skin_count"] == 0, m
         return
-    box = model.geom("glass").id
-    bone_depth = -min(mujoco.mj_geomDistance(model, data, g, box, 0.05, np.zeros(6)) for g in range(model.ngeom)
-                      if model.geom_bodyid[g] not in (0, model.geom_bodyid[box]))
-    assert bone_depth > 1.0e-3, bone_depth  # a bone's geom more than 1 mm inside the box
-    _, _, paper, _ = closed(kind, paper=True)
+
+    def bone_depth(model, data):
+        g = model.geom("glass").id
+        return -min(mujoco.mj_geomDistance(model, data, k, g, 0.05, np.zeros(6)) for k in range(model.ngeom)
+                    if model.geom_bodyid[k] not in (0, model.geom_bodyid[g]) and model.geom(k).name.endswith("_bone"))
+
+    assert bone_depth(model, data) > 1.0e-3, bone_depth(model, data)  # a bone mesh more than 1 mm inside the box
+    margin_model, margin_data, _, _ = closed(kind, paper=True)  # (the margin on: MuJoCo alone, the same either contact)
+    assert bone_depth(margin_model, margin_data) < 0.0, bone_depth(margin_model, margin_data)
+    _, _, paper, _ = closed(kind, paper=True, bare=True)
     p = paper.penetration(order=9, check=True)
     assert np.all(np.isfinite(hand.skin_vertices))
     assert m["penetration_max_um"] < 1500 and m["object_in_skin_max_um"] < 1500, m
@@ -348,3 +364,27 @@ def test_a_frame_faster_than_the_broadphase_margin_is_reported():
     mujoco.mj_step(model, data)
     with pytest.warns(RuntimeWarning, match="contact_frame_margin"):
         hand.step()
+
+
+def test_the_proxy_margin_follows_the_coupling_and_touches_only_the_object_proxies():
+    """Config.tuning.proxy_margin: None gives hand_mjcf.PROXY_INSET with one-way coupling and leaves
+    the model's own with two_way; a number is used either way; a negative or non-finite one is refused.
+    set_proxy_margin writes it into the 16 object proxies (``*_proxy``) only, not their self copies."""
+    from physhand_mj.coupling import proxy_margin
+    from physhand_mj.hand_mjcf import PROXY_INSET, set_proxy_margin
+
+    assert proxy_margin(ph.Config().validate()) == PROXY_INSET
+    assert proxy_margin(ph.Config(two_way=True).validate()) is None
+    assert proxy_margin(ph.Config(two_way=True, tuning=ph.Tuning(proxy_margin=1.0e-3)).validate()) == 1.0e-3
+    for bad in (-1.0e-3, float("nan")):
+        with pytest.raises(ValueError, match="proxy_margin"):
+            ph.Config(tuning=ph.Tuning(proxy_margin=bad)).validate()
+    model, _ = _scene()
+    bones = ph.body_ids(model, [str(b) for b in ph.load_asset().body_names])
+    before = model.geom_margin.copy()
+    assert len(set_proxy_margin(model, bones, None)) == 0 and np.array_equal(model.geom_margin, before)
+    ids = set_proxy_margin(model, bones, 1.5e-3)
+    names = sorted(model.geom(int(g)).name for g in ids)
+    assert len(names) == 16 and all(n.endswith("_proxy") for n in names), names
+    changed = np.flatnonzero(model.geom_margin != before)
+    assert sorted(changed.tolist()) == sorted(ids.tolist()) and np.all(model.geom_margin[ids] == 1.5e-3)

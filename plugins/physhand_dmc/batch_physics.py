@@ -33,9 +33,9 @@ import warp as wp
 from physhand_dmc.sensing import SoftSensor
 from physhand_mj.asset import load_asset
 from physhand_mj.batch import BatchedHands
-from physhand_mj.coupling import (check_two_way, free_qpos, friction_coefficients, geom_spec, rest_placement,
+from physhand_mj.coupling import (check_two_way, free_qpos, friction_coefficients, geom_spec, proxy_margin, rest_placement,
                                   select_object_geoms, _settling)
-from physhand_mj.hand_mjcf import body_ids, skin_geom_id
+from physhand_mj.hand_mjcf import body_ids, set_proxy_margin, skin_geom_id
 from physhand_mj.rotations import nlerp
 
 # the soft tissue's per-vertex state a reset of some worlds puts back in the others
@@ -112,6 +112,7 @@ class BatchPhysics:
         mujoco.mj_resetDataKeyframe(model, data, 0) if model.nkey else mujoco.mj_resetData(model, data)
         mujoco.mj_forward(model, data)
         self.bones = body_ids(model, [str(b) for b in self.asset.body_names])
+        set_proxy_margin(model, self.bones, proxy_margin(self.config))  # (MuJoCo's side as SoftHand's: coupling.proxy_margin)
         skin = skin_geom_id(model, "")
         self.geoms = select_object_geoms(model, self.bones, skin, bodies=object_bodies)
         specs = [geom_spec(model, data, g) for g in self.geoms]
