@@ -98,8 +98,8 @@ class Tuning:
         (m; geoms ``*_proxy`` of the shipped hand), so MuJoCo stops a bone that much before its proxy
         meets an object. None (default): 2.5 mm (hand_mjcf.PROXY_INSET: about where the rest skin
         over the proxy would touch) with one-way coupling, where nothing else keeps a closing bone
-        from crushing the flesh past flat; the model's own with ``two_way``, where the skin's push on
-        the bones does. A number: that margin either way.
+        from crushing the flesh past flat; 0 (the shipped proxies' own) with ``two_way``, where the
+        skin's push on the bones does. A number: that margin either way.
     """
 
     scheme: Scheme = Scheme.JACOBI

@@ -494,11 +494,11 @@ class SoftHand:
 
 def proxy_margin(config) -> float | None:
     """The MuJoCo contact margin (m) for the hand's object proxies under ``config``
-    (``Config.tuning.proxy_margin``; None: ``PROXY_INSET`` with one-way coupling, the model's own with
-    two-way)."""
+    (``Config.tuning.proxy_margin``; None: ``PROXY_INSET`` with one-way coupling, 0 (the shipped
+    proxies' own) with two-way, so a model follows the last SoftHand made on it)."""
     m = config.proxy_margin
     if m is None:
-        return None if config.two_way else PROXY_INSET
+        return 0.0 if config.two_way else PROXY_INSET
     return float(m)
 
 

@@ -367,14 +367,15 @@ def test_a_frame_faster_than_the_broadphase_margin_is_reported():
 
 
 def test_the_proxy_margin_follows_the_coupling_and_touches_only_the_object_proxies():
-    """Config.tuning.proxy_margin: None gives hand_mjcf.PROXY_INSET with one-way coupling and leaves
-    the model's own with two_way; a number is used either way; a negative or non-finite one is refused.
+    """Config.tuning.proxy_margin: None gives hand_mjcf.PROXY_INSET with one-way coupling and 0 (the
+    shipped proxies' own) with two_way, so a model follows the last SoftHand made on it; a number is
+    used either way; a negative or non-finite one is refused.
     set_proxy_margin writes it into the 16 object proxies (``*_proxy``) only, not their self copies."""
     from physhand_mj.coupling import proxy_margin
     from physhand_mj.hand_mjcf import PROXY_INSET, set_proxy_margin
 
     assert proxy_margin(ph.Config().validate()) == PROXY_INSET
-    assert proxy_margin(ph.Config(two_way=True).validate()) is None
+    assert proxy_margin(ph.Config(two_way=True).validate()) == 0.0
     assert proxy_margin(ph.Config(two_way=True, tuning=ph.Tuning(proxy_margin=1.0e-3)).validate()) == 1.0e-3
     for bad in (-1.0e-3, float("nan")):
         with pytest.raises(ValueError, match="proxy_margin"):
