@@ -114,29 +114,6 @@ def test_grasp_glass_still_closes_on_the_glass():
         f"mcp3 flexion {q0[mcp3]:.3f} -> {data.qpos[mcp3]:.3f} rad (target {target:.3f})")
 
 
-def test_grasp_glass_keeps_the_bones_out_of_the_glass():
-    """The demo's closing targets stop each digit at the glass (physhand_mj.build.scenes.GRASP_CLOSE):
-    over 80 frames from `approach` no collision proxy goes deeper than 3 mm into the glass while the
-    hand closes nor 1.2 mm while it holds (frames 40 on), and no bone mesh (its convex hull, which
-    overstates a curved phalanx) deeper than 2.5 / 1.0 mm. The targets before 2026-11-25 (past the
-    glass) drove the thumb's bone 10.5 mm in, where no skin could stay outside."""
-    model, data = _compile("grasp_glass")
-    mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
-    glass = model.geom("glass").id
-    ft = np.zeros(6)
-    proxies = [g for g in range(model.ngeom) if model.geom(g).name.endswith("_proxy")]
-    bones = [g for g in range(model.ngeom) if model.geom(g).name.endswith("_bone")]
-    depth = np.zeros((80, 2))
-    for f in range(80):
-        mujoco.mj_step(model, data)
-        for col, geoms in enumerate((proxies, bones)):
-            depth[f, col] = -min(mujoco.mj_geomDistance(model, data, g, glass, 0.05, ft) for g in geoms)
-    touching = sum(1 for g in proxies if mujoco.mj_geomDistance(model, data, g, glass, 0.05, ft) < 2.0e-4)
-    assert touching >= 4, touching  # the digits still reach the glass
-    assert depth[:, 0].max() < 3.0e-3 and depth[40:, 0].max() < 1.2e-3, depth[:, 0].max(axis=0)
-    assert depth[:, 1].max() < 2.5e-3 and depth[40:, 1].max() < 1.0e-3, (depth[:, 1].max(), depth[40:, 1].max())
-
-
 def _glass_clearances(margin):
     """grasp_glass from `approach`, MuJoCo alone, with the hand's object proxies given contact margin
     ``margin`` (m; None: as shipped): per frame of 80 the least distance (m) of a proxy and of a bone
@@ -158,10 +135,24 @@ def _glass_clearances(margin):
     return dist, near
 
 
+def test_grasp_glass_keeps_the_bones_out_of_the_glass():
+    """The demo's closing targets stop each digit at the glass (physhand_mj.build.scenes.GRASP_CLOSE):
+    over 80 frames from `approach` no collision proxy goes deeper than 3 mm into the glass while the
+    hand closes nor 1.2 mm while it holds (frames 40 on), and no bone mesh (its convex hull, which
+    overstates a curved phalanx) deeper than 2.5 / 1.0 mm (the model as shipped, without the margin
+    SoftHand gives the proxies: the next test). The targets before 2026-11-25 (past the glass) drove
+    the thumb's bone 10.5 mm in, where no skin could stay outside."""
+    dist, touching = _glass_clearances(None)
+    depth = -dist
+    assert touching >= 4, touching  # the digits still reach the glass
+    assert depth[:, 0].max() < 3.0e-3 and depth[40:, 0].max() < 1.2e-3, depth[:, 0].max(axis=0)
+    assert depth[:, 1].max() < 2.5e-3 and depth[40:, 1].max() < 1.0e-3, (depth[:, 1].max(), depth[40:, 1].max())
+
+
 def test_the_proxy_margin_keeps_the_flesh_s_room_at_the_glass():
     """With the margin SoftHand gives the proxies under one-way coupling (hand_mjcf.PROXY_INSET,
     2.5 mm: Config.tuning.proxy_margin's default there), MuJoCo stops the demo's digits with every
-    bone mesh 1 mm or more clear of the glass while the hand closes and 1.5 mm while it holds (frames
+    bone mesh 0.8 mm or more clear of the glass while the hand closes and 1.5 mm while it holds (frames
     40 on; measured 1.02 / 1.90 mm), where the shipped model lets a bone into it (measured -1.75 /
     -0.79 mm): the flesh over a bone is no longer crushed past flat (docs/coupling.md). The digits
     still reach the glass: 5 or more proxies end within the margin of it."""
