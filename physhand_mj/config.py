@@ -389,8 +389,11 @@ def _check(s) -> None:
     flag("region_sleep")
     flag("self_collision")
     flag("self_proxies")
-    if s.proxy_margin is not None:
-        nonneg("proxy_margin")
+    m = s.proxy_margin
+    if m is not None and not (isinstance(m, (int, float, np.integer, np.floating)) and not isinstance(m, bool)
+                              and math.isfinite(m) and 0.0 <= m <= 0.02):
+        raise ValueError(f"Config.tuning.proxy_margin must be None (2.5 mm one-way, 0 two-way) or a margin in m "
+                         f"from 0 to 0.02 (the proxies sit 0.0025 m inside the rest skin), got {m!r}")
     flag("skin_compression")
     flag("flesh_compression")
     for name in ("self_thickness", "self_margin", "self_rest_gap", "self_depth"):

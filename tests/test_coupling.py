@@ -377,7 +377,7 @@ def test_the_proxy_margin_follows_the_coupling_and_touches_only_the_object_proxi
     assert proxy_margin(ph.Config().validate()) == PROXY_INSET
     assert proxy_margin(ph.Config(two_way=True).validate()) == 0.0
     assert proxy_margin(ph.Config(two_way=True, tuning=ph.Tuning(proxy_margin=1.0e-3)).validate()) == 1.0e-3
-    for bad in (-1.0e-3, float("nan")):
+    for bad in (-1.0e-3, float("nan"), True, 2.5, "2.5 mm"):
         with pytest.raises(ValueError, match="proxy_margin"):
             ph.Config(tuning=ph.Tuning(proxy_margin=bad)).validate()
     model, _ = _scene()
