@@ -99,7 +99,7 @@ class Tuning:
         meets an object. None (default): 2.5 mm (hand_mjcf.PROXY_INSET: about where the rest skin
         over the proxy would touch) with one-way coupling, where nothing else keeps a closing bone
         from crushing the flesh past flat; 0 (the shipped proxies' own) with ``two_way``, where the
-        skin's push on the bones does. A number: that margin either way.
+        skin's push on the bones does. A number (0 to 0.02 m): that margin either way.
     """
 
     scheme: Scheme = Scheme.JACOBI
