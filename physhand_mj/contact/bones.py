@@ -146,7 +146,6 @@ def make_bone_hold(model, on: bool = True, count: wp.array | None = None) -> Bon
         h.vol0 = wp.zeros(0, dtype=float, device=d)
         h.vt_off = wp.zeros(0, dtype=int, device=d)
         h.vt = wp.zeros(0, dtype=int, device=d)
-    if not h.nt1:
         h.layer = wp.zeros(0, dtype=int, device=d)
     return h
 
