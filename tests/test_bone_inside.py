@@ -12,7 +12,7 @@ import pytest
 
 import physhand_mj as ph
 from physhand_mj.bench.cases import bone_case, run_case
-from physhand_mj.contact.bones import HOLD_DEPTH, REACH_SLACK, bone_report
+from physhand_mj.contact.bones import HOLD_DEPTH, KEPT_OUT_DEPTH, REACH_SLACK, bone_report, hold_depth
 from physhand_mj.rotations import quat_to_mat
 from physhand_mj.types import Layer
 
@@ -51,7 +51,9 @@ def _check(asset, site, depth, radius):
     solver, state = r["solver"], r["state"]
     m = solver.model
     assert r["finite"]
-    if -clear >= float(HOLD_DEPTH):  # gripped: the pushes keep the flesh from turning inside out
+    depth_held = solver.contact.hold_depth  # (a bare Solver, one-way: the bones are kept out, 0.5 mm)
+    assert depth_held == KEPT_OUT_DEPTH
+    if -clear >= depth_held:  # gripped: the pushes keep the flesh from turning inside out
         assert _inverted(m, state.x.numpy()) <= GRIPPED_INVERTED
     # bounded: no skin vertex farther from where its bone carries it (the rest pose: its rest place)
     # than its flesh thickness (rest distance to its anchor) plus the bone's depth plus REACH_SLACK
@@ -67,14 +69,14 @@ def _check(asset, site, depth, radius):
     assert row["clearance_m"] == pytest.approx(phi.min(), abs=5e-6) and rep["bone_clearance_m"] == row["clearance_m"]
     inside = sorted({str(asset.body_names[b]) for b in asset.vertex_body[skel[phi < 0]]})
     assert row["bones"] == inside and inside
-    # the held skin: exactly the vertices whose anchor lies HOLD_DEPTH inside the sphere
+    # the held skin: exactly the vertices whose anchor lies the hold's depth inside the sphere
     sl, sb = m.skin_anchor.numpy().astype(float), m.skin_body.numpy()
     rot = quat_to_mat(asset.body_rest_quat)[sb]
     anchors = np.einsum("kij,kj->ki", rot, sl) + asset.body_rest_pos[sb]
-    want = np.linalg.norm(anchors - centre, axis=1) - radius < -float(HOLD_DEPTH)
+    want = np.linalg.norm(anchors - centre, axis=1) - radius < -depth_held
     held = solver.contact.bone_hold.held.numpy() > 0
     assert np.array_equal(held, want), (held.sum(), want.sum())
-    assert row["skin_held"] == int(want.sum()) and (want.any() or -clear < float(HOLD_DEPTH))
+    assert row["skin_held"] == int(want.sum()) and (want.any() or -clear < depth_held)
     _release(asset, r)
     return r
 
@@ -99,14 +101,27 @@ def _release(asset, r, frames=20):
     assert mean_off < 2.5e-3, mean_off
 
 
-@pytest.mark.parametrize("site,depth,radius", [("fingertip", 0.005, 0.03), ("palm", 0.015, 0.03)])
+@pytest.mark.parametrize("site,depth,radius", [("fingertip", 0.001, 0.03), ("fingertip", 0.005, 0.03),
+                                               ("palm", 0.015, 0.03)])
 def test_a_bone_inside_a_large_sphere_keeps_its_skin_and_is_reported(asset, site, depth, radius):
     _check(asset, site, depth, radius)
 
 
-@pytest.mark.slow  # six more placements, ~10 s each on a 2-core CPU
+def test_the_hold_s_depth_follows_whether_mujoco_keeps_the_bones_out():
+    """0.5 mm where the proxies' margin keeps the bones out of objects (one-way by default, or any
+    margin set), so a bone 1 mm in is held (the fingertip above: 48 tets inverted at 2 mm, 0 at 0.5);
+    2 mm where MuJoCo's soft contacts let a closing bone a little way in (two-way by default, or a
+    margin of 0), where the skin must still push (two-way grasps hold by it)."""
+    assert KEPT_OUT_DEPTH < float(HOLD_DEPTH)
+    assert hold_depth(ph.Config().validate()) == KEPT_OUT_DEPTH
+    assert hold_depth(ph.Config(two_way=True).validate()) == float(HOLD_DEPTH)
+    assert hold_depth(ph.Config(tuning=ph.Tuning(proxy_margin=0.0)).validate()) == float(HOLD_DEPTH)
+    assert hold_depth(ph.Config(two_way=True, tuning=ph.Tuning(proxy_margin=1.0e-3)).validate()) == KEPT_OUT_DEPTH
+
+
+@pytest.mark.slow  # five more placements, ~10 s each on a 2-core CPU
 @pytest.mark.parametrize("site,depth,radius", [
-    ("fingertip", 0.001, 0.03), ("fingertip", 0.015, 0.03), ("fingertip", 0.025, 0.05),
+    ("fingertip", 0.015, 0.03), ("fingertip", 0.025, 0.05),
     ("palm", 0.001, 0.03), ("palm", 0.005, 0.03), ("palm", 0.025, 0.05)])
 def test_bones_1_to_25_mm_inside(asset, site, depth, radius):
     _check(asset, site, depth, radius)

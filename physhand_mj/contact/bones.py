@@ -11,12 +11,13 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
   (``Model.skin_anchor``, in the bone's frame), and a *flesh thickness*, its rest distance to it.
   Once per frame with an object near, :func:`hold_skin` finds, at the frame's last bone pose, where
   the bone carries the vertex (``Model.skin_local``, the tether's point) and whether an object
-  holds the anchor more than HOLD_DEPTH deep; such a vertex is *held* and its world *gripped*. Every
+  holds the anchor more than :func:`hold_depth` deep (0.5 mm where MuJoCo keeps the bones out of
+  objects, the default with one-way coupling; 2 mm where its soft contacts let them in); such a vertex is *held* and its world *gripped*. Every
   contact push (Eq. 9, the feature push, the linear hold) is applied by ``query.apply_vertex``
   through :func:`held_move`: a held vertex is not moved, and in a gripped world a push that would
   leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
   (or than it already was) is not applied. Held skin stays inside the object: the penetration is
-  the answer, stated by the report below. A bone less than HOLD_DEPTH inside grips nothing.
+  the answer, stated by the report below. A bone less deep inside grips nothing.
   In a gripped world a push is also cut short where it would flatten one of the vertex's tets past
   KEEP of its rest volume: held and pushed skin side by side otherwise shear the skin-layer tets
   inside out (the palm with a bone 5 mm in a sphere: 389 inverted -> 6). After each contact stage
@@ -27,8 +28,9 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
   geom; ``SoftHand.contacts()`` gives per object the bones it holds and how deep, and how many
   skin vertices the frame held.
 
-Where no anchor lies HOLD_DEPTH inside an object, results are bit for bit those without the hold
-(the project's hard cases, the HOI grasps, the demo's glass, whose grasp lets bones ~1 mm in).
+Where no anchor lies that deep inside an object, results are bit for bit those without the hold
+(the project's hard cases, the HOI grasps, the demo's glass, whose bones the proxies' margin keeps
+2 mm clear).
 """
 
 from __future__ import annotations
@@ -75,6 +77,21 @@ REACH_SLACK = wp.constant(2.0e-3)
 # skin pushed out over it, as before the hold: the skin passes the bone's surface by that much,
 # which nothing sees, where a held fingertip showed 3.5 mm of skin inside the glass
 HOLD_DEPTH = wp.constant(2.0e-3)
+# m: the same where MuJoCo keeps the bones out of objects (the hand's proxies with a contact margin:
+# coupling.proxy_margin, one-way by default), so that a bone inside is an infeasible start however
+# shallow: a fingertip bone 1 mm inside a sphere kept 48 tets inverted at HOLD_DEPTH, 0 at this
+KEPT_OUT_DEPTH = 0.5e-3
+
+
+def hold_depth(config) -> float:
+    """How deep (m) an anchor must lie inside an object to hold its skin under ``config`` (validated):
+    KEPT_OUT_DEPTH where MuJoCo keeps the bones out (``coupling.proxy_margin``'s rule: the
+    proxies' margin, None meaning 2.5 mm with one-way coupling and 0 with two-way), else HOLD_DEPTH
+    (MuJoCo's soft contacts let a closing bone a little way in, and the skin there must still push:
+    two-way grasps hold by it)."""
+    margin = config.proxy_margin
+    kept_out = (not config.two_way) if margin is None else margin > 0
+    return KEPT_OUT_DEPTH if kept_out else float(HOLD_DEPTH)
 # share of its rest volume below which a push in a gripped world may not flatten a tet of the pushed
 # vertex (contact/tet_room.py: the push is cut short there, and a tet already below it may only
 # grow). Held and pushed skin side by side sheared the skin-layer tets inside out: 15-389 stayed
@@ -101,7 +118,7 @@ class BoneHold:
     int: the skin vertices held this frame, all worlds (a slot of the contact's frame counters, zeroed
     with them: the gate of restore_tets reads it); layer (L,) int: one world's tets with a skin
     vertex (restore_tets' rows); depth (1,)
-    float m: how deep an anchor must lie to be held (HOLD_DEPTH; ``Contact.bones_free``: never);
+    float m: how deep an anchor must lie to be held (:func:`hold_depth`; ``Contact.bones_free``: never);
     keep: KEEP (0: the hold off); ns1, nt1, vt_off, vt, tets, vol0: one world's skin vertices and
     tets per world, and the tets of each skin vertex with their rest 6 x volumes
     (contact/tet_room.py skin_tet_lists), for the cut in a gripped world."""
@@ -123,9 +140,10 @@ class BoneHold:
     vol0: wp.array(dtype=float)
 
 
-def make_bone_hold(model, on: bool = True, count: wp.array | None = None) -> BoneHold:
+def make_bone_hold(model, on: bool = True, count: wp.array | None = None, depth: float = HOLD_DEPTH) -> BoneHold:
     """A :class:`BoneHold` for ``model``'s skin (``on`` False: empty arrays, no bound; ``count``: the
-    (1,) int array hold_skin counts the held vertices in, a new one if None)."""
+    (1,) int array hold_skin counts the held vertices in, a new one if None; ``depth``: m, an
+    anchor's depth that holds its skin, :func:`hold_depth`)."""
     n, d = (model.n_skin if on else 0), model.device
     h = BoneHold()
     h.count = count if count is not None else wp.zeros(1, dtype=int, device=d)
@@ -134,7 +152,7 @@ def make_bone_hold(model, on: bool = True, count: wp.array | None = None) -> Bon
     h.reach = wp.zeros(n, dtype=float, device=d)
     h.world = model.vertex_world if on else wp.zeros(0, dtype=int, device=d)
     h.gripped = wp.zeros(model.worlds if on else 0, dtype=int, device=d)
-    h.depth = wp.full(1, float(HOLD_DEPTH), dtype=float, device=d)
+    h.depth = wp.full(1, float(depth), dtype=float, device=d)
     h.keep = float(KEEP) if on else 0.0
     h.ns1 = int(model.n_skin) // max(int(model.worlds), 1)
     if on and h.ns1:

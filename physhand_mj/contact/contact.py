@@ -22,7 +22,7 @@ import warp as wp
 
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
-from physhand_mj.contact.bones import HOLD_DEPTH, bone_report, hold_skin, make_bone_hold, record_restore
+from physhand_mj.contact.bones import bone_report, hold_depth, hold_skin, make_bone_hold, record_restore
 from physhand_mj.contact.exchange import TwoWay
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
@@ -202,7 +202,8 @@ class Contact:
         # what a push may do to each skin vertex, from its bones (Config.tuning.bone_hold, bones.py)
         n = self.lists.counters.shape[0]
         self.held_slot = n - 1
-        self.bone_hold = make_bone_hold(model, config.bone_hold, self.lists.counters[n - 1: n])
+        self.hold_depth = hold_depth(config)  # m (0.5 mm where MuJoCo keeps the bones out, else 2)
+        self.bone_hold = make_bone_hold(model, config.bone_hold, self.lists.counters[n - 1: n], self.hold_depth)
         # Config.two_way: the skin's impulses and friction on the objects and bones (exchange.py)
         self.two_way = TwoWay(model, objects, config, self.space, self.geoms_per_world)
         # Config.contact_linear: the planes a stage leaves for the substeps without one (linear.py)
@@ -679,7 +680,7 @@ class Contact:
         try:
             yield
         finally:
-            d.fill_(float(HOLD_DEPTH))
+            d.fill_(self.hold_depth)
 
     def bone_report(self, state, world: int = 0) -> dict:
         """The bones of world ``world`` against the objects now, and the skin the last frame held
