@@ -7,6 +7,8 @@ import pytest
 
 import physhand_mj as ph
 from physhand_mj.attach import _OLD, TOL_MM, draw_skin
+from physhand_mj.contact.bones import HOLD_DEPTH, KEPT_OUT_DEPTH
+from physhand_mj.hand_mjcf import PROXY_SUFFIX
 
 
 def hand_part(naming="asset"):
@@ -63,6 +65,27 @@ def test_skin_on_a_scene_from_parts_follows_its_bones(asset, scheme, naming):
     rest = (asset.skin_vertices - asset.body_rest_pos[0]) @ _rot(data, b0, asset).T + data.xpos[b0]
     dev = np.linalg.norm(hand.skin_vertices - rest, axis=1)
     assert np.median(dev) < 5e-4 and dev.max() < 3e-3, (np.median(dev), dev.max())
+
+
+def test_the_hold_starts_at_2_mm_where_no_proxy_keeps_the_bones_out(asset):
+    """The bones' hold (contact/bones.py hold_depth): from 0.5 mm where the hand's object proxies get
+    the one-way margin (MuJoCo keeps the bones out), from 2 mm on a model without them (as MyoSuite's),
+    where MuJoCo lets a closing bone a little way in."""
+    for keep in (True, False):
+        spec = scene((hand_part(), "h_"))
+        att = ph.add_skin(spec, "auto", asset)
+        if not keep:
+            for g in [g for g in spec.geoms if g.name.endswith(PROXY_SUFFIX)]:
+                spec.delete(g)
+        model = spec.compile()
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        hand = ph.SoftHand(model, data, ph.Config(device="cpu"), naming=att.naming, object_geoms=["ball"],
+                           settle_frames=0)
+        want = KEPT_OUT_DEPTH if keep else float(HOLD_DEPTH)
+        assert len(hand.proxies) == (16 if keep else 0)
+        assert hand.solver.contact.hold_depth == want
+        assert hand.solver.contact.bone_hold.depth.numpy()[0] == pytest.approx(want)
 
 
 def _actuator_of(model, joint: int) -> int:

@@ -105,6 +105,10 @@ def test_glass_grasp_contact_report(glass_grasp):
     assert glass["skin_held"] == 0 and report["bone_clearance_mm"] == glass["bone_clearance_mm"]
     assert hand.proxy_margin == ph.hand_mjcf.PROXY_INSET and len(hand.proxies) == 16
     assert np.all(model.geom_margin[hand.proxies] == ph.hand_mjcf.PROXY_INSET)
+    # the proxies keep the bones out, so a bone inside is an infeasible start: held from 0.5 mm (bones.py)
+    from physhand_mj.contact.bones import KEPT_OUT_DEPTH
+
+    assert hand.solver.contact.hold_depth == KEPT_OUT_DEPTH
 
 
 PAPER = dict(feature_contact=False, side_aware=False, skin_tether=0.0)  # the paper's contact: Eq. 9 at multires decision points

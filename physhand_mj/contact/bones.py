@@ -12,8 +12,8 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
   Once per frame with an object near, :func:`hold_skin` finds, at the frame's last bone pose, where
   the bone carries the vertex (``Model.skin_local``, the tether's point) and whether an object
   holds the anchor more than :func:`hold_depth` deep (0.5 mm where MuJoCo keeps the bones out of
-  objects, the default with one-way coupling; 2 mm where its soft contacts let them in); such a vertex is *held* and its world *gripped*. Every
-  contact push (Eq. 9, the feature push, the linear hold) is applied by ``query.apply_vertex``
+  objects, the default with one-way coupling; 2 mm where its soft contacts let them in); such a
+  vertex is *held* and its world *gripped*. Every contact push (Eq. 9, the feature push, the linear hold) is applied by ``query.apply_vertex``
   through :func:`held_move`: a held vertex is not moved, and in a gripped world a push that would
   leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
   (or than it already was) is not applied. Held skin stays inside the object: the penetration is
@@ -72,10 +72,11 @@ def geoms_of_world(w: int, geoms_per_world: int, geom_count: wp.array(dtype=int)
 # m: how much farther than its flesh thickness from where its bone carries it a push may leave a
 # skin vertex (unless it already was farther: posed skin between two bones)
 REACH_SLACK = wp.constant(2.0e-3)
-# m: how deep inside an object an anchor must lie to hold its skin. A bone just inside (MuJoCo's
-# position control closing a grasp lets a fingertip bone ~1 mm into the demo's glass) keeps the
-# skin pushed out over it, as before the hold: the skin passes the bone's surface by that much,
-# which nothing sees, where a held fingertip showed 3.5 mm of skin inside the glass
+# m: how deep inside an object an anchor must lie to hold its skin where MuJoCo lets bones in (the
+# proxies without a margin: two-way). A bone just inside (position control closing a grasp lets a
+# fingertip bone ~1 mm into an object) keeps the skin pushed out over it, as before the hold: the
+# skin passes the bone's surface by that much, where a held fingertip showed 3.5 mm of skin inside
+# the demo's glass, and two-way grasps hold by that skin's push
 HOLD_DEPTH = wp.constant(2.0e-3)
 # m: the same where MuJoCo keeps the bones out of objects (the hand's proxies with a contact margin:
 # coupling.proxy_margin, one-way by default), so that a bone inside is an infeasible start however
@@ -92,6 +93,8 @@ def hold_depth(config) -> float:
     margin = config.proxy_margin
     kept_out = (not config.two_way) if margin is None else margin > 0
     return KEPT_OUT_DEPTH if kept_out else float(HOLD_DEPTH)
+
+
 # share of its rest volume below which a push in a gripped world may not flatten a tet of the pushed
 # vertex (contact/tet_room.py: the push is cut short there, and a tet already below it may only
 # grow). Held and pushed skin side by side sheared the skin-layer tets inside out: 15-389 stayed

@@ -671,6 +671,13 @@ class Contact:
         self.sync_objects()  # (the check points too)
         return self.points if self.n_tris and not check else None
 
+    def set_hold_depth(self, depth: float) -> None:
+        """How deep (m) an anchor must lie inside an object to hold its skin from the next frame on
+        (bones.py; ``bones.hold_depth``'s choice by default: SoftHand sets ``HOLD_DEPTH`` where the
+        model has no proxies for the margin to keep the bones out)."""
+        self.hold_depth = float(depth)
+        self.bone_hold.depth.fill_(self.hold_depth)
+
     @contextlib.contextmanager
     def bones_free(self):
         """No skin held within the block (bones.py; SoftHand's settling, whose bones sweep through
