@@ -13,9 +13,9 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
   the bone carries the vertex (``Model.skin_local``, the tether's point) and whether an object
   holds the anchor more than :func:`hold_depth` deep (0.5 mm where MuJoCo keeps the bones out of
   objects, the default with one-way coupling; 2 mm where its soft contacts let them in); such a
-  vertex is *held* and its world *gripped*. Every contact push (Eq. 9, the feature push, the linear hold) is applied by ``query.apply_vertex``
-  through :func:`held_move`: a held vertex is not moved, and in a gripped world a push that would
-  leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
+  vertex is *held* and its world *gripped*. Every contact push (Eq. 9, the feature push, the
+  linear hold) is applied by ``query.apply_vertex`` through :func:`held_move`: a held vertex is not
+  moved, and in a gripped world a push that would leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
   (or than it already was) is not applied. Held skin stays inside the object: the penetration is
   the answer, stated by the report below. A bone less deep inside grips nothing.
   In a gripped world a push is also cut short where it would flatten one of the vertex's tets past
