@@ -10,19 +10,19 @@ the box stood still). So (``Config.tuning.bone_hold``, on):
 - **The hold.** Every skin vertex has an *anchor*, the skeleton vertex nearest it at rest
   (``Model.skin_anchor``, in the bone's frame), and a *flesh thickness*, its rest distance to it.
   Once per frame with an object near, :func:`hold_skin` finds, at the frame's last bone pose, where
-  the bone carries the vertex (``Model.skin_local``, the tether's point) and whether an object
-  holds the anchor more than :func:`hold_depth` deep (0.5 mm where MuJoCo keeps the bones out of
-  objects, the default with one-way coupling; 2 mm where its soft contacts let them in); such a
-  vertex is *held* and its world *gripped*. Every contact push (Eq. 9, the feature push, the
-  linear hold) is applied by ``query.apply_vertex`` through :func:`held_move`: a held vertex is not
-  moved, and in a gripped world a push that would leave a vertex farther from where its bone carries it than its flesh thickness + REACH_SLACK
-  (or than it already was) is not applied. Held skin stays inside the object: the penetration is
-  the answer, stated by the report below. A bone less deep inside grips nothing.
-  In a gripped world a push is also cut short where it would flatten one of the vertex's tets past
-  KEEP of its rest volume: held and pushed skin side by side otherwise shear the skin-layer tets
-  inside out (the palm with a bone 5 mm in a sphere: 389 inverted -> 6). After each contact stage
-  of a frame that holds skin, :func:`restore_tets` grows the skin-layer tets the substep flattened
-  past KEEP back to it (6 -> 0 there).
+  the bone carries the vertex (``Model.skin_local``, the tether's point) and whether an object holds
+  the anchor more than :func:`hold_depth` deep (0.5 mm where MuJoCo keeps the bones out of objects,
+  the default with one-way coupling; 2 mm where its soft contacts let them in); such a vertex is
+  *held* and its world *gripped*. Every contact push (Eq. 9, the feature push, the linear hold) is
+  applied by ``query.apply_vertex`` through :func:`held_move`: a held vertex is not moved, and in a
+  gripped world a push that would leave a vertex farther from where its bone carries it than its
+  flesh thickness + REACH_SLACK (or than it already was) is not applied. Held skin stays inside the
+  object: the penetration is the answer, stated by the report below. A bone less deep inside grips
+  nothing. In a gripped world a push is also cut short where it would flatten one of the vertex's
+  tets past KEEP of its rest volume: held and pushed skin side by side otherwise shear the
+  skin-layer tets inside out (the palm with a bone 5 mm in a sphere: 389 inverted -> 6). After each
+  contact stage of a frame that holds skin, :func:`restore_tets` grows the skin-layer tets the
+  substep flattened past KEEP back to it (6 -> 0 there).
 - **The report** (:func:`bone_clearance`, :func:`bone_report`, on demand, not per frame): per
   skeleton vertex its clearance from the nearest object (m, negative inside) and that object's
   geom; ``SoftHand.contacts()`` gives per object the bones it holds and how deep, and how many
