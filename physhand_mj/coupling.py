@@ -23,7 +23,7 @@ import numpy as np
 
 from physhand_mj.asset import load_asset
 from physhand_mj.contact import Objects
-from physhand_mj.contact.bones import BONE_CAP, HOLD_DEPTH
+from physhand_mj.contact.bones import BONE_CAP, HOLD_DEPTH, KEPT_OUT_DEPTH
 from physhand_mj.contact.objects import MJ_GEOM_TYPES
 from physhand_mj.hand_mjcf import PROXY_INSET, SKIN_GEOM, body_ids, enable_self_proxies, set_proxy_margin, skin_geom_id
 from physhand_mj.solver import Solver, SolverError, make_model
@@ -120,10 +120,11 @@ class SoftHand:
             self._add_geom(g)
         self.solver = Solver(make_model(self.asset, self.config), self.config,
                              objects=self.objects if self.object_geoms else None)
-        if self.solver.contact is not None and self.proxy_margin and not len(self.proxies):
-            # no proxies for the margin to keep the bones out (a skin attached by add_skin): MuJoCo lets a
-            # closing bone a little way in, as without a margin (contact/bones.py hold_depth)
-            self.solver.contact.set_hold_depth(float(HOLD_DEPTH))
+        if self.solver.contact is not None:  # the bones' hold from what MuJoCo does here (contact/bones.py
+            # hold_depth): kept out by proxies with a margin, else let a closing bone a little way in (no
+            # margin, or no proxies: a skin attached by add_skin)
+            kept_out = bool(self.proxy_margin) and len(self.proxies) > 0
+            self.solver.contact.set_hold_depth(KEPT_OUT_DEPTH if kept_out else float(HOLD_DEPTH))
         if self.config.two_way:
             check_two_way(model, self.config)
         # Config.two_way: each object's MuJoCo body (Objects.object_names order) and the wrenches applied
