@@ -22,7 +22,8 @@ import warp as wp
 
 from physhand_mj.contact.data import (FeatureLists, make_feature_lists, make_frame_lists,
                                       make_metrics_buffers, make_pass_buffers)
-from physhand_mj.contact.bones import bone_report, hold_depth, hold_skin, make_bone_hold, record_restore
+from physhand_mj.contact.bones import (RESTORE_ROUNDS, RESTORE_ROUNDS_LAST, bone_report, hold_depth, hold_skin,
+                                      make_bone_hold, record_restore)
 from physhand_mj.contact.exchange import TwoWay
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
@@ -254,6 +255,12 @@ class Contact:
         return self.space.shift
 
     # -- recording into the solver's frame --------------------------------------------------------
+    def stages_per_frame(self) -> int:
+        """Contact stages a frame records: one per ``contact_every`` substeps (the last substep always
+        has one), two there with Placement.BOTH."""
+        cfg = self.config
+        return -(-cfg.substeps // cfg.contact_every) * (2 if self.wants("before") and self.wants("after") else 1)
+
     def wants(self, stage: str) -> bool:
         p = self.config.contact_placement
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
@@ -457,8 +464,9 @@ class Contact:
         self._record_make_planes(rec, state, feat_count)  # (Config.contact_linear: linear.py)
         self.two_way.record_take(rec, state, self.bone_hold)
         if cfg.bone_hold:  # a gripped world's flattened skin tets grown back (bones.py; after the two-way
-            # take: not a push on the object)
-            record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x)
+            # take: not a push on the object); more rounds after the frame's last stage, which it ends with
+            rounds = RESTORE_ROUNDS_LAST if stage == self.stages_per_frame() - 1 else RESTORE_ROUNDS
+            record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x, rounds)
 
     def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
         """Passes ``p``.. of a stage, each recorded inside the gate of the one before (activity.py level
