@@ -255,12 +255,6 @@ class Contact:
         return self.space.shift
 
     # -- recording into the solver's frame --------------------------------------------------------
-    def stages_per_frame(self) -> int:
-        """Contact stages a frame records: one per ``contact_every`` substeps (the last substep always
-        has one), two there with Placement.BOTH."""
-        cfg = self.config
-        return -(-cfg.substeps // cfg.contact_every) * (2 if self.wants("before") and self.wants("after") else 1)
-
     def wants(self, stage: str) -> bool:
         p = self.config.contact_placement
         return (stage == "before" and p in (Placement.BEFORE, Placement.BOTH)) or (
@@ -402,10 +396,11 @@ class Contact:
         self._slot += 1
         return c
 
-    def record(self, rec, state) -> None:
+    def record(self, rec, state, last: bool = False) -> None:
         """One contact stage: broadphase over the frame's list, then ``contact_passes`` x (decision
         points + Eq. 9, averaged apply); a later pass queries only the stage's triangles with a
-        vertex the previous pass moved (the others cannot have changed). Through the solver's gates
+        vertex the previous pass moved (the others cannot have changed). ``last``: the frame's last
+        stage (the solver's schedule), whose positions the frame ends with. Through the solver's gates
         (``rec.gated``) a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
         skin: activity.py level 2)."""
         m, o, cfg = self.model, self.objects, self.config
@@ -465,7 +460,7 @@ class Contact:
         self.two_way.record_take(rec, state, self.bone_hold)
         if cfg.bone_hold:  # a gripped world's flattened skin tets grown back (bones.py; after the two-way
             # take: not a push on the object); more rounds after the frame's last stage, which it ends with
-            rounds = RESTORE_ROUNDS_LAST if stage == self.stages_per_frame() - 1 else RESTORE_ROUNDS
+            rounds = RESTORE_ROUNDS_LAST if last else RESTORE_ROUNDS
             record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x, rounds)
 
     def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
