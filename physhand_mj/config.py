@@ -41,8 +41,9 @@ class Tuning:
       contact_placement: :class:`Placement` of the contact stage in a substep (AFTER the constraints).
       contact_margin: the stage broadphase's margin (m; how far one stage's corrections drag a
         triangle that did not penetrate itself).
-      contact_offset: how far outside an object Eq. 9 puts a decision point (m; 4 um: float32
-        rounding and a faceted mesh's missed minimum, up to ~3.5 um on the HOI bowl).
+      contact_offset: how far outside an object Eq. 9 puts a decision point (m; 20 um: float32
+        rounding, a faceted mesh's missed minimum (~3.5 um on the HOI bowl) and the order-5 lattice's
+        misses between its samples at convex edges and lying rods, 1-5 um; docs/contact.md).
       contact_pass_tol: in every stage but the frame's last, a pass runs only when the one before it
         moved a vertex by more than this (m; 0: until a pass moves nothing).
       multires_samples / multires_rounds: Algorithm 2's samples per round and rounds (21 x 2: an
@@ -111,7 +112,7 @@ class Tuning:
     attach_skin: bool = False
     contact_placement: Placement = Placement.AFTER
     contact_margin: float = 5.0e-4
-    contact_offset: float = 4.0e-6
+    contact_offset: float = 2.0e-5
     contact_pass_tol: float = 0.0
     multires_samples: int = 21
     multires_rounds: int = 2

@@ -345,16 +345,21 @@ def test_the_frames_check_flags_only_a_move_that_could_spoil_a_list():
 
 
 def test_the_shipped_demo_outruns_no_list(asset):
-    """The shipped demo (``physhand demo``: the grasp_glass scene from its approach keyframe): in its
-    third frame 325 skin vertices move 4.6-7.2 mm, half the lists' 9.2 mm slack or more, none of them
-    as far as a feature point needs: no frame is flagged, nothing warns."""
+    """The shipped demo (``physhand demo``: the grasp_glass scene from its approach keyframe, its
+    lists sized for the frame margin as the CLI sizes them): in its third frame skin vertices move
+    up to 7.2 mm, more than half the lists' 10 mm slack, none of them as far as a feature point
+    needs: no frame is flagged. (With the default ``feature_slack`` the slack that frame is 2.5 x an
+    earlier frame's move near the points, 6.4-9.2 mm by the path: where it is 6.4 mm the frame is
+    flagged and warns, as the demo's comment says, so the demo sizes its lists.)"""
     import mujoco
 
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
     mujoco.mj_forward(model, data)
-    hand = ph.SoftHand(model, data, ph.Config(device="cpu"), asset=asset)
+    config = ph.Config(device="cpu")
+    config.tuning.feature_slack = config.contact_frame_margin  # as physhand_mj/cli.py's demo
+    hand = ph.SoftHand(model, data, config, asset=asset)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         for frame in range(4):
@@ -362,9 +367,8 @@ def test_the_shipped_demo_outruns_no_list(asset):
             hand.step()
             act = hand.solver.last_activity
             assert act["feature_slack_exceeded"] == 0, (frame, act)
-            if frame == 2:  # (its lists cut short of the margin: a flagged frame would warn)
+            if frame == 2:  # moves past half the slack, the fast vertices' own check passes them
                 assert act["skin_motion_mm"] > 0.5 * act["feature_slack_mm"], act
-                assert act["feature_slack_mm"] < hand.config.contact_frame_margin * 1e3, act
 
 
 def test_a_deep_start_lists_with_the_margin_first_then_with_the_skins_move(asset):

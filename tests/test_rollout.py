@@ -20,14 +20,23 @@ APPLE = ph.scene_path("hoi_apple")
 
 
 
+# Eq. 9's offset at which the vertex strategy leaves the apple's grasp penetrated (4 um, the default
+# before 2026-12-01): at the 20 um default it ends at 0 on every HOI grasp but the toothpaste's
+# (CPU, 6 frames; docs/contact.md "Held-out objects"). The strategies part at sharp features
+# (tests/test_hard_contact.py); the log's tests here want a run whose object side changes frame by frame.
+VERTEX_OFFSET = {"contact_offset": 4.0e-6}
+
+
 @pytest.fixture(scope="module")
 def apple_runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("rollout")
-    return {c: rollout(APPLE, "grasp", steps=6, contact=c, device="cpu", out=out / c, progress=False)
+    return {c: rollout(APPLE, "grasp", steps=6, contact=c, device="cpu", out=out / c, progress=False,
+                       config=VERTEX_OFFSET)
             for c in ("vertex", "multires")}
 
 
 def test_multires_removes_the_initial_penetration_and_vertex_does_not(apple_runs):
+    """At the same Eq. 9 offset (VERTEX_OFFSET) the vertex strategy leaves the apple penetrated, multires not."""
     mr, vx = apple_runs["multires"], apple_runs["vertex"]
     assert mr["initial_penetration_count"] > 1000 and mr["initial_penetration_max_um"] > 2000, mr
     assert mr["penetration_count"] == 0 and mr["penetration_max_um"] == 0.0 and mr["finite"], mr
@@ -65,7 +74,7 @@ def test_measure_every_leaves_only_the_object_cells_between_empty(apple_runs, tm
     the summary is the same (the measure does not touch the hand)."""
     every = apple_runs["vertex"]
     some = rollout(APPLE, "grasp", steps=6, contact="vertex", device="cpu", out=tmp_path / "k4", progress=False,
-                   measure_every=4)
+                   measure_every=4, config=VERTEX_OFFSET)
     timed = {"ms_per_frame", "log", "skin"}
     assert {k: v for k, v in some.items() if k not in timed} == {k: v for k, v in every.items() if k not in timed}
     assert some["object_in_skin_frame"] == 6
@@ -103,7 +112,7 @@ def test_a_stopped_run_reports_the_frame_its_object_side_comes_from(apple_runs, 
 
     monkeypatch.setattr(ph.SoftHand, "step", stop_in_frame_3)
     res = rollout(APPLE, "grasp", steps=6, contact="vertex", device="cpu", out=tmp_path / "r", progress=False,
-                  measure_every=every)
+                  measure_every=every, config=VERTEX_OFFSET)
     assert res["interrupted"] and res["steps"] == 2 and res["object_in_skin_frame"] == frame, res
     ref = read_csv(apple_runs["vertex"]["log"])
     row = ref[0] if frame == 0 else next(r for r in ref if r["step"] == str(frame) and r["substep"] == "10")
