@@ -26,9 +26,13 @@ def merge(paths) -> dict:
     workloads = [w for r in runs for w in r["workloads"]]
     if len(set(workloads)) != len(workloads):
         raise ValueError(f"a workload is in two runs: {sorted(w for w in workloads if workloads.count(w) > 1)}")
-    rows = [row for r in runs for row in r["rows"]]
+    order = {w: k for k, w in enumerate(acc.WORKLOADS)}  # the sweep's own order where it has them
+    workloads.sort(key=lambda w: order.get(w, len(order)))
     points = acc.sweep_points()
-    names = {p.name for p in points}
+    rank = {p.name: k for k, p in enumerate(points)}
+    rows = sorted((row for r in runs for row in r["rows"]),
+                  key=lambda row: (rank.get(row["point"], len(rank)), workloads.index(row["workload"])))
+    names = set(rank)
     missing = {row["point"] for row in rows} - names
     if missing:
         raise ValueError(f"settings not in this code's sweep: {sorted(missing)}")

@@ -164,7 +164,7 @@ LOAD_RATE = wp.constant(0.25)
 # against the skin and back within the frame: physhand_mj/bench/pinch.py, a 10 g box at 1.25 x the
 # bound: 30 um left it creeping 1 mm/s, 0.1 mm less than 0.1 mm/s)
 STICK_SLACK = 1.0e-4
-# m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 4 um out, the
+# m: how far outside its object a skin vertex still counts as touching it (Eq. 9 leaves it 20 um out, the
 # feature push moves triangles whose vertices can end farther; 0.5 mm: the stage margin)
 TOUCH_GAP = wp.constant(5.0e-4)
 
