@@ -69,13 +69,16 @@ def test_pinch_slip_onset_is_within_15_percent_of_the_bound(pads, bound):
 def test_the_hands_pinch_holds_above_the_bound_and_slips_below():
     """The hand's own pinch (bench.pinch.HandPinch: hand_only's pinch keyframe, a free 16 x 16 x 3 mm
     10 g card between the thumb's and the index's tips, settled 0.3 s without gravity, then gravity
-    ramped in): mu 0.22 slips (about 0.97 x the bound, N the tips' push along the card's normal under
+    ramped in): mu 0.21 slips (about 0.97 x the bound, N the tips' push along the card's normal under
     the full load) and mu 0.3 holds (about 1.4 x), the skin alone holding it (no proxy touches the
-    card). The onset lies at 1.06-1.13 x (within 15 %), but partly thanks to the contact damping,
-    which also brakes the card's fall (docs/coupling.md: "A pinch"), so only the two ends are checked."""
+    card). The onset lies at 1.01-1.13 x (within 15 %), but partly thanks to the contact damping,
+    which also brakes the card's fall (docs/coupling.md: "A pinch"), so only the two ends are checked.
+    (mu 0.22, 0.97 x with Eq. 9's offset at 4 um, slipped at 1.01 x at 20 um on a 2-core AMD EPYC, where
+    the tips' skin stands 20 um off the card and the pinch presses a little harder; measured
+    2026-12-01; 0.21 slips at 0.97 x.)"""
     from physhand_mj.bench.pinch import HandPinch
 
-    for mu, slips in ((0.22, True), (0.3, False)):
+    for mu, slips in ((0.21, True), (0.3, False)):
         rig = HandPinch(mu=mu, mass=MASS)
         rig.settle(60)
         out = rig.hold(200, ramp=40)
