@@ -63,6 +63,11 @@ class Tuning:
         ``wall_half_thickness``, ``wall_is_broad``), where the skin is dragged across the wall's face
         and the flesh left behind pulls it back over the rims (docs/contact.md "Thin walls"); a scene
         without one runs nothing for it. The larger of the two shares applies.
+      touch_damping: after each contact stage the velocity of every skin vertex an object pushed in
+        the frame decays over this time (s; 0, the default: off; 7e-4 halves it every stage at 10
+        substeps), so held contact comes to rest instead of swinging at thin walls' rims and star
+        points (contact/touch.py; measured, not yet the default: docs/contact.md "Held contact at
+        rest"). World-frame velocity; with two_way, contact_damping acts instead.
     Contact (object side, the features: corners, tips and sharp edges smaller than a triangle):
       feature_offset: how far outside the skin a pushed feature point ends (m; 60 um; 80 um and more
         let a 1 mm plate tunnel); feature_last_offset: the stage's last push's (m; None: feature_offset);
@@ -121,6 +126,7 @@ class Tuning:
     bone_hold: bool = True
     flesh_carry: float = 0.0
     wall_carry: float = 0.5
+    touch_damping: float = 0.0
     feature_offset: float = 6.0e-5
     feature_last_offset: float | None = None
     feature_spacing: float = 2.5e-4
@@ -425,7 +431,7 @@ def _check(s) -> None:
     if not (isinstance(s.multires_samples, (int, np.integer)) and s.multires_samples >= 3):
         raise ValueError(f"Config.tuning.multires_samples must be an integer >= 3, got {s.multires_samples!r}")
     for name in ("contact_margin", "contact_pass_tol", "skin_tether", "contact_frame_margin", "contact_offset", "contact_damping",
-                 "feature_offset", "mesh_grid", "sleep_speed", "sleep_bone_motion"):
+                 "touch_damping", "feature_offset", "mesh_grid", "sleep_speed", "sleep_bone_motion"):
         nonneg(name)
     v = s.feature_last_offset
     if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0):

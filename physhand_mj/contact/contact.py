@@ -38,6 +38,7 @@ from physhand_mj.contact.features import feature_contact, feature_contact_scan, 
 from physhand_mj.contact.query import apply_contact, decide_and_project, decide_inputs, multires_kernel
 from physhand_mj.contact.query_space import QuerySpace
 from physhand_mj.contact.slack import SlackCheck
+from physhand_mj.contact.touch import damp_touched, touch_keep
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
 from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.types import Config, Model, Placement, Settings, Strategy
@@ -142,6 +143,7 @@ class Contact:
         # (+ 1: the last counter slot, the skin vertices held by bones inside objects this frame: bones.py)
         self.lists = make_frame_lists(model, config, w, holds + 1)
         self.acc = make_pass_buffers(model)  # what a pass computes and applies
+        self.touch_keep = touch_keep(config)  # Config.tuning.touch_damping (touch.py; 1: off)
         # recording cursors: the length slots (counters) of the frame's list, the stage's and the pass's touched
         self.cand_count = self.lists.counters[0:1]
         self.active_count = self.cand_count  # replaced per stage by its counter
@@ -462,6 +464,9 @@ class Contact:
             # take: not a push on the object); more rounds after the frame's last stage, which it ends with
             rounds = RESTORE_ROUNDS_LAST if last else RESTORE_ROUNDS
             record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x, rounds)
+        if self.touch_keep < 1.0:  # the pushed skin's velocity damped (Config.tuning.touch_damping: touch.py)
+            rec.launch(damp_touched, self.acc.vertex_obj.shape[0], [self.acc.vertex_obj, state.x, self.touch_keep],
+                       [state.x_prev])
 
     def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
         """Passes ``p``.. of a stage, each recorded inside the gate of the one before (activity.py level

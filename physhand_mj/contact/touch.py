@@ -1,0 +1,42 @@
+"""Touch damping (``Config.tuning.touch_damping``): the skin an object pushed comes to rest.
+
+A contact stage moves penetrating skin out of the objects by position (Eq. 9, the features); the
+substep's end turns every move into velocity (v = (x - x^i) / h, Algorithm 1 line 15), so a pushed
+vertex leaves the stage with the push's speed. Held against a thin wall's rim or a star prism's
+points, skin can swing 8-18 mm a frame without settling, and the held frames' residue follows the
+swing (docs/contact.md "Held contact at rest"). After each stage this takes a share of the velocity
+of every skin vertex an object pushed in the frame (``PushSums.vertex_obj``), as the substep's end
+will read it: x^i moves toward x, so v is scaled by keep = exp(-dt / touch_damping), dt the time
+between two stages. Positions are untouched; the velocity is the world frame's (objects held still
+by MuJoCo or moving slowly; with ``two_way`` the exchange's own ``contact_damping`` acts instead).
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from physhand_mj.types import Placement
+
+wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
+
+
+@wp.kernel
+def damp_touched(vertex_obj: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), keep: float,
+                 x_prev: wp.array(dtype=wp.vec3)):
+    """x^i of each vertex an object pushed this frame (vertex_obj >= 0) moved toward x so that the
+    substep's velocity (x - x^i) / h is scaled by ``keep``."""
+    i = wp.tid()
+    if vertex_obj[i] >= 0:
+        x_prev[i] = x[i] - (x[i] - x_prev[i]) * keep
+
+
+def touch_keep(config) -> float:
+    """The share of a touched vertex's velocity a stage keeps: exp(-dt / touch_damping), dt the
+    frame's time over its stages; 1 (nothing to do) with touch_damping 0 or two_way."""
+    tau = float(config.touch_damping)
+    if tau <= 0.0 or config.two_way:
+        return 1.0
+    stages = -(-config.substeps // config.contact_every) * (2 if config.contact_placement == Placement.BOTH else 1)
+    return math.exp(-(config.frame_dt / stages) / tau)
