@@ -16,17 +16,26 @@ DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 
 @pytest.mark.parametrize("device", DEVICES)
-def test_damp_touched_scales_the_substeps_velocity_of_pushed_vertices_only(device):
-    """Three vertices moved (1, 2, -3) mm in a substep, the first and last pushed by an object: their
-    substep velocity (x - x^i) / h is scaled by keep (x^i moved toward x), the middle one's left
-    alone; positions never change."""
-    x = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, 2.0, 0.0]], np.float32)
-    move = np.array([[1e-3, 0, 0], [0, 2e-3, 0], [0, 0, -3e-3]], np.float32)
+def test_damp_touched_scales_the_substeps_velocity_relative_to_the_carrier(device):
+    """Four vertices moved in substep 1; the first, third and fourth pushed by an object. Without a
+    carrier bone (the first and third) the substep's velocity (x - x^i) / h is scaled by keep; the
+    fourth rides a bone that moved 1 mm along x in the substep (body_sub[0] -> body_sub[1]), so it
+    keeps that ride and keep of the rest; the second, not pushed, is left alone; positions never
+    change."""
+    x = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, 2.0, 0.0], [0.1, 0.0, 0.0]], np.float32)
+    move = np.array([[1e-3, 0, 0], [0, 2e-3, 0], [0, 0, -3e-3], [1e-3, 2e-3, 0]], np.float32)
     arr = lambda a, t=wp.vec3: wp.array(a, dtype=t, device=device)  # noqa: E731
+    ident = wp.transform_identity()
+    shifted = wp.transform(wp.vec3(1e-3, 0.0, 0.0), wp.quat_identity())
+    body_sub = wp.array([[ident], [shifted]], dtype=wp.transform, device=device)
+    body_pose = wp.array([[ident], [shifted]], dtype=wp.transform, device=device)
     xa, prev = arr(x), arr(x - move)
-    wp.launch(damp_touched, 3, [arr(np.array([0, -1, 2], np.int32), int), xa, 0.25], [prev], device=device)
-    v = xa.numpy() - prev.numpy()
-    np.testing.assert_allclose(v, move * np.array([[0.25], [1.0], [0.25]], np.float32), atol=2e-7)  # (float32 at 1 m)
+    wp.launch(damp_touched, 4, [arr(np.array([0, -1, 2, 0], np.int32), int), xa, 0.25,
+                                arr(np.array([-1, -1, -1, 0], np.int32), int), body_sub, body_pose, 1], [prev],
+              device=device)
+    want = move * np.array([[0.25], [1.0], [0.25], [1.0]], np.float32)
+    want[3] = [1e-3, 0.25 * 2e-3, 0.0]  # the bone's ride kept, the rest scaled
+    np.testing.assert_allclose(xa.numpy() - prev.numpy(), want, atol=2e-7)  # (float32 at 1 m)
     np.testing.assert_array_equal(xa.numpy(), x)
 
 

@@ -398,11 +398,12 @@ class Contact:
         self._slot += 1
         return c
 
-    def record(self, rec, state, last: bool = False) -> None:
+    def record(self, rec, state, last: bool = False, substep: int = 0) -> None:
         """One contact stage: broadphase over the frame's list, then ``contact_passes`` x (decision
         points + Eq. 9, averaged apply); a later pass queries only the stage's triangles with a
         vertex the previous pass moved (the others cannot have changed). ``last``: the frame's last
-        stage (the solver's schedule), whose positions the frame ends with. Through the solver's gates
+        stage (the solver's schedule), whose positions the frame ends with; ``substep``: the substep it
+        runs in (the touch damping's bone motion, touch.py). Through the solver's gates
         (``rec.gated``) a pass after one that moved no vertex is skipped (CPU; it would repeat that pass on the same
         skin: activity.py level 2)."""
         m, o, cfg = self.model, self.objects, self.config
@@ -465,8 +466,9 @@ class Contact:
             rounds = RESTORE_ROUNDS_LAST if last else RESTORE_ROUNDS
             record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x, rounds)
         if self.touch_keep < 1.0:  # the pushed skin's velocity damped (Config.tuning.touch_damping: touch.py)
-            rec.launch(damp_touched, self.acc.vertex_obj.shape[0], [self.acc.vertex_obj, state.x, self.touch_keep],
-                       [state.x_prev])
+            rec.launch(damp_touched, self.acc.vertex_obj.shape[0],
+                       [self.acc.vertex_obj, state.x, self.touch_keep, m.vertex_carrier, state.body_sub,
+                        state.body_pose, int(substep)], [state.x_prev])
 
     def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
         """Passes ``p``.. of a stage, each recorded inside the gate of the one before (activity.py level

@@ -6,9 +6,10 @@ vertex leaves the stage with the push's speed. Held against a thin wall's rim or
 points, skin can swing 8-18 mm a frame without settling, and the held frames' residue follows the
 swing (docs/contact.md "Held contact at rest"). After each stage this takes a share of the velocity
 of every skin vertex an object pushed in the frame (``PushSums.vertex_obj``), as the substep's end
-will read it: x^i moves toward x, so v is scaled by keep = exp(-dt / touch_damping), dt the time
-between two stages. Positions are untouched; the velocity is the world frame's (objects held still
-by MuJoCo or moving slowly; with ``two_way`` the exchange's own ``contact_damping`` acts instead).
+will read it: x^i moves so that v keeps the rigid velocity the vertex's carrier bone gives it over
+the substep and keep = exp(-dt / touch_damping) of the rest, dt the time between two stages (skin
+riding a moving finger is not held back; only its motion relative to the bone is damped). Positions
+are untouched; with ``two_way`` the exchange's own ``contact_damping`` acts instead.
 """
 
 from __future__ import annotations
@@ -24,12 +25,25 @@ wp.set_module_options({"enable_backward": False})  # forward only: no gradients 
 
 @wp.kernel
 def damp_touched(vertex_obj: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), keep: float,
-                 x_prev: wp.array(dtype=wp.vec3)):
-    """x^i of each vertex an object pushed this frame (vertex_obj >= 0) moved toward x so that the
-    substep's velocity (x - x^i) / h is scaled by ``keep``."""
+                 vertex_carrier: wp.array(dtype=int), body_sub: wp.array2d(dtype=wp.transform),
+                 body_pose: wp.array2d(dtype=wp.transform), substep: int, x_prev: wp.array(dtype=wp.vec3)):
+    """x^i of each vertex an object pushed this frame (vertex_obj >= 0) moved so that the substep's
+    velocity (x - x^i) / h keeps the rigid velocity its carrier bone gives it over substep
+    ``substep`` (body_sub[substep - 1] -> body_sub[substep]; the frame's start pose body_pose[0]
+    before the first) and ``keep`` of the rest: skin that rides a moving finger is not held back."""
     i = wp.tid()
-    if vertex_obj[i] >= 0:
-        x_prev[i] = x[i] - (x[i] - x_prev[i]) * keep
+    if vertex_obj[i] < 0:
+        return
+    p = x_prev[i]
+    ride = p
+    b = vertex_carrier[i]
+    if b >= 0:
+        t0 = body_pose[0, b]
+        if substep > 0:
+            t0 = body_sub[substep - 1, b]
+        ride = wp.transform_point(body_sub[substep, b], wp.transform_point(wp.transform_inverse(t0), p))
+    xi = x[i]
+    x_prev[i] = xi - (ride - p) - (xi - ride) * keep
 
 
 def touch_keep(config) -> float:

@@ -440,13 +440,13 @@ class Solver:
         if self.selfc is not None:  # the frame's self-contact list, from the positions at its start
             self.selfc.record_frame(rec, state)
 
-        def stage(last: bool):
-            """A contact stage (Eq. 9 and the features; ``last``: the frame's last, which it ends with);
-            with Tuning.flesh_carry the flesh follows it."""
+        def stage(last: bool, s: int):
+            """A contact stage in substep ``s`` (Eq. 9 and the features; ``last``: the frame's last, which
+            it ends with); with Tuning.flesh_carry the flesh follows it."""
             if carry is None:
-                contact.record(rec, state, last)
+                contact.record(rec, state, last, s)
             else:
-                carry.record(rec, state, inv_mass, lambda: contact.record(rec, state, last))
+                carry.record(rec, state, inv_mass, lambda: contact.record(rec, state, last, s))
 
         pending = -1  # family whose Jacobi corrections await averaging (applied lazily, fused into advance)
         rs = self.regions  # per-region sleeping: the kernels read its live kinematic arrays
@@ -481,7 +481,7 @@ class Solver:
             if s == cfg.substeps:
                 break
             if before:  # (the frame's last stage where the last substep has no stage after its constraints)
-                gated(lambda sub, s=s: stage(s == cfg.substeps - 1 and not contact.wants("after")), 1)
+                gated(lambda sub, s=s: stage(s == cfg.substeps - 1 and not contact.wants("after"), s), 1)
             elif hold and not hold_after:
                 gated(lambda sub: contact.record_hold(rec, state), 1)
             # a frame without contact stages: every substep in the first one's launch (solver/fused.py)
@@ -526,7 +526,7 @@ class Solver:
                     apply(pending)
                     pending = -1
                 if staged and contact.wants("after"):
-                    gated(lambda sub, s=s: stage(s == cfg.substeps - 1), 1)
+                    gated(lambda sub, s=s: stage(s == cfg.substeps - 1, s), 1)
                 elif hold_after:
                     gated(lambda sub: contact.record_hold(rec, state), 1)
             if contact is not None and (cfg.skin_tether > 0 or cfg.substep_metrics):
