@@ -67,7 +67,8 @@ class Tuning:
         the frame decays over this time (s; 0, the default: off; 7e-4 halves it every stage at 10
         substeps), so held contact comes to rest instead of swinging at thin walls' rims and star
         points (contact/touch.py; measured, not yet the default: docs/contact.md "Held contact at
-        rest"). World-frame velocity; with two_way, contact_damping acts instead.
+        rest"). Only the motion relative to the vertex's carrier bone is damped (skin riding a moving
+        finger is not held back); with two_way, contact_damping acts instead.
     Contact (object side, the features: corners, tips and sharp edges smaller than a triangle):
       feature_offset: how far outside the skin a pushed feature point ends (m; 60 um; 80 um and more
         let a 1 mm plate tunnel); feature_last_offset: the stage's last push's (m; None: feature_offset);
