@@ -10,6 +10,7 @@ import warp as wp
 import physhand_mj as ph
 from physhand_mj.bench.cases import run_case, wall_case
 from physhand_mj.contact.touch import damp_touched, touch_keep
+from activity_helpers import R, _solver, _step, scene  # noqa: F401 (scene: a fixture)
 from physhand_mj.types import Placement
 
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
@@ -39,20 +40,27 @@ def test_damp_touched_scales_the_substeps_velocity_relative_to_the_carrier(devic
     np.testing.assert_array_equal(xa.numpy(), x)
 
 
-def test_touch_keep_is_the_decay_over_the_time_between_stages():
-    """keep = exp(-dt / touch_damping), dt the frame's time over its stages (10 at 10 substeps, 5
-    with contact_every=2, 20 with the stage on both sides of the constraints); 1 when off or with
-    two_way (whose exchange damps its own contacts); a negative time is refused."""
-    cfg = lambda **k: ph.Config(device="cpu", **k).validate()  # noqa: E731
+def test_touch_keep_is_the_decay_over_the_time_between_stages(scene):
+    """A stage keeps exp(-dt / touch_damping), dt the time since the substep the last stage damped,
+    as the solver's schedule records them: 10 stages of 0.5 ms at 10 substeps, 5 of 1 ms with
+    contact_every=2; with the stage on both sides of the constraints the first of a substep's two
+    keeps 0.5 ms's share and the second 1 (no time passed), the same per substep. Off by default and
+    with two_way (whose exchange damps its own contacts): nothing recorded; a negative time is refused."""
     tau = 7.2e-4
-    assert touch_keep(cfg(tuning=ph.Tuning(touch_damping=tau))) == pytest.approx(math.exp(-0.5e-3 / tau))
-    assert touch_keep(cfg(contact_every=2, tuning=ph.Tuning(touch_damping=tau))) == pytest.approx(math.exp(-1e-3 / tau))
-    both = cfg(tuning=ph.Tuning(touch_damping=tau, contact_placement=Placement.BOTH))
-    assert touch_keep(both) == pytest.approx(math.exp(-0.25e-3 / tau))
-    assert touch_keep(cfg()) == 1.0
-    assert touch_keep(cfg(two_way=True, tuning=ph.Tuning(touch_damping=tau))) == 1.0
+
+    def keeps(**config):  # the keeps of one frame's recorded stages, the ball 3 mm into the back of the hand
+        solver, state, objects, top = _solver(scene, **config)
+        objects.set_pose(0, top + [0.0, 0.0, R - 0.003], (1.0, 0.0, 0.0, 0.0))
+        _step(solver, state, scene[2])
+        return solver.contact.touch_keeps
+
+    assert keeps(touch_damping=tau) == pytest.approx([math.exp(-0.5e-3 / tau)] * 10)
+    assert keeps(touch_damping=tau, contact_every=2) == pytest.approx([math.exp(-1e-3 / tau)] * 5)
+    assert keeps(touch_damping=tau, contact_placement=Placement.BOTH) == pytest.approx([math.exp(-0.5e-3 / tau), 1.0] * 10)
+    assert touch_keep(0.0, 0.5e-3) == 1.0 and touch_keep(tau, 0.0) == 1.0
+    assert keeps() == [] and keeps(touch_damping=tau, two_way=True) == []
     with pytest.raises(ValueError, match="touch_damping"):
-        cfg(tuning=ph.Tuning(touch_damping=-1e-3))
+        ph.Config(device="cpu", tuning=ph.Tuning(touch_damping=-1e-3)).validate()
 
 
 def test_held_skin_at_a_slanted_wall_comes_to_rest():

@@ -174,9 +174,6 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
     grasps, hard cases, held-out cases and the paper's cone; writes ``out/accuracy_<device>.csv`` (one row per setting and workload),
     ``.json`` (the rows, one row per setting with its Pareto flags, the device) and ``.png`` (the
     Pareto fronts). ``quick``: 2 settings, 3 workloads, 2 frames, 1 repeat (a smoke run)."""
-    import csv
-    import json
-
     import warp as wp
 
     from physhand_mj.bench import accuracy as acc
@@ -192,17 +189,7 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
     points = acc.sweep_points(quick)
     t0 = time.perf_counter()
     rows = acc.run_sweep(points, workloads, device=device, frames=frames, repeats=repeats, progress=progress)
-    table = acc.summarize_points(points, rows)
     dev = str(wp.get_device(device))
-    tag = dev.split(":")[0]
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path, json_path, png_path = (out / f"accuracy_{tag}.{e}" for e in ("csv", "json", "png"))
-    with open(csv_path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=acc.ROW_COLUMNS)
-        w.writeheader()
-        w.writerows(rows)
-    name = device_name(dev)
     import physhand_mj as ph
 
     asset = ph.load_asset()
@@ -211,6 +198,34 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
         if w.startswith("heldout:"):
             h = acc.heldout_case(w[len("heldout:"):], asset)
             heldout[w] = dict(case=h.label, kind=h.kind, clearance_mm=round(h.clearance_mm, 3), feasible=h.feasible)
+    out = write_sweep(out, dev, frames, repeats, workloads, heldout, points, rows)
+    return dict(out, seconds=round(time.perf_counter() - t0, 1))
+
+
+def write_sweep(out, dev: str, frames: int, repeats: int, workloads, heldout: dict, points, rows,
+                device_label: str | None = None) -> dict:
+    """Write a sweep's ``out/accuracy_<device>.csv`` (one row per setting and workload), ``.json``
+    (the rows, one row per setting with its Pareto flags, the device) and ``.png`` (the Pareto
+    fronts) from its ``rows`` (accuracy.run_sweep's, or several runs' joined:
+    benchmarks/accuracy_merge.py); returns the summary line (the front, ``Config()``'s place, the
+    cheapest settings at zero, the paths). ``device_label``: the device's name where the rows were not
+    run on this machine (default: this machine's, ``launch.device_name``)."""
+    import csv
+    import json
+
+    from physhand_mj.bench import accuracy as acc
+    from physhand_mj.types import Config
+
+    table = acc.summarize_points(points, rows)
+    tag = dev.split(":")[0]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path, json_path, png_path = (out / f"accuracy_{tag}.{e}" for e in ("csv", "json", "png"))
+    with open(csv_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=acc.ROW_COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+    name = device_label or device_name(dev)
     json_path.write_text(json.dumps(dict(device=dev, device_name=name, frames=frames, repeats=repeats,
                                          workloads=list(workloads), hold_frames=acc.HOLD, heldout=heldout,
                                          points=table, rows=rows),
@@ -220,8 +235,6 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
     default = next((p for p in table if p["default"]), None)
     front = [dict(point=p["point"], ms_per_frame=p["ms_per_frame"], skin_um=p["skin_um"], object_um=p["object_um"])
              for p in sorted(table, key=lambda p: p["ms_per_frame"]) if p["pareto_both"]]
-    from physhand_mj.types import Config
-
     # the fastest setting at zero by every measure: of all, and of those at Config()'s substeps (its material)
     zero = {k: (None if p is None else dict(point=p["point"], ms_per_frame=p["ms_per_frame"]))
             for k, p in (("any", acc.cheapest_zero(table)),
@@ -231,5 +244,4 @@ def bench_accuracy(device: str = "cpu", out="accuracy_out", quick: bool = False,
                 default_on_front=None if default is None else dict(skin=default["pareto_skin"],
                                                                    object=default["pareto_object"],
                                                                    both=default["pareto_both"]),
-                seconds=round(time.perf_counter() - t0, 1), csv=str(csv_path), json=str(json_path),
-                plot=str(png_path))
+                csv=str(csv_path), json=str(json_path), plot=str(png_path))

@@ -7,7 +7,8 @@ points, skin can swing 8-18 mm a frame without settling, and the held frames' re
 swing (docs/contact.md "Held contact at rest"). After each stage this takes a share of the velocity
 of every skin vertex an object pushed in the frame (``PushSums.vertex_obj``), as the substep's end
 will read it: x^i moves so that v keeps the rigid velocity the vertex's carrier bone gives it over
-the substep and keep = exp(-dt / touch_damping) of the rest, dt the time between two stages (skin
+the substep and keep = exp(-dt / touch_damping) of the rest, dt the time since the substep the
+last stage damped, as the solver's schedule recorded them (skin
 riding a moving finger is not held back; only its motion relative to the bone is damped). Positions
 are untouched; with ``two_way`` the exchange's own ``contact_damping`` acts instead.
 """
@@ -17,8 +18,6 @@ from __future__ import annotations
 import math
 
 import warp as wp
-
-from physhand_mj.types import Placement
 
 wp.set_module_options({"enable_backward": False})  # forward only: no gradients are taken; adjoints cost compile time
 
@@ -46,11 +45,10 @@ def damp_touched(vertex_obj: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), ke
     x_prev[i] = xi - (ride - p) - (xi - ride) * keep
 
 
-def touch_keep(config) -> float:
-    """The share of a touched vertex's velocity a stage keeps: exp(-dt / touch_damping), dt the
-    frame's time over its stages; 1 (nothing to do) with touch_damping 0 or two_way."""
-    tau = float(config.touch_damping)
-    if tau <= 0.0 or config.two_way:
+def touch_keep(touch_damping: float, dt: float) -> float:
+    """The share of a touched vertex's motion relative to its bone that a stage keeps, ``dt`` (s)
+    after the substep the last stage damped: exp(-dt / touch_damping); 1 (nothing to do) when off or
+    when no time passed (a second stage in the same substep, Placement.BOTH)."""
+    if touch_damping <= 0.0 or dt <= 0.0:
         return 1.0
-    stages = -(-config.substeps // config.contact_every) * (2 if config.contact_placement == Placement.BOTH else 1)
-    return math.exp(-(config.frame_dt / stages) / tau)
+    return math.exp(-dt / touch_damping)
