@@ -64,11 +64,11 @@ class Tuning:
         and the flesh left behind pulls it back over the rims (docs/contact.md "Thin walls"); a scene
         without one runs nothing for it. The larger of the two shares applies.
       touch_damping: after each contact stage the velocity of every skin vertex an object pushed in
-        the frame decays over this time (s; 0, the default: off; 7e-4 halves it every stage at 10
-        substeps), so held contact comes to rest instead of swinging at thin walls' rims and star
-        points (contact/touch.py; measured, not yet the default: docs/contact.md "Held contact at
-        rest"). Only the motion relative to the vertex's carrier bone is damped (skin riding a moving
-        finger is not held back); with two_way, contact_damping acts instead.
+        the frame decays over this time (s; 7.2e-4, the default, halves it every stage at 10
+        substeps; 0: off), so held contact comes to rest instead of swinging at thin walls' rims and
+        star points (contact/touch.py; docs/contact.md "Held contact at rest"). Only the motion
+        relative to the vertex's carrier bone is damped (skin riding a moving finger is not held
+        back); with two_way, contact_damping acts instead.
     Contact (object side, the features: corners, tips and sharp edges smaller than a triangle):
       feature_offset: how far outside the skin a pushed feature point ends (m; 60 um; 80 um and more
         let a 1 mm plate tunnel); feature_last_offset: the stage's last push's (m; None: feature_offset);
@@ -127,7 +127,7 @@ class Tuning:
     bone_hold: bool = True
     flesh_carry: float = 0.0
     wall_carry: float = 0.5
-    touch_damping: float = 0.0
+    touch_damping: float = 7.2e-4
     feature_offset: float = 6.0e-5
     feature_last_offset: float | None = None
     feature_spacing: float = 2.5e-4

@@ -153,10 +153,12 @@ def test_the_palm_pressed_deep_keeps_its_tets_with_the_flesh_carried(device):
     # measured: 21-22 inverted over the last frames without, 1 with (CPU and H200)
     assert inv0[-3:].min() >= 10
     assert inv1[-3:].max() <= 4
-    # the skin ends where the contact puts it either way (measured: within 2 mm of where it ends
-    # without the carry, 0.01 mm on average) and goes no farther from rest
+    # the skin ends where the contact puts it either way and goes no farther from rest (measured,
+    # CPU: within 3.35 mm of where it ends without the carry at 36 vertices over 1 mm, 0.06 mm on
+    # average; 2.44 / 0.08 mm without touch damping, which slows the pushed skin's settling: 2.78 mm
+    # after 24 frames; the capsule lies past its axis in the flesh, where the end state is the path's)
     diff = np.linalg.norm(r1["skin"] - r0["skin"], axis=1)
-    assert diff.max() < 3e-3 and diff.mean() < 1e-4, (diff.max(), diff.mean())
+    assert diff.max() < 4e-3 and diff.mean() < 1e-4 and (diff > 1e-3).sum() < 60, (diff.max(), diff.mean())
     assert r1["max_disp_mm"][-1] < r0["max_disp_mm"][-1] + 1.0
 
 

@@ -44,8 +44,9 @@ def test_touch_keep_is_the_decay_over_the_time_between_stages(scene):
     """A stage keeps exp(-dt / touch_damping), dt the time since the substep the last stage damped,
     as the solver's schedule records them: 10 stages of 0.5 ms at 10 substeps, 5 of 1 ms with
     contact_every=2; with the stage on both sides of the constraints the first of a substep's two
-    keeps 0.5 ms's share and the second 1 (no time passed), the same per substep. Off by default and
-    with two_way (whose exchange damps its own contacts): nothing recorded; a negative time is refused."""
+    keeps 0.5 ms's share and the second 1 (no time passed), the same per substep. On by default
+    (0.72 ms); off at 0 and with two_way (whose exchange damps its own contacts): nothing recorded;
+    a negative time is refused."""
     tau = 7.2e-4
 
     def keeps(**config):  # the keeps of one frame's recorded stages, the ball 3 mm into the back of the hand
@@ -58,16 +59,17 @@ def test_touch_keep_is_the_decay_over_the_time_between_stages(scene):
     assert keeps(touch_damping=tau, contact_every=2) == pytest.approx([math.exp(-1e-3 / tau)] * 5)
     assert keeps(touch_damping=tau, contact_placement=Placement.BOTH) == pytest.approx([math.exp(-0.5e-3 / tau), 1.0] * 10)
     assert touch_keep(0.0, 0.5e-3) == 1.0 and touch_keep(tau, 0.0) == 1.0
-    assert keeps() == [] and keeps(touch_damping=tau, two_way=True) == []
+    assert ph.Config().tuning.touch_damping == tau and keeps() == pytest.approx([math.exp(-0.5e-3 / tau)] * 10)
+    assert keeps(touch_damping=0.0) == [] and keeps(touch_damping=tau, two_way=True) == []
     with pytest.raises(ValueError, match="touch_damping"):
         ph.Config(device="cpu", tuning=ph.Tuning(touch_damping=-1e-3)).validate()
 
 
 def test_held_skin_at_a_slanted_wall_comes_to_rest():
-    """The 16 mm plate slanted 25 degrees, 3 mm into the palm (tests/test_thin_walls.py's family): by
-    default the skin swings (its largest displacement from rest changes by up to 9.7 mm from frame
+    """The 16 mm plate slanted 25 degrees, 3 mm into the palm (tests/test_thin_walls.py's family):
+    without touch damping the skin swings (its largest displacement from rest changes by up to 9.7 mm from frame
     to frame over the last 8 of 16 frames) and keeps samples inside the plate in held frames (7-36,
-    up to 0.49 mm); with touch_damping 0.72 ms (half the pushed skin's velocity a stage) it is at
+    up to 0.49 mm); with touch_damping 0.72 ms (the default: half the pushed skin's velocity a stage) it is at
     rest (within 0.2 mm) and clean by all four measures in every frame (measured 2026-12-01, CPU)."""
     asset = ph.load_asset()
     case = wall_case(0.008, 0.001, 0.003, tilt=25.0)

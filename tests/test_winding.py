@@ -277,9 +277,11 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
 
 def test_a_patch_pool_too_small_for_the_scene_grows(monkeypatch):
     """A pool made for 8 entries per feature point (the demo's grasp lists ~170 points with up to
-    ~270 triangles each): the first frame's patches overflow it (81 points without a patch), and it
-    grows to twice their need, without a warning; the solver records its frames again (they read
-    the new pool), and from then on every listed point's patch fits."""
+    ~270 triangles each): the first frame's patches overflow it (66-81 points without a patch), and
+    it grows to twice their need, without a warning; the solver records its frames again (they read
+    the new pool), and from then on every listed point's patch fits. A later frame whose need
+    passes half the pool grows it again before it overflows (with touch damping the glass's first
+    frame needs less, 12,781 entries, and frame 2 17,677 of the 32,768 it grew to)."""
     import mujoco
 
     from physhand_mj.contact import contact as contact_mod
@@ -302,12 +304,12 @@ def test_a_patch_pool_too_small_for_the_scene_grows(monkeypatch):
             used = c.features.patch_used_host.numpy()
             n = int(c.features.count.numpy()[0])
             assert n > 100 and 2 * used[0] <= c.features.patch_pool.shape[0], (frame, n, used)
+            if grew:  # (a frame after the pool first grew: recorded again, every patch in it)
+                assert hand.solver._recorded_geoms[1] == len(grew)
+                assert used[2] == 0 and np.all(c.features.patch_len.numpy()[:n] >= 0), (frame, used)
             if c.reallocations > len(grew):
                 grew.append(frame)
-            elif grew:  # (a frame after the pool grew: recorded again, every patch in it)
-                assert hand.solver._recorded_geoms[1] == c.reallocations
-                assert used[2] == 0 and np.all(c.features.patch_len.numpy()[:n] >= 0), (frame, used)
-    assert grew == [0] and c.features.patch_pool.shape[0] >= 4 * first, (grew, c.features.patch_pool.shape[0], first)
+    assert grew[0] == 0 and c.features.patch_pool.shape[0] >= 4 * first, (grew, c.features.patch_pool.shape[0], first)
 
 
 def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
