@@ -212,9 +212,9 @@ class Config:
       contact: :class:`Strategy` of the decision points (NONE, VERTEX, OPT, MULTIRES: the paper's).
       contact_passes: query + projection rounds per stage, at most (a pass re-tests only what moved).
       contact_every: a contact stage every this many substeps (count; always in the frame's last;
-        1: the paper's Algorithm 1). 2 with contact_linear is the cheapest setting at zero on the
-        accuracy sweep at 10 substeps but not yet on the project's own stress presses, nor equal
-        between batched and serial worlds (docs/accuracy.md, "The default contact").
+        1: the paper's Algorithm 1). 2 with contact_linear is zero on every hand workload of the
+        accuracy sweep at 10 substeps at ~0.87 x the frame, but not on the project's own stress
+        presses, nor equal between batched and serial worlds (docs/accuracy.md, "The default contact").
       contact_linear: with contact_every > 1, hold the skin between stages on the planes and feature
         points the last stage found (8-26 % faster than a stage every substep, docs/activity.md;
         without it a stage every second substep leaves residue).
@@ -315,11 +315,12 @@ class Config:
     @classmethod
     def preset(cls, name: str, **overrides) -> "Config":
         """A named setting of the accuracy sweep's recommendation table (docs/accuracy.md), with
-        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: 0.64 x
-        the frame on the CPU sweep, the flesh ~2.5-3 x softer under gravity, held presses at the palm
-        1.5-6 x deeper), ``"dataset"`` (OPT decision points: zero by every measure on every workload
-        of the CPU sweep) and ``"robot_pads"`` (OPT at 5 substeps: the cheapest setting at zero on
-        every workload, with the softer flesh). The presets name a stage every substep
+        ``overrides`` on top: ``"default"`` (= ``Config()``), ``"interactive"`` (5 substeps: 0.59 x
+        the frame on the CPU sweep, 0.64 x on the H200's, the flesh ~2.5-3 x softer under gravity,
+        held presses at the palm 1.5-6 x deeper), ``"dataset"`` (OPT decision points: zero by every
+        measure on every hand workload of the sweep on both devices) and ``"robot_pads"`` (OPT at
+        5 substeps: zero on every hand workload of the sweep on both devices at 0.59 x the CPU
+        frame, with the softer flesh). The presets name a stage every substep
         (``contact_every=1``) themselves."""
         if name not in PRESETS:
             raise ValueError(f"unknown Config preset {name!r}: choose one of {sorted(PRESETS)}")

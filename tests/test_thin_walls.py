@@ -112,21 +112,21 @@ def wall_family():
 
 @pytest.mark.slow
 def test_wall_family():
-    """The 80 plates of WALL_FAMILY at the default (CPU; ~5 min): every run finite, no placement
-    infeasible, and 72 or more clean by all four measures over their last frames. Measured
-    2026-12-01: 74 of 80 with Eq. 9's offset at 20 um (the default), 75 at 4 um, and not the same
-    ones: a placement's held frames turn on its path. At 20 um the 16 mm plate slanted 25 degrees
-    and embedded keeps 7-36 order-5 samples up to 0.49 mm in frames 2-13 (clean in 14-15), the 30 mm
-    plate slanted 20 degrees 2 object points (26 um) in its last frame; at 4 um the same 30 mm plate
-    tilted 15 degrees keeps 53 order-5 samples. The others left: 24 and 30 mm plates slanted or
-    pressed deeper, residues in held frames (docs/contact.md "Thin walls")."""
+    """The 80 plates of WALL_FAMILY at the default (CPU; ~3-5 min): every run finite, no placement
+    infeasible, and every one clean by all four measures over its last frames. Touch damping (the
+    default since 2026-12-01) brings the held skin to rest; without it 74 of 80 were clean at Eq. 9's
+    20 um offset and 75 at 4 um, not the same ones: the 16 mm plate slanted 25 degrees and embedded
+    kept 7-36 order-5 samples up to 0.49 mm in frames 2-13 with its skin swinging 8-18 mm a frame,
+    the 30 mm plate slanted 20 degrees 2 object points (26 um) in its last frame, 24 and 30 mm
+    plates slanted or pressed deeper residues in held frames (docs/contact.md "Thin walls",
+    "Held contact at rest")."""
     runs = [(kw, run_wall(wall_case(**kw), frames), last) for kw, frames, last in wall_family()]
     assert len(runs) == 80 and all(r["finite"] for _, r, _ in runs)
     assert all(r["bone_clear"] >= BONE_CLEAR for _, r, _ in runs), [(kw, r["bone_clear"]) for kw, r, _ in runs]
     keys = ("skin_count", "dense_count", "obj_count", "check_count")
     failed = [(kw, [int(r[k][-last:].max()) for k in keys]) for kw, r, last in runs
               if any(r[k][-last:].max() > 0 for k in keys)]
-    assert len(failed) <= 8, failed
+    assert not failed, failed
 
 
 @pytest.mark.slow
