@@ -40,6 +40,7 @@ import numpy as np
 
 import physhand_mj as ph  # before mujoco: it picks MuJoCo's offscreen GL backend
 import mujoco  # noqa: E402
+from physhand_mj.contact.bones import BONE_CAP  # noqa: E402
 
 HAND_ENVS = {"asset": ("myoHandReorient8-v0", "myoHandReorient100-v0", "myoHandPoseFixed-v0", "myoHandReachFixed-v0"),
              "myosuite_old": ("myoHandObjHoldFixed-v0", "myoHandKeyTurnFixed-v0", "myoHandPenTwirlFixed-v0",
@@ -238,6 +239,7 @@ class SoftSkin(gymnasium.Wrapper):
         for k in ("object_in_skin_count", "object_in_skin_max_um"):
             if k in frame:  # Config.object_metrics: the second measure, evaluated in the frame
                 row[k] = frame[k]
+        row.update(bone_clearance_mm=soft["bone_clearance_mm"], bones_inside=" ".join(soft["bones_inside"]))
         self.log.append(row)
         info["physhand"] = soft
         return obs, reward, terminated, truncated, info
@@ -248,7 +250,14 @@ class SoftSkin(gymnasium.Wrapper):
         reg, obj = self.sensor.region_host, self.sensor.obj_host
         applied = self.hand.applied_wrenches() if self.two_way else {}  # (Config.two_way: what the skin applied)
         names = self.sensor.region_names
+        # the bones against the env's objects (contact/bones.py): a bone inside an object leaves no
+        # penetration-free skin there, so a deep penetration with a negative clearance is the pose's
+        # (MuJoCo's), not the contact's; a task or controller can react to it
+        c = self.hand.solver.contact
+        bones = c.bone_report(self.hand.state) if c is not None else dict(objects={}, bone_clearance_m=BONE_CAP)
         return dict(
+            bone_clearance_mm=float(bones["bone_clearance_m"]) * 1e3,
+            bones_inside=sorted({b for o in bones["objects"].values() for b in o["bones"]}),
             region_names=names,
             region_force_n=reg[:, 1].astype(np.float64), region_area_m2=reg[:, 0].astype(np.float64),
             region_vertices=reg[:, 2].astype(np.int64), region_deformation_m=reg[:, 3].astype(np.float64),
