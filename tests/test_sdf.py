@@ -122,16 +122,17 @@ def test_the_sdfs_without_the_mesh_branch_equal_the_full_ones():
     from physhand_mj.contact.sdf import FAR
 
     rng = np.random.default_rng(3)
-    p = wp.array(_points(rng).astype(np.float32), dtype=wp.vec3)
+    # (on the CPU: the mesh geom's id is a CPU mesh's, which a CUDA kernel must not read)
+    p = wp.array(_points(rng).astype(np.float32), dtype=wp.vec3, device="cpu")
     cases = [(t, REFS[t][0], 0) for t in REFS] + [(GeomType.ELLIPSOID, (0.03, 0.02, 0.01), 0)]
     box = trimesh.creation.box((0.02, 0.02, 0.02))
     objs = Objects("cpu", 1)
     objs.add(GeomType.MESH, None, vertices=box.vertices, faces=box.faces, name="block")
     cases.append((GeomType.MESH, objs._host["size"][0], objs._host["mesh"][0]))
     for gtype, size, mesh in cases:
-        out = wp.zeros((p.shape[0], 5), dtype=float)
+        out = wp.zeros((p.shape[0], 5), dtype=float, device="cpu")
         wp.launch(_eval_both, p.shape[0], inputs=[int(gtype), wp.vec3(*size), wp.vec2ul(*[int(m) for m in np.resize(mesh, 2)]), p],
-                  outputs=[out])
+                  outputs=[out], device="cpu")
         o = out.numpy()
         if gtype == GeomType.MESH:
             assert np.all(o[:, 3] == FAR) and np.all(o[:, 4] == FAR)
