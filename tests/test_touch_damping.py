@@ -53,7 +53,7 @@ def test_touch_keep_is_the_decay_over_the_time_between_stages(scene):
         solver, state, objects, top = _solver(scene, **config)
         objects.set_pose(0, top + [0.0, 0.0, R - 0.003], (1.0, 0.0, 0.0, 0.0))
         _step(solver, state, scene[2])
-        return solver.contact.touch_keeps
+        return solver.contact.touch.keeps
 
     assert keeps(touch_damping=tau) == pytest.approx([math.exp(-0.5e-3 / tau)] * 10)
     assert keeps(touch_damping=tau, contact_every=2) == pytest.approx([math.exp(-1e-3 / tau)] * 5)

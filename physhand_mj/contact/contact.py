@@ -37,9 +37,9 @@ from physhand_mj.contact.objects import Objects
 from physhand_mj.contact.features import feature_contact, feature_contact_scan, feature_contact_tiled, feature_inputs
 from physhand_mj.contact.query import apply_contact, decide_and_project, decide_inputs, multires_kernel
 from physhand_mj.contact.query_space import QuerySpace
-from physhand_mj.contact.slack import SlackCheck
-from physhand_mj.contact.touch import damp_touched, touch_keep
 from physhand_mj.contact.query_tiled import TILE_LANES, tiled_kernel_for
+from physhand_mj.contact.slack import SlackCheck
+from physhand_mj.contact.touch import TouchDamping
 from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.types import Config, Model, Placement, Settings, Strategy
 from physhand_mj.launch import Recorder, tiled_blocks
@@ -143,11 +143,7 @@ class Contact:
         # (+ 1: the last counter slot, the skin vertices held by bones inside objects this frame: bones.py)
         self.lists = make_frame_lists(model, config, w, holds + 1)
         self.acc = make_pass_buffers(model)  # what a pass computes and applies
-        # Config.tuning.touch_damping (touch.py; off with two_way, whose exchange damps its contacts):
-        # the substep the last recorded stage damped, and the keep each recorded stage used
-        self._touch_tau = 0.0 if config.two_way else float(config.touch_damping)
-        self._damped_substep = -1
-        self.touch_keeps: list = []
+        self.touch = TouchDamping(config)  # Config.tuning.touch_damping, after each stage (touch.py)
         # recording cursors: the length slots (counters) of the frame's list, the stage's and the pass's touched
         self.cand_count = self.lists.counters[0:1]
         self.active_count = self.cand_count  # replaced per stage by its counter
@@ -278,7 +274,7 @@ class Contact:
         empty (physhand_mj/solver/activity.py); :meth:`zero_counters` first. The broadphase goes
         to ``rec.launch_ahead`` (CUDA: ahead of the frame's graph, Solver.step)."""
         m, o, cfg = self.model, self.objects, self.config
-        self._damped_substep, self.touch_keeps = -1, []  # (the last frame's last stage damped its last substep)
+        self.touch.begin_frame()
         if not self.n_tris:
             return
         self._slot = 1
@@ -470,15 +466,7 @@ class Contact:
             # take: not a push on the object); more rounds after the frame's last stage, which it ends with
             rounds = RESTORE_ROUNDS_LAST if last else RESTORE_ROUNDS
             record_restore(rec, self.bone_hold, self.held_slot, m.inv_mass, state.x, rounds)
-        if self._touch_tau > 0.0:  # the pushed skin's motion relative to its bone damped over the substeps
-            # since the last stage damped (Config.tuning.touch_damping: touch.py)
-            keep = touch_keep(self._touch_tau, (substep - self._damped_substep) * cfg.frame_dt / cfg.substeps)
-            self._damped_substep = substep
-            self.touch_keeps.append(keep)
-            if keep < 1.0:
-                rec.launch(damp_touched, self.acc.vertex_obj.shape[0],
-                           [self.acc.vertex_obj, state.x, keep, m.vertex_carrier, state.body_sub, state.body_pose,
-                            int(substep)], [state.x_prev])
+        self.touch.record(rec, m, state, self.acc.vertex_obj, substep, cfg.frame_dt / cfg.substeps)
 
     def _record_later_passes(self, rec, state, p, lst, prev, flag, skin, feat_count, stage) -> None:
         """Passes ``p``.. of a stage, each recorded inside the gate of the one before (activity.py level

@@ -45,6 +45,36 @@ def damp_touched(vertex_obj: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), ke
     x_prev[i] = xi - (ride - p) - (xi - ride) * keep
 
 
+class TouchDamping:
+    """The recording side of ``Config.tuning.touch_damping`` for one contact: after each recorded
+    stage, :func:`damp_touched` with the keep for the time since the stage before it damped (the
+    frame's first stage: since the last frame's last, which damped its last substep). Off (nothing
+    recorded) at 0 and with ``two_way``, whose exchange damps its own contacts (``contact_damping``).
+    ``keeps``: the keep of each stage the last recorded frame damped (for checks)."""
+
+    def __init__(self, config):
+        self.tau = 0.0 if config.two_way else float(config.touch_damping)
+        self.keeps: list = []
+        self._damped = -1  # the substep the last recorded stage damped
+
+    def begin_frame(self) -> None:
+        """A frame's recording starts."""
+        self._damped, self.keeps = -1, []
+
+    def record(self, rec, model, state, vertex_obj, substep: int, substep_dt: float) -> None:
+        """After the stage in substep ``substep`` (``substep_dt`` s each): the pushed skin's motion
+        relative to its bone damped over the substeps since the last stage damped."""
+        if self.tau <= 0.0:
+            return
+        keep = touch_keep(self.tau, (substep - self._damped) * substep_dt)
+        self._damped = substep
+        self.keeps.append(keep)
+        if keep < 1.0:
+            rec.launch(damp_touched, vertex_obj.shape[0], [vertex_obj, state.x, keep, model.vertex_carrier,
+                                                           state.body_sub, state.body_pose, int(substep)],
+                       [state.x_prev])
+
+
 def touch_keep(touch_damping: float, dt: float) -> float:
     """The share of a touched vertex's motion relative to its bone that a stage keeps, ``dt`` (s)
     after the substep the last stage damped: exp(-dt / touch_damping); 1 (nothing to do) when off or
