@@ -79,7 +79,7 @@ def main() -> None:
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key(a.key).id)
     mujoco.mj_forward(model, data)
-    hand = ph.SoftHand(model, data, ph.Config(device="cpu", **json.loads(a.config)))
+    hand = ph.SoftHand(model, data, ph.Config.from_dict(dict(device="cpu", **json.loads(a.config))))
     for _ in range(a.warmup):
         mujoco.mj_step(model, data)
         hand.step()

@@ -101,6 +101,11 @@ class Tuning:
         two parts' bones from coming nearer than where their rest skins would meet, instead of
         squeezing the flesh between them past what any skin can take (True; a model without them:
         nothing to turn on).
+      self_edges: also edge-edge pairs: two skin edges within ``self_margin`` at the frame's start
+        are kept ``self_thickness`` apart on the side they lie on (False; where the vertex-triangle
+        pairs cannot see an edge dive through a triangle past its rim: the knuckles' pleats, the
+        grasps' pinched skin. The substep passes then run as launches, never inside the fused
+        kernel; docs/self_collision.md "Edge-edge contact").
       proxy_margin: MuJoCo contact margin SoftHand gives the hand's collision proxies against objects
         (m; geoms ``*_proxy`` of the shipped hand), so MuJoCo stops a bone that much before its proxy
         meets an object. None (default): 2.5 mm (hand_mjcf.PROXY_INSET: about where the rest skin
@@ -144,6 +149,7 @@ class Tuning:
     self_tet_keep: float = 0.0
     self_friction: float = 0.0
     self_proxies: bool = True
+    self_edges: bool = False
     proxy_margin: float | None = None
 
 
@@ -398,6 +404,10 @@ def _check(s) -> None:
     flag("region_sleep")
     flag("self_collision")
     flag("self_proxies")
+    flag("self_edges")
+    if s.self_edges and not s.self_collision:
+        raise ValueError("Config.tuning.self_edges adds edge-edge pairs to Config.self_collision: set self_collision=True "
+                         "too (or self_edges=False)")
     m = s.proxy_margin
     if m is not None and not (isinstance(m, (int, float, np.integer, np.floating)) and not isinstance(m, bool)
                               and math.isfinite(m) and 0.0 <= m <= 0.02):

@@ -493,6 +493,11 @@ class SelfContact:
         # Tuning.self_tet_keep: every tet of every skin vertex of one world (CSR: vt_off, vt) and its rest
         # volume; world w's are the same shifted by its offsets (the model's tets: world by world)
         self.tets, self.nt1, self.vol0, self.vt_off, self.vt = skin_tet_lists(model, self.ns1)
+        self.edge_pairs = None  # Tuning.self_edges: the edge-edge pairs (solver/self_edges.py)
+        if config.self_edges:
+            from physhand_mj.solver.self_edges import SelfEdges
+
+            self.edge_pairs = SelfEdges(self, d)
 
     def build(self, state) -> wp.Bvh:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
@@ -537,6 +542,8 @@ class SelfContact:
                    [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts, self.wcounts,
                     self.wvlist, self.winvolved],
                    count=qs.qcount)
+        if self.edge_pairs is not None:  # (after the vertices' list: it marks the vertices already through)
+            self.edge_pairs.record_frame(rec, state, when_queried)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
 
@@ -551,6 +558,8 @@ class SelfContact:
                         state.x_prev,
                         self.ns1, self.nt1],
                        [self.delta, self.hits, self.active, self.dprev, self.wcounts], count=self.vcount)
+            if self.edge_pairs is not None:
+                self.edge_pairs.record_pass(rec, state, inv_mass)
             rec.launch(apply, self.n_skin, [self.icount, self.involved],
                        [state.x, self.delta, self.hits, state.x_prev, self.dprev], count=self.icount)
 
@@ -563,9 +572,18 @@ class SelfContact:
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's four, the query's four with any
         # vertex queried, the substeps' 2 x passes with any pair listed (however many worlds; inside the
-        # fused kernel the substep passes launch nothing of their own)
+        # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: its marks' 2, with a
+        # query its boxes' and pairs' 2, and with an edge pair listed 1 a pass, 2 where no vertex is listed)
         ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
-        return dict(self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
+        edges = {}
+        if self.edge_pairs is not None:
+            edges = self.edge_pairs.report()
+            ops += 2 + (2 if q else 0)
+            if edges["self_edge_pairs"] and not c[0]:
+                ops += 2 * cfg.self_passes * cfg.substeps
+            elif edges["self_edge_pairs"]:
+                ops += cfg.self_passes * cfg.substeps
+        return dict(**edges, self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
                     self_corrections=int(self.active.numpy()[0]))
 
     def report_worlds(self) -> np.ndarray:

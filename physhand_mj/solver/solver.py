@@ -96,7 +96,8 @@ class Solver:
         self._fused = fused_choice.choose(model, self.config, self.device)  # Config.execution.fused_substep
         # Config.self_collision with the fused substep: its substep passes inside the fused kernel, a fourth
         # group (solver/fused_self.py; fused.SELF_IN_KERNEL False: self_contact.py's launches after it)
-        self._self_fused = self.selfc is not None and self._fused is not None and fused_launch.SELF_IN_KERNEL
+        self._self_fused = (self.selfc is not None and self._fused is not None and fused_launch.SELF_IN_KERNEL
+                            and self.selfc.edge_pairs is None)  # (Tuning.self_edges: the passes as launches)
         if self._self_fused:
             self._fused.attach_self(self.selfc)  # (SelfContact.in_kernel set: it lists per world too)
         # per-region sleeping (physhand_mj/solver/regions.py; one world)
