@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
-    python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--modes off,on] [--tet-keep K]
-        [--friction MU] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+    python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--last N] [--modes off,on] [--tet-keep K]
+        [--friction MU] [--edges] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
         [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches]
@@ -9,11 +9,13 @@
 Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
 measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1 mm outward offsets
-lie inside the closed skin, and inverted tets. Frame times are the median of the frames after the
+lie inside the closed skin, and inverted tets (``--last N``: also the mean over the last N frames of
+the 0.2 mm count and the edges through triangles). Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
 process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs; ``--friction``: Tuning.self_friction
-for them (Coulomb coefficient); ``--stretch-only``: Config.skin_compression False in every run (both
+for them (Coulomb coefficient); ``--edges``: Tuning.self_edges for them (edge-edge pairs, in both
+the keyframe and the ``--worlds`` runs); ``--stretch-only``: Config.skin_compression False in every run (both
 modes: the skin's material, not part of the option); ``--flesh-stretch-only``: Config.flesh_compression
 False likewise; ``--no-self-proxies``: Tuning.self_proxies False for them (with the
 option SoftHand turns on the hand model's self proxies, so MuJoCo stops the parts' bones where their
@@ -73,13 +75,14 @@ def slip_at_pairs(hand, x: np.ndarray, prev: np.ndarray) -> np.ndarray:
 
 
 def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "hand_only", extra=None,
-        picture: bool = False, slip: bool = False) -> dict:
+        picture: bool = False, slip: bool = False, last: int = 1) -> dict:
     import mujoco
 
     import physhand_mj as ph
     from physhand_mj.contact.self_measures import self_penetration
     from physhand_mj.rollout import load_rollout_scene
 
+    last_n = int(last)
     model, data, key = load_rollout_scene(ph.scene_path(scene), key)
     opts = dict(frame_dt=float(model.opt.timestep), substeps=10, device=device, **(extra or {}))
     if self_collision:
@@ -90,6 +93,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     times, cpu, res = [], [], {}
     ns, last = hand.asset.n_skin, None
     slips, before = [], None
+    lasts = []  # (--last: the measure's counts over the last frames)
     for f in range(frames):
         mujoco.mj_step(model, data)
         t, c = time.perf_counter(), time.thread_time()
@@ -98,6 +102,9 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         cpu.append(time.thread_time() - c)
         if f == frames - 2:
             last = hand.state.x.numpy()[:ns].astype(float)
+        if last_n > 1 and f >= frames - last_n:  # (outside the timed call)
+            m = self_penetration(hand.state.x.numpy()[:ns].astype(float), np.asarray(hand.asset.skin_faces), offsets=(2e-4,))
+            lasts.append((m["inside_200um"], m["crossing_edges"]))
         if slip and f >= frames - 11:  # (outside the timed call)
             now = hand.state.x.numpy()[:ns].astype(float)
             if before is not None:
@@ -113,11 +120,16 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         mv = np.linalg.norm(np.asarray(x, float)[:ns] - last, axis=1)
         out.update(skin_moved_over_05mm=int((mv > 5e-4).sum()), skin_move_max_mm=round(float(mv.max()) * 1e3, 3))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
+    if lasts:
+        lasts = np.array(lasts)
+        out.update(last_frames=len(lasts), inside_200um_mean_last=round(float(lasts[:, 0].mean()), 1),
+                   crossing_edges_mean_last=round(float(lasts[:, 1].mean()), 1))
     if slips:
         s = np.concatenate(slips) * 1e6
         out.update(slip_pairs=int(len(s)), slip_median_um=round(float(np.median(s)), 1),
                    slip_p90_um=round(float(np.percentile(s, 90)), 1))
     out["self_friction"] = float(cfg.tuning.self_friction) if self_collision else None
+    out["self_edges"] = bool(cfg.tuning.self_edges)
     # the self proxies SoftHand turned on (MuJoCo keeping the parts' bones apart), their contacts in the
     # last step, and how far MuJoCo's joints ended from the keyframe (rad)
     on = set(hand.self_proxies.tolist())
@@ -128,7 +140,8 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     out["flesh_compression"] = bool(cfg.flesh_compression)
     out["fused_substep"] = bool(hand.solver.fused_substep)
     out["self_in_kernel"] = bool(getattr(hand.solver, "_self_fused", False))
-    for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
+    for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run",
+              "self_edge_pairs", "self_edge_pairs_over"):
         if k in res:
             out[k] = res[k]
     if picture:  # the skin with its vertices whose 0.2 mm offset lies inside the hand marked
@@ -157,10 +170,10 @@ def picture_of(model, data, hand, skin: np.ndarray, width: int = 640, height: in
 
 
 def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, device=None, fused=None,
-               friction=None, skin_compression: bool = True) -> dict:
+               friction=None, skin_compression: bool = True, edges: bool = False) -> dict:
     """``--worlds``: one batch of ``worlds`` worlds holding ``keys`` in turn, timed (module docstring);
     ``fused``: Config.execution.fused_substep (None: the default); ``friction``: Tuning.self_friction;
-    ``skin_compression``: Config.skin_compression."""
+    ``skin_compression``: Config.skin_compression; ``edges``: Tuning.self_edges."""
     import physhand_mj as ph
     from physhand_mj.batch import BatchedHands
     from physhand_mj.contact.self_measures import self_penetration
@@ -177,6 +190,8 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
         opts["fused_substep"] = fused
     if friction is not None:
         opts["self_friction"] = friction
+    if edges:
+        opts["self_edges"] = True
     cfg = ph.Config.from_dict(opts)
     t = time.perf_counter()
     hands = BatchedHands(asset, worlds, cfg, *mount_pose(model, data))
@@ -195,7 +210,8 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
                nonfinite=int(res["nonfinite"]), inverted=int(res["inverted"]),
                self_friction=float(cfg.tuning.self_friction) if self_collision else None,
                skin_compression=bool(cfg.skin_compression), fused_substep=bool(hands.solver.fused_substep), self_in_kernel=bool(getattr(hands.solver, "_self_fused", False)))
-    for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run"):
+    for k in ("self_queried", "self_ops_run", "self_vertices", "self_pairs", "self_corrections", "ops_run",
+              "self_edge_pairs", "self_edge_pairs_over"):
         if k in res:
             out[k] = res[k]
     faces = np.asarray(asset.skin_faces)
@@ -212,9 +228,12 @@ def main():
     ap.add_argument("--keys", default="open,pinch,power")
     ap.add_argument("--scene", default="hand_only", help="a shipped scene (hoi_box, ...) whose keyframes --keys names")
     ap.add_argument("--frames", type=int, default=36)
+    ap.add_argument("--last", type=int, default=1, help="also the measure's mean over the last N frames (skin edges "
+                    "through triangles, offsets inside at 0.2 mm: a closing fist's counts move by ~10 a frame)")
     ap.add_argument("--modes", default="off,on")
     ap.add_argument("--device", default=None)
     ap.add_argument("--tet-keep", type=float, default=None)
+    ap.add_argument("--edges", action="store_true", help="Tuning.self_edges for the 'on' runs (edge-edge pairs too)")
     ap.add_argument("--friction", type=float, default=None, help="Tuning.self_friction for the 'on' runs (coefficient)")
     ap.add_argument("--slip", action="store_true", help="also the slip at touching pairs (um a frame)")
     ap.add_argument("--stretch-only", action="store_true", help="Config.skin_compression False in every run "
@@ -240,7 +259,8 @@ def main():
         for w in [int(v) for v in a.worlds.split(",")]:
             for mode in a.modes.split(","):
                 r = run_worlds(w, a.keys.split(","), a.frames, mode == "on", a.device, fused=fz,
-                               friction=a.friction if mode == "on" else None, skin_compression=not a.stretch_only)
+                               friction=a.friction if mode == "on" else None, skin_compression=not a.stretch_only,
+                               edges=a.edges and mode == "on")
                 print(json.dumps(r), flush=True)
                 rows.append(r)
         if a.out:
@@ -253,6 +273,8 @@ def main():
                 extra["self_friction"] = a.friction
             if a.no_self_proxies and mode == "on":
                 extra["self_proxies"] = False
+            if a.edges and mode == "on":
+                extra["self_edges"] = True
             if fz is not None:
                 extra["fused_substep"] = fz
             if a.stretch_only:
@@ -260,7 +282,7 @@ def main():
             if a.flesh_stretch_only:
                 extra["flesh_compression"] = False
             r = run(key, a.frames, mode == "on", a.device, scene=a.scene, extra=extra, picture=bool(a.picture),
-                    slip=a.slip and mode == "on")
+                    slip=a.slip and mode == "on", last=a.last)
             pixels = r.pop("pixels", None)
             if pixels is not None:
                 tiles.append(pixels)

@@ -114,7 +114,9 @@ def test_overlapping_worlds_never_pair_across(setup):
     dict(tuning=ph.Tuning(self_friction=0.5)),
     # Config.skin_compression False: each world's skin edges stretch-only, their rest lengths tiled with their sign
     dict(skin_compression=False),
-], ids=["tet_keep", "friction", "stretch_only_skin"])
+    # Tuning.self_edges: the edge pairs from each world's own edges (the edges' BVH grouped by world)
+    dict(tuning=ph.Tuning(self_edges=True)),
+], ids=["tet_keep", "friction", "stretch_only_skin", "edges"])
 def test_batched_options_equal_one_hand(setup, options):
     """Each self-collision option in batched worlds: world 1 (power) ends as the hand alone, with the
     same pairs every frame; and the option changes that hand (it is not a no-op)."""

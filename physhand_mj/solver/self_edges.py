@@ -232,8 +232,9 @@ def edge_broadphase(bvh: wp.uint64, roots: wp.array(dtype=int), ne1: int, ns: in
 @wp.kernel
 def resolve_edges(ecount: wp.array(dtype=int), cap: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float),
                   edges: wp.array2d(dtype=int), pairs: wp.array2d(dtype=int), pdir: wp.array(dtype=wp.vec3),
-                  thickness: float, x_prev: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3),
-                  hits: wp.array(dtype=int), dprev: wp.array(dtype=wp.vec3), active: wp.array(dtype=int)):
+                  thickness: float, x_prev: wp.array(dtype=wp.vec3), ne1: int, delta: wp.array(dtype=wp.vec3),
+                  hits: wp.array(dtype=int), dprev: wp.array(dtype=wp.vec3), active: wp.array(dtype=int),
+                  wcounts: wp.array2d(dtype=int)):
     """Per listed edge pair: closer than ``thickness`` along its direction, the hard correction,
     mass-weighted over the four ends by the closest points' parameters, into ``delta`` / ``hits``;
     the share that undoes the depth the pair had at the substep's start moves ``x_prev`` too (no
@@ -289,6 +290,7 @@ def resolve_edges(ecount: wp.array(dtype=int), cap: int, x: wp.array(dtype=wp.ve
         wp.atomic_add(dprev, d, fr * dd)
         wp.atomic_add(hits, d, 1)
     wp.atomic_add(active, 0, 1)
+    wp.atomic_add(wcounts, i // ne1, 3, 1)  # (counted with the world's vertex-triangle corrections)
 
 
 def edge_tables(faces: np.ndarray):
@@ -377,8 +379,8 @@ class SelfEdges:
         sc = self.sc
         rec.launch(resolve_edges, self.cap,
                    [self.ecount, self.cap, state.x, inv_mass, self.edges, self.pairs, self.pdir,
-                    float(cfg.self_thickness), state.x_prev],
-                   [sc.delta, sc.hits, sc.dprev, sc.active], count=self.ecount)
+                    float(cfg.self_thickness), state.x_prev, self.ne1],
+                   [sc.delta, sc.hits, sc.dprev, sc.active, sc.wcounts], count=self.ecount)
 
     def report(self) -> dict:
         """The last frame's edge pairs: listed, and found past the list's end (not listed)."""
