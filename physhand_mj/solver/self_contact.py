@@ -71,7 +71,7 @@ def clear_marks(n: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.
 
 
 @wp.func
-def _touch(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), counts: wp.array(dtype=int),
+def touch_vertex(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), counts: wp.array(dtype=int),
            seg: int, w: int, vo: int, winvolved: wp.array(dtype=int), wcounts: wp.array2d(dtype=int)):
     """Vertex i (of world w, its first skin vertex ``vo``) into the involved list once (``seg``: into its
     world's segment of ``winvolved`` too)."""
@@ -206,12 +206,12 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
         if seg != 0:
             wvlist[vo + sw] = v
         wp.atomic_add(wcounts, w, 1, n)
-        _touch(v, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+        touch_vertex(v, mark, involved, counts, seg, w, vo, winvolved, wcounts)
         for k in range(n):
             tk = cand[v, k]
-            _touch(faces[tk, 0], mark, involved, counts, seg, w, vo, winvolved, wcounts)
-            _touch(faces[tk, 1], mark, involved, counts, seg, w, vo, winvolved, wcounts)
-            _touch(faces[tk, 2], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            touch_vertex(faces[tk, 0], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            touch_vertex(faces[tk, 1], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            touch_vertex(faces[tk, 2], mark, involved, counts, seg, w, vo, winvolved, wcounts)
 
 
 @wp.kernel
@@ -493,11 +493,7 @@ class SelfContact:
         # Tuning.self_tet_keep: every tet of every skin vertex of one world (CSR: vt_off, vt) and its rest
         # volume; world w's are the same shifted by its offsets (the model's tets: world by world)
         self.tets, self.nt1, self.vol0, self.vt_off, self.vt = skin_tet_lists(model, self.ns1)
-        self.edge_pairs = None  # Tuning.self_edges: the edge-edge pairs (solver/self_edges.py)
-        if config.self_edges:
-            from physhand_mj.solver.self_edges import SelfEdges
-
-            self.edge_pairs = SelfEdges(self, d)
+        self.edge_pairs = None  # Tuning.self_edges: the edge-edge pairs (solver/self_edges.py; the Solver sets them)
 
     def build(self, state) -> wp.Bvh:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every

@@ -37,7 +37,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.solver.self_contact import FOLD_GAP, _touch
+from physhand_mj.solver.self_contact import FOLD_GAP, touch_vertex
 
 wp.set_module_options({"enable_backward": False})
 
@@ -223,10 +223,20 @@ def edge_broadphase(bvh: wp.uint64, roots: wp.array(dtype=int), ne1: int, ns: in
         pairs[k, 0] = i
         pairs[k, 1] = j
         pdir[k] = (p1 - p2) / dist
-        _touch(a, mark, involved, counts, seg, w, vo, winvolved, wcounts)
-        _touch(b, mark, involved, counts, seg, w, vo, winvolved, wcounts)
-        _touch(c, mark, involved, counts, seg, w, vo, winvolved, wcounts)
-        _touch(d, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+        touch_vertex(a, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+        touch_vertex(b, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+        touch_vertex(c, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+        touch_vertex(d, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+
+
+@wp.func
+def _add(v: int, m: float, dv: wp.vec3, fr: float, delta: wp.array(dtype=wp.vec3), dprev: wp.array(dtype=wp.vec3),
+         hits: wp.array(dtype=int)):
+    """Vertex v's share of a correction into the pass's sums (none for a vertex held by its bone: m 0)."""
+    if m > 0.0:
+        wp.atomic_add(delta, v, dv)
+        wp.atomic_add(dprev, v, fr * dv)
+        wp.atomic_add(hits, v, 1)
 
 
 @wp.kernel
@@ -273,22 +283,10 @@ def resolve_edges(ecount: wp.array(dtype=int), cap: int, x: wp.array(dtype=wp.ve
     db = wb * mb * dl * n
     dc = -wc * mc * dl * n
     dd = -wd * md * dl * n
-    if ma > 0.0:
-        wp.atomic_add(delta, a, da)
-        wp.atomic_add(dprev, a, fr * da)
-        wp.atomic_add(hits, a, 1)
-    if mb > 0.0:
-        wp.atomic_add(delta, b, db)
-        wp.atomic_add(dprev, b, fr * db)
-        wp.atomic_add(hits, b, 1)
-    if mc > 0.0:
-        wp.atomic_add(delta, c, dc)
-        wp.atomic_add(dprev, c, fr * dc)
-        wp.atomic_add(hits, c, 1)
-    if md > 0.0:
-        wp.atomic_add(delta, d, dd)
-        wp.atomic_add(dprev, d, fr * dd)
-        wp.atomic_add(hits, d, 1)
+    _add(a, ma, da, fr, delta, dprev, hits)
+    _add(b, mb, db, fr, delta, dprev, hits)
+    _add(c, mc, dc, fr, delta, dprev, hits)
+    _add(d, md, dd, fr, delta, dprev, hits)
     wp.atomic_add(active, 0, 1)
     wp.atomic_add(wcounts, i // ne1, 3, 1)  # (counted with the world's vertex-triangle corrections)
 

@@ -70,6 +70,10 @@ class Solver:
             from physhand_mj.solver.self_contact import SelfContact
 
             self.selfc = SelfContact(model, self.config, self.device)
+            if self.config.self_edges:  # Tuning.self_edges: its edge-edge pairs beside it (solver/self_edges.py)
+                from physhand_mj.solver.self_edges import SelfEdges
+
+                self.selfc.edge_pairs = SelfEdges(self.selfc, self.device)
         from physhand_mj.solver.activity import Activity
 
         self.activity = Activity(self)  # what runs each frame (gated contact blocks, the work set)
