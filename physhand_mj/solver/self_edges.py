@@ -26,7 +26,7 @@ every substep's self passes:
 Why the two exclusions: a pair's side at the frame's start is the right one only where the skin is
 not already through itself. Listing every pair (no exclusion) held the fist's skin through itself
 (``power`` 62 -> 272 crossing edges, CPU, frames 25-36); skipping the pairs through each other's
-triangles only, 52; with the tangled ends excluded as well, 17 (glass1 27 -> 4, toothpaste 25 ->
+triangles only, 148; with the tangled ends excluded as well, 17 (glass1 27 -> 4, toothpaste 25 ->
 4). What is already tangled is left to the vertex-triangle pairs, which push a vertex behind a
 triangle out to its front.
 """
