@@ -53,8 +53,8 @@ def test_segment_geometry_against_brute_force():
         x0, x1, x2 = p[i, 4:]
         nrm = np.cross(x1 - x0, x2 - x0)
         den = np.dot(b - a, nrm)
-        if abs(den) < 1e-6 * np.linalg.norm(b - a) * np.linalg.norm(nrm):
-            continue  # (parallel to the plane)
+        if abs(den) <= 1e-6 * np.linalg.norm(b - a) * np.linalg.norm(nrm):
+            continue  # (parallel to the plane, or a point)
         s = np.dot(x0 - a, nrm) / den
         q = a + s * (b - a)
         lam = np.linalg.lstsq(np.stack([x1 - x0, x2 - x0], 1), q - x0, rcond=None)[0]
@@ -131,9 +131,9 @@ def _gaps(sc, x):
     return out
 
 
-def _rollout(key, frames, edges):
+def _rollout(key, frames, edges, device="cpu", last=6):
     model, data, key = load_rollout_scene(ph.scene_path("hand_only"), key)
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True,
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device=device, self_collision=True,
                     tuning=ph.Tuning(self_edges=edges))
     hand = ph.SoftHand(model, data, cfg, settle_contact=False)
     faces = np.asarray(hand.asset.skin_faces)
@@ -141,24 +141,28 @@ def _rollout(key, frames, edges):
     for f in range(frames):
         mujoco.mj_step(model, data)
         res = hand.step()
-        if f >= frames - 6:
+        if f >= frames - last:
             x = hand.state.x.numpy()[: hand.asset.n_skin].astype(float)
             crossing.append(int(crossing_edges(x, faces).sum()))
             inside.append(int(offsets_inside(x, faces, 2e-4).sum()))
     return hand, res, np.mean(crossing), np.mean(inside)
 
 
-def test_power_fist_keeps_skin_out_of_itself():
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="no CUDA device"))])
+def test_power_fist_keeps_skin_out_of_itself(device):
     """The power keyframe after 24 frames (SoftHand, MuJoCo holding it), the last 6 frames: skin edges
     through another skin triangle and vertices whose 0.2 mm offset lies inside the closed skin, with
-    and without the edge pairs (measured: 29 / 62 edges, 23 / 27 offsets; over frames 25-36 of 36:
-    17 / 62). The listed pairs keep their side: at the frame's end their gaps along their directions
-    are >= 0 but for a few (measured: none of 4,471 below 0 at frame 24; 1 of 4,534 at frame 36)."""
-    hand, res, ce_on, in_on = _rollout("power", 24, True)
+    and without the edge pairs. CPU (deterministic; measured 29 / 62 edges, 23 / 27 offsets; over
+    frames 25-36 of 36: 17 / 62): at most 0.6 x the edges. CUDA (float atomics: each run its own
+    path; H200, three runs: 18 / 38, 22 / 44, 34 / 50): at most 0.85 x. The listed pairs keep their
+    side: at the frame's end their gaps along their directions are >= 0 but for a few (CPU: none of
+    4,471 below 0 at frame 24; 1 of 4,534 at frame 36)."""
+    hand, res, ce_on, in_on = _rollout("power", 24, True, device)
     assert res["self_edge_pairs"] > 1000 and res["self_edge_pairs_over"] == 0
     x = hand.state.x.numpy().astype(float)
     gaps = _gaps(hand.solver.selfc, x)
     assert np.count_nonzero(gaps < 0) <= 0.005 * len(gaps) and gaps.min() > -1e-3
-    _, _, ce_off, in_off = _rollout("power", 24, False)
-    assert ce_on <= 0.6 * ce_off, (ce_on, ce_off)
+    _, _, ce_off, in_off = _rollout("power", 24, False, device)
+    assert ce_on <= (0.6 if device == "cpu" else 0.85) * ce_off, (ce_on, ce_off)
     assert in_on <= in_off + 5, (in_on, in_off)
