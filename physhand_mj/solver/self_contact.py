@@ -568,17 +568,15 @@ class SelfContact:
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's four, the query's four with any
         # vertex queried, the substeps' 2 x passes with any pair listed (however many worlds; inside the
-        # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: its marks' 2, with a
-        # query its boxes' and pairs' 2, and with an edge pair listed 1 a pass, 2 where no vertex is listed)
+        # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: with a query its
+        # marks', boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed)
         ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
         edges = {}
         if self.edge_pairs is not None:
             edges = self.edge_pairs.report()
-            ops += 2 + (2 if q else 0)
-            if edges["self_edge_pairs"] and not c[0]:
-                ops += 2 * cfg.self_passes * cfg.substeps
-            elif edges["self_edge_pairs"]:
-                ops += cfg.self_passes * cfg.substeps
+            ops += 4 if q else 0
+            if edges["self_edge_pairs"]:
+                ops += cfg.self_passes * cfg.substeps * (1 if c[0] else 2)
         return dict(**edges, self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
                     self_corrections=int(self.active.numpy()[0]))
 

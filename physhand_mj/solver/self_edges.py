@@ -37,7 +37,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.closest import closest_on_triangle
-from physhand_mj.solver.self_contact import FOLD_GAP, touch_vertex
+from physhand_mj.solver.self_contact import FOLD_GAP, group_roots, touch_vertex
 
 wp.set_module_options({"enable_backward": False})
 
@@ -345,8 +345,6 @@ class SelfEdges:
         """After the vertex-triangle list: the tangled and queried vertices marked, the edges' boxes,
         their BVH refit, the pairs listed. ``when(op)``: the op run only when any vertex is queried
         (the CPU's; CUDA's runs every frame, each launch's threads past their list returning)."""
-        from physhand_mj.solver.self_contact import group_roots
-
         sc, cfg, d = self.sc, self.sc.config, self.device
         ne = self.ne1 * sc.worlds
         if self.bvh is None:
