@@ -9,7 +9,8 @@
 Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_only scene, MuJoCo
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
 measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1 mm outward offsets
-lie inside the closed skin, and inverted tets (``--last N``: also the mean over the last N frames of
+lie inside the closed skin, those with no point outside it 0.2 mm around them in any direction
+(``buried_200um``: no normal involved), skin edges through another skin triangle, and inverted tets (``--last N``: also the mean over the last N frames of
 the 0.2 mm count and the edges through triangles). Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
@@ -119,7 +120,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
     if last is not None:  # the skin's move over the last frame (a held pose at rest: ~0)
         mv = np.linalg.norm(np.asarray(x, float)[:ns] - last, axis=1)
         out.update(skin_moved_over_05mm=int((mv > 5e-4).sum()), skin_move_max_mm=round(float(mv.max()) * 1e3, 3))
-    out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy()))
+    out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy(), buried=2e-4))
     if lasts:
         lasts = np.array(lasts)
         out.update(last_frames=len(lasts), inside_200um_mean_last=round(float(lasts[:, 0].mean()), 1),
@@ -217,7 +218,7 @@ def run_worlds(worlds: int, keys: list, frames: int, self_collision: bool, devic
     faces = np.asarray(asset.skin_faces)
     for w in range(min(worlds, len(keys))):  # each keyframe's first world: its pairs and the measure
         row = {k: v for k, v in res["worlds"][w].items() if k.startswith("self_")}
-        row.update(self_penetration(hands.skin(w), faces))
+        row.update(self_penetration(hands.skin(w), faces, buried=2e-4))
         out[keys[w]] = row
     hands.close()
     return out

@@ -5,14 +5,15 @@ import numpy as np
 import pytest
 
 import physhand_mj as ph
-from physhand_mj.contact.self_measures import inverted_tets, offsets_inside, self_penetration, winding_numbers
+from physhand_mj.contact.self_measures import (buried_vertices, inverted_tets, offsets_inside, self_penetration,
+                                               sphere_directions, winding_numbers)
 
 
-def _two_spheres(gap: float, r: float = 0.01):
+def _two_spheres(gap: float, r: float = 0.01, subdivisions: int = 4):
     """Two icospheres of radius r whose centres lie 2 r + gap apart (gap < 0: overlapping), as one mesh."""
     import trimesh
 
-    s = trimesh.creation.icosphere(subdivisions=4, radius=r)
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=r)
     a, b = s.vertices.copy(), s.vertices + [2 * r + gap, 0.0, 0.0]
     faces = np.vstack([s.faces, s.faces + len(a)])
     return np.vstack([a, b]), faces, np.array([0.0, 0, 0]), np.array([2 * r + gap, 0, 0]), r
@@ -43,6 +44,29 @@ def test_measure_two_spheres_analytic():
     x, f, *_ = _two_spheres(0.002)
     assert not offsets_inside(x, f, 1e-3).any()
     assert self_penetration(x, f)["inside_200um"] == 0
+
+
+def test_buried_two_spheres_against_the_distance_to_air():
+    """buried_vertices against an analytic reference: each vertex's distance to the air (the nearest
+    point of the union's boundary: either sphere's surface outside the other, densely sampled) more
+    than 0.1 mm beyond the depth: buried; more than 0.1 mm short of it: not."""
+    x, f, c0, c1, r = _two_spheres(-0.004, subdivisions=3)  # (642 vertices a sphere: facets within 0.03 mm)
+    depth = 2e-4
+    got = buried_vertices(x, f, depth)
+    u = sphere_directions(40000)
+    surf = np.vstack([c0 + r * u, c1 + r * u])
+    rim = surf[(np.linalg.norm(surf - c0, axis=1) >= r - 1e-12) & (np.linalg.norm(surf - c1, axis=1) >= r - 1e-12)]
+    inside_other = np.minimum(np.linalg.norm(x - c0, axis=1), np.linalg.norm(x - c1, axis=1)) < r - 1e-4
+    to_air = np.zeros(len(x))  # (a vertex on the union's surface borders the air)
+    to_air[inside_other] = [np.linalg.norm(rim - p, axis=1).min() for p in x[inside_other]]
+    assert got[to_air > depth + 1e-4].all()
+    assert not got[to_air < depth - 1e-4].any()
+    assert 10 < got.sum() <= offsets_inside(x, f, depth).sum()  # (buried: the normal's offset inside too)
+    x, f, *_ = _two_spheres(0.002, subdivisions=3)  # apart: nothing buried
+    assert not buried_vertices(x, f, depth).any()
+    d = sphere_directions(256)  # evenly spread: unit, and any leading 16 cover every octant
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert len({tuple(np.sign(v)) for v in d[:16]}) == 8
 
 
 def test_inverted_tets_counts_a_flip():
