@@ -174,14 +174,17 @@ def self_summary(x, asset) -> dict:
     """Config.self_collision: the summary's skin-on-skin figures from the final positions ``x`` (all
     vertices, skin first), by the independent measure (contact/self_measures.py, code the self-contact
     stage does not share): ``self_inside_200um`` / ``self_inside_1000um`` (skin vertices whose 0.2 / 1
-    mm outward offset lies inside the closed skin), ``self_crossing_edges`` (skin edges through another
-    skin triangle) and ``inverted_tets``."""
+    mm outward offset lies inside the closed skin), ``self_buried_200um`` (skin vertices with no point
+    outside the closed skin 0.2 mm around them in any sampled direction: no normal involved, so the
+    bottoms of closed creases do not count), ``self_crossing_edges`` (skin edges through another skin
+    triangle) and ``inverted_tets``."""
     from physhand_mj.contact.self_measures import self_penetration
 
     m = self_penetration(np.asarray(x, float), np.asarray(asset.skin_faces), np.asarray(asset.tets),
-                         np.asarray(asset.positions, float))
+                         np.asarray(asset.positions, float), buried=2e-4)
     return dict(self_collision=True, self_inside_200um=m["inside_200um"], self_inside_1000um=m["inside_1000um"],
-                self_crossing_edges=m["crossing_edges"], inverted_tets=m["inverted_tets"])
+                self_buried_200um=m["buried_200um"], self_crossing_edges=m["crossing_edges"],
+                inverted_tets=m["inverted_tets"])
 
 
 def force_rows(step: int, data, hand) -> list:
