@@ -10,7 +10,8 @@ Each keyframe is rolled out as ``physhand rollout`` does (SoftHand on the hand_o
 stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured by the independent
 measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1 mm outward offsets
 lie inside the closed skin, those with no point outside it 0.2 mm around them in any direction
-(``buried_200um``: no normal involved), skin edges through another skin triangle, and inverted tets (``--last N``: also the mean over the last N frames of
+(``buried_200um``: no normal involved), skin edges through another skin triangle (and those poking
+through it farther than 0.2 / 1 mm, the deepest), and inverted tets (``--last N``: also the mean over the last N frames of
 the 0.2 mm count and the edges through triangles). Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same

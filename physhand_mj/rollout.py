@@ -177,14 +177,15 @@ def self_summary(x, asset) -> dict:
     mm outward offset lies inside the closed skin), ``self_buried_200um`` (skin vertices with no point
     outside the closed skin 0.2 mm around them in any sampled direction: no normal involved, so the
     bottoms of closed creases do not count), ``self_crossing_edges`` (skin edges through another skin
-    triangle) and ``inverted_tets``."""
+    triangle), ``self_crossing_depth_max_um`` (how far the deepest of them pokes through) and
+    ``inverted_tets``."""
     from physhand_mj.contact.self_measures import self_penetration
 
     m = self_penetration(np.asarray(x, float), np.asarray(asset.skin_faces), np.asarray(asset.tets),
                          np.asarray(asset.positions, float), buried=2e-4)
     return dict(self_collision=True, self_inside_200um=m["inside_200um"], self_inside_1000um=m["inside_1000um"],
                 self_buried_200um=m["buried_200um"], self_crossing_edges=m["crossing_edges"],
-                inverted_tets=m["inverted_tets"])
+                self_crossing_depth_max_um=m["crossing_depth_max_um"], inverted_tets=m["inverted_tets"])
 
 
 def force_rows(step: int, data, hand) -> list:

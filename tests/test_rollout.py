@@ -254,7 +254,7 @@ def test_self_collision_rollout_reports_the_skin_on_itself(tmp_path, capsys):
     on = line("hand_only", "--self-collision", "--out", tmp_path / "on")[-1]
     assert on["self_collision"] is True and on["self_proxies"] == 16, on
     assert on["self_inside_200um"] == 0 and on["self_crossing_edges"] == 0 and on["inverted_tets"] >= 0, on
-    assert on["self_buried_200um"] == 0, on
+    assert on["self_buried_200um"] == 0 and on["self_crossing_depth_max_um"] == 0.0, on
     runs = tmp_path / "runs.txt"
     runs.write_text(f"{ph.scene_path('hand_only')} pinch\n{ph.scene_path('hand_only')} pinch\n")
     batch = line(runs, "--batch", 2, "--self-collision", "--out", tmp_path / "batch")

@@ -255,3 +255,22 @@ def test_query_slack_counts_only_skin_near_the_vertex():
     share = np.mean([far[q].sum() / far.sum() for q in queried])
     assert share < 0.2, share
     assert np.mean([len(q) for q in queried]) < 0.8 * len(sb[: gated.asset.n_skin])
+
+
+def test_crossing_depth_analytic():
+    """crossing_depths on two triangles placed by hand (mm): T1 flat in z = 0, T2 upright in x = 0.
+    T2's edge (0, 0, -0.1)-(0, 0, 0.3) passes through T1's interior and pokes 0.1 mm below it; T1's
+    edge (-5, -5, 0)-(5, -5, 0) passes through T2 (whose cross-section at y = -5 spans z -0.05..0.3)
+    with 5 mm on either side; T2's edge to (0, -40, 0.3) meets z = 0 at y = -10, outside T1: no
+    crossing; every other edge lies off the other triangle."""
+    from physhand_mj.contact.self_measures import crossing_depths, skin_edges
+
+    x = 1e-3 * np.array([[-5, -5, 0], [5, -5, 0], [0, 5, 0], [0, 0, -0.1], [0, 0, 0.3], [0, -40, 0.3]])
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    d = dict(zip(map(tuple, skin_edges(f)), crossing_depths(x, f)))
+    assert d.pop((3, 4)) == pytest.approx(1e-4, rel=1e-4)
+    assert d.pop((0, 1)) == pytest.approx(5e-3, rel=1e-4)
+    assert all(v == 0.0 for v in d.values()), d
+    m = self_penetration(x, f)
+    assert m["crossing_edges"] == 2 and m["crossing_over_200um"] == 1 and m["crossing_over_1000um"] == 1
+    assert m["crossing_depth_max_um"] == pytest.approx(5000.0, abs=1.0)

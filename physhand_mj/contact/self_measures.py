@@ -15,9 +15,11 @@ the closed skin at rest has none).
     offsets_inside(x, faces, offset)   -> (V,) bool: the skin vertices whose offset point is inside
     buried_vertices(x, faces, depth)   -> (V,) bool: the skin vertices with no point outside the closed
                                           skin at ``depth`` around them (no normal: every direction)
+    crossing_depths(x, faces)          -> (E,) m over the skin's edges: how far each pokes through the
+                                          deepest other triangle it crosses (0: none)
     crossing_edges(x, faces)           -> (E,) bool over the skin's edges: through another triangle
-    self_penetration(x, faces, tets)   -> dict of counts at 0.2 mm and 1 mm, crossing edges, and
-                                          inverted tets
+    self_penetration(x, faces, tets)   -> dict of counts at 0.2 mm and 1 mm, crossing edges (and those
+                                          poking deeper than each offset), and inverted tets
 """
 
 from __future__ import annotations
@@ -138,7 +140,7 @@ def buried_vertices(x: np.ndarray, faces: np.ndarray, depth: float, directions: 
 
 @wp.kernel
 def _crossing(x: wp.array(dtype=wp.vec3), edges: wp.array2d(dtype=int), faces: wp.array2d(dtype=int),
-              lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3), out: wp.array(dtype=int)):
+              lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
     e = wp.tid()
     i = edges[e, 0]
     j = edges[e, 1]
@@ -147,6 +149,7 @@ def _crossing(x: wp.array(dtype=wp.vec3), edges: wp.array2d(dtype=int), faces: w
     elo = wp.min(p, q)
     ehi = wp.max(p, q)
     d = q - p
+    deepest = float(0.0)
     for t in range(faces.shape[0]):
         l = lo[t]
         h = hi[t]
@@ -175,8 +178,12 @@ def _crossing(x: wp.array(dtype=wp.vec3), edges: wp.array2d(dtype=int), faces: w
             continue
         sv = wp.dot(e2, qv) * inv
         if sv > 0.0 and sv < 1.0:
-            out[e] = 1
-            return
+            # how far the edge pokes through: its shorter part beyond the triangle's plane, along the
+            # triangle's normal (> 0 for any crossing: both ends lie off the plane)
+            n = wp.normalize(wp.cross(e1, e2))
+            poke = wp.max(wp.min(wp.abs(wp.dot(p - x[a], n)), wp.abs(wp.dot(q - x[a], n))), 1.0e-12)
+            deepest = wp.max(deepest, poke)
+    out[e] = deepest
 
 
 def skin_edges(faces: np.ndarray) -> np.ndarray:
@@ -186,21 +193,30 @@ def skin_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(e, axis=0)
 
 
-def crossing_edges(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(E,) bool over :func:`skin_edges`: the edge passes through the interior of a skin triangle
-    that shares no vertex with it (exact segment-triangle test, float32, brute force on the CPU)."""
+def crossing_depths(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(E,) float over :func:`skin_edges`, m: 0 where the edge passes through no skin triangle that
+    shares no vertex with it (exact segment-triangle test, float32, brute force on the CPU); else how
+    far it pokes through the deepest one it crosses: the shorter of its two parts either side of the
+    triangle's plane, measured along the triangle's normal (an edge grazing a triangle's plane: near
+    0; an edge crossing square to it, half through: half its length)."""
     d = "cpu"
     x = np.asarray(x, np.float32)
     faces = np.ascontiguousarray(faces, np.int32)
     tri = x[faces]
     edges = skin_edges(faces).astype(np.int32)
-    out = wp.zeros(len(edges), dtype=int, device=d)
+    out = wp.zeros(len(edges), dtype=float, device=d)
     wp.launch(_crossing, len(edges), inputs=[wp.array(x, dtype=wp.vec3, device=d), wp.array(edges, dtype=int, device=d),
                                             wp.array(faces, dtype=int, device=d),
                                             wp.array(tri.min(axis=1), dtype=wp.vec3, device=d),
                                             wp.array(tri.max(axis=1), dtype=wp.vec3, device=d)],
               outputs=[out], device=d)
-    return out.numpy().astype(bool)
+    return out.numpy().astype(np.float64)
+
+
+def crossing_edges(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(E,) bool over :func:`skin_edges`: the edge passes through the interior of a skin triangle
+    that shares no vertex with it (:func:`crossing_depths` above 0)."""
+    return crossing_depths(x, faces) > 0.0
 
 
 def inverted_tets(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> int:
@@ -218,15 +234,20 @@ def inverted_tets(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> int:
 def self_penetration(x: np.ndarray, faces: np.ndarray, tets: np.ndarray | None = None,
                      rest_x: np.ndarray | None = None, offsets=OFFSETS, buried: float | None = None) -> dict:
     """The measure's counts: ``inside_<um>um`` (skin vertices whose offset point is inside the closed
-    skin) per offset, ``crossing_edges`` (skin edges through another skin triangle), and with ``tets``
-    and ``rest_x`` (all vertices, skin first) ``inverted_tets``; with ``buried`` (m) also
-    ``buried_<um>um`` (:func:`buried_vertices` at that depth)."""
+    skin) per offset, ``crossing_edges`` (skin edges through another skin triangle),
+    ``crossing_over_<um>um`` per offset (those poking through it farther than the offset:
+    :func:`crossing_depths`) and ``crossing_depth_max_um``, and with ``tets`` and ``rest_x`` (all
+    vertices, skin first) ``inverted_tets``; with ``buried`` (m) also ``buried_<um>um``
+    (:func:`buried_vertices` at that depth)."""
     ns = int(faces.max()) + 1
     out = {f"inside_{int(round(o * 1e6))}um": int(offsets_inside(np.asarray(x)[:ns], faces, o).sum())
            for o in offsets}
     if buried is not None:
         out[f"buried_{int(round(buried * 1e6))}um"] = int(buried_vertices(np.asarray(x)[:ns], faces, buried).sum())
-    out["crossing_edges"] = int(crossing_edges(np.asarray(x)[:ns], faces).sum())
+    depth = crossing_depths(np.asarray(x)[:ns], faces)
+    out["crossing_edges"] = int((depth > 0.0).sum())
+    out.update({f"crossing_over_{int(round(o * 1e6))}um": int((depth > o).sum()) for o in offsets})
+    out["crossing_depth_max_um"] = round(float(depth.max(initial=0.0)) * 1e6, 1)
     if tets is not None and rest_x is not None:
         out["inverted_tets"] = inverted_tets(x, tets, rest_x)
     return out
