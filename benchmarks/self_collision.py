@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--last N] [--modes off,on] [--tet-keep K]
-        [--friction MU] [--edges] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+        [--friction MU] [--edges] [--margin MM] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
         [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches]
@@ -242,6 +242,7 @@ def main():
                     "(the skin's edges resist stretch only)")
     ap.add_argument("--flesh-stretch-only", action="store_true", help="Config.flesh_compression False in every run "
                     "(the flesh's tet edges resist stretch only)")
+    ap.add_argument("--margin", type=float, default=None, help="Config.tuning.self_margin for the 'on' runs (mm)")
     ap.add_argument("--no-self-proxies", action="store_true", help="Config.tuning.self_proxies False for the 'on' "
                     "runs (MuJoCo's fingers as without the option)")
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
@@ -273,6 +274,8 @@ def main():
             extra = {"self_tet_keep": a.tet_keep} if a.tet_keep is not None and mode == "on" else {}
             if a.friction is not None and mode == "on":
                 extra["self_friction"] = a.friction
+            if a.margin is not None and mode == "on":
+                extra["self_margin"] = a.margin * 1e-3
             if a.no_self_proxies and mode == "on":
                 extra["self_proxies"] = False
             if a.edges and mode == "on":
