@@ -312,7 +312,7 @@ def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_ma
     # The share of the correction that resolves the depth the pair already had at the substep's start
     # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
     # substep with no relative normal velocity instead of flying apart at depth / h. Without it the
-    # held fist's skin jumps up to ~5 mm a frame (docs/self_collision.md "A held fist").
+    # held fist's skin jumps up to ~5 mm a frame (docs/self_collision_findings.md "A held fist").
     qp = wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]
     s0 = wp.dot(x_prev[v] - qp, nrm)
     fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)

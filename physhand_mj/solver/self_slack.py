@@ -26,7 +26,7 @@ wp.set_module_options({"enable_backward": False})
 # The frame query's reach beyond self_margin: a vertex whose nearest kept triangle lay beyond the
 # margin by s (its slack, at most REACH) is queried again only once the moves since could have used
 # it up: its own in its bone's frame plus the largest any skin near that bone may have made seen from
-# that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Cost").
+# that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Known limits", the cost).
 REACH = 5.0e-4
 
 
