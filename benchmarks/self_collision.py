@@ -11,7 +11,8 @@ stepping the keyframe's targets, ``frames`` frames x 10 substeps), then measured
 measure (physhand_mj/contact/self_measures.py): skin vertices whose 0.2 mm and 1 mm outward offsets
 lie inside the closed skin, those with no point outside it 0.2 mm around them in any direction
 (``buried_200um``: no normal involved), skin edges through another skin triangle (and those poking
-through it farther than 0.2 / 1 mm, the deepest), and inverted tets (``--last N``: also the mean over the last N frames of
+through it farther than 0.2 / 1 mm, the deepest), and inverted tets (and where: across a joint, on its
+stretched back or in its closing crease, per pair of bones) (``--last N``: also the mean over the last N frames of
 the 0.2 mm count and the edges through triangles). Frame times are the median of the frames after the
 first (which compiles), wall and the calling thread's CPU time (Warp's CPU kernels run on it: the
 figure other processes on a shared host disturb least); modes run one after the other in the same
@@ -50,6 +51,40 @@ from pathlib import Path
 import numpy as np
 
 sys.path.append(str(Path(__file__).resolve().parents[1]))
+
+
+def inverted_where(x: np.ndarray, asset) -> dict:
+    """Where the inverted tets are: ``inverted_across_joint`` counts those whose corners follow two
+    bones (each flesh or skin vertex follows the skeleton vertex it is attached to, Eq. 4-5), of them
+    ``inverted_across_stretched`` those whose corner pairs across the two bones lie farther apart than
+    at rest (the mean ratio above 1: the back of a bent joint, where nothing touches; below 1: the
+    crease that closes), and ``inverted_by_joint`` the counts per pair of bones."""
+    x0, tets = np.asarray(asset.positions, float), np.asarray(asset.tets)
+    vb = np.asarray(asset.vertex_body)
+    body = vb.copy()
+    att = np.asarray(asset.attach)
+    body[att[:, 0]] = vb[att[:, 1]]
+
+    def vol(p):
+        a, b, c, d = (p[tets[:, k]] for k in range(4))
+        return np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a))
+
+    v0 = vol(x0)
+    inv = np.where((vol(np.asarray(x, float)) * np.sign(v0) <= 0) & (v0 != 0))[0]
+    names = np.asarray(asset.body_names)
+    across, stretched, by = 0, 0, {}
+    for t in tets[inv]:
+        bs = sorted(set(body[t].tolist()) - {-1})
+        if len(bs) < 2:
+            continue
+        across += 1
+        r = [np.linalg.norm(x[t[i]] - x[t[j]]) / np.linalg.norm(x0[t[i]] - x0[t[j]])
+             for i in range(4) for j in range(i + 1, 4) if body[t[i]] != body[t[j]]]
+        stretched += int(np.mean(r) > 1.0)
+        k = "/".join(str(names[b]) for b in bs)
+        by[k] = by.get(k, 0) + 1
+    return dict(inverted_across_joint=across, inverted_across_stretched=stretched,
+                inverted_by_joint=dict(sorted(by.items(), key=lambda kv: -kv[1])))
 
 
 def slip_at_pairs(hand, x: np.ndarray, prev: np.ndarray) -> np.ndarray:
@@ -122,6 +157,7 @@ def run(key: str, frames: int, self_collision: bool, device=None, scene: str = "
         mv = np.linalg.norm(np.asarray(x, float)[:ns] - last, axis=1)
         out.update(skin_moved_over_05mm=int((mv > 5e-4).sum()), skin_move_max_mm=round(float(mv.max()) * 1e3, 3))
     out.update(self_penetration(x, np.asarray(a.skin_faces), np.asarray(a.tets), hand.solver.model.rest_x.numpy(), buried=2e-4))
+    out.update(inverted_where(x, a))
     if lasts:
         lasts = np.array(lasts)
         out.update(last_frames=len(lasts), inside_200um_mean_last=round(float(lasts[:, 0].mean()), 1),
