@@ -59,18 +59,14 @@ def inverted_where(x: np.ndarray, asset) -> dict:
     ``inverted_across_stretched`` those whose corner pairs across the two bones lie farther apart than
     at rest (the mean ratio above 1: the back of a bent joint, where nothing touches; below 1: the
     crease that closes), and ``inverted_by_joint`` the counts per pair of bones."""
+    from physhand_mj.contact.self_measures import inverted_mask
+
     x0, tets = np.asarray(asset.positions, float), np.asarray(asset.tets)
     vb = np.asarray(asset.vertex_body)
     body = vb.copy()
     att = np.asarray(asset.attach)
     body[att[:, 0]] = vb[att[:, 1]]
-
-    def vol(p):
-        a, b, c, d = (p[tets[:, k]] for k in range(4))
-        return np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a))
-
-    v0 = vol(x0)
-    inv = np.where((vol(np.asarray(x, float)) * np.sign(v0) <= 0) & (v0 != 0))[0]
+    inv = np.where(inverted_mask(x, tets, x0))[0]
     names = np.asarray(asset.body_names)
     across, stretched, by = 0, 0, {}
     for t in tets[inv]:

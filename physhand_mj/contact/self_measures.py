@@ -83,6 +83,15 @@ def vertex_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
 
 
+def outward_winding(points: np.ndarray, x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`winding_numbers` signed so that inside the closed skin is +1 whichever way its faces
+    wind (the sign of the enclosed volume)."""
+    w = winding_numbers(points, x, faces)
+    if np.einsum("ij,ij->", x[faces[:, 0]], np.cross(x[faces[:, 1]], x[faces[:, 2]])) < 0:
+        w = -w
+    return w
+
+
 def offsets_inside(x: np.ndarray, faces: np.ndarray, offset: float) -> np.ndarray:
     """(V,) bool over the skin vertices used by ``faces``: the point ``offset`` m along the vertex's
     outward normal lies inside the closed skin (winding number above 1/2)."""
@@ -90,9 +99,7 @@ def offsets_inside(x: np.ndarray, faces: np.ndarray, offset: float) -> np.ndarra
     nrm = vertex_normals(x, faces)
     used = np.zeros(len(x), bool)
     used[faces.ravel()] = True
-    w = winding_numbers(x + offset * nrm, x, faces)
-    if np.einsum("ij,ij->", x[faces[:, 0]], np.cross(x[faces[:, 1]], x[faces[:, 2]])) < 0:
-        w = -w
+    w = outward_winding(x + offset * nrm, x, faces)
     return (w > 0.5) & used
 
 
@@ -122,16 +129,13 @@ def buried_vertices(x: np.ndarray, faces: np.ndarray, depth: float, directions: 
     self-collision: 540 and 538 of 588 normal offsets inside; pinch 42 and 42)."""
     x = np.asarray(x, np.float64)
     cand = np.where(offsets_inside(x, faces, depth))[0]
-    flip = np.einsum("ij,ij->", x[faces[:, 0]], np.cross(x[faces[:, 1]], x[faces[:, 2]])) < 0
     dirs = sphere_directions(directions)
     for k in range(0, directions, chunk):
         if len(cand) == 0:
             break
         d = dirs[k:k + chunk]
         pts = (x[cand][:, None, :] + depth * d[None, :, :]).reshape(-1, 3)
-        w = winding_numbers(pts, x, faces).reshape(len(cand), len(d))
-        if flip:
-            w = -w
+        w = outward_winding(pts, x, faces).reshape(len(cand), len(d))
         cand = cand[(w > 0.5).all(axis=1)]
     out = np.zeros(len(x), bool)
     out[cand] = True
@@ -219,16 +223,21 @@ def crossing_edges(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return crossing_depths(x, faces) > 0.0
 
 
-def inverted_tets(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> int:
-    """Tets whose signed volume has the opposite sign of (or is zero against) their rest volume."""
+def inverted_mask(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> np.ndarray:
+    """(T,) bool: the tets whose signed volume has the opposite sign of (or is zero against) their
+    rest volume."""
     def vol(p):
         p = np.asarray(p, np.float64)
         a, b, c, d = (p[tets[:, k]] for k in range(4))
         return np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a))
 
     v0 = vol(rest_x)
-    v = vol(x)
-    return int(np.sum((v * np.sign(v0) <= 0) & (v0 != 0)))
+    return (vol(x) * np.sign(v0) <= 0) & (v0 != 0)
+
+
+def inverted_tets(x: np.ndarray, tets: np.ndarray, rest_x: np.ndarray) -> int:
+    """How many tets are inverted (:func:`inverted_mask`)."""
+    return int(inverted_mask(x, tets, rest_x).sum())
 
 
 def self_penetration(x: np.ndarray, faces: np.ndarray, tets: np.ndarray | None = None,
