@@ -124,6 +124,50 @@ def test_query_slack_misses_nothing(key):
     np.testing.assert_array_equal(gated.state.x.numpy(), full.state.x.numpy())
 
 
+def _nudged_queries(nudge: bool, at: int = 25):
+    """The open hand (not sleeping) held 25 frames, then one skin vertex of the first metacarpal
+    (the bone with the most skin) moved 1 mm before frame ``at``: that frame's queried vertices, the
+    vertex, the skin at the start and the skin's bones."""
+    import mujoco
+
+    from physhand_mj.rollout import load_rollout_scene
+
+    model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), "open")
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True, sleep_speed=0.0)
+    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    ns = hand.asset.n_skin
+    sb = hand.solver.model.skin_body.numpy()[:ns]
+    mine = np.where(sb == list(hand.asset.body_names).index("firstmc_r"))[0]
+    v = int(mine[len(mine) // 2])
+    x0 = hand.state.x.numpy()[:ns].copy()
+    for f in range(at + 1):
+        if f == at and nudge:
+            x = hand.state.x.numpy()
+            x[v, 2] += 1.0e-3
+            hand.state.x.assign(x)
+        mujoco.mj_step(model, data)
+        res = hand.step()
+    return set(hand.solver.selfc.query.qlist.numpy()[: res["self_queried"]].tolist()), v, x0, sb
+
+
+def test_query_slack_counts_the_deformation_near_the_vertex():
+    """The skin's deformation counts only near where it happens (self_slack.py's grid, DEFORM_CELL):
+    one skin vertex moved 1 mm in its bone's frame adds to the frame's queries only vertices within
+    ~26 mm of it (its cells reach its longest edge, <= 6.5 mm, plus a 6 mm cell, and are read from
+    margin + REACH = 2.5 mm: 15 mm per axis), where a bound over the bone's whole skin (before the grid)
+    added 862 vertices, 514 of them farther (measured)."""
+    plain, _, _, _ = _nudged_queries(False)
+    nudged, v, x0, sb = _nudged_queries(True)
+    extra = np.array(sorted(nudged - plain))
+    assert len(extra) > 0 and v in extra
+    d = np.linalg.norm(x0[extra] - x0[v], axis=1)
+    assert (d < 0.026).mean() > 0.95, np.sort(d)[-10:]
+    assert len(extra) < 200, len(extra)
+    # the nudged bone's far skin (more than 30 mm from the vertex) stays unqueried
+    far = (np.linalg.norm(x0 - x0[v], axis=1) > 0.03) & (sb == sb[v])
+    assert far.sum() > 50 and not far[extra].any()
+
+
 def test_open_hand_unchanged():
     """The open hand lists no pair (the rest filter) and moves exactly as without the option."""
     off, _ = _run("open", False, 8)

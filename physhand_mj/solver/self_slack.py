@@ -29,6 +29,28 @@ wp.set_module_options({"enable_backward": False})
 # that bone (pick_queries; a hand at rest: never; docs/self_collision.md "Known limits", the cost).
 REACH = 5.0e-4
 
+# The skin's deformation is bounded near each vertex, not over its bone's whole skin: every skin
+# vertex writes its move (in its bone's frame) into the cells of a grid of DEFORM_CELL that its
+# triangles could reach (its box grown by its longest edge), and a vertex reads the cells within
+# ``far`` of it (pick_queries). A held fist whose squeezed skin jitters then queries the skin near
+# the jitter, not every vertex of the jittering bones and their neighbours. The grid is a hash table
+# of DEFORM_CELLS cells per world: two cells sharing a slot only raise each other's bound.
+DEFORM_CELL = 6.0e-3  # m
+DEFORM_CELLS = 32768  # per world (a power of two; 128 KB)
+DEFORM_REACH = wp.constant(1.2e-2)  # m: a vertex reads (or writes) at most this far around it, else its bone's bound
+
+
+@wp.func
+def _cell_slot(ix: int, iy: int, iz: int, w: int) -> int:
+    """Grid cell (ix, iy, iz) of world ``w``: its slot in the deformation table (a spatial hash)."""
+    h = (wp.uint32(ix) * wp.uint32(73856093)) ^ (wp.uint32(iy) * wp.uint32(19349663)) ^ (wp.uint32(iz) * wp.uint32(83492791))
+    return w * DEFORM_CELLS + int(h & wp.uint32(DEFORM_CELLS - 1))
+
+
+@wp.func
+def _cell_of(c: float) -> int:
+    return int(wp.floor(c / DEFORM_CELL))
+
 
 @wp.func
 def _pose(body_pose: wp.array2d(dtype=wp.transform), b: int) -> wp.transform:
@@ -50,7 +72,8 @@ def _slot(b: int, w: int, nb: int) -> int:
 def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
                  ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
                  body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), nbr_off: wp.array(dtype=int),
-                 nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int)):
+                 nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
+                 deform: wp.array(dtype=float), deform_all: wp.array(dtype=float)):
     """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
     deformation, not the bones' motion), per bone the largest (``body_move``), the skin's farthest
     point from the bone's origin (``body_reach``), its bounding box now (``box``: lower x, y, z, then
@@ -58,7 +81,8 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     at a vertex of its skin (``bone_edge``, um; ``nbr``: one world's skin neighbours from
     ``nbr_off[v]``), so that the box grown by it holds every skin triangle with a corner on the bone;
     per world (``ns`` skin vertices, ``nb`` bones each) the slots :func:`_slot` names (the last: the
-    vertices without a bone, in the world frame)."""
+    vertices without a bone, in the world frame); and per grid cell (``deform``, DEFORM_CELL) the
+    largest move of a vertex whose triangles reach into it (the vertex's box grown by its longest edge)."""
     v = wp.tid()
     b = skin_body[v]
     y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
@@ -72,26 +96,33 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     for c in range(3):
         wp.atomic_min(box, k, c, int(wp.floor(p[c] * 1.0e6)))
         wp.atomic_min(box, k, c + 3, -int(wp.ceil(p[c] * 1.0e6)))
-    vo = (v // ns) * ns
+    w = v // ns
+    vo = w * ns
     e = float(0.0)
     for n in range(nbr_off[v - vo], nbr_off[v - vo + 1]):
         e = wp.max(e, wp.length(x[nbr[n] + vo] - p))
     wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
+    # the move into every grid cell that a triangle with a corner here reaches (within e of the vertex)
+    if e > DEFORM_REACH:  # (a vertex torn from its neighbours: its move bounds every cell of its world)
+        wp.atomic_max(deform_all, w, m)
+    elif m > 0.0:
+        for ix in range(_cell_of(p[0] - e), _cell_of(p[0] + e) + 1):
+            for iy in range(_cell_of(p[1] - e), _cell_of(p[1] + e) + 1):
+                for iz in range(_cell_of(p[2] - e), _cell_of(p[2] + e) + 1):
+                    wp.atomic_max(deform, _cell_slot(ix, iy, iz, w), m)
 
 
 @wp.kernel
 def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
-                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float)):
+                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float)):
     """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
     pose since the last frame's start, seen from the first: how far the second's origin moved
     (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
     from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
     ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
     bones' origins more than ``far`` (>= slack + margin) plus both skins' largest such moves apart.
-    Per first bone the most any skin of its world moved seen from it (``most_move``: its own skin's
-    deformation, the others' at their reach; pick_queries' G). Bones of different worlds are never
-    paired (each world's skin lists only its own triangles)."""
+    Bones of different worlds are never paired (each world's skin lists only its own triangles)."""
     w, i, j = wp.tid()
     o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
     bi = w * nb + i
@@ -115,39 +146,45 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     if i != j and i != nb and j != nb and gap > far + body_move[o + i] + big:
         dt = -1.0
     pair_dt[o + i, j] = dt
-    if i == j:
-        wp.atomic_max(most_move, o + i, body_move[o + i])
-    elif dt >= 0.0:
-        wp.atomic_max(most_move, o + i, big)
 
 
 @wp.kernel
 def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
                  mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
                  box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
-                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float), most_move: wp.array(dtype=float),
-                 far: float, ns: int, nb: int,
+                 pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float),
+                 deform: wp.array(dtype=float), deform_all: wp.array(dtype=float), far: float, ns: int, nb: int,
                  slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
     """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
     come before it is within the margin) the moves since used up: the vertex's own in its bone's frame
-    (``mu``), its bone's skin's deformation (``body_move``: a fold of its own skin) and, per other bone
-    of its world, how far that bone's skin near the vertex may have moved seen from the vertex's bone
-    (its deformation + the pair's motion, body_motion, applied at a radius). Only triangles that could
-    end within ``far`` (>= slack + margin) of the vertex matter: with G the most any skin of the
-    world moved seen from the vertex's bone, such a triangle lay within far + G of the vertex at the
-    frame's start and its corners within far + G + its longest edge; every bone it has a corner on
-    holds it in its skin's box grown by that bone's longest edge (local_motion). So a bone whose grown
-    box lies farther than far + G counts nothing, and the others count their pair's turn at
-    |vertex - the bone's origin| + far + G + that edge (or the skin's reach, if less). The others keep
-    an empty list."""
+    (``mu``), the skin's deformation near it (a fold of its own skin; ``deform``, the grid
+    local_motion wrote, at most its bone's ``body_move``) and, per other bone of its world, how far
+    that bone's skin near the vertex may have moved seen from the vertex's bone (its deformation near
+    the vertex + the pair's motion, body_motion, applied at a radius). Only triangles within ``far``
+    (>= slack + margin) of the vertex now matter: one farther keeps the slack whatever it did (the
+    slack never grows between queries), and one within it moved at most as counted. Its corners lie
+    within far + their longest edge of the vertex, so they wrote their moves into the grid cells
+    within ``far`` of it, and every bone it has a corner on holds it in its skin's box grown by that
+    bone's longest edge (local_motion). So a bone whose grown box lies farther than far counts
+    nothing, and the others count their pair's turn at |vertex - the bone's origin| + far + that edge
+    (or the skin's reach, if less). The others keep an empty list."""
     v = wp.tid()
     w = v // ns
     o = w * (nb + 1)
     il = _slot(skin_body[v], w, nb) - o  # (the vertex's bone in its world's tables; nb: none)
     p = x[v]
-    g = most_move[o + il]
-    m = body_move[o + il]
+    # the skin's deformation near the vertex: the largest move in the grid cells within far of it
+    # (every corner of a triangle within far of it wrote its move there: local_motion; a far beyond
+    # DEFORM_REACH: its bone's whole skin's)
+    near = float(1.0e30)
+    if far <= DEFORM_REACH:
+        near = deform_all[w]
+        for ix in range(_cell_of(p[0] - far), _cell_of(p[0] + far) + 1):
+            for iy in range(_cell_of(p[1] - far), _cell_of(p[1] + far) + 1):
+                for iz in range(_cell_of(p[2] - far), _cell_of(p[2] + far) + 1):
+                    near = wp.max(near, deform[_cell_slot(ix, iy, iz, w)])
+    m = wp.min(body_move[o + il], near)
     for j in range(nb + 1):
         dt = pair_dt[o + il, j]
         if j == il or dt < 0.0:
@@ -159,10 +196,10 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
             q = wp.vec3(0.0)
             for c in range(3):
                 q[c] = wp.clamp(p[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
-            if wp.length(p - q) > far + g:
+            if wp.length(p - q) > far:
                 continue
-            r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + g + ej)
-        m = wp.max(m, body_move[o + j] + dt + pair_turn[o + il, j] * r)
+            r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + ej)
+        m = wp.max(m, wp.min(body_move[o + j], near) + dt + pair_turn[o + il, j] * r)
     sl = slack[v] - mu[v] - m
     slack[v] = sl
     if sl <= 0.0:
@@ -193,6 +230,8 @@ class QuerySlack:
         self.body_reach = wp.zeros(nbw, dtype=float, device=d)
         self.box = wp.zeros((nbw, 6), dtype=int, device=d)
         self.bone_edge = wp.zeros(nbw, dtype=int, device=d)
+        self.deform = wp.zeros(worlds * DEFORM_CELLS, dtype=float, device=d)  # per grid cell the skin's largest move
+        self.deform_all = wp.zeros(worlds, dtype=float, device=d)  # (per world: a vertex whose edges reach farther)
         e = skin_edges(faces1)
         e = np.concatenate([e, e[:, ::-1]])
         e = e[np.lexsort((e[:, 1], e[:, 0]))]  # (one world's skin edges both ways, by their first vertex)
@@ -201,7 +240,6 @@ class QuerySlack:
         self.nbr = wp.array(e[:, 1].astype(np.int32), dtype=int, device=d)
         self.pair_dt = wp.zeros((nbw, nb1 + 1), dtype=float, device=d)  # per bone pair its motion (body_motion)
         self.pair_turn = wp.zeros((nbw, nb1 + 1), dtype=float, device=d)
-        self.most_move = wp.zeros(nbw, dtype=float, device=d)  # per bone the most any skin moved seen from it
         self.rel_last = wp.zeros((nbw, nb1 + 1), dtype=wp.transform, device=d)
         self.slack = wp.zeros(ns, dtype=float, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
@@ -215,7 +253,8 @@ class QuerySlack:
         self.body_reach.zero_()
         self.box.fill_(2**31 - 1)
         self.bone_edge.zero_()
-        self.most_move.zero_()
+        self.deform.zero_()
+        self.deform_all.zero_()
 
     def record(self, rec, state, reach: float, cand_n) -> None:
         """The slack's three launches into the solver's frame recorder ``rec`` (each over every world);
@@ -223,10 +262,11 @@ class QuerySlack:
         vertices not queried."""
         ns1, nb1 = self.ns1, self.nb1
         rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
-                   [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge])
+                   [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge,
+                    self.deform, self.deform_all])
         rec.launch(body_motion, (self.worlds, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
-                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn, self.most_move])
+                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn])
         rec.launch(pick_queries, self.n_skin,
                    [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
-                    self.bone_edge, self.pair_dt, self.pair_turn, self.most_move, reach, ns1, nb1],
+                    self.bone_edge, self.pair_dt, self.pair_turn, self.deform, self.deform_all, reach, ns1, nb1],
                    [self.slack, cand_n, self.qlist, self.qcount])
