@@ -37,6 +37,7 @@ REACH = 5.0e-4
 # of DEFORM_CELLS cells per world: two cells sharing a slot only raise each other's bound.
 DEFORM_CELL = 6.0e-3  # m
 DEFORM_CELLS = 32768  # per world (a power of two; 128 KB)
+DEFORM_NONE = wp.constant(2147483647)  # (a move past 2 m, or NaN: the bone's bound instead)
 DEFORM_REACH = wp.constant(1.2e-2)  # m: a vertex reads (or writes) at most this far around it, else its bone's bound
 
 
@@ -73,7 +74,7 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
                  ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
                  body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), nbr_off: wp.array(dtype=int),
                  nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
-                 deform: wp.array(dtype=float), deform_all: wp.array(dtype=float)):
+                 deform: wp.array(dtype=int), deform_all: wp.array(dtype=int)):
     """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
     deformation, not the bones' motion), per bone the largest (``body_move``), the skin's farthest
     point from the bone's origin (``body_reach``), its bounding box now (``box``: lower x, y, z, then
@@ -103,13 +104,20 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
         e = wp.max(e, wp.length(x[nbr[n] + vo] - p))
     wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
     # the move into every grid cell that a triangle with a corner here reaches (within e of the vertex)
+    # (in whole nm rounded up: native integer atomics, and a cell already holding as much is not written:
+    # ~100 vertices write each cell, and a float atomic max on CUDA is a compare-and-swap loop)
+    mi = int(wp.ceil(wp.min(m, 2.0) * 1.0e9))
+    if m >= 2.0 or m != m:  # (past int32's nm: no bound from the grid)
+        mi = DEFORM_NONE
     if e > DEFORM_REACH:  # (a vertex torn from its neighbours: its move bounds every cell of its world)
-        wp.atomic_max(deform_all, w, m)
-    elif m > 0.0:
+        wp.atomic_max(deform_all, w, mi)
+    elif mi > 0:
         for ix in range(_cell_of(p[0] - e), _cell_of(p[0] + e) + 1):
             for iy in range(_cell_of(p[1] - e), _cell_of(p[1] + e) + 1):
                 for iz in range(_cell_of(p[2] - e), _cell_of(p[2] + e) + 1):
-                    wp.atomic_max(deform, _cell_slot(ix, iy, iz, w), m)
+                    c = _cell_slot(ix, iy, iz, w)
+                    if deform[c] < mi:
+                        wp.atomic_max(deform, c, mi)
 
 
 @wp.kernel
@@ -153,7 +161,7 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
                  mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
                  box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
                  pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float),
-                 deform: wp.array(dtype=float), deform_all: wp.array(dtype=float), far: float, ns: int, nb: int,
+                 deform: wp.array(dtype=int), deform_all: wp.array(dtype=int), far: float, ns: int, nb: int,
                  slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
     """The vertices the frame queries: those whose slack (how much nearer a kept triangle may have
@@ -179,11 +187,13 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     # DEFORM_REACH: its bone's whole skin's)
     near = float(1.0e30)
     if far <= DEFORM_REACH:
-        near = deform_all[w]
+        nm = deform_all[w]
         for ix in range(_cell_of(p[0] - far), _cell_of(p[0] + far) + 1):
             for iy in range(_cell_of(p[1] - far), _cell_of(p[1] + far) + 1):
                 for iz in range(_cell_of(p[2] - far), _cell_of(p[2] + far) + 1):
-                    near = wp.max(near, deform[_cell_slot(ix, iy, iz, w)])
+                    nm = wp.max(nm, deform[_cell_slot(ix, iy, iz, w)])
+        if nm < DEFORM_NONE:
+            near = float(nm) * 1.0e-9
     m = wp.min(body_move[o + il], near)
     for j in range(nb + 1):
         dt = pair_dt[o + il, j]
@@ -230,8 +240,8 @@ class QuerySlack:
         self.body_reach = wp.zeros(nbw, dtype=float, device=d)
         self.box = wp.zeros((nbw, 6), dtype=int, device=d)
         self.bone_edge = wp.zeros(nbw, dtype=int, device=d)
-        self.deform = wp.zeros(worlds * DEFORM_CELLS, dtype=float, device=d)  # per grid cell the skin's largest move
-        self.deform_all = wp.zeros(worlds, dtype=float, device=d)  # (per world: a vertex whose edges reach farther)
+        self.deform = wp.zeros(worlds * DEFORM_CELLS, dtype=int, device=d)  # per grid cell the skin's largest move (nm)
+        self.deform_all = wp.zeros(worlds, dtype=int, device=d)  # (per world: a vertex whose edges reach farther)
         e = skin_edges(faces1)
         e = np.concatenate([e, e[:, ::-1]])
         e = e[np.lexsort((e[:, 1], e[:, 0]))]  # (one world's skin edges both ways, by their first vertex)
