@@ -182,11 +182,13 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     o = w * (nb + 1)
     il = _slot(skin_body[v], w, nb) - o  # (the vertex's bone in its world's tables; nb: none)
     p = x[v]
+    left = slack[v] - mu[v]
     # the skin's deformation near the vertex: the largest move in the grid cells within far of it
     # (every corner of a triangle within far of it wrote its move there: local_motion; a far beyond
-    # DEFORM_REACH: its bone's whole skin's)
+    # DEFORM_REACH: its bone's whole skin's). Once the moves counted use up what is left, the vertex
+    # is queried: the rest is not counted (the query sets its slack anew).
     near = float(1.0e30)
-    if far <= DEFORM_REACH:
+    if left > 0.0 and far <= DEFORM_REACH:
         nm = deform_all[w]
         for ix in range(_cell_of(p[0] - far), _cell_of(p[0] + far) + 1):
             for iy in range(_cell_of(p[1] - far), _cell_of(p[1] + far) + 1):
@@ -196,6 +198,8 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
             near = float(nm) * 1.0e-9
     m = wp.min(body_move[o + il], near)
     for j in range(nb + 1):
+        if left <= m:
+            break
         dt = pair_dt[o + il, j]
         if j == il or dt < 0.0:
             continue
@@ -210,7 +214,7 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
                 continue
             r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + ej)
         m = wp.max(m, wp.min(body_move[o + j], near) + dt + pair_turn[o + il, j] * r)
-    sl = slack[v] - mu[v] - m
+    sl = left - m
     slack[v] = sl
     if sl <= 0.0:
         qlist[wp.atomic_add(qcount, 0, 1)] = v
