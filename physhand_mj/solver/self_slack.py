@@ -5,10 +5,11 @@ contact is found", step 1).
 
 Once a frame, from the positions at its start: per skin vertex its move since the last frame in its
 bone's frame (``local_motion``; per bone the largest, its skin's reach, its skin's box and longest
-edge), per pair of bones the change of their relative pose (``body_motion``), then per vertex the
-slack those moves could have used (``pick_queries``): its own, plus for every other bone whose skin's
-box (grown by its longest edge) lies within reach of the vertex that bone's skin's move, the pose
-change and the turn at the vertex's distance. A vertex whose slack is used up goes in the query list
+edge; per cell of a 6 mm grid the largest move of a vertex whose triangles reach into it), per pair
+of bones the change of their relative pose (``body_motion``), then per vertex the slack those moves
+could have used (``pick_queries``): its own, the skin's deformation near it (the grid), plus for
+every other bone whose skin's box (grown by its longest edge) lies within reach of the vertex the
+pose change and the turn at the vertex's distance. A vertex whose slack is used up goes in the query list
 (``QuerySlack.qlist``, ``qcount`` long); the others keep an empty list. The broadphase sets the slack
 anew for the vertices it queries (the nearest kept triangle's distance beyond the margin, at most
 REACH). A hand whose skin moves rigidly with its bones queries nothing.
