@@ -91,12 +91,12 @@ def test_config_checks():
     assert ph.Config().validate().self_collision is False
 
 
-def _hand(key: str, self_collision: bool, **tuning):
+def _hand(key: str, self_collision: bool, config: dict | None = None, **tuning):
     from physhand_mj.rollout import load_rollout_scene
 
     model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), key)
     cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=self_collision,
-                    tuning=ph.Tuning(**tuning))
+                    tuning=ph.Tuning(**tuning), **(config or {}))
     return model, data, ph.SoftHand(model, data, cfg, settle_contact=False)
 
 
@@ -144,11 +144,7 @@ def _nudged_queries(nudge: bool, at: int = 25):
     vertex, the skin at the start and the skin's bones."""
     import mujoco
 
-    from physhand_mj.rollout import load_rollout_scene
-
-    model, data, _ = load_rollout_scene(ph.scene_path("hand_only"), "open")
-    cfg = ph.Config(frame_dt=float(model.opt.timestep), device="cpu", self_collision=True, sleep_speed=0.0)
-    hand = ph.SoftHand(model, data, cfg, settle_contact=False)
+    model, data, hand = _hand("open", True, config=dict(sleep_speed=0.0))
     ns = hand.asset.n_skin
     sb = hand.solver.model.skin_body.numpy()[:ns]
     mine = np.where(sb == list(hand.asset.body_names).index("firstmc_r"))[0]
