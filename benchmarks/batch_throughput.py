@@ -227,7 +227,7 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=5, help="timed 5 ms frames per world count")
     p.add_argument("--objects", action="store_true",
                    help="each world holds a sphere (radius 2 cm) pressing the back of its hand 2 mm")
-    p.add_argument("--config", default="{}", help="Config fields as JSON, e.g. '{\"jacobi_gather\": true}'")
+    p.add_argument("--config", default="{}", help="Config, Tuning or Execution fields as JSON (flat), e.g. '{\"self_collision\": true, \"self_margin\": 1.5e-3}'")
     p.add_argument("--tag", default="", help="suffix of the JSON's name (a variant's results beside the default's)")
     p.add_argument("--profile", action="store_true",
                    help="CUDA: also the per-kernel GPU time of each W's frame (graphs off, wp.timing_begin), top 24")
@@ -253,7 +253,7 @@ def main() -> None:
     for w in [int(s) for s in a.worlds.split(",")]:
         objects = [dict(gtype=GeomType.SPHERE, size=(0.02, 0.0, 0.0), name="ball")] if a.objects else ()
         t_setup = time.perf_counter()
-        hands = BatchedHands(asset, w, Config(device=a.device, **{"sleep_speed": 0.0, **extra}), *mount, objects=objects)
+        hands = BatchedHands(asset, w, Config.from_dict({"device": a.device, "sleep_speed": 0.0, **extra}), *mount, objects=objects)
         setup_s = time.perf_counter() - t_setup
         ball = ()
         if a.objects:  # 2 mm into the back of the hand (its highest skin point, open pose)
