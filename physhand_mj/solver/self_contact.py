@@ -107,7 +107,7 @@ def _after(d0: float, t0: int, d1: float, t1: int) -> bool:
 def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
                bvh: wp.uint64, roots: wp.array(dtype=int), ns: int, nf: int, x: wp.array(dtype=wp.vec3),
                rest: wp.array(dtype=wp.vec3),
-               faces: wp.array2d(dtype=int), rest_ball: wp.array(dtype=wp.vec4), margin: float, rest_gap: float,
+               faces: wp.array2d(dtype=int), rest_centre: wp.array(dtype=wp.vec3), margin: float, rest_gap: float,
                vn_now: wp.array(dtype=wp.vec3), fold_gap: float, seg: int,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
@@ -119,7 +119,7 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
     involved vertices]; ``seg``: the listed and involved vertices also per world (``wvlist``,
     ``winvolved``: world w's from w ns on; the fused substep's blocks read them).
     World w's skin is vertices [w ns, (w + 1) ns) and triangles [w nf, (w + 1) nf); ``rest`` and
-    ``rest_ball`` hold one world's (the rest shape is every world's)."""
+    ``rest_centre`` hold one world's (the rest shape is every world's)."""
     i = wp.tid()
     if i >= nq[0]:
         return
@@ -141,10 +141,10 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
         c = faces[t, 2]
         if a == v or b == v or c == v:
             continue
-        # the rest filter's cheap half first: a triangle whose rest bounding ball lies within fold_gap
-        # (rest_gap unless folded) of the vertex at rest (the surface around it: most of what the box holds)
-        ball = rest_ball[t - to]
-        rfar = wp.length(pr - wp.vec3(ball[0], ball[1], ball[2])) + ball[3]  # an upper bound on the rest distance
+        # the rest filter's cheap half first: a triangle whose rest centroid lies within fold_gap (rest_gap
+        # unless folded) of the vertex at rest (the surface around it: most of what the box holds; the
+        # centroid is a point of the triangle, so its distance bounds the rest distance from above)
+        rfar = wp.length(pr - rest_centre[t - to])
         if rfar < fold_gap:
             continue
         # the fold rule: the skin folded onto itself (a crease closed by flexion), the vertex's normal
@@ -464,9 +464,8 @@ class SelfContact:
         # which skin vertices the frame queries (solver/self_slack.py: their slack, the list of them)
         self.query = QuerySlack(model, W, self.ns1, self.nb1, faces1, d)
         self.fcount = wp.zeros(1, dtype=int, device=d)
-        centre = rest[faces1].mean(axis=1)  # per triangle its rest centroid and the farthest corner from it
-        radius = np.linalg.norm(rest[faces1] - centre[:, None], axis=2).max(axis=1)
-        self.rest_ball = wp.array(np.hstack([centre, radius[:, None]]).astype(np.float32), dtype=wp.vec4, device=d)
+        # per triangle its rest centroid (the rest filter's bound)
+        self.rest_centre = wp.array(rest[faces1].mean(axis=1).astype(np.float32), dtype=wp.vec3, device=d)
         self.cand = wp.zeros((ns, SLOTS), dtype=int, device=d)
         self.cand_d = wp.zeros((ns, SLOTS), dtype=float, device=d)
         self.cand_n = wp.zeros(ns, dtype=int, device=d)
@@ -533,7 +532,7 @@ class SelfContact:
         rec.ops.append(when_queried(bvh.refit))
         rec.launch(broadphase, self.n_skin,
                    [qs.qcount, qs.qlist, reach, qs.slack, bvh.id, self.roots, ns1, self.nf1, state.x, self.rest, self.faces,
-                    self.rest_ball, float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP),
+                    self.rest_centre, float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP),
                     int(self.in_kernel)],
                    [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts, self.wcounts,
                     self.wvlist, self.winvolved],
