@@ -260,3 +260,23 @@ def test_friction_passes_equal_the_launches():
     _same_state(fz, ref)
     plain, *_ = _run("power", frames)
     assert np.abs(plain.state.x.numpy() - fz.state.x.numpy()).max() > 1e-6  # (friction changed the result)
+
+
+def test_unused_features_compiled_out(monkeypatch):
+    """The fused kernel and the passes' resolve launch leave Tuning.self_tet_keep's guard and
+    Tuning.self_friction out where they are 0 (self_contact.pair_correction_fn: a kernel at a register
+    cap spills what it carries): the same bits as the variants with both compiled in, in the fused path
+    and in the launches."""
+    from physhand_mj.solver import fused_self, self_contact
+
+    hand, res, pairs = _run("power", 4)
+    assert hand.solver._fused.self_contact.features() == (False, False) and res["self_corrections"] > 0
+    launches, _, l_pairs = _run("power", 4, fused_substep=False)
+    original = self_contact.resolve_kernel
+    monkeypatch.setattr(fused_self.FusedSelf, "features", lambda self: (True, True))
+    monkeypatch.setattr(self_contact, "resolve_kernel", lambda keep, friction: original(True, True))
+    full, _, full_pairs = _run("power", 4)
+    full_l, _, full_l_pairs = _run("power", 4, fused_substep=False)
+    assert pairs == full_pairs == l_pairs == full_l_pairs
+    for other in (full, launches, full_l):
+        _same_state(hand, other)

@@ -214,16 +214,19 @@ def family_pass(family: str, gather: bool, fixed: bool):
 
 def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, strided: bool = False,
                    fixed: bool = False, row_mass: bool = False, pin: bool = False, vec: bool = False,
-                   self_contact: bool = False):
+                   self_contact: bool = False, self_features: tuple = (True, True)):
     """The fused kernel for worlds of ``n`` vertices whose first ``n_soft`` are the movable ones,
     launched with ``block_dim`` threads a block (shared-memory tiles need their shapes at compile
     time, and the launch bound caps the registers so that a block fits an SM: one kernel per body
     size and block); ``strided``: the families come permuted (``ORDER``) with each row's asset index
     for its multiplier; ``fixed``: ACCUM "fixed"; ``row_mass``: MASS "row" (both SUM "scatter" only);
-    ``self_contact``: the skin self-contact passes as a fourth group (solver/fused_self.py)."""
+    ``self_contact``: the skin self-contact passes as a fourth group (solver/fused_self.py), with
+    ``self_features`` (Tuning.self_tet_keep's guard, Tuning.self_friction) compiled in
+    (FusedSelf.features)."""
     key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather,
            bool(fixed) and not gather, bool(row_mass) and not gather, bool(pin) and not gather,
-           bool(vec) and bool(row_mass) and not gather, bool(self_contact))
+           bool(vec) and bool(row_mass) and not gather, bool(self_contact),
+           tuple(bool(f) for f in self_features) if self_contact else (False, False))
     if key in _KERNELS:
         return _KERNELS[key]
     N = key[0]
@@ -240,7 +243,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
     ACC = wp.vec3i if FIXED else wp.vec3
     edges, tets, dihedrals = (family_pass(f, GATHER, FIXED) for f in ("edges", "tets", "dihedrals"))
     SELF = key[9]
-    self_group = self_passes(FIXED)
+    self_group = self_passes(FIXED, *key[10])
 
     @wp.kernel(module="unique", enable_backward=False, launch_bounds=key[2])
     def solve_substep_shared(
@@ -541,7 +544,8 @@ class FusedSubstep:
         if ORDER not in ("asset", "strided"):
             raise ValueError(f"physhand_mj.solver.fused.ORDER must be 'asset' or 'strided', got {ORDER!r}")
         return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided(), self.fixed,
-                              self.row_mass, self.pin, self._vec_ok(), self.self_contact is not None)
+                              self.row_mass, self.pin, self._vec_ok(), self.self_contact is not None,
+                              self.self_contact.features() if self.self_contact is not None else (False, False))
 
     def _vec_ok(self) -> bool:
         """VEC_LOADS where the arrays the kernel reads rows of are contiguous and 16-byte aligned."""

@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.solver.fused_tile import block_sync, fixed_to_float, shared_add, shared_add_fixed, shared_set, shared_set_int
-from physhand_mj.solver.self_contact import nearest_listed, pair_correction
+from physhand_mj.solver.self_contact import nearest_listed, pair_correction_fn
 
 wp.set_module_options({"enable_backward": False})
 
@@ -63,16 +63,19 @@ def _prev_add_float(dprev: wp.array(dtype=wp.vec3), i: int, d: wp.vec3, scale: f
     wp.atomic_add(dprev, i, d)
 
 
-def self_passes(fixed: bool):
+def self_passes(fixed: bool, keep: bool = True, friction: bool = True):
     """The ``wp.func`` that runs a substep's self-contact passes over a world's shared positions
     ``xs`` and accumulator ``ds`` (zero on entry, zero on return): every thread of the block calls
     it, the barriers are inside (none where nothing is listed). ``fixed``: ACCUM "fixed" (``ds`` a
-    vec3i tile, ``dprev`` a vec3i array)."""
-    key = bool(fixed)
+    vec3i tile, ``dprev`` a vec3i array); ``keep`` / ``friction``: Tuning.self_tet_keep's guard and
+    Tuning.self_friction compiled in (else the ``keep`` / ``mu`` arguments are not read:
+    self_contact.pair_correction_fn, :meth:`FusedSelf.features`)."""
+    key = (bool(fixed), bool(keep), bool(friction))
     if key in _PASSES:
         return _PASSES[key]
-    FIXED = key
+    FIXED, KEEP, FRICTION = key
     PREV_ADD = _prev_add_fixed if FIXED else _prev_add_float
+    pair_correction = pair_correction_fn(KEEP, FRICTION)
 
     def run_self_passes(xs: Any, ds: Any, n_soft: int, w: int, lane: int, bd: int, inv_mass: wp.array(dtype=float),
                         faces: wp.array2d(dtype=int), wcounts: wp.array2d(dtype=int), ns: int,
@@ -101,7 +104,7 @@ def self_passes(fixed: bool):
                             best = nearest[v]
                         if best >= 0:
                             # (the tile's indices: the world's own less vo; FusedSelf.tets: one world's, to 0)
-                            moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = pair_correction(
+                            moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = wp.static(pair_correction)(
                                 v, best, vo, vo, 0, xs, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets,
                                 vol0, x_prev)
                             if moves != 0:
@@ -113,11 +116,12 @@ def self_passes(fixed: bool):
                                     wp.static(PREV_ADD)(dprev, a, fr * da, fx[0], fx[2])
                                     wp.static(PREV_ADD)(dprev, b, fr * db, fx[0], fx[2])
                                     wp.static(PREV_ADD)(dprev, c, fr * dc, fx[0], fx[2])
-                                if mu > 0.0:  # (Tuning.self_friction: its moves change the velocity, x_prev keeps them out)
-                                    dv = dv + fv
-                                    da = da + fa
-                                    db = db + fb
-                                    dc = dc + fc
+                                if wp.static(FRICTION):  # (Tuning.self_friction: its moves change the velocity,
+                                    if mu > 0.0:  # x_prev keeps them out)
+                                        dv = dv + fv
+                                        da = da + fa
+                                        db = db + fb
+                                        dc = dc + fc
                                 if wp.static(FIXED):
                                     shared_add_fixed(ds, v - vo, dv, v - vo < n_soft, fx[0], fx[2])
                                     shared_add_fixed(ds, la, da, inv_mass[la] > 0.0, fx[0], fx[2])
@@ -158,7 +162,8 @@ def self_passes(fixed: bool):
                             hits[i] = 0
                 block_sync()
 
-    run_self_passes.__name__ = run_self_passes.__qualname__ = f"run_self_passes{'_fixed' if FIXED else ''}"
+    run_self_passes.__name__ = run_self_passes.__qualname__ = (
+        f"run_self_passes{'_fixed' if FIXED else ''}{'_keep' if KEEP else ''}{'_friction' if FRICTION else ''}")
     _PASSES[key] = wp.func(run_self_passes, inline=True)
     return _PASSES[key]
 
@@ -182,6 +187,13 @@ class FusedSelf:
         t1 = sc.tets[: sc.nt1].numpy().astype(np.int64)
         t1 = np.where(t1 >= sc.n_skin, t1 - sc.n_skin + sc.ns1, t1)
         self.tets = wp.array(t1.astype(np.int32), dtype=int, device=sc.device)
+
+    def features(self) -> tuple[bool, bool]:
+        """(Tuning.self_tet_keep's guard, Tuning.self_friction) in use: what the kernel compiles in
+        (:func:`self_passes`; the fused kernel runs at a register cap, so code it carries unused
+        spills for the whole kernel)."""
+        cfg = self.selfc.config
+        return float(cfg.self_tet_keep) > 0.0, float(cfg.self_friction) > 0.0
 
     def inputs(self) -> list:
         """The kernel's self-contact arguments (solver/fused.py's ``self_*``)."""

@@ -259,147 +259,188 @@ def nearest_listed(v: int, xo: int, x: Any, faces: wp.array2d(dtype=int), cand: 
     return best
 
 
-@wp.func
-def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_mass: wp.array(dtype=float),
-                    faces: wp.array2d(dtype=int), thickness: float, depth: float, keep: float, mu: float,
-                    vt_off: wp.array(dtype=int), vt: wp.array(dtype=int), tets: wp.array2d(dtype=int),
-                    vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3)):
-    """Skin vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
-    ``depth``), the hard vertex-triangle correction, and with ``mu`` > 0 its Coulomb friction: the
-    pair's slip along the triangle over the substep (from ``x_prev``) undone up to ``mu`` x the
-    normal correction (the tet guard, ``keep``, checks the normal correction only). Returns (moves,
-    a, b, c, the normal moves of v, a, b, c, the share ``fr`` of them that x_prev takes too, the
-    friction moves of v, a, b, c, which x_prev does not take: they change the velocity); the caller
-    adds them up (the launches:
-    :func:`_correct`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
-    returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
-    (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`~physhand_mj.contact.tet_room.tet_room`'s."""
-    z = wp.vec3(0.0)
-    a = faces[best, 0]
-    b = faces[best, 1]
-    c = faces[best, 2]
-    p = x[v - xo]
-    xa = x[a - xo]
-    xb = x[b - xo]
-    xc = x[c - xo]
-    bu = closest_on_triangle(xa, xb, xc, p)
-    nrm = wp.cross(xb - xa, xc - xa)
-    ln = wp.length(nrm)
-    if ln < 1.0e-12:
-        return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
-    nrm = nrm / ln
-    wa = bu[0]
-    wb = bu[1]
-    wc = 1.0 - bu[0] - bu[1]
-    q = wa * xa + wb * xb + wc * xc
-    s = wp.dot(p - q, nrm)
-    if s >= thickness or s < -depth:
-        return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
-    mv = inv_mass[v - xo]
-    ma = inv_mass[a - xo]
-    mb = inv_mass[b - xo]
-    mc = inv_mass[c - xo]
-    w = mv + wa * wa * ma + wb * wb * mb + wc * wc * mc
-    if w <= 0.0:
-        return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
-    dl = (thickness - s) / w
-    if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
-        tk = tet_room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
-        tk = wp.min(tk, tet_room(a - xo, a - vo, -wa * ma * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
-        tk = wp.min(tk, tet_room(b - xo, b - vo, -wb * mb * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
-        tk = wp.min(tk, tet_room(c - xo, c - vo, -wc * mc * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
-        dl = dl * tk
-    # The share of the correction that resolves the depth the pair already had at the substep's start
-    # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
-    # substep with no relative normal velocity instead of flying apart at depth / h. Without it the
-    # held fist's skin jumps up to ~5 mm a frame (docs/self_collision_findings.md "A held fist").
-    qp = wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]
-    s0 = wp.dot(x_prev[v] - qp, nrm)
-    fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
-    fv = wp.vec3(0.0)
-    fa = wp.vec3(0.0)
-    fb = wp.vec3(0.0)
-    fc = wp.vec3(0.0)
-    if mu > 0.0:  # Coulomb friction (position-based, as Macklin et al. 2014): the pair's relative slip
-        # along the triangle over the substep, undone up to mu x the normal correction's length; it
-        # changes the velocity (x_prev not moved), as friction must
-        slip = (p - x_prev[v]) - (q - qp)
-        slip = slip - nrm * wp.dot(slip, nrm)
-        sl = wp.length(slip)
-        lim = mu * dl * w  # (dl w: the normal correction's length, thickness - s, as cut by the tet guard)
-        if sl > 0.0:
-            f = -slip * (wp.min(sl, lim) / (sl * w))
-            fv = mv * f
-            fa = -wa * ma * f
-            fb = -wb * mb * f
-            fc = -wc * mc * f
-    return 1, a, b, c, mv * dl * nrm, -wa * ma * dl * nrm, -wb * mb * dl * nrm, -wc * mc * dl * nrm, fr, fv, fa, fb, fc
+_PAIRS: dict = {}
 
 
-@wp.func
-def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-             thickness: float, depth: float, keep: float, mu: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-             tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
-             delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
-             dprev: wp.array(dtype=wp.vec3), world: int, vo: int, to: int, wcounts: wp.array2d(dtype=int)):
-    """:func:`pair_correction` of vertex v (of world ``world``: its first skin vertex ``vo``, first
-    tet ``to``) added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``) by atomics: the
-    launches' sum; the correction counted in ``active`` and the world's ``wcounts`` row."""
-    moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = pair_correction(
-        v, best, 0, vo, to, x, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets, vol0, x_prev)
-    if moves == 0:
-        return
-    if fr > 0.0:
-        wp.atomic_add(dprev, v, fr * dv)
-        wp.atomic_add(dprev, a, fr * da)
-        wp.atomic_add(dprev, b, fr * db)
-        wp.atomic_add(dprev, c, fr * dc)
-    if mu > 0.0:  # (mu 0: the moves as before friction, bit for bit)
-        dv = dv + fv
-        da = da + fa
-        db = db + fb
-        dc = dc + fc
-    wp.atomic_add(delta, v, dv)
-    wp.atomic_add(hits, v, 1)
-    if inv_mass[a] > 0.0:
-        wp.atomic_add(delta, a, da)
-        wp.atomic_add(hits, a, 1)
-    if inv_mass[b] > 0.0:
-        wp.atomic_add(delta, b, db)
-        wp.atomic_add(hits, b, 1)
-    if inv_mass[c] > 0.0:
-        wp.atomic_add(delta, c, dc)
-        wp.atomic_add(hits, c, 1)
-    wp.atomic_add(active, 0, 1)
-    wp.atomic_add(wcounts, world, 3, 1)
+def pair_correction_fn(keep: bool = True, friction: bool = True):
+    """:func:`pair_correction` with Tuning.self_tet_keep's guard (``keep``) and Tuning.self_friction
+    (``friction``) compiled in or left out: left out, the ``keep`` / ``mu`` arguments are not read
+    (as if 0; the same bits where they are 0). The fused substep kernel takes the variant its Tuning
+    needs (solver/fused_self.py): a kernel under a register cap spills what it compiles in, used or not
+    (H200, W = 4,096: the fused kernel 89.0 -> 67.9 ms a frame with both left out)."""
+    key = (bool(keep), bool(friction))
+    if key in _PAIRS:
+        return _PAIRS[key]
+    KEEP, FRICTION = key
+
+    def pair_correction(v: int, best: int, xo: int, vo: int, to: int, x: Any, inv_mass: wp.array(dtype=float),
+                        faces: wp.array2d(dtype=int), thickness: float, depth: float, keep: float, mu: float,
+                        vt_off: wp.array(dtype=int), vt: wp.array(dtype=int), tets: wp.array2d(dtype=int),
+                        vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3)):
+        """Skin vertex v against triangle ``best``: closer than ``thickness`` in front (or behind it, up to
+        ``depth``), the hard vertex-triangle correction, and with ``mu`` > 0 its Coulomb friction: the
+        pair's slip along the triangle over the substep (from ``x_prev``) undone up to ``mu`` x the
+        normal correction (the tet guard, ``keep``, checks the normal correction only). Returns (moves,
+        a, b, c, the normal moves of v, a, b, c, the share ``fr`` of them that x_prev takes too, the
+        friction moves of v, a, b, c, which x_prev does not take: they change the velocity); the caller
+        adds them up (the launches:
+        :func:`resolve_kernel`; the fused substep: solver/fused_self.py). ``v``, ``faces``, ``x_prev`` and the
+        returned corners: every world's indices; ``x`` and ``inv_mass`` hold vertex g at ``g - xo``
+        (:func:`nearest_listed`); ``vo``: the world's first skin vertex; ``to``: :func:`~physhand_mj.contact.tet_room.tet_room`'s."""
+        z = wp.vec3(0.0)
+        a = faces[best, 0]
+        b = faces[best, 1]
+        c = faces[best, 2]
+        p = x[v - xo]
+        xa = x[a - xo]
+        xb = x[b - xo]
+        xc = x[c - xo]
+        bu = closest_on_triangle(xa, xb, xc, p)
+        nrm = wp.cross(xb - xa, xc - xa)
+        ln = wp.length(nrm)
+        if ln < 1.0e-12:
+            return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
+        nrm = nrm / ln
+        wa = bu[0]
+        wb = bu[1]
+        wc = 1.0 - bu[0] - bu[1]
+        q = wa * xa + wb * xb + wc * xc
+        s = wp.dot(p - q, nrm)
+        if s >= thickness or s < -depth:
+            return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
+        mv = inv_mass[v - xo]
+        ma = inv_mass[a - xo]
+        mb = inv_mass[b - xo]
+        mc = inv_mass[c - xo]
+        w = mv + wa * wa * ma + wb * wb * mb + wc * wc * mc
+        if w <= 0.0:
+            return 0, a, b, c, z, z, z, z, 0.0, z, z, z, z
+        dl = (thickness - s) / w
+        if wp.static(KEEP):  # (compiled in: Tuning.self_tet_keep's guard)
+            if keep > 0.0:  # Tuning.self_tet_keep: no move that flattens a tet of the vertex or a corner past it
+                tk = tet_room(v - xo, v - vo, mv * dl * nrm, x, vt_off, vt, tets, vol0, keep, to)
+                tk = wp.min(tk, tet_room(a - xo, a - vo, -wa * ma * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+                tk = wp.min(tk, tet_room(b - xo, b - vo, -wb * mb * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+                tk = wp.min(tk, tet_room(c - xo, c - vo, -wc * mc * dl * nrm, x, vt_off, vt, tets, vol0, keep, to))
+                dl = dl * tk
+        # The share of the correction that resolves the depth the pair already had at the substep's start
+        # (s0 below thickness, from x_prev) moves x_prev too, so it adds no velocity: the pair ends the
+        # substep with no relative normal velocity instead of flying apart at depth / h. Without it the
+        # held fist's skin jumps up to ~5 mm a frame (docs/self_collision_findings.md "A held fist").
+        qp = wa * x_prev[a] + wb * x_prev[b] + wc * x_prev[c]
+        s0 = wp.dot(x_prev[v] - qp, nrm)
+        fr = wp.clamp((thickness - s0) / (thickness - s), 0.0, 1.0)
+        fv = wp.vec3(0.0)
+        fa = wp.vec3(0.0)
+        fb = wp.vec3(0.0)
+        fc = wp.vec3(0.0)
+        if wp.static(FRICTION):  # (compiled in: Tuning.self_friction)
+            if mu > 0.0:  # Coulomb friction (position-based, as Macklin et al. 2014): the pair's relative slip
+                # along the triangle over the substep, undone up to mu x the normal correction's length; it
+                # changes the velocity (x_prev not moved), as friction must
+                slip = (p - x_prev[v]) - (q - qp)
+                slip = slip - nrm * wp.dot(slip, nrm)
+                sl = wp.length(slip)
+                lim = mu * dl * w  # (dl w: the normal correction's length, thickness - s, as cut by the tet guard)
+                if sl > 0.0:
+                    f = -slip * (wp.min(sl, lim) / (sl * w))
+                    fv = mv * f
+                    fa = -wa * ma * f
+                    fb = -wb * mb * f
+                    fc = -wc * mc * f
+        return 1, a, b, c, mv * dl * nrm, -wa * ma * dl * nrm, -wb * mb * dl * nrm, -wc * mc * dl * nrm, fr, fv, fa, fb, fc
+
+    pair_correction.__name__ = pair_correction.__qualname__ = f"pair_correction{'_keep' if KEEP else ''}{'_friction' if FRICTION else ''}"
+    _PAIRS[key] = wp.func(pair_correction)
+    return _PAIRS[key]
 
 
-@wp.kernel
-def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
-            vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
-            thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, mu: float,
-            vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
-            tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3), ns: int,
-            nt: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
-            dprev: wp.array(dtype=wp.vec3), wcounts: wp.array2d(dtype=int)):
-    """Per listed vertex (of every world: ``ns`` skin vertices, ``nt`` tets each): its nearest listed
-    triangle now (``pick``: found and kept in ``nearest``, else the one kept by the substep's first
-    pass), the correction (:func:`_correct`)."""
-    i = wp.tid()
-    if i >= n[0]:
-        return
-    v = vlist[i]
-    w = v // ns
-    best = int(-1)
-    if pick != 0:
-        best = nearest_listed(v, 0, x, faces, cand, cand_n)
-        nearest[v] = best
-    else:
-        best = nearest[v]
-    if best < 0:
-        return
-    _correct(v, best, x, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets, vol0, x_prev,
-             delta, hits, active, dprev, w, w * ns, w * nt, wcounts)
+# (the launches' variant, with both: they branch on the values)
+pair_correction = pair_correction_fn(True, True)
+
+
+_RESOLVE: dict = {}
+
+
+def resolve_kernel(keep: bool = True, friction: bool = True):
+    """The passes' ``resolve`` launch with Tuning.self_tet_keep's guard and Tuning.self_friction
+    compiled in or left out (:func:`pair_correction_fn`; SelfContact.record_stage takes what its Tuning
+    uses: fewer registers a thread)."""
+    key = (bool(keep), bool(friction))
+    if key in _RESOLVE:
+        return _RESOLVE[key]
+    KEEP, FRICTION = key
+    pair_correction = pair_correction_fn(KEEP, FRICTION)
+
+    def _correct(v: int, best: int, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+                 thickness: float, depth: float, keep: float, mu: float, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+                 tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3),
+                 delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
+                 dprev: wp.array(dtype=wp.vec3), world: int, vo: int, to: int, wcounts: wp.array2d(dtype=int)):
+        """:func:`pair_correction` of vertex v (of world ``world``: its first skin vertex ``vo``, first
+        tet ``to``) added into ``delta`` / ``hits`` (and its x_prev share into ``dprev``) by atomics: the
+        launches' sum; the correction counted in ``active`` and the world's ``wcounts`` row."""
+        moves, a, b, c, dv, da, db, dc, fr, fv, fa, fb, fc = wp.static(pair_correction)(
+            v, best, 0, vo, to, x, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets, vol0, x_prev)
+        if moves == 0:
+            return
+        if fr > 0.0:
+            wp.atomic_add(dprev, v, fr * dv)
+            wp.atomic_add(dprev, a, fr * da)
+            wp.atomic_add(dprev, b, fr * db)
+            wp.atomic_add(dprev, c, fr * dc)
+        if wp.static(FRICTION):
+            if mu > 0.0:  # (mu 0: the moves as before friction, bit for bit)
+                dv = dv + fv
+                da = da + fa
+                db = db + fb
+                dc = dc + fc
+        wp.atomic_add(delta, v, dv)
+        wp.atomic_add(hits, v, 1)
+        if inv_mass[a] > 0.0:
+            wp.atomic_add(delta, a, da)
+            wp.atomic_add(hits, a, 1)
+        if inv_mass[b] > 0.0:
+            wp.atomic_add(delta, b, db)
+            wp.atomic_add(hits, b, 1)
+        if inv_mass[c] > 0.0:
+            wp.atomic_add(delta, c, dc)
+            wp.atomic_add(hits, c, 1)
+        wp.atomic_add(active, 0, 1)
+        wp.atomic_add(wcounts, world, 3, 1)
+
+    _correct.__name__ = _correct.__qualname__ = f"correct{'_keep' if KEEP else ''}{'_friction' if FRICTION else ''}"
+    correct = wp.func(_correct)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def resolve(n: wp.array(dtype=int), x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float), faces: wp.array2d(dtype=int),
+                vlist: wp.array(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int),
+                thickness: float, depth: float, pick: int, nearest: wp.array(dtype=int), keep: float, mu: float,
+                vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+                tets: wp.array2d(dtype=int), vol0: wp.array(dtype=float), x_prev: wp.array(dtype=wp.vec3), ns: int,
+                nt: int, delta: wp.array(dtype=wp.vec3), hits: wp.array(dtype=int), active: wp.array(dtype=int),
+                dprev: wp.array(dtype=wp.vec3), wcounts: wp.array2d(dtype=int)):
+        """Per listed vertex (of every world: ``ns`` skin vertices, ``nt`` tets each): its nearest listed
+        triangle now (``pick``: found and kept in ``nearest``, else the one kept by the substep's first
+        pass), the correction (``_correct``)."""
+        i = wp.tid()
+        if i >= n[0]:
+            return
+        v = vlist[i]
+        w = v // ns
+        best = int(-1)
+        if pick != 0:
+            best = nearest_listed(v, 0, x, faces, cand, cand_n)
+            nearest[v] = best
+        else:
+            best = nearest[v]
+        if best < 0:
+            return
+        wp.static(correct)(v, best, x, inv_mass, faces, thickness, depth, keep, mu, vt_off, vt, tets, vol0, x_prev,
+                           delta, hits, active, dprev, w, w * ns, w * nt, wcounts)
+
+    _RESOLVE[key] = resolve
+    return resolve
 
 
 @wp.kernel
@@ -546,7 +587,7 @@ class SelfContact:
         """A substep's correction: ``self_passes`` x (resolve, apply) over the frame's lists (every world's)."""
         cfg = self.config
         for k in range(cfg.self_passes):
-            rec.launch(resolve, self.n_skin,
+            rec.launch(resolve_kernel(cfg.self_tet_keep > 0.0, cfg.self_friction > 0.0), self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
                         float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
                         float(cfg.self_tet_keep), float(cfg.self_friction), self.vt_off, self.vt, self.tets, self.vol0,
