@@ -267,19 +267,17 @@ def test_unused_features_compiled_out(monkeypatch):
     Tuning.self_friction out where they are 0 (self_contact.pair_correction_fn: a kernel at a register
     cap spills what it carries): the same bits as the variants with both compiled in, in the fused path
     and in the launches."""
-    from physhand_mj.solver import fused_self, self_contact
+    from physhand_mj.solver import self_contact
 
     hand, res, pairs = _run("power", 4)
-    assert hand.solver._fused.self_contact.features() == (False, False) and res["self_corrections"] > 0
+    assert hand.solver.selfc.features() == (False, False) and res["self_corrections"] > 0
     launches, _, l_pairs = _run("power", 4, fused_substep=False)
     lean = hand.solver._fused.kernel
-    original = self_contact.resolve_kernel
-    monkeypatch.setattr(fused_self.FusedSelf, "features", lambda self: (True, True))
-    monkeypatch.setattr(self_contact, "resolve_kernel", lambda keep, friction: original(True, True))
+    monkeypatch.setattr(self_contact.SelfContact, "features", lambda self: (True, True))
     full, _, full_pairs = _run("power", 4)
     full_l, _, full_l_pairs = _run("power", 4, fused_substep=False)
     assert full.solver._fused.kernel is not lean  # (another kernel: both compiled in)
-    assert original(True, True) is not original(False, False)
+    assert self_contact.resolve_kernel(True, True) is not self_contact.resolve_kernel(False, False)
     assert pairs == full_pairs == l_pairs == full_l_pairs
     for other in (full, launches, full_l):
         _same_state(hand, other)

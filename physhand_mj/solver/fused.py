@@ -222,7 +222,7 @@ def substep_kernel(n: int, n_soft: int, block_dim: int, gather: bool = False, st
     for its multiplier; ``fixed``: ACCUM "fixed"; ``row_mass``: MASS "row" (both SUM "scatter" only);
     ``self_contact``: the skin self-contact passes as a fourth group (solver/fused_self.py), with
     ``self_features`` (Tuning.self_tet_keep's guard, Tuning.self_friction) compiled in
-    (FusedSelf.features)."""
+    (SelfContact.features)."""
     key = (int(n), int(n_soft), int(block_dim), bool(gather), bool(strided) and not gather,
            bool(fixed) and not gather, bool(row_mass) and not gather, bool(pin) and not gather,
            bool(vec) and bool(row_mass) and not gather, bool(self_contact),
@@ -545,7 +545,7 @@ class FusedSubstep:
             raise ValueError(f"physhand_mj.solver.fused.ORDER must be 'asset' or 'strided', got {ORDER!r}")
         return substep_kernel(self.n, self.n_soft, BLOCK_DIM, SUM == "gather", self._use_strided(), self.fixed,
                               self.row_mass, self.pin, self._vec_ok(), self.self_contact is not None,
-                              self.self_contact.features() if self.self_contact is not None else (False, False))
+                              self.self_contact.selfc.features() if self.self_contact is not None else (False, False))
 
     def _vec_ok(self) -> bool:
         """VEC_LOADS where the arrays the kernel reads rows of are contiguous and 16-byte aligned."""

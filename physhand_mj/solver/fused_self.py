@@ -69,7 +69,7 @@ def self_passes(fixed: bool, keep: bool = True, friction: bool = True):
     it, the barriers are inside (none where nothing is listed). ``fixed``: ACCUM "fixed" (``ds`` a
     vec3i tile, ``dprev`` a vec3i array); ``keep`` / ``friction``: Tuning.self_tet_keep's guard and
     Tuning.self_friction compiled in (else the ``keep`` / ``mu`` arguments are not read:
-    self_contact.pair_correction_fn, :meth:`FusedSelf.features`)."""
+    self_contact.pair_correction_fn, SelfContact.features)."""
     key = (bool(fixed), bool(keep), bool(friction))
     if key in _PASSES:
         return _PASSES[key]
@@ -187,13 +187,6 @@ class FusedSelf:
         t1 = sc.tets[: sc.nt1].numpy().astype(np.int64)
         t1 = np.where(t1 >= sc.n_skin, t1 - sc.n_skin + sc.ns1, t1)
         self.tets = wp.array(t1.astype(np.int32), dtype=int, device=sc.device)
-
-    def features(self) -> tuple[bool, bool]:
-        """(Tuning.self_tet_keep's guard, Tuning.self_friction) in use: what the kernel compiles in
-        (:func:`self_passes`; the fused kernel runs at a register cap, so code it carries unused
-        spills for the whole kernel)."""
-        cfg = self.selfc.config
-        return float(cfg.self_tet_keep) > 0.0, float(cfg.self_friction) > 0.0
 
     def inputs(self) -> list:
         """The kernel's self-contact arguments (solver/fused.py's ``self_*``)."""

@@ -583,11 +583,18 @@ class SelfContact:
         # the list lengths the substeps' list launches read (CPU: on the host for free)
         rec.ops.append(lambda: (wp.copy(self.vcount, self.counts, 0, 0, 1), wp.copy(self.icount, self.counts, 0, 1, 1)))
 
+    def features(self) -> tuple[bool, bool]:
+        """(Tuning.self_tet_keep's guard, Tuning.self_friction) in use: what the passes' kernels
+        compile in (:func:`pair_correction_fn`: the fused kernel runs at a register cap, so code it
+        carries unused spills for the whole kernel)."""
+        cfg = self.config
+        return float(cfg.self_tet_keep) > 0.0, float(cfg.self_friction) > 0.0
+
     def record_stage(self, rec, state, inv_mass) -> None:
         """A substep's correction: ``self_passes`` x (resolve, apply) over the frame's lists (every world's)."""
         cfg = self.config
         for k in range(cfg.self_passes):
-            rec.launch(resolve_kernel(cfg.self_tet_keep > 0.0, cfg.self_friction > 0.0), self.n_skin,
+            rec.launch(resolve_kernel(*self.features()), self.n_skin,
                        [self.vcount, state.x, inv_mass, self.faces, self.vlist, self.cand, self.cand_n,
                         float(cfg.self_thickness), float(cfg.self_depth), int(k == 0), self.nearest,
                         float(cfg.self_tet_keep), float(cfg.self_friction), self.vt_off, self.vt, self.tets, self.vol0,
