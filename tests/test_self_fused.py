@@ -64,7 +64,7 @@ def test_fused_self_passes_equal_the_launches(key, monkeypatch):
     passes = 2 * cfg.self_passes * cfg.substeps
     # (hand_only's SoftHand has a contact stage, gated off: a launch per substep either way)
     assert out_res["ops_run"] - res["ops_run"] == passes
-    assert res["self_ops_run"] == 8 and out_res["self_ops_run"] == 8 + passes  # (a queried frame: slack and query)
+    assert res["self_ops_run"] == 9 and out_res["self_ops_run"] == 9 + passes  # (a queried frame: slack and query)
     assert res["self_corrections"] == ref_res["self_corrections"] == out_res["self_corrections"]
 
 
@@ -105,7 +105,7 @@ def test_fused_self_frame_is_one_launch(monkeypatch):
             np.testing.assert_array_equal(getattr(st, name).numpy(), getattr(other, name).numpy(), err_msg=name)
     off, _, off_res, _ = _solver_run(1, self_collision=False)
     cfg = fz.config
-    assert res["ops_run"] == off_res["ops_run"] + 11  # (the slack's 4 and the query's 7: self_contact.record_frame)
+    assert res["ops_run"] == off_res["ops_run"] + 12  # (the slack's 5 and the query's 7: self_contact.record_frame)
     # with the launches: a fused launch per substep (frame launch off), the passes, the last advance and the count
     assert out_res["ops_run"] - res["ops_run"] == 2 * cfg.self_passes * cfg.substeps + cfg.substeps - 1 + 2
     assert ref_res["ops_run"] > out_res["ops_run"]
@@ -212,7 +212,7 @@ def test_batched_fused_self_equals_the_launches(keys, monkeypatch):
     for other in (ref, out):
         _same_batch_state(fz, other)
     off, off_res, *_ = _batch_run(keys, self_collision=False)
-    assert res["ops_run"] == off_res["ops_run"] + 11
+    assert res["ops_run"] == off_res["ops_run"] + 12
     cfg = fz.config
     assert out_res["ops_run"] - res["ops_run"] == 2 * cfg.self_passes * cfg.substeps + cfg.substeps - 1 + 2
     for w, key in enumerate(keys):  # each world as one hand alone (the fused self path too: the CPU's default)

@@ -215,24 +215,38 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
 
 
 @wp.kernel
-def skin_bounds(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int), normals: int, vn: wp.array(dtype=wp.vec3),
+def skin_bounds(x: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=int),
                 lowers: wp.array(dtype=wp.vec3), uppers: wp.array(dtype=wp.vec3)):
-    """Per skin triangle its bounding box now (the BVH's leaves, refit next) and, with ``normals``,
-    its area-weighted normal added to its corners' (the fold rule's vertex normals)."""
+    """Per skin triangle its bounding box now (the BVH's leaves, refit next)."""
     t = wp.tid()
-    a = faces[t, 0]
-    b = faces[t, 1]
-    c = faces[t, 2]
-    xa = x[a]
-    xb = x[b]
-    xc = x[c]
+    xa = x[faces[t, 0]]
+    xb = x[faces[t, 1]]
+    xc = x[faces[t, 2]]
     lowers[t] = wp.min(wp.min(xa, xb), xc)
     uppers[t] = wp.max(wp.max(xa, xb), xc)
-    if normals != 0:
-        n = wp.cross(xb - xa, xc - xa)
-        wp.atomic_add(vn, a, n)
-        wp.atomic_add(vn, b, n)
-        wp.atomic_add(vn, c, n)
+
+
+@wp.kernel
+def skin_normals(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), x: wp.array(dtype=wp.vec3),
+                 faces: wp.array2d(dtype=int), ns: int, nf: int, vt_off: wp.array(dtype=int), vt: wp.array(dtype=int),
+                 vn: wp.array(dtype=wp.vec3)):
+    """Per queried skin vertex (the first ``nq[0]`` of ``qlist``: the fold rule reads no other's) the
+    sum of its triangles' area-weighted normals now, its triangles in ascending order (one world's
+    ``vt`` from ``vt_off[v]``; world w's shifted by w ``nf``): the same sum, float for float, as each
+    triangle adding its normal to its corners in triangle order, without atomics or the other
+    vertices' work."""
+    i = wp.tid()
+    if i >= nq[0]:
+        return
+    v = qlist[i]
+    w = v // ns
+    vl = v - w * ns
+    s = wp.vec3(0.0)
+    for k in range(vt_off[vl], vt_off[vl + 1]):
+        t = vt[k] + w * nf
+        xa = x[faces[t, 0]]
+        s += wp.cross(x[faces[t, 1]] - xa, x[faces[t, 2]] - xa)
+    vn[v] = s
 
 
 @wp.func
@@ -495,7 +509,7 @@ class SelfContact:
         faces1 = faces[: self.nf1].numpy()  # world 0's: one world's vertex indices (skins lead)
         rest = model.rest_x.numpy()[: self.ns1].astype(np.float64)
         self.rest = wp.array(rest, dtype=wp.vec3, device=d)  # one world's rest skin
-        self.vn_now = wp.zeros(ns, dtype=wp.vec3, device=d)  # the skin's area-weighted normals at the frame's start
+        self.vn_now = wp.zeros(ns, dtype=wp.vec3, device=d)  # the queried skin vertices' area-weighted normals at the frame's start
         # the skin triangles' bounding boxes (the BVH's leaves, refit every frame) and their worlds (its groups)
         self.lowers = wp.zeros(nf, dtype=wp.vec3, device=d)
         self.uppers = wp.zeros(nf, dtype=wp.vec3, device=d)
@@ -507,6 +521,12 @@ class SelfContact:
         self.fcount = wp.zeros(1, dtype=int, device=d)
         # per triangle its rest centroid (the rest filter's bound)
         self.rest_centre = wp.array(rest[faces1].mean(axis=1).astype(np.float32), dtype=wp.vec3, device=d)
+        # one world's skin triangles by corner vertex, ascending (skin_normals)
+        vt = np.stack([faces1.ravel(), np.repeat(np.arange(len(faces1)), 3)], 1)
+        vt = vt[np.lexsort((vt[:, 1], vt[:, 0]))]
+        self.vt_off_skin = wp.array(np.concatenate([[0], np.cumsum(np.bincount(vt[:, 0], minlength=self.ns1))]).astype(np.int32),
+                                    dtype=int, device=d)
+        self.vt_skin = wp.array(vt[:, 1].astype(np.int32), dtype=int, device=d)
         self.cand = wp.zeros((ns, SLOTS), dtype=int, device=d)
         self.cand_d = wp.zeros((ns, SLOTS), dtype=float, device=d)
         self.cand_n = wp.zeros(ns, dtype=int, device=d)
@@ -539,7 +559,7 @@ class SelfContact:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
         frame refits it to its state's skin: a second state's frames refit the same tree)."""
         if self.bvh is None:
-            wp.launch(skin_bounds, self.faces.shape[0], inputs=[state.x, self.faces, 0, self.vn_now],
+            wp.launch(skin_bounds, self.faces.shape[0], inputs=[state.x, self.faces],
                       outputs=[self.lowers, self.uppers], device=self.device)
             self.bvh = wp.Bvh(self.lowers, self.uppers, groups=self.groups)
             wp.launch(group_roots, self.worlds, inputs=[self.bvh.id], outputs=[self.roots], device=self.device)
@@ -563,12 +583,14 @@ class SelfContact:
         def when_queried(op):
             return op if cuda else (lambda: op() if q[0] else None)
 
-        rec.ops.append(when_queried(self.vn_now.zero_))
         nf = int(self.faces.shape[0])
-        if not cuda:  # (CPU: the normals' and boxes' launch sized 0 when nothing is queried)
+        if not cuda:  # (CPU: the boxes' launch sized 0 when nothing is queried)
             fc = self.fcount.numpy()
             rec.ops.append(lambda: fc.__setitem__(0, nf if q[0] else 0))
-        rec.launch(skin_bounds, nf, [state.x, self.faces, 1, self.vn_now], [self.lowers, self.uppers],
+        rec.launch(skin_normals, self.n_skin,
+                   [qs.qcount, qs.qlist, state.x, self.faces, ns1, self.nf1, self.vt_off_skin, self.vt_skin],
+                   [self.vn_now], count=qs.qcount)
+        rec.launch(skin_bounds, nf, [state.x, self.faces], [self.lowers, self.uppers],
                    count=None if cuda else self.fcount)
         rec.ops.append(when_queried(bvh.refit))
         rec.launch(broadphase, self.n_skin,
@@ -613,11 +635,11 @@ class SelfContact:
         q = int(self.query.qcount.numpy()[0])
         cfg = self.config
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
-        # thread past its list returning): the motion bound's four, the query's four with any
+        # thread past its list returning): the motion bound's five, the query's four with any
         # vertex queried, the substeps' 2 x passes with any pair listed (however many worlds; inside the
         # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: with a query its
         # marks', boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed)
-        ops = 4 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
+        ops = 5 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
         edges = {}
         if self.edge_pairs is not None:
             edges = self.edge_pairs.report()

@@ -4,12 +4,13 @@ it is within ``self_margin``, used up by the moves since it was set (docs/self_c
 contact is found", step 1).
 
 Once a frame, from the positions at its start: per skin vertex its move since the last frame in its
-bone's frame (``local_motion``; per bone the largest, its skin's reach, its skin's box and longest
-edge; per cell of a 6 mm grid the largest move of a vertex whose triangles reach into it), per pair
-of bones the change of their relative pose (``body_motion``), then per vertex the slack those moves
-could have used (``pick_queries``): its own, the skin's deformation near it (the grid), plus for
-every other bone whose skin's box (grown by its longest edge) lies within reach of the vertex the
-pose change and the turn at the vertex's distance. A vertex whose slack is used up goes in the query list
+bone's frame (``local_motion``; per cell of a 6 mm grid the largest move of a vertex whose triangles
+reach into it; per bone the largest, its skin's reach, its skin's box in its frame and longest edge:
+``bone_bounds``), per pair of bones the change of their relative pose (``body_motion``, which lists
+per bone the others near enough to matter), then per vertex the slack those moves could have used
+(``pick_queries``): its own, the skin's deformation near it (the grid), plus for every other bone
+whose skin's box (grown by its longest edge) lies within reach of the vertex the pose change and
+the turn at the vertex's distance. A vertex whose slack is used up goes in the query list
 (``QuerySlack.qlist``, ``qcount`` long); the others keep an empty list. The broadphase sets the slack
 anew for the vertices it queries (the nearest kept triangle's distance beyond the margin, at most
 REACH). A hand whose skin moves rigidly with its bones queries nothing.
@@ -40,6 +41,7 @@ DEFORM_CELL = 6.0e-3  # m
 DEFORM_CELLS = 32768  # per world (a power of two; 128 KB)
 DEFORM_NONE = wp.constant(2147483647)  # (a move past 2 m, or NaN: the bone's bound instead)
 DEFORM_REACH = wp.constant(1.2e-2)  # m: a vertex reads (or writes) at most this far around it, else its bone's bound
+CHUNK = 16  # skin vertices of one bone a bone_bounds thread folds into the bone's figures
 
 
 @wp.func
@@ -72,38 +74,28 @@ def _slot(b: int, w: int, nb: int) -> int:
 
 @wp.kernel
 def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
-                 ns: int, nb: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
-                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), nbr_off: wp.array(dtype=int),
-                 nbr: wp.array(dtype=int), box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
+                 ns: int, y_last: wp.array(dtype=wp.vec3), mu: wp.array(dtype=float),
+                 nbr_off: wp.array(dtype=int), nbr: wp.array(dtype=int), edge: wp.array(dtype=float),
                  deform: wp.array(dtype=int), deform_all: wp.array(dtype=int)):
     """Per skin vertex its move since the last frame's start in its bone's frame (``mu``; the skin's
-    deformation, not the bones' motion), per bone the largest (``body_move``), the skin's farthest
-    point from the bone's origin (``body_reach``), its bounding box now (``box``: lower x, y, z, then
-    minus the upper; in whole um, rounded outward: native integer atomics) and the longest skin edge
-    at a vertex of its skin (``bone_edge``, um; ``nbr``: one world's skin neighbours from
-    ``nbr_off[v]``), so that the box grown by it holds every skin triangle with a corner on the bone;
-    per world (``ns`` skin vertices, ``nb`` bones each) the slots :func:`_slot` names (the last: the
-    vertices without a bone, in the world frame); and per grid cell (``deform``, DEFORM_CELL) the
-    largest move of a vertex whose triangles reach into it (the vertex's box grown by its longest edge)."""
+    deformation, not the bones' motion; ``y_last``: where it lies in that frame now), the longest
+    skin edge at it (``edge``; ``nbr``: one world's skin neighbours from ``nbr_off[v]``; ``ns`` skin
+    vertices a world) and, per grid cell (``deform``, DEFORM_CELL), the largest move of a vertex whose
+    triangles reach into it (the vertex's box grown by its longest edge). :func:`bone_bounds` then
+    takes each bone's figures from these."""
     v = wp.tid()
     b = skin_body[v]
     y = wp.transform_point(wp.transform_inverse(_pose(body_pose, b)), x[v])
     m = wp.length(y - y_last[v])
     y_last[v] = y
     mu[v] = m
-    k = _slot(b, v // ns, nb)
-    wp.atomic_max(body_move, k, m)
-    wp.atomic_max(body_reach, k, wp.length(y))
     p = x[v]
-    for c in range(3):
-        wp.atomic_min(box, k, c, int(wp.floor(p[c] * 1.0e6)))
-        wp.atomic_min(box, k, c + 3, -int(wp.ceil(p[c] * 1.0e6)))
     w = v // ns
     vo = w * ns
     e = float(0.0)
     for n in range(nbr_off[v - vo], nbr_off[v - vo + 1]):
         e = wp.max(e, wp.length(x[nbr[n] + vo] - p))
-    wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
+    edge[v] = e
     # the move into every grid cell that a triangle with a corner here reaches (within e of the vertex)
     # (in whole nm rounded up: native integer atomics, and a cell already holding as much is not written:
     # ~100 vertices write each cell, and a float atomic max on CUDA is a compare-and-swap loop)
@@ -122,16 +114,64 @@ def local_motion(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
 
 
 @wp.kernel
+def bone_bounds(ns: int, nb: int, chunk_slot: wp.array(dtype=int),
+                chunk_off: wp.array(dtype=int), bone_v: wp.array(dtype=int), y_last: wp.array(dtype=wp.vec3),
+                mu: wp.array(dtype=float), edge: wp.array(dtype=float),
+                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), box: wp.array2d(dtype=int),
+                bone_edge: wp.array(dtype=int)):
+    """Per bone (slot :func:`_slot`) its skin's largest move (``body_move``), its farthest point from the
+    bone's origin (``body_reach``), its bounding box now in the bone's frame (``box``: lower x, y, z, then
+    minus the upper; in whole um, rounded outward: native integer atomics; a phalanx's skin lies along
+    its bone, so this box is tighter than one in the world's axes where the finger lies at an angle to
+    them) and the longest skin edge at a vertex of its skin
+    (``bone_edge``, um), so that the box grown by it holds every skin triangle with a corner on the bone.
+    A thread per chunk of one bone's skin vertices (one world's ``bone_v``, by bone: chunk c holds
+    ``bone_v[chunk_off[c]:chunk_off[c + 1]]`` of bone slot ``chunk_slot[c]``) in each world, its figures
+    folded into the bone's by one atomic each (a thread per vertex made ~170 atomics a bone contend for
+    one address)."""
+    tid = wp.tid()
+    nc = chunk_slot.shape[0]
+    w = tid // nc
+    c = tid - w * nc
+    vo = w * ns
+    m = float(0.0)
+    r = float(0.0)
+    e = float(0.0)
+    lo = wp.vec3i(2147483647, 2147483647, 2147483647)
+    hi = wp.vec3i(2147483647, 2147483647, 2147483647)
+    for i in range(chunk_off[c], chunk_off[c + 1]):
+        v = bone_v[i] + vo
+        m = wp.max(m, mu[v])
+        y = y_last[v]  # (the vertex in its bone's frame now: local_motion)
+        r = wp.max(r, wp.length(y))
+        e = wp.max(e, edge[v])
+        for a in range(3):
+            lo[a] = wp.min(lo[a], int(wp.floor(y[a] * 1.0e6)))
+            hi[a] = wp.min(hi[a], -int(wp.ceil(y[a] * 1.0e6)))
+    k = w * (nb + 1) + chunk_slot[c]
+    wp.atomic_max(body_move, k, m)
+    wp.atomic_max(body_reach, k, r)
+    for a in range(3):
+        wp.atomic_min(box, k, a, lo[a])
+        wp.atomic_min(box, k, a + 3, hi[a])
+    wp.atomic_max(bone_edge, k, int(wp.ceil(e * 1.0e6)))
+
+
+@wp.kernel
 def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
-                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), far: float,
-                pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float)):
+                body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), box: wp.array2d(dtype=int),
+                far: float, pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float),
+                near_n: wp.array(dtype=int), near: wp.array2d(dtype=int)):
     """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
     pose since the last frame's start, seen from the first: how far the second's origin moved
     (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
     from its origin moved at most its skin's deformation + pair_dt + pair_turn x r); -1 in
     ``pair_dt`` where the two bones' skins lie too far apart to matter: their bounding balls about the
     bones' origins more than ``far`` (>= slack + margin) plus both skins' largest such moves apart.
-    Bones of different worlds are never paired (each world's skin lists only its own triangles)."""
+    Bones of different worlds are never paired (each world's skin lists only its own triangles).
+    The second bones that do matter are listed per first (``near[o + i, :near_n[o + i]]``, in no
+    set order: pick_queries takes their largest move); a slot without skin (``box`` empty: e.g. the
+    world frame's, where every skin vertex has a bone) is never listed: nothing of it comes near."""
     w, i, j = wp.tid()
     o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
     bi = w * nb + i
@@ -155,6 +195,8 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     if i != j and i != nb and j != nb and gap > far + body_move[o + i] + big:
         dt = -1.0
     pair_dt[o + i, j] = dt
+    if i != j and not (dt < 0.0) and box[o + j, 0] != 2147483647:
+        near[o + i, wp.atomic_add(near_n, o + i, 1)] = j
 
 
 @wp.kernel
@@ -162,6 +204,7 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
                  mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
                  box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
                  pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float),
+                 near_n: wp.array(dtype=int), near_b: wp.array2d(dtype=int),
                  deform: wp.array(dtype=int), deform_all: wp.array(dtype=int), far: float, ns: int, nb: int,
                  slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
@@ -175,7 +218,8 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
     slack never grows between queries), and one within it moved at most as counted. Its corners lie
     within far + their longest edge of the vertex, so they wrote their moves into the grid cells
     within ``far`` of it, and every bone it has a corner on holds it in its skin's box grown by that
-    bone's longest edge (local_motion). So a bone whose grown box lies farther than far counts
+    bone's longest edge (bone_bounds; the box in the bone's frame, the vertex taken there). So a bone
+    whose grown box lies farther than far counts
     nothing, and the others count their pair's turn at |vertex - the bone's origin| + far + that edge
     (or the skin's reach, if less). The others keep an empty list."""
     v = wp.tid()
@@ -198,22 +242,25 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
         if nm < DEFORM_NONE:
             near = float(nm) * 1.0e-9
     m = wp.min(body_move[o + il], near)
-    for j in range(nb + 1):
+    for k in range(near_n[o + il]):  # (the other bones whose skin could matter: body_motion)
         if left <= m:
             break
+        j = near_b[o + il, k]
         dt = pair_dt[o + il, j]
-        if j == il or dt < 0.0:
+        # (the nearest point of the box of bone j's triangles: its skin's box grown by its longest edge, in
+        # the bone's frame (slot nb: the world's), the vertex taken there: a rigid motion keeps the distance)
+        ej = float(bone_edge[o + j]) * 1.0e-6
+        bj = w * nb + j
+        if j == nb:
+            bj = -1
+        pj = _pose(body_pose, bj)
+        pl = wp.transform_point(wp.transform_inverse(pj), p)
+        q = wp.vec3(0.0)
+        for c in range(3):
+            q[c] = wp.clamp(pl[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
+        if wp.length(pl - q) > far:
             continue
-        r = body_reach[o + j]
-        if j != nb and il != nb:
-            # (the nearest point of the box of bone j's triangles: its skin's box grown by its longest edge)
-            ej = float(bone_edge[o + j]) * 1.0e-6
-            q = wp.vec3(0.0)
-            for c in range(3):
-                q[c] = wp.clamp(p[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
-            if wp.length(p - q) > far:
-                continue
-            r = wp.min(r, wp.length(p - wp.transform_get_translation(body_pose[0, w * nb + j])) + far + ej)
+        r = wp.min(body_reach[o + j], wp.length(p - wp.transform_get_translation(pj)) + far + ej)
         m = wp.max(m, wp.min(body_move[o + j], near) + dt + pair_turn[o + il, j] * r)
     sl = left - m
     slack[v] = sl
@@ -226,7 +273,7 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
 class QuerySlack:
     """The query slack's buffers and launches for W worlds (solver/self_contact.SelfContact holds
     one): :meth:`zero` (the frame's per-bone tables, with SelfContact's other counters) and
-    :meth:`record` (the three launches). ``slack`` (per skin vertex, m), ``qlist`` / ``qcount`` (the
+    :meth:`record` (the four launches). ``slack`` (per skin vertex, m), ``qlist`` / ``qcount`` (the
     vertices to query this frame) are what the broadphase reads; it writes ``slack`` for those it
     queries. Per world (ns1 skin vertices, nb1 bones) nb1 + 1 bone slots, the last for skin without
     a bone (the world frame)."""
@@ -253,9 +300,26 @@ class QuerySlack:
         self.nbr_off = wp.array(np.concatenate([[0], np.cumsum(np.bincount(e[:, 0], minlength=ns1))]).astype(np.int32),
                                 dtype=int, device=d)
         self.nbr = wp.array(e[:, 1].astype(np.int32), dtype=int, device=d)
+        self.edge = wp.zeros(ns, dtype=float, device=d)  # per vertex its longest skin edge now
+        # one world's skin vertices by bone slot (the last: without a bone), in chunks of at most CHUNK
+        sb = model.skin_body.numpy()[:ns1]
+        slot = np.where(sb < 0, nb1, sb)
+        bone_v = np.argsort(slot, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(np.bincount(slot, minlength=nb1 + 1))])
+        off, cs = [], []
+        for j in range(nb1 + 1):
+            for c0 in range(starts[j], starts[j + 1], CHUNK):
+                off.append(c0)
+                cs.append(j)
+        off.append(ns1)
+        self.bone_v = wp.array(bone_v.astype(np.int32), dtype=int, device=d)
+        self.chunk_off = wp.array(np.asarray(off, dtype=np.int32), dtype=int, device=d)
+        self.chunk_slot = wp.array(np.asarray(cs, dtype=np.int32), dtype=int, device=d)
         self.pair_dt = wp.zeros((nbw, nb1 + 1), dtype=float, device=d)  # per bone pair its motion (body_motion)
         self.pair_turn = wp.zeros((nbw, nb1 + 1), dtype=float, device=d)
         self.rel_last = wp.zeros((nbw, nb1 + 1), dtype=wp.transform, device=d)
+        self.near_n = wp.zeros(nbw, dtype=int, device=d)  # per bone the other bones near enough to matter
+        self.near = wp.zeros((nbw, nb1 + 1), dtype=int, device=d)
         self.slack = wp.zeros(ns, dtype=float, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
         self.qcount = wp.zeros(1, dtype=int, device=d)
@@ -270,18 +334,22 @@ class QuerySlack:
         self.bone_edge.zero_()
         self.deform.zero_()
         self.deform_all.zero_()
+        self.near_n.zero_()
 
     def record(self, rec, state, reach: float, cand_n) -> None:
-        """The slack's three launches into the solver's frame recorder ``rec`` (each over every world);
+        """The slack's four launches into the solver's frame recorder ``rec`` (each over every world);
         ``reach``: self_margin + REACH (m); ``cand_n``: the per-vertex list lengths, emptied for the
         vertices not queried."""
         ns1, nb1 = self.ns1, self.nb1
-        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1, nb1],
-                   [self.y_last, self.mu, self.body_move, self.body_reach, self.nbr_off, self.nbr, self.box, self.bone_edge,
-                    self.deform, self.deform_all])
+        rec.launch(local_motion, self.n_skin, [state.x, self.skin_body, state.body_pose, ns1],
+                   [self.y_last, self.mu, self.nbr_off, self.nbr, self.edge, self.deform, self.deform_all])
+        rec.launch(bone_bounds, self.worlds * self.chunk_slot.shape[0],
+                   [ns1, nb1, self.chunk_slot, self.chunk_off, self.bone_v, self.y_last, self.mu, self.edge],
+                   [self.body_move, self.body_reach, self.box, self.bone_edge])
         rec.launch(body_motion, (self.worlds, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
-                   [self.rel_last, self.body_move, self.body_reach, reach, self.pair_dt, self.pair_turn])
+                   [self.rel_last, self.body_move, self.body_reach, self.box, reach, self.pair_dt, self.pair_turn, self.near_n,
+                    self.near])
         rec.launch(pick_queries, self.n_skin,
                    [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
-                    self.bone_edge, self.pair_dt, self.pair_turn, self.deform, self.deform_all, reach, ns1, nb1],
+                    self.bone_edge, self.pair_dt, self.pair_turn, self.near_n, self.near, self.deform, self.deform_all, reach, ns1, nb1],
                    [self.slack, cand_n, self.qlist, self.qcount])
