@@ -161,7 +161,7 @@ def bone_bounds(ns: int, nb: int, chunk_slot: wp.array(dtype=int),
 def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp.array2d(dtype=wp.transform),
                 body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float), box: wp.array2d(dtype=int),
                 far: float, pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float),
-                near_n: wp.array(dtype=int), near: wp.array2d(dtype=int)):
+                near_n: wp.array(dtype=int), near: wp.array2d(dtype=int), pose_inv: wp.array(dtype=wp.transform)):
     """Per world w and pair of its bones (slot ``nb``: the world frame) the change of their relative
     pose since the last frame's start, seen from the first: how far the second's origin moved
     (``pair_dt``) and 2 sin(angle / 2) of its turn (``pair_turn``: a point of the second's skin at r
@@ -171,7 +171,8 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
     Bones of different worlds are never paired (each world's skin lists only its own triangles).
     The second bones that do matter are listed per first (``near[o + i, :near_n[o + i]]``, in no
     set order: pick_queries takes their largest move); a slot without skin (``box`` empty: e.g. the
-    world frame's, where every skin vertex has a bone) is never listed: nothing of it comes near."""
+    world frame's, where every skin vertex has a bone) is never listed: nothing of it comes near. Per
+    slot its pose's inverse (``pose_inv``: pick_queries takes each vertex into the bones' frames)."""
     w, i, j = wp.tid()
     o = w * (nb + 1)  # (world w's slots in the per-world bone tables: _slot)
     bi = w * nb + i
@@ -180,7 +181,10 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
         bi = -1
     if j == nb:
         bj = -1
-    rel = wp.transform_multiply(wp.transform_inverse(_pose(body_pose, bi)), _pose(body_pose, bj))
+    inv = wp.transform_inverse(_pose(body_pose, bi))
+    if j == 0:
+        pose_inv[o + i] = inv
+    rel = wp.transform_multiply(inv, _pose(body_pose, bj))
     last = rel_last[o + i, j]
     rel_last[o + i, j] = rel
     dq = wp.transform_get_rotation(rel) * wp.quat_inverse(wp.transform_get_rotation(last))
@@ -200,11 +204,11 @@ def body_motion(body_pose: wp.array2d(dtype=wp.transform), nb: int, rel_last: wp
 
 
 @wp.kernel
-def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), body_pose: wp.array2d(dtype=wp.transform),
+def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int),
                  mu: wp.array(dtype=float), body_move: wp.array(dtype=float), body_reach: wp.array(dtype=float),
                  box: wp.array2d(dtype=int), bone_edge: wp.array(dtype=int),
                  pair_dt: wp.array2d(dtype=float), pair_turn: wp.array2d(dtype=float),
-                 near_n: wp.array(dtype=int), near_b: wp.array2d(dtype=int),
+                 near_n: wp.array(dtype=int), near_b: wp.array2d(dtype=int), pose_inv: wp.array(dtype=wp.transform),
                  deform: wp.array(dtype=int), deform_all: wp.array(dtype=int), far: float, ns: int, nb: int,
                  slack: wp.array(dtype=float), cand_n: wp.array(dtype=int), qlist: wp.array(dtype=int),
                  qcount: wp.array(dtype=int)):
@@ -250,17 +254,13 @@ def pick_queries(x: wp.array(dtype=wp.vec3), skin_body: wp.array(dtype=int), bod
         # (the nearest point of the box of bone j's triangles: its skin's box grown by its longest edge, in
         # the bone's frame (slot nb: the world's), the vertex taken there: a rigid motion keeps the distance)
         ej = float(bone_edge[o + j]) * 1.0e-6
-        bj = w * nb + j
-        if j == nb:
-            bj = -1
-        pj = _pose(body_pose, bj)
-        pl = wp.transform_point(wp.transform_inverse(pj), p)
+        pl = wp.transform_point(pose_inv[o + j], p)
         q = wp.vec3(0.0)
         for c in range(3):
             q[c] = wp.clamp(pl[c], float(box[o + j, c]) * 1.0e-6 - ej, -float(box[o + j, c + 3]) * 1.0e-6 + ej)
         if wp.length(pl - q) > far:
             continue
-        r = wp.min(body_reach[o + j], wp.length(p - wp.transform_get_translation(pj)) + far + ej)
+        r = wp.min(body_reach[o + j], wp.length(pl) + far + ej)  # (|vertex - the bone's origin|)
         m = wp.max(m, wp.min(body_move[o + j], near) + dt + pair_turn[o + il, j] * r)
     sl = left - m
     slack[v] = sl
@@ -320,6 +320,7 @@ class QuerySlack:
         self.rel_last = wp.zeros((nbw, nb1 + 1), dtype=wp.transform, device=d)
         self.near_n = wp.zeros(nbw, dtype=int, device=d)  # per bone the other bones near enough to matter
         self.near = wp.zeros((nbw, nb1 + 1), dtype=int, device=d)
+        self.pose_inv = wp.zeros(nbw, dtype=wp.transform, device=d)  # per bone slot its pose's inverse now
         self.slack = wp.zeros(ns, dtype=float, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
         self.qcount = wp.zeros(1, dtype=int, device=d)
@@ -348,8 +349,9 @@ class QuerySlack:
                    [self.body_move, self.body_reach, self.box, self.bone_edge])
         rec.launch(body_motion, (self.worlds, nb1 + 1, nb1 + 1), [state.body_pose, nb1],
                    [self.rel_last, self.body_move, self.body_reach, self.box, reach, self.pair_dt, self.pair_turn, self.near_n,
-                    self.near])
+                    self.near, self.pose_inv])
         rec.launch(pick_queries, self.n_skin,
-                   [state.x, self.skin_body, state.body_pose, self.mu, self.body_move, self.body_reach, self.box,
-                    self.bone_edge, self.pair_dt, self.pair_turn, self.near_n, self.near, self.deform, self.deform_all, reach, ns1, nb1],
+                   [state.x, self.skin_body, self.mu, self.body_move, self.body_reach, self.box,
+                    self.bone_edge, self.pair_dt, self.pair_turn, self.near_n, self.near, self.pose_inv, self.deform, self.deform_all,
+                    reach, ns1, nb1],
                    [self.slack, cand_n, self.qlist, self.qcount])
