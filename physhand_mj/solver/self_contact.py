@@ -9,7 +9,7 @@ Found once a frame, resolved every substep (docs/self_collision.md):
                   a vertex whose slack (how much nearer a kept triangle may come before it is
                   within the margin) they used up is queried, the others keep an empty list. For
                   the queried (CPU: only when
-                  there are any): the skin's normals and triangle boxes, its BVH (grouped by world)
+                  there are any): their normals, the skin triangles' boxes, its BVH (grouped by world)
                   refit, per vertex its world's skin triangles within ``self_margin`` + REACH
                   (bvh_query_aabb, then the exact distance), minus the rest filter, those within
                   ``self_margin`` kept in a per-vertex table of SLOTS, the nearest kept one setting
@@ -567,7 +567,7 @@ class SelfContact:
 
     def record_frame(self, rec, state) -> None:
         """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
-        for them (CPU: only when there are any) the normals and the triangles' boxes, the BVH refit,
+        for them (CPU: only when there are any) their normals and the triangles' boxes, the BVH refit,
         the broadphase. Each a launch over every world."""
         cfg, d = self.config, self.device
         bvh = self.build(state)
