@@ -203,6 +203,7 @@ def test_closing_on_a_static_object_ends_without_penetration(closed, kind):
         np.percentile(diff[far], 99), diff[far].max())
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 @pytest.mark.parametrize("kind", ["sphere", "box"])
 def test_closing_by_both_measures(closed, kind):
     """The default contact (features + side-aware) against an order-9 lattice and the denser check

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 EXAMPLES = sorted((Path(__file__).parents[1] / "examples").glob("*.py"))
-SLOW = {"hoi_grasps", "myosuite_episode"}  # 7-8 s each on a 2-core CPU: the slow set
+SLOW = {"hoi_grasps", "myosuite_episode", "train_ppo"}  # 7-14 s each on a 2-core CPU: the slow set
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW else p for p in EXAMPLES],
@@ -18,6 +18,7 @@ def test_example(path, tmp_path):
     mod.test_final(tmp_path)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_dmc_example_exits_without_tracebacks(tmp_path):
     """Run as a script, the dm_control example frees its render context before exit: dm_control's own
     exit hook, run after Python shut down the thread the context lives on, prints tracebacks."""

@@ -92,6 +92,7 @@ def _carry(two_way: bool, steps: int = 10, average: int = 5):
     return row
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_skin_alone_carries_the_object_two_way_not_one_way():
     """0.2 s of the grasp (100 soft frames): two-way, the skin alone holds the object up (it stays
     in the hand while the hand closes) and over the last 0.1 s pushes it up with a force of the order of

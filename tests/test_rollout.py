@@ -238,6 +238,7 @@ def test_a_ctrl_c_inside_a_frames_commit_waits_for_its_end():
         signal.signal(signal.SIGINT, old)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_self_collision_rollout_reports_the_skin_on_itself(tmp_path, capsys):
     """`physhand rollout --self-collision` (Config.self_collision, the hand model's self proxies on):
     the JSON line adds the skin's self-penetration by the independent measure. The pinch keyframe, 36

@@ -74,6 +74,7 @@ def _no_cross_pairs(batch):
     return n
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 @pytest.mark.parametrize("keys", [("open", "pinch", "power")], ids=["open-pinch-power"])
 def test_batched_worlds_equal_one_hand_each(setup, keys):
     """Three worlds closing to open, pinch and power at once equal three hands run alone with the

@@ -148,6 +148,7 @@ def _rollout(key, frames, edges, device="cpu", last=6):
     return hand, res, np.mean(crossing), np.mean(inside)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not wp.is_cuda_available(), reason="no CUDA device"))])
 def test_power_fist_keeps_skin_out_of_itself(device):

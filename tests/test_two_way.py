@@ -30,6 +30,7 @@ def run(rig, frames):
     return np.array(rows)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_a_box_dropped_on_the_skin_rests_on_it(slab):
     """Dropped from 1 mm: over its last 50 of 200 frames the skin carries m g (within 5 %), no skin
     sample is inside the box and no box point inside the skin, the bounce is smaller than in the
@@ -45,6 +46,7 @@ def test_a_box_dropped_on_the_skin_rests_on_it(slab):
     assert np.abs(r[:, 6:9]).max() <= 1e-5 * max(r[:, 9].max(), 1e-9)  # Newton's third law, to float rounding
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_a_heavier_box_sinks_deeper(slab):
     """50 g, 100 g and 200 g boxes laid on the skin: each settles deeper, and the skin's force tracks
     m g in each."""

@@ -36,6 +36,7 @@ def pinch(pads, mu):
     return ratio, bool(out["drop"] > 0.01 or out["speed"] > 0.02), out
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_a_pinch_holds_above_the_bound_and_slips_below(pads, bound):
     """mu 0.9 x the bound slips (below the bound also with N under load); 1.5 x holds (about 1.38 x
     with N under load: the load lowers N by ~8 %) without creeping (Coulomb's static friction: the box

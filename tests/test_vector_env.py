@@ -143,6 +143,7 @@ def test_device_arrays_and_bad_input(press):
         vector.make("fingertip_press", "index", num_envs=0)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_two_way_partial_reset_keeps_the_other_worlds_bones_moving():
     """Two-way, no floating frames: restarting world 0 leaves world 1 on its trajectory (its bones'
     velocities, its feature lists' slack, its friction anchors and its state put back), within 1e-5

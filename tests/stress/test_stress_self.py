@@ -66,6 +66,7 @@ def _held(scene, frames, margins):
                    move_bound_mm=10.0)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_self_fist_held(scene, margins):
     """The fist held 100 frames (measured: 32-42 inside, moves up to ~5 mm a frame: no rest)."""
     _held(scene, 100, margins)
@@ -93,6 +94,7 @@ def test_self_finger_through_palm(scene, margins):
     margins.update(res, inside_200um=counts[40], inside_bound=250, inverted_bound=800)
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_self_with_object_in_hand(tmp_path, margins):
     """A HOI grasp (the box) with the option on: the object measures stay 0, as without it."""
     from physhand_mj.rollout import rollout

@@ -65,6 +65,7 @@ def _check_soak(run, ends, held, margins, cycles):
                    inverted_cycle_end=int(r["inverted"][free].max()))
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 def test_soak_short(scene, margins):
     run, ends, held = _soak(scene, 2)
     _check_soak(run, ends, held, margins, 2)
@@ -162,6 +163,7 @@ CASES = dict(fraction=st.floats(0.0, 1.0), corner=st.lists(st.floats(0.0, 1.0), 
 SLOW = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large]
 
 
+@pytest.mark.slow  # 12-41 s on a 2-core CPU (2026-12-03): the slow set keeps the default run under 15 min
 @settings(max_examples=3, deadline=None, derandomize=True, database=None, suppress_health_check=SLOW)
 @given(**CASES)
 def test_random_pose_and_object(scene, margins, fraction, corner, kind, site, depth, spin):
