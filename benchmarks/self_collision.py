@@ -1,7 +1,7 @@
 """Skin self-penetration per ``hand_only`` keyframe, with and without Config.self_collision (issue 53).
 
     python benchmarks/self_collision.py [--scene hand_only] [--keys open,pinch,power] [--frames 36] [--last N] [--modes off,on] [--tet-keep K]
-        [--friction MU] [--edges] [--margin MM] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
+        [--friction MU] [--edges] [--margin MM] [--every N] [--no-self-proxies] [--slip] [--stretch-only] [--flesh-stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches] [--out F.json]
         [--picture F.png]
     python benchmarks/self_collision.py --worlds 3,1024 [--keys open,pinch,power] [--frames 20] [--modes off,on]
         [--stretch-only] [--device cuda] [--fused auto|on|off] [--self-launches]
@@ -20,7 +20,7 @@ process. ``--tet-keep``: Tuning.self_tet_keep for the "on" runs; ``--friction``:
 for them (Coulomb coefficient); ``--edges``: Tuning.self_edges for them (edge-edge pairs, in both
 the keyframe and the ``--worlds`` runs); ``--stretch-only``: Config.skin_compression False in every run (both
 modes: the skin's material, not part of the option); ``--flesh-stretch-only``: Config.flesh_compression
-False likewise; ``--no-self-proxies``: Tuning.self_proxies False for them (with the
+False likewise; ``--every``: Tuning.self_every for the "on" runs (frames one list serves); ``--no-self-proxies``: Tuning.self_proxies False for them (with the
 option SoftHand turns on the hand model's self proxies, so MuJoCo stops the parts' bones where their
 rest skins meet: reported ``self_proxies``, their contacts in the last step, and the joints' largest
 change from the keyframe, ``pose_change_rad``); ``--slip``: also the skin's slip at touching pairs over the last 10
@@ -275,6 +275,7 @@ def main():
     ap.add_argument("--flesh-stretch-only", action="store_true", help="Config.flesh_compression False in every run "
                     "(the flesh's tet edges resist stretch only)")
     ap.add_argument("--margin", type=float, default=None, help="Config.tuning.self_margin for the 'on' runs (mm)")
+    ap.add_argument("--every", type=int, default=None, help="Tuning.self_every for the 'on' runs (frames one list serves)")
     ap.add_argument("--no-self-proxies", action="store_true", help="Config.tuning.self_proxies False for the 'on' "
                     "runs (MuJoCo's fingers as without the option)")
     ap.add_argument("--fused", default="auto", choices=["auto", "on", "off"])
@@ -308,6 +309,8 @@ def main():
                 extra["self_friction"] = a.friction
             if a.margin is not None and mode == "on":
                 extra["self_margin"] = a.margin * 1e-3
+            if a.every is not None and mode == "on":
+                extra["self_every"] = a.every
             if a.no_self_proxies and mode == "on":
                 extra["self_proxies"] = False
             if a.edges and mode == "on":

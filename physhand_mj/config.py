@@ -106,6 +106,12 @@ class Tuning:
         pairs cannot see an edge dive through a triangle past its rim: the knuckles' pleats, the
         grasps' pinched skin. The substep passes then run as launches, never inside the fused
         kernel; docs/self_collision.md "Edge-edge contact").
+      self_every: frames one self-contact list serves (count; 1, the default: a query every frame).
+        Above 1 the once-a-frame work (the query slack, the refit, the query) runs every
+        ``self_every``-th frame and the substeps of the frames between press the pairs it listed:
+        that work's cost over ``self_every``, but ``self_margin`` then bounds how far two parts
+        approach each other in ``self_every`` frames, not one (raise it to match;
+        docs/self_collision.md "A list for several frames").
       proxy_margin: MuJoCo contact margin SoftHand gives the hand's collision proxies against objects
         (m; geoms ``*_proxy`` of the shipped hand), so MuJoCo stops a bone that much before its proxy
         meets an object. None (default): 2.5 mm (hand_mjcf.PROXY_INSET: about where the rest skin
@@ -150,6 +156,7 @@ class Tuning:
     self_friction: float = 0.0
     self_proxies: bool = True
     self_edges: bool = False
+    self_every: int = 1
     proxy_margin: float | None = None
 
 
@@ -419,6 +426,9 @@ def _check(s) -> None:
         pos(name)
     if not (isinstance(s.self_passes, (int, np.integer)) and not isinstance(s.self_passes, bool) and s.self_passes >= 1):
         raise ValueError(f"Config.tuning.self_passes must be an integer >= 1, got {s.self_passes!r}")
+    if not (isinstance(s.self_every, (int, np.integer)) and not isinstance(s.self_every, bool) and s.self_every >= 1):
+        raise ValueError(f"Config.tuning.self_every must be an integer >= 1 (frames one self-contact list serves), got "
+                         f"{s.self_every!r}")
     if not (np.isfinite(s.self_friction) and 0.0 <= s.self_friction <= 2.0):
         raise ValueError(f"Config.tuning.self_friction must be a coefficient in [0, 2] (skin on skin: ~0.5), got "
                          f"{s.self_friction!r}")

@@ -70,6 +70,13 @@ def clear_marks(n: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.
         mark[involved[i]] = 0
 
 
+@wp.kernel
+def zero_corrections(wcounts: wp.array2d(dtype=int)):
+    """A frame that reuses the last list (Tuning.self_every): its per-world correction count zeroed (the
+    list's own counts kept)."""
+    wcounts[wp.tid(), 3] = 0
+
+
 @wp.func
 def touch_vertex(i: int, mark: wp.array(dtype=int), involved: wp.array(dtype=int), counts: wp.array(dtype=int),
            seg: int, w: int, vo: int, winvolved: wp.array(dtype=int), wcounts: wp.array2d(dtype=int)):
@@ -554,6 +561,8 @@ class SelfContact:
         # volume; world w's are the same shifted by its offsets (the model's tets: world by world)
         self.tets, self.nt1, self.vol0, self.vt_off, self.vt = skin_tet_lists(model, self.ns1)
         self.edge_pairs = None  # Tuning.self_edges: the edge-edge pairs (solver/self_edges.py; the Solver sets them)
+        self.every = int(config.self_every)  # Tuning.self_every: frames one list serves
+        self.query_now = True  # (begin_frame: whether this frame lists anew)
 
     def build(self, state) -> wp.Bvh:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
@@ -565,7 +574,32 @@ class SelfContact:
             wp.launch(group_roots, self.worlds, inputs=[self.bvh.id], outputs=[self.roots], device=self.device)
         return self.bvh
 
+    def begin_frame(self, state) -> bool:
+        """Whether the frame about to run on ``state`` lists anew (Tuning.self_every: every
+        ``self_every``-th frame of the state, its first included; the frames between reuse the list).
+        Part of the frame's graph key on CUDA (a graph for each)."""
+        self.query_now = state.frames % self.every == 0
+        return self.query_now
+
     def record_frame(self, rec, state) -> None:
+        """The frame's list (:meth:`_record_list`); with Tuning.self_every above 1 in a block run
+        only where :meth:`begin_frame` said so, the frames between zeroing only the frame's
+        correction counts (the list, its lengths and the slack kept as the last query left them)."""
+        if self.every == 1:
+            self._record_list(rec, state)
+            return
+        outer = rec.ops
+        try:
+            rec.ops = listing = []
+            self._record_list(rec, state)
+            rec.ops = keeping = []
+            keeping.append(self.active.zero_)
+            rec.launch(zero_corrections, self.worlds, [], [self.wcounts])
+        finally:
+            rec.ops = outer
+        outer.append(lambda: [op() for op in (listing if self.query_now else keeping)])
+
+    def _record_list(self, rec, state) -> None:
         """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
         for them (CPU: only when there are any) their normals and the triangles' boxes, the BVH refit,
         the broadphase. Each a launch over every world."""
@@ -632,14 +666,15 @@ class SelfContact:
         """The last frame's figures (every world's together): vertices queried, listed vertices and
         pairs, corrections made (summed over passes); per world: :meth:`report_worlds`."""
         c = self.counts.numpy()
-        q = int(self.query.qcount.numpy()[0])
+        q = int(self.query.qcount.numpy()[0]) if self.query_now else 0
         cfg = self.config
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's five, the query's four with any
         # vertex queried, the substeps' 2 x passes with any pair listed (however many worlds; inside the
         # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: with a query its
-        # marks', boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed)
-        ops = 5 + (4 if q else 0) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
+        # marks', boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed); a
+        # frame reusing the last list (Tuning.self_every) runs only its counts' zeroing before the passes
+        ops = (5 + (4 if q else 0) if self.query_now else 1) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
         edges = {}
         if self.edge_pairs is not None:
             edges = self.edge_pairs.report()

@@ -254,11 +254,13 @@ class Solver:
             self._launch_asleep(state, key)
             self._in_flight = (state, None, rigid, frame_poses)
             return
+        # Tuning.self_every: whether this frame lists its self-contact pairs anew (a graph for each)
+        listing = self.selfc.begin_frame(state) if self.selfc is not None else True
         if first:
             for op in ops:  # the first frame runs uncaptured (it compiles the kernels)
                 op()
         else:
-            graph = self.replay(ops, key + (act.open1,))
+            graph = self.replay(ops, key + (act.open1, listing))
             if graph is not None:
                 self.last_graph = graph  # (bench.py replays it for the GPU-only cost)
         wp.copy(self._guard_host, state.guard)
