@@ -208,6 +208,47 @@ def test_list_reused_between_queries():
     assert min(listing_ops) >= 5 and reused >= 3 and res["self_pairs"] > 0
 
 
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not __import__("warp").is_cuda_available(), reason="no CUDA device"))])
+def test_batched_list_reused_between_queries(device):
+    """Tuning.self_every = 2 in batched worlds (pinch and power held; on CUDA a graph for each kind
+    of frame): a frame between queries lists nothing anew (every world's pairs as the frame before
+    left them) and its substeps still press them; the next frame queries again."""
+    from physhand_mj.batch import BatchedHands
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+
+    asset, model, data = open_hand_scene("hand_only", "open")
+    ids = body_ids(model, asset.body_names)
+    held = [bone_poses_at(model, data, model.key(k).qpos.copy(), ids) for k in ("pinch", "power")]
+    pos, quat = np.stack([p for p, _ in held]), np.stack([q for _, q in held])
+    cfg = ph.Config(frame_dt=float(model.opt.timestep), device=device, sleep_speed=0.0, self_collision=True,
+                    tuning=ph.Tuning(self_every=2))
+    hands = BatchedHands(asset, 2, cfg, *mount_pose(model, data))
+    try:
+        hands.settle(pos, quat)
+        sc = hands.solver.selfc
+        seen = []
+        for _ in range(6):
+            res = hands.step(pos, quat)
+            seen.append((sc.query_now, res["self_queried"], res["self_corrections"], sc.cand.numpy().copy(),
+                         sc.cand_n.numpy().copy(), [w["self_pairs"] for w in res["worlds"]]))
+        assert all(seen[i][0] != seen[i + 1][0] for i in range(5))  # (listing and reusing frames alternate)
+        listing = [s for s in seen if s[0]]
+        reusing = [(i, s) for i, s in enumerate(seen) if not s[0]]
+        assert len(listing) == 3 and len(reusing) == 3
+        assert all(s[1] > 0 for s in listing)
+        for i, s in reusing:
+            prev = seen[i - 1] if i > 0 else None
+            assert s[1] == 0 and s[2] > 0
+            if prev is not None:
+                np.testing.assert_array_equal(s[3], prev[3])  # (nothing written into the list)
+                np.testing.assert_array_equal(s[4], prev[4])
+                assert s[5] == prev[5] and min(s[5]) > 0
+        assert np.all(np.isfinite(hands.state.x.numpy()))
+    finally:
+        hands.close()
+
+
 def test_open_hand_unchanged():
     """The open hand lists no pair (the rest filter) and moves exactly as without the option."""
     off, _ = _run("open", False, 8)
