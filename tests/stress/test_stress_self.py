@@ -25,8 +25,8 @@ def _inside(run) -> int:
     return self_penetration(x, np.asarray(run.asset.skin_faces))["inside_200um"]
 
 
-def _drive(scene, targets, measure_at=()):
-    run = Stress(scene, ON)
+def _drive(scene, targets, measure_at=(), config=ON):
+    run = Stress(scene, config)
     counts, moves, prev = {}, [], None
     for f, q in enumerate(targets):
         out = run.frame(qpos=q, measure=False)
@@ -39,17 +39,23 @@ def _drive(scene, targets, measure_at=()):
     return run, out, counts, np.array(moves)
 
 
-def test_self_fast_fist(scene, margins):
+@pytest.mark.parametrize("every", [1, 2])
+def test_self_fast_fist(scene, margins, every):
     """The power grasp's targets reached in 4 frames (20 ms), then held: measured 49 inside (700
-    without the option), volume 8.8 %, inverted 760 at most, 427 at the end (CPU)."""
+    without the option), volume 8.8 %, inverted 760 at most, 427 at the end (CPU). With one list for
+    two frames (Tuning.self_every = 2) the closing fist outruns the margin more often: measured 119
+    inside (bounded at 200), the other bounds the same."""
     o, p = scene.open, scene.key("power")
-    run, out, counts, _ = _drive(scene, [o + min((f + 1) / 4, 1.0) * (p - o) for f in range(40)], measure_at=(40,))
+    cfg = ON if every == 1 else ph.Config(device="cpu", self_collision=True, tuning=ph.Tuning(self_every=every))
+    run, out, counts, _ = _drive(scene, [o + min((f + 1) / 4, 1.0) * (p - o) for f in range(40)], measure_at=(40,),
+                                 config=cfg)
     res = run.check(volume_tol=0.12)
     r = run.arrays()
-    assert counts[40] <= 100, f"self-penetration after a fast fist: {counts[40]} skin vertices inside"
+    bound = 100 if every == 1 else 200
+    assert counts[40] <= bound, f"self-penetration after a fast fist: {counts[40]} skin vertices inside"
     assert r["inverted"].max() <= 1200, run.report()
     assert out["self_pairs"] > 0
-    margins.update(res, inside_200um=counts[40], inside_bound=100, inverted_bound=1200)
+    margins.update(res, inside_200um=counts[40], inside_bound=bound, inverted_bound=1200)
 
 
 def _held(scene, frames, margins):
