@@ -117,7 +117,9 @@ def test_overlapping_worlds_never_pair_across(setup):
     dict(skin_compression=False),
     # Tuning.self_edges: the edge pairs from each world's own edges (the edges' BVH grouped by world)
     dict(tuning=ph.Tuning(self_edges=True)),
-], ids=["tet_keep", "friction", "stretch_only_skin", "edges"])
+    # Tuning.self_every: one list for two frames, the batch's frame count as the hand's
+    dict(tuning=ph.Tuning(self_every=2)),
+], ids=["tet_keep", "friction", "stretch_only_skin", "edges", "every2"])
 def test_batched_options_equal_one_hand(setup, options):
     """Each self-collision option in batched worlds: world 1 (power) ends as the hand alone, with the
     same pairs every frame; and the option changes that hand (it is not a no-op)."""
