@@ -123,9 +123,9 @@ def test_patches_past_their_slot_go_to_the_pools_top(asset, monkeypatch):
     """winding.feature_patches with each listed feature's own slot cut to 30 entries: the larger
     patches are written again at the pool's top, below its end and above the list's slots, and the
     lists and patches still match brute force at both ends of the frame (the test above)."""
-    from physhand_mj.contact import contact as contact_mod
+    from physhand_mj.contact import patch_pool as pool_mod
 
-    monkeypatch.setattr(contact_mod, "PATCH_SLOT", 30)  # (the knife's patches: 19 to ~70)
+    monkeypatch.setattr(pool_mod, "PATCH_SLOT", 30)  # (the knife's patches: 19 to ~70)
     c = _check_lists(asset, 4.0e-3, "cpu")
     n = int(c.features.count.numpy()[0])
     cap = min(30, c.features.patch_pool.shape[0] // (2 * n))  # (the list's slots fill at most half the pool)

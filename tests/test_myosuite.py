@@ -148,7 +148,7 @@ def test_a_reorient_episode_warns_nothing_and_patches_every_listed_point():
     (past what it was sure to hold; 211 patches did not fit, with a warning to use fewer worlds),
     the pool sized for the margin holds every one from the first frame on; the lists at the margin
     (max_speed) leave no frame outrun: reset and steps raise no RuntimeWarning."""
-    from physhand_mj.contact import contact as contact_mod
+    from physhand_mj.contact import patch_pool as pool_mod
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # (MyoSuite's and MuJoCo's own)
@@ -166,4 +166,4 @@ def test_a_reorient_episode_warns_nothing_and_patches_every_listed_point():
             assert np.all(c.features.patch_len.numpy()[:n] >= 0)
             need = max(need, int(used[0]))
     assert c.reallocations == 0
-    assert 2 * need > c.points.n_features * contact_mod.PATCH_POOL_PER_FEATURE, need
+    assert 2 * need > c.points.n_features * pool_mod.PATCH_POOL_PER_FEATURE, need

@@ -251,9 +251,9 @@ def test_a_full_patch_pool_warns_and_its_overflowing_features_get_no_patch(monke
     constant to edit)."""
     import mujoco
 
-    from physhand_mj.contact import contact as contact_mod
+    from physhand_mj.contact import patch_pool as pool_mod
 
-    monkeypatch.setattr(contact_mod, "PATCH_POOL_MAX", 512)
+    monkeypatch.setattr(pool_mod, "PATCH_POOL_MAX", 512)
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
@@ -284,10 +284,10 @@ def test_a_patch_pool_too_small_for_the_scene_grows(monkeypatch):
     frame needs less, 12,781 entries, and frame 2 17,677 of the 32,768 it grew to)."""
     import mujoco
 
-    from physhand_mj.contact import contact as contact_mod
+    from physhand_mj.contact import patch_pool as pool_mod
 
-    monkeypatch.setattr(contact_mod, "PATCH_POOL_PER_FEATURE", 8)
-    monkeypatch.setattr(contact_mod, "PATCH_POOL_MIN", 64)
+    monkeypatch.setattr(pool_mod, "PATCH_POOL_PER_FEATURE", 8)
+    monkeypatch.setattr(pool_mod, "PATCH_POOL_MIN", 64)
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("grasp_glass")))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("approach").id)
@@ -321,7 +321,7 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     at most half that pool over the frame's list) and the larger patches again at the pool's top."""
     import mujoco
 
-    from physhand_mj.contact import contact as contact_mod
+    from physhand_mj.contact import patch_pool as pool_mod
 
     model = mujoco.MjModel.from_xml_path(str(ph.scene_path("hoi_box")))
     data = mujoco.MjData(model)
@@ -331,7 +331,7 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
     hand = ph.SoftHand(model, data, ph.Config(device="cpu", tuning=ph.Tuning(feature_slack=1e-2)))
     c = hand.solver.contact
     worlds = 4096
-    pool = contact_mod.patch_pool_size(c.points.n_features * worlds, hand.config.contact_frame_margin)
+    pool = pool_mod.patch_pool_size(c.points.n_features * worlds, hand.config.contact_frame_margin)
     need = layout = 0
     for _ in range(3):
         hand.step()
@@ -340,7 +340,7 @@ def test_the_patch_pool_holds_4096_worlds_of_the_box_grasp():
         length = c.features.patch_len.numpy()[:n]
         assert np.all(length >= 0)
         need = max(need, int(c.features.patch_used_host.numpy()[0]))
-        cap = min(contact_mod.PATCH_SLOT, pool // (2 * n * worlds))
+        cap = min(pool_mod.PATCH_SLOT, pool // (2 * n * worlds))
         layout = max(layout, n * cap + int(length[length > cap].sum()))
         assert cap >= 32, cap
     assert 50_000 < need <= c.features.patch_pool.shape[0]  # the grasp lists features; one hand's pool holds them

@@ -15,7 +15,6 @@ their rows (:class:`~physhand_mj.contact.measures.ContactMeasures`, ``measures``
 from __future__ import annotations
 
 import contextlib
-import math
 
 import numpy as np
 import warp as wp
@@ -28,6 +27,8 @@ from physhand_mj.contact.exchange import TwoWay
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
+from physhand_mj.contact import patch_pool
+from physhand_mj.contact.patch_pool import fit_patch_pool, patch_pool_size
 from physhand_mj.contact.patches_tiled import PATCH_LANES, feature_patches_tiled
 from physhand_mj.contact.winding import feature_patches
 from physhand_mj.contact.inside import ObjectPoints
@@ -43,45 +44,6 @@ from physhand_mj.contact.touch import TouchDamping
 from physhand_mj.config import FEATURE_LIST_SHARE
 from physhand_mj.types import Config, Model, Placement, Settings, Strategy
 from physhand_mj.launch import Recorder, tiled_blocks
-
-# the local winding number's patch pool (features.py): entries per feature point of the objects,
-# within [PATCH_POOL_MIN, PATCH_POOL_MAX] in all (the demo's listed features hold ~170 triangles each
-# within 1 cm, at most ~270, and ~184 of its ~1,760 (features every 0.25 mm) are listed per frame); a
-# patch that does not fit keeps the pseudo-normal sign (one hand) or is not pushed (CUDA batches) in
-# that frame, after which the pool grows (Contact.features_listed).
-# 2^30 int32 entries (4 GiB) at most: the HOI box grasp at W = 4096 needs 442 M (an H100, 2026-11-26;
-# with the 2^28 it had then, points of some worlds went unpushed, up to 0.49 mm inside)
-# The BVH path (winding.feature_patches) gives the k-th of a frame's n listed features the slot
-# pool[k c: (k + 1) c], c = min(PATCH_SLOT, pool // 2 n), and the larger patches room at the top (the
-# other half at least): a pool of 2 x 128 entries per feature point holds in its top half every list
-# the packed pool of 128 held, however many patches pass their slots (slots over the whole pool left
-# the hard cases' deep starts no room: 47-267 points without a patch, tests/test_winding.py); at
-# PATCH_POOL_MAX every patch is sure to fit while the list needs at most half of it packed
-PATCH_SLOT = 128
-PATCH_POOL_PER_FEATURE = 2 * PATCH_SLOT
-PATCH_POOL_MIN = 1 << 15
-PATCH_POOL_MAX = 1 << 30
-# the frame margin PATCH_POOL_PER_FEATURE was measured at (the default): a patch's radius is at most
-# Config.contact_frame_margin and the skin triangles within it grow with its square (the rest skin's,
-# within a ball about a skin vertex: 147 on average at 10 mm, 500 at 20 mm, 1,074 at 30 mm), so a
-# larger margin gets proportionally more entries per feature point, up to PATCH_POOL_SCALED (16 MiB;
-# a large object's many feature points, most of them never listed, keep the unscaled pool); past
-# that the pool grows when a frame needs more (Contact.features_listed). MyoSuite's 20 mm
-# margin: the myoHandReorient envs list ~1,400 of 1,960 points, needing 449 k entries packed, past the
-# 502 k of 256 per point (211 patches did not fit); 2.0 M with the margin's square
-PATCH_POOL_MARGIN = 0.01
-PATCH_POOL_SCALED = 1 << 22
-
-
-def patch_pool_size(n_features: int, frame_margin: float) -> int:
-    """The patch pool's first size (entries) for ``n_features`` object feature points (every
-    world's) whose patches reach at most ``frame_margin`` (m): PATCH_POOL_PER_FEATURE each, times
-    (frame_margin / PATCH_POOL_MARGIN)^2 above PATCH_POOL_MARGIN up to PATCH_POOL_SCALED in all,
-    within [PATCH_POOL_MIN, PATCH_POOL_MAX]."""
-    base = n_features * PATCH_POOL_PER_FEATURE
-    scaled = math.ceil(base * max(1.0, (float(frame_margin) / PATCH_POOL_MARGIN) ** 2))
-    return int(min(max(min(scaled, max(base, PATCH_POOL_SCALED)), PATCH_POOL_MIN), PATCH_POOL_MAX))
-
 
 # batched worlds from which CUDA runs the feature queries a thread per listed feature (Config.execution.tiled_features
 # None): the HOI box grasp on an H100 (benchmarks/batch_hoi.py), hand-frames/s with a block per feature
@@ -328,7 +290,7 @@ class Contact:
                 rec.launch(feature_patches, pts.n_features,
                            [vol.mesh.id, volw.mesh.id, m.skin_faces, self.space.skin_x(state), fl.listed, fl.count,
                             pts.pts, pts.geom, qpose, cfg.contact_frame_margin, cfg.contact_frame_margin, sd.feat_dist,
-                            sd.slack, self.geoms_per_world, PATCH_SLOT],
+                            sd.slack, self.geoms_per_world, patch_pool.PATCH_SLOT],
                            [fl.patch_used, fl.patches], count=fl.count)
 
     def record_frame_end(self, rec, state) -> None:
@@ -578,31 +540,6 @@ class Contact:
                        [self.acc.touched, count, 0, m.vertex_world, 2 * (len(self._stage_slots) - 1) + 1],
                        [self.lists.world_stage], count=count)
 
-    def _fit_patch_pool(self) -> None:
-        used, _, failed = (int(v) for v in self.features.patch_used_host.numpy())
-        # (the BVH path counts the patches that did not fit; CUDA's tiled one packs them, full past the
-        # pool's size; < 0: an int32 counter wrapped past 2^31)
-        size = self.features.patch_pool.shape[0]
-        over = bool(failed or used > size or used < 0)
-        if size < PATCH_POOL_MAX and (over or 2 * used > size):
-            # (a power of two at least twice the need and the pool: a list that keeps growing re-records rarely)
-            grown = PATCH_POOL_MAX if used < 0 else min(1 << (max(2 * used, 2 * size) - 1).bit_length(), PATCH_POOL_MAX)
-            self.features.patch_pool = wp.zeros(grown, dtype=int, device=self.model.device)
-            self.features.patches.pool = self.features.patch_pool  # (the frames are recorded again)
-            self.reallocations += 1
-        elif over and not self._patch_warned:
-            from physhand_mj.warn import warn_user
-
-            self._patch_warned = True
-            need = f"{used:,}" if used >= 0 else "over 2^31"
-            what = f"{failed} object feature points' patches did not fit: " if failed else ""
-            per = f" ({self.worlds} worlds)" if self.worlds > 1 else ""
-            warn_user(f"contact: {what}the feature points' patches (the skin triangles near each, for its inside "
-                      f"test) needed {need} entries packed, more than the pool's most{per}, {size:,} (4 GiB): "
-                      f"points past it kept the pseudo-normal sign (one hand) or were not pushed (CUDA batches). "
-                      f"Run fewer worlds per BatchedHands, or a smaller Config.contact_frame_margin (the "
-                      f"patches' radius)", RuntimeWarning)
-
     def begin_frame(self, ops: list) -> None:
         """Reset the per-frame report buffers (metrics, push, touched object)."""
         ops += [self.measures.rows.metrics.zero_, self.acc.push.zero_, lambda: self.acc.vertex_obj.fill_(-1)]
@@ -812,15 +749,17 @@ class Contact:
 
     def features_listed(self) -> int:
         """Object feature points in the last frame's list (after the frame's sync). Sizes the patch
-        pool (the local winding number's, winding.py) for the frames to come: where the frame's
-        patches needed more than half of it packed (what the BVH path is sure to fit) or did not fit,
-        it grows to twice their need, up to PATCH_POOL_MAX, and the solver records its frames again
-        (a frame that overflowed kept, for the points past the pool, the pseudo-normal sign (one
-        hand) or pushed them not at all (CUDA batches)). An overflow at PATCH_POOL_MAX warns once."""
+        pool (the local winding number's, winding.py) for the frames to come
+        (:func:`~physhand_mj.contact.patch_pool.fit_patch_pool`): where the frame's patches needed more
+        than half of it packed (what the BVH path is sure to fit) or did not fit, it grows to twice
+        their need, up to PATCH_POOL_MAX, and the solver records its frames again (a frame that
+        overflowed kept, for the points past the pool, the pseudo-normal sign (one hand) or pushed
+        them not at all (CUDA batches)). An overflow at PATCH_POOL_MAX warns once."""
         if self.features is None:
             return 0
         if self.config.feature_winding:
-            self._fit_patch_pool()
+            grown, self._patch_warned = fit_patch_pool(self.features, self.model.device, self.worlds, self._patch_warned)
+            self.reallocations += int(grown)
         return int(self.features.count_host.numpy()[0])
 
     def stage_counts(self) -> np.ndarray:

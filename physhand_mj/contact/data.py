@@ -104,7 +104,7 @@ class FeatureLists:
     stage_counts: wp.array  # (max(stages, 1),) int: per stage of a frame its list's length, zeroed per frame
     no_side: wp.array  # (1,) float: stands in for far_angle and side without Config.feature_winding (never read)
     # Config.feature_winding only (else None):
-    # (pool,) int: the listed features' patches, skin triangles each (contact.patch_pool_size; grows)
+    # (pool,) int: the listed features' patches, skin triangles each (patch_pool.patch_pool_size; grows)
     patch_pool: wp.array | None = None
     # (3,) int: [entries the patches need in all, taken at the pool's top, patches that did not fit]
     patch_used: wp.array | None = None
@@ -213,7 +213,7 @@ def make_pass_buffers(model) -> PassBuffers:
 def make_feature_lists(points, config: Config, pool: int, device) -> FeatureLists:
     """The feature lists for the object points ``points`` (an ObjectPoints: ``n_features`` feature
     points of ``pts.shape[0]`` points); ``pool``: the patch pool's first size (entries,
-    contact.patch_pool_size; Config.feature_winding only)."""
+    patch_pool.patch_pool_size; Config.feature_winding only)."""
     d, n, stages = device, points.n_features, contact_stages(config)
     cuda = wp.get_device(d).is_cuda
     lists = FeatureLists(listed=wp.zeros(n, dtype=int, device=d), count=wp.zeros(1, dtype=int, device=d),
