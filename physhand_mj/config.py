@@ -110,8 +110,9 @@ class Tuning:
         Above 1 the once-a-frame work (the query slack, the refit, the query) runs every
         ``self_every``-th frame and the substeps of the frames between press the pairs it listed:
         that work's cost over ``self_every``, but ``self_margin`` then bounds how far two parts
-        approach each other in ``self_every`` frames, not one (raise it to match;
-        docs/self_collision.md "A list for several frames").
+        approach each other in ``self_every`` frames, not one (a wider margin to match did worse; 2
+        kept the option's accuracy where MuJoCo closes the hand: docs/self_collision.md "A list for
+        several frames").
       proxy_margin: MuJoCo contact margin SoftHand gives the hand's collision proxies against objects
         (m; geoms ``*_proxy`` of the shipped hand), so MuJoCo stops a bone that much before its proxy
         meets an object. None (default): 2.5 mm (hand_mjcf.PROXY_INSET: about where the rest skin

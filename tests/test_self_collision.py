@@ -208,6 +208,25 @@ def test_list_reused_between_queries():
     assert min(listing_ops) >= 5 and reused >= 3 and res["self_pairs"] > 0
 
 
+def test_list_is_one_states():
+    """Tuning.self_every = 2 with one solver stepping two states in turn: every frame lists anew (a
+    list made on one state's skin is never pressed on the other's); one state alone reuses it."""
+    from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
+    from physhand_mj.solver import Solver, make_model
+
+    asset, model, data = open_hand_scene("hand_only", "open")
+    pose = bone_poses_at(model, data, model.key("pinch").qpos.copy(), body_ids(model, asset.body_names))
+    cfg = ph.Config(device="cpu", self_collision=True, tuning=ph.Tuning(self_every=2))
+    s = Solver(make_model(asset, cfg), cfg)
+    a, b = s.make_state(*mount_pose(model, data)), s.make_state(*mount_pose(model, data))
+    listed = []
+    for st in (a, b, a, b, a, a):
+        s.set_body_poses(st, *pose)
+        s.step(st)
+        listed.append(s.selfc.query_now)
+    assert listed == [True, True, True, True, True, False]
+
+
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not __import__("warp").is_cuda_available(), reason="no CUDA device"))])
 def test_batched_list_reused_between_queries(device):

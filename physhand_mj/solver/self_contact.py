@@ -562,7 +562,8 @@ class SelfContact:
         self.tets, self.nt1, self.vol0, self.vt_off, self.vt = skin_tet_lists(model, self.ns1)
         self.edge_pairs = None  # Tuning.self_edges: the edge-edge pairs (solver/self_edges.py; the Solver sets them)
         self.every = int(config.self_every)  # Tuning.self_every: frames one list serves
-        self.query_now = True  # (begin_frame: whether this frame lists anew)
+        self.query_now = True  # (begin_frame: whether this frame lists anew, and for which state's id)
+        self._listed_for = None
 
     def build(self, state) -> wp.Bvh:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
@@ -576,9 +577,13 @@ class SelfContact:
 
     def begin_frame(self, state) -> bool:
         """Whether the frame about to run on ``state`` lists anew (Tuning.self_every: every
-        ``self_every``-th frame of the state, its first included; the frames between reuse the list).
-        Part of the frame's graph key on CUDA (a graph for each)."""
-        self.query_now = state.frames % self.every == 0
+        ``self_every``-th frame of the state, its first included, and any frame of a state other than
+        the one the list was made for; the frames between reuse the list). Part of the frame's graph
+        key on CUDA (a graph for each)."""
+        # (a list is one state's: a solver stepping two states in turn lists anew for each)
+        self.query_now = state.frames % self.every == 0 or id(state) != self._listed_for
+        if self.query_now:
+            self._listed_for = id(state)
         return self.query_now
 
     def record_frame(self, rec, state) -> None:
