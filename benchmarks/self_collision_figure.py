@@ -6,6 +6,10 @@ inside the closed skin, those buried 0.2 mm deep (no normal involved), and the s
 another skin triangle, on a log scale (a 0 drawn as a mark on the axis).
 
     python benchmarks/self_collision_figure.py [--data F.json] [--out F.png]
+    python benchmarks/self_collision_figure.py --every   # docs/images/self_every.png
+
+``--every``: Tuning.self_every's front instead, from docs/benchmarks/self_every_1203.json: the batched
+H200 throughput (W = 4,096, pipelined) and the ``power`` keyframe's counts per k.
 """
 
 from __future__ import annotations
@@ -65,12 +69,54 @@ def figure(path: Path = DATA / "self_collision_options_cpu.json", out: Path = IM
     return out
 
 
+def every_figure(path: Path = DATA / "self_every_1203.json", out: Path = IMAGES / "self_every.png") -> Path:
+    """Tuning.self_every: hand-frames/s (H200, W = 4,096 settled, pipelined; the first machine's rows) and
+    ``power``'s counts after 36 frames (the option alone, CPU and H200) for k = 1, 2, 3."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    rows = json.loads(Path(path).read_text())["rows"]
+    batch = [r for r in rows if r["kind"].startswith("batched W=4096") and "runs" not in r]
+    tput = {r["self_every"]: r["hand_frames_per_s_submit"] for r in batch}
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10.5, 3.6))
+    labels = ["off", "k = 1", "k = 2", "k = 3"]
+    v = [tput[None], tput[1], tput[2], tput[3]]
+    a.bar(labels, v, color=["#b0b0b0", "#4c72b0", "#4c72b0", "#4c72b0"])
+    for i, y in enumerate(v):
+        a.text(i, y * 1.01, f"{y:,.0f}", ha="center", va="bottom", fontsize=8)
+    a.axhline(50000, ls="--", color="#c44e52", lw=1)
+    a.text(1.0, 50800, "the issue's 50,000", color="#c44e52", fontsize=8, ha="center")
+    a.set_ylim(0, 68000)
+    a.set_ylabel("hand-frames/s")
+    a.set_title("H200, 4,096 worlds, settled, pipelined", fontsize=10)
+    one = {(r["device"], r["self_every"]): r for r in rows if r.get("key") == "power" and r.get("options") == "option"}
+    x = np.arange(len(COUNTS))
+    for i, (dev, k, colour) in enumerate((("cpu", 1, "#4c72b0"), ("cpu", 2, "#8172b2"), ("cpu", 3, "#c44e52"),
+                                          ("cuda", 1, "#64b5cd"), ("cuda", 2, "#b39ddb"), ("cuda", 3, "#f4a582"))):
+        ys = [one[(dev, k)][c] for c, _ in COUNTS]
+        b.bar(x + (i - 2.5) * 0.13, ys, 0.13, color=colour, label=f"{'CPU' if dev == 'cpu' else 'H200'}, k = {k}")
+    b.set_xticks(x, [t for _, t in COUNTS], fontsize=8)
+    b.set_ylabel("skin vertices / edges")
+    b.set_title("power after 36 frames, self_collision", fontsize=10)
+    b.legend(fontsize=7, ncol=2)
+    b.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=130)
+    plt.close(fig)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(DATA / "self_collision_options_cpu.json"))
     ap.add_argument("--out", default=str(IMAGES / "self_collision_options.png"))
+    ap.add_argument("--every", action="store_true", help="Tuning.self_every's figure (docs/images/self_every.png) instead")
     a = ap.parse_args()
-    print(figure(Path(a.data), Path(a.out)))
+    print(every_figure() if a.every else figure(Path(a.data), Path(a.out)))
 
 
 if __name__ == "__main__":
