@@ -208,7 +208,7 @@ def test_list_reused_between_queries():
     assert min(listing_ops) >= 5 and reused >= 3 and res["self_pairs"] > 0
 
 
-def test_list_is_one_states():
+def test_list_belongs_to_one_state():
     """Tuning.self_every = 2 with one solver stepping two states in turn: every frame lists anew (a
     list made on one state's skin is never pressed on the other's); one state alone reuses it."""
     from physhand_mj.hand_mjcf import body_ids, bone_poses_at, mount_pose, open_hand_scene
