@@ -27,8 +27,7 @@ from physhand_mj.contact.exchange import TwoWay
 from physhand_mj.contact.broadphase import NO_LIST, find_active, keep_moved, stage_lists, tally_worlds
 from physhand_mj.contact.features import (FEATURE_LANES, near_features, stage_features, stage_features_scan,
                                           stage_features_tiled)
-from physhand_mj.contact import patch_pool
-from physhand_mj.contact.patch_pool import fit_patch_pool, patch_pool_size
+from physhand_mj.contact import patch_pool  # (its constants read at recording: tests shrink them)
 from physhand_mj.contact.patches_tiled import PATCH_LANES, feature_patches_tiled
 from physhand_mj.contact.winding import feature_patches
 from physhand_mj.contact.inside import ObjectPoints
@@ -262,7 +261,7 @@ class Contact:
         pts = self.points
         if cfg.feature_contact and self.closed_skin and pts.n_features:
             if self.features is None:
-                pool = patch_pool_size(pts.n_features, cfg.contact_frame_margin)
+                pool = patch_pool.patch_pool_size(pts.n_features, cfg.contact_frame_margin)
                 self.features = make_feature_lists(pts, cfg, pool, m.device)
                 # Config.tuning.feature_slack's buffers and check (slack.py)
                 self.slack_check = SlackCheck(m, o, cfg, pts, self.worlds, self.geoms_per_world)
@@ -758,7 +757,8 @@ class Contact:
         if self.features is None:
             return 0
         if self.config.feature_winding:
-            grown, self._patch_warned = fit_patch_pool(self.features, self.model.device, self.worlds, self._patch_warned)
+            grown, self._patch_warned = patch_pool.fit_patch_pool(self.features, self.model.device, self.worlds,
+                                                                  self._patch_warned)
             self.reallocations += int(grown)
         return int(self.features.count_host.numpy()[0])
 

@@ -602,7 +602,11 @@ class SelfContact:
             rec.launch(zero_corrections, self.worlds, [], [self.wcounts])
         finally:
             rec.ops = outer
-        outer.append(lambda: [op() for op in (listing if self.query_now else keeping)])
+
+        def either():
+            for op in listing if self.query_now else keeping:
+                op()
+        outer.append(either)
 
     def _record_list(self, rec, state) -> None:
         """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
