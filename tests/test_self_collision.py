@@ -446,3 +446,93 @@ def test_query_slack_a_hand_carried_rigidly():
     assert max(queried[6:10]) > 0.8 * ns  # (the jolt: the flesh lags its bones)
     assert np.mean(queried[-10:]) < 0.4 * ns, queried[-10:]
     assert np.all(np.isfinite(hands.state.x.numpy()))
+
+
+def test_query_order_changes_the_queue_not_the_lists():
+    """CUDA takes the skin vertices in the rest shape's Morton order (self_slack.QuerySlack.order):
+    the same order on the CPU queues the same vertices in another order and lists the same
+    triangles per vertex."""
+    import mujoco
+
+    from physhand_mj.solver.self_slack import spatial_order
+
+    runs = [_hand("power", True) for _ in range(2)]
+    sc = runs[1][2].solver.selfc
+    order = spatial_order(sc.rest.numpy())
+    assert not np.array_equal(order, np.arange(sc.ns1))
+    sc.query.order.assign(order)
+    got = []
+    for model, data, hand in runs:
+        mujoco.mj_step(model, data)
+        res = hand.step()
+        s = hand.solver.selfc
+        n, cand = s.cand_n.numpy(), s.cand.numpy()
+        got.append((s.query.qlist.numpy()[: res["self_queried"]].copy(), res["self_pairs"],
+                    {int(v): sorted(cand[v, : n[v]].tolist()) for v in np.flatnonzero(n)}))
+    (q0, p0, l0), (q1, p1, l1) = got
+    assert len(q0) > 100 and p0 > 0 and not np.array_equal(q0, q1)
+    np.testing.assert_array_equal(np.sort(q0), np.sort(q1))
+    assert p0 == p1 and l0 == l1
+
+
+def _brute_lists(x, rest, faces, vn, queried, margin, reach, rest_gap):
+    """Per queried skin vertex the triangles the list rule keeps, over every triangle (float64, the
+    distances by trimesh), with the pairs within 1e-7 m or 1e-6 of a threshold set apart (float32 may
+    land on either side): ({v: kept set}, {v: unsure set})."""
+    import trimesh
+
+    from physhand_mj.solver.self_contact import FOLD_GAP
+
+    tri, rtri = x[faces], rest[faces]
+    centre = rtri.mean(axis=1)
+    now = tri.mean(axis=1)
+    spread = np.linalg.norm(tri - now[:, None], axis=2).max()  # (a triangle within margin has its centroid within margin + this)
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    kept, unsure = {}, {}
+    eps = 1e-7
+    for v in queried:
+        mine = ~(faces == v).any(axis=1) & (np.linalg.norm(now - x[v], axis=1) <= margin + spread + eps)
+        cand = np.flatnonzero(mine)
+        d = np.linalg.norm(trimesh.triangles.closest_point(tri[cand], np.repeat(x[v][None], len(cand), 0)) - x[v], axis=1)
+        dr = np.linalg.norm(trimesh.triangles.closest_point(rtri[cand], np.repeat(rest[v][None], len(cand), 0)) - rest[v], axis=1)
+        rfar = np.linalg.norm(centre[cand] - rest[v], axis=1)
+        cos = fn[cand] @ vn[v] / np.maximum(np.linalg.norm(fn[cand], axis=1) * np.linalg.norm(vn[v]), 1e-30)
+        near = (d <= margin) & (rfar >= FOLD_GAP) & (dr >= FOLD_GAP) & ~((dr < rest_gap) & (cos >= 0.0))
+        edge = ((np.abs(d - margin) < eps) | (np.abs(rfar - FOLD_GAP) < eps) | (np.abs(dr - FOLD_GAP) < eps)
+                | (np.abs(dr - rest_gap) < eps) | (np.abs(cos) < 1e-6))
+        kept[v] = set(cand[near & ~edge].tolist())
+        unsure[v] = set(cand[edge].tolist())
+    return kept, unsure
+
+
+def test_broadphase_lists_what_a_brute_force_keeps():
+    """The power grasp closing (the query slack zeroed so that every skin vertex is queried): each
+    vertex's listed triangles are those a brute force over every skin triangle keeps by the list's
+    rule (float64, trimesh's closest points; the list's SLOTS nearest where more are kept): the BVH
+    walk misses none and the rest filter and fold rule are the documented ones."""
+    import mujoco
+
+    from physhand_mj.solver.self_contact import SLOTS
+    from physhand_mj.solver.self_slack import REACH
+
+    model, data, hand = _hand("power", True)
+    cfg = hand.config
+    sc = hand.solver.selfc
+    for _ in range(24):
+        x0 = hand.state.x.numpy()[: sc.ns1].astype(np.float64)  # (the positions the frame's query sees)
+        sc.query.slack.zero_()
+        mujoco.mj_step(model, data)
+        res = hand.step()
+    assert res["self_pairs"] > 0 and res["self_queried"] == sc.ns1
+    faces = sc.faces.numpy()
+    rest = sc.rest.numpy().astype(np.float64)
+    vn = sc.vn_now.numpy().astype(np.float64)
+    n, cand = sc.cand_n.numpy(), sc.cand.numpy()
+    kept, unsure = _brute_lists(x0, rest, faces, vn, range(sc.ns1), float(cfg.self_margin),
+                                float(cfg.self_margin) + REACH, float(cfg.self_rest_gap))
+    for v in range(sc.ns1):
+        listed = set(cand[v, : n[v]].tolist())
+        if len(kept[v]) + len(unsure[v]) <= SLOTS:
+            assert kept[v] <= listed <= kept[v] | unsure[v], v
+        else:
+            assert listed <= kept[v] | unsure[v] and len(listed) == SLOTS, v

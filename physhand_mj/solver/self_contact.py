@@ -524,7 +524,7 @@ class SelfContact:
         self.bvh = None  # (built at the first frame recorded, from its state's skin)
         self.roots = wp.zeros(W, dtype=int, device=d)  # per world its subtree's root in the BVH
         # which skin vertices the frame queries (solver/self_slack.py: their slack, the list of them)
-        self.query = QuerySlack(model, W, self.ns1, self.nb1, faces1, d)
+        self.query = QuerySlack(model, W, self.ns1, self.nb1, faces1, rest, d)
         self.fcount = wp.zeros(1, dtype=int, device=d)
         # per triangle its rest centroid (the rest filter's bound)
         self.rest_centre = wp.array(rest[faces1].mean(axis=1).astype(np.float32), dtype=wp.vec3, device=d)
