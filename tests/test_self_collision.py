@@ -454,11 +454,11 @@ def test_query_order_changes_the_queue_not_the_lists():
     triangles per vertex."""
     import mujoco
 
-    from physhand_mj.solver.self_slack import spatial_order
+    from physhand_mj.solver.model import morton_code
 
     runs = [_hand("power", True) for _ in range(2)]
     sc = runs[1][2].solver.selfc
-    order = spatial_order(sc.rest.numpy())
+    order = np.argsort(morton_code(sc.rest.numpy()), kind="stable").astype(np.int32)
     assert not np.array_equal(order, np.arange(sc.ns1))
     sc.query.order.assign(order)
     got = []

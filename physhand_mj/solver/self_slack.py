@@ -22,6 +22,7 @@ import numpy as np
 import warp as wp
 
 from physhand_mj.contact.self_measures import skin_edges
+from physhand_mj.solver.model import morton_code
 
 wp.set_module_options({"enable_backward": False})
 
@@ -44,21 +45,8 @@ DEFORM_REACH = wp.constant(1.2e-2)  # m: a vertex reads (or writes) at most this
 CHUNK = 16  # skin vertices of one bone a bone_bounds thread folds into the bone's figures
 # Whether pick_queries takes one world's skin vertices in the rest shape's Morton order on CUDA
 # (QuerySlack.order; the CPU takes them ascending either way): H200, W = 4,096 settled, pick_queries
-# 3.2 -> 2.6 ms a listing frame, the broadphase unchanged (docs/self_collision.md "How it runs").
+# 3.2 -> 2.6 ms a listing frame, the broadphase unchanged (docs/self_collision.md "How contact is found").
 SPATIAL_QUEUE = True
-
-
-def spatial_order(rest: np.ndarray, bits: int = 10) -> np.ndarray:
-    """The vertices of ``rest`` (n, 3) in Morton (Z-curve) order of their positions, each axis
-    quantised to 2^bits steps over the points' box (int32 indices)."""
-    p = np.asarray(rest, dtype=np.float64)
-    lo, span = p.min(axis=0), np.maximum(np.ptp(p, axis=0), 1e-12)
-    q = np.minimum(((p - lo) / span * (1 << bits)).astype(np.int64), (1 << bits) - 1)
-    code = np.zeros(len(p), dtype=np.int64)
-    for b in range(bits):
-        for a in range(3):
-            code |= ((q[:, a] >> b) & 1) << (3 * b + a)
-    return np.argsort(code, kind="stable").astype(np.int32)
 
 
 @wp.func
@@ -346,8 +334,9 @@ class QuerySlack:
         # warp's 32 lanes are skin near each other, near the same bones and grid cells (their loops run
         # together). The asset's numbering is spatially random: 32 consecutive skin vertices span the
         # hand. (The queue then comes in the order the warps append it; the lists do not depend on it.)
-        self.order = wp.array(spatial_order(rest1) if wp.get_device(d).is_cuda and SPATIAL_QUEUE
-                              else np.arange(ns1, dtype=np.int32), dtype=int, device=d)
+        spatial = wp.get_device(d).is_cuda and SPATIAL_QUEUE
+        order = np.argsort(morton_code(rest1), kind="stable") if spatial else np.arange(ns1)
+        self.order = wp.array(order.astype(np.int32), dtype=int, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
         self.qcount = wp.zeros(1, dtype=int, device=d)
 
