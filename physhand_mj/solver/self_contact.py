@@ -683,7 +683,8 @@ class SelfContact:
         # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: with a query its
         # marks', boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed); a
         # frame reusing the last list (Tuning.self_every) runs only its counts' zeroing before the passes
-        ops = (5 + (4 if q else 0) if self.query_now else 1) + (2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0)
+        ops = 5 + (4 if q else 0) if self.query_now else 1
+        ops += 2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0
         edges = {}
         if self.edge_pairs is not None:
             edges = self.edge_pairs.report()
