@@ -39,3 +39,14 @@ def test_the_geom_set_kernels_build_for_an_h100(tmp_path):
     for i, module in enumerate(modules):
         out = wp.compile_aot_module(module, arch=90, module_dir=tmp_path / str(i), use_ptx=False)
         assert out and all(p.exists() and p.stat().st_size > 0 for p in out)
+
+
+@pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")
+def test_the_self_contact_kernels_build_for_an_h100(tmp_path):
+    """solver/self_contact.py (the query, the CPU's listing, the passes' launches) and
+    solver/self_slack.py (the query slack) build to sm_90 machine code."""
+    from physhand_mj.solver import self_contact, self_slack
+
+    for i, module in enumerate((self_contact, self_slack)):
+        out = wp.compile_aot_module(module, arch=90, module_dir=tmp_path / str(i), use_ptx=False)
+        assert out and all(p.exists() and p.stat().st_size > 0 for p in out)
