@@ -47,7 +47,7 @@ def test_fused_self_passes_equal_the_launches(key, monkeypatch):
     the fused kernel followed by self_contact's launches (fused.SELF_IN_KERNEL False), with the same
     pairs every frame; the frame is one frame launch plus the self-contact query's once-a-frame ops:
     2 x self_passes x substeps launches, the last advance and the inverted-tet count fewer than the
-    fused kernel with the launches after it (pinch / power: 30 ops against 110; non-fused 170)."""
+    fused kernel with the launches after it (pinch / power: 28 ops against 108; non-fused 168)."""
     frames = 4
     fz, res, pairs = _run(key, frames)
     assert fz.solver.fused_substep and fz.solver._self_fused  # (the CPU default takes the fused self path)
@@ -64,7 +64,7 @@ def test_fused_self_passes_equal_the_launches(key, monkeypatch):
     passes = 2 * cfg.self_passes * cfg.substeps
     # (hand_only's SoftHand has a contact stage, gated off: a launch per substep either way)
     assert out_res["ops_run"] - res["ops_run"] == passes
-    assert res["self_ops_run"] == 10 and out_res["self_ops_run"] == 10 + passes  # (a queried frame: slack and query)
+    assert res["self_ops_run"] == 9 and out_res["self_ops_run"] == 9 + passes  # (a queried frame: slack and query)
     assert res["self_corrections"] == ref_res["self_corrections"] == out_res["self_corrections"]
 
 
@@ -93,7 +93,7 @@ def test_fused_self_frame_is_one_launch(monkeypatch):
     """Without objects the fused self path's frame is the option-off frame plus the query's
     once-a-frame ops (one frame launch: no launch a substep), bit for bit the non-fused solver's and
     the fused kernel's with self_contact's launches after it (closing to the power grasp, ops a frame:
-    off 2; on 15, against 106 with the launches and 166 non-fused)."""
+    off 2; on 13, against 104 with the launches and 164 non-fused)."""
     fz, st, res, pairs = _solver_run(10)
     assert fz.fused_substep and fz._self_fused and max(pairs) > 0
     ref, st_ref, ref_res, ref_pairs = _solver_run(10, fused_substep=False)
@@ -105,7 +105,7 @@ def test_fused_self_frame_is_one_launch(monkeypatch):
             np.testing.assert_array_equal(getattr(st, name).numpy(), getattr(other, name).numpy(), err_msg=name)
     off, _, off_res, _ = _solver_run(1, self_collision=False)
     cfg = fz.config
-    assert res["ops_run"] == off_res["ops_run"] + 13  # (the slack's 5 and the query's 8: self_contact.record_frame)
+    assert res["ops_run"] == off_res["ops_run"] + 12  # (the slack's 5 and the query's 7: self_contact.record_frame)
     # with the launches: a fused launch per substep (frame launch off), the passes, the last advance and the count
     assert out_res["ops_run"] - res["ops_run"] == 2 * cfg.self_passes * cfg.substeps + cfg.substeps - 1 + 2
     assert ref_res["ops_run"] > out_res["ops_run"]
@@ -212,7 +212,7 @@ def test_batched_fused_self_equals_the_launches(keys, monkeypatch):
     for other in (ref, out):
         _same_batch_state(fz, other)
     off, off_res, *_ = _batch_run(keys, self_collision=False)
-    assert res["ops_run"] == off_res["ops_run"] + 13
+    assert res["ops_run"] == off_res["ops_run"] + 12
     cfg = fz.config
     assert out_res["ops_run"] - res["ops_run"] == 2 * cfg.self_passes * cfg.substeps + cfg.substeps - 1 + 2
     for w, key in enumerate(keys):  # each world as one hand alone (the fused self path too: the CPU's default)

@@ -110,35 +110,12 @@ def _after(d0: float, t0: int, d1: float, t1: int) -> bool:
     return d0 > d1 or (d0 == d1 and t0 > t1)
 
 
-@wp.func
-def list_vertex(v: int, n: int, w: int, vo: int, faces: wp.array2d(dtype=int), cand: wp.array2d(dtype=int), seg: int,
-                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
-                counts: wp.array(dtype=int), wcounts: wp.array2d(dtype=int), wvlist: wp.array(dtype=int),
-                winvolved: wp.array(dtype=int)):
-    """Skin vertex v (of world w, its first skin vertex ``vo``), with ``n`` triangles listed in
-    ``cand``, into the listed vertices (``vlist``; ``seg``: its world's segment of ``wvlist`` too),
-    its pairs counted, it and its triangles' corners into the involved vertices."""
-    s = wp.atomic_add(counts, 0, 1)
-    vlist[s] = v
-    wp.atomic_add(counts, 2, n)
-    sw = wp.atomic_add(wcounts, w, 0, 1)
-    if seg != 0:
-        wvlist[vo + sw] = v
-    wp.atomic_add(wcounts, w, 1, n)
-    touch_vertex(v, mark, involved, counts, seg, w, vo, winvolved, wcounts)
-    for k in range(n):
-        tk = cand[v, k]
-        touch_vertex(faces[tk, 0], mark, involved, counts, seg, w, vo, winvolved, wcounts)
-        touch_vertex(faces[tk, 1], mark, involved, counts, seg, w, vo, winvolved, wcounts)
-        touch_vertex(faces[tk, 2], mark, involved, counts, seg, w, vo, winvolved, wcounts)
-
-
 @wp.kernel
 def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float, slack: wp.array(dtype=float),
                bvh: wp.uint64, roots: wp.array(dtype=int), ns: int, nf: int, x: wp.array(dtype=wp.vec3),
                rest: wp.array(dtype=wp.vec3),
                faces: wp.array2d(dtype=int), rest_centre: wp.array(dtype=wp.vec3), margin: float, rest_gap: float,
-               vn_now: wp.array(dtype=wp.vec3), fold_gap: float, seg: int, list_here: int,
+               vn_now: wp.array(dtype=wp.vec3), fold_gap: float, seg: int,
                cand: wp.array2d(dtype=int), cand_d: wp.array2d(dtype=float), cand_n: wp.array(dtype=int),
                vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
                counts: wp.array(dtype=int), wcounts: wp.array2d(dtype=int), wvlist: wp.array(dtype=int),
@@ -147,8 +124,7 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
     keeps (the nearest SLOTS); counts: [listed vertices, involved vertices, pairs, pairs dropped for
     want of a slot]; per world (``wcounts``): [listed vertices, pairs, pairs dropped, corrections,
     involved vertices]; ``seg``: the listed and involved vertices also per world (``wvlist``,
-    ``winvolved``: world w's from w ns on; the fused substep's blocks read them); ``list_here`` 0:
-    the lists are left to :func:`list_queried` (the CPU).
+    ``winvolved``: world w's from w ns on; the fused substep's blocks read them).
     World w's skin is vertices [w ns, (w + 1) ns) and triangles [w nf, (w + 1) nf); ``rest`` and
     ``rest_centre`` hold one world's (the rest shape is every world's)."""
     i = wp.tid()
@@ -229,24 +205,20 @@ def broadphase(nq: wp.array(dtype=int), qlist: wp.array(dtype=int), reach: float
             wp.atomic_add(wcounts, w, 2, 1)
     cand_n[v] = n
     slack[v] = nearest_kept - margin
-    if n > 0 and list_here != 0:
-        list_vertex(v, n, w, vo, faces, cand, seg, vlist, involved, mark, counts, wcounts, wvlist, winvolved)
-
-
-@wp.kernel
-def list_queried(faces: wp.array2d(dtype=int), cand: wp.array2d(dtype=int), cand_n: wp.array(dtype=int), ns: int,
-                 seg: int, vlist: wp.array(dtype=int), involved: wp.array(dtype=int), mark: wp.array(dtype=int),
-                 counts: wp.array(dtype=int), wcounts: wp.array2d(dtype=int), wvlist: wp.array(dtype=int),
-                 winvolved: wp.array(dtype=int)):
-    """The CPU's listing after its broadphase (``list_here`` 0): every skin vertex with triangles
-    listed (only the frame's queried have any: pick_queries empties the others' lists) into the lists,
-    in ascending order, so that the passes, which add their corrections in that order, do not depend
-    on the order the query took the vertices in (QuerySlack.order)."""
-    v = wp.tid()
-    n = cand_n[v]
     if n > 0:
-        w = v // ns
-        list_vertex(v, n, w, w * ns, faces, cand, seg, vlist, involved, mark, counts, wcounts, wvlist, winvolved)
+        s = wp.atomic_add(counts, 0, 1)
+        vlist[s] = v
+        wp.atomic_add(counts, 2, n)
+        sw = wp.atomic_add(wcounts, w, 0, 1)
+        if seg != 0:
+            wvlist[vo + sw] = v
+        wp.atomic_add(wcounts, w, 1, n)
+        touch_vertex(v, mark, involved, counts, seg, w, vo, winvolved, wcounts)
+        for k in range(n):
+            tk = cand[v, k]
+            touch_vertex(faces[tk, 0], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            touch_vertex(faces[tk, 1], mark, involved, counts, seg, w, vo, winvolved, wcounts)
+            touch_vertex(faces[tk, 2], mark, involved, counts, seg, w, vo, winvolved, wcounts)
 
 
 @wp.kernel
@@ -553,8 +525,7 @@ class SelfContact:
         self.roots = wp.zeros(W, dtype=int, device=d)  # per world its subtree's root in the BVH
         # which skin vertices the frame queries (solver/self_slack.py: their slack, the list of them)
         self.query = QuerySlack(model, W, self.ns1, self.nb1, faces1, rest, d)
-        self.fcount = wp.zeros(1, dtype=int, device=d)  # (CPU: the launches' sizes when anything is queried)
-        self.scount = wp.zeros(1, dtype=int, device=d)
+        self.fcount = wp.zeros(1, dtype=int, device=d)
         # per triangle its rest centroid (the rest filter's bound)
         self.rest_centre = wp.array(rest[faces1].mean(axis=1).astype(np.float32), dtype=wp.vec3, device=d)
         # one world's skin triangles by corner vertex, ascending (skin_normals)
@@ -640,7 +611,7 @@ class SelfContact:
     def _record_list(self, rec, state) -> None:
         """The frame's list: last frame's marks cleared; the vertices whose slack is used up picked;
         for them (CPU: only when there are any) their normals and the triangles' boxes, the BVH refit,
-        the broadphase (CPU: then the listing, :func:`list_queried`). Each a launch over every world."""
+        the broadphase. Each a launch over every world."""
         cfg, d = self.config, self.device
         bvh = self.build(state)
         cuda = wp.get_device(d).is_cuda
@@ -656,10 +627,9 @@ class SelfContact:
             return op if cuda else (lambda: op() if q[0] else None)
 
         nf = int(self.faces.shape[0])
-        if not cuda:  # (CPU: the boxes' and the listing's launches sized 0 when nothing is queried)
-            fc, sc = self.fcount.numpy(), self.scount.numpy()
-            ns = self.n_skin
-            rec.ops.append(lambda: (fc.__setitem__(0, nf if q[0] else 0), sc.__setitem__(0, ns if q[0] else 0)))
+        if not cuda:  # (CPU: the boxes' launch sized 0 when nothing is queried)
+            fc = self.fcount.numpy()
+            rec.ops.append(lambda: fc.__setitem__(0, nf if q[0] else 0))
         rec.launch(skin_normals, self.n_skin,
                    [qs.qcount, qs.qlist, state.x, self.faces, ns1, self.nf1, self.vt_off_skin, self.vt_skin],
                    [self.vn_now], count=qs.qcount)
@@ -669,14 +639,10 @@ class SelfContact:
         rec.launch(broadphase, self.n_skin,
                    [qs.qcount, qs.qlist, reach, qs.slack, bvh.id, self.roots, ns1, self.nf1, state.x, self.rest, self.faces,
                     self.rest_centre, float(cfg.self_margin), float(cfg.self_rest_gap), self.vn_now, float(FOLD_GAP),
-                    int(self.in_kernel), int(cuda)],
+                    int(self.in_kernel)],
                    [self.cand, self.cand_d, self.cand_n, self.vlist, self.involved, self.mark, self.counts, self.wcounts,
                     self.wvlist, self.winvolved],
                    count=qs.qcount)
-        if not cuda:  # (the CPU's queue comes in the rest shape's Morton order: the lists ascending after it)
-            rec.launch(list_queried, self.n_skin, [self.faces, self.cand, self.cand_n, ns1, int(self.in_kernel)],
-                       [self.vlist, self.involved, self.mark, self.counts, self.wcounts, self.wvlist, self.winvolved],
-                       count=self.scount)
         if self.edge_pairs is not None:  # (after the vertices' list: it marks the vertices already through)
             self.edge_pairs.record_frame(rec, state, when_queried)
         # the list lengths the substeps' list launches read (CPU: on the host for free)
@@ -712,13 +678,12 @@ class SelfContact:
         q = int(self.query.qcount.numpy()[0]) if self.query_now else 0
         cfg = self.config
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
-        # thread past its list returning): the motion bound's five, the query's five with any
-        # vertex queried (the normals, the boxes, the refit, the walk, the listing in vertex order),
-        # the substeps' 2 x passes with any pair listed (however many worlds; inside the fused kernel
-        # the substep passes launch nothing of their own; Tuning.self_edges: with a query its marks',
-        # boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed); a
+        # thread past its list returning): the motion bound's five, the query's four with any
+        # vertex queried, the substeps' 2 x passes with any pair listed (however many worlds; inside the
+        # fused kernel the substep passes launch nothing of their own; Tuning.self_edges: with a query its
+        # marks', boxes' and pairs' 4, and with an edge pair listed 1 a pass, 2 where no vertex is listed); a
         # frame reusing the last list (Tuning.self_every) runs only its counts' zeroing before the passes
-        ops = 5 + (5 if q else 0) if self.query_now else 1
+        ops = 5 + (4 if q else 0) if self.query_now else 1
         ops += 2 * cfg.self_passes * cfg.substeps if c[0] and not self.in_kernel else 0
         edges = {}
         if self.edge_pairs is not None:

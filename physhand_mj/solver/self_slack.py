@@ -43,11 +43,9 @@ DEFORM_CELLS = 32768  # per world (a power of two; 128 KB)
 DEFORM_NONE = wp.constant(2147483647)  # (a move past 2 m, or NaN: the bone's bound instead)
 DEFORM_REACH = wp.constant(1.2e-2)  # m: a vertex reads (or writes) at most this far around it, else its bone's bound
 CHUNK = 16  # skin vertices of one bone a bone_bounds thread folds into the bone's figures
-# Whether pick_queries takes one world's skin vertices in the rest shape's Morton order (QuerySlack.order;
-# else ascending), and so the broadphase its queue: H200, W = 4,096 settled, pick_queries 3.2 -> 2.6 ms a
-# listing frame, the broadphase unchanged; CPU, the held fist, the broadphase 9.4 -> 8.0-9.2 ms, the frame
-# ~2 % (its walks in turn touch the same nodes; the CPU lists in vertex order after it: bit for bit)
-# (docs/self_collision.md "How contact is found").
+# Whether pick_queries takes one world's skin vertices in the rest shape's Morton order on CUDA
+# (QuerySlack.order; the CPU takes them ascending either way): H200, W = 4,096 settled, pick_queries
+# 3.2 -> 2.6 ms a listing frame, the broadphase unchanged (docs/self_collision.md "How contact is found").
 SPATIAL_QUEUE = True
 
 
@@ -331,13 +329,13 @@ class QuerySlack:
         self.near = wp.zeros((nbw, nb1 + 1), dtype=int, device=d)
         self.pose_inv = wp.zeros(nbw, dtype=wp.transform, device=d)  # per bone slot its pose's inverse now
         self.slack = wp.zeros(ns, dtype=float, device=d)
-        # the order pick_queries' threads take one world's skin vertices in, and so the queue's: the rest
-        # shape's Morton order, so that a warp's 32 lanes (CUDA) are skin near each other, near the same bones
-        # and grid cells (their loops run together), and the CPU's walks in turn touch the same tree nodes.
-        # The asset's numbering is spatially random: 32 consecutive skin vertices span the hand. (The lists
-        # do not depend on the order; the CPU lists the vertices ascending after the query:
-        # self_contact.list_queried.)
-        order = np.argsort(morton_code(rest1), kind="stable") if SPATIAL_QUEUE else np.arange(ns1)
+        # the order pick_queries' threads take one world's skin vertices in: on the CPU ascending (one lane:
+        # the queue, and so the lists, in vertex order); on CUDA the rest shape's Morton order, so that a
+        # warp's 32 lanes are skin near each other, near the same bones and grid cells (their loops run
+        # together). The asset's numbering is spatially random: 32 consecutive skin vertices span the
+        # hand. (The queue then comes in the order the warps append it; the lists do not depend on it.)
+        spatial = wp.get_device(d).is_cuda and SPATIAL_QUEUE
+        order = np.argsort(morton_code(rest1), kind="stable") if spatial else np.arange(ns1)
         self.order = wp.array(order.astype(np.int32), dtype=int, device=d)
         self.qlist = wp.zeros(ns, dtype=int, device=d)
         self.qcount = wp.zeros(1, dtype=int, device=d)
