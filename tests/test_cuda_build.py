@@ -43,7 +43,7 @@ def test_the_geom_set_kernels_build_for_an_h100(tmp_path):
 
 @pytest.mark.skipif(90 not in _nvrtc_archs(), reason="Warp's NVRTC cannot target sm_90 here")
 def test_the_self_contact_kernels_build_for_an_h100(tmp_path):
-    """solver/self_contact.py (the query, the CPU's listing, the passes' launches) and
+    """solver/self_contact.py (the query, the passes' launches, the fold rule's normals) and
     solver/self_slack.py (the query slack) build to sm_90 machine code."""
     from physhand_mj.solver import self_contact, self_slack
 
