@@ -475,7 +475,7 @@ def test_query_order_changes_the_queue_not_the_lists():
     assert p0 == p1 and l0 == l1
 
 
-def _brute_lists(x, rest, faces, vn, queried, margin, reach, rest_gap):
+def _brute_lists(x, rest, faces, vn, queried, margin, rest_gap):
     """Per queried skin vertex the triangles the list rule keeps, over every triangle (float64, the
     distances by trimesh), with the pairs within 1e-7 m or 1e-6 of a threshold set apart (float32 may
     land on either side): ({v: kept set}, {v: unsure set})."""
@@ -513,7 +513,6 @@ def test_broadphase_lists_what_a_brute_force_keeps():
     import mujoco
 
     from physhand_mj.solver.self_contact import SLOTS
-    from physhand_mj.solver.self_slack import REACH
 
     model, data, hand = _hand("power", True)
     cfg = hand.config
@@ -528,8 +527,7 @@ def test_broadphase_lists_what_a_brute_force_keeps():
     rest = sc.rest.numpy().astype(np.float64)
     vn = sc.vn_now.numpy().astype(np.float64)
     n, cand = sc.cand_n.numpy(), sc.cand.numpy()
-    kept, unsure = _brute_lists(x0, rest, faces, vn, range(sc.ns1), float(cfg.self_margin),
-                                float(cfg.self_margin) + REACH, float(cfg.self_rest_gap))
+    kept, unsure = _brute_lists(x0, rest, faces, vn, range(sc.ns1), float(cfg.self_margin), float(cfg.self_rest_gap))
     for v in range(sc.ns1):
         listed = set(cand[v, : n[v]].tolist())
         if len(kept[v]) + len(unsure[v]) <= SLOTS:
