@@ -398,8 +398,7 @@ class BatchedHands:
             self.objects.set_pose_rows(obj)
         if self.two_way is not None:  # (after the frame in flight: it reads the exchange's inputs)
             self.two_way.send(sent)
-        self.solver.set_body_pose_rows(self.state, rows)
-        self.solver.launch(self.state, staged=staged)
+        self.solver.launch(self.state, staged=staged, rows=rows)  # (the host's copy of the rows after the launch)
         return self._claim()
 
     def wait(self) -> dict | None:

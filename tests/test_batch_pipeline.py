@@ -232,6 +232,49 @@ def test_a_staged_upload_is_taken_only_with_the_rows_it_was_staged_with(setup):
     assert np.array_equal(up[1], rows_b)
 
 
+def test_a_launch_given_its_staged_rows_sets_them_after_queueing(setup):
+    """``Solver.launch(state, staged=token, rows=rows)`` (what ``submit`` does) sets the frame's end
+    poses as ``set_body_pose_rows`` then ``launch`` would, with the host copy of the rows made after the
+    frame is queued where the token holds these very rows (``PoseInput.set_rows_late``): the same
+    uploaded poses, host rows and skins as the two calls; a token for other rows is declined and the
+    rows set as usual."""
+    asset, model, data, ids, mount = setup
+    q = model.key("open").qpos.copy()
+    adr = model.jnt_qposadr[model.joint("mcp2_flexion_r").id]
+    both = [BatchedHands(asset, 1, Config(device="cpu"), *mount) for _ in range(2)]
+
+    def rows_at(hands, angle):
+        q[adr] = angle
+        pos, quat = bone_poses_at(model, data, q, ids)
+        return hands.solver.pose_rows(pos + hands.offsets[0], quat)
+
+    for late, hands in zip((False, True), both):
+        solver, state = hands.solver, hands.state
+        rows_a, rows_b, rows_c = (rows_at(hands, a) for a in (0.1, 0.4, 0.7))
+        solver.set_body_pose_rows(state, rows_a)
+        solver.launch(state)
+        token = solver.stage_pose_rows(state, rows_b)
+        solver.finish(state)
+        if late:
+            assert solver.poses.set_rows_late(state, rows_c, token, None) is False  # (staged for other rows)
+            assert solver.poses.set_rows_late(state, rows_b, token, None) is True
+            solver.launch(state, staged=token, rows=rows_b)
+        else:
+            solver.set_body_pose_rows(state, rows_b)
+            solver.launch(state, staged=token)
+        assert np.array_equal(state.pose_host[0], rows_b) and np.array_equal(state.pose_host[1], rows_b)
+        solver.finish(state)
+        up = state.body_pose.numpy()
+        assert np.array_equal(up[0], rows_a) and np.array_equal(up[1], rows_b)
+        # a token for other rows: declined, the rows set before the launch (the frame still ends at them)
+        token = solver.stage_pose_rows(state, rows_b) if solver.launch(state) is None else None
+        solver.finish(state)
+        solver.launch(state, staged=token, rows=rows_c)
+        solver.finish(state)
+        assert np.array_equal(state.body_pose.numpy()[1], rows_c) and np.array_equal(state.pose_host[1], rows_c)
+    assert np.array_equal(both[0].skins(), both[1].skins())
+
+
 def test_a_pipelined_batch_warns_of_a_fast_bone_as_step_does(setup):
     """The fast-motion check (a bone moving farther in a frame than Config.contact_frame_margin -
     contact_margin) is taken when ``submit`` stages the poses: a batch whose hands jump 3 cm in one

@@ -95,6 +95,30 @@ class PoseInput:
         state.pose_fresh = True
         self._rows_set = rows
 
+    def set_rows_late(self, state: State, rows: np.ndarray, staged, in_flight: State | None) -> bool:
+        """:meth:`set_body_pose_rows` for a launch taking ``staged`` (:meth:`stage_pose_rows`' token),
+        where that token holds these very ``rows`` and takes the launch's fast-motion check: the rows
+        are set now but go into ``state.pose_host`` only with :meth:`rows_landed`, after the frame is
+        queued (the upload buffer already holds them; at W = 4,096 worlds the host copy takes ~0.5 ms,
+        which would otherwise lie between one frame's end and the next one's launch). False (nothing
+        set) where the token does not fit: the caller sets the rows as usual."""
+        ok = (staged is not None and staged is self._staged and staged[0] is state and staged[1] == self._pin
+              and staged[2] is rows and self.regions is None and (staged[3] is not None or not self._checks_jump()))
+        if not ok:
+            return False
+        self._not_in_flight(state, in_flight)
+        self._check_rows(state, rows)
+        state.pose_fresh = True
+        self._rows_set = rows
+        return True
+
+    @staticmethod
+    def rows_landed(state: State, rows: np.ndarray) -> None:
+        """After a launch whose rows :meth:`set_rows_late` set: the frame's end poses into the host's
+        [start, end] rows, as the launch leaves them (both the frame's end)."""
+        state.pose_host[1] = rows
+        state.pose_host[0] = rows
+
     def stage_pose_rows(self, state: State, rows: np.ndarray, in_flight: State | None):
         """While a frame of ``state`` is in flight, fill the next frame's upload buffer with its start
         (the frame in flight's end) and ``rows`` (its end, :meth:`pose_rows`), so that the host copy

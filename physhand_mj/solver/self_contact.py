@@ -564,6 +564,13 @@ class SelfContact:
         self.every = int(config.self_every)  # Tuning.self_every: frames one list serves
         self.query_now = True  # (begin_frame: whether this frame lists anew, and for which state's id)
         self._listed_for = None
+        # the frame's figures report() reads (counts, corrections, vertices queried, per world wcounts):
+        # on CUDA copied into pinned host rows after the frame's launches (copy_report), so the frame's one
+        # sync brings them instead of a device read (a host round trip) each; on the CPU the arrays themselves
+        self._figures = [self.counts, self.active, self.query.qcount, self.wcounts]
+        self._figures_host = ([wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True) for a in self._figures]
+                              if wp.get_device(d).is_cuda else self._figures)
+        self._figures_np = [a.numpy() for a in self._figures_host]  # (views, made once)
 
     def build(self, state) -> wp.Bvh:
         """The BVH over the skin triangles of ``state`` (built once, at the first frame recorded; every
@@ -671,11 +678,19 @@ class SelfContact:
             rec.launch(apply, self.n_skin, [self.icount, self.involved],
                        [state.x, self.delta, self.hits, state.x_prev, self.dprev], count=self.icount)
 
+    def copy_report(self) -> None:
+        """CUDA: queue the copies of the frame's figures to the host rows :meth:`report` and
+        :meth:`report_worlds` read (Solver._queue_frame, after the frame's launches: the frame's sync
+        waits for them). The CPU reads the arrays themselves."""
+        if self._figures_host is not self._figures:
+            for host, dev in zip(self._figures_host, self._figures):
+                wp.copy(host, dev)
+
     def report(self) -> dict:
         """The last frame's figures (every world's together): vertices queried, listed vertices and
         pairs, corrections made (summed over passes); per world: :meth:`report_worlds`."""
-        c = self.counts.numpy()
-        q = int(self.query.qcount.numpy()[0]) if self.query_now else 0
+        c, active, qcount, _ = self._figures_np
+        q = int(qcount[0]) if self.query_now else 0
         cfg = self.config
         # the frame's self-collision launches that ran on the CPU (CUDA runs the fixed set, each
         # thread past its list returning): the motion bound's five, the query's four with any
@@ -692,10 +707,10 @@ class SelfContact:
             if edges["self_edge_pairs"]:
                 ops += cfg.self_passes * cfg.substeps * (1 if c[0] else 2)
         return dict(**edges, self_queried=q, self_ops_run=ops, self_vertices=int(c[0]), self_pairs=int(c[2]), self_pairs_over=int(c[3]),
-                    self_corrections=int(self.active.numpy()[0]))
+                    self_corrections=int(active[0]))
 
     def report_worlds(self) -> np.ndarray:
         """(W, 4) the last frame's per-world figures: listed vertices, pairs, pairs over SLOTS,
         corrections (:meth:`report`'s ``self_vertices``, ``self_pairs``, ``self_pairs_over``,
         ``self_corrections`` of each world)."""
-        return self.wcounts.numpy()[:, :4].copy()
+        return self._figures_np[3][:, :4].copy()

@@ -188,32 +188,49 @@ class Solver:
         self.launch(state)
         return self.finish(state)
 
-    def launch(self, state: State, staged=None) -> None:
+    def launch(self, state: State, staged=None, rows: np.ndarray | None = None) -> None:
         """The frame's first half: every decision made before it (the poses, sleeping, the work
         set), its launches queued on the device (on CUDA one graph) with the copies of its reports.
         :meth:`finish` waits for it and reads them; until then the host is free (a batch checks the
         next frame's poses meanwhile: BatchedHands.submit) and ``state`` must not be read or
-        changed. One frame in flight at a time. ``staged``: :meth:`stage_pose_rows`' token."""
+        changed. One frame in flight at a time. ``staged``: :meth:`stage_pose_rows`' token.
+        ``rows``: the frame's end poses (:meth:`pose_rows`), set as :meth:`set_body_pose_rows` would
+        before the launch; with ``staged`` made for these very rows and no sleep test to take before
+        the launch, their host copy is made after the frame is queued (:meth:`PoseInput.set_rows_late`)."""
         if self._in_flight is not None:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
-        pin, frame_poses = self.poses.frame_poses_in(state, staged)  # (the frame's poses, their upload buffer)
-        if self.contact is not None:  # (Config.contact_linear: planes made for another state are dropped)
-            self.contact.forget_planes(state)
-        # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
-        # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
-        rigid = self.sleep.bones_still(state) if self.sleep.settled(state) else None
-        if self.regions is not None:
-            self.regions.before_frame(*frame_poses)
-        # a frame that may sleep on CUDA graphs uploads its poses inside its graph (sleep.py); else now
-        upload = pin if rigid and self.regions is None and self._capturable() else None
-        if upload is None:
-            wp.copy(state.body_pose, pin)
-        if self.regions is not None:
-            self.regions.apply(state)
+        late = None
+        if rows is not None:
+            if not self.sleep.settled(state) and self.poses.set_rows_late(state, rows, staged, None):
+                late = rows  # (no decision before the frame's launch reads the host rows: sleep.py's test would)
+            else:
+                self.set_body_pose_rows(state, rows)
+        try:
+            pin, frame_poses = self.poses.frame_poses_in(state, staged)  # (the frame's poses, their upload buffer)
+            if self.contact is not None:  # (Config.contact_linear: planes made for another state are dropped)
+                self.contact.forget_planes(state)
+            # the sleep test's bone conditions (activity.py), from the poses on the host: before the frame
+            # only for a settled hand (may it sleep?), else after it and only if no vertex was fast
+            rigid = self.sleep.bones_still(state) if self.sleep.settled(state) else None
+            if self.regions is not None:
+                self.regions.before_frame(*frame_poses)
+            # a frame that may sleep on CUDA graphs uploads its poses inside its graph (sleep.py); else now
+            upload = pin if rigid and self.regions is None and self._capturable() else None
+            if upload is None:
+                wp.copy(state.body_pose, pin)
+            if self.regions is not None:
+                self.regions.apply(state)
+        except BaseException:
+            if late is not None:  # (no frame queued: the rows stay set, as set_body_pose_rows leaves them)
+                state.pose_host[1] = late
+            raise
         try:
             self._queue_frame(state, rigid, frame_poses, upload)
         finally:  # (after the frame is queued: the host copy is off the device's critical path)
-            state.pose_host[0] = state.pose_host[1]
+            if late is not None:
+                self.poses.rows_landed(state, late)
+            else:
+                state.pose_host[0] = state.pose_host[1]
             state.pose_fresh = False
 
     def _queue_frame(self, state: State, rigid, frame_poses, upload=None) -> None:
@@ -266,6 +283,8 @@ class Solver:
         wp.copy(self._guard_host, state.guard)
         if self.contact is not None:
             self.contact.copy_metrics()
+        if self.selfc is not None:
+            self.selfc.copy_report()
         if self.regions is not None:
             self.regions.copy_back()
         self._in_flight = (state, ops, rigid, frame_poses)
