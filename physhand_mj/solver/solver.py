@@ -201,7 +201,7 @@ class Solver:
             raise RuntimeError("a frame is in flight: Solver.finish(state) before the next launch")
         late = None
         if rows is not None:
-            if not self.sleep.settled(state) and self.poses.set_rows_late(state, rows, staged, None):
+            if not self.sleep.settled(state) and self.poses.set_rows_late(state, rows, staged, self._state_in_flight()):
                 late = rows  # (no decision before the frame's launch reads the host rows: sleep.py's test would)
             else:
                 self.set_body_pose_rows(state, rows)
