@@ -102,15 +102,19 @@ class PoseInput:
         queued (the upload buffer already holds them; at W = 4,096 worlds the host copy takes ~0.5 ms,
         which would otherwise lie between one frame's end and the next one's launch). False (nothing
         set) where the token does not fit: the caller sets the rows as usual."""
-        ok = (staged is not None and staged is self._staged and staged[0] is state and staged[1] == self._pin
-              and staged[2] is rows and self.regions is None and (staged[3] is not None or not self._checks_jump()))
-        if not ok:
+        if not (self._token_fits(staged, state, rows) and (staged[3] is not None or not self._checks_jump())):
             return False
         self._not_in_flight(state, in_flight)
         self._check_rows(state, rows)
         state.pose_fresh = True
         self._rows_set = rows
         return True
+
+    def _token_fits(self, staged, state: State, rows) -> bool:
+        """Whether ``staged`` is the last token staged, for ``state``, in the buffer the next launch
+        uploads from, holding these very ``rows`` (no per-region sleeping: it stages nothing)."""
+        return (staged is not None and staged is self._staged and staged[0] is state and staged[1] == self._pin
+                and rows is not None and staged[2] is rows and self.regions is None)
 
     @staticmethod
     def rows_landed(state: State, rows: np.ndarray) -> None:
@@ -156,9 +160,7 @@ class PoseInput:
         token) is the last one staged for this state and these rows. Returns (the buffer, the
         frame's (start, end) rows on the host: the start a view of the buffer, filled again two
         frames on, after this frame's finish; the end until the next set_body_poses)."""
-        staged = (staged if staged is not None and staged is self._staged and staged[0] is state
-                  and staged[1] == self._pin and staged[2] is self._rows_set and state.pose_fresh
-                  and self.regions is None else None)
+        staged = staged if self._token_fits(staged, state, self._rows_set) and state.pose_fresh else None
         self._staged = None
         if not state.pose_fresh:  # (without a new pose the bones stay)
             state.pose_host[1] = state.pose_host[0]
